@@ -1,0 +1,39 @@
+# Set-up and main jobs. Each target creates .venv if missing and installs what it needs.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.cvj-installed
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+
+DEMO_SCENE    ?= config/scenes/fwd_halfshaft.yaml
+DEMO_DURATION ?= 3.0
+DEMO_OUT      ?= runs/demo
+
+.PHONY: all setup demo test test-fast bench clean
+
+all: test
+
+$(STAMP): setup.py setup.cfg package.xml requirements.txt requirements-ros.txt
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements.txt
+	@$(PY) -c "import rclpy" 2>/dev/null || { echo "rclpy not importable: installing ROS 2 Jazzy wheels"; \
+	  $(PY) -m pip install -q --disable-pip-version-check -r requirements-ros.txt; }
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+	@touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) --overwrite
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not e2e and not colcon"
+
+bench: $(STAMP)
+	$(VENV)/bin/cvj-sim bench --out bench_out
+
+clean:
+	rm -rf build install log runs bench_out *.egg-info

@@ -1,0 +1,47 @@
+"""Project errors.
+
+Every error a user can cause derives from :class:`CvjError`; the CLI prints
+``str(err)`` as one line and exits non-zero, never a traceback. Messages start with
+the offending field or parameter: ``"joints[1].beta_deg: must be < 90, got 95"``.
+"""
+from __future__ import annotations
+
+
+class CvjError(Exception):
+    """Base class of all user-facing cvj_ros errors."""
+
+
+class GeometryError(CvjError, ValueError):
+    """Invalid joint geometry (beta >= 90 deg for Hooke, r >= l for a tripod, NaN ...).
+
+    Attributes:
+        parameter: name of the offending parameter (e.g. ``"beta"``).
+    """
+
+    def __init__(self, parameter: str, message: str) -> None:
+        self.parameter = parameter
+        super().__init__(f'{parameter}: {message}')
+
+
+class SceneError(CvjError, ValueError):
+    """Invalid scene file or scene field.
+
+    Attributes:
+        field: dotted path of the offending field (e.g. ``"elements[2].stiffness"``).
+    """
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        super().__init__(f'{field}: {message}')
+
+
+class SolverError(CvjError, RuntimeError):
+    """Integration failed (step size underflow, non-finite state)."""
+
+
+class BagError(CvjError):
+    """A bag is missing, unreadable or lacks a needed topic."""
+
+
+class LockstepError(CvjError, RuntimeError):
+    """The lockstep loop cannot continue (peer timeout, bad stamp, non-finite torque)."""

@@ -1,0 +1,1 @@
+"""Thin rclpy adapters around :mod:`cvj_ros.physics`; one node class per module."""

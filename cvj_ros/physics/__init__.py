@@ -1,0 +1,1 @@
+"""Pure physics core: no ROS import. Joints, driveline, engine, load, solvers, metrics."""

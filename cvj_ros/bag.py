@@ -1,0 +1,531 @@
+"""rosbag2 bags of cvj_ros runs: writing (raw CDR, no round trip) and typed reading.
+
+Writing goes through ``rosbags`` (``rosbags.rosbag2.Writer``, format version 9,
+storage ``mcap`` by default or ``sqlite3``); reading through
+``rosbags.highlevel.AnyReader``, which opens both storages.
+
+Record timestamps (the bag's time axis) are simulated time, so a lockstep run gives
+the same bag twice (DESIGN.md section 3, docs/contracts.md "Topics and bags"):
+
+* ``/clock`` (rosgraph_msgs/Clock): its ``clock`` field;
+* stamped data (sensor_msgs/JointState, geometry_msgs/WrenchStamped): ``header.stamp``;
+* everything else (``/driveline/scene``, ``/diagnostics``, ``/engine/throttle``): the
+  latest ``/clock`` time seen by the recorder (0 before the first ``/clock``).
+  ``/diagnostics`` headers may carry wall-clock stamps, so they are not used.
+
+Both stamped layouts put a ``builtin_interfaces/Time`` first in the message, so the
+stamp is read from the CDR bytes directly (``int32 sec``, ``uint32 nanosec`` right
+after the 4-byte encapsulation header) without deserialising the message.
+
+:class:`BagRecorder` (rclpy) lives in this module too, but rclpy is imported lazily so
+the reading helpers work without a ROS installation.
+"""
+from __future__ import annotations
+
+import fnmatch
+import shutil
+import struct
+import threading
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from cvj_ros.errors import BagError
+
+SCENE_TOPIC = '/driveline/scene'
+CLOCK_TOPIC = '/clock'
+JOINT_STATES_TOPIC = '/driveline/joint_states'
+
+# Topic contract (DESIGN.md section 2): topic -> rosbags message type name.
+TOPIC_TYPES: dict[str, str] = {
+    CLOCK_TOPIC: 'rosgraph_msgs/msg/Clock',
+    JOINT_STATES_TOPIC: 'sensor_msgs/msg/JointState',
+    '/engine/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/load/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/engine/throttle': 'std_msgs/msg/Float64',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    SCENE_TOPIC: 'std_msgs/msg/String',
+}
+# Pattern topics: `/coupling/<joint>/wrench`.
+PATTERN_TYPES: dict[str, str] = {
+    '/coupling/*/wrench': 'geometry_msgs/msg/WrenchStamped',
+}
+# Types whose first field is a builtin_interfaces/Time used as record timestamp.
+STAMPED_TYPES = frozenset({
+    'rosgraph_msgs/msg/Clock',
+    'sensor_msgs/msg/JointState',
+    'geometry_msgs/msg/WrenchStamped',
+})
+STORAGES = ('mcap', 'sqlite3')
+BAG_VERSION = 9
+
+_TYPESTORE = None
+
+
+def typestore() -> Any:
+    """The rosbags type store for ROS 2 Jazzy (created once)."""
+    global _TYPESTORE
+    if _TYPESTORE is None:
+        from rosbags.typesys import Stores, get_typestore
+        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+    return _TYPESTORE
+
+
+def topic_type(topic: str) -> str | None:
+    """rosbags type name of a contract topic (``None`` if the topic is not in the contract)."""
+    if topic in TOPIC_TYPES:
+        return TOPIC_TYPES[topic]
+    for pattern, msgtype in PATTERN_TYPES.items():
+        if fnmatch.fnmatchcase(topic, pattern):
+            return msgtype
+    return None
+
+
+def cdr_stamp_ns(data: bytes | memoryview) -> int:
+    """Leading ``builtin_interfaces/Time`` of a CDR message, in ns.
+
+    Layout (OMG CDR, as used by rmw): 4-byte encapsulation header (byte 1 = 1 for little
+    endian), then ``int32 sec``, ``uint32 nanosec``.
+    """
+    if len(data) < 12:
+        raise BagError(f'message: too short for a stamp ({len(data)} bytes)')
+    fmt = '<iI' if data[1] == 1 else '>iI'
+    sec, nanosec = struct.unpack_from(fmt, data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _storage_plugin(storage: str) -> Any:
+    from rosbags.rosbag2 import StoragePlugin
+    if storage not in STORAGES:
+        raise BagError(f'storage: must be one of {", ".join(STORAGES)}, got {storage!r}')
+    return StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+
+
+class BagWriter:
+    """Thread-safe rosbag2 writer of raw CDR messages (no ROS needed).
+
+    Args:
+        path: bag directory to create (must not exist unless ``overwrite``).
+        storage: ``'mcap'`` (default) or ``'sqlite3'``.
+        overwrite: delete an existing ``path`` first.
+    """
+
+    def __init__(self, path: str | Path, *, storage: str = 'mcap', overwrite: bool = False) -> None:
+        from rosbags.rosbag2 import Writer
+        self.path = Path(path)
+        plugin = _storage_plugin(storage)
+        if self.path.exists():
+            if not overwrite:
+                raise BagError(f'{self.path}: bag exists already (use --overwrite)')
+            shutil.rmtree(self.path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.storage = storage
+        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugin)
+        self._writer.open()
+        self._connections: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self.counts: dict[str, int] = {}
+        self.closed = False
+
+    def add_topic(self, topic: str, msgtype: str | None = None) -> None:
+        """Register a topic (``msgtype`` like ``'sensor_msgs/msg/JointState'``; default from the contract)."""
+        msgtype = msgtype or topic_type(topic)
+        if msgtype is None:
+            raise BagError(f'{topic}: unknown message type')
+        with self._lock:
+            if topic in self._connections or self.closed:
+                return
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=typestore())
+            self.counts[topic] = 0
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview) -> None:
+        """Append one raw CDR message with record time ``timestamp_ns`` (ns)."""
+        with self._lock:
+            if self.closed:
+                return
+            conn = self._connections.get(topic)
+            if conn is None:
+                raise BagError(f'{topic}: topic not registered')
+            self._writer.write(conn, int(timestamp_ns), bytes(data))
+            self.counts[topic] += 1
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Store ``key: value`` in metadata.yaml ``custom_data`` (rosbag2 format version 9)."""
+        with self._lock:
+            if not self.closed:
+                self._writer.set_custom_data(key, value)
+
+    def close(self) -> None:
+        """Finalise the bag (metadata.yaml, mcap summary); idempotent."""
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            self._writer.close()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass
+class JointStateSeries:
+    """``/driveline/joint_states`` as arrays: ``t`` (s, header stamps), ``names``,
+    ``position`` (rad), ``velocity`` (rad/s), ``effort`` (N m), each (n_msgs, n_joints)."""
+    t: np.ndarray
+    names: list[str]
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    record_t: np.ndarray
+
+    def shaft(self, name: str) -> int:
+        """Column index of shaft ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise BagError(f'{name}: no such joint in joint states ({", ".join(self.names)})') from None
+
+
+@dataclass
+class WrenchSeries:
+    """A WrenchStamped topic as arrays: ``t`` (s), ``force`` (N, (n, 3)), ``torque`` (N m, (n, 3))."""
+    t: np.ndarray
+    force: np.ndarray
+    torque: np.ndarray
+    frame_id: str
+    record_t: np.ndarray
+
+    @property
+    def torque_z(self) -> np.ndarray:
+        """``torque.z`` (N m), the torque about the shaft axis."""
+        return self.torque[:, 2]
+
+
+@dataclass
+class ScalarSeries:
+    """A Float64 or Clock topic: ``t`` (s), ``value`` (message value; for /clock the clock in s)."""
+    t: np.ndarray
+    value: np.ndarray
+    record_t: np.ndarray
+
+
+@dataclass
+class TextSeries:
+    """A String topic: ``t`` (s, record time) and ``data`` (the strings)."""
+    t: np.ndarray
+    data: list[str]
+    record_t: np.ndarray
+
+
+@dataclass
+class DiagnosticsSeries:
+    """``/diagnostics``: ``t`` (s, record time) and per message a list of statuses
+    ``{'name', 'level', 'message', 'hardware_id', 'values': {key: value}}``."""
+    t: np.ndarray
+    statuses: list[list[dict[str, Any]]]
+    record_t: np.ndarray
+
+
+@dataclass
+class BagInfo:
+    """Summary of a bag: ``storage`` id, ``counts`` per topic, ``types`` per topic,
+    ``start``/``end`` record times (s) and metadata ``custom_data``."""
+    path: Path
+    storage: str
+    counts: dict[str, int]
+    types: dict[str, str]
+    start: float
+    end: float
+    custom_data: dict[str, str] = field(default_factory=dict)
+
+
+def _check_bag(path: str | Path) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f'{p}: no such bag')
+    if p.is_dir() and not (p / 'metadata.yaml').exists():
+        raise BagError(f'{p}: not a rosbag2 bag (no metadata.yaml; was the recording finalised?)')
+    return p
+
+
+def _open_reader(path: str | Path) -> Any:
+    from rosbags.highlevel import AnyReader
+    p = _check_bag(path)
+    try:
+        reader = AnyReader([p], default_typestore=typestore())
+        reader.open()
+    except Exception as exc:  # rosbags raises several types for unreadable bags
+        raise BagError(f'{p}: cannot read bag: {exc}') from exc
+    return reader
+
+
+def bag_info(path: str | Path) -> BagInfo:
+    """Topics, types, counts, time range and custom data of a bag."""
+    p = _check_bag(path)
+    reader = _open_reader(p)
+    try:
+        counts: dict[str, int] = {}
+        types: dict[str, str] = {}
+        for conn in reader.connections:
+            counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
+            types[conn.topic] = conn.msgtype
+        start = reader.start_time * 1e-9 if reader.message_count else 0.0
+        end = reader.end_time * 1e-9 if reader.message_count else 0.0
+    finally:
+        reader.close()
+    meta = yaml.safe_load((p / 'metadata.yaml').read_text()) if p.is_dir() else {}
+    info = (meta or {}).get('rosbag2_bagfile_information', {})
+    storage = info.get('storage_identifier', '')
+    custom = info.get('custom_data') or {}
+    return BagInfo(p, storage, counts, types, start, end, dict(custom))
+
+
+def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> list[tuple[str, str, int, bytes]]:
+    """All messages as ``(topic, msgtype, record_time_ns, cdr_bytes)`` in record-time order."""
+    reader = _open_reader(path)
+    try:
+        conns = _select(reader, topics, path)
+        return [(c.topic, c.msgtype, ts, bytes(raw)) for c, ts, raw in reader.messages(connections=conns)]
+    finally:
+        reader.close()
+
+
+def _select(reader: Any, topics: Iterable[str] | None, path: str | Path) -> list[Any]:
+    if topics is None:
+        return list(reader.connections)
+    wanted = list(topics)
+    present = {c.topic for c in reader.connections}
+    for topic in wanted:
+        if not any(fnmatch.fnmatchcase(t, topic) for t in present):
+            raise BagError(f'{topic}: topic not in bag {path}')
+    return [c for c in reader.connections if any(fnmatch.fnmatchcase(c.topic, w) for w in wanted)]
+
+
+def _stamp_s(stamp: Any) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str, Any]:
+    """Read a bag (mcap or sqlite3) into typed numpy series, one per topic.
+
+    Args:
+        path: bag directory.
+        topics: topic names or glob patterns (``'/coupling/*/wrench'``); ``None`` = all.
+
+    Returns:
+        ``{topic: series}`` with :class:`JointStateSeries` (JointState),
+        :class:`WrenchSeries` (WrenchStamped), :class:`ScalarSeries` (Float64, Clock),
+        :class:`TextSeries` (String), :class:`DiagnosticsSeries` (DiagnosticArray).
+        Times ``t`` in s (header stamp where the message has one, else record time).
+
+    Raises:
+        BagError: missing bag, unreadable bag, or a requested topic absent (named).
+    """
+    reader = _open_reader(path)
+    rows: dict[str, list[tuple[int, Any]]] = {}
+    types: dict[str, str] = {}
+    try:
+        for conn, ts, raw in reader.messages(connections=_select(reader, topics, path)):
+            rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
+            types[conn.topic] = conn.msgtype
+        for conn in reader.connections:  # topics with zero messages
+            if topics is None or conn.topic in rows or any(
+                    fnmatch.fnmatchcase(conn.topic, w) for w in topics):
+                types.setdefault(conn.topic, conn.msgtype)
+                rows.setdefault(conn.topic, [])
+    finally:
+        reader.close()
+    return {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
+
+
+def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
+    rec = np.array([ts * 1e-9 for ts, _ in msgs], dtype=float)
+    if msgtype == 'sensor_msgs/msg/JointState':
+        names = list(msgs[0][1].name) if msgs else []
+        n = len(names)
+
+        def col(attr: str) -> np.ndarray:
+            out = np.full((len(msgs), n), np.nan)
+            for i, (_, m) in enumerate(msgs):
+                v = np.asarray(getattr(m, attr), dtype=float)
+                if list(m.name) != names:
+                    raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+                if v.size == n:
+                    out[i] = v
+            return out
+        t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
+        return JointStateSeries(t, names, col('position'), col('velocity'), col('effort'), rec)
+    if msgtype == 'geometry_msgs/msg/WrenchStamped':
+        t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
+        force = np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for _, m in msgs],
+                         dtype=float).reshape(-1, 3)
+        torque = np.array([[m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z] for _, m in msgs],
+                          dtype=float).reshape(-1, 3)
+        frame = msgs[0][1].header.frame_id if msgs else ''
+        return WrenchSeries(t, force, torque, frame, rec)
+    if msgtype == 'rosgraph_msgs/msg/Clock':
+        value = np.array([_stamp_s(m.clock) for _, m in msgs], dtype=float)
+        return ScalarSeries(value.copy(), value, rec)
+    if msgtype == 'std_msgs/msg/Float64':
+        return ScalarSeries(rec.copy(), np.array([m.data for _, m in msgs], dtype=float), rec)
+    if msgtype == 'std_msgs/msg/String':
+        return TextSeries(rec.copy(), [m.data for _, m in msgs], rec)
+    if msgtype == 'diagnostic_msgs/msg/DiagnosticArray':
+        statuses = [[{'name': s.name, 'level': int(s.level), 'message': s.message,
+                      'hardware_id': s.hardware_id,
+                      'values': {kv.key: kv.value for kv in s.values}} for s in m.status]
+                    for _, m in msgs]
+        return DiagnosticsSeries(rec.copy(), statuses, rec)
+    return [m for _, m in msgs]  # other types: the deserialised messages
+
+
+def read_scene_message(path: str | Path) -> dict[str, Any]:
+    """The ``/driveline/scene`` YAML of a bag as a dict (keys ``scene``, ``seed``, ``fidelity``,
+    ``mode``, ``coupling_scheme``); falls back to metadata ``custom_data['cvj_ros.scene']``."""
+    info = bag_info(path)
+    if info.counts.get(SCENE_TOPIC):
+        text = read_bag(path, [SCENE_TOPIC])[SCENE_TOPIC].data[0]
+    elif 'cvj_ros.scene' in info.custom_data:
+        text = info.custom_data['cvj_ros.scene']
+    else:
+        raise BagError(f'{SCENE_TOPIC}: topic not in bag {path}')
+    data = yaml.safe_load(text)
+    if not isinstance(data, dict):
+        raise BagError(f'{SCENE_TOPIC}: not a YAML mapping in bag {path}')
+    return data
+
+
+def load_torque_series(bag: str | Path, topic: str = '/load/wrench') -> tuple[np.ndarray, np.ndarray]:
+    """Recorded torque of a WrenchStamped topic: ``(t, torque_z)`` in (s, N m).
+
+    Samples are sorted by stamp; duplicate stamps keep the last sample.
+
+    Raises:
+        BagError: missing bag, topic absent, or no messages on it.
+    """
+    series = read_bag(bag, [topic])[topic]
+    if not isinstance(series, WrenchSeries):
+        raise BagError(f'{topic}: not a geometry_msgs/WrenchStamped topic')
+    if series.t.size == 0:
+        raise BagError(f'{topic}: no messages in bag {bag}')
+    order = np.argsort(series.t, kind='stable')
+    t, tz = series.t[order], series.torque_z[order]
+    keep = np.append(np.diff(t) > 0, True)
+    return t[keep], tz[keep]
+
+
+# --------------------------------------------------------------------------- recording (rclpy)
+
+
+def _msg_class(msgtype: str) -> Any:
+    """rclpy message class for a rosbags type name (``'pkg/msg/Type'``)."""
+    import importlib
+    pkg, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+
+class BagRecorder:
+    """Records ROS topics of a run to a bag: raw CDR from ``raw=True`` subscriptions.
+
+    Record timestamps are simulated time (module docstring). The recorder subscribes to
+    the contract topics at once (so the coupling node sees it matched before step 0) and
+    to any further ``/coupling/*/wrench`` topic it discovers (``discover_period``).
+
+    Args:
+        node: an rclpy node to create subscriptions on (the caller spins it).
+        writer: the open :class:`BagWriter`.
+        topics: extra topics to subscribe to at once, e.g. the scene's
+            ``/coupling/<joint>/wrench`` (contract types).
+        discover_period: seconds between graph scans for new pattern topics (0 = off).
+    """
+
+    def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
+                 discover_period: float = 0.2) -> None:
+        self.node = node
+        self.writer = writer
+        self.clock_ns = 0
+        self.last_message_wall = 0.0
+        self.scene_text: str | None = None
+        self._subs: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        for topic in list(TOPIC_TYPES) + list(topics):
+            self.subscribe(topic)
+        self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written per topic."""
+        return dict(self.writer.counts)
+
+    def subscribe(self, topic: str, msgtype: str | None = None) -> None:
+        """Subscribe to ``topic`` (raw CDR) and register it in the bag."""
+        msgtype = msgtype or topic_type(topic)
+        if msgtype is None:
+            raise BagError(f'{topic}: unknown message type')
+        with self._lock:
+            if topic in self._subs:
+                return
+            self.writer.add_topic(topic, msgtype)
+            qos = recorder_qos(latched=topic == SCENE_TOPIC)
+            stamped = msgtype in STAMPED_TYPES
+            is_clock = topic == CLOCK_TOPIC
+
+            def callback(data: bytes, _topic: str = topic) -> None:
+                self._on_message(_topic, data, stamped=stamped, is_clock=is_clock)
+            self._subs[topic] = self.node.create_subscription(
+                _msg_class(msgtype), topic, callback, qos, raw=True)
+
+    def _on_message(self, topic: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
+        import time
+        stamp = cdr_stamp_ns(data) if stamped else self.clock_ns
+        if is_clock:
+            self.clock_ns = max(self.clock_ns, stamp)
+        if topic == SCENE_TOPIC and self.scene_text is None:
+            self.scene_text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
+            self.writer.set_custom_data('cvj_ros.scene', self.scene_text)
+        self.writer.write(topic, stamp, data)
+        self.last_message_wall = time.monotonic()
+
+    def discover(self) -> None:
+        """Subscribe to pattern topics (``/coupling/*/wrench``) that appeared in the graph."""
+        for topic, _types in self.node.get_topic_names_and_types():
+            if topic not in self._subs and topic_type(topic) is not None:
+                self.subscribe(topic)
+
+    def destroy(self) -> None:
+        """Remove the subscriptions and timer (the caller closes the writer)."""
+        with self._lock:
+            for sub in self._subs.values():
+                self.node.destroy_subscription(sub)
+            self._subs.clear()
+        if self._timer is not None:
+            self.node.destroy_timer(self._timer)
+            self._timer = None
+
+
+def recorder_qos(*, latched: bool = False) -> Any:
+    """QoS matching the publishers: ``cvj_ros.nodes.qos`` DATA_QOS / LATCHED_QOS
+    (reliable, keep_last 1000; latched: reliable, transient_local, depth 1)."""
+    try:
+        from cvj_ros.nodes import qos as node_qos
+        return node_qos.LATCHED_QOS if latched else node_qos.DATA_QOS
+    except (ImportError, AttributeError):
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        if latched:
+            return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        return QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)

@@ -1,0 +1,477 @@
+"""Shared pieces of the cvj_ros nodes: parameters, stamps, diagnostics, the main loop.
+
+Parameters are declared from :class:`ParamSpec` lists with a full
+``ParameterDescriptor`` (description with unit, FloatingPointRange / IntegerRange,
+read_only) and validated on start; a bad value raises :class:`ParameterError` whose
+message starts with the parameter name, and :func:`run_node` turns it into one line on
+stderr and exit status 2 (runtime errors exit 1, a normal end 0).
+
+Stamps are integer nanoseconds of simulated time everywhere (t_k = k * h_ns), so the
+lockstep handshake compares stamps exactly and runs are reproducible bit for bit.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.context import Context
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterException)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from cvj_ros.errors import CvjError
+
+NS_PER_S = 1_000_000_000
+
+# DiagnosticStatus levels (bytes in rclpy).
+OK = DiagnosticStatus.OK
+WARN = DiagnosticStatus.WARN
+ERROR = DiagnosticStatus.ERROR
+STALE = DiagnosticStatus.STALE
+
+EXIT_OK, EXIT_RUNTIME, EXIT_PARAMETER = 0, 1, 2
+
+
+class ParameterError(CvjError, ValueError):
+    """Invalid ROS parameter; ``str()`` starts with the parameter name."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        self.parameter = parameter
+        super().__init__(f'{parameter}: {message}')
+
+
+# --- parameters -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter.
+
+    Attributes:
+        name: parameter name.
+        default: default value; its Python type fixes the parameter type
+            (bool, int, float, str, list[str]).
+        description: meaning, with the unit in brackets (e.g. ``'exchange step [s]'``).
+        lo, hi: numeric bounds (inclusive unless ``lo_open`` / ``hi_open``).
+        choices: allowed string values.
+        read_only: cannot be changed after start.
+    """
+
+    name: str
+    default: Any
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple[str, ...] | None = None
+    read_only: bool = True
+
+    @property
+    def kind(self) -> type:
+        return type(self.default)
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The rclpy descriptor: description, range, read_only, type."""
+        d = ParameterDescriptor(name=self.name, read_only=self.read_only)
+        text = self.description
+        if self.choices:
+            text += f' (one of: {", ".join(self.choices)})'
+        d.description = text
+        if self.kind is float:
+            # Integers given on the command line (duration:=1) are accepted and converted.
+            d.dynamic_typing = True
+            if self.lo is not None and self.hi is not None:
+                d.floating_point_range = [FloatingPointRange(from_value=float(self.lo),
+                                                             to_value=float(self.hi), step=0.0)]
+        elif self.kind is int and not isinstance(self.default, bool):
+            d.type = ParameterType.PARAMETER_INTEGER
+            if self.lo is not None and self.hi is not None:
+                d.integer_range = [IntegerRange(from_value=int(self.lo), to_value=int(self.hi), step=0)]
+        elif self.kind is bool:
+            d.type = ParameterType.PARAMETER_BOOL
+        elif self.kind is str:
+            d.type = ParameterType.PARAMETER_STRING
+        elif self.kind is list:
+            d.type = ParameterType.PARAMETER_STRING_ARRAY
+        return d
+
+    def validate(self, value: Any) -> Any:
+        """Return the value converted to the spec's type or raise :class:`ParameterError`."""
+        name = self.name
+        if self.kind is float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ParameterError(name, f'must be a number, got {value!r}')
+            value = float(value)
+            if not math.isfinite(value):
+                raise ParameterError(name, f'must be finite, got {value}')
+        elif self.kind is int and not isinstance(self.default, bool):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ParameterError(name, f'must be an integer, got {value!r}')
+        elif self.kind is bool:
+            if not isinstance(value, bool):
+                raise ParameterError(name, f'must be true or false, got {value!r}')
+        elif self.kind is str:
+            if not isinstance(value, str):
+                raise ParameterError(name, f'must be a string, got {value!r}')
+        elif self.kind is list:
+            if isinstance(value, str):
+                value = [value] if value else []
+            value = list(value or [])
+            if not all(isinstance(v, str) for v in value):
+                raise ParameterError(name, f'must be a list of strings, got {value!r}')
+        if self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)):
+            raise ParameterError(name, f'must be {">" if self.lo_open else ">="} {self.lo}, got {value}')
+        if self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)):
+            raise ParameterError(name, f'must be {"<" if self.hi_open else "<="} {self.hi}, got {value}')
+        if self.choices is not None and value not in self.choices:
+            raise ParameterError(name, f'must be one of {", ".join(self.choices)}; got {value!r}')
+        return value
+
+
+def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare ``specs`` on ``node`` and return their validated values by name.
+
+    Raises:
+        ParameterError: the first invalid value (rclpy's own range/type rejections included).
+    """
+    values: dict[str, Any] = {}
+    for spec in specs:
+        default = spec.default
+        if spec.kind is list:
+            default = Parameter('x', Parameter.Type.STRING_ARRAY, list(default)).value
+        try:
+            param = node.declare_parameter(spec.name, default, spec.descriptor())
+        except (InvalidParameterTypeException, InvalidParameterValueException,
+                ParameterException) as exc:
+            raise ParameterError(spec.name, _rclpy_reason(exc)) from None
+        value = param.value
+        if spec.kind is list and value is None:
+            value = []
+        values[spec.name] = spec.validate(value)
+    by_name = {s.name: s for s in specs}
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            spec = by_name.get(p.name)
+            if spec is None:
+                continue
+            try:
+                values[p.name] = spec.validate(p.value)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+    return values
+
+
+def _rclpy_reason(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return text[-1] if text else type(exc).__name__
+
+
+def parse_assignments(name: str, items: Iterable[str]) -> dict[str, str]:
+    """Parse a string list ``["joint=level", ...]`` into a dict (``ParameterError`` on bad items)."""
+    out: dict[str, str] = {}
+    for i, item in enumerate(items):
+        key, sep, val = item.partition('=')
+        if not sep or not key.strip() or not val.strip():
+            raise ParameterError(f'{name}[{i}]', f'expected "name=value", got {item!r}')
+        out[key.strip()] = val.strip()
+    return out
+
+
+def load_yaml_mapping(name: str, text: str) -> dict[str, Any]:
+    """Parse a YAML/JSON mapping given as a parameter string (empty -> {})."""
+    import yaml
+    if not text.strip():
+        return {}
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ParameterError(name, f'not valid YAML: {str(exc).splitlines()[0]}') from None
+    if not isinstance(data, dict):
+        raise ParameterError(name, f'must be a YAML mapping, got {type(data).__name__}')
+    return data
+
+
+# --- scene ------------------------------------------------------------------------------
+
+def load_scene_param(value: str) -> Any:
+    """Resolve the ``scene`` parameter (scene name or YAML path) to a Scene.
+
+    Raises:
+        ParameterError: naming ``scene`` and, for an invalid scene file, its field.
+    """
+    from cvj_ros.physics.scene import find_scene, load_scene
+    if not value.strip():
+        raise ParameterError('scene', 'must name a scene (e.g. kavz685_lever) or a scene YAML path')
+    try:
+        return load_scene(find_scene(value))
+    except CvjError as exc:
+        text = str(exc)
+        if text.startswith('scene: '):
+            text = text[len('scene: '):]
+        elif not text.startswith(value):
+            text = f'{value}: {text}'
+        raise ParameterError('scene', text) from None
+    except OSError as exc:
+        raise ParameterError('scene', f'{value}: {exc.strerror or exc}') from None
+
+
+def scene_dict(scene: Any) -> dict[str, Any]:
+    """The scene as a plain dict (``Scene.to_dict()``)."""
+    return scene.to_dict() if hasattr(scene, 'to_dict') else dict(scene)
+
+
+def inertia_names(scene: Any) -> list[str]:
+    """Names of the scene's inertias, engine side first (the shafts engine and load act on).
+
+    Reads ``Scene.to_dict()['driveline']``; an element is an inertia when its ``type``
+    (or ``element``/``kind``) is ``'inertia'`` or it is a one-key mapping ``{inertia: {...}}``.
+    """
+    names: list[str] = []
+    for el in scene_dict(scene).get('driveline', []) or []:
+        if not isinstance(el, Mapping):
+            continue
+        tag = el.get('type', el.get('element', el.get('kind')))
+        if tag == 'inertia' and 'name' in el:
+            names.append(str(el['name']))
+        elif len(el) == 1 and 'inertia' in el and isinstance(el['inertia'], Mapping):
+            names.append(str(el['inertia'].get('name')))
+    if not names:
+        raise ParameterError('scene', 'the scene has no inertia elements in its driveline')
+    return names
+
+
+def scene_seed(scene: Any, seed_param: int) -> int:
+    """Seed to use: the ``seed`` parameter when >= 0, else the scene's seed (default 0)."""
+    if seed_param >= 0:
+        return seed_param
+    seed = getattr(scene, 'seed', None)
+    if seed is None:
+        seed = scene_dict(scene).get('seed', 0)
+    return int(seed or 0)
+
+
+# --- stamps and diagnostics ---------------------------------------------------------------
+
+def ns_to_stamp(ns: int) -> Time:
+    """builtin_interfaces/Time from integer nanoseconds (simulated time)."""
+    return Time(sec=int(ns // NS_PER_S), nanosec=int(ns % NS_PER_S))
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """Integer nanoseconds of a builtin_interfaces/Time."""
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def diag_status(name: str, level: bytes, message: str, values: Mapping[str, Any] | None = None,
+                *, hardware_id: str = 'cvj_ros') -> DiagnosticStatus:
+    """A DiagnosticStatus with key/values (floats formatted with 6 significant digits)."""
+    kv = []
+    for k, v in (values or {}).items():
+        kv.append(KeyValue(key=str(k), value=f'{v:.6g}' if isinstance(v, float) else str(v)))
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                            values=kv)
+
+
+def diag_array(stamp_ns: int, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.status = list(statuses)
+    return msg
+
+
+def level_for(value: float, warn: float, error: float) -> bytes:
+    """OK below ``warn``, WARN below ``error``, ERROR at or above (NaN -> ERROR)."""
+    if not math.isfinite(value) or value >= error:
+        return ERROR
+    return WARN if value >= warn else OK
+
+
+# --- node base and main loop ----------------------------------------------------------------
+
+class CvjNode(Node):
+    """Node with an exit status: ``exit_code`` stays ``None`` while the node should keep running."""
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.exit_code: int | None = None
+        self.error_message: str | None = None
+
+    def fail(self, message: str, *, code: int = EXIT_RUNTIME) -> None:
+        """Log one ERROR line and ask the main loop to exit with ``code``."""
+        if self.exit_code is None:
+            self.error_message = message
+            self.get_logger().error(message)
+            self.exit_code = code
+
+    def finish(self) -> None:
+        if self.exit_code is None:
+            self.exit_code = EXIT_OK
+
+
+def make_executor(kind: str, context: Context) -> Any:
+    """'events' -> rclpy.experimental.EventsExecutor (about 8x faster round trip here),
+    'single' -> SingleThreadedExecutor."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor(context=context)
+
+
+def spin_until_done(node: CvjNode, executor: Any, *, timeout: float | None = None,
+                    poll: float = 0.2) -> int | None:
+    """Spin until ``node.exit_code`` is set, the context shuts down or ``timeout`` (s) passes."""
+    import time
+    deadline = None if timeout is None else time.monotonic() + timeout
+    ctx = node.context
+    while node.exit_code is None and ctx.ok():
+        executor.spin_once(timeout_sec=poll)
+        if deadline is not None and time.monotonic() > deadline:
+            break
+    return node.exit_code
+
+
+def run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, prog: str,
+             executor: str = 'events') -> int:
+    """Create the node, spin it until it finishes; returns the process exit status.
+
+    0: finished (or stopped by Ctrl-C / SIGTERM), 1: runtime error, 2: bad parameter or
+    scene (one line ``<prog>: error: <parameter>: <problem>`` on stderr, no traceback).
+    """
+    from rclpy.executors import ExternalShutdownException
+    ctx = Context()
+    rclpy.init(args=list(args) if args is not None else None, context=ctx)
+    node = None
+    try:
+        try:
+            node = factory(context=ctx)
+        except CvjError as exc:
+            print(f'{prog}: error: {exc}', file=sys.stderr)
+            return EXIT_PARAMETER
+        ex = make_executor(executor, ctx)
+        ex.add_node(node)
+        try:
+            spin_until_done(node, ex)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            return EXIT_OK
+        finally:
+            ex.shutdown()
+        code = node.exit_code  # a runtime error was already logged as one ERROR line
+        return EXIT_OK if code is None else code
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+
+
+# --- torque responders (engine_node, load_node) ----------------------------------------------
+
+class TorqueResponder(CvjNode):
+    """Answers every /driveline/joint_states sample with a WrenchStamped from a torque source.
+
+    ``torque.z`` = ``source.torque(t, omega, phi)`` (N m) at the speed omega (rad/s) and
+    unwrapped angle phi (rad) of shaft ``shaft`` in the joint-state message, t (s) = its
+    stamp; the answer's stamp echoes the joint-state stamp exactly and its frame_id is the
+    shaft name. A non-finite input or torque is never published: an ERROR diagnostic
+    names it (the coupling node then times out with a clear error).
+    """
+
+    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str) -> None:
+        """Create the publishers and the joint-state subscription (call once, after validation)."""
+        from geometry_msgs.msg import WrenchStamped
+        from sensor_msgs.msg import JointState
+
+        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC, JOINT_STATES_TOPIC
+        self._wrench_cls = WrenchStamped
+        self.source = source
+        self.shaft = shaft
+        self.answered = 0
+        self._names: list[str] | None = None
+        self._index = -1
+        self.last_stamp_ns = 0
+        self._wrench_topic = wrench_topic
+        self.wrench_pub = self.create_publisher(WrenchStamped, wrench_topic, DATA_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states,
+                                               DATA_QOS)
+
+    def _shaft_index(self, names: Sequence[str]) -> int:
+        if self._names is None or list(names) != self._names:
+            self._names = list(names)
+            self._index = self._names.index(self.shaft) if self.shaft in self._names else -1
+        return self._index
+
+    def report(self, level: bytes, message: str, values: Mapping[str, Any] | None = None) -> None:
+        """Publish one diagnostic status named after this node (and log it when not OK)."""
+        if level == ERROR:
+            self.get_logger().error(message)
+        elif level == WARN:
+            self.get_logger().warning(message)
+        self.diag_pub.publish(diag_array(self.last_stamp_ns, [
+            diag_status(f'{self.get_name()}', level, message, values)]))
+
+    def _on_joint_states(self, msg: Any) -> None:
+        self.last_stamp_ns = stamp_to_ns(msg.header.stamp)
+        i = self._shaft_index(msg.name)
+        if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
+            self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
+                               f'and velocity (names: {", ".join(msg.name)}); not answered')
+            return
+        omega, phi = float(msg.velocity[i]), float(msg.position[i])
+        if not (math.isfinite(omega) and math.isfinite(phi)):
+            self.report(ERROR, f'/driveline/joint_states: {self.shaft} position/velocity not finite '
+                               f'({phi}, {omega}); not answered')
+            return
+        t = self.last_stamp_ns / NS_PER_S
+        torque = float(self.source.torque(t, omega, phi))
+        if not math.isfinite(torque):
+            self.report(ERROR, f'{self._wrench_topic}: model torque not finite ({torque}) at '
+                               f't={t} s, omega={omega} rad/s; not published')
+            return
+        out = self._wrench_cls()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = self.shaft
+        out.wrench.torque.z = torque
+        self.wrench_pub.publish(out)
+        self.answered += 1
+
+
+def load_torque_series_file(name: str, path: str) -> tuple[Any, Any]:
+    """Read a load torque time series: ``.npz`` with arrays ``t`` (s) and ``torque`` (N m),
+    or YAML/JSON with the same keys as lists. Raises ParameterError naming ``name``."""
+    import numpy as np
+    import yaml
+    try:
+        if path.endswith('.npz'):
+            with np.load(path) as data:
+                t, torque = np.asarray(data['t'], float), np.asarray(data['torque'], float)
+        else:
+            with open(path, encoding='utf-8') as fh:
+                data = yaml.safe_load(fh)
+            if not isinstance(data, dict):
+                raise ParameterError(name, f'{path}: must be a mapping with keys t and torque')
+            t = np.asarray(data['t'], float)
+            torque = np.asarray(data['torque'], float)
+    except OSError as exc:
+        raise ParameterError(name, f'{path}: cannot read ({exc.strerror or exc})') from None
+    except KeyError as exc:
+        raise ParameterError(name, f'{path}: missing array {exc.args[0]!r} (need t and torque)') from None
+    except (ValueError, TypeError, yaml.YAMLError) as exc:
+        raise ParameterError(name, f'{path}: {str(exc).splitlines()[0]}') from None
+    if t.ndim != 1 or t.shape != torque.shape or t.size < 2:
+        raise ParameterError(name, f'{path}: t and torque must be 1-D arrays of equal length >= 2')
+    return t, torque

@@ -1,0 +1,169 @@
+"""engine_node in-process: answers joint states with the engine model's torque, echoes stamps,
+names the crank frame, rejects bad throttle values and bad parameters."""
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+
+from cvj_ros.nodes.common import ParameterError, make_executor, ns_to_stamp  # noqa: E402
+from cvj_ros.nodes.engine_node import EngineNode  # noqa: E402
+from cvj_ros.nodes.qos import DATA_QOS  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+M1, K1 = 600.0, 12.5     # linear engine of the test scene, seed 004 eq. 3.23
+
+
+def two_mass_scene(tmp_path, engine=None) -> str:
+    data = {
+        'name': 'two_mass_test', 'duration': 0.05, 'exchange_step': 0.001,
+        'engine': engine or {'model': 'linear', 'm1': M1, 'k1': K1},
+        'load': {'model': 'constant', 'torque': 100.0},
+        'initial': {'speed_rad_s': 30.0},
+        'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': 0.128},
+                      {'type': 'spring', 'name': 'shaft', 'stiffness': 715.4, 'damping': 6.35},
+                      {'type': 'inertia', 'name': 'wheel', 'J': 0.161}],
+    }
+    path = tmp_path / 'two_mass.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+@pytest.fixture
+def ctx():
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.shutdown(context=context)
+
+
+class Harness:
+    """Peer node: publishes joint states / throttle, collects wrenches and diagnostics."""
+
+    def __init__(self, ctx, node):
+        self.peer = rclpy.create_node('peer', context=ctx)
+        self.js_pub = self.peer.create_publisher(JointState, '/driveline/joint_states', DATA_QOS)
+        self.th_pub = self.peer.create_publisher(Float64, '/engine/throttle', DATA_QOS)
+        self.wrenches: list[WrenchStamped] = []
+        self.diags: list[DiagnosticArray] = []
+        self.peer.create_subscription(WrenchStamped, '/engine/wrench', self.wrenches.append, DATA_QOS)
+        self.peer.create_subscription(DiagnosticArray, '/diagnostics', self.diags.append, DATA_QOS)
+        self.ex = make_executor('events', ctx)
+        self.ex.add_node(self.peer)
+        self.ex.add_node(node)
+        self.spin_until(lambda: self.js_pub.get_subscription_count() >= 1
+                        and self.th_pub.get_subscription_count() >= 1
+                        and node.wrench_pub.get_subscription_count() >= 1
+                        and node.diag_pub.get_subscription_count() >= 1)
+
+    def spin_until(self, cond, timeout=5.0):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline, 'condition not reached'
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def send_js(self, ns, names, position, velocity):
+        msg = JointState()
+        msg.header.stamp = ns_to_stamp(ns)
+        msg.name, msg.position, msg.velocity = names, position, velocity
+        msg.effort = [0.0] * len(names)
+        self.js_pub.publish(msg)
+
+    def close(self):
+        self.ex.shutdown()
+        self.peer.destroy_node()
+
+
+def make_node(ctx, tmp_path, **params):
+    overrides = [Parameter('scene', value=two_mass_scene(tmp_path))]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return EngineNode(context=ctx, parameter_overrides=overrides)
+
+
+def test_answers_with_model_torque_echoed_stamp_and_crank_frame(ctx, tmp_path):
+    node = make_node(ctx, tmp_path)
+    h = Harness(ctx, node)
+    try:
+        samples = [(0, 0.0, 0.0), (1_000_000, 0.03, 30.0), (2_500_000_123, 7.5, 41.25)]
+        for ns, phi, omega in samples:
+            # crank is not the first name: the node must look it up by name
+            h.send_js(ns, ['wheel', 'engine_crank'], [0.0, phi], [1e3, omega])
+        h.spin_until(lambda: len(h.wrenches) == len(samples))
+        for (ns, _phi, omega), w in zip(samples, h.wrenches):
+            assert w.header.stamp.sec * 10**9 + w.header.stamp.nanosec == ns
+            assert w.header.frame_id == 'engine_crank'
+            # closed form of the linear characteristic, seed 004 eq. 3.23, N m
+            assert w.wrench.torque.z == pytest.approx(M1 - K1 * omega, rel=1e-12)
+            assert w.wrench.force.x == 0.0 and w.wrench.torque.x == 0.0
+    finally:
+        h.close()
+        node.destroy_node()
+
+
+def test_throttle_nan_and_out_of_range_rejected_valid_applied(ctx, tmp_path):
+    node = make_node(ctx, tmp_path)
+    h = Harness(ctx, node)
+    try:
+        for bad in (math.nan, math.inf, 1.5, -0.1):
+            h.th_pub.publish(Float64(data=bad))
+        h.spin_until(lambda: node.throttle_rejected == 4)
+        h.spin_until(lambda: len(h.diags) >= 4)
+        assert all(d.status[0].level == DiagnosticStatus.ERROR for d in h.diags)
+        assert 'nan' in h.diags[0].status[0].message and '/engine/throttle' in h.diags[0].status[0].message
+        h.send_js(0, ['engine_crank', 'wheel'], [0.0, 0.0], [20.0, 20.0])
+        h.spin_until(lambda: len(h.wrenches) == 1)
+        assert h.wrenches[0].wrench.torque.z == pytest.approx(M1 - K1 * 20.0)   # still full throttle
+        h.th_pub.publish(Float64(data=0.5))
+        h.spin_until(lambda: node.throttle == 0.5)
+        h.send_js(1_000_000, ['engine_crank', 'wheel'], [0.0, 0.0], [20.0, 20.0])
+        h.spin_until(lambda: len(h.wrenches) == 2)
+        # linear engine with throttle x: M = x M1 - K1 omega
+        assert h.wrenches[1].wrench.torque.z == pytest.approx(0.5 * M1 - K1 * 20.0)
+    finally:
+        h.close()
+        node.destroy_node()
+
+
+def test_non_finite_speed_not_answered(ctx, tmp_path):
+    node = make_node(ctx, tmp_path)
+    h = Harness(ctx, node)
+    try:
+        h.send_js(0, ['engine_crank'], [0.0], [math.nan])
+        h.spin_until(lambda: len(h.diags) >= 1)
+        assert h.diags[0].status[0].level == DiagnosticStatus.ERROR
+        assert node.answered == 0 and not h.wrenches
+    finally:
+        h.close()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('params, name', [
+    ({'throttle': 1.5}, 'throttle'),
+    ({'throttle': 0.3, 'seed': -7}, 'seed'),
+    ({'engine_spec': '{model: lineer}'}, 'engine_spec'),
+    ({'engine_spec': '[1, 2'}, 'engine_spec'),
+])
+def test_bad_parameters_name_the_parameter(ctx, tmp_path, params, name):
+    with pytest.raises(ParameterError) as err:
+        make_node(ctx, tmp_path, **params)
+    assert str(err.value).startswith(f'{name}:')
+
+
+def test_bad_scene_names_scene(ctx, tmp_path):
+    with pytest.raises(ParameterError) as err:
+        EngineNode(context=ctx, parameter_overrides=[Parameter('scene', value='no_such_scene_xyz')])
+    assert str(err.value).startswith('scene:')
+    with pytest.raises(ParameterError) as err:
+        EngineNode(context=ctx)
+    assert str(err.value).startswith('scene:')

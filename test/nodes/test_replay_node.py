@@ -1,0 +1,135 @@
+"""replay_node: raw bytes, own /clock, rate, topic selection, loop; CLI and executable errors."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cvj_ros import bag
+
+pytestmark = pytest.mark.ros
+
+N = 20
+H_NS = 10_000_000  # 10 ms of simulated time per sample
+
+
+def _make_bag(path: Path) -> dict[str, list[bytes]]:
+    ts = bag.typestore()
+    Time = ts.types['builtin_interfaces/msg/Time']
+    Header = ts.types['std_msgs/msg/Header']
+    V = ts.types['geometry_msgs/msg/Vector3']
+    W = ts.types['geometry_msgs/msg/Wrench']
+    WS = ts.types['geometry_msgs/msg/WrenchStamped']
+    JS = ts.types['sensor_msgs/msg/JointState']
+    Clk = ts.types['rosgraph_msgs/msg/Clock']
+    sent: dict[str, list[bytes]] = {'/load/wrench': [], '/driveline/joint_states': [], '/clock': []}
+    with bag.BagWriter(path) as w:
+        for topic in sent:
+            w.add_topic(topic)
+        for k in range(N):
+            stamp = Time(sec=0, nanosec=k * H_NS)
+            h = Header(stamp=stamp, frame_id='wheel')
+            msgs = {
+                '/clock': Clk(clock=stamp),
+                '/driveline/joint_states': JS(header=h, name=['wheel'], position=np.array([0.1 * k]),
+                                              velocity=np.array([5.0]), effort=np.array([1.0])),
+                '/load/wrench': WS(header=h, wrench=W(force=V(x=0.0, y=0.0, z=0.0),
+                                                      torque=V(x=0.0, y=0.0, z=float(k)))),
+            }
+            for topic, m in msgs.items():
+                data = bytes(ts.serialize_cdr(m, bag.topic_type(topic)))
+                sent[topic].append(data)
+                w.write(topic, k * H_NS, data)
+    return sent
+
+
+def _replay(bag_path: Path, params: dict, *, until: int, timeout: float = 10.0):
+    import rclpy
+    from rclpy.parameter import Parameter
+    from geometry_msgs.msg import WrenchStamped
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from cvj_ros.nodes.qos import DATA_QOS
+    from cvj_ros.nodes.replay_node import ReplayNode
+
+    got: dict[str, list[tuple[float, bytes]]] = {'/load/wrench': [], '/driveline/joint_states': [],
+                                                 '/clock': []}
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        sub = rclpy.create_node('replay_sink', context=ctx)
+        for topic, cls in (('/load/wrench', WrenchStamped), ('/driveline/joint_states', JointState),
+                           ('/clock', Clock)):
+            sub.create_subscription(cls, topic, lambda d, t=topic: got[t].append((time.monotonic(), d)),
+                                    DATA_QOS, raw=True)
+        overrides = [Parameter('bag', value=str(bag_path)), Parameter('start_delay', value=0.3)]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        node = ReplayNode(context=ctx, parameter_overrides=overrides)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(sub)
+        ex.add_node(node)
+        deadline = time.monotonic() + timeout
+        while len(got['/load/wrench']) < until and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        node.stop()
+        node.join(3)
+        for _ in range(5):
+            ex.spin_once(timeout_sec=0.02)
+        ex.shutdown()
+        node.destroy_node()
+        sub.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return got, node
+
+
+def test_replay_publishes_raw_bytes_with_own_clock(tmp_path: Path) -> None:
+    sent = _make_bag(tmp_path / 'b')
+    got, node = _replay(tmp_path / 'b', {'rate': 1.0}, until=N)
+    assert [d for _, d in got['/load/wrench']] == sent['/load/wrench']
+    assert [d for _, d in got['/driveline/joint_states']] == sent['/driveline/joint_states']
+    clocks = [bag.cdr_stamp_ns(d) for _, d in got['/clock']]
+    assert clocks == [k * H_NS for k in range(N)]  # own clock: one per record time
+    assert node.exit_code == 0 and node.messages_published == 2 * N
+    # pacing at rate 1: first to last data message spans (N-1) * 10 ms of wall time
+    span = got['/load/wrench'][-1][0] - got['/load/wrench'][0][0]
+    assert 0.8 * (N - 1) * H_NS * 1e-9 < span < 0.19 + 0.1
+
+
+def test_rate_and_topic_selection(tmp_path: Path) -> None:
+    sent = _make_bag(tmp_path / 'b')
+    got, _ = _replay(tmp_path / 'b', {'rate': 4.0, 'topics': ['/load/*']}, until=N)
+    assert [d for _, d in got['/load/wrench']] == sent['/load/wrench']
+    assert got['/driveline/joint_states'] == []
+    span = got['/load/wrench'][-1][0] - got['/load/wrench'][0][0]
+    assert span < 0.19 / 4 + 0.04  # 4x faster than the 0.19 s of recorded time
+
+
+def test_loop_starts_over(tmp_path: Path) -> None:
+    sent = _make_bag(tmp_path / 'b')
+    got, node = _replay(tmp_path / 'b', {'rate': 10.0, 'loop': True, 'topics': ['/load/wrench']},
+                        until=2 * N + 3)
+    data = [d for _, d in got['/load/wrench']]
+    assert data[:2 * N] == sent['/load/wrench'] * 2
+    assert node.loops >= 2
+
+
+def test_bad_parameters_exit_2_naming_them(tmp_path: Path) -> None:
+    from cvj_ros.cli import main
+    _make_bag(tmp_path / 'b')
+    exe = Path(sys.executable).with_name('replay_node')
+    env = dict(os.environ)
+    r = subprocess.run([str(exe), '--ros-args', '-p', f'bag:={tmp_path / "missing"}'],
+                       capture_output=True, text=True, timeout=30, env=env)
+    assert r.returncode == 2 and 'error: bag:' in r.stderr and 'no such bag' in r.stderr
+    assert 'Traceback' not in r.stderr
+    r = subprocess.run([str(exe), '--help'], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and 'rate' in r.stdout
+    assert main(['replay', str(tmp_path / 'missing')]) == 2
+    assert main(['replay', str(tmp_path / 'b'), '--topics', '/engine/wrench']) == 2
+    assert main(['replay', str(tmp_path / 'b'), '--rate', '0']) == 2

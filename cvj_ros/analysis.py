@@ -1,0 +1,381 @@
+"""Offline analysis of a recorded driveline bag (`cvj-sim analyze`).
+
+Reads a rosbag2 bag (mcap or sqlite3) through ``rosbags`` and reports, per shaft of
+``/driveline/joint_states``: mean speed, speed nonuniformity delta, amplitudes ((max - min)/2,
+seed 004 ch. 4) of speed, acceleration and torque, and the harmonics of the shaft torque over
+the shaft angle (seed 004 eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<joint>_output``)
+the geometric and kinematic nonuniformity (seed 002 eqs. 20-23); engine and load torque;
+energy residual and wait times found on ``/diagnostics``; and lockstep statistics.
+
+Steady window: the start transient is skipped, by default the first quarter of the record
+(``skip_fraction``), or the first ``skip_s`` seconds when given. Every figure except the
+lockstep statistics is computed on the steady window. The signal processing itself lives in
+:mod:`cvj_ros.physics.signal` (no ROS).
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cvj_ros.errors import BagError
+from cvj_ros.physics import signal
+
+FloatArray = NDArray[np.float64]
+
+JOINT_STATES = '/driveline/joint_states'
+ENGINE_WRENCH = '/engine/wrench'
+LOAD_WRENCH = '/load/wrench'
+DIAGNOSTICS = '/diagnostics'
+SCENE = '/driveline/scene'
+# Diagnostic keys reported as loop / energy figures (case-insensitive substring match).
+_DIAG_PATTERNS = {'energy': re.compile('energy', re.I), 'wait': re.compile('wait', re.I),
+                  'overhead': re.compile('overhead|round_trip|rtf|real_time', re.I)}
+
+
+@dataclass
+class BagSignals:
+    """Signals of one bag as arrays. Times in s (message stamps = simulated time)."""
+
+    path: Path
+    joint_names: list[str]
+    t: FloatArray                      # (n,) joint-state stamps, s
+    position: FloatArray               # (n, j) rad, unwrapped
+    velocity: FloatArray               # (n, j) rad/s
+    effort: FloatArray                 # (n, j) N m
+    engine_t: FloatArray = field(default_factory=lambda: np.zeros(0))
+    engine_torque: FloatArray = field(default_factory=lambda: np.zeros(0))   # N m
+    load_t: FloatArray = field(default_factory=lambda: np.zeros(0))
+    load_torque: FloatArray = field(default_factory=lambda: np.zeros(0))     # N m
+    diagnostics: list[tuple[float, str, int, dict[str, str]]] = field(default_factory=list)
+    scene_yaml: str | None = None
+    message_counts: dict[str, int] = field(default_factory=dict)
+
+    def column(self, name: str) -> int:
+        return self.joint_names.index(name)
+
+
+def _stamp(header: Any) -> float:
+    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
+
+
+def read_bag_signals(path: str | Path) -> BagSignals:
+    """Read the topics the analysis needs from a bag directory (or a single .mcap/.db3 file).
+
+    Raises :class:`BagError` (message starts with ``bag:``) when the bag is missing,
+    unreadable, or has no ``/driveline/joint_states`` messages.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f'bag: {p} does not exist')
+    bag_dir = p if p.is_dir() else p.parent
+    if not (bag_dir / 'metadata.yaml').exists():
+        raise BagError(f'bag: {p} is not a rosbag2 bag (no metadata.yaml)')
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    names: list[str] | None = None
+    rows_t: list[float] = []
+    rows_p: list[Any] = []
+    rows_v: list[Any] = []
+    rows_e: list[Any] = []
+    eng: list[tuple[float, float]] = []
+    lod: list[tuple[float, float]] = []
+    diags: list[tuple[float, str, int, dict[str, str]]] = []
+    scene_yaml: str | None = None
+    counts: dict[str, int] = {}
+    try:
+        with AnyReader([bag_dir], default_typestore=typestore) as reader:
+            wanted = [c for c in reader.connections
+                      if c.topic in (JOINT_STATES, ENGINE_WRENCH, LOAD_WRENCH, DIAGNOSTICS, SCENE)]
+            for conn, _logtime, raw in reader.messages(connections=wanted):
+                msg = reader.deserialize(raw, conn.msgtype)
+                counts[conn.topic] = counts.get(conn.topic, 0) + 1
+                if conn.topic == JOINT_STATES:
+                    if names is None:
+                        names = list(msg.name)
+                    elif list(msg.name) != names:
+                        raise BagError(f'bag: {JOINT_STATES} changes its joint names at message '
+                                       f'{counts[conn.topic]}')
+                    rows_t.append(_stamp(msg.header))
+                    n = len(names)
+                    rows_p.append(msg.position if len(msg.position) == n else np.full(n, math.nan))
+                    rows_v.append(msg.velocity if len(msg.velocity) == n else np.full(n, math.nan))
+                    rows_e.append(msg.effort if len(msg.effort) == n else np.full(n, math.nan))
+                elif conn.topic == ENGINE_WRENCH:
+                    eng.append((_stamp(msg.header), float(msg.wrench.torque.z)))
+                elif conn.topic == LOAD_WRENCH:
+                    lod.append((_stamp(msg.header), float(msg.wrench.torque.z)))
+                elif conn.topic == DIAGNOSTICS:
+                    t = _stamp(msg.header)
+                    for st in msg.status:
+                        diags.append((t, str(st.name), int(st.level),
+                                      {str(kv.key): str(kv.value) for kv in st.values}))
+                elif conn.topic == SCENE and scene_yaml is None:
+                    scene_yaml = str(msg.data)
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises several unrelated types for broken bags
+        raise BagError(f'bag: cannot read {p}: {exc}') from None
+    if names is None or not rows_t:
+        raise BagError(f'bag: {p} has no {JOINT_STATES} messages (topics: '
+                       f'{", ".join(sorted(counts)) or "none needed"})')
+    t = np.asarray(rows_t)  # record order: the lockstep check looks at it as recorded
+    e_arr = np.asarray(eng, dtype=float).reshape(-1, 2)
+    l_arr = np.asarray(lod, dtype=float).reshape(-1, 2)
+    return BagSignals(path=p, joint_names=names, t=t,
+                      position=np.asarray(rows_p, dtype=float),
+                      velocity=np.asarray(rows_v, dtype=float), effort=np.asarray(rows_e, dtype=float),
+                      engine_t=e_arr[:, 0], engine_torque=e_arr[:, 1],
+                      load_t=l_arr[:, 0], load_torque=l_arr[:, 1],
+                      diagnostics=diags, scene_yaml=scene_yaml, message_counts=counts)
+
+
+def _f(x: float) -> float | None:
+    """JSON-safe float (None for NaN/inf)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _harmonics_dict(h: signal.AngleHarmonics) -> dict[str, Any]:
+    return {'mean': _f(h.mean), 'revolutions': h.revolutions,
+            'orders': [int(k) for k in h.orders],
+            'amplitude': [_f(a) for a in h.amplitudes],
+            'phase_rad': [_f(p) for p in h.phases],
+            'a_cos': [_f(a) for a in h.cos_coeffs], 'b_sin': [_f(b) for b in h.sin_coeffs]}
+
+
+def _try_harmonics(phi: FloatArray, values: FloatArray, *, n_harmonics: int,
+                   samples_per_rev: int) -> tuple[signal.AngleHarmonics | None, str | None]:
+    ok = np.isfinite(phi) & np.isfinite(values)
+    try:
+        return signal.harmonics_over_angle(phi[ok], values[ok], n_harmonics=n_harmonics,
+                                           samples_per_rev=samples_per_rev), None
+    except ValueError as exc:
+        return None, str(exc)
+
+
+def joint_pairs(names: list[str]) -> list[tuple[str, str, str]]:
+    """(joint, input name, output name) for every ``<joint>_input`` with a ``<joint>_output``."""
+    out = []
+    for n in names:
+        if n.endswith('_input') and n[:-6] + '_output' in names:
+            out.append((n[:-6], n, n[:-6] + '_output'))
+    return out
+
+
+def _lockstep_stats(sig: BagSignals) -> dict[str, Any]:
+    t = sig.t
+    dt = np.diff(t)
+    stats: dict[str, Any] = {
+        'steps': int(t.size),
+        'duration_s': _f(t[-1] - t[0]) if t.size else 0.0,
+        'stamps_strictly_increasing': bool(np.all(dt > 0)) if dt.size else True,
+        'non_increasing_stamps': int(np.count_nonzero(dt <= 0)),
+    }
+    if dt.size:
+        pos = dt[dt > 0]
+        h = float(np.median(pos)) if pos.size else math.nan
+        stats.update(exchange_step_s=_f(h), exchange_step_min_s=_f(np.min(dt)),
+                     exchange_step_max_s=_f(np.max(dt)),
+                     exchange_step_jitter=_f((np.max(pos) - np.min(pos)) / h) if pos.size else None)
+    stamps_ns = set(np.round(t * 1e9).astype(np.int64).tolist())
+    for key, tt in (('engine', sig.engine_t), ('load', sig.load_t)):
+        if tt.size:
+            echoed = set(np.round(tt * 1e9).astype(np.int64).tolist())
+            stats[f'{key}_answers'] = int(tt.size)
+            stats[f'{key}_echo_fraction'] = _f(len(stamps_ns & echoed) / len(stamps_ns))
+    return stats
+
+
+def _diagnostic_figures(diags: list[tuple[float, str, int, dict[str, str]]]) -> dict[str, Any]:
+    series: dict[str, list[float]] = {}
+    levels = {'ok': 0, 'warn': 0, 'error': 0, 'stale': 0}
+    messages: list[str] = []
+    for _t, name, level, values in diags:
+        levels[{0: 'ok', 1: 'warn', 2: 'error'}.get(level, 'stale')] += 1
+        if level >= 2 and len(messages) < 5:
+            messages.append(f'{name}: {values}')
+        for key, val in values.items():
+            if not any(pat.search(key) for pat in _DIAG_PATTERNS.values()):
+                continue
+            try:
+                x = float(val)
+            except ValueError:
+                continue
+            series.setdefault(f'{name}/{key}' if name else key, []).append(x)
+    figures = {}
+    for key, xs in sorted(series.items()):
+        arr = np.asarray(xs, dtype=float)
+        figures[key] = {'last': _f(arr[-1]), 'mean': _f(np.nanmean(arr)),
+                        'max_abs': _f(np.nanmax(np.abs(arr))), 'count': int(arr.size)}
+    return {'levels': levels, 'figures': figures, 'errors': messages}
+
+
+def analyze_signals(sig: BagSignals, *, skip_s: float | None = None, skip_fraction: float = 0.25,
+                    n_harmonics: int = 6, samples_per_rev: int = 72) -> dict[str, Any]:
+    """Analysis report (JSON-ready dict) of the signals of a bag; see the module docstring.
+
+    Units: speeds rad/s, accelerations rad/s^2, torques N m, angles rad, times s.
+    """
+    try:
+        mask = signal.steady_mask(sig.t, skip_s=skip_s, skip_fraction=skip_fraction)
+    except ValueError as exc:
+        raise BagError(f'{exc}') from None
+    t = sig.t[mask]
+    report: dict[str, Any] = {
+        'bag': str(sig.path),
+        'window': {'start_s': _f(t[0]), 'end_s': _f(t[-1]), 'samples': int(t.size),
+                   'skipped_s': _f(t[0] - sig.t[0])},
+        'topics': dict(sig.message_counts), 'shafts': {}, 'joints': {},
+    }
+    for j, name in enumerate(sig.joint_names):
+        phi, w, tq = sig.position[mask, j], sig.velocity[mask, j], sig.effort[mask, j]
+        acc = signal.time_derivative(t, w)
+        entry: dict[str, Any] = {
+            'mean_speed_rad_s': _f(np.mean(w)),
+            'speed_nonuniformity': _f(signal.speed_nonuniformity(w)),
+            'speed_amplitude_rad_s': _f(signal.half_range(w)),
+            'acceleration_amplitude_rad_s2': _f(signal.half_range(acc)),
+            'mean_torque_Nm': _f(np.mean(tq)),
+            'torque_amplitude_Nm': _f(signal.half_range(tq)),
+        }
+        h, why = _try_harmonics(phi, tq, n_harmonics=n_harmonics, samples_per_rev=samples_per_rev)
+        entry['torque_harmonics'] = _harmonics_dict(h) if h is not None else {'skipped': why}
+        report['shafts'][name] = entry
+    for joint, n_in, n_out in joint_pairs(sig.joint_names):
+        i, o = sig.column(n_in), sig.column(n_out)
+        nu = signal.joint_nonuniformity(sig.position[mask, i], sig.position[mask, o],
+                                        sig.velocity[mask, i], sig.velocity[mask, o])
+        report['joints'][joint] = {'geometric_min_rad': _f(nu.geometric_min),
+                                   'geometric_max_rad': _f(nu.geometric_max),
+                                   'geometric_amplitude_rad': _f(nu.geometric_amplitude),
+                                   'kinematic_min': _f(nu.kinematic_min),
+                                   'kinematic_max': _f(nu.kinematic_max)}
+    for key, tt, tq, shaft in (('engine', sig.engine_t, sig.engine_torque, engine_shaft(sig)),
+                               ('load', sig.load_t, sig.load_torque, load_shaft(sig))):
+        if not tt.size:
+            continue
+        m = tt >= t[0]
+        if np.count_nonzero(m) < 2:
+            continue
+        entry = {'shaft': shaft, 'mean_torque_Nm': _f(np.mean(tq[m])),
+                 'torque_amplitude_Nm': _f(signal.half_range(tq[m]))}
+        j = sig.column(shaft)
+        phi_at = np.interp(tt[m], sig.t, sig.position[:, j])
+        h, why = _try_harmonics(phi_at, tq[m], n_harmonics=n_harmonics, samples_per_rev=samples_per_rev)
+        entry['torque_harmonics'] = _harmonics_dict(h) if h is not None else {'skipped': why}
+        report[key] = entry
+    report['lockstep'] = _lockstep_stats(sig)
+    report['diagnostics'] = _diagnostic_figures(sig.diagnostics)
+    report['scene'] = _scene_summary(sig.scene_yaml)
+    return report
+
+
+def engine_shaft(sig: BagSignals) -> str:
+    """Shaft the engine acts on: ``engine_crank`` if present, else the first joint-state name."""
+    return 'engine_crank' if 'engine_crank' in sig.joint_names else sig.joint_names[0]
+
+
+def load_shaft(sig: BagSignals) -> str:
+    """Shaft the load acts on: ``wheel`` if present, else the last joint-state name."""
+    return 'wheel' if 'wheel' in sig.joint_names else sig.joint_names[-1]
+
+
+def _scene_summary(scene_yaml: str | None) -> dict[str, Any]:
+    if scene_yaml is None:
+        return {'present': False}
+    import yaml
+    out: dict[str, Any] = {'present': True, 'chars': len(scene_yaml)}
+    try:
+        data = yaml.safe_load(scene_yaml)
+    except yaml.YAMLError as exc:
+        out['parse_error'] = str(exc).splitlines()[0]
+        return out
+    if isinstance(data, dict):
+        for key in ('name', 'seed', 'fidelity', 'accuracy', 'loop'):
+            if key in data:
+                out[key] = data[key]
+    return out
+
+
+def analyze_bag(path: str | Path, **options: Any) -> dict[str, Any]:
+    """Read a bag and analyse it: ``analyze_signals(read_bag_signals(path), **options)``."""
+    return analyze_signals(read_bag_signals(path), **options)
+
+
+def _fmt(x: Any, unit: str = '', digits: int = 4) -> str:
+    if x is None:
+        return 'n/a'
+    return f'{x:.{digits}g}{unit}'
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """Human-readable text of an :func:`analyze_signals` report."""
+    w = report['window']
+    lines = [f"bag: {report['bag']}",
+             f"steady window: {_fmt(w['start_s'])} .. {_fmt(w['end_s'])} s "
+             f"({w['samples']} samples, start transient {_fmt(w['skipped_s'])} s skipped)", '',
+             f"{'shaft':<22}{'mean w rad/s':>13}{'delta':>10}{'A_w rad/s':>11}"
+             f"{'A_acc rad/s2':>13}{'mean T N m':>12}{'A_T N m':>10}"]
+    for name, s in report['shafts'].items():
+        lines.append(f"{name:<22}{_fmt(s['mean_speed_rad_s']):>13}{_fmt(s['speed_nonuniformity']):>10}"
+                     f"{_fmt(s['speed_amplitude_rad_s']):>11}{_fmt(s['acceleration_amplitude_rad_s2']):>13}"
+                     f"{_fmt(s['mean_torque_Nm']):>12}{_fmt(s['torque_amplitude_Nm']):>10}")
+    lines.append('')
+    lines.append('torque harmonics over shaft angle, T = mean + sum A_k cos(k phi + p_k) '
+                 '(A_k N m / p_k deg):')
+    sources = [(n, s['torque_harmonics']) for n, s in report['shafts'].items()]
+    sources += [(f'{k} wrench', report[k]['torque_harmonics']) for k in ('engine', 'load') if k in report]
+    for name, h in sources:
+        if 'skipped' in h:
+            lines.append(f'  {name:<20} skipped: {h["skipped"]}')
+            continue
+        tiny = 1e-6 * max(1.0, abs(h['mean'] or 0.0))   # below this the phase is noise
+        parts = ' '.join(f'{k}:{_fmt(a, digits=3)}/'
+                         + (f'{math.degrees(p):.0f}' if a is not None and p is not None and a > tiny else '-')
+                         for k, a, p in zip(h['orders'], h['amplitude'], h['phase_rad']))
+        lines.append(f"  {name:<20} mean {_fmt(h['mean'])} over {h['revolutions']} rev  {parts}")
+    if report['joints']:
+        lines.append('')
+        lines.append('joint nonuniformity (seed 002): geometric phi_out - phi_in (rad), '
+                     'kinematic w_out/w_in - 1:')
+        for name, j in report['joints'].items():
+            lines.append(f"  {name:<20} geometric {_fmt(j['geometric_min_rad'])} .. {_fmt(j['geometric_max_rad'])}"
+                         f" (amplitude {_fmt(j['geometric_amplitude_rad'])})   kinematic "
+                         f"{_fmt(j['kinematic_min'])} .. {_fmt(j['kinematic_max'])}")
+    for key in ('engine', 'load'):
+        if key in report:
+            e = report[key]
+            lines.append(f"{key} torque on {e['shaft']}: mean {_fmt(e['mean_torque_Nm'])} N m, "
+                         f"amplitude {_fmt(e['torque_amplitude_Nm'])} N m")
+    ls = report['lockstep']
+    lines.append('')
+    lines.append(f"lockstep: {ls['steps']} steps over {_fmt(ls['duration_s'])} s, exchange step "
+                 f"{_fmt(ls.get('exchange_step_s'))} s (min {_fmt(ls.get('exchange_step_min_s'))}, "
+                 f"max {_fmt(ls.get('exchange_step_max_s'))}), stamps "
+                 f"{'strictly increasing' if ls['stamps_strictly_increasing'] else 'NOT monotonic (%d)' % ls['non_increasing_stamps']}")
+    for key in ('engine', 'load'):
+        if f'{key}_echo_fraction' in ls:
+            lines.append(f"  {key} answers: {ls[f'{key}_answers']}, echoing "
+                         f"{100 * ls[f'{key}_echo_fraction']:.1f} % of joint-state stamps")
+    d = report['diagnostics']
+    lev = d['levels']
+    lines.append(f"diagnostics: {lev['ok']} OK, {lev['warn']} WARN, {lev['error']} ERROR")
+    for key, fig in d['figures'].items():
+        lines.append(f"  {key}: last {_fmt(fig['last'])}, mean {_fmt(fig['mean'])}, "
+                     f"max |.| {_fmt(fig['max_abs'])} ({fig['count']} values)")
+    if not any(_DIAG_PATTERNS['energy'].search(k) for k in d['figures']):
+        lines.append('  energy residual: not recorded in this bag')
+    for m in d['errors']:
+        lines.append(f'  ERROR {m}')
+    sc = report['scene']
+    lines.append('scene: ' + ('not recorded' if not sc['present'] else
+                              ', '.join(f'{k}={v}' for k, v in sc.items() if k != 'present')))
+    return '\n'.join(lines)

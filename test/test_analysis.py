@@ -1,0 +1,185 @@
+"""Offline bag analysis against synthetic bags whose signals are known in closed form.
+
+The synthetic bag is written here with rosbags directly (independent of cvj_ros/bag.py):
+* ``engine_crank``: phi = w0 t + a/(2 w0) sin(2 w0 t), so omega = w0 + a cos(2 w0 t):
+  speed amplitude a, delta = 2a/w0, acceleration amplitude 2 a w0; its torque is
+  T0 + sum A_k cos(k phi + p_k) over the true (non-uniform) angle plus an order-20 term.
+* ``hooke_input``/``hooke_output``: a Hooke joint at beta built from tan(phi2) = tan(phi1)/cos(beta)
+  with np.unwrap (not the project's Hooke model). Its geometric amplitude is
+  atan((1 - cos b)/(2 sqrt(cos b))) and the kinematic range cos b - 1 .. 1/cos b - 1.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cvj_ros import analysis
+from cvj_ros.errors import BagError
+from cvj_ros.physics import signal
+
+W0 = 20.0            # rad/s
+A_SPEED = 0.6        # rad/s
+T0 = 100.0           # N m
+HARMONICS = {1: (8.0, 0.5), 2: (5.0, -1.0), 3: (2.0, 2.5)}   # k: (A_k N m, p_k rad)
+BETA = math.radians(30.0)
+DT = 1e-3
+DURATION = 4.0
+
+
+def crank_angle(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return W0 * t + A_SPEED / (2 * W0) * np.sin(2 * W0 * t), W0 + A_SPEED * np.cos(2 * W0 * t)
+
+
+def crank_torque(phi: np.ndarray) -> np.ndarray:
+    tq = T0 + sum(a * np.cos(k * phi + p) for k, (a, p) in HARMONICS.items())
+    return tq + 1.5 * np.cos(20 * phi)   # above the analysed orders: must not leak into them
+
+
+def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = DURATION,
+                        diagnostics: bool = True, joint_states: bool = True) -> Path:
+    """Write a lockstep-like bag with the signals of the module docstring; returns ``path``."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    n = int(round(duration / DT)) + 1
+    t = np.arange(n) * DT
+    phi_c, w_c = crank_angle(t)
+    tq_c = crank_torque(phi_c)
+    phi_in = W0 * t
+    c = math.cos(BETA)
+    phi_out = np.unwrap(np.arctan2(np.sin(phi_in), c * np.cos(phi_in)))
+    w_out = W0 * c / (1.0 - math.sin(BETA) ** 2 * np.cos(phi_in) ** 2)
+    names = ['engine_crank', 'hooke_input', 'hooke_output', 'wheel']
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as w:
+        cj = w.add_connection('/driveline/joint_states', 'sensor_msgs/msg/JointState', typestore=ts)
+        ce = w.add_connection('/engine/wrench', 'geometry_msgs/msg/WrenchStamped', typestore=ts)
+        cl = w.add_connection('/load/wrench', 'geometry_msgs/msg/WrenchStamped', typestore=ts)
+        cd = w.add_connection('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', typestore=ts)
+        cs = w.add_connection('/driveline/scene', 'std_msgs/msg/String', typestore=ts)
+        w.write(cs, 0, ts.serialize_cdr(T['std_msgs/msg/String'](data='name: synthetic\nseed: 7\n'),
+                                        'std_msgs/msg/String'))
+        for i in range(n):
+            ns = i * 1_000_000
+            stamp = T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
+            hdr = T['std_msgs/msg/Header'](stamp=stamp, frame_id='')
+            if joint_states:
+                js = T['sensor_msgs/msg/JointState'](
+                    header=hdr, name=names,
+                    position=np.array([phi_c[i], phi_in[i], phi_out[i], phi_out[i]]),
+                    velocity=np.array([w_c[i], W0, w_out[i], w_out[i]]),
+                    effort=np.array([tq_c[i], 50.0, 50.0, 40.0]))
+                w.write(cj, ns, ts.serialize_cdr(js, 'sensor_msgs/msg/JointState'))
+            for conn, tz in ((ce, tq_c[i]), (cl, 40.0 + 3.0 * math.cos(2 * phi_out[i]))):
+                v = T['geometry_msgs/msg/Vector3']
+                wr = T['geometry_msgs/msg/WrenchStamped'](
+                    header=hdr, wrench=T['geometry_msgs/msg/Wrench'](force=v(x=0.0, y=0.0, z=0.0),
+                                                                    torque=v(x=0.0, y=0.0, z=float(tz))))
+                w.write(conn, ns, ts.serialize_cdr(wr, 'geometry_msgs/msg/WrenchStamped'))
+            if diagnostics and i % 500 == 0:
+                kv = T['diagnostic_msgs/msg/KeyValue']
+                st = T['diagnostic_msgs/msg/DiagnosticStatus'](
+                    level=b'\x00'[0], name='monitor', message='ok', hardware_id='',
+                    values=[kv(key='energy_residual', value=f'{1e-9 * (i + 1):.6e}'),
+                            kv(key='wait_us', value='120.0'), kv(key='note', value='text')])
+                arr = T['diagnostic_msgs/msg/DiagnosticArray'](header=hdr, status=[st])
+                w.write(cd, ns, ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
+    return path
+
+
+@pytest.fixture(scope='module')
+def synthetic_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_synthetic_bag(tmp_path_factory.mktemp('bags') / 'synthetic')
+
+
+@pytest.fixture(scope='module')
+def report(synthetic_bag: Path) -> dict:
+    return analysis.analyze_bag(synthetic_bag)
+
+
+def test_speed_amplitudes_and_delta(report: dict) -> None:
+    s = report['shafts']['engine_crank']
+    assert s['mean_speed_rad_s'] == pytest.approx(W0, rel=1e-3)
+    assert s['speed_amplitude_rad_s'] == pytest.approx(A_SPEED, rel=1e-3)
+    assert s['speed_nonuniformity'] == pytest.approx(2 * A_SPEED / W0, rel=2e-3)
+    # Central differences at h = 1 ms: relative error (2 w0 h)^2 / 6 ~ 3e-4.
+    assert s['acceleration_amplitude_rad_s2'] == pytest.approx(2 * A_SPEED * W0, rel=2e-3)
+    assert report['shafts']['hooke_input']['speed_nonuniformity'] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_torque_harmonics_recover_amplitude_and_phase(report: dict) -> None:
+    h = report['shafts']['engine_crank']['torque_harmonics']
+    assert h['mean'] == pytest.approx(T0, abs=0.02)
+    assert h['revolutions'] >= 9
+    for k in range(1, 7):
+        a_true, p_true = HARMONICS.get(k, (0.0, 0.0))
+        assert h['amplitude'][k - 1] == pytest.approx(a_true, abs=0.02), k
+        if a_true:
+            dp = (h['phase_rad'][k - 1] - p_true + math.pi) % (2 * math.pi) - math.pi
+            assert abs(dp) < 5e-3, k
+    # The engine wrench carries the same torque, analysed over the crank angle.
+    he = report['engine']['torque_harmonics']
+    assert he['amplitude'][1] == pytest.approx(5.0, abs=0.02)
+    assert report['engine']['torque_amplitude_Nm'] == pytest.approx(
+        signal.half_range(crank_torque(np.linspace(0, 2 * np.pi, 20001))), rel=1e-3)
+
+
+def test_joint_nonuniformity_matches_hooke_closed_form(report: dict) -> None:
+    j = report['joints']['hooke']
+    c = math.cos(BETA)
+    geo = math.atan((1 - c) / (2 * math.sqrt(c)))
+    assert j['geometric_amplitude_rad'] == pytest.approx(geo, rel=1e-3)
+    assert j['geometric_max_rad'] == pytest.approx(geo, rel=1e-3)
+    assert j['kinematic_min'] == pytest.approx(c - 1.0, rel=1e-3)
+    assert j['kinematic_max'] == pytest.approx(1.0 / c - 1.0, rel=1e-3)
+
+
+def test_lockstep_and_diagnostics(report: dict) -> None:
+    ls = report['lockstep']
+    assert ls['steps'] == int(round(DURATION / DT)) + 1
+    assert ls['stamps_strictly_increasing']
+    assert ls['exchange_step_s'] == pytest.approx(DT, rel=1e-6)
+    assert ls['engine_echo_fraction'] == 1.0 and ls['load_echo_fraction'] == 1.0
+    figs = report['diagnostics']['figures']
+    assert figs['monitor/energy_residual']['last'] == pytest.approx(1e-9 * 4001, rel=1e-5)
+    assert figs['monitor/wait_us']['mean'] == pytest.approx(120.0)
+    assert 'monitor/note' not in figs
+    assert report['scene']['present'] and report['scene']['seed'] == 7
+    # Steady window: first quarter skipped by default.
+    assert report['window']['skipped_s'] == pytest.approx(0.25 * DURATION, abs=DT)
+
+
+def test_harmonics_function_closed_form_and_reverse_rotation() -> None:
+    phi = np.linspace(0.3, -6 * np.pi, 5000)          # negative rotation, 3 revolutions
+    vals = 4.0 + 2.0 * np.cos(2 * phi + 0.7)
+    h = signal.harmonics_over_angle(phi, vals, n_harmonics=3)
+    assert h.revolutions == 3                            # whole revolutions in 6 pi + 0.3 rad
+    assert h.amplitudes == pytest.approx([0.0, 2.0, 0.0], abs=2e-3)
+    assert h.phases[1] == pytest.approx(0.7, abs=2e-3)
+    assert h.synthesize([0.0, 1.0]) == pytest.approx(4.0 + 2.0 * np.cos(2 * np.array([0.0, 1.0]) + 0.7), abs=5e-3)
+    with pytest.raises(ValueError, match='^phi: need at least one whole revolution'):
+        signal.harmonics_over_angle(np.linspace(0, 5, 100), np.ones(100))
+    with pytest.raises(ValueError, match='^phi: shaft angle must be strictly monotonic'):
+        phi_back = np.r_[0:7:0.1, 6.9:0:-0.1]
+        signal.harmonics_over_angle(phi_back, np.ones_like(phi_back))
+
+
+def test_sqlite3_bag_reads_the_same(tmp_path: Path) -> None:
+    bag = write_synthetic_bag(tmp_path / 'sq', storage='sqlite3', duration=1.0, diagnostics=False)
+    rep = analysis.analyze_bag(bag, skip_s=0.0)
+    assert rep['shafts']['engine_crank']['speed_amplitude_rad_s'] == pytest.approx(A_SPEED, rel=1e-3)
+    assert rep['window']['skipped_s'] == 0.0
+    assert rep['diagnostics']['figures'] == {}
+
+
+def test_missing_bag_and_missing_topic(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match='^bag: .* does not exist'):
+        analysis.read_bag_signals(tmp_path / 'nope')
+    bag = write_synthetic_bag(tmp_path / 'nojs', duration=0.05, joint_states=False)
+    with pytest.raises(BagError, match='^bag: .* has no /driveline/joint_states messages'):
+        analysis.read_bag_signals(bag)

@@ -60,81 +60,39 @@ class BagSignals:
         return self.joint_names.index(name)
 
 
-def _stamp(header: Any) -> float:
-    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
-
-
 def read_bag_signals(path: str | Path) -> BagSignals:
-    """Read the topics the analysis needs from a bag directory (or a single .mcap/.db3 file).
+    """Read the topics the analysis needs from a bag directory, through :mod:`cvj_ros.bag`.
 
-    Raises :class:`BagError` (message starts with ``bag:``) when the bag is missing,
-    unreadable, or has no ``/driveline/joint_states`` messages.
+    Raises :class:`BagError` when the bag is missing or unreadable (message starts with the
+    path) or has no ``/driveline/joint_states`` messages (message starts with the topic).
     """
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
+    from cvj_ros import bag as bagio
 
-    p = Path(path)
-    if not p.exists():
-        raise BagError(f'bag: {p} does not exist')
-    bag_dir = p if p.is_dir() else p.parent
-    if not (bag_dir / 'metadata.yaml').exists():
-        raise BagError(f'bag: {p} is not a rosbag2 bag (no metadata.yaml)')
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    names: list[str] | None = None
-    rows_t: list[float] = []
-    rows_p: list[Any] = []
-    rows_v: list[Any] = []
-    rows_e: list[Any] = []
-    eng: list[tuple[float, float]] = []
-    lod: list[tuple[float, float]] = []
-    diags: list[tuple[float, str, int, dict[str, str]]] = []
-    scene_yaml: str | None = None
-    counts: dict[str, int] = {}
-    try:
-        with AnyReader([bag_dir], default_typestore=typestore) as reader:
-            wanted = [c for c in reader.connections
-                      if c.topic in (JOINT_STATES, ENGINE_WRENCH, LOAD_WRENCH, DIAGNOSTICS, SCENE)]
-            for conn, _logtime, raw in reader.messages(connections=wanted):
-                msg = reader.deserialize(raw, conn.msgtype)
-                counts[conn.topic] = counts.get(conn.topic, 0) + 1
-                if conn.topic == JOINT_STATES:
-                    if names is None:
-                        names = list(msg.name)
-                    elif list(msg.name) != names:
-                        raise BagError(f'bag: {JOINT_STATES} changes its joint names at message '
-                                       f'{counts[conn.topic]}')
-                    rows_t.append(_stamp(msg.header))
-                    n = len(names)
-                    rows_p.append(msg.position if len(msg.position) == n else np.full(n, math.nan))
-                    rows_v.append(msg.velocity if len(msg.velocity) == n else np.full(n, math.nan))
-                    rows_e.append(msg.effort if len(msg.effort) == n else np.full(n, math.nan))
-                elif conn.topic == ENGINE_WRENCH:
-                    eng.append((_stamp(msg.header), float(msg.wrench.torque.z)))
-                elif conn.topic == LOAD_WRENCH:
-                    lod.append((_stamp(msg.header), float(msg.wrench.torque.z)))
-                elif conn.topic == DIAGNOSTICS:
-                    t = _stamp(msg.header)
-                    for st in msg.status:
-                        diags.append((t, str(st.name), int(st.level),
-                                      {str(kv.key): str(kv.value) for kv in st.values}))
-                elif conn.topic == SCENE and scene_yaml is None:
-                    scene_yaml = str(msg.data)
-    except BagError:
-        raise
-    except Exception as exc:  # rosbags raises several unrelated types for broken bags
-        raise BagError(f'bag: cannot read {p}: {exc}') from None
-    if names is None or not rows_t:
-        raise BagError(f'bag: {p} has no {JOINT_STATES} messages (topics: '
-                       f'{", ".join(sorted(counts)) or "none needed"})')
-    t = np.asarray(rows_t)  # record order: the lockstep check looks at it as recorded
-    e_arr = np.asarray(eng, dtype=float).reshape(-1, 2)
-    l_arr = np.asarray(lod, dtype=float).reshape(-1, 2)
-    return BagSignals(path=p, joint_names=names, t=t,
-                      position=np.asarray(rows_p, dtype=float),
-                      velocity=np.asarray(rows_v, dtype=float), effort=np.asarray(rows_e, dtype=float),
-                      engine_t=e_arr[:, 0], engine_torque=e_arr[:, 1],
-                      load_t=l_arr[:, 0], load_torque=l_arr[:, 1],
-                      diagnostics=diags, scene_yaml=scene_yaml, message_counts=counts)
+    info = bagio.bag_info(path)
+    if not info.counts.get(JOINT_STATES):
+        raise BagError(f'{JOINT_STATES}: no messages in bag {path} (topics: '
+                       f'{", ".join(sorted(t for t, n in info.counts.items() if n)) or "none"})')
+    wanted = [t for t in (JOINT_STATES, ENGINE_WRENCH, LOAD_WRENCH, DIAGNOSTICS, SCENE)
+              if info.counts.get(t)]
+    data = bagio.read_bag(path, wanted)
+    js = data[JOINT_STATES]
+    sig = BagSignals(path=Path(path), joint_names=list(js.names), t=js.t, position=js.position,
+                     velocity=js.velocity, effort=js.effort,
+                     message_counts={t: int(n) for t, n in info.counts.items() if n})
+    if ENGINE_WRENCH in data:
+        sig.engine_t, sig.engine_torque = data[ENGINE_WRENCH].t, data[ENGINE_WRENCH].torque_z
+    if LOAD_WRENCH in data:
+        sig.load_t, sig.load_torque = data[LOAD_WRENCH].t, data[LOAD_WRENCH].torque_z
+    if DIAGNOSTICS in data:
+        d = data[DIAGNOSTICS]
+        sig.diagnostics = [(float(t), str(st['name']), int(st['level']),
+                            {str(k): str(v) for k, v in st['values'].items()})
+                           for t, statuses in zip(d.t, d.statuses) for st in statuses]
+    if SCENE in data and data[SCENE].data:
+        sig.scene_yaml = data[SCENE].data[0]
+    elif 'cvj_ros.scene' in info.custom_data:
+        sig.scene_yaml = info.custom_data['cvj_ros.scene']
+    return sig
 
 
 def _f(x: float) -> float | None:
@@ -299,7 +257,7 @@ def _scene_summary(scene_yaml: str | None) -> dict[str, Any]:
         out['parse_error'] = str(exc).splitlines()[0]
         return out
     if isinstance(data, dict):
-        for key in ('name', 'seed', 'fidelity', 'accuracy', 'loop'):
+        for key in ('name', 'seed', 'fidelity', 'mode', 'coupling_scheme', 'exchange_step', 'loop'):
             if key in data:
                 out[key] = data[key]
     return out

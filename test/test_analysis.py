@@ -178,8 +178,8 @@ def test_sqlite3_bag_reads_the_same(tmp_path: Path) -> None:
 
 
 def test_missing_bag_and_missing_topic(tmp_path: Path) -> None:
-    with pytest.raises(BagError, match='^bag: .* does not exist'):
+    with pytest.raises(BagError, match='nope: no such bag'):
         analysis.read_bag_signals(tmp_path / 'nope')
     bag = write_synthetic_bag(tmp_path / 'nojs', duration=0.05, joint_states=False)
-    with pytest.raises(BagError, match='^bag: .* has no /driveline/joint_states messages'):
+    with pytest.raises(BagError, match='^/driveline/joint_states: no messages in bag'):
         analysis.read_bag_signals(bag)

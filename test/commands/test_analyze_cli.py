@@ -48,7 +48,7 @@ def test_missing_bag_exits_2_with_one_line(tmp_path: Path) -> None:
                        timeout=60, env=dict(os.environ))
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith('cvj-sim: error: bag: ') and 'does not exist' in lines[0]
+    assert len(lines) == 1 and lines[0].startswith('cvj-sim: error: ') and 'missing: no such bag' in lines[0]
 
 
 def test_bad_option_exits_2(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,0 +1,832 @@
+"""Persistent one-step ODE solvers for small driveline systems (2-10 states).
+
+Every solver is a *stepper*: an object that keeps its state (t, y), its step-size
+proposal and its FSAL / Jacobian data between calls, so a lockstep loop can call
+``advance_to(t_k + H)`` at every exchange without restarting the integration.
+
+Methods (``make_stepper(method, ...)``):
+
+==============  =====  ===============================  ===========================
+method          order  stability                        source
+==============  =====  ===============================  ===========================
+``dopri5``      5(4)   explicit, non-stiff              Dormand & Prince 1980;
+                                                        Hairer, Norsett, Wanner I,
+                                                        sec. II.5 (DOPRI5)
+``dop853``      8(5,3) explicit, non-stiff, tight tol   Hairer, Norsett, Wanner I,
+                                                        sec. II.10 (DOP853)
+``rosenbrock``  4(3)   L-stable, stiffly accurate,      Hairer & Wanner II,
+                       linearly implicit (RODAS4)       sec. VI.7 (RODAS)
+``rk4``         4      explicit, fixed step             Kutta 1901 (classic RK4)
+``ros2``        2      L-stable, linearly implicit,     Verwer et al. 1999, SIAM J.
+                       fixed step (real time, stiff)    Sci. Comput. 20 (ROS2)
+==============  =====  ===============================  ===========================
+
+Implementation notes (measured on the project machine, n = 4):
+
+* State vectors are small numpy arrays; stage combinations use one ``np.dot``
+  of a coefficient row with the stacked stage matrix ``K`` (one C call per stage
+  instead of one per term). Python-float lists were slower as soon as ``fun``
+  returns an ndarray (the conversion costs more than the arithmetic).
+* Step-size control: Hairer's PI controller (Gustafsson, "Lund stabilisation"),
+  ``h_new = h * safe * err^-(1/q - 0.75 beta) * err_old^beta``, clamped, with no
+  growth right after a rejection; initial step from Hairer's ``HINIT``
+  (Hairer, Norsett, Wanner I, sec. II.4).
+* ``advance_to`` clips the last step to land exactly on ``t_end`` but keeps the
+  controller's proposal for the next call.
+* Rosenbrock methods factor ``I/(h gamma) - J`` with ``scipy.linalg.lu_factor``
+  and, for n <= 12, form its inverse once per factorisation so each stage solve
+  is a single ``np.dot``; the Jacobian is reused across rejected attempts of a
+  step (same t, y) and, with ``constant_jac=True``, for the whole run.
+
+Units: t in s (or whatever time unit ``fun`` uses), y in the state's units.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+import scipy.linalg
+from scipy.integrate import DOP853 as _SCIPY_DOP853
+from scipy.integrate import RK45 as _SCIPY_RK45
+
+from cvj_ros.errors import SolverError
+
+__all__ = [
+    'METHODS',
+    'Stepper',
+    'SolverOptionError',
+    'make_stepper',
+    'Dopri5Stepper',
+    'Dop853Stepper',
+    'RosenbrockStepper',
+    'Rk4Stepper',
+    'Ros2Stepper',
+]
+
+RhsFunction = Callable[[float, np.ndarray], np.ndarray]
+JacFunction = Callable[[float, np.ndarray], np.ndarray]
+
+_EPS = float(np.finfo(float).eps)
+_INVERSE_MAX_N = 12  # up to this size stage solves use an explicit inverse (np.dot)
+
+
+class SolverOptionError(SolverError, ValueError):
+    """A solver option is invalid; ``str()`` starts with the option name."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        self.parameter = parameter
+        super().__init__(f'{parameter}: {message}')
+
+
+@runtime_checkable
+class Stepper(Protocol):
+    """Persistent integrator interface (docs/contracts.md, "Solvers")."""
+
+    method: str
+    t: float
+    y: np.ndarray
+    nfev: int
+    njev: int
+    nlu: int
+    naccept: int
+    nreject: int
+
+    def advance_to(self, t_end: float) -> np.ndarray: ...
+
+    def dense(self, t: float) -> np.ndarray: ...
+
+    def restart(self) -> None: ...
+
+    def stats(self) -> dict: ...
+
+
+# --------------------------------------------------------------------------- base
+
+
+class _StepperBase:
+    """State, counters and checks shared by every stepper."""
+
+    method = ''
+    order = 1
+
+    def __init__(self, fun: RhsFunction, t0: float, y0: np.ndarray, *,
+                 rtol: float, atol: float | np.ndarray, h: float | None,
+                 jac: JacFunction | None, max_step: float) -> None:
+        self.fun = fun
+        self.jac = jac
+        self.t = float(t0)
+        y = np.array(y0, dtype=float).reshape(-1)
+        if y.size == 0:
+            raise SolverOptionError('y0', 'must have at least one state')
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            raise SolverOptionError(f'y0[{bad[0]}]', f'must be finite, got {y[bad[0]]}')
+        self.y = y
+        self.n = y.size
+        if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and rtol > 0):
+            raise SolverOptionError('rtol', f'must be a positive number, got {rtol!r}')
+        atol_arr = np.asarray(atol, dtype=float)
+        if atol_arr.ndim > 1 or (atol_arr.ndim == 1 and atol_arr.size != self.n) \
+                or not np.all(np.isfinite(atol_arr)) or np.any(atol_arr < 0):
+            raise SolverOptionError('atol', f'must be >= 0 (scalar or one per state), got {atol!r}')
+        if rtol < 100 * _EPS:
+            raise SolverOptionError('rtol', f'must be >= {100 * _EPS:.3g}, got {rtol!r}')
+        self.rtol = float(rtol)
+        self.atol = float(atol_arr) if atol_arr.ndim == 0 else atol_arr.copy()
+        if not (max_step > 0):
+            raise SolverOptionError('max_step', f'must be > 0, got {max_step!r}')
+        self.max_step = float(max_step)
+        if h is not None and not (math.isfinite(h) and h > 0):
+            raise SolverOptionError('h', f'must be a positive finite step, got {h!r}')
+        self.h: float | None = None if h is None else min(float(h), self.max_step)
+        self.t_old = self.t
+        self.y_old = self.y
+        self.nfev = 0
+        self.njev = 0
+        self.nlu = 0
+        self.naccept = 0
+        self.nreject = 0
+
+    # -- helpers
+    def _eval(self, t: float, y: np.ndarray) -> np.ndarray:
+        self.nfev += 1
+        return self.fun(t, y)
+
+    def _raise_nonfinite(self, y: np.ndarray, t: float, what: str) -> None:
+        idx = int(np.flatnonzero(~np.isfinite(y))[0])
+        raise SolverError(f'y[{idx}]: non-finite value {y[idx]} in {what} at t={t:.9g} s '
+                          f'({self.method}, step from t={self.t:.9g} s)')
+
+    def _check_t_end(self, t_end: float) -> float:
+        t_end = float(t_end)
+        if not math.isfinite(t_end) or t_end < self.t:
+            raise SolverOptionError('t_end', f'must be finite and >= t={self.t!r}, got {t_end!r}')
+        return t_end
+
+    def _check_dense_t(self, t: float) -> float:
+        t = float(t)
+        span = self.t - self.t_old
+        tol = 1e-12 * max(1.0, abs(self.t)) + 1e-9 * span
+        if not (self.t_old - tol <= t <= self.t + tol):
+            raise SolverOptionError('t', f'dense output only inside the last step '
+                                    f'[{self.t_old!r}, {self.t!r}], got {t!r}')
+        return t
+
+    def restart(self) -> None:
+        """Forget data that assumed smooth inputs (FSAL value, Jacobian); keep h."""
+
+    def stats(self) -> dict:
+        """Counters and the current step-size proposal (s)."""
+        return {'method': self.method, 't': self.t, 'h': self.h, 'nfev': self.nfev,
+                'njev': self.njev, 'nlu': self.nlu, 'naccept': self.naccept,
+                'nreject': self.nreject}
+
+
+# ---------------------------------------------------------------- adaptive base
+
+
+class _AdaptiveStepper(_StepperBase):
+    """Adaptive stepping loop with Hairer's PI step-size controller.
+
+    Subclasses implement ``_attempt(h) -> (err, y_new)`` (err: scaled RMS norm of
+    the local error estimate) and ``_accept(h, y_new)``.
+    """
+
+    safety = 0.9
+    fac_min = 0.2    # largest decrease per step: h_new >= fac_min * h
+    fac_max = 10.0   # largest increase per step
+    beta = 0.04      # PI controller: weight of the previous error (Lund stabilisation)
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._expo = 1.0 / (self.order + 1) - 0.75 * self.beta
+        self._err_old = 1e-4
+        self._last_rejected = False
+
+    def _scale(self, y: np.ndarray, y_new: np.ndarray) -> np.ndarray:
+        sc = np.maximum(np.abs(y), np.abs(y_new))
+        sc *= self.rtol
+        sc += self.atol
+        return sc
+
+    def _initial_step(self, f0: np.ndarray) -> float:
+        """Hairer's HINIT (Hairer, Norsett, Wanner I, sec. II.4): h0 from |y|/|f|,
+        refined by one Euler step and the local derivative change; one fev."""
+        y0 = self.y
+        sc = np.abs(y0) * self.rtol + self.atol
+        d0 = math.sqrt(float(np.mean((y0 / sc) ** 2)))
+        d1 = math.sqrt(float(np.mean((f0 / sc) ** 2)))
+        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+        h0 = min(h0, self.max_step)
+        f1 = self._eval(self.t + h0, y0 + h0 * f0)
+        d2 = math.sqrt(float(np.mean(((f1 - f0) / sc) ** 2))) / h0
+        dmax = max(d1, d2)
+        if dmax <= 1e-15:
+            h1 = max(1e-6, h0 * 1e-3)
+        else:
+            h1 = (0.01 / dmax) ** (1.0 / (self.order + 1))
+        return min(100 * h0, h1, self.max_step)
+
+    def _first_derivative(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def advance_to(self, t_end: float) -> np.ndarray:
+        """Integrate to exactly ``t_end`` (s) and return y(t_end).
+
+        The last step is clipped to land on ``t_end``; the step-size proposal of
+        the controller is kept for the next call. Raises SolverError on a
+        non-finite state or step-size underflow.
+        """
+        t_end = self._check_t_end(t_end)
+        if self.h is None:
+            self.h = self._initial_step(self._first_derivative())
+        while self.t < t_end:
+            h_prop = self.h
+            remaining = t_end - self.t
+            clipped = h_prop * 1.01 >= remaining
+            h = remaining if clipped else h_prop
+            while True:
+                if h < 10 * _EPS * max(abs(self.t), 1e-300) or h <= 1e-300:
+                    raise SolverError(f't: step size underflow at t={self.t:.9g} s '
+                                      f'(h={h:.3g} s, {self.method}); the problem may be '
+                                      f'stiff or singular, try method="rosenbrock"')
+                err, y_new = self._attempt(h)
+                if not math.isfinite(err):
+                    self._raise_nonfinite(y_new if not np.all(np.isfinite(y_new)) else
+                                          np.array([err]), self.t + h, 'the step')
+                fac11 = err ** self._expo if err > 0 else 0.0
+                if err <= 1.0:
+                    fac = fac11 / self._err_old ** self.beta / self.safety
+                    fac = min(1.0 / self.fac_min, max(1.0 / self.fac_max, fac)) if fac > 0 \
+                        else 1.0 / self.fac_max
+                    h_new = h / fac
+                    if self._last_rejected:
+                        h_new = min(h_new, h)
+                    self._err_old = max(err, 1e-4)
+                    self._last_rejected = False
+                    self.naccept += 1
+                    t_new = t_end if clipped else self.t + h
+                    self._accept(h, t_new, y_new)
+                    # a clipped step says little about the natural step: keep the proposal
+                    self.h = min(max(h_new, h_prop) if clipped else h_new, self.max_step)
+                    break
+                self.nreject += 1
+                self._last_rejected = True
+                clipped = False
+                h = h / min(1.0 / self.fac_min, fac11 / self.safety)
+        return self.y
+
+
+# ------------------------------------------------------------------------ DOPRI5
+
+
+class Dopri5Stepper(_AdaptiveStepper):
+    """Dormand-Prince 5(4), FSAL, 7 stages (6 fev per accepted step).
+
+    Order 5 (local extrapolation), embedded order 4 error estimate, 4th-order
+    continuous extension (dense output). Explicit: for non-stiff problems; the
+    stability region reaches about -3.3 on the negative real axis, so a stiff
+    eigenvalue lambda forces h < 3.3/|lambda|.
+    Source: Dormand & Prince, J. Comp. Appl. Math. 6 (1980); Hairer, Norsett &
+    Wanner, Solving ODEs I, sec. II.5, table 5.2 (coefficients as in
+    scipy.integrate.RK45, dense output coefficients of Shampine 1986).
+    """
+
+    method = 'dopri5'
+    order = 4  # error estimator order, drives the controller exponent
+    beta = 0.04
+    fac_min = 0.2
+    fac_max = 10.0
+    _C = _SCIPY_RK45.C.astype(float)
+    _A_ROWS = [np.ascontiguousarray(_SCIPY_RK45.A[i, :i]) for i in range(6)]
+    _B = np.ascontiguousarray(_SCIPY_RK45.B)
+    _E = np.ascontiguousarray(_SCIPY_RK45.E)
+    _P = np.ascontiguousarray(_SCIPY_RK45.P)
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._K = np.empty((7, self.n))
+        self._f = None  # FSAL: f(t, y)
+        self._h_last = 0.0
+        self._Q = None
+
+    def _first_derivative(self) -> np.ndarray:
+        if self._f is None:
+            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
+            if not np.all(np.isfinite(self._f)):
+                self._raise_nonfinite(self._f, self.t, 'fun(t, y)')
+        return self._f
+
+    def restart(self) -> None:
+        """Drop the FSAL derivative (inputs changed discontinuously); keep h."""
+        self._f = None
+
+    def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        K = self._K
+        y = self.y
+        t = self.t
+        fun = self.fun
+        K[0] = self._first_derivative()
+        C = self._C
+        A = self._A_ROWS
+        dot = np.dot
+        for i in range(1, 6):
+            K[i] = fun(t + C[i] * h, y + h * dot(A[i], K[:i]))
+        y_new = y + h * dot(self._B, K[:6])
+        K[6] = fun(t + h, y_new)
+        self.nfev += 6
+        e = dot(self._E, K)
+        e *= h
+        e /= self._scale(y, y_new)
+        return math.sqrt(float(dot(e, e)) / self.n), y_new
+
+    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
+        self.t_old, self.y_old = self.t, self.y
+        self.t, self.y = t_new, y_new
+        self._f = self._K[6].copy()
+        self._h_last = t_new - self.t_old
+        self._Q = None
+
+    def dense(self, t: float) -> np.ndarray:
+        """y(t) (4th order) for t inside the last accepted step."""
+        t = self._check_dense_t(t)
+        h = self._h_last
+        if h == 0.0:
+            return self.y.copy()
+        if self._Q is None:
+            self._Q = self._K.T @ self._P
+        x = (t - self.t_old) / h
+        return self.y_old + h * (self._Q @ np.array([x, x * x, x ** 3, x ** 4]))
+
+
+# ------------------------------------------------------------------------ DOP853
+
+
+class Dop853Stepper(_AdaptiveStepper):
+    """Dormand-Prince 8(5,3), FSAL, 12 stages per step (+3 for dense output).
+
+    Order 8; error estimate from the embedded 5th- and 3rd-order solutions
+    combined as in Hairer's DOP853; 7th-order dense output. Explicit, for
+    non-stiff problems at tight tolerances (rtol <= 1e-8).
+    Source: Hairer, Norsett & Wanner, Solving ODEs I, sec. II.10 and the code
+    DOP853; coefficients from scipy.integrate.DOP853 (dop853_coefficients.py).
+    """
+
+    method = 'dop853'
+    order = 7  # Hairer: expo1 = 1/8
+    beta = 0.0
+    fac_min = 0.333
+    fac_max = 6.0
+    _S = _SCIPY_DOP853.n_stages  # 12
+    _C = _SCIPY_DOP853.C.astype(float)
+    _A_ROWS = [np.ascontiguousarray(_SCIPY_DOP853.A[i, :i]) for i in range(12)]
+    _B = np.ascontiguousarray(_SCIPY_DOP853.B)
+    _E3 = np.ascontiguousarray(_SCIPY_DOP853.E3)
+    _E5 = np.ascontiguousarray(_SCIPY_DOP853.E5)
+    _D = np.ascontiguousarray(_SCIPY_DOP853.D)
+    _A_EXTRA = _SCIPY_DOP853.A_EXTRA
+    _C_EXTRA = _SCIPY_DOP853.C_EXTRA
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._K = np.empty((16, self.n))
+        self._f = None
+        self._h_last = 0.0
+        self._F = None
+
+    _first_derivative = Dopri5Stepper._first_derivative
+    restart = Dopri5Stepper.restart
+
+    def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        K = self._K
+        y = self.y
+        t = self.t
+        fun = self.fun
+        K[0] = self._first_derivative()
+        C = self._C
+        A = self._A_ROWS
+        dot = np.dot
+        for i in range(1, 12):
+            K[i] = fun(t + C[i] * h, y + h * dot(A[i], K[:i]))
+        y_new = y + h * dot(self._B, K[:12])
+        K[12] = fun(t + h, y_new)
+        self.nfev += 12
+        sc = self._scale(y, y_new)
+        Kf = K[:13]
+        e5 = dot(self._E5, Kf) / sc
+        e3 = dot(self._E3, Kf) / sc
+        e5n = float(dot(e5, e5))
+        e3n = float(dot(e3, e3))
+        if e5n == 0.0 and e3n == 0.0:
+            return 0.0, y_new
+        denom = e5n + 0.01 * e3n
+        return abs(h) * e5n / math.sqrt(denom * self.n), y_new
+
+    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
+        self.t_old, self.y_old = self.t, self.y
+        self.t, self.y = t_new, y_new
+        self._f = self._K[12].copy()
+        self._h_last = t_new - self.t_old
+        self._F = None
+
+    def dense(self, t: float) -> np.ndarray:
+        """y(t) (7th order) inside the last accepted step; costs 3 extra fev once per step."""
+        t = self._check_dense_t(t)
+        h = self._h_last
+        if h == 0.0:
+            return self.y.copy()
+        if self._F is None:
+            K = self._K
+            for s, (a, c) in enumerate(zip(self._A_EXTRA, self._C_EXTRA), start=13):
+                K[s] = self.fun(self.t_old + c * h, self.y_old + h * np.dot(a[:s], K[:s]))
+            self.nfev += 3
+            F = np.empty((7, self.n))
+            dy = self.y - self.y_old
+            f_old = K[0]
+            F[0] = dy
+            F[1] = h * f_old - dy
+            F[2] = 2 * dy - h * (K[12] + f_old)
+            F[3:] = h * np.dot(self._D, K)
+            self._F = F
+        x = (t - self.t_old) / h
+        y = np.zeros(self.n)
+        for i, f in enumerate(self._F[::-1]):
+            y += f
+            y *= x if i % 2 == 0 else 1.0 - x
+        return y + self.y_old
+
+
+# -------------------------------------------------------------------- Rosenbrock
+
+
+def _rodas4_tableau() -> dict:
+    """RODAS4 in the 'K' form used by Hairer's RODAS code (Hairer & Wanner II, sec.
+    VI.7, table 7.? / code rodas.f, METH=1):
+        (I/(h g) - J) K_i = f(t + alpha_i h, y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gamma_i f_t
+        y_new = y + sum_j M_j K_j,   err = K_6.
+    """
+    A = np.zeros((6, 6))
+    C = np.zeros((6, 6))
+    A[1, 0] = 1.544
+    A[2, :2] = [0.9466785280815826, 0.2557011698983284]
+    A[3, :3] = [3.314825187068521, 2.896124015972201, 0.9986419139977817]
+    A[4, :4] = [1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895]
+    A[5, :5] = [*A[4, :4], 1.0]
+    C[1, 0] = -5.6688
+    C[2, :2] = [-2.430093356833875, -0.2063599157091915]
+    C[3, :3] = [-0.1073529058151375, -9.594562251023355, -20.47028614809616]
+    C[4, :4] = [7.496443313967647, -10.24680431464352, -33.99990352819905, 11.7089089320616]
+    C[5, :5] = [8.083246795921522, -7.981132988064893, -31.52159432874371, 16.31930543123136,
+                -6.058818238834054]
+    M = np.array([*A[4, :4], 1.0, 1.0])
+    E = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    alpha = np.array([0.0, 0.386, 0.21, 0.63, 1.0, 1.0])
+    gamma_sum = np.array([0.25, -0.1043, 0.1035, -0.0362, 0.0, 0.0])
+    return dict(gamma=0.25, A=A, C=C, M=M, E=E, alpha=alpha, gamma_sum=gamma_sum)
+
+
+def _ros2_tableau() -> dict:
+    """ROS2 (Verwer, Spee, Blom & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999)),
+    gamma = 1 + 1/sqrt(2): order 2, L-stable, 2 stages, in the same K form."""
+    g = 1.0 + 1.0 / math.sqrt(2.0)
+    A = np.zeros((2, 2))
+    C = np.zeros((2, 2))
+    A[1, 0] = 1.0 / g
+    C[1, 0] = -2.0 / g
+    M = np.array([1.5 / g, 0.5 / g])
+    E = np.array([0.5 / g, 0.5 / g])
+    alpha = np.array([0.0, 1.0])
+    gamma_sum = np.array([g, -g])
+    return dict(gamma=g, A=A, C=C, M=M, E=E, alpha=alpha, gamma_sum=gamma_sum)
+
+
+class _LinearlyImplicit:
+    """Shared Rosenbrock machinery: Jacobian (analytic or finite difference),
+    time derivative f_t, LU of I/(h gamma) - J with reuse, stage loop."""
+
+    def _setup_rosenbrock(self, tableau: dict, *, autonomous: bool, constant_jac: bool) -> None:
+        self._tab = tableau
+        self._gamma = tableau['gamma']
+        self._stage_A = [np.ascontiguousarray(tableau['A'][i, :i]) for i in range(len(tableau['M']))]
+        self._stage_C = [np.ascontiguousarray(tableau['C'][i, :i]) for i in range(len(tableau['M']))]
+        self._autonomous = bool(autonomous)
+        self._constant_jac = bool(constant_jac)
+        self._J = None
+        self._ft = None
+        self._f = None
+        self._lu_h = None
+        self._lu = None
+        self._inv = None
+        self.njev_fd = 0
+        self._eye = np.eye(self.n)
+
+    def _ensure_f(self) -> np.ndarray:
+        if self._f is None:
+            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
+            if not np.all(np.isfinite(self._f)):
+                self._raise_nonfinite(self._f, self.t, 'fun(t, y)')
+        return self._f
+
+    def _jacobian(self, t: float, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
+        self.njev += 1
+        if self.jac is not None:
+            J = np.array(self.jac(t, y), dtype=float)
+            if J.shape != (self.n, self.n):
+                raise SolverOptionError('jac', f'must return an array of shape {(self.n, self.n)}, '
+                                        f'got {J.shape}')
+            return J
+        # forward differences, Hairer's increment sqrt(eps * max(1e-5, |y_j|))
+        self.njev_fd += 1
+        J = np.empty((self.n, self.n))
+        for j in range(self.n):
+            yj = y[j]
+            delta = math.sqrt(_EPS * max(1e-5, abs(yj)))
+            yp = y.copy()
+            yp[j] = yj + delta
+            J[:, j] = (self._eval(t, yp) - f0) / delta
+        return J
+
+    def _prepare(self, h: float) -> None:
+        """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed."""
+        if self._J is None:
+            f0 = self._ensure_f()
+            self._J = self._jacobian(self.t, self.y, f0)
+            self._lu_h = None
+            if not self._autonomous:
+                # central difference: error ~ eps^(2/3), forward would give ~ sqrt(eps)
+                delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(self.t))
+                self._ft = (self._eval(self.t + delta, self.y)
+                            - self._eval(self.t - delta, self.y)) / (2.0 * delta)
+        if self._lu_h is None or abs(self._lu_h - h) > 1e-12 * h:
+            G = self._eye / (h * self._gamma) - self._J
+            lu = scipy.linalg.lu_factor(G, check_finite=False)
+            self.nlu += 1
+            if np.any(np.diag(lu[0]) == 0.0):
+                raise SolverError(f'h: matrix I/(h*gamma) - J is singular at t={self.t:.9g} s '
+                                  f'(h={h:.3g} s, {self.method})')
+            self._lu = lu
+            self._inv = (scipy.linalg.lu_solve(lu, self._eye, check_finite=False)
+                         if self.n <= _INVERSE_MAX_N else None)
+            self._lu_h = h
+
+    def _stages(self, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """Run the stages; returns (y_new, error vector). Units of y."""
+        tab = self._tab
+        s = len(tab['M'])
+        K = self._K
+        y = self.y
+        t = self.t
+        f0 = self._ensure_f()
+        inv = self._inv
+        alpha = tab['alpha']
+        gsum = tab['gamma_sum']
+        ft = self._ft
+        dot = np.dot
+        for i in range(s):
+            if i == 0:
+                rhs = f0.copy()
+            else:
+                rhs = self.fun(t + alpha[i] * h, y + dot(self._stage_A[i], K[:i]))
+                self.nfev += 1
+                rhs = rhs + dot(self._stage_C[i], K[:i]) * (1.0 / h)
+            if ft is not None and gsum[i] != 0.0:
+                rhs += (h * gsum[i]) * ft
+            if inv is not None:
+                K[i] = dot(inv, rhs)
+            else:
+                K[i] = scipy.linalg.lu_solve(self._lu, rhs, check_finite=False)
+        y_new = y + dot(tab['M'], K[:s])
+        err = dot(tab['E'], K[:s])
+        return y_new, err
+
+    def _after_accept(self) -> None:
+        self._f = None
+        if not self._constant_jac:
+            self._J = None
+
+    def restart(self) -> None:
+        """Inputs changed discontinuously: drop f(t, y), the Jacobian and f_t; keep h."""
+        self._f = None
+        self._J = None
+        self._lu_h = None
+
+
+class RosenbrockStepper(_LinearlyImplicit, _AdaptiveStepper):
+    """RODAS4: adaptive Rosenbrock method for stiff problems.
+
+    Order 4, embedded order 3, 6 stages (6 fev, 1 Jacobian, 1 LU per step;
+    +2 fev for f_t unless ``autonomous``). L-stable and stiffly accurate (the
+    last stage equals the solution), so lambda = -1e6 costs no more steps than
+    lambda = -1. Linearly implicit: no Newton iteration; uses ``jac(t, y)`` if
+    given, else a forward-difference Jacobian (n extra fev, counted in nfev and
+    ``njev_fd``). Dense output: cubic Hermite (3rd order) from y, f at both ends.
+    Source: Hairer & Wanner, Solving ODEs II, sec. VI.7 (code RODAS, coefficients
+    of RODAS4 as in rodas.f).
+    """
+
+    method = 'rosenbrock'
+    order = 3  # embedded order -> controller exponent 1/4
+    beta = 0.04
+    fac_min = 0.2
+    fac_max = 6.0
+
+    def __init__(self, *args, autonomous: bool = False, constant_jac: bool = False,
+                 **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._K = np.empty((6, self.n))
+        self._setup_rosenbrock(_rodas4_tableau(), autonomous=autonomous,
+                               constant_jac=constant_jac)
+        self._h_last = 0.0
+        self._f_old = None
+
+    def _first_derivative(self) -> np.ndarray:
+        return self._ensure_f()
+
+    def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        self._prepare(h)
+        y_new, err = self._stages(h)
+        e = err / self._scale(self.y, y_new)
+        return math.sqrt(float(np.dot(e, e)) / self.n), y_new
+
+    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
+        self._f_old = self._ensure_f()
+        self.t_old, self.y_old = self.t, self.y
+        self.t, self.y = t_new, y_new
+        self._h_last = t_new - self.t_old
+        self._after_accept()
+
+    def dense(self, t: float) -> np.ndarray:
+        """Cubic Hermite y(t) inside the last step (3rd order); may cost 1 fev
+        (f at the step end, reused by the next step)."""
+        t = self._check_dense_t(t)
+        return _hermite(self, t, self._f_old, self._ensure_f())
+
+
+def _hermite(st: _StepperBase, t: float, f0: np.ndarray, f1: np.ndarray) -> np.ndarray:
+    """Cubic Hermite interpolation between (t_old, y_old, f0) and (t, y, f1)."""
+    h = st.t - st.t_old
+    if h == 0.0:
+        return st.y.copy()
+    x = (t - st.t_old) / h
+    h00 = (1 + 2 * x) * (1 - x) ** 2
+    h10 = x * (1 - x) ** 2
+    h01 = x * x * (3 - 2 * x)
+    h11 = x * x * (x - 1)
+    return h00 * st.y_old + (h10 * h) * f0 + h01 * st.y + (h11 * h) * f1
+
+
+# ------------------------------------------------------------------- fixed step
+
+
+class _FixedStepper(_StepperBase):
+    """Fixed step h: ``advance_to`` splits [t, t_end] into ceil((t_end - t)/h)
+    equal substeps (each <= h, none tiny), so it always lands exactly."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if self.h is None:
+            raise SolverOptionError('h', f'required for the fixed-step method {self.method!r}')
+        self._f = None
+        self._f_old = None
+
+    def _ensure_f(self) -> np.ndarray:
+        if self._f is None:
+            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
+        return self._f
+
+    def advance_to(self, t_end: float) -> np.ndarray:
+        """Integrate to exactly ``t_end`` (s) with equal substeps <= h."""
+        t_end = self._check_t_end(t_end)
+        span = t_end - self.t
+        if span <= 0.0:
+            return self.y
+        n = max(1, math.ceil(span / self.h * (1 - 1e-12)))
+        t0 = self.t
+        dt = span / n
+        for k in range(1, n + 1):
+            t_new = t_end if k == n else t0 + k * dt
+            y_new = self._step(dt)
+            if not np.all(np.isfinite(y_new)):
+                self._raise_nonfinite(y_new, t_new, 'the step')
+            self._f_old = self._f
+            self.t_old, self.y_old = self.t, self.y
+            self.t, self.y = t_new, y_new
+            self._f = None
+            self.naccept += 1
+            self._after_step()
+        return self.y
+
+    def _after_step(self) -> None:
+        pass
+
+    def restart(self) -> None:
+        self._f = None
+
+    def dense(self, t: float) -> np.ndarray:
+        """Cubic Hermite y(t) inside the last step (3rd order); costs 1 fev at
+        the step end (reused by the next step)."""
+        t = self._check_dense_t(t)
+        f0 = self._f_old if self._f_old is not None else self._eval(self.t_old, self.y_old)
+        return _hermite(self, t, f0, self._ensure_f())
+
+
+class Rk4Stepper(_FixedStepper):
+    """Classic Runge-Kutta 4, fixed step h, 4 fev per step.
+
+    Order 4, explicit; exact for polynomial solutions of degree <= 4 (y' = p(t)
+    with deg p <= 3). Stable on the real axis for h |lambda| <= 2.785.
+    Source: Kutta, Z. Math. Phys. 46 (1901); Hairer, Norsett, Wanner I, sec. II.1.
+    """
+
+    method = 'rk4'
+    order = 4
+
+    def _step(self, h: float) -> np.ndarray:
+        t = self.t
+        y = self.y
+        fun = self.fun
+        k1 = self._ensure_f()
+        hh = 0.5 * h
+        k2 = fun(t + hh, y + hh * k1)
+        k3 = fun(t + hh, y + hh * k2)
+        k4 = fun(t + h, y + h * k3)
+        self.nfev += 3
+        return y + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+
+class Ros2Stepper(_LinearlyImplicit, _FixedStepper):
+    """ROS2: fixed-step linearly implicit Rosenbrock method for real time on stiff scenes.
+
+    Order 2, L-stable (gamma = 1 + 1/sqrt 2), 2 stages: 2 fev, 1 Jacobian and
+    1 LU per step (+2 fev for f_t unless ``autonomous``); with
+    ``constant_jac=True`` the Jacobian and LU are computed once and reused, so a
+    linear stiff scene costs 2 fev and two matrix-vector products per step.
+    No Newton iteration, so the cost per step is fixed: suitable for a wall-clock
+    exchange step. Source: Verwer, Spee, Blom & Hundsdorfer, SIAM J. Sci.
+    Comput. 20 (1999) 1456-1480, eq. (2.2); Hairer & Wanner II, sec. IV.7.
+    """
+
+    method = 'ros2'
+    order = 2
+
+    def __init__(self, *args, autonomous: bool = False, constant_jac: bool = False,
+                 **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._K = np.empty((2, self.n))
+        self._setup_rosenbrock(_ros2_tableau(), autonomous=autonomous,
+                               constant_jac=constant_jac)
+
+    def _step(self, h: float) -> np.ndarray:
+        self._prepare(h)
+        y_new, _ = self._stages(h)
+        return y_new
+
+    def _after_step(self) -> None:
+        self._after_accept()
+
+    def restart(self) -> None:
+        _LinearlyImplicit.restart(self)
+
+
+# ------------------------------------------------------------------------ factory
+
+METHODS: dict[str, type] = {
+    'dopri5': Dopri5Stepper,
+    'dop853': Dop853Stepper,
+    'rosenbrock': RosenbrockStepper,
+    'rk4': Rk4Stepper,
+    'ros2': Ros2Stepper,
+}
+
+
+def make_stepper(method: str, fun: RhsFunction, t0: float, y0, *, rtol: float = 1e-6,
+                 atol: float | np.ndarray = 1e-9, h: float | None = None,
+                 jac: JacFunction | None = None, max_step: float = math.inf,
+                 autonomous: bool = False, constant_jac: bool = False) -> Stepper:
+    """Create a persistent stepper.
+
+    Args:
+        method: one of ``METHODS`` ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2').
+        fun: right-hand side ``fun(t, y) -> dy/dt`` (ndarray, state units per s).
+        t0: initial time (s). y0: initial state.
+        rtol, atol: relative / absolute tolerance (adaptive methods); the scaled
+            error norm is RMS(err / (atol + rtol max(|y_old|, |y_new|))).
+        h: initial step (adaptive, optional: Hairer's HINIT otherwise) or the
+            fixed step (s, required for 'rk4' and 'ros2').
+        jac: ``jac(t, y) -> (n, n)`` (Rosenbrock methods; finite differences if None).
+        max_step: largest step (s).
+        autonomous: Rosenbrock only: fun does not depend on t explicitly (skips
+            the f_t finite difference, 1 fev per step).
+        constant_jac: Rosenbrock only: J is constant (linear problem): reuse it and its LU.
+    Raises:
+        SolverOptionError: unknown method or invalid option (message starts with its name).
+    """
+    cls = METHODS.get(method)
+    if cls is None:
+        raise SolverOptionError('method', f'unknown solver {method!r}; choose one of '
+                                f'{", ".join(METHODS)}')
+    kwargs = dict(rtol=rtol, atol=atol, h=h, jac=jac, max_step=max_step)
+    if issubclass(cls, _LinearlyImplicit):
+        kwargs.update(autonomous=autonomous, constant_jac=constant_jac)
+    return cls(fun, t0, y0, **kwargs)

@@ -1,0 +1,266 @@
+"""Tests of cvj_ros.physics.solvers against closed forms, scipy and each other."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from cvj_ros.errors import SolverError
+from cvj_ros.physics.solvers import METHODS, SolverOptionError, make_stepper
+
+ADAPTIVE = ['dopri5', 'dop853', 'rosenbrock']
+FIXED = ['rk4', 'ros2']
+
+
+def oscillator(t: float, y: np.ndarray) -> np.ndarray:
+    """Harmonic oscillator y'' = -y: y = (cos t, -sin t) from (1, 0)."""
+    return np.array([y[1], -y[0]])
+
+
+def oscillator_jac(t: float, y: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, 1.0], [-1.0, 0.0]])
+
+
+def van_der_pol(t: float, y: np.ndarray) -> np.ndarray:
+    mu = 1.0
+    return np.array([y[1], mu * (1 - y[0] ** 2) * y[1] - y[0]])
+
+
+def fixed_error(method: str, h: float, fun, y0, t_end: float, exact, **kw) -> float:
+    st = make_stepper(method, fun, 0.0, y0, h=h, **kw)
+    return float(np.max(np.abs(st.advance_to(t_end) - exact)))
+
+
+@pytest.mark.parametrize('method,order', [('rk4', 4), ('ros2', 2)])
+def test_fixed_step_observed_order_on_oscillator(method: str, order: int) -> None:
+    exact = np.array([math.cos(2.0), -math.sin(2.0)])
+    errs = [fixed_error(method, h, oscillator, [1.0, 0.0], 2.0, exact, jac=oscillator_jac)
+            for h in (0.1, 0.05, 0.025)]
+    rates = [math.log2(errs[i] / errs[i + 1]) for i in range(2)]
+    assert all(abs(r - order) < 0.25 for r in rates), rates
+
+
+@pytest.mark.parametrize('method,order', [('rk4', 4), ('ros2', 2)])
+def test_fixed_step_observed_order_on_decay(method: str, order: int) -> None:
+    exact = np.array([math.exp(-1.0)])
+    errs = [fixed_error(method, h, lambda t, y: -y, [1.0], 1.0, exact) for h in (0.1, 0.05, 0.025)]
+    rates = [math.log2(errs[i] / errs[i + 1]) for i in range(2)]
+    assert all(abs(r - order) < 0.25 for r in rates), rates
+
+
+@pytest.mark.parametrize('method', ADAPTIVE)
+def test_adaptive_tolerance_proportionality_oscillator(method: str) -> None:
+    """Error shrinks as rtol tightens, roughly in proportion (global error ~ tol)."""
+    exact = np.array([math.cos(10.0), -math.sin(10.0)])
+    errs = []
+    for rtol in (1e-4, 1e-6, 1e-8):
+        st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], rtol=rtol, atol=rtol * 1e-2,
+                          jac=oscillator_jac)
+        errs.append(float(np.max(np.abs(st.advance_to(10.0) - exact))))
+    assert errs[0] > errs[1] > errs[2]
+    assert errs[2] < 1e-6
+    # two decades of tolerance give at least ~1.2 decades of error
+    assert errs[0] / errs[2] > 10 ** 2.4
+
+
+@pytest.mark.parametrize('method', ADAPTIVE)
+def test_adaptive_observed_order_on_forced_decay(method: str) -> None:
+    """Observed order on y' = -y + sin t (closed form): constant steps are forced
+    via h = max_step and a loose tol (no rejections); halving h divides the error by 2^p."""
+    order = {'dopri5': 5, 'dop853': 8, 'rosenbrock': 4}[method]
+
+    def f(t, y):
+        return -y + math.sin(t)
+
+    def exact(t):  # y(0) = 1
+        return 1.5 * math.exp(-t) + 0.5 * (math.sin(t) - math.cos(t))
+
+    hs = (0.2, 0.1) if method != 'dop853' else (1.0, 0.5)
+    errs = []
+    for h in hs:
+        st = make_stepper(method, f, 0.0, [1.0], rtol=1.0, atol=1.0, h=h, max_step=h)
+        y = st.advance_to(4.0)
+        assert st.nreject == 0
+        errs.append(abs(y[0] - exact(4.0)))
+    rate = math.log2(errs[0] / errs[1])
+    assert rate == pytest.approx(order, abs=0.6), (errs, rate)
+
+
+@pytest.mark.parametrize('method', ADAPTIVE + FIXED)
+def test_matches_scipy_on_van_der_pol(method: str) -> None:
+    ref = solve_ivp(van_der_pol, (0.0, 5.0), [2.0, 0.0], method='DOP853', rtol=1e-12, atol=1e-12)
+    kw = dict(h=1e-3) if method in FIXED else dict(rtol=1e-10, atol=1e-12)
+    st = make_stepper(method, van_der_pol, 0.0, [2.0, 0.0], **kw)
+    y = st.advance_to(5.0)
+    tol = {'ros2': 1e-4, 'rk4': 1e-9}.get(method, 2e-8)
+    np.testing.assert_allclose(y, ref.y[:, -1], atol=tol)
+
+
+@pytest.mark.parametrize('method', ADAPTIVE + FIXED)
+def test_advance_to_lands_exactly_and_keeps_step(method: str) -> None:
+    kw = dict(h=0.01) if method in FIXED else dict(rtol=1e-8, atol=1e-10)
+    exchange = 0.001  # much smaller than the natural step
+    st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], jac=oscillator_jac, **kw)
+    for k in range(1, 201):
+        y = st.advance_to(k * exchange)
+        assert st.t == k * exchange
+    tol = 1e-5 if method == 'ros2' else 1e-7
+    assert np.max(np.abs(y - [math.cos(0.2), -math.sin(0.2)])) < tol
+    if method in ADAPTIVE:
+        # the controller proposal survives the clipped steps: larger than the exchange step
+        assert st.h > 5 * exchange
+        # one step per exchange, no rejections
+        assert st.naccept == 200 and st.nreject == 0
+
+
+@pytest.mark.parametrize('method', ADAPTIVE)
+def test_step_persistence_beats_restarting(method: str) -> None:
+    """Calling advance_to on long intervals costs fewer steps than a fresh solver each time."""
+    kw = dict(rtol=1e-8, atol=1e-10, jac=oscillator_jac)
+    st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], **kw)
+    for k in range(1, 21):
+        st.advance_to(0.5 * k)
+    persistent = st.naccept + st.nreject
+    fresh_steps = 0
+    y, t = np.array([1.0, 0.0]), 0.0
+    for k in range(1, 21):
+        fresh = make_stepper(method, oscillator, t, y, **kw)
+        y = fresh.advance_to(0.5 * k)
+        t = 0.5 * k
+        fresh_steps += fresh.naccept + fresh.nreject
+    assert persistent < fresh_steps
+
+
+@pytest.mark.parametrize('method,tol', [('dopri5', 1e-7), ('dop853', 1e-9), ('rosenbrock', 1e-5),
+                                        ('rk4', 1e-5), ('ros2', 1e-3)])
+def test_dense_output_inside_last_step(method: str, tol: float) -> None:
+    kw = dict(h=0.1 if method == 'rk4' else 0.01) if method in FIXED else dict(rtol=1e-9, atol=1e-12)
+    st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], jac=oscillator_jac, **kw)
+    st.advance_to(3.0)
+    np.testing.assert_array_equal(st.dense(st.t), st.y)
+    np.testing.assert_allclose(st.dense(st.t_old), st.y_old, atol=1e-14)
+    assert st.t_old < st.t
+    for x in (0.0, 0.25, 0.5, 0.9, 1.0):
+        t = st.t_old + x * (st.t - st.t_old)
+        np.testing.assert_allclose(st.dense(t), [math.cos(t), -math.sin(t)], atol=tol)
+    with pytest.raises(SolverOptionError, match='^t:'):
+        st.dense(st.t + 1.0)
+
+
+def test_dense_output_order_dopri5() -> None:
+    """Interpolation error at mid-step falls like h^5 (4th-order dense output)."""
+    errs = []
+    for h in (0.4, 0.2):
+        st = make_stepper('dopri5', oscillator, 0.0, [1.0, 0.0], h=h, max_step=h, rtol=1, atol=1)
+        st.advance_to(h)
+        tm = 0.5 * h
+        errs.append(abs(st.dense(tm)[0] - math.cos(tm)))
+    assert math.log2(errs[0] / errs[1]) > 4.5
+
+
+def test_rosenbrock_stiff_decay_few_steps() -> None:
+    """y' = -1e6 (y - cos t): L-stable Rosenbrock takes few steps; dopri5 would need ~1e6/3."""
+    lam = 1e6
+
+    def f(t, y):
+        return -lam * (y - np.cos(t)) - np.sin(t)
+
+    st = make_stepper('rosenbrock', f, 0.0, [2.0], rtol=1e-6, atol=1e-9,
+                      jac=lambda t, y: np.array([[-lam]]))
+    y = st.advance_to(1.0)
+    assert abs(y[0] - math.cos(1.0)) < 1e-6
+    assert st.naccept + st.nreject < 200
+    # dopri5 stability limit h < 3.3/lambda: check it is forced into tiny steps
+    st5 = make_stepper('dopri5', f, 0.0, [2.0], rtol=1e-6, atol=1e-9)
+    st5.advance_to(1e-3)
+    assert st5.naccept > 0.5 * 1e-3 * lam / 3.3
+
+
+def test_rosenbrock_linear_stiff_system_order_and_fd_jacobian() -> None:
+    """Linear stiff system with eigenvalues -1 and -1e4, closed form; FD Jacobian path."""
+    A = np.array([[-1.0, 0.0], [1e4 - 1.0, -1e4]])  # eigen -1 (v=(1,1)), -1e4 (v=(0,1))
+
+    def f(t, y):
+        return A @ y
+
+    y0 = np.array([1.0, 2.0])
+    # y = e^{-t} (1,1) + e^{-1e4 t} (0,1)
+    exact = np.array([math.exp(-1.0), math.exp(-1.0)])
+    st = make_stepper('rosenbrock', f, 0.0, y0, rtol=1e-8, atol=1e-10, autonomous=True)
+    y = st.advance_to(1.0)
+    np.testing.assert_allclose(y, exact, rtol=1e-6)
+    assert st.njev_fd == st.njev > 0
+    # fixed-step ROS2 at h = 0.01 (h*lambda = -100): stable, 2nd order on the slow mode
+    errs = []
+    for h in (0.02, 0.01):
+        s2 = make_stepper('ros2', f, 0.0, y0, h=h, jac=lambda t, y: A, constant_jac=True,
+                          autonomous=True)
+        errs.append(np.max(np.abs(s2.advance_to(1.0) - exact)))
+        assert s2.nlu == 1
+    assert math.log2(errs[0] / errs[1]) == pytest.approx(2.0, abs=0.3)
+
+
+@pytest.mark.parametrize('degree', [0, 1, 2, 3, 4])
+def test_rk4_exact_for_polynomials(degree: int) -> None:
+    """y' = p'(t) with deg p <= 4: RK4 (Simpson in t) is exact to rounding."""
+    coef = np.arange(1.0, degree + 2.0)
+
+    def p(t):
+        return sum(c * t ** k for k, c in enumerate(coef))
+
+    def dp(t, y):
+        return np.array([sum(k * c * t ** (k - 1) for k, c in enumerate(coef) if k > 0)])
+
+    st = make_stepper('rk4', dp, 0.0, [p(0.0)], h=0.37)
+    y = st.advance_to(2.0)
+    assert y[0] == pytest.approx(p(2.0), rel=1e-13, abs=1e-13)
+
+
+@pytest.mark.parametrize('method', list(METHODS))
+def test_nan_raises_solver_error_with_time_and_index(method: str) -> None:
+    def f(t, y):
+        out = -y.copy()
+        if t > 0.5:
+            out[1] = math.nan
+        return out
+
+    kw = dict(h=0.01) if method in FIXED else {}
+    st = make_stepper(method, f, 0.0, [1.0, 1.0], jac=lambda t, y: -np.eye(2), **kw)
+    # linearly implicit methods mix components in the solve: any index may show the NaN
+    index = '1' if method in ('dopri5', 'dop853', 'rk4') else r'\d'
+    with pytest.raises(SolverError, match=rf'^y\[{index}\]: non-finite .* t=') as info:
+        st.advance_to(1.0)
+    assert not isinstance(info.value, SolverOptionError)
+
+
+def test_restart_keeps_step_and_drops_fsal() -> None:
+    u = {'value': 1.0}
+
+    def f(t, y):
+        return np.array([u['value']])
+
+    st = make_stepper('dopri5', f, 0.0, [0.0], rtol=1e-8, atol=1e-10)
+    st.advance_to(1.0)
+    h = st.h
+    u['value'] = -1.0
+    st.restart()
+    assert st.h == h
+    y = st.advance_to(2.0)
+    assert y[0] == pytest.approx(0.0, abs=1e-10)
+
+
+def test_bad_options_raise_named_errors() -> None:
+    with pytest.raises(SolverOptionError, match='^method:'):
+        make_stepper('euler', oscillator, 0.0, [1.0, 0.0])
+    with pytest.raises(SolverOptionError, match='^h:'):
+        make_stepper('rk4', oscillator, 0.0, [1.0, 0.0])
+    with pytest.raises(SolverOptionError, match='^rtol:'):
+        make_stepper('dopri5', oscillator, 0.0, [1.0, 0.0], rtol=-1.0)
+    with pytest.raises(SolverOptionError, match=r'^y0\[1\]:'):
+        make_stepper('dopri5', oscillator, 0.0, [1.0, math.inf])
+    st = make_stepper('dopri5', oscillator, 0.0, [1.0, 0.0])
+    st.advance_to(1.0)
+    with pytest.raises(SolverOptionError, match='^t_end:'):
+        st.advance_to(0.5)

@@ -1,0 +1,116 @@
+"""Rolling-window metrics of the monitor node (pure numpy, no ROS).
+
+* Speed nonuniformity (coefficient of unevenness), seed 004 section 4 (unevenness of the
+  drive and driven shafts delta_1, delta_2)::
+
+      delta = (omega_max - omega_min) / omega_mean          (-)
+
+  over the samples of a window; ``nan`` where |omega_mean| is below ``min_speed``
+  (a shaft at standstill has no meaningful unevenness).
+* Amplitude of any signal (speed rad/s, torque N m): (x_max - x_min) / 2.
+* Recommended joint angles: :data:`RECOMMENDED_MAX_ANGLE_DEG` (seed references below).
+
+Seed 004 (section 4, after fig. 4.9) recommends delta_1 <= 0.075..0.11 for the drive
+shaft and delta_2 <= 0.12..0.15 for the driven shaft of the KAVZ-685 lever-hinge
+coupling; the monitor uses 0.11 / 0.15 as default WARN / ERROR thresholds.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+# Recommended maximum working angle per joint kind (deg): tripod seed 000 ("beta <= 25 deg"),
+# fixed ball (Rzeppa / bowl-ball) seed 002 (beta2 up to 47 deg).
+RECOMMENDED_MAX_ANGLE_DEG: dict[str, float] = {'tripod': 25.0, 'rzeppa': 47.0}
+
+DEFAULT_NONUNIFORMITY_WARN = 0.11    # seed 004 sec. 4, drive shaft upper recommendation
+DEFAULT_NONUNIFORMITY_ERROR = 0.15   # seed 004 sec. 4, driven shaft upper recommendation
+
+
+class RollingWindow:
+    """Ring buffer of the last ``capacity`` samples (t in s, one row of ``width`` values).
+
+    ``push`` is O(width); ``window(span)`` returns the samples of the last ``span`` seconds
+    in time order as arrays (t: (n,), rows: (n, width)).
+    """
+
+    def __init__(self, capacity: int, width: int) -> None:
+        if capacity < 1 or width < 1:
+            raise ValueError(f'capacity/width: must be >= 1, got {capacity}, {width}')
+        self.capacity = int(capacity)
+        self.width = int(width)
+        self._t = np.zeros(self.capacity)
+        self._rows = np.zeros((self.capacity, self.width))
+        self._next = 0
+        self._count = 0
+
+    def __len__(self) -> int:
+        return self._count
+
+    def push(self, t: float, row: Sequence[float] | FloatArray) -> None:
+        """Append one sample (t in s; row of ``width`` floats)."""
+        self._t[self._next] = t
+        self._rows[self._next, :] = row
+        self._next = (self._next + 1) % self.capacity
+        self._count = min(self._count + 1, self.capacity)
+
+    def samples(self) -> tuple[FloatArray, FloatArray]:
+        """All stored samples in time order: (t (n,), rows (n, width))."""
+        if self._count < self.capacity:
+            return self._t[:self._count].copy(), self._rows[:self._count].copy()
+        order = np.r_[self._next:self.capacity, 0:self._next]
+        return self._t[order], self._rows[order]
+
+    def window(self, span: float) -> tuple[FloatArray, FloatArray]:
+        """Samples with t >= t_last - span (s), in time order."""
+        t, rows = self.samples()
+        if t.size == 0:
+            return t, rows
+        keep = t >= t[-1] - span
+        return t[keep], rows[keep]
+
+
+def speed_nonuniformity(omega: FloatArray, *, min_speed: float = 1e-3) -> FloatArray:
+    """delta = (omega_max - omega_min)/omega_mean per column of ``omega`` (rad/s), seed 004
+    sec. 4; nan for columns whose |mean| < ``min_speed`` (rad/s) or for an empty window."""
+    w = np.atleast_2d(np.asarray(omega, dtype=float).T).T
+    if w.shape[0] == 0:
+        return np.full(w.shape[1], np.nan)
+    mean = w.mean(axis=0)
+    span = w.max(axis=0) - w.min(axis=0)
+    out = np.full(mean.shape, np.nan)
+    ok = np.abs(mean) >= min_speed
+    out[ok] = span[ok] / np.abs(mean[ok])
+    return out
+
+
+def amplitude(x: FloatArray) -> FloatArray:
+    """(max - min)/2 per column (same unit as ``x``); nan for an empty window."""
+    a = np.atleast_2d(np.asarray(x, dtype=float).T).T
+    if a.shape[0] == 0:
+        return np.full(a.shape[1], np.nan)
+    return 0.5 * (a.max(axis=0) - a.min(axis=0))
+
+
+def level(value: float, warn: float, error: float) -> int:
+    """0 (OK) below ``warn``, 1 (WARN) below ``error``, 2 (ERROR) at/above it or NaN.
+    A threshold <= 0 disables that level."""
+    if math.isnan(value):
+        return 2
+    if error > 0 and value >= error:
+        return 2
+    if warn > 0 and value >= warn:
+        return 1
+    return 0
+
+
+def angle_level(angle_deg: float, limit_deg: float, *, error_margin_deg: float = 5.0) -> int:
+    """Joint angle vs recommended limit: OK up to the limit, WARN up to limit + margin, ERROR beyond."""
+    if angle_deg <= limit_deg:
+        return 0
+    return 1 if angle_deg <= limit_deg + error_margin_deg else 2

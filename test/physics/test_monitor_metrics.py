@@ -1,0 +1,67 @@
+"""Rolling-window monitor metrics against closed forms of synthetic signals."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cvj_ros.physics.monitor_metrics import (RollingWindow, amplitude, angle_level, level,
+                                             speed_nonuniformity)
+
+
+def test_nonuniformity_of_sinusoidal_speed_closed_form():
+    # omega = w0 (1 + eps sin(2 pi f t)) sampled over whole periods: delta = 2 eps exactly
+    # at the extremes (sampled at the peaks), seed 004 sec. 4 definition.
+    w0, eps, f = 40.0, 0.03, 5.0
+    t = np.arange(0, 1.0, 1e-3)       # 1 ms samples hit t = 0.05 s (peak) and 0.15 s (trough)
+    omega = w0 * (1 + eps * np.sin(2 * math.pi * f * t))
+    delta = speed_nonuniformity(omega[:, None])
+    assert delta[0] == pytest.approx(2 * eps, rel=1e-9)
+    # mean of the sine over whole periods is w0; amplitude is w0 eps
+    assert amplitude(omega[:, None])[0] == pytest.approx(w0 * eps, rel=1e-9)
+
+
+def test_hooke_output_speed_nonuniformity_matches_ratio_swing():
+    # Independent construction: constant input speed through a Hooke joint at beta; output speed
+    # = w * cos b / (1 - sin^2 b cos^2 phi) swings between w cos b and w / cos b (seed 002 eq. 10).
+    b, w = math.radians(30.0), 100.0
+    phi = np.linspace(0, 2 * math.pi, 20001)
+    out = w * math.cos(b) / (1 - math.sin(b) ** 2 * np.cos(phi) ** 2)
+    # closed form of (max - min)/mean: mean output speed over a revolution equals w
+    expected = (1 / math.cos(b) - math.cos(b))
+    delta = speed_nonuniformity(np.c_[np.full_like(out, w), out])
+    assert delta[0] == 0.0
+    assert delta[1] == pytest.approx(expected, rel=1e-4)
+
+
+def test_standstill_and_empty_give_nan():
+    assert np.isnan(speed_nonuniformity(np.zeros((10, 1)))[0])
+    assert np.isnan(speed_nonuniformity(np.zeros((0, 2)))).all()
+    assert np.isnan(amplitude(np.zeros((0, 3)))).all()
+
+
+def test_rolling_window_keeps_last_samples_in_order_and_time_span():
+    win = RollingWindow(5, 2)
+    for i in range(8):
+        win.push(0.1 * i, [i, -i])
+    t, rows = win.samples()
+    assert len(win) == 5
+    np.testing.assert_allclose(t, [0.3, 0.4, 0.5, 0.6, 0.7])
+    np.testing.assert_allclose(rows[:, 0], [3, 4, 5, 6, 7])
+    t2, rows2 = win.window(0.25)        # t >= 0.45
+    np.testing.assert_allclose(t2, [0.5, 0.6, 0.7])
+    np.testing.assert_allclose(rows2[:, 1], [-5, -6, -7])
+    with pytest.raises(ValueError, match='capacity'):
+        RollingWindow(0, 1)
+
+
+def test_levels():
+    assert level(0.05, 0.11, 0.15) == 0
+    assert level(0.12, 0.11, 0.15) == 1
+    assert level(0.2, 0.11, 0.15) == 2
+    assert level(float('nan'), 0.11, 0.15) == 2
+    assert level(5.0, 0.0, 0.0) == 0          # disabled thresholds
+    assert angle_level(20.0, 25.0) == 0
+    assert angle_level(27.0, 25.0) == 1
+    assert angle_level(31.0, 25.0) == 2

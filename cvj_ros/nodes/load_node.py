@@ -43,7 +43,7 @@ def build_load(scene: Any, p: dict[str, Any]) -> Any:
     if p['load_override']:
         t, torque = load_torque_series_file('load_override', p['load_override'])
         try:
-            return load_mod.TimeSeriesLoad.from_arrays(t, torque)
+            return load_mod.TimeSeriesLoad.from_arrays(t, torque, field='load_override')
         except CvjError as exc:
             raise ParameterError('load_override', f'{p["load_override"]}: {exc}') from None
     field = 'load'

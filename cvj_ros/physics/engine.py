@@ -53,8 +53,12 @@ _REQUIRED = object()
 # --- spec reading --------------------------------------------------------------------------
 
 def did_you_mean(name: str, choices: Sequence[str]) -> str:
-    """'; did you mean X?' suffix (difflib) or ''."""
-    close = difflib.get_close_matches(str(name), list(choices), n=1, cutoff=0.6)
+    """'; did you mean X?' suffix or ''. difflib first, then a choice containing the name
+    (``grade`` -> ``grade_percent``: keys gained a unit suffix)."""
+    name = str(name)
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    if not close and len(name) >= 3:
+        close = [c for c in choices if name.lower() in c.lower()][:1]
     return f'; did you mean {close[0]!r}?' if close else ''
 
 

@@ -440,7 +440,8 @@ class BagRecorder:
 
     Record timestamps are simulated time (module docstring). The recorder subscribes to
     the contract topics at once (so the coupling node sees it matched before step 0) and
-    to any further ``/coupling/*/wrench`` topic it discovers (``discover_period``).
+    to any further ``/coupling/*/wrench`` topic it discovers (``discover_period``). A
+    topic enters the bag with its first message (no empty connections).
 
     Args:
         node: an rclpy node to create subscriptions on (the caller spins it).
@@ -457,6 +458,8 @@ class BagRecorder:
         self.clock_ns = 0
         self.last_message_wall = 0.0
         self.scene_text: str | None = None
+        self.first_wall: dict[str, float] = {}   # monotonic s of the first message per topic
+        self.last_wall: dict[str, float] = {}
         self._subs: dict[str, Any] = {}
         self._lock = threading.Lock()
         for topic in list(TOPIC_TYPES) + list(topics):
@@ -476,18 +479,20 @@ class BagRecorder:
         with self._lock:
             if topic in self._subs:
                 return
-            self.writer.add_topic(topic, msgtype)
             qos = recorder_qos(latched=topic == SCENE_TOPIC)
             stamped = msgtype in STAMPED_TYPES
             is_clock = topic == CLOCK_TOPIC
 
-            def callback(data: bytes, _topic: str = topic) -> None:
-                self._on_message(_topic, data, stamped=stamped, is_clock=is_clock)
+            def callback(data: bytes, _topic: str = topic, _type: str = msgtype) -> None:
+                self._on_message(_topic, _type, data, stamped=stamped, is_clock=is_clock)
             self._subs[topic] = self.node.create_subscription(
                 _msg_class(msgtype), topic, callback, qos, raw=True)
 
-    def _on_message(self, topic: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
+    def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
+                    is_clock: bool) -> None:
         import time
+        if topic not in self.writer.counts:  # bag connections only for topics with messages
+            self.writer.add_topic(topic, msgtype)
         stamp = cdr_stamp_ns(data) if stamped else self.clock_ns
         if is_clock:
             self.clock_ns = max(self.clock_ns, stamp)
@@ -495,7 +500,10 @@ class BagRecorder:
             self.scene_text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
             self.writer.set_custom_data('cvj_ros.scene', self.scene_text)
         self.writer.write(topic, stamp, data)
-        self.last_message_wall = time.monotonic()
+        now = time.monotonic()
+        self.last_message_wall = now
+        self.first_wall.setdefault(topic, now)
+        self.last_wall[topic] = now
 
     def discover(self) -> None:
         """Subscribe to pattern topics (``/coupling/*/wrench``) that appeared in the graph."""

@@ -1,0 +1,515 @@
+"""`cvj-sim run`: launch a driveline run as ROS processes and record it to a bag.
+
+Like a launch file: engine_node, load_node, monitor_node and coupling_node each run as
+their own process (the console scripts, ``--ros-args -p ...``); the recorder
+(:class:`cvj_ros.bag.BagRecorder`) runs inside the ``cvj-sim`` process. Why there: the
+bag's lifetime then belongs to the process that handles Ctrl-C/SIGTERM and decides the
+shutdown order, so the bag is finalised on every exit path without inter-process
+signalling, and the message counts/wall times feed the report directly; the
+orchestrator itself only sleeps, so it costs no extra core on a 2-core machine.
+
+Sequence: validate everything (scene, options, load bag) -> create the run directory
+``OUT`` (``OUT/bag`` the rosbag2 bag, ``OUT/logs/<node>.log`` the node outputs,
+``OUT/report.json``) -> start the recorder (subscribed before any node exists, so the
+coupling node sees it matched before step 0) -> start engine, load, monitor, coupling ->
+wait for the coupling node to exit -> wait until the recorder is drained -> SIGINT the
+other nodes (SIGTERM, then SIGKILL after a grace period) -> close the bag -> report.
+
+Domain: all processes share the caller's ``ROS_DOMAIN_ID``; when it is unset the run
+picks ``1 + pid % 100`` (stated in the report) instead of the crowded default 0.
+``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to ``LOCALHOST``.
+
+Exit status: 0 finished; 1 runtime error (the coupling node's ERROR line is printed, e.g.
+a peer that stopped answering); 2 bad scene/option (before any process starts);
+130/143 stopped by SIGINT/SIGTERM (bag complete and readable).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from cvj_ros import bag as bagmod
+from cvj_ros.errors import CvjError
+
+NODE_ORDER = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')  # coupling last
+MODES = ('lockstep', 'free-run')
+SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
+
+
+@dataclass
+class RunOptions:
+    """Options of one run (CLI flags of ``cvj-sim run``).
+
+    Attributes:
+        scene: scene name or YAML path.
+        out: run directory (bag at ``out/bag``).
+        duration: simulated seconds (None = scene duration).
+        seed: random seed (None = scene seed).
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        mode: ``'lockstep'`` or ``'free-run'``.
+        scheme: coupling scheme ``'zoh' | 'extrapolate' | 'linear_implicit'``.
+        exchange_step: s (None = scene exchange step).
+        load_from_bag: bag whose /load/wrench torque becomes the load of this run.
+        overwrite: replace an existing ``out``.
+        peer_timeout: s, the coupling node's lockstep wait bound.
+        grace: s between SIGINT and SIGTERM (and SIGTERM and SIGKILL) when stopping nodes.
+    """
+    scene: str
+    out: Path
+    duration: float | None = None
+    seed: int | None = None
+    storage: str = 'mcap'
+    mode: str = 'lockstep'
+    scheme: str = 'zoh'
+    exchange_step: float | None = None
+    load_from_bag: Path | None = None
+    overwrite: bool = False
+    peer_timeout: float = 5.0
+    grace: float = 3.0
+
+
+@dataclass
+class RunResult:
+    """Outcome of a run: exit status, paths, timings (wall s), counts, metrics, error line."""
+    exit_code: int
+    out: Path
+    bag: Path
+    scene_path: str
+    domain_id: int
+    sim_duration: float
+    exchange_step: float
+    steps_expected: int
+    wall_time: float
+    loop_wall_time: float | None
+    wall_per_step: float | None
+    real_time_factor: float | None
+    counts: dict[str, int]
+    node_exit_codes: dict[str, int | None]
+    error: str | None = None
+    stopped_by: str | None = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class _Prepared:
+    options: RunOptions
+    scene: Any
+    scene_path: Path
+    duration: float
+    exchange_step: float
+    seed: int | None
+    load_series: tuple[np.ndarray, np.ndarray] | None
+    coupling_topics: list[str]
+
+
+def prepare(options: RunOptions) -> _Prepared:
+    """Validate the scene and every option; raises a CvjError naming the field, starts nothing."""
+    from cvj_ros.physics.scene import Joint, find_scene, load_scene
+    scene_path = find_scene(options.scene).resolve()
+    scene = load_scene(scene_path)
+    if options.mode not in MODES:
+        raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
+    if options.scheme not in SCHEMES:
+        raise CvjError(f'--scheme: must be one of {", ".join(SCHEMES)}, got {options.scheme!r}')
+    if options.storage not in bagmod.STORAGES:
+        raise CvjError(f'--storage: must be one of {", ".join(bagmod.STORAGES)}, got {options.storage!r}')
+    duration = scene.duration if options.duration is None else float(options.duration)
+    if not (math.isfinite(duration) and duration > 0):
+        raise CvjError(f'--duration: must be a finite number > 0, got {options.duration}')
+    h = scene.exchange_step if options.exchange_step is None else float(options.exchange_step)
+    if not (math.isfinite(h) and h > 0):
+        raise CvjError(f'--exchange-step: must be a finite number > 0, got {options.exchange_step}')
+    if h > duration:
+        raise CvjError(f'--exchange-step: {h} s is longer than the duration {duration} s')
+    if options.seed is not None and not 0 <= options.seed < 2**31:
+        raise CvjError(f'--seed: must be in 0..2**31-1, got {options.seed}')
+    if not options.peer_timeout > 0:
+        raise CvjError(f'peer_timeout: must be > 0, got {options.peer_timeout}')
+    out = Path(options.out)
+    if out.exists() and any(out.iterdir()) and not options.overwrite:
+        raise CvjError(f'--out: {out} exists and is not empty (use --overwrite)')
+    if out.exists() and not out.is_dir():
+        raise CvjError(f'--out: {out} is not a directory')
+    load_series = None
+    if options.load_from_bag is not None:
+        try:
+            load_series = bagmod.load_torque_series(options.load_from_bag)
+        except CvjError as exc:
+            raise CvjError(f'--load-from-bag: {exc}') from None
+        if load_series[0].size < 2:
+            raise CvjError(f'--load-from-bag: {options.load_from_bag}: needs >= 2 /load/wrench samples')
+    joints = [el.name for el in scene.driveline if isinstance(el, Joint)]
+    return _Prepared(options, scene, scene_path, duration, h, options.seed, load_series,
+                     [f'/coupling/{j}/wrench' for j in joints])
+
+
+def _domain_env() -> tuple[dict[str, str], int]:
+    env = dict(os.environ)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+    if not env.get('ROS_DOMAIN_ID'):
+        env['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
+    try:
+        domain = int(env['ROS_DOMAIN_ID'])
+    except ValueError:
+        raise CvjError(f'ROS_DOMAIN_ID: must be an integer, got {env["ROS_DOMAIN_ID"]!r}') from None
+    return env, domain
+
+
+def node_command(name: str) -> list[str]:
+    """How to start node ``name``: the console script next to this Python, else on PATH,
+    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``."""
+    exe = Path(sys.executable).with_name(name)
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which(name)
+    if found:
+        return [found]
+    return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
+
+
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS)."""
+    o = prep.options
+    params: dict[str, Any] = {'scene': str(prep.scene_path)}
+    if prep.seed is not None:
+        params['seed'] = int(prep.seed)
+    if name == 'coupling_node':
+        params.update(mode=o.mode, coupling_scheme=o.scheme, exchange_step=float(prep.exchange_step),
+                      duration=float(prep.duration), peer_timeout=float(o.peer_timeout),
+                      # engine, load, monitor and the recorder see /driveline/joint_states before step 0
+                      min_subscribers=4)
+    if load_override is not None and name in ('coupling_node', 'load_node'):
+        params['load_override'] = str(load_override)
+    return params
+
+
+def _ros_args(params: dict[str, Any]) -> list[str]:
+    args = ['--ros-args']
+    for k, v in params.items():
+        if isinstance(v, bool):
+            v = str(v).lower()
+        elif isinstance(v, float):
+            v = repr(v)
+        args += ['-p', f'{k}:={v}']
+    return args
+
+
+try:  # loaded in the parent: the child between fork and exec must not import anything
+    import ctypes
+    _LIBC: Any = ctypes.CDLL('libc.so.6', use_errno=True)
+except OSError:  # not glibc Linux
+    _LIBC = None
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM if cvj-sim dies (Linux PR_SET_PDEATHSIG = 1), so no node is orphaned."""
+    if _LIBC is not None:
+        _LIBC.prctl(1, int(signal.SIGTERM))
+
+
+class _Recorder:
+    """BagRecorder on its own rclpy context, spun in a background thread of this process."""
+
+    def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int) -> None:
+        import rclpy
+        from rclpy.signals import SignalHandlerOptions
+        self.ctx = rclpy.context.Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
+        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
+        try:
+            from rclpy.experimental import EventsExecutor
+            self.executor: Any = EventsExecutor(context=self.ctx)
+        except ImportError:  # older rclpy
+            from rclpy.executors import SingleThreadedExecutor
+            self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self.ctx.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def drain(self, *, expected: dict[str, int], idle: float, bound: float) -> None:
+        """Wait until ``expected`` counts are reached, or no message for ``idle`` s; at most ``bound`` s."""
+        deadline = time.monotonic() + bound
+        start = time.monotonic()
+        while time.monotonic() < deadline:
+            counts = self.recorder.counts
+            if expected and all(counts.get(t, 0) >= n for t, n in expected.items()):
+                return
+            last = max(self.recorder.last_message_wall, start)
+            if time.monotonic() - last > idle:
+                return
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        import rclpy
+        self._stop.set()
+        self.thread.join(2.0)
+        try:
+            self.recorder.destroy()
+            self.executor.shutdown()
+            self.node.destroy_node()
+        finally:
+            if self.ctx.ok():
+                rclpy.shutdown(context=self.ctx)
+
+
+def _stop_processes(procs: dict[str, subprocess.Popen[bytes]], names: Sequence[str], grace: float) -> None:
+    """SIGINT ``names``; after ``grace`` s SIGTERM the survivors; after another ``grace`` SIGKILL."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        alive = [n for n in names if procs[n].poll() is None]
+        if not alive:
+            return
+        for n in alive:
+            try:
+                procs[n].send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline and any(procs[n].poll() is None for n in alive):
+            time.sleep(0.02)
+    for n in names:
+        procs[n].wait()
+
+
+_LOG_LEVEL = re.compile(r'\[(ERROR|FATAL)\]')
+
+
+def error_line(log_path: Path) -> str | None:
+    """The last ERROR/FATAL line (rclpy logging) or ``<prog>: error:`` line of a node log."""
+    try:
+        lines = log_path.read_text(errors='replace').splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        if _LOG_LEVEL.search(line) or ': error:' in line:
+            return line.strip()
+    return None
+
+
+def run(options: RunOptions, *, stream: TextIO | None = None,
+        on_started: Callable[[dict[str, subprocess.Popen[bytes]]], None] | None = None) -> RunResult:
+    """Run a scene as ROS processes, record the bag, print the report to ``stream``.
+
+    Args:
+        options: the run options.
+        stream: where the report goes (default stdout).
+        on_started: called with the node processes once all are started (tests use it to
+            kill a peer).
+
+    Returns:
+        The :class:`RunResult` (also written to ``out/report.json``).
+
+    Raises:
+        CvjError: bad scene or option, before any process starts.
+    """
+    stream = sys.stdout if stream is None else stream
+    prep = prepare(options)
+    env, domain = _domain_env()
+    out = Path(options.out)
+    if out.exists() and options.overwrite:
+        shutil.rmtree(out)
+    logs = out / 'logs'
+    logs.mkdir(parents=True, exist_ok=True)
+    env['ROS_LOG_DIR'] = str(logs / 'ros')
+    load_override = None
+    if prep.load_series is not None:
+        load_override = out / 'load_override.npz'
+        np.savez(load_override, t=prep.load_series[0], torque=prep.load_series[1])
+
+    stop_signal: list[int] = []
+    previous = {}
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop_signal.append(signum)
+    in_main = threading.current_thread() is threading.main_thread()
+    if in_main:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+
+    wall0 = time.monotonic()
+    writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
+                       ('cvj_ros.coupling_scheme', options.scheme),
+                       ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
+                       ('cvj_ros.duration', repr(prep.duration)),
+                       ('cvj_ros.exchange_step', repr(prep.exchange_step))):
+        writer.set_custom_data(key, value)
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    log_files: list[Any] = []
+    recorder: _Recorder | None = None
+    error: str | None = None
+    stopped_by: str | None = None
+    steps = int(round(prep.duration / prep.exchange_step))
+    try:
+        recorder = _Recorder(writer, prep.coupling_topics, domain)
+        for name in NODE_ORDER:
+            if stop_signal:
+                break
+            params = node_parameters(prep, name, load_override=load_override)
+            fh = open(logs / f'{name}.log', 'wb')
+            log_files.append(fh)
+            procs[name] = subprocess.Popen(
+                node_command(name) + _ros_args(params), stdout=fh, stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL, env=env, start_new_session=True, preexec_fn=_die_with_parent)
+        if on_started is not None and not stop_signal:
+            on_started(procs)
+        coupling = procs.get('coupling_node')
+        while coupling is not None and coupling.poll() is None and not stop_signal:
+            for name, p in procs.items():  # a peer rejected its parameters: no point waiting
+                if name != 'coupling_node' and p.poll() == 2 and error is None:
+                    error = f'{name}: ' + (error_line(logs / f'{name}.log') or 'bad parameter (exit 2)')
+            if error is not None:
+                break
+            time.sleep(0.02)
+        if stop_signal or error is not None:
+            stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
+                stop_signal[0], str(stop_signal[0])) if stop_signal else None
+            if 'coupling_node' in procs:
+                _stop_processes(procs, ['coupling_node'], options.grace)
+            recorder.drain(expected={}, idle=0.3, bound=2.0)
+        else:
+            rc = procs['coupling_node'].returncode
+            expected = {bagmod.JOINT_STATES_TOPIC: steps + 1} if rc == 0 and options.mode == 'lockstep' else {}
+            recorder.drain(expected=expected, idle=0.5, bound=5.0)
+            if rc != 0:
+                line = error_line(logs / 'coupling_node.log')
+                error = f'coupling_node: {line}' if line else f'coupling_node: exited with status {rc}'
+        _stop_processes(procs, [n for n in procs if n != 'coupling_node'] + ['coupling_node']
+                        if 'coupling_node' in procs else list(procs), options.grace)
+    finally:
+        # the bag is finalised on every path (errors, signals): everything recorded stays readable
+        try:
+            if procs:
+                _stop_processes(procs, list(procs), options.grace)
+        finally:
+            rec_state = None
+            if recorder is not None:
+                rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
+                recorder.close()
+            writer.close()
+            for fh in log_files:
+                fh.close()
+            if in_main:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
+    wall = time.monotonic() - wall0
+    counts = dict(writer.counts)
+    js = bagmod.JOINT_STATES_TOPIC
+    loop_wall = wall_per_step = None
+    if rec_state and js in rec_state[0] and counts.get(js, 0) > 1:
+        loop_wall = rec_state[1][js] - rec_state[0][js]
+        wall_per_step = loop_wall / (counts[js] - 1)
+    sim_done = (counts.get(js, 1) - 1) * prep.exchange_step if counts.get(js) else 0.0
+    rtf = sim_done / loop_wall if loop_wall else None
+    if stop_signal:
+        code = 130 if stop_signal[0] == signal.SIGINT else 128 + int(stop_signal[0])
+    elif error is not None:
+        code = 1
+    else:
+        code = 0
+    result = RunResult(
+        exit_code=code, out=out, bag=out / 'bag', scene_path=str(prep.scene_path), domain_id=domain,
+        sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
+        wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
+        counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
+        stopped_by=stopped_by)
+    try:
+        result.metrics = bag_metrics(result.bag)
+    except CvjError as exc:
+        result.metrics = {'error': str(exc)}
+    (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
+    print_report(result, stream)
+    return result
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def bag_metrics(bag: Path, *, steady_fraction: float = 0.5) -> dict[str, Any]:
+    """Key metrics of a run bag over its steady window (the last ``steady_fraction`` of the
+    samples, skipping the start transient).
+
+    Per shaft: mean speed (rad/s), speed nonuniformity delta = (w_max - w_min)/w_mean
+    (seed 004, -), shaft torque amplitude (T_max - T_min)/2 (N m, seed 004 ch. 4);
+    per wrench topic: mean torque.z and its amplitude (N m).
+    """
+    data = bagmod.read_bag(bag, None)
+    out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
+    js = data.get(bagmod.JOINT_STATES_TOPIC)
+    if js is not None and js.t.size >= 2:
+        i0 = int(js.t.size * (1 - steady_fraction))
+        out['window_s'] = [float(js.t[i0]), float(js.t[-1])]
+        for j, name in enumerate(js.names):
+            w = js.velocity[i0:, j]
+            e = js.effort[i0:, j]
+            mean = float(np.mean(w))
+            out['shafts'][name] = {
+                'mean_speed': mean,
+                'nonuniformity': float((w.max() - w.min()) / mean) if abs(mean) > 1e-9 else math.nan,
+                'torque_amplitude': float((e.max() - e.min()) / 2) if np.all(np.isfinite(e)) else math.nan,
+            }
+    for topic, series in data.items():
+        if isinstance(series, bagmod.WrenchSeries) and series.t.size:
+            i0 = int(series.t.size * (1 - steady_fraction))
+            tz = series.torque_z[i0:]
+            out['wrenches'][topic] = {'mean_torque': float(np.mean(tz)),
+                                      'torque_amplitude': float((tz.max() - tz.min()) / 2)}
+    return out
+
+
+def print_report(r: RunResult, stream: TextIO) -> None:
+    """The short human report of a run."""
+    p = lambda s='': print(s, file=stream)  # noqa: E731
+    status = 'finished' if r.exit_code == 0 else (f'stopped by {r.stopped_by}' if r.stopped_by else 'FAILED')
+    p(f'cvj-sim run: {status}  scene={r.scene_path}  domain={r.domain_id}')
+    if r.error:
+        p(f'  error: {r.error}')
+    p(f'  simulated {r.sim_duration:.6g} s in {r.counts.get(bagmod.JOINT_STATES_TOPIC, 0) - 1} exchange steps '
+      f'of {r.exchange_step:.6g} s (expected {r.steps_expected})')
+    rtf = f'{r.real_time_factor:.3g}' if r.real_time_factor else 'n/a'
+    per = f'{r.wall_per_step * 1e6:.0f} us' if r.wall_per_step else 'n/a'
+    loop = f'{r.loop_wall_time:.3f} s' if r.loop_wall_time is not None else 'n/a'
+    p(f'  wall time {r.wall_time:.2f} s (loop {loop}), real-time factor {rtf}, wall per exchange step {per}')
+    shafts = r.metrics.get('shafts', {})
+    if shafts:
+        w0, w1 = r.metrics.get('window_s', [0, 0])
+        p(f'  steady window {w0:.4g}..{w1:.4g} s:')
+        p(f'    {"shaft":24s} {"mean speed rad/s":>16s} {"nonuniformity":>14s} {"torque ampl N m":>16s}')
+        for name, m in shafts.items():
+            p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["nonuniformity"]:14.3e} {m["torque_amplitude"]:16.4f}')
+    for topic, m in r.metrics.get('wrenches', {}).items():
+        p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
+    if 'error' in r.metrics:
+        p(f'  metrics: {r.metrics["error"]}')
+    p('  messages: ' + ', '.join(f'{t} {n}' for t, n in sorted(r.counts.items())))
+    p(f'  bag: {r.bag}')

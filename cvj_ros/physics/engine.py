@@ -24,6 +24,7 @@ Spec validation raises :class:`cvj_ros.errors.SceneError` whose field is
 """
 from __future__ import annotations
 
+import bisect
 import difflib
 import math
 from collections.abc import Mapping, Sequence
@@ -374,9 +375,10 @@ class MapEngine(Engine):
         else:
             d = np.zeros_like(tq)
         d[0] = d[-1] = 0.0
-        self._w = omega_tab
-        self._t = tq
-        self._d = d
+        # plain Python lists: the scalar fast path avoids numpy scalar overhead
+        self._w = [float(x) for x in omega_tab]
+        self._t = [float(x) for x in tq]
+        self._d = [float(x) for x in d]
         self.p = float(throttle_exponent)
         self.c0, self.c1, self.c2 = float(friction_c0), float(friction_c1), float(friction_c2)
         self.omega_s = float(friction_speed_scale)
@@ -396,10 +398,10 @@ class MapEngine(Engine):
         """T_full (N m) and dT_full/domega (N m s/rad); C1 Hermite, flat outside the table."""
         w, tq, d = self._w, self._t, self._d
         if omega <= w[0]:
-            return float(tq[0]), 0.0
+            return tq[0], 0.0
         if omega >= w[-1]:
-            return float(tq[-1]), 0.0
-        i = int(np.searchsorted(w, omega)) - 1
+            return tq[-1], 0.0
+        i = bisect.bisect_right(w, omega) - 1
         h = w[i + 1] - w[i]
         s = (omega - w[i]) / h
         s2, s3 = s * s, s * s * s
@@ -407,7 +409,7 @@ class MapEngine(Engine):
         val = h00 * tq[i] + h10 * h * d[i] + h01 * tq[i + 1] + h11 * h * d[i + 1]
         dh00, dh10, dh01, dh11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
         der = (dh00 * tq[i] + dh01 * tq[i + 1]) / h + dh10 * d[i] + dh11 * d[i + 1]
-        return float(val), float(der)
+        return val, der
 
     def motoring(self, omega: float) -> tuple[float, float]:
         """T_mot (N m, <= 0 for omega >= 0) and its slope (N m s/rad)."""
@@ -468,8 +470,8 @@ class MapEngine(Engine):
         return dtm + dfired * self._ripple(phi)
 
     def describe(self) -> str:
-        i = int(np.argmax(self._t))
-        s = (f'map engine, peak {self._t[i]:g} N m at {self.full_load_rpm[i]:g} rpm, '
+        i = int(np.argmax(self.full_load_torque))
+        s = (f'map engine, peak {self.full_load_torque[i]:g} N m at {self.full_load_rpm[i]:g} rpm, '
              f'throttle {self.throttle:g}')
         s += f', idle governor {self.idle_rpm:g} rpm' if self.idle_rpm > 0 else ', no idle governor'
         s += f', cut-off {self.cutoff_rpm:g} rpm'

@@ -250,3 +250,43 @@ def test_describe_one_line() -> None:
         assert d and '\n' not in d
     assert 'ripple' in engine_from_spec(RIPPLE_SPEC).describe()
     assert isinstance(engine_from_spec(RIPPLE_SPEC), MapEngine)
+
+
+@pytest.mark.hard
+def test_engine_stall_under_excess_friction_load() -> None:
+    """Hard case (DESIGN section 8): a friction load above full-load torque drags the idling
+    engine below stall speed; combustion stops and the crank comes to rest (no reverse run)."""
+    from cvj_ros.physics.load import load_from_spec
+    e = engine_from_spec({'model': 'map', 'throttle': 0.0, 'stall_rpm': 400})
+    brake = load_from_spec({'model': 'brake_steps', 'steps': [[0.5, 250.0]], 'ramp_time': 0.05,
+                            'speed_scale': 0.5}, seed=0)
+    j = 0.15
+
+    def rhs(t, y):
+        return [(e.torque(t, y[0]) - brake.torque(t, y[0])) / j]
+
+    def jac(t, y):
+        return [[(e.slope(t, y[0]) - brake.slope(t, y[0])) / j]]
+
+    sol = solve_ivp(rhs, (0.0, 4.0), [800 * RPM], method='Radau', jac=jac, rtol=1e-8, atol=1e-10)
+    assert sol.success
+    assert sol.y[0, -1] == pytest.approx(0.0, abs=0.05)
+    assert np.min(sol.y[0]) > -0.05
+    # once stalled only motoring acts: engine torque equals the motoring torque
+    w = float(sol.y[0, -1])
+    assert e.torque(0, w) == pytest.approx(e.motoring(w)[0])
+
+
+def test_linear_engine_from_standstill_hits_steady_speed_with_random_load() -> None:
+    """KAVZ-685 unit lumped to one inertia, seed 004 eq. 3.30 load: mean speed over 2..10 s
+    near (M1 - M_m)/K1 = 39 rad/s; deviations bounded by delta M / K1."""
+    from cvj_ros.physics.load import load_from_spec
+    e = engine_from_spec({'model': 'linear'})
+    load = load_from_spec({'model': 'random'}, seed=5)
+    j = 0.128 + 0.161
+    t_eval = np.linspace(2.0, 10.0, 4001)
+    sol = solve_ivp(lambda t, y: [(e.torque(t, y[0]) - load.torque(t, y[0])) / j], (0.0, 10.0),
+                    [0.0], t_eval=t_eval, rtol=1e-8, atol=1e-10, max_step=0.005)
+    w = sol.y[0]
+    assert w.mean() == pytest.approx(39.0, abs=0.1)
+    assert np.max(np.abs(w - 39.0)) <= 8.8 / e.k1 + 1e-6

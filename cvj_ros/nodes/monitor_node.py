@@ -1,0 +1,236 @@
+"""monitor_node: rolling metrics of a run, published on /diagnostics with OK/WARN/ERROR.
+
+Subscribes /driveline/joint_states, /engine/wrench, /load/wrench, /driveline/scene and
+/diagnostics (the coupling node's loop status). Every ``publish_every`` joint-state
+samples it publishes one DiagnosticArray (stamp = latest joint-state stamp) with:
+
+* ``monitor: <shaft>`` per shaft: mean speed (rad/s), speed nonuniformity
+  delta = (w_max - w_min)/w_mean (seed 004 sec. 4) over the last ``window`` seconds,
+  speed and torque (effort) amplitudes (max - min)/2; level from the
+  ``nonuniformity_warn`` / ``nonuniformity_error`` thresholds;
+* ``monitor: torques``: engine and load torque mean and amplitude (N m);
+* ``monitor: joint <name>``: bend angle (deg) vs recommended limit (scene
+  ``limits.max_angle_deg``, else RECOMMENDED_MAX_ANGLE_DEG: tripod 25 deg seed 000,
+  Rzeppa 47 deg seed 002); WARN above the limit, ERROR above limit + 5 deg;
+* ``monitor: loop``: energy residual, real-time factor, lockstep wait (us) from the
+  coupling node's diagnostics, with the ``energy_residual_*`` and ``real_time_factor_warn``
+  thresholds.
+
+The scene comes from the ``scene`` parameter or, when empty, from /driveline/scene.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import WrenchStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from cvj_ros.nodes.common import (ERROR, OK, WARN, CvjNode, ParamSpec, declare_parameters,
+                                  diag_array, diag_status, load_scene_param, run_node,
+                                  scene_dict, stamp_to_ns)
+from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
+                               LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
+from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
+                                             DEFAULT_NONUNIFORMITY_WARN,
+                                             RECOMMENDED_MAX_ANGLE_DEG, RollingWindow, amplitude,
+                                             angle_level, level, speed_nonuniformity)
+
+LEVELS = (OK, WARN, ERROR)
+
+PARAMS = (
+    ParamSpec('scene', '', 'scene name or YAML path; empty = take it from /driveline/scene'),
+    ParamSpec('window', 1.0, 'rolling window length [s] of simulated time', lo=0.0, hi=1e6,
+              lo_open=True, read_only=False),
+    ParamSpec('capacity', 20000, 'most samples kept per window', lo=2, hi=10**7),
+    ParamSpec('publish_every', 100, 'publish /diagnostics every N joint-state samples',
+              lo=1, hi=10**9, read_only=False),
+    ParamSpec('min_speed', 1.0, 'shafts slower than this mean speed get no nonuniformity [rad/s]',
+              lo=0.0, hi=1e6, read_only=False),
+    ParamSpec('nonuniformity_warn', DEFAULT_NONUNIFORMITY_WARN,
+              'speed nonuniformity WARN threshold [-] (seed 004 sec. 4); 0 = off',
+              lo=0.0, hi=10.0, read_only=False),
+    ParamSpec('nonuniformity_error', DEFAULT_NONUNIFORMITY_ERROR,
+              'speed nonuniformity ERROR threshold [-] (seed 004 sec. 4); 0 = off',
+              lo=0.0, hi=10.0, read_only=False),
+    ParamSpec('energy_residual_warn', 1e-3, 'relative energy residual WARN threshold [-]; 0 = off',
+              lo=0.0, hi=1.0, read_only=False),
+    ParamSpec('energy_residual_error', 1e-2, 'relative energy residual ERROR threshold [-]; 0 = off',
+              lo=0.0, hi=1.0, read_only=False),
+    ParamSpec('real_time_factor_warn', 0.0, 'WARN when the real-time factor falls below this [-] '
+              '(free-run: 1.0); 0 = off', lo=0.0, hi=1e6, read_only=False),
+    ParamSpec('angle_error_margin_deg', 5.0, 'ERROR when a joint angle exceeds its recommended '
+              'limit by more than this [deg]', lo=0.0, hi=90.0, read_only=False),
+)
+
+
+class MonitorNode(CvjNode):
+    """Rolling-window run monitor (see module docstring). Parameters: :data:`PARAMS`."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('monitor_node', **kwargs)
+        self.params = declare_parameters(self, PARAMS)
+        self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
+        if self.params['scene']:
+            self._use_scene(scene_dict(load_scene_param(self.params['scene'])))
+        self.names: list[str] = []
+        self.speeds: RollingWindow | None = None
+        self.efforts: RollingWindow | None = None
+        cap = self.params['capacity']
+        self.engine_torque = RollingWindow(cap, 1)
+        self.load_torque = RollingWindow(cap, 1)
+        self.loop_values: dict[str, float] = {}
+        self.samples = 0
+        self.last_ns = 0
+        self.published = 0
+        self.last_statuses: list[DiagnosticStatus] = []
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states, DATA_QOS)
+        self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
+                                 lambda m: self._on_torque(m, self.engine_torque), DATA_QOS)
+        self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
+                                 lambda m: self._on_torque(m, self.load_torque), DATA_QOS)
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, DATA_QOS)
+        self.create_subscription(String, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    def _use_scene(self, scene: dict[str, Any]) -> None:
+        """Collect joint bend angles and their recommended limits from a scene dict."""
+        limits: dict[str, tuple[float, float]] = {}
+        for el in scene.get('driveline', []) or []:
+            if not isinstance(el, dict) or el.get('type') != 'joint':
+                continue
+            params = el.get('params', {}) or {}
+            angle = None
+            for key in ('beta_deg', 'beta2_deg', 'delta_deg', 'alpha_deg', 'beta1_deg'):
+                if key in params:
+                    angle = max(float(params[key]), angle or 0.0)
+            if angle is None and 'beta' in params:
+                angle = math.degrees(float(params['beta']))
+            limit = (el.get('limits', {}) or {}).get('max_angle_deg',
+                                                     RECOMMENDED_MAX_ANGLE_DEG.get(el.get('kind', '')))
+            if angle is not None and limit is not None:
+                limits[str(el['name'])] = (angle, float(limit))
+        self.joint_limits = limits
+
+    def _on_scene(self, msg: String) -> None:
+        if self.params['scene']:
+            return
+        try:
+            data = yaml.safe_load(msg.data)
+        except yaml.YAMLError:
+            self.get_logger().error('/driveline/scene: not valid YAML; joint angles not monitored')
+            return
+        if isinstance(data, dict) and isinstance(data.get('scene'), dict):
+            self._use_scene(data['scene'])
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        names = list(msg.name)
+        if names != self.names or self.speeds is None:
+            self.names = names
+            cap = self.params['capacity']
+            self.speeds = RollingWindow(cap, max(len(names), 1))
+            self.efforts = RollingWindow(cap, max(len(names), 1))
+        t = stamp_to_ns(msg.header.stamp) / 1e9
+        self.last_ns = stamp_to_ns(msg.header.stamp)
+        n = len(names)
+        vel = list(msg.velocity) if len(msg.velocity) == n else [math.nan] * n
+        eff = list(msg.effort) if len(msg.effort) == n else [math.nan] * n
+        self.speeds.push(t, vel)
+        assert self.efforts is not None
+        self.efforts.push(t, eff)
+        self.samples += 1
+        if self.samples % self.params['publish_every'] == 0:
+            self.publish()
+
+    @staticmethod
+    def _on_torque(msg: WrenchStamped, window: RollingWindow) -> None:
+        window.push(stamp_to_ns(msg.header.stamp) / 1e9, [msg.wrench.torque.z])
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if not st.name.startswith('coupling_node'):
+                continue
+            for kv in st.values:
+                try:
+                    self.loop_values[kv.key] = float(kv.value)
+                except ValueError:
+                    pass
+
+    # --- output -----------------------------------------------------------------------------
+
+    def compute(self) -> list[DiagnosticStatus]:
+        """The statuses of one /diagnostics message from the current windows."""
+        p = self.params
+        out: list[DiagnosticStatus] = []
+        if self.speeds is not None and self.efforts is not None and len(self.speeds):
+            _t, w = self.speeds.window(p['window'])
+            _t, e = self.efforts.window(p['window'])
+            delta = speed_nonuniformity(w, min_speed=max(p['min_speed'], 1e-12))
+            w_amp, e_amp = amplitude(w), amplitude(e)
+            w_mean = w.mean(axis=0)
+            for i, name in enumerate(self.names):
+                d = float(delta[i])
+                lv = 0 if math.isnan(d) and math.isfinite(w_mean[i]) else level(
+                    d, p['nonuniformity_warn'], p['nonuniformity_error'])
+                msg = ('standstill' if math.isnan(d) and lv == 0
+                       else f'nonuniformity {d:.4g}')
+                out.append(diag_status(f'monitor: {name}', LEVELS[lv], msg, {
+                    'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,
+                    'speed_amplitude_rad_s': float(w_amp[i]),
+                    'torque_amplitude_nm': float(e_amp[i]), 'samples': int(w.shape[0])}))
+        values: dict[str, float] = {}
+        for label, win in (('engine', self.engine_torque), ('load', self.load_torque)):
+            _t, x = win.window(p['window'])
+            if x.shape[0]:
+                values[f'{label}_torque_mean_nm'] = float(x.mean())
+                values[f'{label}_torque_amplitude_nm'] = float(amplitude(x)[0])
+        if values:
+            ok = all(math.isfinite(v) for v in values.values())
+            out.append(diag_status('monitor: torques', OK if ok else ERROR,
+                                   'ok' if ok else 'non-finite torque', values))
+        for joint, (angle, limit) in self.joint_limits.items():
+            lv = angle_level(angle, limit, error_margin_deg=p['angle_error_margin_deg'])
+            out.append(diag_status(f'monitor: joint {joint}', LEVELS[lv],
+                                   f'angle {angle:.3g} deg, recommended <= {limit:.3g} deg',
+                                   {'angle_deg': angle, 'limit_deg': limit}))
+        if self.loop_values:
+            lv = 0
+            lv_msgs = []
+            res = self.loop_values.get('energy_residual')
+            if res is not None:
+                r = level(abs(res), p['energy_residual_warn'], p['energy_residual_error'])
+                if r:
+                    lv_msgs.append(f'energy residual {res:.3g}')
+                lv = max(lv, r)
+            rtf = self.loop_values.get('real_time_factor')
+            if rtf is not None and p['real_time_factor_warn'] > 0 and rtf < p['real_time_factor_warn']:
+                lv = max(lv, 1)
+                lv_msgs.append(f'real-time factor {rtf:.3g} < {p["real_time_factor_warn"]:g}')
+            keys = ('energy_residual', 'real_time_factor', 'lockstep_wait_us_mean',
+                    'overhead_us_mean', 'integration_us_mean', 'steps', 'ignored_stamps',
+                    'rejected_torques')
+            out.append(diag_status('monitor: loop', LEVELS[lv], '; '.join(lv_msgs) or 'ok',
+                                   {k: self.loop_values[k] for k in keys if k in self.loop_values}))
+        return out
+
+    def publish(self) -> None:
+        self.last_statuses = self.compute()
+        if self.last_statuses:
+            self.diag_pub.publish(diag_array(self.last_ns, self.last_statuses))
+            self.published += 1
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    sys.exit(run_node(MonitorNode, args, prog='monitor_node'))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,115 @@
+"""monitor_node in-process: nonuniformity of a known synthetic speed signal, levels from
+thresholds, joint angle vs recommended limit, loop metrics taken from coupling diagnostics."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from cvj_ros.nodes.common import ParameterError, make_executor, ns_to_stamp  # noqa: E402
+from cvj_ros.nodes.monitor_node import MonitorNode  # noqa: E402
+from cvj_ros.nodes.qos import DATA_QOS, LATCHED_QOS  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def ctx():
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.shutdown(context=context)
+
+
+def values(status: DiagnosticStatus) -> dict[str, float]:
+    return {kv.key: float(kv.value) for kv in status.values}
+
+
+def test_nonuniformity_levels_joint_angle_and_loop(ctx):
+    node = MonitorNode(context=ctx, parameter_overrides=[
+        Parameter('publish_every', value=500), Parameter('window', value=0.4)])
+    peer = rclpy.create_node('peer', context=ctx)
+    js_pub = peer.create_publisher(JointState, '/driveline/joint_states', DATA_QOS)
+    diag_pub = peer.create_publisher(DiagnosticArray, '/diagnostics', DATA_QOS)
+    scene_pub = peer.create_publisher(String, '/driveline/scene', LATCHED_QOS)
+    got: list[DiagnosticArray] = []
+    peer.create_subscription(DiagnosticArray, '/diagnostics',
+                             lambda m: got.append(m) if m.status[0].name.startswith('monitor') else None,
+                             DATA_QOS)
+    ex = make_executor('events', ctx)
+    ex.add_node(peer)
+    ex.add_node(node)
+
+    def spin_until(cond, timeout=5.0):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline
+            ex.spin_once(timeout_sec=0.02)
+
+    try:
+        spin_until(lambda: js_pub.get_subscription_count() >= 1 and diag_pub.get_subscription_count() >= 2
+                   and scene_pub.get_subscription_count() >= 1 and node.diag_pub.get_subscription_count() >= 2)
+        scene = {'driveline': [
+            {'type': 'inertia', 'name': 'a', 'J': 1.0},
+            {'type': 'joint', 'name': 'tri', 'kind': 'tripod', 'params': {'beta_deg': 28.0}},
+            {'type': 'joint', 'name': 'rz', 'kind': 'rzeppa', 'params': {'beta_deg': 21.0},
+             'limits': {'max_angle_deg': 15.0}},
+            {'type': 'inertia', 'name': 'b', 'J': 1.0}]}
+        scene_pub.publish(String(data=yaml.safe_dump({'scene': scene, 'seed': 0})))
+        spin_until(lambda: len(node.joint_limits) == 2)
+        kv = [KeyValue(key='energy_residual', value='0.004'), KeyValue(key='real_time_factor', value='3.5')]
+        diag_pub.publish(DiagnosticArray(status=[DiagnosticStatus(name='coupling_node: loop', values=kv)]))
+        spin_until(lambda: 'energy_residual' in node.loop_values)
+        # 1 s at 1 ms: smooth shaft 40 (1 + 0.03 sin 2 pi 5 t), rough shaft 40 (1 + 0.1 sin ...),
+        # standstill shaft; the window holds the last 0.4 s = two whole periods incl. peaks and troughs
+        eps = {'smooth': 0.03, 'rough': 0.1}
+        for k in range(1000):
+            t = k * 1e-3
+            s = math.sin(2 * math.pi * 5 * t)
+            msg = JointState()
+            msg.header.stamp = ns_to_stamp(k * 1_000_000)
+            msg.name = ['smooth', 'rough', 'still']
+            msg.position = [0.0, 0.0, 0.0]
+            msg.velocity = [40 * (1 + eps['smooth'] * s), 40 * (1 + eps['rough'] * s), 0.0]
+            msg.effort = [100 + 7 * s, 0.0, 0.0]
+            js_pub.publish(msg)
+        spin_until(lambda: len(got) >= 2)
+        last = {st.name: st for st in got[-1].status}
+        assert got[-1].header.stamp.sec * 10**9 + got[-1].header.stamp.nanosec == 999_000_000
+        smooth, rough = values(last['monitor: smooth']), values(last['monitor: rough'])
+        # closed form: (max - min)/mean of w0 (1 + eps sin) = 2 eps
+        assert smooth['nonuniformity'] == pytest.approx(0.06, rel=1e-4)
+        assert rough['nonuniformity'] == pytest.approx(0.2, rel=1e-4)
+        assert smooth['torque_amplitude_nm'] == pytest.approx(7.0, rel=1e-4)
+        assert smooth['samples'] == 401
+        assert last['monitor: smooth'].level == DiagnosticStatus.OK       # 0.06 < 0.11
+        assert last['monitor: rough'].level == DiagnosticStatus.ERROR     # 0.2 >= 0.15
+        assert last['monitor: still'].level == DiagnosticStatus.OK and last['monitor: still'].message == 'standstill'
+        assert last['monitor: joint tri'].level == DiagnosticStatus.WARN  # 28 > 25 deg (seed 000)
+        assert last['monitor: joint rz'].level == DiagnosticStatus.ERROR  # 21 > 15 + 5 deg (scene limit)
+        loop = last['monitor: loop']
+        assert loop.level == DiagnosticStatus.WARN and 'energy residual' in loop.message
+        assert values(loop)['real_time_factor'] == pytest.approx(3.5)
+    finally:
+        ex.shutdown()
+        peer.destroy_node()
+        node.destroy_node()
+
+
+def test_bad_threshold_parameter_named(ctx):
+    with pytest.raises(ParameterError) as err:
+        MonitorNode(context=ctx, parameter_overrides=[Parameter('nonuniformity_warn', value=float('nan'))])
+    assert str(err.value).startswith('nonuniformity_warn:')
+    with pytest.raises(ParameterError) as err:
+        MonitorNode(context=ctx, parameter_overrides=[Parameter('window', value=0.0)])
+    assert str(err.value).startswith('window:')

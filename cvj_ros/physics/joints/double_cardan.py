@@ -42,9 +42,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cvj_ros.errors import GeometryError
-from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, check_finite,
-                                         check_range, register)
-from cvj_ros.physics.joints.hooke import (HOOKE_FIDELITIES, check_fidelity, hooke_stage,
+from cvj_ros.physics.joints.base import JointEval, JointSpec, as_angle_array, check_finite, register
+from cvj_ros.physics.joints.hooke import (HOOKE_FIDELITIES, check_bend, check_fidelity, hooke_stage,
                                           hooke_stage_scalar)
 
 LAYOUTS = ('Z', 'W')
@@ -64,8 +63,8 @@ class DoubleCardan:
 
     def __init__(self, beta1: float, beta2: float, *, phase: float = 0.0, layout: str = 'Z',
                  bend_plane: float = 0.0, fidelity: str = 'exact') -> None:
-        self.beta1 = check_range('beta1', beta1, lo=0.0, hi=_HALF_PI, hi_open=True, unit=' rad')
-        self.beta2 = check_range('beta2', beta2, lo=0.0, hi=_HALF_PI, hi_open=True, unit=' rad')
+        self.beta1 = check_bend('beta1', beta1)
+        self.beta2 = check_bend('beta2', beta2)
         self.phase = check_finite('phase', phase)
         self.bend_plane = check_finite('bend_plane', bend_plane)
         lay = str(layout).upper()

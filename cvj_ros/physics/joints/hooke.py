@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 
 from cvj_ros.errors import GeometryError
 from cvj_ros.physics.joints.base import (FloatArray, JointEval, JointSpec, as_angle_array,
-                                         check_finite, check_range, register)
+                                         check_finite, register)
 
 HOOKE_FIDELITIES = ('ideal', 'exact')
 
@@ -47,11 +47,11 @@ def check_fidelity(fidelity: str, allowed: tuple[str, ...], kind: str) -> str:
 
 
 def check_bend(name: str, value: float) -> float:
-    """Validate a Hooke bend angle: 0 <= |value| < pi/2 (rad); the sign is kept."""
+    """Validate a bend angle (rad): 0 <= value < pi/2; the message gives deg and rad."""
     v = check_finite(name, value)
-    if not abs(v) < math.pi / 2:
-        raise GeometryError(name, f'must satisfy |{name}| < pi/2 rad (90 deg), got {v} rad '
-                                  f'({math.degrees(v):.6g} deg)')
+    if not 0.0 <= v < math.pi / 2:
+        raise GeometryError(name, f'must be >= 0 and < 90 deg (pi/2 rad), got '
+                                  f'{math.degrees(v):.6g} deg ({v:.6g} rad)')
     return v
 
 
@@ -93,7 +93,7 @@ class Hooke:
     mid_name: str | None = None
 
     def __init__(self, beta: float, *, fidelity: str = 'exact') -> None:
-        self.beta = check_range('beta', beta, lo=0.0, hi=math.pi / 2, hi_open=True, unit=' rad')
+        self.beta = check_bend('beta', beta)
         self.fidelity = check_fidelity(fidelity, HOOKE_FIDELITIES, self.kind)
         self._c = math.cos(self.beta)
         self._s2 = math.sin(self.beta) ** 2

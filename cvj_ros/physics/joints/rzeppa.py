@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike
 from cvj_ros.errors import GeometryError
 from cvj_ros.physics.joints.base import (FloatArray, JointEval, JointSpec, as_angle_array,
                                          check_finite, check_range, register)
-from cvj_ros.physics.joints.hooke import check_fidelity, hooke_stage, hooke_stage_scalar
+from cvj_ros.physics.joints.hooke import check_bend, check_fidelity, hooke_stage, hooke_stage_scalar
 
 RZEPPA_FIDELITIES = ('ideal', 'exact')
 
@@ -52,7 +52,7 @@ class Rzeppa:
 
     def __init__(self, delta: float, *, alpha: float | None = None, r: float = 0.0,
                  fidelity: str = 'exact') -> None:
-        self.delta = check_range('delta', delta, lo=0.0, hi=0.5 * math.pi, hi_open=True, unit=' rad')
+        self.delta = check_bend('delta', delta)
         a = 0.5 * self.delta if alpha is None else check_finite('alpha', alpha)
         if not abs(a) < 0.5 * math.pi:
             raise GeometryError('alpha', f'must satisfy |alpha| < pi/2 rad, got {a} rad')

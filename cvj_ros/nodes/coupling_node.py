@@ -1,0 +1,452 @@
+"""coupling_node: owns simulated time, the Driveline and its persistent CoupledStepper.
+
+Publishes ``/clock``, ``/driveline/joint_states`` (names = ``Driveline.shaft_names``;
+position rad unwrapped, velocity rad/s, effort N m), ``/coupling/<joint>/wrench`` for
+every joint whose model gives reactions (force N / torque N m in the joint's housing
+frame, frame_id ``<joint>_housing``), ``/driveline/scene`` (latched, once: YAML with
+``scene``, ``seed``, ``fidelity``, ``mode``, ``coupling_scheme``) and its own loop
+diagnostics on ``/diagnostics`` (steps, real-time factor, lockstep wait per exchange,
+integration time, overhead per exchange, ignored stamps, energy residual).
+
+Lockstep (default, deterministic; DESIGN.md section 3). Simulated time is integer
+nanoseconds t_k = k * h_ns. At step k the node publishes /clock and joint states
+stamped t_k; /engine/wrench and /load/wrench must answer with exactly that stamp. When
+both are in, the stepper integrates to t_{k+1} and the next state goes out - all inside
+the subscription callback, so the loop is event driven (no busy waiting). A watchdog
+timer ends the run with one ERROR line naming the missing topic when an answer takes
+longer than ``peer_timeout``. Answers with another stamp (late, duplicate,
+out-of-order) are ignored and counted; a NaN/inf torque is never integrated: ERROR
+diagnostic and exit 1. Before step 0 the node waits (bounded by ``start_timeout``) until
+``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
+a publisher, so no message is lost. After t_N = duration it publishes the final joint
+state and exits 0.
+
+Free-run: a wall timer at ``exchange_step`` advances one step per tick with the latest
+torques held (zero-order hold at the coupling level); /clock carries the simulated time.
+A non-finite torque is rejected (ERROR diagnostic) and the previous value is kept.
+
+Effort in a joint state at t_k uses the torques most recently received (zero before the
+first answer).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from cvj_ros.errors import CvjError
+from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, CvjNode, ParameterError, ParamSpec,
+                                  declare_parameters, diag_array, diag_status, load_scene_param,
+                                  ns_to_stamp, parse_assignments, run_node, scene_dict,
+                                  scene_seed, stamp_to_ns)
+from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
+                               JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
+                               coupling_wrench_topic)
+
+MODES = ('lockstep', 'free-run')
+SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
+SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
+
+PARAMS = (
+    ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
+    ParamSpec('seed', -1, 'random seed; -1 = the scene seed', lo=-1, hi=2**31 - 1),
+    ParamSpec('mode', 'lockstep', 'loop mode', choices=MODES),
+    ParamSpec('coupling_scheme', 'zoh', 'how received torques act inside an exchange step',
+              choices=SCHEMES),
+    ParamSpec('exchange_step', 0.0, 'exchange step h [s]; 0 = the scene exchange_step',
+              lo=0.0, hi=10.0),
+    ParamSpec('duration', 0.0, 'simulated duration [s]; 0 = the scene duration', lo=0.0, hi=1e7),
+    ParamSpec('peer_timeout', 5.0, 'lockstep: longest wait for an engine/load answer [s]',
+              lo=0.0, hi=3600.0, lo_open=True),
+    ParamSpec('start_timeout', 10.0, 'longest wait for peers to connect before step 0 [s]',
+              lo=0.0, hi=3600.0, lo_open=True),
+    ParamSpec('min_subscribers', 2, 'subscribers /driveline/joint_states must have before step 0 '
+              '(engine + load = 2; + recorder + monitor = 4)', lo=0, hi=64),
+    ParamSpec('solver', '', 'integration method; empty = the scene solver', choices=SOLVERS),
+    ParamSpec('rtol', 0.0, 'relative tolerance [-]; 0 = the scene rtol', lo=0.0, hi=1.0),
+    ParamSpec('atol', 0.0, 'absolute tolerance [rad, rad/s]; 0 = the scene atol', lo=0.0, hi=1.0),
+    ParamSpec('fidelity', [''], 'forced fidelities "element=level" (joints ideal|closed|exact, '
+              'springs elastic|rigid)'),
+    ParamSpec('load_override', '', 'load torque time series file used by load_node instead of '
+              'the scene load (recorded in /driveline/scene); empty = scene load'),
+    ParamSpec('diagnostics_every', 100, 'publish loop diagnostics every N exchange steps',
+              lo=1, hi=10**9),
+    ParamSpec('track_energy', True, 'integrate work integrals and report the energy residual'),
+)
+
+
+def reaction_to_wrench(values: dict[str, float]) -> tuple[tuple[float, float, float],
+                                                          tuple[float, float, float]]:
+    """Map a joint's reaction dict to (force xyz N, torque xyz N m).
+
+    Keys are matched by their first letter (F/f = force; M/T/m/t = moment/torque) and
+    their axis letter (last character x/y/z); other keys are ignored.
+    """
+    force = [0.0, 0.0, 0.0]
+    torque = [0.0, 0.0, 0.0]
+    for key, val in values.items():
+        k = key.lower().replace('_', '')
+        if not k or k[-1] not in 'xyz':
+            continue
+        axis = 'xyz'.index(k[-1])
+        if k[0] == 'f':
+            force[axis] = float(val)
+        elif k[0] in 'mt':
+            torque[axis] = float(val)
+    return (force[0], force[1], force[2]), (torque[0], torque[1], torque[2])
+
+
+class CouplingNode(CvjNode):
+    """The lockstep / free-run coupling node (see module docstring). Parameters: :data:`PARAMS`."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('coupling_node', **kwargs)
+        p = self.params = declare_parameters(self, PARAMS)
+        scene = self.scene = load_scene_param(p['scene'])
+        self.seed = scene_seed(scene, p['seed'])
+        self.mode = p['mode']
+        self.scheme = p['coupling_scheme']
+        h = p['exchange_step'] or scene.exchange_step
+        duration = p['duration'] or scene.duration
+        self.h_ns = int(round(h * NS_PER_S))
+        if self.h_ns <= 0:
+            raise ParameterError('exchange_step', f'must be >= 1 ns, got {h}')
+        self.n_steps = int(round(duration * NS_PER_S / self.h_ns))
+        if self.n_steps < 1:
+            raise ParameterError('duration', f'must be >= exchange_step ({h} s), got {duration}')
+        if abs(self.n_steps * self.h_ns - duration * NS_PER_S) > 1e-6 * self.h_ns + 1:
+            self.get_logger().warning(f'duration {duration} s is not a multiple of the exchange step '
+                                      f'{h} s: running {self.n_steps} steps')
+        forced = parse_assignments('fidelity', [s for s in p['fidelity'] if s])
+        self.driveline, self.stepper = self._build_physics(scene, forced, p)
+        self.x = np.array(self.stepper_state(), dtype=float)
+        self.names = list(self.driveline.shaft_names)
+        self.energy0 = self._energy_total(self.x)
+        self.reaction_joints = [name for name, m in self.driveline.joint_models.items()
+                                if hasattr(m, 'reactions')]
+
+        # publishers
+        self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, DATA_QOS)
+        self.js_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, DATA_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
+        self.reaction_pubs = {j: self.create_publisher(WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
+                              for j in self.reaction_joints}
+        self.engine_sub = self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
+                                                   self._on_engine, DATA_QOS)
+        self.load_sub = self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
+                                                 self._on_load, DATA_QOS)
+        self._js_msg = JointState()
+        self._js_msg.name = self.names
+
+        # loop state
+        self.k = 0
+        self.t_ns = 0
+        self.T_engine = 0.0
+        self.T_load = 0.0
+        self._have_engine = False
+        self._have_load = False
+        self.waiting = False
+        self.started = False
+        self.ignored_stamps = 0
+        self.rejected_torques = 0
+        self.joint_states_published = 0
+        # timing (wall, perf_counter seconds)
+        self._wait_start = 0.0
+        self.wait_total = 0.0
+        self.integration_total = 0.0
+        self.exchange_total = 0.0
+        self.exchanges = 0
+        self._t_wall0 = 0.0
+        self._step_wall0 = 0.0
+
+        self._publish_scene()
+        self._start_deadline = time.monotonic() + p['start_timeout']
+        self._start_timer = self.create_timer(0.01, self._try_start)
+        self._watchdog = None
+        self._free_timer = None
+        self.get_logger().info(
+            f'scene {scene.name!r}: {len(self.names)} shafts, {self.driveline.n_dof} DOF, '
+            f'{self.n_steps} steps of {self.h_ns / NS_PER_S:g} s, mode {self.mode}, '
+            f'scheme {self.scheme}; waiting for peers')
+
+    # --- physics set-up ---------------------------------------------------------------------
+
+    def _build_physics(self, scene: Any, forced: dict[str, str], p: dict[str, Any]) -> tuple[Any, Any]:
+        from cvj_ros.physics.cosim import CoupledStepper
+        from cvj_ros.physics.driveline import Driveline
+        try:
+            driveline = Driveline.from_scene(scene, fidelity=forced or None,
+                                             track_energy=p['track_energy'])
+        except CvjError as exc:
+            field = 'fidelity' if forced and str(exc).split(':')[0] in forced else 'scene'
+            raise ParameterError(field, str(exc)) from None
+        method = p['solver'] or scene.solver.method
+        rtol = p['rtol'] or scene.solver.rtol
+        atol = p['atol'] or scene.solver.atol
+        # fixed-step methods step at the scene's solver.h, else at the exchange step
+        h_fixed = scene.solver.h or self.h_ns / NS_PER_S
+        try:
+            # Torque messages carry no slope: linear_implicit estimates it by least squares.
+            stepper = CoupledStepper(driveline, scheme=self.scheme, method=method, rtol=rtol, atol=atol,
+                                     h=h_fixed if method in ('rk4', 'ros2') else scene.solver.h,
+                                     slope='estimate' if self.scheme == 'linear_implicit' else 'reported')
+        except CvjError as exc:
+            raise ParameterError('solver', str(exc)) from None
+        self.method, self.rtol, self.atol = method, rtol, atol
+        return driveline, stepper
+
+    def stepper_state(self) -> np.ndarray:
+        x = getattr(self.stepper, 'x', None)
+        if x is None:
+            x = getattr(self.stepper, 'y', None)
+        return np.array(self.driveline.x0 if x is None else x, dtype=float)
+
+    def _energy_total(self, x: np.ndarray) -> float:
+        e = self.driveline.energy(x)
+        return float(e['kinetic'] + e['elastic'])
+
+    def fidelity_report(self) -> Any:
+        report = getattr(self.driveline, 'fidelity_report', None)
+        if report is None:
+            return dict(getattr(self.driveline, 'levels', {}))
+        for attr in ('to_dict', 'as_dict'):
+            if hasattr(report, attr):
+                return getattr(report, attr)()
+        return {'levels': dict(getattr(report, 'levels', {}))}
+
+    def _publish_scene(self) -> None:
+        scene = scene_dict(self.scene)
+        if self.params['load_override']:
+            scene['load'] = {'model': 'time_series', 'file': self.params['load_override']}
+        text = yaml.safe_dump({
+            'scene': scene, 'seed': self.seed, 'fidelity': self.fidelity_report(),
+            'mode': self.mode, 'coupling_scheme': self.scheme,
+            'exchange_step': self.h_ns / NS_PER_S, 'duration': self.n_steps * self.h_ns / NS_PER_S,
+            'solver': {'method': self.method, 'rtol': self.rtol, 'atol': self.atol},
+            'shaft_names': self.names,
+        }, sort_keys=False)
+        self.scene_pub.publish(String(data=text))
+
+    # --- start ------------------------------------------------------------------------------
+
+    def missing_peers(self) -> list[str]:
+        """Topics whose peers are not connected yet (empty list = ready)."""
+        missing = []
+        n_sub = self.js_pub.get_subscription_count()
+        if n_sub < self.params['min_subscribers']:
+            missing.append(f'{JOINT_STATES_TOPIC} ({n_sub} of {self.params["min_subscribers"]} '
+                           f'subscribers)')
+        for topic, sub in ((ENGINE_WRENCH_TOPIC, self.engine_sub), (LOAD_WRENCH_TOPIC, self.load_sub)):
+            if sub.get_publisher_count() < 1:
+                missing.append(f'{topic} (no publisher)')
+        return missing
+
+    def _try_start(self) -> None:
+        if self.started or self.exit_code is not None:
+            return
+        missing = self.missing_peers()
+        if missing:
+            if time.monotonic() > self._start_deadline:
+                self._start_timer.cancel()
+                self.fail(f'start: peers not connected within start_timeout='
+                          f'{self.params["start_timeout"]} s: {"; ".join(missing)}')
+            return
+        self._start_timer.cancel()
+        self.started = True
+        self._t_wall0 = time.perf_counter()
+        self._publish_state()
+        if self.mode == 'lockstep':
+            period = min(max(self.params['peer_timeout'] / 10.0, 0.005), 0.25)
+            self._watchdog = self.create_timer(period, self._check_peers)
+            self._begin_wait()
+        else:
+            self._free_timer = self.create_timer(self.h_ns / NS_PER_S, self._free_tick)
+
+    # --- lockstep ---------------------------------------------------------------------------
+
+    def _begin_wait(self) -> None:
+        self._have_engine = self._have_load = False
+        self.waiting = True
+        self._wait_start = time.perf_counter()
+        self._wait_start_mono = time.monotonic()
+
+    def _check_peers(self) -> None:
+        if not self.waiting or self.exit_code is not None:
+            return
+        if time.monotonic() - self._wait_start_mono > self.params['peer_timeout']:
+            missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
+                                         (LOAD_WRENCH_TOPIC, self._have_load)) if not have]
+            self._stop_with_error(
+                f'lockstep: no answer on {" and ".join(missing)} for t={self.t_ns / NS_PER_S:.9g} s '
+                f'(step {self.k}) within peer_timeout={self.params["peer_timeout"]} s; '
+                f'is {"engine_node" if ENGINE_WRENCH_TOPIC in missing else "load_node"} running?')
+
+    def _stop_with_error(self, message: str) -> None:
+        self.waiting = False
+        self.publish_diagnostics(ERROR, message)
+        self.fail(message)
+        self._cancel_timers()
+
+    def _cancel_timers(self) -> None:
+        for tm in (self._watchdog, self._free_timer, self._start_timer):
+            if tm is not None:
+                tm.cancel()
+
+    def _torque_of(self, msg: WrenchStamped, topic: str) -> float | None:
+        """The message's torque.z when finite; else reject it (ERROR diagnostic)."""
+        value = msg.wrench.torque.z
+        if math.isfinite(value):
+            return value
+        self.rejected_torques += 1
+        text = (f'{topic}: torque.z not finite ({value}) at stamp '
+                f'{stamp_to_ns(msg.header.stamp) / NS_PER_S:.9g} s; rejected, never integrated')
+        if self.mode == 'lockstep':
+            self._stop_with_error(text)
+        else:
+            self.publish_diagnostics(ERROR, text)
+        return None
+
+    def _on_engine(self, msg: WrenchStamped) -> None:
+        self._on_wrench(msg, ENGINE_WRENCH_TOPIC, engine=True)
+
+    def _on_load(self, msg: WrenchStamped) -> None:
+        self._on_wrench(msg, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _on_wrench(self, msg: WrenchStamped, topic: str, *, engine: bool) -> None:
+        if self.exit_code is not None:
+            return
+        value = self._torque_of(msg, topic)
+        if value is None:
+            return
+        if self.mode != 'lockstep':
+            if engine:
+                self.T_engine = value
+            else:
+                self.T_load = value
+            return
+        have = self._have_engine if engine else self._have_load
+        if not self.waiting or have or stamp_to_ns(msg.header.stamp) != self.t_ns:
+            self.ignored_stamps += 1     # late, duplicate or out-of-order answer
+            return
+        if engine:
+            self.T_engine, self._have_engine = value, True
+        else:
+            self.T_load, self._have_load = value, True
+        if self._have_engine and self._have_load:
+            self.waiting = False
+            now = time.perf_counter()
+            self.wait_total += now - self._wait_start
+            self._step()
+            if self.exit_code is None:
+                self.exchange_total += time.perf_counter() - self._wait_start
+                self.exchanges += 1
+                self._begin_wait()
+
+    # --- stepping ---------------------------------------------------------------------------
+
+    def _step(self) -> None:
+        """Integrate t_k -> t_{k+1} with the current torques and publish the new state."""
+        t_next_ns = self.t_ns + self.h_ns
+        c0 = time.perf_counter()
+        try:
+            x = self.stepper.advance(t_next_ns / NS_PER_S, self.T_engine, self.T_load)
+        except CvjError as exc:
+            self._stop_with_error(f'integration failed at t={self.t_ns / NS_PER_S:.9g} s: {exc}')
+            return
+        self.integration_total += time.perf_counter() - c0
+        self.x = np.asarray(x, dtype=float)
+        self.k += 1
+        self.t_ns = t_next_ns
+        self._publish_state()
+        if self.k % self.params['diagnostics_every'] == 0:
+            self.publish_diagnostics(OK if not self.ignored_stamps else WARN, 'running')
+        if self.k >= self.n_steps:
+            self.waiting = False
+            self._cancel_timers()
+            self.publish_diagnostics(OK if not self.ignored_stamps else WARN, 'finished')
+            self.get_logger().info(f'finished {self.k} steps, t={self.t_ns / NS_PER_S:g} s, '
+                                   f'real-time factor {self.real_time_factor():.3g}')
+            self.finish()
+
+    def _free_tick(self) -> None:
+        if self.exit_code is not None:
+            return
+        now = time.perf_counter()
+        self._step()
+        self.exchange_total += time.perf_counter() - now
+        self.exchanges += 1
+
+    def _publish_state(self) -> None:
+        stamp = ns_to_stamp(self.t_ns)
+        self.clock_pub.publish(Clock(clock=stamp))
+        names, pos, vel, eff = self.driveline.joint_states(self.x, self.T_engine, self.T_load)
+        msg = self._js_msg
+        msg.header.stamp = stamp
+        msg.position = np.asarray(pos, dtype=float).tolist()
+        msg.velocity = np.asarray(vel, dtype=float).tolist()
+        msg.effort = np.asarray(eff, dtype=float).tolist()
+        self.js_pub.publish(msg)
+        self.joint_states_published += 1
+        if self.reaction_pubs:
+            reactions = self.driveline.reactions(self.x, self.T_engine, self.T_load)
+            for joint, pub in self.reaction_pubs.items():
+                values = reactions.get(joint)
+                if not values:
+                    continue
+                force, torque = reaction_to_wrench(values)
+                w = WrenchStamped()
+                w.header.stamp = stamp
+                w.header.frame_id = f'{joint}_housing'
+                w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = force
+                w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = torque
+                pub.publish(w)
+
+    # --- diagnostics ------------------------------------------------------------------------
+
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall second since step 0."""
+        wall = time.perf_counter() - self._t_wall0 if self.started else 0.0
+        return (self.t_ns / NS_PER_S) / wall if wall > 0 else 0.0
+
+    def loop_stats(self) -> dict[str, float | int]:
+        """Loop metrics: steps, t (s), real-time factor, per-exchange wall/wait/integration/
+        overhead (us), ignored stamps, rejected torques, energy residual (-) when tracked."""
+        n = max(self.exchanges, 1)
+        stats: dict[str, float | int] = {
+            'steps': self.k, 'steps_total': self.n_steps, 't_sim_s': self.t_ns / NS_PER_S,
+            'real_time_factor': self.real_time_factor(),
+            'exchange_wall_us_mean': 1e6 * self.exchange_total / n,
+            'lockstep_wait_us_mean': 1e6 * self.wait_total / n,
+            'integration_us_mean': 1e6 * self.integration_total / n,
+            'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
+            'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
+        }
+        if getattr(self.driveline, 'track_energy', False):
+            try:
+                stats['energy_residual'] = float(self.driveline.energy_residual(self.x, self.energy0))
+            except (ValueError, IndexError):
+                pass
+        return stats
+
+    def publish_diagnostics(self, level: bytes, message: str) -> None:
+        status = diag_status('coupling_node: loop', level, message, self.loop_stats())
+        self.diag_pub.publish(diag_array(self.t_ns, [status]))
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    sys.exit(run_node(CouplingNode, args, prog='coupling_node'))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,231 @@
+"""coupling_node in-process with fake engine/load responders defined here: lockstep step
+count and stamps, names, momentum balance, peer timeout, NaN rejection, ignored stamps,
+free-run, parameter errors."""
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from cvj_ros.nodes.common import ParameterError, make_executor  # noqa: E402
+from cvj_ros.nodes.coupling_node import CouplingNode, reaction_to_wrench  # noqa: E402
+from cvj_ros.nodes.qos import DATA_QOS, LATCHED_QOS  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+J1, J2 = 0.128, 0.161          # kg m^2 (seed 004 KAVZ-685)
+T_ENGINE, T_LOAD = 150.0, 100.0
+W0 = 30.0                      # rad/s initial speed
+
+
+def scene_file(tmp_path, duration=0.02, h=0.001) -> str:
+    data = {
+        'name': 'two_mass_test', 'duration': duration, 'exchange_step': h,
+        'solver': {'method': 'dopri5', 'rtol': 1e-10, 'atol': 1e-12},
+        'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': T_LOAD},
+        'initial': {'speed_rad_s': W0},
+        'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': J1},
+                      {'type': 'spring', 'name': 'shaft', 'stiffness': 715.4, 'damping': 6.35},
+                      {'type': 'inertia', 'name': 'wheel', 'J': J2}],
+    }
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+@pytest.fixture
+def ctx():
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.shutdown(context=context)
+
+
+class FakePeers:
+    """Engine and load responders plus a recorder, all in one test node.
+
+    ``behave(topic, k, stamp) -> list of (stamp, torque)`` decides what is sent for step k.
+    """
+
+    def __init__(self, ctx, behave=None):
+        self.node = rclpy.create_node('fake_peers', context=ctx)
+        self.engine_pub = self.node.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+        self.load_pub = self.node.create_publisher(WrenchStamped, '/load/wrench', DATA_QOS)
+        self.js: list[JointState] = []
+        self.clock: list[Clock] = []
+        self.scene: list[String] = []
+        self.behave = behave or (lambda topic, k, stamp: [(stamp, T_ENGINE if topic == 'engine' else T_LOAD)])
+        self.node.create_subscription(JointState, '/driveline/joint_states', self._on_js, DATA_QOS)
+        self.node.create_subscription(Clock, '/clock', self.clock.append, DATA_QOS)
+        self.node.create_subscription(String, '/driveline/scene', self.scene.append, LATCHED_QOS)
+
+    def _on_js(self, msg):
+        k = len(self.js)
+        self.js.append(msg)
+        for topic, pub in (('engine', self.engine_pub), ('load', self.load_pub)):
+            for stamp, torque in self.behave(topic, k, msg.header.stamp):
+                w = WrenchStamped()
+                w.header.stamp = stamp
+                w.wrench.torque.z = torque
+                pub.publish(w)
+
+
+def run(ctx, tmp_path, *, behave=None, timeout=8.0, **params):
+    overrides = [Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    peers = FakePeers(ctx, behave)
+    node = CouplingNode(context=ctx, parameter_overrides=overrides)
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while node.exit_code is None:
+            assert time.monotonic() - t0 < timeout, 'coupling node did not finish'
+            ex.spin_once(timeout_sec=0.05)
+        for _ in range(5):                     # deliver what is still in flight
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    wall = time.monotonic() - t0
+    return node, peers, wall
+
+
+def ns(stamp) -> int:
+    return stamp.sec * 10**9 + stamp.nanosec
+
+
+def test_lockstep_publishes_n_plus_one_states_with_exact_stamps(ctx, tmp_path):
+    node, peers, _ = run(ctx, tmp_path)
+    n = 20                                   # 0.02 s / 1 ms
+    assert node.exit_code == 0
+    assert len(peers.js) == n + 1 and len(peers.clock) == n + 1
+    stamps = [ns(m.header.stamp) for m in peers.js]
+    assert stamps == [k * 1_000_000 for k in range(n + 1)]       # t_k = k h, strictly monotonic
+    assert [ns(c.clock) for c in peers.clock] == stamps
+    assert list(peers.js[0].name) == ['engine_crank', 'wheel']  # Driveline.shaft_names
+    assert node.ignored_stamps == 0
+    # Independent check: with constant torques the total angular momentum obeys
+    # d/dt (J1 w1 + J2 w2) = T_engine - T_load exactly (spring and damper are internal).
+    last = peers.js[-1]
+    momentum = J1 * last.velocity[0] + J2 * last.velocity[1]
+    assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * 0.02, rel=1e-8)
+    # effort of the last inertia = load torque (Driveline.joint_states convention)
+    assert last.effort[1] == pytest.approx(T_LOAD)
+    scene = yaml.safe_load(peers.scene[0].data)
+    assert scene['mode'] == 'lockstep' and scene['coupling_scheme'] == 'zoh'
+    assert scene['scene']['name'] == 'two_mass_test' and 'fidelity' in scene and 'seed' in scene
+    stats = node.loop_stats()
+    assert stats['steps'] == n and stats['real_time_factor'] > 0
+    assert stats['integration_us_mean'] > 0 and stats['lockstep_wait_us_mean'] > 0
+
+
+def test_peer_that_stops_answering_ends_with_clear_error(ctx, tmp_path):
+    def behave(topic, k, stamp):
+        if topic == 'load' and k >= 3:
+            return []                        # load node dies after step 2
+        return [(stamp, T_ENGINE if topic == 'engine' else T_LOAD)]
+    t0 = time.monotonic()
+    node, peers, wall = run(ctx, tmp_path, behave=behave, peer_timeout=0.3)
+    assert node.exit_code == 1
+    assert '/load/wrench' in node.error_message and '/engine/wrench' not in node.error_message
+    assert 'peer_timeout' in node.error_message and 'step 3' in node.error_message
+    assert 0.3 <= wall < 0.3 + 2.0          # within peer_timeout (+ start-up)
+    assert len(peers.js) == 4
+    del t0
+
+
+def test_nan_torque_rejected_never_integrated(ctx, tmp_path):
+    def behave(topic, k, stamp):
+        bad = topic == 'engine' and k == 5
+        return [(stamp, math.nan if bad else (T_ENGINE if topic == 'engine' else T_LOAD))]
+    node, peers, _ = run(ctx, tmp_path, behave=behave)
+    assert node.exit_code == 1
+    assert node.error_message.startswith('/engine/wrench: torque.z not finite')
+    assert node.k == 5 and len(peers.js) == 6              # step 5 was never integrated
+    assert all(math.isfinite(v) for m in peers.js for v in m.velocity)
+    assert node.rejected_torques == 1
+
+
+def test_duplicate_late_and_out_of_order_stamps_ignored_and_counted(ctx, tmp_path):
+    from builtin_interfaces.msg import Time
+
+    def behave(topic, k, stamp):
+        torque = T_ENGINE if topic == 'engine' else T_LOAD
+        out = []
+        if topic == 'engine' and k >= 1:
+            out.append((Time(sec=0, nanosec=(k - 1) * 1_000_000), 1e6))   # late (old stamp)
+            out.append((Time(sec=0, nanosec=(k + 1) * 1_000_000), -1e6))  # out of order (future)
+        out.append((stamp, torque))
+        if topic == 'load':
+            out.append((stamp, 1e6))                                       # duplicate
+        return out
+    node, peers, _ = run(ctx, tmp_path, behave=behave)
+    assert node.exit_code == 0
+    assert len(peers.js) == 21
+    # 2 bad engine stamps for k = 1..19 and 1 duplicate load answer for k = 0..18; the
+    # duplicate of step 19 and all answers to the final state arrive after the node finished
+    assert node.ignored_stamps == 19 * 2 + 19
+    last = peers.js[-1]
+    momentum = J1 * last.velocity[0] + J2 * last.velocity[1]
+    # the ignored 1e6 N m torques never entered the integration
+    assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * 0.02, rel=1e-8)
+
+
+def test_free_run_steps_on_wall_timer_with_held_torques(ctx, tmp_path):
+    node, peers, wall = run(ctx, tmp_path, mode='free-run', exchange_step=0.002)
+    assert node.exit_code == 0
+    assert len(peers.js) == 11
+    assert [ns(m.header.stamp) for m in peers.js] == [k * 2_000_000 for k in range(11)]
+    assert wall >= 0.015                      # 10 ticks of 2 ms wall time
+
+
+def test_linear_implicit_and_fixed_step_solver_accepted(ctx, tmp_path):
+    node, peers, _ = run(ctx, tmp_path, coupling_scheme='linear_implicit', solver='rk4')
+    assert node.exit_code == 0 and len(peers.js) == 21
+
+
+@pytest.mark.parametrize('name, value', [
+    ('mode', 'lock-step'), ('coupling_scheme', 'zoh2'), ('peer_timeout', 0.0),
+    ('exchange_step', -0.1), ('duration', math.nan), ('solver', 'euler'), ('rtol', 2.0),
+    ('fidelity', ['shaft']),
+])
+def test_bad_parameters_name_the_parameter(ctx, tmp_path, name, value):
+    with pytest.raises(ParameterError) as err:
+        CouplingNode(context=ctx, parameter_overrides=[
+            Parameter('scene', value=scene_file(tmp_path)), Parameter(name, value=value)])
+    assert str(err.value).startswith(name), str(err.value)
+
+
+def test_start_timeout_names_missing_topic(ctx, tmp_path):
+    # 60 subscribers can not be met even by stray participants in the same domain
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path)), Parameter('start_timeout', value=0.2),
+        Parameter('min_subscribers', value=60)])
+    ex = make_executor('events', ctx)
+    ex.add_node(node)
+    deadline = time.monotonic() + 3
+    while node.exit_code is None and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    ex.shutdown()
+    node.destroy_node()
+    assert node.exit_code == 1
+    assert node.error_message.startswith('start: peers not connected within start_timeout=0.2 s')
+    assert '/driveline/joint_states (' in node.error_message and 'of 60 subscribers)' in node.error_message
+
+
+def test_reaction_keys_map_to_wrench_axes():
+    force, torque = reaction_to_wrench({'Fx': 1.0, 'force_z': 3.0, 'Mz': 5.0, 'T_y': 4.0, 'other': 9.0})
+    assert force == (1.0, 0.0, 3.0) and torque == (0.0, 4.0, 5.0)

@@ -182,7 +182,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     with plt.rc_context(_STYLE):
         fig, ax = plt.subplots(figsize=(8.5, 6))
         for label, rs in sorted(groups.items(), key=lambda kv: (kv[1][0].get('family') == 'baseline', kv[0])):
-            rs = sorted(rs, key=lambda r: r.get('tol', 0.0), reverse=True)
+            rs = sorted(rs, key=lambda r: r[error_key])
             base = rs[0].get('family') == 'baseline'
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
                       ls='--' if base else '-', marker='s' if base else 'o', ms=4, lw=1.4 if base else 1.6,

@@ -1,0 +1,585 @@
+"""Work-precision benchmark (`cvj-sim bench`, DESIGN.md section 7).
+
+For each reference scene, each project solver (cvj_ros.physics.solvers via
+cvj_ros.physics.simulate.Simulation: dopri5, dop853, rosenbrock adaptive over tolerances;
+rk4 over fixed steps) and each joint fidelity (ideal / closed / exact forced on every joint
+with springs elastic, and 'auto' = the fidelity chooser's pick from the scene's accuracy
+target), it measures
+
+* wall seconds per simulated second (min of ``repeats`` runs; spread (max - min)/min),
+* right-hand-side evaluations (and Jacobian evaluations),
+* max relative error of the output (load) shaft speed, max |error| of its angle (rad),
+
+against a reference: exact fidelity, elastic springs, dop853 at rtol = atol =
+``reference_tol`` (100x tighter than the tightest tolerance benchmarked). In the same run the
+*same equations* (``Simulation.fun``: the same Driveline rhs closed with the same engine and
+load, exact fidelity) are solved by plain ``scipy.integrate.solve_ivp`` (RK45, LSODA, Radau;
+default usage: one call over the horizon with ``t_eval`` = the sample grid, no Jacobian) as
+the baseline, so every figure is a ratio measured side by side on the same machine.
+Tolerances: rtol = atol = tol for both (states are rad and rad/s, and J for the work
+integrals). Errors are measured on the same sample grid for every run.
+
+A run that needs more than ``max_rhs_evals`` right-hand-side evaluations (an explicit method
+on a stiff scene at a loose tolerance) or fails is recorded with ``ok = False`` and no error.
+
+The lockstep study runs :class:`cvj_ros.physics.cosim.CoupledStepper` offline (no ROS) over
+exchange steps and coupling schemes against the closed-loop reference, and compares the
+loop's overhead per exchange with the measured rclpy round trip
+(:func:`cvj_ros.nodes.roundtrip.measure_round_trip`).
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cvj_ros.errors import CvjError, SceneError
+
+REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff')
+ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock')
+BASELINES = ('RK45', 'LSODA', 'Radau')
+FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto')
+COUPLING_SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
+ERROR_LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
+
+
+@dataclass
+class BenchConfig:
+    """What to run. Times in s. ``scenes`` are shipped scene names, paths, or parsed
+    :class:`cvj_ros.physics.scene.Scene` objects."""
+
+    scenes: Sequence[Any] = REFERENCE_SCENES
+    solvers: Sequence[str] = ADAPTIVE_SOLVERS + ('rk4',)
+    tolerances: Sequence[float] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+    rk4_steps: Sequence[float] = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5)
+    fidelities: Sequence[str] = FIDELITY_MODES
+    baselines: Sequence[str] = BASELINES
+    horizon: float | None = 2.0          # s simulated per run (None: the scene's duration)
+    samples: int = 100                   # sample points on the horizon (error grid)
+    repeats: int = 3
+    max_rhs_evals: int = 2_000_000
+    exchange_steps: Sequence[float] = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
+    schemes: Sequence[str] = COUPLING_SCHEMES
+    lockstep_scenes: Sequence[str] | None = ('kavz685_lever', 'fwd_halfshaft')   # None: first scene
+    round_trip_n: int = 1000             # 0: skip the rclpy round-trip measurement
+    real_lockstep: bool = False          # also time a real `cvj-sim run` lockstep run
+    studies: bool = False                # run `pytest -m slow` and append its summary
+
+    @classmethod
+    def quick(cls) -> BenchConfig:
+        """Reduced set that finishes in under two minutes on a 2-core machine."""
+        return cls(scenes=('kavz685_lever', 'fwd_halfshaft'), solvers=('dopri5', 'dop853', 'rosenbrock', 'rk4'),
+                   tolerances=(1e-3, 1e-5, 1e-7, 1e-9), rk4_steps=(1e-3, 1e-4),
+                   fidelities=('exact', 'auto'), horizon=0.25, samples=50, repeats=1,
+                   max_rhs_evals=300_000, exchange_steps=(3e-4, 1e-3, 3e-3),
+                   lockstep_scenes=('kavz685_lever',), round_trip_n=300)
+
+
+@dataclass
+class SceneProblem:
+    """One scene prepared for benchmarking: the sample grid and the exact reference."""
+
+    scene: Any
+    horizon: float
+    t_eval: np.ndarray
+    ref_speed: np.ndarray
+    ref_angle: np.ndarray
+    ref_wall: float
+    fidelity_levels: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+class _BudgetExceeded(Exception):
+    pass
+
+
+def _counted(fun: Callable[[float, np.ndarray], np.ndarray], budget: int) -> Callable[..., np.ndarray]:
+    """``fun`` that raises _BudgetExceeded after ``budget`` calls (same wrapper for every run)."""
+    count = [0]
+
+    def wrapped(t: float, x: np.ndarray) -> np.ndarray:
+        count[0] += 1
+        if count[0] > budget:
+            raise _BudgetExceeded
+        return fun(t, x)
+    wrapped.count = count  # type: ignore[attr-defined]
+    return wrapped
+
+
+def resolve_scene(spec: Any) -> Any:
+    """A Scene from a Scene object, a shipped scene name or a path (SceneError otherwise)."""
+    from cvj_ros.physics.scene import Scene, find_scene, load_scene
+    if isinstance(spec, Scene):
+        return spec
+    return load_scene(find_scene(str(spec)))
+
+
+def forced_levels(scene: Any, mode: str) -> dict[str, str] | None:
+    """Per-element overrides for fidelity ``mode``: every joint at ``mode`` where the joint
+    has it (else its nearest richer level), every spring elastic; None for 'auto'."""
+    from cvj_ros.physics.joints import JOINTS
+    from cvj_ros.physics.scene import Joint, Spring
+    if mode == 'auto':
+        return None
+    order = ('ideal', 'closed', 'exact')
+    out: dict[str, str] = {}
+    for el in scene.driveline:
+        if isinstance(el, Joint):
+            have = JOINTS[el.kind].fidelities
+            level = next((lv for lv in order[order.index(mode):] if lv in have), have[-1])
+            out[el.name] = level
+        elif isinstance(el, Spring):
+            out[el.name] = 'elastic'
+    return out
+
+
+def _scene_for(scene: Any, *, h: float | None = None) -> Any:
+    if h is None:
+        return scene
+    return dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, h=h))
+
+
+def _output(trace: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Output (last) shaft speed (rad/s) and angle (rad) of a Trace."""
+    return trace.velocity[:, -1].copy(), trace.position[:, -1].copy()
+
+
+def _errors(prob: SceneProblem, speed: np.ndarray, angle: np.ndarray) -> tuple[float, float]:
+    scale = float(np.max(np.abs(prob.ref_speed))) or 1.0
+    return (float(np.max(np.abs(speed - prob.ref_speed))) / scale,
+            float(np.max(np.abs(angle - prob.ref_angle))))
+
+
+def prepare(scene: Any, cfg: BenchConfig, *, reference_tol: float) -> SceneProblem:
+    """Sample grid and the reference solution of ``scene`` (exact, elastic, dop853)."""
+    from cvj_ros.physics.simulate import Simulation
+    horizon = float(min(cfg.horizon, scene.duration) if cfg.horizon else scene.duration)
+    sim = Simulation(scene, method='dop853', rtol=reference_tol, atol=reference_tol,
+                     fidelity=forced_levels(scene, 'exact'))
+    t0 = time.perf_counter()
+    tr = sim.run(horizon, sample_dt=horizon / cfg.samples)
+    wall = time.perf_counter() - t0
+    speed, angle = _output(tr)
+    return SceneProblem(scene=scene, horizon=horizon, t_eval=tr.t.copy(), ref_speed=speed,
+                        ref_angle=angle, ref_wall=wall)
+
+
+def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int) -> dict[str, Any]:
+    walls: list[float] = []
+    result: Any = None
+    nfev = njev = 0
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result, nfev, njev = run_once()
+        walls.append(time.perf_counter() - t0)
+    w = min(walls)
+    return {'result': result, 'wall_s': w, 'wall_spread': (max(walls) - w) / w if w > 0 else 0.0,
+            'nfev': nfev, 'njev': njev}
+
+
+def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
+                fidelity: str, cfg: BenchConfig) -> dict[str, Any]:
+    """Time one project configuration (Simulation.run, the project's own path)."""
+    from cvj_ros.physics.simulate import Simulation
+    scene = _scene_for(prob.scene, h=h)
+    row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
+                           'fidelity': fidelity, 'tol': tol, 'h': h,
+                           'label': f'{solver} {fidelity}'}
+    tol_ = tol if tol is not None else 1e-6
+
+    def once() -> tuple[Any, int, int]:
+        sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
+        sim.fun = _counted(sim.fun, cfg.max_rhs_evals)
+        tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples)
+        row['levels'] = ' '.join(f'{k}={v}' for k, v in sim.fidelity_report.levels.items())
+        return tr, int(tr.solver.get('nfev', sim.fun.count[0])), int(tr.solver.get('njev', 0))
+    return _finish(row, prob, once, cfg)
+
+
+def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig) -> dict[str, Any]:
+    """Time plain solve_ivp on the same closed-loop equations (exact fidelity)."""
+    from scipy.integrate import solve_ivp
+
+    from cvj_ros.physics.simulate import Simulation
+    row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'baseline', 'solver': method,
+                           'fidelity': 'exact', 'tol': tol, 'h': None, 'label': f'solve_ivp {method}'}
+
+    def once() -> tuple[Any, int, int]:
+        sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
+        fun = _counted(sim.fun, cfg.max_rhs_evals)
+        sol = solve_ivp(fun, (0.0, prob.horizon), sim.driveline.x0.copy(), method=method,
+                        t_eval=prob.t_eval, rtol=tol, atol=tol)
+        if not sol.success:
+            raise CvjError(f'solve_ivp {method}: {sol.message}')
+        dl = sim.driveline
+        states = sol.y.T
+        speed = np.array([dl.load_state(x)[1] for x in states])
+        angle = np.array([dl.load_state(x)[0] for x in states])
+        return (speed, angle), int(sol.nfev), int(sol.njev)
+    return _finish(row, prob, once, cfg)
+
+
+def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
+            cfg: BenchConfig) -> dict[str, Any]:
+    try:
+        timed = _time_runs(once, cfg.repeats)
+    except _BudgetExceeded:
+        return {**row, 'ok': False, 'note': f'more than {cfg.max_rhs_evals} rhs evaluations'}
+    except (CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError) as exc:
+        return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
+    res = timed.pop('result')
+    speed, angle = _output(res) if row['family'] == 'project' else res
+    if not (np.all(np.isfinite(speed)) and np.all(np.isfinite(angle))):
+        return {**row, 'ok': False, 'note': 'non-finite output'}
+    e_speed, e_angle = _errors(prob, speed, angle)
+    return {**row, **timed, 'ok': True, 'note': '',
+            'wall_per_sim_s': timed['wall_s'] / prob.horizon,
+            'err_speed_rel': e_speed, 'err_angle_rad': e_angle}
+
+
+# ---------------------------------------------------------------------------- Pareto
+
+
+def pareto_front(rows: Sequence[dict[str, Any]], *, error_key: str = 'err_speed_rel',
+                 cost_key: str = 'wall_per_sim_s') -> list[dict[str, Any]]:
+    """Rows not dominated in (error, cost) (both lower is better), sorted by error."""
+    ok = sorted((r for r in rows if r.get('ok')), key=lambda r: (r[error_key], r[cost_key]))
+    front, best_cost = [], math.inf
+    for r in ok:
+        if r[cost_key] < best_cost:
+            front.append(r)
+            best_cost = r[cost_key]
+    return front
+
+
+def best_at_levels(rows: Sequence[dict[str, Any]], *, levels: Sequence[float] = ERROR_LEVELS,
+                   error_key: str = 'err_speed_rel') -> list[dict[str, Any]]:
+    """Per error level: the cheapest project row and the cheapest baseline row reaching it."""
+    out = []
+    for lv in levels:
+        entry: dict[str, Any] = {'level': lv}
+        for fam in ('project', 'baseline'):
+            cand = [r for r in rows if r.get('ok') and r['family'] == fam and r[error_key] <= lv]
+            entry[fam] = min(cand, key=lambda r: r['wall_per_sim_s']) if cand else None
+        p, b = entry['project'], entry['baseline']
+        entry['speedup'] = b['wall_per_sim_s'] / p['wall_per_sim_s'] if p and b else None
+        out.append(entry)
+    return out
+
+
+# ---------------------------------------------------------------------------- lockstep
+
+
+def lockstep_study(prob: SceneProblem, cfg: BenchConfig) -> list[dict[str, Any]]:
+    """Exchange step vs error and real-time factor per coupling scheme (offline, no ROS).
+
+    The loop is the coupling node's: at each exchange t_k the engine and load torques (and
+    slopes) are evaluated at the state x(t_k), then the CoupledStepper advances to t_k + H.
+    Error: max relative output-speed error at the exchange points on the sample grid
+    against the closed-loop reference. ``rtf`` = simulated time / wall time;
+    ``us_per_exchange`` = wall time of one exchange (the loop's own compute).
+    """
+    try:
+        from cvj_ros.physics.cosim import CoupledStepper
+    except ImportError:
+        return []
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.load import load_from_spec
+    scene = prob.scene
+    rows = []
+    for H in cfg.exchange_steps:
+        n_ex = int(round(prob.horizon / H))
+        if n_ex < 1 or abs(n_ex * H - prob.horizon) > 1e-9 * prob.horizon:
+            continue
+        for scheme in cfg.schemes:
+            row: dict[str, Any] = {'scene': scene.name, 'scheme': scheme, 'exchange_step': H}
+            try:
+                dl = Driveline.from_scene(scene, fidelity=forced_levels(scene, 'exact'))
+                eng = engine_from_spec(scene.engine, field='engine')
+                lod = load_from_spec(scene.load, seed=scene.seed, field='load')
+                cs = CoupledStepper(dl, scheme=scheme, method=scene.solver.method,
+                                    rtol=scene.solver.rtol, atol=scene.solver.atol, h=scene.solver.h)
+                n = dl.n_dof
+                x = dl.x0.copy()
+                speeds = np.empty(n_ex + 1)
+                angles = np.empty(n_ex + 1)
+                phi_l, w_l = dl.load_state(x)
+                speeds[0], angles[0] = w_l, phi_l
+                t0 = time.perf_counter()
+                for k in range(n_ex):
+                    t = k * H
+                    w_e, phi_e = float(x[n]), float(x[0])
+                    te, se = eng.torque(t, w_e, phi_e), eng.slope(t, w_e, phi_e)
+                    tl, sl = lod.torque(t, w_l, phi_l), lod.slope(t, w_l, phi_l)
+                    x = np.asarray(cs.advance((k + 1) * H, te, tl, slope_engine=se, slope_load=sl))
+                    phi_l, w_l = dl.load_state(x)
+                    speeds[k + 1], angles[k + 1] = w_l, phi_l
+                wall = time.perf_counter() - t0
+            except (CvjError, ArithmeticError, ValueError) as exc:
+                rows.append({**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]})
+                continue
+            t_ex = np.arange(n_ex + 1) * H
+            ref_w = np.interp(t_ex, prob.t_eval, prob.ref_speed)
+            on_grid = np.isclose(np.mod(t_ex + 1e-12, prob.t_eval[1]), 0.0, atol=1e-9) | (t_ex == t_ex[-1])
+            on_grid = on_grid if np.count_nonzero(on_grid) >= 2 else np.ones_like(on_grid)
+            err = np.abs(speeds - ref_w)[on_grid]
+            finite = bool(np.all(np.isfinite(speeds)))
+            rows.append({**row, 'ok': finite,
+                         'err_speed_rel': float(np.max(err)) / (float(np.max(np.abs(prob.ref_speed))) or 1.0)
+                         if finite else None,
+                         'rtf': prob.horizon / wall, 'us_per_exchange': 1e6 * wall / n_ex,
+                         'note': '' if finite else 'non-finite state (unstable coupling)'})
+    return rows
+
+
+def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
+    """rclpy publish/subscribe round trip (us) with both executors, or a note why not."""
+    out: dict[str, Any] = {}
+    if n <= 0:
+        return {'note': 'skipped'}
+    try:
+        from cvj_ros.nodes.roundtrip import measure_round_trip
+    except ImportError as exc:
+        return {'note': f'unavailable: {exc}'}
+    for ex in ('events', 'single'):
+        try:
+            out[ex] = measure_round_trip(n, ex)
+        except Exception as exc:  # rclpy set-up problems must not kill the benchmark
+            out[ex] = {'note': f'{type(exc).__name__}: {str(exc)[:120]}'}
+    return out
+
+
+def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0) -> dict[str, Any]:
+    """Wall time per exchange of a real ROS lockstep run (`cvj-sim run`), if available."""
+    import tempfile
+    exe = Path(sys.executable).with_name('cvj-sim')
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [str(exe), 'run', scene_name, '--duration', str(duration), '--out', str(Path(tmp) / 'bag')]
+        t0 = time.perf_counter()
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return {'note': f'cvj-sim run failed: {exc}'}
+        wall = time.perf_counter() - t0
+        if r.returncode != 0:
+            return {'note': f'cvj-sim run exited {r.returncode}: {(r.stderr or r.stdout).strip()[-200:]}'}
+        try:
+            from cvj_ros.analysis import read_bag_signals
+            sig = read_bag_signals(Path(tmp) / 'bag')
+        except CvjError as exc:
+            return {'note': f'bag unreadable: {exc}'}
+        steps = max(1, sig.t.size - 1)
+        return {'scene': scene_name, 'exchanges': steps, 'wall_s': wall,
+                'us_per_exchange_incl_startup': 1e6 * wall / steps}
+
+
+# ---------------------------------------------------------------------------- machine
+
+
+def machine_description() -> dict[str, str]:
+    """CPU model, cores, OS, Python, numpy and scipy versions."""
+    import scipy
+    cpu = platform.processor() or ''
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                cpu = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {'cpu': cpu or 'unknown', 'cores': str(os.cpu_count()), 'os': platform.platform(),
+            'python': platform.python_version(), 'numpy': np.__version__, 'scipy': scipy.__version__}
+
+
+# ---------------------------------------------------------------------------- driver
+
+
+CSV_FIELDS = ('scene', 'family', 'solver', 'fidelity', 'tol', 'h', 'label', 'ok', 'wall_s',
+              'wall_spread', 'wall_per_sim_s', 'nfev', 'njev', 'err_speed_rel', 'err_angle_rad',
+              'levels', 'note')
+LOCKSTEP_FIELDS = ('scene', 'scheme', 'exchange_step', 'ok', 'err_speed_rel', 'rtf', 'us_per_exchange', 'note')
+
+
+def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``bench.md`` and one
+    ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths)."""
+    from cvj_ros.plots import work_precision_plot
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    ref_tol = max(1e-13, min(cfg.tolerances) * 1e-2)
+    rows: list[dict[str, Any]] = []
+    lock_rows: list[dict[str, Any]] = []
+    problems: dict[str, SceneProblem] = {}
+    lock_names = list(cfg.lockstep_scenes) if cfg.lockstep_scenes is not None else []
+    for i, spec in enumerate(cfg.scenes):
+        scene = resolve_scene(spec)
+        if cfg.lockstep_scenes is None and i == 0:
+            lock_names.append(scene.name)
+        log(f'[bench] {scene.name}: reference (dop853, rtol={ref_tol:g}, exact)')
+        prob = prepare(scene, cfg, reference_tol=ref_tol)
+        problems[scene.name] = prob
+        seen_levels: dict[str, str] = {}
+        for fid in cfg.fidelities:
+            for solver in cfg.solvers:
+                grid = [(None, h) for h in cfg.rk4_steps] if solver in ('rk4', 'ros2') else \
+                       [(tol, None) for tol in cfg.tolerances]
+                for tol, h in grid:
+                    row = run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg)
+                    rows.append(row)
+            lv = next((r.get('levels') for r in reversed(rows) if r['scene'] == scene.name
+                       and r['fidelity'] == fid and r.get('levels')), None)
+            if lv is not None:
+                dup = seen_levels.get(lv)
+                if dup:
+                    for r in rows:
+                        if r['scene'] == scene.name and r['fidelity'] == fid:
+                            r['note'] = (r.get('note') or '') + f' same levels as {dup}'
+                seen_levels.setdefault(lv, fid)
+        for method in cfg.baselines:
+            for tol in cfg.tolerances:
+                rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg))
+        log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
+        if scene.name in lock_names:
+            lock_rows += lockstep_study(prob, cfg)
+    rt = measure_rclpy_round_trip(cfg.round_trip_n)
+    real = real_lockstep_run(lock_names[0], duration=0.5) if cfg.real_lockstep and lock_names else None
+    studies = run_studies() if cfg.studies else None
+    duration = time.perf_counter() - t_start
+    paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
+                           work_precision_plot)
+    log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
+    return {'rows': rows, 'lockstep': lock_rows, 'round_trip': rt, 'real_lockstep': real,
+            'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
+            'tables': {name: best_at_levels([r for r in rows if r['scene'] == name]) for name in problems}}
+
+
+def run_studies(timeout: float = 3600.0) -> dict[str, Any]:
+    """Run the repository's slow studies (`pytest -m slow`) and keep the summary line."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        r = subprocess.run([sys.executable, '-m', 'pytest', '-m', 'slow', '-q', 'test'], cwd=root,
+                           capture_output=True, text=True, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return {'summary': f'failed to run: {exc}'}
+    lines = [ln for ln in r.stdout.strip().splitlines() if ln.strip()]
+    return {'returncode': r.returncode, 'summary': lines[-1] if lines else '(no output)'}
+
+
+def _g(x: Any, fmt: str = '.3g') -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return '-'
+    return format(x, fmt)
+
+
+def _config_label(r: dict[str, Any] | None) -> str:
+    if r is None:
+        return '-'
+    knob = f'h={_g(r["h"])}' if r.get('h') else f'tol={_g(r["tol"], ".0e")}'
+    return f'{r["solver"]} {r["fidelity"]} {knob}' if r['family'] == 'project' else f'{r["solver"]} {knob}'
+
+
+def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],
+                   problems: dict[str, SceneProblem], rt: dict[str, Any], real: dict[str, Any] | None,
+                   studies: dict[str, Any] | None, duration: float, ref_tol: float,
+                   plot: Callable[..., Path]) -> list[Path]:
+    paths = []
+    p = out / 'bench.csv'
+    with p.open('w', newline='') as fh:
+        w = csv.DictWriter(fh, fieldnames=CSV_FIELDS, extrasaction='ignore')
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, '') for k in CSV_FIELDS})
+    paths.append(p)
+    p = out / 'lockstep.csv'
+    with p.open('w', newline='') as fh:
+        w = csv.DictWriter(fh, fieldnames=LOCKSTEP_FIELDS, extrasaction='ignore')
+        w.writeheader()
+        for r in lock_rows:
+            w.writerow({k: r.get(k, '') for k in LOCKSTEP_FIELDS})
+    paths.append(p)
+    for name in problems:
+        paths.append(plot([r for r in rows if r['scene'] == name], scene=name, path=out / f'wp_{name}.png'))
+    md = ['# cvj_ros work-precision benchmark', '',
+          f'Run: {time.strftime("%Y-%m-%d %H:%M:%S")}, total {duration:.1f} s wall; '
+          f'horizon {cfg.horizon if cfg.horizon else "scene duration"} s, {cfg.samples} samples, '
+          f'{cfg.repeats} repeat(s) (min taken), reference dop853 rtol = atol = {ref_tol:g}, exact fidelity.', '',
+          '## Machine', '']
+    md += [f'- {k}: {v}' for k, v in machine_description().items()]
+    for name, prob in problems.items():
+        srows = [r for r in rows if r['scene'] == name]
+        md += ['', f'## {name}', '',
+               f'Horizon {prob.horizon:g} s; reference took {prob.ref_wall:.2f} s. '
+               f'Error = max relative error of the output-shaft speed; cost = wall s per simulated s.', '',
+               '| error level | best project config | cost | best solve_ivp | cost | speedup |',
+               '| --- | --- | --- | --- | --- | --- |']
+        for e in best_at_levels(srows):
+            pr, bl = e['project'], e['baseline']
+            md.append(f'| {e["level"]:.0e} | {_config_label(pr)} | {_g(pr and pr["wall_per_sim_s"])} | '
+                      f'{_config_label(bl)} | {_g(bl and bl["wall_per_sim_s"])} | '
+                      f'{_g(e["speedup"], ".2f") + "x" if e["speedup"] else "-"} |')
+        front = pareto_front(srows)
+        md += ['', 'Pareto front (error vs cost, all configurations):', '',
+               '| config | error (speed, rel) | error (angle, rad) | cost s/s | rhs evals |',
+               '| --- | --- | --- | --- | --- |']
+        md += [f'| {_config_label(r)} | {_g(r["err_speed_rel"], ".2e")} | {_g(r["err_angle_rad"], ".2e")} | '
+               f'{_g(r["wall_per_sim_s"])} | {r["nfev"]} |' for r in front]
+        auto = [r for r in srows if r['fidelity'] == 'auto' and r.get('ok')]
+        if auto:
+            on = [r for r in auto if r in front]
+            md += ['', f'Fidelity chooser\'s pick ({auto[0].get("levels", "")}): '
+                   f'{len(on)} of {len(auto)} of its runs on the Pareto front'
+                   + (f' ({", ".join(_config_label(r) for r in on)}).' if on else '.')]
+        failed = [r for r in srows if not r.get('ok')]
+        if failed:
+            md += ['', f'{len(failed)} runs failed or exceeded the budget: '
+                   + '; '.join(f'{_config_label(r)}: {r.get("note", "")}' for r in failed[:8])
+                   + (' ...' if len(failed) > 8 else '')]
+    md += ['', '## Lockstep loop (offline CoupledStepper vs closed-loop reference)', '']
+    if lock_rows:
+        md += ['| scene | scheme | exchange step s | error (speed, rel) | real-time factor | us/exchange |',
+               '| --- | --- | --- | --- | --- | --- |']
+        md += [f'| {r["scene"]} | {r["scheme"]} | {r["exchange_step"]:g} | {_g(r.get("err_speed_rel"), ".2e")} | '
+               f'{_g(r.get("rtf"))} | {_g(r.get("us_per_exchange"))} |' for r in lock_rows]
+    else:
+        md.append('Not run (cvj_ros.physics.cosim.CoupledStepper not available, or no lockstep scene).')
+    md += ['', '## Loop overhead vs rclpy round trip', '']
+    for ex, v in rt.items():
+        md.append(f'- rclpy round trip, {ex} executor: ' + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median'
+                                                            if isinstance(v, dict) and 'us_mean' in v else str(v)))
+    if real:
+        md.append(f'- real lockstep run: {real}')
+    if studies:
+        md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
+    p = out / 'bench.md'
+    p.write_text('\n'.join(md) + '\n')
+    paths.append(p)
+    return paths
+
+
+def check_config(cfg: BenchConfig) -> None:
+    """Validate a configuration; raises SceneError naming the option."""
+    for t in cfg.tolerances:
+        if not (math.isfinite(t) and 0 < t < 1):
+            raise SceneError('--tolerances', f'must be in (0, 1), got {t}')
+    for s in cfg.solvers:
+        if s not in ADAPTIVE_SOLVERS + ('rk4', 'ros2'):
+            raise SceneError('--solvers', f'unknown solver {s!r}')
+    for f in cfg.fidelities:
+        if f not in FIDELITY_MODES:
+            raise SceneError('--fidelities', f'unknown fidelity {f!r}; one of {", ".join(FIDELITY_MODES)}')
+    if cfg.repeats < 1:
+        raise SceneError('--repeats', f'must be >= 1, got {cfg.repeats}')
+    if cfg.horizon is not None and not (math.isfinite(cfg.horizon) and cfg.horizon > 0):
+        raise SceneError('--horizon', f'must be > 0, got {cfg.horizon}')

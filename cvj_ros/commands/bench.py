@@ -1,0 +1,81 @@
+"""`cvj-sim bench`: work-precision benchmark against scipy's solve_ivp (see :mod:`cvj_ros.bench`)."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+
+from cvj_ros.errors import SceneError
+
+NAME = 'bench'
+HELP = 'work-precision benchmark: project solvers and fidelities vs solve_ivp, lockstep loop'
+DESCRIPTION = """\
+For each reference scene, solver (dopri5, dop853, rosenbrock, rk4 fixed step), tolerance
+and fidelity (ideal/closed/exact and the fidelity chooser's pick 'auto'): wall seconds per
+simulated second, rhs evaluations, max relative error of the output speed and max error of
+the output angle against a dop853 reference at exact fidelity. The same equations are solved
+by plain scipy.integrate.solve_ivp (RK45, LSODA, Radau) as the baseline in the same run.
+Also the lockstep loop (exchange step vs error per coupling scheme, real-time factor) and
+the rclpy round trip. Writes bench.csv, lockstep.csv, bench.md and wp_<scene>.png to --out.
+"""
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(',') if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a comma-separated list of numbers: {text!r}') from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--quick', action='store_true',
+                        help='reduced set (2 scenes, 4 tolerances, short horizon): under two minutes')
+    parser.add_argument('--out', default='runs/bench', metavar='DIR', help='output directory (default runs/bench)')
+    parser.add_argument('--scenes', nargs='+', metavar='SCENE', help='scene names or YAML paths')
+    parser.add_argument('--solvers', nargs='+', metavar='SOLVER', help='dopri5 dop853 rosenbrock rk4 ros2')
+    parser.add_argument('--fidelities', nargs='+', metavar='LEVEL', help='ideal closed exact auto')
+    parser.add_argument('--baselines', nargs='+', metavar='METHOD', help='solve_ivp methods (RK45 LSODA Radau)')
+    parser.add_argument('--tolerances', type=_floats, metavar='T1,T2,..', help='rtol = atol values')
+    parser.add_argument('--rk4-steps', type=_floats, metavar='H1,H2,..', help='fixed steps for rk4, s')
+    parser.add_argument('--exchange-steps', type=_floats, metavar='H1,H2,..', help='lockstep exchange steps, s')
+    parser.add_argument('--horizon', type=float, metavar='SECONDS', help='simulated time per run, s')
+    parser.add_argument('--samples', type=int, metavar='N', help='error sample points per run')
+    parser.add_argument('--repeats', type=int, metavar='N', help='timing repeats (min is reported)')
+    parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
+    parser.add_argument('--real-lockstep', action='store_true', help='also time a real `cvj-sim run` lockstep run')
+    parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
+
+
+def config_from_args(args: argparse.Namespace) -> object:
+    """BenchConfig from the command line (quick or full defaults, then explicit options)."""
+    from cvj_ros.bench import BenchConfig, check_config
+    cfg = BenchConfig.quick() if args.quick else BenchConfig()
+    updates = {k: v for k, v in {
+        'scenes': args.scenes, 'solvers': args.solvers, 'fidelities': args.fidelities,
+        'baselines': args.baselines, 'tolerances': args.tolerances, 'rk4_steps': args.rk4_steps,
+        'exchange_steps': args.exchange_steps, 'horizon': args.horizon, 'samples': args.samples,
+        'repeats': args.repeats}.items() if v is not None}
+    if args.samples is not None and args.samples < 2:
+        raise SceneError('--samples', f'must be >= 2, got {args.samples}')
+    if args.horizon is not None and not (math.isfinite(args.horizon) and args.horizon > 0):
+        raise SceneError('--horizon', f'must be > 0, got {args.horizon}')
+    cfg = dataclasses.replace(cfg, **updates)
+    if args.scenes:
+        cfg.lockstep_scenes = None     # the first given scene
+    if args.no_ros:
+        cfg.round_trip_n = 0
+    cfg.real_lockstep = bool(args.real_lockstep)
+    cfg.studies = bool(args.studies)
+    check_config(cfg)
+    return cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    from cvj_ros.bench import resolve_scene, run_bench
+    cfg = config_from_args(args)
+    for s in cfg.scenes:           # fail fast on a bad scene name, before any timing
+        resolve_scene(s)
+    res = run_bench(cfg, args.out, log=lambda m: print(m, file=sys.stderr))
+    print((res['paths'][-1]).read_text())
+    return 0

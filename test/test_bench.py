@@ -1,0 +1,143 @@
+"""Work-precision benchmark on a reduced in-test configuration through the same code path
+as `cvj-sim bench` (run_bench and the CLI), checking outputs, NaN-freedom and convergence.
+
+The scene is a small lever-like unit (seed 004 parameters: I1 = 0.128, I2 = 0.161 kg m^2,
+c = 715.4 N m/rad, b = 6.35 N m s/rad) with a Hooke joint at 15 deg, so the ideal
+fidelity has a model error of order 1 - cos(beta) that no tolerance can remove.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cvj_ros import bench
+from cvj_ros.cli import main
+from cvj_ros.physics.scene import parse_scene
+
+SCENE = {'name': 'mini_lever', 'duration': 1.0, 'engine': {'model': 'linear'},
+         'load': {'model': 'constant', 'torque': 107.5}, 'initial': {'speed_rad_s': 30.0},
+         'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': 0.128},
+                       {'type': 'joint', 'name': 'hooke', 'kind': 'hooke', 'params': {'beta_deg': 15}},
+                       {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35},
+                       {'type': 'inertia', 'name': 'wheel', 'J': 0.161}]}
+TOLS = (1e-3, 1e-6, 1e-9)
+
+
+@pytest.fixture(scope='module')
+def result(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp('bench')
+    cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5', 'dop853', 'rk4'),
+                            tolerances=TOLS, rk4_steps=(2e-3, 5e-4), fidelities=('ideal', 'exact', 'auto'),
+                            baselines=('RK45', 'LSODA'), horizon=0.2, samples=20, repeats=2,
+                            exchange_steps=(1e-3, 4e-3), lockstep_scenes=None, round_trip_n=0)
+    return bench.run_bench(cfg, out, log=lambda m: None), out
+
+
+def _rows(res: dict, **match: object) -> list[dict]:
+    return [r for r in res['rows'] if all(r.get(k) == v for k, v in match.items())]
+
+
+def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
+    res, out = result
+    for name in ('bench.csv', 'lockstep.csv', 'bench.md', 'wp_mini_lever.png'):
+        assert (out / name).stat().st_size > 200, name
+    with (out / 'bench.csv').open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 3 * (2 * 3 + 2) + 2 * 3
+    for r in rows:
+        assert r['ok'] == 'True', r
+        for key in ('wall_s', 'wall_per_sim_s', 'err_speed_rel', 'err_angle_rad', 'nfev'):
+            v = float(r[key])
+            assert math.isfinite(v) and v >= 0, (key, r)
+    md = (out / 'bench.md').read_text()
+    assert '| 1e-03 |' in md and 'Pareto front' in md and '## Machine' in md and 'cores' in md
+    assert 'nan' not in md.lower()
+
+
+def test_errors_shrink_as_tolerances_tighten(result: tuple[dict, Path]) -> None:
+    res, _ = result
+    for family, solver in (('project', 'dopri5'), ('project', 'dop853'), ('baseline', 'RK45'),
+                           ('baseline', 'LSODA')):
+        errs = [_rows(res, family=family, solver=solver, fidelity='exact', tol=t)[0]['err_speed_rel']
+                for t in TOLS]
+        assert errs[1] < errs[0] / 10 and errs[2] < errs[1] / 10 or errs[2] < 1e-9, (solver, errs)
+    rk4 = sorted(_rows(res, solver='rk4', fidelity='exact'), key=lambda r: -r['h'])
+    # fourth order: a 4x smaller step cuts the error by ~256
+    assert rk4[1]['err_speed_rel'] < rk4[0]['err_speed_rel'] / 50
+    cost = [_rows(res, solver='dop853', fidelity='exact', tol=t)[0]['nfev'] for t in TOLS]
+    assert cost[0] < cost[1] < cost[2]
+
+
+def test_ideal_fidelity_has_a_model_error_floor(result: tuple[dict, Path]) -> None:
+    res, _ = result
+    ideal = [r['err_speed_rel'] for r in _rows(res, fidelity='ideal', family='project')]
+    exact_best = min(r['err_speed_rel'] for r in _rows(res, fidelity='exact', family='project'))
+    # Hooke at 15 deg: the output speed swings by 1/cos b - cos b ~ 7 %; ideal misses it.
+    assert min(ideal) > 1e-3 and exact_best < 1e-7
+
+
+def test_pareto_front_and_levels_table(result: tuple[dict, Path]) -> None:
+    res, _ = result
+    rows = _rows(res, scene='mini_lever')
+    front = bench.pareto_front(rows)
+    for r in rows:       # nothing on the front is dominated by any row
+        for f in front:
+            assert not (r['err_speed_rel'] < f['err_speed_rel'] and r['wall_per_sim_s'] < f['wall_per_sim_s'])
+    errs = [f['err_speed_rel'] for f in front]
+    costs = [f['wall_per_sim_s'] for f in front]
+    assert errs == sorted(errs) and costs == sorted(costs, reverse=True)
+    table = res['tables']['mini_lever']
+    assert [e['level'] for e in table] == list(bench.ERROR_LEVELS)
+    for e in table:
+        if e['project'] and e['baseline']:
+            assert e['speedup'] == pytest.approx(e['baseline']['wall_per_sim_s'] / e['project']['wall_per_sim_s'])
+
+
+def test_lockstep_error_shrinks_with_exchange_step(result: tuple[dict, Path]) -> None:
+    res, _ = result
+    lock = res['lockstep']
+    if not lock:
+        pytest.skip('cvj_ros.physics.cosim not available')
+    assert {r['scheme'] for r in lock} == set(bench.COUPLING_SCHEMES)
+    for scheme in bench.COUPLING_SCHEMES:
+        by_h = {r['exchange_step']: r for r in lock if r['scheme'] == scheme}
+        assert all(r['ok'] and r['rtf'] > 0 for r in by_h.values())
+        assert by_h[1e-3]['err_speed_rel'] < by_h[4e-3]['err_speed_rel'], scheme
+    zoh = {r['exchange_step']: r['err_speed_rel'] for r in lock if r['scheme'] == 'zoh'}
+    # ZOH is first order in the exchange step: 4x smaller step, about 4x smaller error
+    assert 2.0 < zoh[4e-3] / zoh[1e-3] < 8.0
+
+
+def test_pareto_front_unit() -> None:
+    rows = [{'ok': True, 'err_speed_rel': e, 'wall_per_sim_s': c, 'family': 'project'}
+            for e, c in ((1e-3, 1.0), (1e-4, 2.0), (1e-4, 3.0), (1e-5, 1.5), (1e-6, 5.0))]
+    assert [(r['err_speed_rel'], r['wall_per_sim_s']) for r in bench.pareto_front(rows)] == \
+        [(1e-6, 5.0), (1e-5, 1.5), (1e-3, 1.0)]
+
+
+def test_cli_bench_reduced(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene_file = tmp_path / 'mini_lever.yaml'
+    scene_file.write_text(yaml.safe_dump(SCENE))
+    out = tmp_path / 'out'
+    rc = main(['bench', '--scenes', str(scene_file), '--solvers', 'dopri5', '--fidelities', 'exact',
+               '--baselines', 'RK45', '--tolerances', '1e-4,1e-8', '--horizon', '0.1', '--samples', '10',
+               '--repeats', '1', '--exchange-steps', '1e-3', '--no-ros', '--out', str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert '# cvj_ros work-precision benchmark' in text and 'mini_lever' in text
+    assert sorted(p.name for p in out.iterdir()) == ['bench.csv', 'bench.md', 'lockstep.csv', 'wp_mini_lever.png']
+    data = np.genfromtxt(out / 'bench.csv', delimiter=',', names=True, dtype=None, encoding='utf-8')
+    assert np.all(np.isfinite(data['err_speed_rel']))
+
+
+def test_cli_bad_scene_and_option(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(['bench', '--scenes', 'no_such_scene_xyz', '--no-ros']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('cvj-sim: error: scene: ')
+    assert main(['bench', '--tolerances', '2', '--no-ros']) == 2
+    assert capsys.readouterr().err.startswith('cvj-sim: error: --tolerances:')

@@ -398,19 +398,21 @@ class RoadLoad(Load):
 class BrakeStepsLoad(Load):
     """Brake torque switched in steps on top of a constant base load.
 
-    Step i sets the brake level to ``torque_i`` (N m, >= 0) from ``t_i`` on; levels are not
-    cumulative. With ramp time tau > 0 each change follows a cubic smoothstep over
+    Step i sets the brake level to ``torque_i`` (N m) from ``t_i`` on; levels are not
+    cumulative. A negative level is a driving torque (load reversal, e.g. downhill). With ramp time tau > 0 each change follows a cubic smoothstep over
     [t_i, t_i + tau] (C1 in t); tau = 0 gives true steps (restart the solver there)::
 
         L(t) = sum_i (T_i - T_{i-1}) S((t - t_i) / tau),  T_{-1} = 0
         T = base + L(t) tanh(omega / omega_s)      (or L(t) alone with speed_scale 0)
 
-    The brake is friction: tanh makes it oppose the motion and vanish smoothly at standstill.
+    With speed_scale > 0 the brake acts like friction: tanh makes a positive level oppose
+    the motion in either direction and vanish smoothly at standstill (a negative level then
+    pushes along the motion).
 
     Spec keys (``model: brake_steps``):
 
     * ``steps``        list of ``[t_on, torque]`` or ``{t: s, torque: N m}``; t strictly
-                       increasing, >= 0 (required, at least one)
+                       increasing, >= 0; torque any finite value (required, at least one)
     * ``ramp_time``    s, >= 0 [0.01]
     * ``base``         N m, constant base load [0]
     * ``speed_scale``  rad/s, >= 0; 0 = brake torque independent of speed [1]
@@ -467,7 +469,7 @@ class BrakeStepsLoad(Load):
             p = f'{path}[{i}]'
             if isinstance(item, Mapping):
                 s = SpecReader(item, p, ignore=())
-                t_on, tq = s.number('t', lo=0.0), s.number('torque', lo=0.0)
+                t_on, tq = s.number('t', lo=0.0), s.number('torque')
                 s.finish()
             else:
                 pair = check_array(p, item, min_len=2)
@@ -475,8 +477,6 @@ class BrakeStepsLoad(Load):
                     raise SceneError(p, f'must be [t_on, torque], got {len(pair)} values')
                 if pair[0] < 0.0:
                     raise SceneError(f'{p}[0]', f'must be >= 0 s, got {pair[0]:g}')
-                if pair[1] < 0.0:
-                    raise SceneError(f'{p}[1]', f'brake torque must be >= 0 N m, got {pair[1]:g}')
                 t_on, tq = float(pair[0]), float(pair[1])
             if times and t_on <= times[-1]:
                 raise SceneError(p, f'step times must be strictly increasing: {t_on:g} s '
@@ -495,13 +495,18 @@ class TimeSeriesLoad(Load):
     Outside [t_0, t_last] the end values are held (``outside: hold``) or the torque is 0
     (``outside: zero``). Speed-independent (slope 0).
 
-    Spec keys (``model: time_series``):
+    Spec keys (``model: time_series``), samples inline or from a file:
 
-    * ``t``        s, strictly increasing finite times (required, >= 2)
-    * ``torque``   N m, finite, same length (required)
+    * ``t``        s, strictly increasing finite times (>= 2 values)
+    * ``torque``   N m, finite, same length
+    * ``file``     path instead of ``t``/``torque`` (relative to the working directory):
+                   ``.npz`` with arrays ``t`` and ``torque``; ``.yaml``/``.yml``/``.json``
+                   mapping with lists ``t`` and ``torque``; ``.csv``/``.txt`` two columns
+                   t, torque (comma or whitespace separated, one optional header line)
     * ``outside``  'hold' | 'zero' ['hold']
 
-    The ROS layer builds it with :meth:`from_arrays` from a recorded bag's torque.
+    The ROS layer builds it with :meth:`from_arrays` from a recorded bag's torque (the bag
+    reader lives outside physics: physics imports nothing ROS).
     """
 
     model = 'time_series'
@@ -532,6 +537,61 @@ class TimeSeriesLoad(Load):
                              + did_you_mean(str(outside), ('hold', 'zero')))
         return cls(ta, va, outside=outside, label=label)
 
+    @classmethod
+    def from_file(cls, path: str, *, outside: str = 'hold', field: str = 'load') -> TimeSeriesLoad:
+        """Samples from ``path`` (.npz, .yaml/.yml/.json, .csv/.txt; see class docstring).
+
+        File problems raise SceneError(f'{field}.file'), bad samples f'{field}.t[i]' etc.
+        """
+        import json
+        import os
+
+        fpath = f'{field}.file'
+        if not isinstance(path, (str, os.PathLike)) or not str(path):
+            raise SceneError(fpath, f'must be a file path, got {path!r}')
+        path = str(path)
+        ext = os.path.splitext(path)[1].lower()
+        try:
+            if ext == '.npz':
+                with np.load(path) as data:
+                    t, tq = np.asarray(data['t'], float), np.asarray(data['torque'], float)
+            elif ext in ('.yaml', '.yml', '.json'):
+                with open(path, encoding='utf-8') as fh:
+                    if ext == '.json':
+                        data = json.load(fh)
+                    else:
+                        import yaml
+                        data = yaml.safe_load(fh)
+                if not isinstance(data, Mapping):
+                    raise SceneError(fpath, f'{path}: must hold a mapping with lists t and torque')
+                t, tq = data['t'], data['torque']
+            elif ext in ('.csv', '.txt'):
+                with open(path, encoding='utf-8') as fh:
+                    lines = [ln.replace(',', ' ').split() for ln in fh if ln.strip()]
+                if lines and lines[0] and not _is_number(lines[0][0]):
+                    lines = lines[1:]
+                bad = [i for i, ln in enumerate(lines) if len(ln) != 2]
+                if bad:
+                    raise SceneError(fpath, f'{path}: data row {bad[0]} must have 2 columns (t, torque)')
+                t = [_to_float(fpath, path, ln[0]) for ln in lines]
+                tq = [_to_float(fpath, path, ln[1]) for ln in lines]
+            else:
+                raise SceneError(fpath, f'{path}: unknown file type {ext!r} '
+                                        '(use .npz, .yaml, .yml, .json, .csv or .txt)')
+        except OSError as exc:
+            raise SceneError(fpath, f'{path}: cannot read ({exc.strerror or exc})') from None
+        except KeyError as exc:
+            raise SceneError(fpath, f'{path}: missing {exc.args[0]!r} (need t and torque)') from None
+        except (ValueError, TypeError) as exc:
+            raise SceneError(fpath, f'{path}: {str(exc).splitlines()[0]}') from None
+        except Exception as exc:  # yaml/json parse errors
+            if isinstance(exc, SceneError):
+                raise
+            raise SceneError(fpath, f'{path}: {str(exc).splitlines()[0]}') from None
+        check_array(f'{field}.t', t, min_len=2)
+        check_array(f'{field}.torque', tq, min_len=2)
+        return cls.from_arrays(t, tq, outside=outside, field=field, label=os.path.basename(path))
+
     def torque(self, t: float, omega: float = 0.0, phi: float = 0.0) -> float:
         ts, vs = self.t, self.values
         if t <= ts[0] or t >= ts[-1]:
@@ -548,6 +608,12 @@ class TimeSeriesLoad(Load):
 
     @classmethod
     def from_reader(cls, r: SpecReader, *, seed: int, stream: int) -> TimeSeriesLoad:
+        if r.has('file'):
+            for key in ('t', 'torque'):
+                if r.has(key):
+                    raise SceneError(r.path(key), 'give either file or t/torque samples')
+            outside = r.choice('outside', ('hold', 'zero'), 'hold')
+            return cls.from_file(r.raw('file'), outside=outside, field=r.field)
         t = r.raw('t')
         tq = r.raw('torque')
         outside = r.choice('outside', ('hold', 'zero'), 'hold')
@@ -559,6 +625,21 @@ class TimeSeriesLoad(Load):
         check_array(r.path('t'), t, min_len=2)
         check_array(r.path('torque'), tq, min_len=2)
         return cls.from_arrays(t, tq, outside=outside, field=r.field, label='scene samples')
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _to_float(fpath: str, path: str, text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise SceneError(fpath, f'{path}: not a number: {text!r}') from None
 
 
 # --- sum -----------------------------------------------------------------------------------

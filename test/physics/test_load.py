@@ -216,6 +216,11 @@ def test_brake_steps_levels_ramps_and_sign() -> None:
     assert hard.torque(1.0, 100) == pytest.approx(200.0)
     assert hard.torque(1.5, -100) == pytest.approx(-200.0)           # friction opposes motion
     assert hard.torque(1.5, 0.0) == 0.0
+    # negative level: load reversal (the load drives), e.g. on top of a constant load
+    rev = load_from_spec([{'model': 'constant', 'torque': 107.5},
+                          {'model': 'brake_steps', 'steps': [[0.5, -300.0]]}], seed=0)
+    assert rev.torque(0.0, 39.0) == pytest.approx(107.5)
+    assert rev.torque(1.0, 39.0) == pytest.approx(107.5 - 300.0 * math.tanh(39.0))
 
 
 # --- time series ----------------------------------------------------------------------------
@@ -285,7 +290,9 @@ def test_describe_is_one_line(spec) -> None:
     ({'model': 'brake_steps'}, 'load.steps'),
     ({'model': 'brake_steps', 'steps': []}, 'load.steps'),
     ({'model': 'brake_steps', 'steps': [[1, 10], [0.5, 10]]}, 'load.steps[1]'),
-    ({'model': 'brake_steps', 'steps': [[1, -10]]}, 'load.steps[0][1]'),
+    ({'model': 'brake_steps', 'steps': [[-1, 10]]}, 'load.steps[0][0]'),
+    ({'model': 'brake_steps', 'steps': [[1, 10, 3]]}, 'load.steps[0]'),
+    ({'model': 'brake_steps', 'steps': [[1, float('nan')]]}, 'load.steps[0][1]'),
     ({'model': 'brake_steps', 'steps': [{'t': 1, 'trq': 3}]}, 'load.steps[0].torque'),
     ({'model': 'time_series', 't': [0, 1]}, 'load.torque'),
     ({'model': 'time_series', 't': [0, 1], 'torque': [1, 2], 'outside': 'hld'}, 'load.outside'),
@@ -309,3 +316,36 @@ def test_did_you_mean_and_seed_validation() -> None:
     for bad in (-1, 1.5, None, True):
         with pytest.raises(SceneError, match='^seed'):
             load_from_spec({'model': 'constant'}, seed=bad)  # type: ignore[arg-type]
+
+
+def test_time_series_from_files(tmp_path) -> None:
+    t, tq = [0.0, 0.5, 2.0], [10.0, 20.0, -4.0]
+    np.savez(tmp_path / 's.npz', t=np.array(t), torque=np.array(tq))
+    (tmp_path / 's.yaml').write_text('t: [0.0, 0.5, 2.0]\ntorque: [10, 20, -4]\n')
+    (tmp_path / 's.json').write_text('{"t": [0.0, 0.5, 2.0], "torque": [10, 20, -4]}')
+    (tmp_path / 's.csv').write_text('t_s,torque_Nm\n0.0,10\n0.5,20\n2.0,-4\n')
+    for name in ('s.npz', 's.yaml', 's.json', 's.csv'):
+        load = load_from_spec({'model': 'time_series', 'file': str(tmp_path / name)}, seed=0)
+        assert load.torque(0.25, 0) == pytest.approx(15.0), name
+        assert load.torque(1.25, 0) == pytest.approx(8.0), name
+        assert load.torque(3.0, 0) == -4.0
+
+
+@pytest.mark.parametrize('content, name, field', [
+    ('t,torque\n0,1\n0,2\n', 'bad.csv', 'load.t[1]'),
+    ('0,1\n1\n', 'bad.csv', 'load.file'),
+    ('0,1\n1,x\n', 'bad.csv', 'load.file'),
+    ('t: [0, 1]\n', 'bad.yaml', 'load.file'),
+    ('[1, 2]', 'bad.json', 'load.file'),
+    ('t: [0, 1]: x', 'bad.yml', 'load.file'),
+    ('', 'bad.mat', 'load.file'),
+    (None, 'missing.npz', 'load.file'),
+])
+def test_time_series_bad_files(tmp_path, content, name, field) -> None:
+    if content is not None:
+        (tmp_path / name).write_text(content)
+    with pytest.raises(SceneError) as info:
+        load_from_spec({'model': 'time_series', 'file': str(tmp_path / name)}, seed=0)
+    assert info.value.field == field
+    with pytest.raises(SceneError, match=r'^load\.t: give either file'):
+        load_from_spec({'model': 'time_series', 'file': 'x.csv', 't': [0, 1]}, seed=0)

@@ -179,18 +179,28 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         if e is None or c is None or not (np.isfinite(e) and np.isfinite(c)) or e <= 0 or c <= 0:
             continue
         groups.setdefault(r['label'], []).append(r)
+    solvers = sorted({rs[0]['solver'] for rs in groups.values()})
+    colors = {s: plt.get_cmap('tab10')(i % 10) for i, s in enumerate(solvers)}
+    markers = {'ideal': 'v', 'closed': 'D', 'exact': 'o', 'auto': '*'}
     with plt.rc_context(_STYLE):
-        fig, ax = plt.subplots(figsize=(8.5, 6))
+        fig, ax = plt.subplots(figsize=(9, 6.2))
         for label, rs in sorted(groups.items(), key=lambda kv: (kv[1][0].get('family') == 'baseline', kv[0])):
-            rs = sorted(rs, key=lambda r: r[error_key])
+            # connect in order of the knob (tolerance, or fixed step for rk4): loose -> tight
+            rs = sorted(rs, key=lambda r: -(r.get('tol') or r.get('h') or 0.0))
             base = rs[0].get('family') == 'baseline'
+            fid = rs[0].get('fidelity', 'exact')
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls='--' if base else '-', marker='s' if base else 'o', ms=4, lw=1.4 if base else 1.6,
-                      label=label + (' (solve_ivp baseline)' if base else ''))
+                      ls='--' if base else '-', marker='s' if base else markers.get(fid, 'o'),
+                      ms=5 if fid != 'auto' or base else 9, lw=1.3 if base else 1.6,
+                      color=colors[rs[0]['solver']], alpha=0.95 if fid in ('exact', 'auto') or base else 0.6,
+                      label=f'solve_ivp {rs[0]["solver"]} (baseline)' if base else label)
+        for lv in (1e-3, 1e-8):
+            ax.axvline(lv, color='0.6', lw=0.8, ls=':')
         ax.set_xlabel('max relative error of output speed  [-]' if error_key == 'err_speed_rel'
                       else error_key)
         ax.set_ylabel('wall time per simulated second  [s/s]')
-        ax.set_title(f'Work-precision: {scene} (lower-left is better)')
+        ax.set_title(f'Work-precision: {scene}  (lower-left is better; markers: o exact, * auto, '
+                     f'v ideal, D closed)', fontsize=10)
         ax.grid(True, which='both', alpha=0.25)
         ax.legend(loc='best', fontsize=7, framealpha=0.85, ncol=1 if len(groups) < 9 else 2)
         fig.tight_layout()

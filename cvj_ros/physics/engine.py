@@ -57,7 +57,8 @@ def did_you_mean(name: str, choices: Sequence[str]) -> str:
     """'; did you mean X?' suffix or ''. difflib first, then a choice containing the name
     (``grade`` -> ``grade_percent``: keys gained a unit suffix)."""
     name = str(name)
-    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    close = [c for c in choices if c.lower() == name.lower()][:1]      # 'M1' -> 'm1'
+    close = close or difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
     if not close and len(name) >= 3:
         close = [c for c in choices if name.lower() in c.lower()][:1]
     return f'; did you mean {close[0]!r}?' if close else ''
@@ -301,6 +302,11 @@ class MapEngine(Engine):
     """Engine map: full-load curve, part-load law, motoring friction, idle governor,
     rev limiter, firing-pulse ripple. All terms are pure functions of (omega, phi) and the
     throttle; every piece is C1 in omega so dT/domega is continuous and analytic.
+
+    Source: none of the seeds gives an engine map (seed 004 fig. 3.9 only sketches the static
+    characteristic: idle speed, nominal speed, starting and nominal moment); the pieces
+    below are the usual mean-value engine model, stated here in full. PCHIP: Fritsch and
+    Carlson 1980, as in scipy.interpolate.PchipInterpolator.
 
     With omega in rad/s, n = omega/RPM in rpm:
 

@@ -306,7 +306,9 @@ class FourierLoad(Load):
 # --- road ----------------------------------------------------------------------------------
 
 class RoadLoad(Load):
-    """Vehicle road load referred to the shaft where the load acts.
+    """Vehicle road load referred to the shaft where the load acts (standard longitudinal
+    vehicle resistance: rolling, aerodynamic drag, grade; not from the seeds, which give
+    only the measured technological load of seed 004).
 
     Vehicle speed v = omega r / i (m/s); with theta = atan(grade_percent / 100)::
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from cvj_ros.physics.engine import (KAVZ685_K1, RPM, LinearEngine, MapEngine, en
                                     smooth_ramp, smoothstep)
 
 
-def numerical_slope(src, t: float, omega: float, phi: float = 0.0, h: float = 1e-5) -> float:
+def numerical_slope(src: Any, t: float, omega: float, phi: float = 0.0, h: float = 1e-5) -> float:
     return (src.torque(t, omega + h, phi) - src.torque(t, omega - h, phi)) / (2.0 * h)
 
 
@@ -232,6 +233,8 @@ def test_did_you_mean_and_custom_field() -> None:
         engine_from_spec({'model': 'linaer'})
     with pytest.raises(SceneError, match=r"^scene\.engine\.idle_rmp: unknown key; did you mean 'idle_rpm'"):
         engine_from_spec({'model': 'map', 'idle_rmp': 700}, field='scene.engine')
+    with pytest.raises(SceneError, match=r"^engine\.M1: unknown key; did you mean 'm1'"):
+        engine_from_spec({'model': 'linear', 'M1': 600})
     with pytest.raises(SceneError, match=r'^engine: must be a mapping'):
         engine_from_spec(['linear'])  # type: ignore[arg-type]
 

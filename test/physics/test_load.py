@@ -3,6 +3,7 @@ random statistics and reproducibility, time-series validation, spec validation."
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,7 +28,7 @@ ALL_SPECS = [
 ]
 
 
-def numerical_slope(src, t: float, omega: float, phi: float = 0.0, h: float = 1e-5) -> float:
+def numerical_slope(src: Any, t: float, omega: float, phi: float = 0.0, h: float = 1e-5) -> float:
     return (src.torque(t, omega + h, phi) - src.torque(t, omega - h, phi)) / (2.0 * h)
 
 

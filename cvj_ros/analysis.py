@@ -35,7 +35,8 @@ DIAGNOSTICS = '/diagnostics'
 SCENE = '/driveline/scene'
 # Diagnostic keys reported as loop / energy figures (case-insensitive substring match).
 _DIAG_PATTERNS = {'energy': re.compile('energy', re.I), 'wait': re.compile('wait', re.I),
-                  'overhead': re.compile('overhead|round_trip|rtf|real_time', re.I)}
+                  'loop': re.compile('overhead|round_trip|rtf|real_time|exchange|integration|ignored|rejected',
+                                     re.I)}
 
 
 @dataclass

@@ -348,6 +348,7 @@ def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if n <= 0:
         return {'note': 'skipped'}
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     try:
         from cvj_ros.nodes.roundtrip import measure_round_trip
     except ImportError as exc:
@@ -361,14 +362,21 @@ def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
 
 
 def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0) -> dict[str, Any]:
-    """Wall time per exchange of a real ROS lockstep run (`cvj-sim run`), if available."""
+    """Loop figures of a real ROS lockstep run (`cvj-sim run`, one process per node).
+
+    Reads the coupling node's last loop diagnostics from the bag: per exchange wall time,
+    lockstep wait, integration time and overhead = exchange wall - integration (us), and the
+    real-time factor. Returns ``{'note': ...}`` when the run is not possible here.
+    """
     import tempfile
     exe = Path(sys.executable).with_name('cvj-sim')
+    env = dict(os.environ)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [str(exe), 'run', scene_name, '--duration', str(duration), '--out', str(Path(tmp) / 'bag')]
+        cmd = [str(exe), 'run', scene_name, '--duration', str(duration), '--out', str(Path(tmp) / 'run')]
         t0 = time.perf_counter()
         try:
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
         except (OSError, subprocess.TimeoutExpired) as exc:
             return {'note': f'cvj-sim run failed: {exc}'}
         wall = time.perf_counter() - t0
@@ -376,12 +384,22 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
             return {'note': f'cvj-sim run exited {r.returncode}: {(r.stderr or r.stdout).strip()[-200:]}'}
         try:
             from cvj_ros.analysis import read_bag_signals
-            sig = read_bag_signals(Path(tmp) / 'bag')
+            sig = read_bag_signals(Path(tmp) / 'run' / 'bag')
         except CvjError as exc:
             return {'note': f'bag unreadable: {exc}'}
-        steps = max(1, sig.t.size - 1)
-        return {'scene': scene_name, 'exchanges': steps, 'wall_s': wall,
-                'us_per_exchange_incl_startup': 1e6 * wall / steps}
+    loop = [v for _t, name, _lv, v in sig.diagnostics if 'loop' in name and 'overhead_us_mean' in v]
+    out: dict[str, Any] = {'scene': scene_name, 'exchanges': int(max(1, sig.t.size - 1)),
+                           'process_wall_s': wall}
+    if loop:
+        for key in ('exchange_wall_us_mean', 'lockstep_wait_us_mean', 'integration_us_mean',
+                    'overhead_us_mean', 'real_time_factor'):
+            try:
+                out[key] = float(loop[-1][key])
+            except (KeyError, ValueError):
+                pass
+    else:
+        out['note'] = 'no coupling-node loop diagnostics in the bag'
+    return out
 
 
 # ---------------------------------------------------------------------------- machine
@@ -559,7 +577,19 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md.append(f'- rclpy round trip, {ex} executor: ' + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median'
                                                             if isinstance(v, dict) and 'us_mean' in v else str(v)))
     if real:
-        md.append(f'- real lockstep run: {real}')
+        if 'overhead_us_mean' in real:
+            ev = rt.get('events', {}).get('us_mean') if isinstance(rt.get('events'), dict) else None
+            ratio = real['overhead_us_mean'] / ev if ev else None
+            md.append(f'- real lockstep run ({real["scene"]}, {real["exchanges"]} exchanges, `cvj-sim run`): '
+                      f'{real.get("exchange_wall_us_mean", math.nan):.0f} us per exchange, of which integration '
+                      f'{real.get("integration_us_mean", math.nan):.0f} us, lockstep wait '
+                      f'{real.get("lockstep_wait_us_mean", math.nan):.0f} us; overhead (exchange - integration) '
+                      f'{real["overhead_us_mean"]:.0f} us = '
+                      + (f'{ratio:.2f}x the events-executor round trip (target <= 1.5x: '
+                         f'{"met" if ratio <= 1.5 else "missed"})' if ratio else 'n/a (no round trip measured)')
+                      + f'; real-time factor {real.get("real_time_factor", math.nan):.3g}.')
+        else:
+            md.append(f'- real lockstep run: {real.get("note", real)}')
     if studies:
         md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
     p = out / 'bench.md'

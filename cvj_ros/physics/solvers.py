@@ -284,7 +284,80 @@ class _AdaptiveStepper(_StepperBase):
 # ------------------------------------------------------------------------ DOPRI5
 
 
-class Dopri5Stepper(_AdaptiveStepper):
+class _ExplicitRK(_AdaptiveStepper):
+    """Explicit FSAL Runge-Kutta pair on an extended stage matrix.
+
+    Rows of ``KE``: 0 = y at the step start, 1..s+1 = stage derivatives k_0..k_s
+    (k_s = f(t + h, y_new), the FSAL value). Stage i is then a single product
+    ``hA[i, :i+1] @ KE[:i+1]`` with the coefficient row pre-scaled by h once per
+    attempt and a leading 1 for y: one numpy call per stage.
+    """
+
+    _C: np.ndarray
+    _A_FULL: np.ndarray   # (s, s) Butcher matrix, row s-1 unused beyond B
+    _B: np.ndarray        # (s,) weights of the propagated solution
+    _S: int               # stages of the step (without the FSAL evaluation)
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        s, n = self._S, self.n
+        self._KE = np.empty((s + 2 + self._EXTRA_ROWS, n))
+        A_ext = np.zeros((s + 1, s + 2))
+        A = self._A_FULL[:s, :s]
+        A_ext[:s, 1:1 + A.shape[1]] = A
+        A_ext[s, 1:s + 1] = self._B
+        self._A_EXT = A_ext
+        self._hA = np.empty_like(A_ext)
+        self._rows = [self._hA[i, :i + 1] for i in range(s + 1)]
+        self._views = [self._KE[:i + 1] for i in range(s + 1)]
+        self._f = None
+        self._h_last = 0.0
+        self._dense_cache = None
+
+    _EXTRA_ROWS = 0
+
+    def _first_derivative(self) -> np.ndarray:
+        if self._f is None:
+            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
+            if not np.all(np.isfinite(self._f)):
+                self._raise_nonfinite(self._f, self.t, 'fun(t, y)')
+        return self._f
+
+    def restart(self) -> None:
+        """Drop the FSAL derivative (inputs changed discontinuously); keep h."""
+        self._f = None
+
+    def _stages(self, h: float) -> np.ndarray:
+        """Fill KE for a step of size h; returns y_new. Stage derivatives in KE[1:]."""
+        KE = self._KE
+        KE[0] = self.y
+        KE[1] = self._first_derivative()
+        hA = self._hA
+        np.multiply(self._A_EXT, h, out=hA)
+        hA[:, 0] = 1.0
+        t = self.t
+        fun = self.fun
+        C = self._C
+        rows = self._rows
+        views = self._views
+        dot = np.dot
+        s = self._S
+        for i in range(1, s):
+            KE[i + 1] = fun(t + C[i] * h, dot(rows[i], views[i]))
+        y_new = dot(rows[s], views[s])
+        KE[s + 1] = fun(t + h, y_new)
+        self.nfev += s
+        return y_new
+
+    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
+        self.t_old, self.y_old = self.t, self.y
+        self.t, self.y = t_new, y_new
+        self._f = self._KE[self._S + 1].copy()
+        self._h_last = t_new - self.t_old
+        self._dense_cache = None
+
+
+class Dopri5Stepper(_ExplicitRK):
     """Dormand-Prince 5(4), FSAL, 7 stages (6 fev per accepted step).
 
     Order 5 (local extrapolation), embedded order 4 error estimate, 4th-order
@@ -301,72 +374,37 @@ class Dopri5Stepper(_AdaptiveStepper):
     beta = 0.04
     fac_min = 0.2
     fac_max = 10.0
+    _S = 6
     _C = _SCIPY_RK45.C.astype(float)
-    _A_ROWS = [np.ascontiguousarray(_SCIPY_RK45.A[i, :i]) for i in range(6)]
-    _B = np.ascontiguousarray(_SCIPY_RK45.B)
-    _E = np.ascontiguousarray(_SCIPY_RK45.E)
+    _A_FULL = np.asarray(_SCIPY_RK45.A, dtype=float)
+    _B = np.asarray(_SCIPY_RK45.B, dtype=float)
+    _E_EXT = np.r_[0.0, _SCIPY_RK45.E]          # over KE rows (y, k0..k6)
     _P = np.ascontiguousarray(_SCIPY_RK45.P)
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self._K = np.empty((7, self.n))
-        self._f = None  # FSAL: f(t, y)
-        self._h_last = 0.0
-        self._Q = None
-
-    def _first_derivative(self) -> np.ndarray:
-        if self._f is None:
-            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
-            if not np.all(np.isfinite(self._f)):
-                self._raise_nonfinite(self._f, self.t, 'fun(t, y)')
-        return self._f
-
-    def restart(self) -> None:
-        """Drop the FSAL derivative (inputs changed discontinuously); keep h."""
-        self._f = None
-
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
-        K = self._K
+        y_new = self._stages(h)
         y = self.y
-        t = self.t
-        fun = self.fun
-        K[0] = self._first_derivative()
-        C = self._C
-        A = self._A_ROWS
-        dot = np.dot
-        for i in range(1, 6):
-            K[i] = fun(t + C[i] * h, y + h * dot(A[i], K[:i]))
-        y_new = y + h * dot(self._B, K[:6])
-        K[6] = fun(t + h, y_new)
-        self.nfev += 6
-        e = dot(self._E, K)
-        e *= h
-        e /= self._scale(y, y_new)
-        return math.sqrt(float(dot(e, e)) / self.n), y_new
-
-    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
-        self.t_old, self.y_old = self.t, self.y
-        self.t, self.y = t_new, y_new
-        self._f = self._K[6].copy()
-        self._h_last = t_new - self.t_old
-        self._Q = None
+        e = np.dot(self._E_EXT, self._KE)
+        sc = np.abs(y)
+        np.maximum(sc, np.abs(y_new), out=sc)
+        sc *= self.rtol
+        sc += self.atol
+        e /= sc
+        return abs(h) * math.sqrt(float(np.dot(e, e)) / self.n), y_new
 
     def dense(self, t: float) -> np.ndarray:
         """y(t) (4th order) for t inside the last accepted step."""
         t = self._check_dense_t(t)
         h = self._h_last
-        if h == 0.0:
+        if h == 0.0 or t == self.t:
             return self.y.copy()
-        if self._Q is None:
-            self._Q = self._K.T @ self._P
+        if self._dense_cache is None:
+            self._dense_cache = self._KE[1:8].T @ self._P
         x = (t - self.t_old) / h
-        return self.y_old + h * (self._Q @ np.array([x, x * x, x ** 3, x ** 4]))
+        return self.y_old + h * (self._dense_cache @ np.array([x, x * x, x ** 3, x ** 4]))
 
 
-# ------------------------------------------------------------------------ DOP853
-
-
-class Dop853Stepper(_AdaptiveStepper):
+class Dop853Stepper(_ExplicitRK):
     """Dormand-Prince 8(5,3), FSAL, 12 stages per step (+3 for dense output).
 
     Order 8; error estimate from the embedded 5th- and 3rd-order solutions
@@ -382,65 +420,40 @@ class Dop853Stepper(_AdaptiveStepper):
     fac_min = 0.333
     fac_max = 6.0
     _S = _SCIPY_DOP853.n_stages  # 12
+    _EXTRA_ROWS = 3
     _C = _SCIPY_DOP853.C.astype(float)
-    _A_ROWS = [np.ascontiguousarray(_SCIPY_DOP853.A[i, :i]) for i in range(12)]
-    _B = np.ascontiguousarray(_SCIPY_DOP853.B)
-    _E3 = np.ascontiguousarray(_SCIPY_DOP853.E3)
-    _E5 = np.ascontiguousarray(_SCIPY_DOP853.E5)
+    _A_FULL = np.asarray(_SCIPY_DOP853.A, dtype=float)
+    _B = np.asarray(_SCIPY_DOP853.B, dtype=float)
+    _E35 = np.zeros((2, 14 + 3))
+    _E35[0, 1:14] = _SCIPY_DOP853.E5
+    _E35[1, 1:14] = _SCIPY_DOP853.E3
     _D = np.ascontiguousarray(_SCIPY_DOP853.D)
     _A_EXTRA = _SCIPY_DOP853.A_EXTRA
     _C_EXTRA = _SCIPY_DOP853.C_EXTRA
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self._K = np.empty((16, self.n))
-        self._f = None
-        self._h_last = 0.0
-        self._F = None
-
-    _first_derivative = Dopri5Stepper._first_derivative
-    restart = Dopri5Stepper.restart
-
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
-        K = self._K
+        y_new = self._stages(h)
         y = self.y
-        t = self.t
-        fun = self.fun
-        K[0] = self._first_derivative()
-        C = self._C
-        A = self._A_ROWS
-        dot = np.dot
-        for i in range(1, 12):
-            K[i] = fun(t + C[i] * h, y + h * dot(A[i], K[:i]))
-        y_new = y + h * dot(self._B, K[:12])
-        K[12] = fun(t + h, y_new)
-        self.nfev += 12
-        sc = self._scale(y, y_new)
-        Kf = K[:13]
-        e5 = dot(self._E5, Kf) / sc
-        e3 = dot(self._E3, Kf) / sc
-        e5n = float(dot(e5, e5))
-        e3n = float(dot(e3, e3))
+        e = np.dot(self._E35, self._KE)  # rows: err5, err3
+        sc = np.abs(y)
+        np.maximum(sc, np.abs(y_new), out=sc)
+        sc *= self.rtol
+        sc += self.atol
+        e /= sc
+        e5n = float(np.dot(e[0], e[0]))
+        e3n = float(np.dot(e[1], e[1]))
         if e5n == 0.0 and e3n == 0.0:
             return 0.0, y_new
-        denom = e5n + 0.01 * e3n
-        return abs(h) * e5n / math.sqrt(denom * self.n), y_new
-
-    def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
-        self.t_old, self.y_old = self.t, self.y
-        self.t, self.y = t_new, y_new
-        self._f = self._K[12].copy()
-        self._h_last = t_new - self.t_old
-        self._F = None
+        return abs(h) * e5n / math.sqrt((e5n + 0.01 * e3n) * self.n), y_new
 
     def dense(self, t: float) -> np.ndarray:
         """y(t) (7th order) inside the last accepted step; costs 3 extra fev once per step."""
         t = self._check_dense_t(t)
         h = self._h_last
-        if h == 0.0:
+        if h == 0.0 or t == self.t:
             return self.y.copy()
-        if self._F is None:
-            K = self._K
+        if self._dense_cache is None:
+            K = self._KE[1:]  # k0..k12, then the three extra stages
             for s, (a, c) in enumerate(zip(self._A_EXTRA, self._C_EXTRA), start=13):
                 K[s] = self.fun(self.t_old + c * h, self.y_old + h * np.dot(a[:s], K[:s]))
             self.nfev += 3
@@ -451,13 +464,14 @@ class Dop853Stepper(_AdaptiveStepper):
             F[1] = h * f_old - dy
             F[2] = 2 * dy - h * (K[12] + f_old)
             F[3:] = h * np.dot(self._D, K)
-            self._F = F
+            self._dense_cache = F
         x = (t - self.t_old) / h
         y = np.zeros(self.n)
-        for i, f in enumerate(self._F[::-1]):
+        for i, f in enumerate(self._dense_cache[::-1]):
             y += f
             y *= x if i % 2 == 0 else 1.0 - x
         return y + self.y_old
+
 
 
 # -------------------------------------------------------------------- Rosenbrock

@@ -98,3 +98,59 @@ def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'e
 if __name__ == '__main__':
     for name in EXECUTORS:
         print(name, measure_round_trip(2000, name))
+
+
+def measure_lockstep(scene: str, *, duration: float | None = None, exchange_step: float | None = None,
+                     executor: Literal['events', 'single'] = 'events', coupling_scheme: str = 'zoh',
+                     timeout: float = 120.0) -> dict[str, float]:
+    """Run coupling_node, engine_node and load_node in one process and one executor.
+
+    Args:
+        scene: scene name or YAML path. duration, exchange_step: overrides (s).
+        executor: 'events' or 'single'. coupling_scheme: zoh | extrapolate | linear_implicit.
+        timeout: wall seconds before giving up (RuntimeError).
+
+    Returns:
+        the coupling node's ``loop_stats()``: steps, real_time_factor, exchange_wall_us_mean,
+        lockstep_wait_us_mean, integration_us_mean, overhead_us_mean (= wall per exchange
+        minus integration), ... plus ``wall_s``.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from cvj_ros.nodes.common import make_executor
+    from cvj_ros.nodes.coupling_node import CouplingNode
+    from cvj_ros.nodes.engine_node import EngineNode
+    from cvj_ros.nodes.load_node import LoadNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        scene_p = [Parameter('scene', value=scene)]
+        over = scene_p + [Parameter('coupling_scheme', value=coupling_scheme),
+                          Parameter('diagnostics_every', value=10**9)]
+        if duration:
+            over.append(Parameter('duration', value=float(duration)))
+        if exchange_step:
+            over.append(Parameter('exchange_step', value=float(exchange_step)))
+        nodes = [EngineNode(context=ctx, parameter_overrides=scene_p),
+                 LoadNode(context=ctx, parameter_overrides=scene_p)]
+        coupling = CouplingNode(context=ctx, parameter_overrides=over)
+        nodes.append(coupling)
+        ex = make_executor(executor, ctx)
+        for n in nodes:
+            ex.add_node(n)
+        t0 = time.monotonic()
+        ex.spin_until_future_complete(coupling.done, timeout_sec=timeout)
+        if coupling.exit_code is None:
+            raise RuntimeError(f'lockstep: not finished within {timeout} s')
+        stats = dict(coupling.loop_stats())
+        stats['wall_s'] = time.monotonic() - t0
+        stats['exit_code'] = coupling.exit_code
+        ex.shutdown()
+        for n in nodes:
+            n.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return stats

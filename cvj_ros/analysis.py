@@ -53,7 +53,8 @@ class BagSignals:
     engine_torque: FloatArray = field(default_factory=lambda: np.zeros(0))   # N m
     load_t: FloatArray = field(default_factory=lambda: np.zeros(0))
     load_torque: FloatArray = field(default_factory=lambda: np.zeros(0))     # N m
-    diagnostics: list[tuple[float, str, int, dict[str, str]]] = field(default_factory=list)
+    # (t s, status name, level 0 OK / 1 WARN / 2 ERROR, message, key/values)
+    diagnostics: list[tuple[float, str, int, str, dict[str, str]]] = field(default_factory=list)
     scene_yaml: str | None = None
     message_counts: dict[str, int] = field(default_factory=dict)
 
@@ -86,7 +87,7 @@ def read_bag_signals(path: str | Path) -> BagSignals:
         sig.load_t, sig.load_torque = data[LOAD_WRENCH].t, data[LOAD_WRENCH].torque_z
     if DIAGNOSTICS in data:
         d = data[DIAGNOSTICS]
-        sig.diagnostics = [(float(t), str(st['name']), int(st['level']),
+        sig.diagnostics = [(float(t), str(st['name']), int(st['level']), str(st.get('message', '')),
                             {str(k): str(v) for k, v in st['values'].items()})
                            for t, statuses in zip(d.t, d.statuses) for st in statuses]
     if SCENE in data and data[SCENE].data:
@@ -153,14 +154,14 @@ def _lockstep_stats(sig: BagSignals) -> dict[str, Any]:
     return stats
 
 
-def _diagnostic_figures(diags: list[tuple[float, str, int, dict[str, str]]]) -> dict[str, Any]:
+def _diagnostic_figures(diags: list[tuple[float, str, int, str, dict[str, str]]]) -> dict[str, Any]:
     series: dict[str, list[float]] = {}
     levels = {'ok': 0, 'warn': 0, 'error': 0, 'stale': 0}
     messages: list[str] = []
-    for _t, name, level, values in diags:
+    for t, name, level, message, values in diags:
         levels[{0: 'ok', 1: 'warn', 2: 'error'}.get(level, 'stale')] += 1
         if level >= 2 and len(messages) < 5:
-            messages.append(f'{name}: {values}')
+            messages.append(f'{name} at t = {t:g} s: {message or values}')
         for key, val in values.items():
             if not any(pat.search(key) for pat in _DIAG_PATTERNS.values()):
                 continue
@@ -258,9 +259,15 @@ def _scene_summary(scene_yaml: str | None) -> dict[str, Any]:
         out['parse_error'] = str(exc).splitlines()[0]
         return out
     if isinstance(data, dict):
-        for key in ('name', 'seed', 'fidelity', 'mode', 'coupling_scheme', 'exchange_step', 'loop'):
+        for key in ('name', 'seed', 'mode', 'coupling_scheme', 'exchange_step'):
             if key in data:
                 out[key] = data[key]
+        fid = data.get('fidelity')
+        if isinstance(fid, dict) and isinstance(fid.get('choices'), list):   # FidelityReport.to_dict()
+            out['fidelity'] = ' '.join(f"{c.get('name')}={c.get('chosen')}" for c in fid['choices']
+                                       if isinstance(c, dict))
+        elif fid is not None:
+            out['fidelity'] = fid
     return out
 
 

@@ -387,7 +387,8 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
             sig = read_bag_signals(Path(tmp) / 'run' / 'bag')
         except CvjError as exc:
             return {'note': f'bag unreadable: {exc}'}
-    loop = [v for _t, name, _lv, v in sig.diagnostics if 'loop' in name and 'overhead_us_mean' in v]
+    loop = [v for _t, name, _lv, _msg, v in sig.diagnostics
+            if name.startswith('coupling') and 'overhead_us_mean' in v]
     out: dict[str, Any] = {'scene': scene_name, 'exchanges': int(max(1, sig.t.size - 1)),
                            'process_wall_s': wall}
     if loop:

@@ -50,6 +50,11 @@ def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str |
     return paths
 
 
+def _bag_label(sig: BagSignals) -> str:
+    p = sig.path if sig.path.is_dir() else sig.path.parent
+    return f'{p.parent.name}/{p.name}' if p.name == 'bag' else p.name
+
+
 def _plot_time(sig: BagSignals, t0: float, path: Path) -> Path:
     fig, (ax_w, ax_t) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
     for j, name in enumerate(sig.joint_names):
@@ -65,7 +70,7 @@ def _plot_time(sig: BagSignals, t0: float, path: Path) -> Path:
             ax.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0, label='skipped transient')
         ax.legend(loc='best', ncol=2, framealpha=0.85)
     ax_w.set_ylabel('speed  [rad/s]')
-    ax_w.set_title(f'Shaft speeds and torques - {sig.path.name}')
+    ax_w.set_title(f'Shaft speeds and torques - {_bag_label(sig)}')
     ax_t.set_ylabel('torque  [N m]')
     ax_t.set_xlabel('simulated time  [s]')
     fig.tight_layout()

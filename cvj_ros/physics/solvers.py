@@ -251,9 +251,15 @@ class _AdaptiveStepper(_StepperBase):
             h = remaining if clipped else h_prop
             while True:
                 if h < 10 * _EPS * max(abs(self.t), 1e-300) or h <= 1e-300:
-                    raise SolverError(f't: step size underflow at t={self.t:.9g} s '
-                                      f'(h={h:.3g} s, {self.method}); the problem may be '
-                                      f'stiff or singular, try method="rosenbrock"')
+                    # name the state changing fastest relative to its tolerance
+                    with np.errstate(all='ignore'):
+                        rate = np.abs(np.asarray(self.fun(self.t, self.y), dtype=float))
+                        rate /= np.abs(self.y) * self.rtol + self.atol
+                    idx = int(np.nanargmax(rate)) if np.any(np.isfinite(rate)) else 0
+                    raise SolverError(f't: step size underflow at t={self.t!r} s (h={h:.3g} s, '
+                                      f'{self.method}), fastest state y[{idx}]={self.y[idx]:.6g}; '
+                                      f'the problem may be stiff or singular, '
+                                      f'try method="rosenbrock"')
                 err, y_new = self._attempt(h)
                 if not math.isfinite(err):
                     self._raise_nonfinite(y_new if not np.all(np.isfinite(y_new)) else

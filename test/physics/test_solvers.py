@@ -264,3 +264,24 @@ def test_bad_options_raise_named_errors() -> None:
     st.advance_to(1.0)
     with pytest.raises(SolverOptionError, match='^t_end:'):
         st.advance_to(0.5)
+
+
+def test_rosenbrock_order_on_linear_stiff_system() -> None:
+    """RODAS4 with forced constant steps h >> 1/|lambda_fast| keeps order ~4 on the slow mode."""
+    A = np.array([[-1.0, 0.0], [1e4 - 1.0, -1e4]])
+    exact = np.array([math.exp(-2.0), math.exp(-2.0)])
+    errs = []
+    for h in (0.2, 0.1):
+        st = make_stepper('rosenbrock', lambda t, y: A @ y, 0.0, [1.0, 2.0], rtol=1.0, atol=1.0,
+                          h=h, max_step=h, jac=lambda t, y: A, autonomous=True)
+        errs.append(np.max(np.abs(st.advance_to(2.0) - exact)))
+        assert st.nreject == 0
+    assert math.log2(errs[0] / errs[1]) == pytest.approx(4.0, abs=0.5), errs
+
+
+def test_blow_up_raises_solver_error() -> None:
+    """y' = y^2, y(0) = 1 has a pole at t = 1: the solver stops with a clear error."""
+    st = make_stepper('dopri5', lambda t, y: y * y, 0.0, [1.0], rtol=1e-8, atol=1e-10)
+    with pytest.raises(SolverError, match=r'^(t: step size underflow at t=1\.0.*y\[0\]=|y\[0\]: )'):
+        st.advance_to(2.0)
+    assert 0.99 < st.t < 1.01

@@ -375,8 +375,12 @@ class CouplingNode(CvjNode):
             self.waiting = False
             self._cancel_timers()
             self.publish_diagnostics(OK if not self.ignored_stamps else WARN, 'finished')
-            self.get_logger().info(f'finished {self.k} steps, t={self.t_ns / NS_PER_S:g} s, '
-                                   f'real-time factor {self.real_time_factor():.3g}')
+            st = self.loop_stats()
+            self.get_logger().info(
+                f'finished {self.k} steps, t={self.t_ns / NS_PER_S:g} s, real-time factor '
+                f'{st["real_time_factor"]:.3g}; per exchange: wall {st["exchange_wall_us_mean"]:.0f} us, '
+                f'integration {st["integration_us_mean"]:.0f} us, overhead {st["overhead_us_mean"]:.0f} us, '
+                f'wait {st["lockstep_wait_us_mean"]:.0f} us')
             self.finish()
 
     def _free_tick(self) -> None:

@@ -1,0 +1,470 @@
+"""Driveline equations of motion (Lagrange, second kind; seed 004 eq. 3.17).
+
+A scene's chain (engine -> elements -> load) is split at its elastic springs into
+*rigid sections*. Each section is one degree of freedom q (rad): the angle of the
+section's first shaft (the shaft just right of the spring, or the first inertia).
+Every other shaft angle in the section follows through the joints' position functions,
+phi_i = f(q), with a_i = dphi_i/dq and b_i = d2phi_i/dq2 obtained by the chain rule
+from each joint's ``scalar()`` (phi_out, ratio, ratio_slope):
+
+    a <- ratio * a,   b <- ratio_slope * a^2 + ratio * b.
+
+Kinetic energy T = 1/2 M(q) qdot^2 with M(q) = sum J_i a_i^2, so Lagrange gives
+(DESIGN.md section 4)
+
+    M(q) qddot + C(q) qdot^2 = Q,     C(q) = sum J_i a_i b_i  (= M'(q)/2).
+
+Springs act between neighbouring sections on a *bounded* twist
+theta = phi_end(q_left) - q_right, where phi_end is the angle of the last shaft of the
+left section (through any joints that sit between its last inertia and the spring).
+This replaces seed 004's 1/2 c (phi1 - U12 phi2)^2, which grows with every revolution
+(DESIGN.md section 5). Spring torque T_s = dV/dtheta + damping; it acts with -T_s a_end
+on the left section and +T_s on the right one.
+
+External torques: the engine torque acts on the first inertia (positive drives), the
+load torque on the last inertia (positive resists), each times that shaft's a.
+
+State ``x = [q_0..q_{n-1}, qdot_0..qdot_{n-1}]`` (rad, rad/s), optionally followed by the
+work integrals ``[W_engine, W_load, W_damp]`` (J) when built with
+``track_energy=True``: then ``energy_residual(x, E0)`` closes the balance
+E_kin + E_el - E0 - W_engine + W_load + W_damp = 0.
+
+JointState names (stable, ordered engine -> load): every inertia name; for each joint
+``<joint>_input``, ``<joint>_<mid>`` (when the model has an intermediate member:
+cage, spider, yoke, earring) and ``<joint>_output``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cvj_ros.errors import SceneError
+from cvj_ros.physics.joints import make_joint
+from cvj_ros.physics.scene import Inertia, Joint, Scene, Spring
+
+FloatArray = NDArray[np.float64]
+ScalarFn = Callable[[float], tuple[float, float, float]]
+
+
+@dataclass(frozen=True)
+class SpringLaw:
+    """Torque law of one elastic spring (units: N m/rad, N m s/rad, 1/rad^2, rad).
+
+    Elastic deflection e(theta) is theta itself, or with backlash a softplus dead zone
+    e = w ln(1+exp((theta-g)/w)) - w ln(1+exp((-theta-g)/w)), g = half gap, w = smoothing*g,
+    which tends to theta -/+ g outside the gap and to ~0 inside, smooth everywhere so
+    adaptive solvers keep their order. Potential V = c (e^2/2 + k2 e^4/4) (k2 = 0 for
+    'linear'); torque T = dV/dtheta + d e'(theta) thetadot (damping acts only in contact).
+    """
+
+    name: str
+    c: float
+    d: float
+    k2: float
+    gap: float       # half gap g (rad), 0 = no backlash
+    width: float     # smoothing width w (rad)
+
+    def deflection(self, th: float) -> tuple[float, float, float]:
+        """(e, de/dtheta, d2e/dtheta2) of the (regularised) dead zone."""
+        g = self.gap
+        if g == 0.0:
+            return th, 1.0, 0.0
+        w = self.width
+        u1, u2 = (th - g) / w, (-th - g) / w
+        sp1 = w * (max(u1, 0.0) + math.log1p(math.exp(-abs(u1))))
+        sp2 = w * (max(u2, 0.0) + math.log1p(math.exp(-abs(u2))))
+        s1 = _sigmoid(u1)
+        s2 = _sigmoid(u2)
+        return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
+
+    def evaluate(self, th: float, thd: float) -> tuple[float, float, float, float, float]:
+        """(torque N m, dT/dtheta, dT/dthetadot, potential J, dissipated power W)."""
+        e, de, dde = self.deflection(th)
+        c, k2, d = self.c, self.k2, self.d
+        f_el = c * (e + k2 * e * e * e)          # dV/de
+        t = f_el * de + d * de * thd
+        k_th = c * (1.0 + 3.0 * k2 * e * e) * de * de + f_el * dde + d * dde * thd
+        v = c * (0.5 * e * e + 0.25 * k2 * e ** 4)
+        return t, k_th, d * de, v, d * de * thd * thd
+
+
+def _sigmoid(u: float) -> float:
+    if u >= 0.0:
+        return 1.0 / (1.0 + math.exp(-u))
+    z = math.exp(u)
+    return z / (1.0 + z)
+
+
+@dataclass(frozen=True)
+class Shaft:
+    """One named JointState shaft: section index, position in the op list, role."""
+
+    name: str
+    section: int
+    op_index: int          # op of the section whose before/after state this shaft is
+    role: str              # 'inertia' | 'input' | 'output' | 'mid'
+    joint: Any = None      # joint model for 'mid'
+
+
+class Driveline:
+    """Equations of motion of a scene's chain; see the module docstring.
+
+    Build with :meth:`from_scene`. ``levels`` maps element names to the fidelity used:
+    joints 'ideal' | 'closed' | 'exact', springs 'elastic' | 'rigid'.
+    """
+
+    def __init__(self, scene: Scene, levels: Mapping[str, str], *, track_energy: bool = False) -> None:
+        self.scene = scene
+        self.levels = dict(levels)
+        self.track_energy = track_energy
+        self.joint_models: dict[str, Any] = {}
+        # ops per section: (J, None) for an inertia, (0.0, scalar_fn) for a joint
+        sections: list[list[tuple[float, ScalarFn | None]]] = [[]]
+        names: list[list[str]] = [[]]
+        springs: list[SpringLaw] = []
+        shafts: list[Shaft] = []
+        for i, el in enumerate(scene.driveline):
+            sec = len(sections) - 1
+            if isinstance(el, Inertia):
+                shafts.append(Shaft(el.name, sec, len(sections[sec]), 'inertia'))
+                sections[sec].append((el.J, None))
+                names[sec].append(el.name)
+            elif isinstance(el, Joint):
+                level = self.levels.get(el.name, 'exact')
+                try:
+                    model = make_joint(el.kind, fidelity=level, **dict(el.params))
+                except ValueError as exc:
+                    raise SceneError(f'driveline[{i}]', str(exc)) from None
+                self.joint_models[el.name] = model
+                k = len(sections[sec])
+                shafts.append(Shaft(f'{el.name}_input', sec, k, 'input'))
+                mid = getattr(model, 'mid_name', None)
+                if mid:
+                    shafts.append(Shaft(f'{el.name}_{mid}', sec, k, 'mid', model))
+                shafts.append(Shaft(f'{el.name}_output', sec, k, 'output'))
+                sections[sec].append((0.0, model.scalar))
+                names[sec].append(el.name)
+            elif isinstance(el, Spring):
+                if self.levels.get(el.name, 'elastic') == 'rigid':
+                    continue    # merged: the two sections become one rigid body
+                g = 0.5 * el.backlash
+                springs.append(SpringLaw(el.name, el.stiffness, el.damping,
+                                         el.k2 if el.law == 'progressive' else 0.0,
+                                         g, el.backlash_smoothing * g))
+                sections.append([])
+                names.append([])
+        self._ops = [tuple(s) for s in sections]
+        self._section_names = names
+        self.springs = springs
+        self.shafts = shafts
+        self.shaft_names = [s.name for s in shafts]
+        self.n_dof = len(sections)
+        self._n_state = 2 * self.n_dof + (3 if track_energy else 0)
+        self.x0 = self._initial_state()
+
+    # --- construction -------------------------------------------------------------------
+
+    @classmethod
+    def from_scene(cls, scene: Scene, *, fidelity: Mapping[str, str] | None = None,
+                   track_energy: bool = False) -> Driveline:
+        """Resolve per-element fidelity (cvj_ros.physics.fidelity) and build the equations.
+
+        ``fidelity`` forces levels by element name (joints: ideal|closed|exact, springs:
+        elastic|rigid); the rest follows the scene (auto -> accuracy_target rule).
+        """
+        from cvj_ros.physics.fidelity import choose_fidelity
+        report = choose_fidelity(scene, overrides=fidelity)
+        dl = cls(scene, report.levels, track_energy=track_energy)
+        dl.fidelity_report = report
+        return dl
+
+    def _initial_state(self) -> FloatArray:
+        """Rigid-body start: first inertia at scene angle/speed, each spring at its
+        initial twist with zero twist rate."""
+        sc = self.scene
+        twist0 = {el.name: el.initial_twist for el in sc.driveline if isinstance(el, Spring)}
+        x = np.zeros(self._n_state)
+        n = self.n_dof
+        q, v = sc.initial_angle, sc.initial_speed
+        for g in range(n):
+            x[g], x[n + g] = q, v
+            phi, a, _b, _m, _c = self._section(g, q)
+            if g < n - 1:
+                q = phi - twist0[self.springs[g].name]
+                v = a * v
+        return x
+
+    # --- kinematics of one section ------------------------------------------------------
+
+    def _section(self, g: int, q: float) -> tuple[float, float, float, float, float]:
+        """(phi_end, a_end, b_end, M, C) of section g at q (rad, -, 1/rad, kg m^2, kg m^2/rad)."""
+        phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
+        for jv, fn in self._ops[g]:
+            if fn is None:
+                m += jv * a * a
+                c += jv * a * b
+            else:
+                po, r, s = fn(phi)
+                b = s * a * a + r * b
+                a = r * a
+                phi = po
+        return phi, a, b, m, c
+
+    def mass(self, x: FloatArray) -> FloatArray:
+        """Generalised inertias M_g(q_g) (kg m^2)."""
+        return np.array([self._section(g, float(x[g]))[3] for g in range(self.n_dof)])
+
+    # --- right-hand side ----------------------------------------------------------------
+
+    def rhs(self, t: float, x: FloatArray, T_engine: float, T_load: float) -> FloatArray:
+        """dx/dt for engine torque ``T_engine`` and resisting load torque ``T_load`` (N m)."""
+        n = self.n_dof
+        xl = x.tolist()
+        out = [0.0] * self._n_state
+        ends = []
+        q_force = [0.0] * n
+        for g in range(n):
+            q = xl[g]
+            phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
+            for jv, fn in self._ops[g]:
+                if fn is None:
+                    m += jv * a * a
+                    c += jv * a * b
+                else:
+                    po, r, s = fn(phi)
+                    b = s * a * a + r * b
+                    a = r * a
+                    phi = po
+            ends.append((phi, a, m, c))
+        q_force[0] += T_engine
+        a_load = ends[-1][1]
+        q_force[-1] -= T_load * a_load
+        p_damp = 0.0
+        for k, sp in enumerate(self.springs):
+            phi_l, a_l = ends[k][0], ends[k][1]
+            th = phi_l - xl[k + 1]
+            thd = a_l * xl[n + k] - xl[n + k + 1]
+            if sp.gap == 0.0:
+                ts = sp.c * (th + sp.k2 * th * th * th) + sp.d * thd
+                p_damp += sp.d * thd * thd
+            else:
+                ts, _k, _kd, _v, pd = sp.evaluate(th, thd)
+                p_damp += pd
+            q_force[k] -= ts * a_l
+            q_force[k + 1] += ts
+        for g in range(n):
+            v = xl[n + g]
+            out[g] = v
+            out[n + g] = (q_force[g] - ends[g][3] * v * v) / ends[g][2]
+        if self.track_energy:
+            out[2 * n] = T_engine * xl[n]
+            out[2 * n + 1] = T_load * a_load * xl[2 * n - 1]
+            out[2 * n + 2] = p_damp
+        return np.array(out)
+
+    def jacobian(self, t: float, x: FloatArray, T_engine: float, T_load: float, *,
+                 dTe_domega: float = 0.0, dTl_domega: float = 0.0) -> FloatArray:
+        """Analytic d(rhs)/dx; torque slopes dT/domega (N m s/rad) of engine and load
+        close the loop. Only dC/dq (third derivative of the joint position functions,
+        which the joint contract does not give) is a central difference of C(q).
+        Dependence of the torques on shaft angle (firing ripple) is not included."""
+        n = self.n_dof
+        ns = self._n_state
+        jac = np.zeros((ns, ns))
+        xl = x.tolist()
+        sec = []
+        for g in range(n):
+            q = xl[g]
+            phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
+            mp = 0.0
+            for jv, fn in self._ops[g]:
+                if fn is None:
+                    m += jv * a * a
+                    c += jv * a * b
+                    mp += 2.0 * jv * a * b
+                else:
+                    po, r, s = fn(phi)
+                    b = s * a * a + r * b
+                    a = r * a
+                    phi = po
+            h = 1e-6 * max(1.0, abs(q))
+            cp = (self._section(g, q + h)[4] - self._section(g, q - h)[4]) / (2.0 * h)
+            sec.append((phi, a, b, m, c, mp, cp))
+        qf = [0.0] * n
+        dq = np.zeros((n, 2 * n))       # dQ_g / d[q, v]
+        qf[0] += T_engine
+        dq[0, n] += dTe_domega
+        _pl, al, bl = sec[-1][0], sec[-1][1], sec[-1][2]
+        vl = xl[2 * n - 1]
+        qf[-1] -= T_load * al
+        dq[n - 1, n - 1] += -T_load * bl - dTl_domega * bl * vl * al
+        dq[n - 1, 2 * n - 1] += -dTl_domega * al * al
+        dpd = np.zeros(2 * n)           # d(p_damp)/d[q, v]
+        for k, sp in enumerate(self.springs):
+            phi_l, a_l, b_l = sec[k][0], sec[k][1], sec[k][2]
+            th = phi_l - xl[k + 1]
+            thd = a_l * xl[n + k] - xl[n + k + 1]
+            ts, k_th, k_d, _v, _pd = sp.evaluate(th, thd)
+            # theta, thetadot partials w.r.t. (q_k, q_k+1, v_k, v_k+1)
+            dth = {k: a_l}
+            dth_q1 = -1.0
+            dthd_qk = b_l * xl[n + k]
+            dts = np.zeros(2 * n)
+            dts[k] = k_th * dth[k] + k_d * dthd_qk
+            dts[k + 1] = k_th * dth_q1
+            dts[n + k] = k_d * a_l
+            dts[n + k + 1] = -k_d
+            qf[k] -= ts * a_l
+            qf[k + 1] += ts
+            dq[k] -= dts * a_l
+            dq[k, k] -= ts * b_l
+            dq[k + 1] += dts
+            # dissipation power p = d e' thd^2 (its theta dependence through e')
+            _e, de, dde = sp.deflection(th)
+            dp_dth = sp.d * dde * thd * thd
+            dp_dthd = 2.0 * sp.d * de * thd
+            dpd[k] += dp_dth * a_l + dp_dthd * dthd_qk
+            dpd[k + 1] += -dp_dth
+            dpd[n + k] += dp_dthd * a_l
+            dpd[n + k + 1] += -dp_dthd
+        for g in range(n):
+            _phi, _a, _b, m, c, mp, cp = sec[g]
+            v = xl[n + g]
+            jac[g, n + g] = 1.0
+            row = dq[g] / m
+            row[g] += -cp * v * v / m - (qf[g] - c * v * v) * mp / (m * m)
+            row[n + g] += -2.0 * c * v / m
+            jac[n + g, :2 * n] = row
+        if self.track_energy:
+            jac[2 * n, n] = T_engine + dTe_domega * xl[n]
+            jac[2 * n + 1, n - 1] = T_load * bl * vl + dTl_domega * bl * vl * al * vl
+            jac[2 * n + 1, 2 * n - 1] = T_load * al + dTl_domega * al * al * vl
+            jac[2 * n + 2, :2 * n] = dpd
+        return jac
+
+    # --- views ----------------------------------------------------------------------------
+
+    def engine_omega(self, x: FloatArray) -> float:
+        """Speed of the first inertia (rad/s), where the engine acts."""
+        return float(x[self.n_dof])
+
+    def engine_phi(self, x: FloatArray) -> float:
+        """Angle of the first inertia (rad)."""
+        return float(x[0])
+
+    def load_omega(self, x: FloatArray) -> float:
+        """Speed of the last inertia (rad/s), where the load acts."""
+        _phi, a, _b, _m, _c = self._section(self.n_dof - 1, float(x[self.n_dof - 1]))
+        return a * float(x[2 * self.n_dof - 1])
+
+    def load_phi(self, x: FloatArray) -> float:
+        """Angle of the last inertia (rad)."""
+        return self._section(self.n_dof - 1, float(x[self.n_dof - 1]))[0]
+
+    def load_state(self, x: FloatArray) -> tuple[float, float]:
+        """(angle rad, speed rad/s) of the last inertia in one pass."""
+        phi, a, _b, _m, _c = self._section(self.n_dof - 1, float(x[self.n_dof - 1]))
+        return phi, a * float(x[2 * self.n_dof - 1])
+
+    def spring_twists(self, x: FloatArray) -> dict[str, tuple[float, float, float]]:
+        """Per elastic spring: (twist rad, twist rate rad/s, torque N m)."""
+        n = self.n_dof
+        out = {}
+        for k, sp in enumerate(self.springs):
+            phi_l, a_l, _b, _m, _c = self._section(k, float(x[k]))
+            th = phi_l - float(x[k + 1])
+            thd = a_l * float(x[n + k]) - float(x[n + k + 1])
+            out[sp.name] = (th, thd, sp.evaluate(th, thd)[0])
+        return out
+
+    def energy(self, x: FloatArray) -> dict[str, float]:
+        """Kinetic and elastic energy (J)."""
+        n = self.n_dof
+        kin = 0.0
+        for g in range(n):
+            m = self._section(g, float(x[g]))[3]
+            kin += 0.5 * m * float(x[n + g]) ** 2
+        el = 0.0
+        for k, sp in enumerate(self.springs):
+            phi_l = self._section(k, float(x[k]))[0]
+            el += sp.evaluate(phi_l - float(x[k + 1]), 0.0)[3]
+        return {'kinetic': kin, 'elastic': el}
+
+    def energy_residual(self, x: FloatArray, e0: float) -> float:
+        """(E_kin + E_el - E0 - W_engine + W_load + W_damp) / max(energy scale), needs
+        ``track_energy``. Scale: max of |E|, |E0|, |W_engine|, |W_load|, |W_damp|, 1e-12 J."""
+        if not self.track_energy:
+            raise ValueError('energy_residual needs a Driveline built with track_energy=True')
+        n = self.n_dof
+        e = self.energy(x)
+        tot = e['kinetic'] + e['elastic']
+        we, wl, wd = (float(v) for v in x[2 * n:2 * n + 3])
+        scale = max(abs(tot), abs(e0), abs(we), abs(wl), abs(wd), 1e-12)
+        return (tot - e0 - we + wl + wd) / scale
+
+    def joint_states(self, x: FloatArray, T_engine: float, T_load: float
+                     ) -> tuple[list[str], FloatArray, FloatArray, FloatArray]:
+        """(names, position rad, velocity rad/s, effort N m) of every named shaft.
+
+        Effort is the torque transmitted by that shaft towards the load: for an inertia
+        its output side (the last inertia's equals the load torque), for a joint's input
+        and output shafts the torque in them (lossless joint: T_out = T_in / ratio). The
+        intermediate member (cage, spider ...) carries no single shaft torque: effort 0.
+        """
+        pos, vel, eff, _react = self._walk(x, T_engine, T_load, reactions=False)
+        return list(self.shaft_names), pos, vel, eff
+
+    def reactions(self, x: FloatArray, T_engine: float, T_load: float) -> dict[str, dict[str, float]]:
+        """Per joint whose model has ``reactions(phi_in, omega_in, torque_in)``: its dict."""
+        return self._walk(x, T_engine, T_load, reactions=True)[3]
+
+    def _walk(self, x: FloatArray, T_engine: float, T_load: float, *, reactions: bool
+              ) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, dict[str, float]]]:
+        n = self.n_dof
+        xdot = self.rhs(0.0, x, T_engine, T_load)
+        spring_t = [v[2] for v in self.spring_twists(x).values()]
+        pos = np.zeros(len(self.shafts))
+        vel = np.zeros(len(self.shafts))
+        eff = np.zeros(len(self.shafts))
+        react: dict[str, dict[str, float]] = {}
+        # per section and op: (state before, state after), state = (phi, omega, torque)
+        states: list[list[tuple[tuple[float, float, float], tuple[float, float, float]]]] = []
+        for g in range(n):
+            q, v, acc = float(x[g]), float(x[n + g]), float(xdot[n + g])
+            phi, a, b = q, 1.0, 0.0
+            torque = T_engine if g == 0 else spring_t[g - 1]
+            st = []
+            for k, (jv, fn) in enumerate(self._ops[g]):
+                before = (phi, a * v, torque)
+                if fn is None:
+                    torque -= jv * (a * acc + b * v * v)
+                else:
+                    name = self._section_names[g][k]
+                    model = self.joint_models[name]
+                    if reactions and hasattr(model, 'reactions'):
+                        react[name] = dict(model.reactions(phi, a * v, torque))
+                    po, r, s = fn(phi)
+                    b = s * a * a + r * b
+                    a = r * a
+                    phi = po
+                    torque = torque / r
+                st.append((before, (phi, a * v, torque)))
+            states.append(st)
+        for i, sh in enumerate(self.shafts):
+            before, after = states[sh.section][sh.op_index]
+            phi, om, tq = before if sh.role in ('input', 'mid') else after
+            if sh.role == 'mid':
+                h = 1e-6
+                ev = sh.joint.evaluate(np.array([phi - h, phi, phi + h]))
+                mid = ev.phi_mid
+                pos[i] = float(mid[1]) if mid is not None else phi
+                vel[i] = float((mid[2] - mid[0]) / (2 * h)) * om if mid is not None else om
+                eff[i] = 0.0
+            else:
+                pos[i], vel[i], eff[i] = phi, om, tq
+        return pos, vel, eff, react

@@ -1,0 +1,214 @@
+"""Model only what a scene needs (DESIGN.md section 4): per-element fidelity choice.
+
+Joints. Each cheaper fidelity is sampled over one input revolution (N points) against
+the joint's exact model: e_phi = max |phi_out_cheap - phi_out_exact| (rad) and
+e_ratio = max |ratio_cheap - ratio_exact|. The output speed is omega_out = ratio *
+omega_in, so at a steady input speed the relative output-speed error is bounded by
+e_speed = e_ratio / mean|ratio_exact|. The cheapest fidelity (ideal < closed < exact)
+with e_speed <= accuracy_target is chosen; without a target 'auto' means exact.
+
+Springs. Elastic unless it may become rigid: its natural frequency with the adjacent
+rigid sections (reduced to the spring's shafts), omega_n = sqrt(c (1/J_l + 1/J_r)),
+against the scene's excitation band omega_band = omega_op * n_max, where omega_op is
+the initial first-inertia speed and n_max the highest excitation order per revolution
+(joint ratio harmonics above 1 % of the largest one, engine firing order
+cylinders/2 for a four-stroke when the engine spec gives ``cylinders``, at least 1).
+Quasi-static bound: a spring-mass driven at r = omega_band/omega_n < 1 amplifies the
+transmitted oscillation by 1/(1 - r^2), so treating it rigid errs by at most
+e = r^2/(1 - r^2) (relative, of the oscillating part); rigid when e <= accuracy_target
+(target 0.01 <=> omega_n >= ~10 omega_band). The static wind-up (mean torque / c) is
+a constant angle offset and does not affect speeds. Without a target, or at standstill
+start (omega_op = 0), springs stay elastic.
+
+Users force any level by scene (``fidelity:`` on an element) or by ``overrides``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cvj_ros.errors import SceneError
+from cvj_ros.physics.joints import JOINTS, make_joint
+from cvj_ros.physics.scene import Joint, Scene, Spring
+
+N_SAMPLES = 2048          # samples per revolution for joint error bounds
+HARMONIC_FLOOR = 0.01     # joint harmonics above this fraction of the largest count
+ORDER = {'ideal': 0, 'closed': 1, 'exact': 2}
+
+
+@dataclass(frozen=True)
+class FidelityChoice:
+    """Choice for one element: chosen level, candidate bounds, and why."""
+
+    name: str
+    element: str                                  # 'joint' | 'spring'
+    chosen: str
+    reason: str
+    candidates: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FidelityReport:
+    """Per-element fidelity choices of a scene (printable, JSON-serialisable)."""
+
+    accuracy_target: float | None
+    operating_speed: float                         # rad/s
+    excitation_band: float                         # rad/s
+    choices: tuple[FidelityChoice, ...]
+
+    @property
+    def levels(self) -> dict[str, str]:
+        return {c.name: c.chosen for c in self.choices}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {'accuracy_target': self.accuracy_target, 'operating_speed': self.operating_speed,
+                'excitation_band': self.excitation_band,
+                'choices': [asdict(c) for c in self.choices]}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict())
+
+    def __str__(self) -> str:
+        tgt = 'none' if self.accuracy_target is None else f'{self.accuracy_target:g}'
+        lines = [f'fidelity (accuracy target {tgt}, operating speed {self.operating_speed:.4g} '
+                 f'rad/s, excitation band {self.excitation_band:.4g} rad/s):']
+        for c in self.choices:
+            cand = ', '.join(f'{k} {_fmt_bound(v)}' for k, v in c.candidates.items())
+            lines.append(f'  {c.name:<16} {c.element:<6} -> {c.chosen:<8} {c.reason}'
+                         + (f' [{cand}]' if cand else ''))
+        return '\n'.join(lines)
+
+
+def _fmt_bound(b: Mapping[str, float]) -> str:
+    return f'e={b.get("speed_error", float("nan")):.2e}'
+
+
+def joint_error_bounds(kind: str, params: Mapping[str, float], *, n: int = N_SAMPLES
+                       ) -> dict[str, dict[str, float]]:
+    """Per fidelity of ``kind``: phi_error (rad), ratio_error (-), speed_error (-) vs exact."""
+    fids = JOINTS[kind].fidelities
+    phi = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    ref = make_joint(kind, fidelity=fids[-1], **dict(params)).evaluate(phi)
+    mean_ratio = float(np.mean(np.abs(ref.ratio))) or 1.0
+    out = {}
+    for f in fids:
+        ev = make_joint(kind, fidelity=f, **dict(params)).evaluate(phi)
+        e_phi = float(np.max(np.abs(ev.phi_out - ref.phi_out)))
+        e_ratio = float(np.max(np.abs(ev.ratio - ref.ratio)))
+        out[f] = {'phi_error': e_phi, 'ratio_error': e_ratio, 'speed_error': e_ratio / mean_ratio}
+    return out
+
+
+def joint_max_order(kind: str, params: Mapping[str, float], *, n: int = 256) -> int:
+    """Highest harmonic (per input revolution) of the exact ratio above HARMONIC_FLOOR."""
+    fids = JOINTS[kind].fidelities
+    phi = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    ratio = make_joint(kind, fidelity=fids[-1], **dict(params)).evaluate(phi).ratio
+    amp = np.abs(np.fft.rfft(ratio - np.mean(ratio))) * 2.0 / n
+    if amp.max() < 1e-12:
+        return 0
+    big = np.nonzero(amp >= HARMONIC_FLOOR * amp.max())[0]
+    return int(big.max())
+
+
+def engine_order(spec: Mapping[str, Any]) -> float:
+    """Firing order per crank revolution: cylinders/2 (four-stroke) if ``cylinders`` given."""
+    cyl = spec.get('cylinders')
+    if isinstance(cyl, (int, float)) and not isinstance(cyl, bool) and cyl > 0:
+        strokes = spec.get('strokes', 4)
+        return float(cyl) * 2.0 / float(strokes if strokes in (2, 4) else 4)
+    return 0.0
+
+
+def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
+                    ) -> FidelityReport:
+    """Resolve 'auto' levels of every joint and spring of ``scene`` (see module doc)."""
+    overrides = dict(overrides or {})
+    by_name = {el.name: el for el in scene.driveline}
+    for name, level in overrides.items():
+        el = by_name.get(name)
+        if el is None or not isinstance(el, (Joint, Spring)):
+            import difflib
+            names = [e.name for e in scene.driveline if isinstance(e, (Joint, Spring))]
+            near = difflib.get_close_matches(name, names, n=1)
+            hint = f"; did you mean '{near[0]}'?" if near else f'; joints/springs: {", ".join(names)}'
+            raise SceneError(f'fidelity.{name}', f'no joint or spring of that name{hint}')
+        allowed = JOINTS[el.kind].fidelities if isinstance(el, Joint) else ('elastic', 'rigid')
+        if level not in allowed:
+            raise SceneError(f'fidelity.{name}', f'must be one of {", ".join(allowed)}, got {level!r}')
+    target = scene.accuracy_target
+    omega_op = abs(scene.initial_speed)
+    order = max(1.0, engine_order(scene.engine))
+    choices: list[FidelityChoice] = []
+    joint_orders = []
+    for el in scene.driveline:
+        if not isinstance(el, Joint):
+            continue
+        fids = JOINTS[el.kind].fidelities
+        bounds = joint_error_bounds(el.kind, el.params) if len(fids) > 1 else {}
+        joint_orders.append(joint_max_order(el.kind, el.params))
+        if el.name in overrides:
+            chosen, reason = overrides[el.name], 'forced by argument'
+        elif el.fidelity != 'auto':
+            chosen, reason = el.fidelity, 'forced by scene'
+        elif len(fids) == 1:
+            chosen, reason = fids[0], 'only fidelity'
+        elif target is None:
+            chosen, reason = fids[-1], 'no accuracy target: exact'
+        else:
+            ok = [f for f in fids if bounds[f]['speed_error'] <= target]
+            chosen = min(ok, key=lambda f: ORDER.get(f, 9))
+            reason = (f'cheapest with speed error {bounds[chosen]["speed_error"]:.2e} '
+                      f'<= target {target:g}')
+        choices.append(FidelityChoice(el.name, 'joint', chosen, reason, bounds))
+    if joint_orders:
+        order = max(order, float(max(joint_orders)))
+    band = omega_op * order
+    springs = [el for el in scene.driveline if isinstance(el, Spring)]
+    adjacent = _adjacent_inertias(scene, {c.name: c.chosen for c in choices}) if springs else {}
+    for el in springs:
+        j_l, j_r = adjacent[el.name]
+        omega_n = math.sqrt(el.stiffness * (1.0 / j_l + 1.0 / j_r))
+        r = band / omega_n
+        bound = r * r / (1.0 - r * r) if r < 1.0 else math.inf
+        cand = {'elastic': {'speed_error': 0.0, 'omega_n': omega_n},
+                'rigid': {'speed_error': bound, 'omega_n': omega_n}}
+        if el.name in overrides:
+            chosen, reason = overrides[el.name], 'forced by argument'
+        elif el.fidelity != 'auto':
+            chosen, reason = el.fidelity, 'forced by scene'
+        elif target is None:
+            chosen, reason = 'elastic', 'no accuracy target: elastic'
+        elif band == 0.0:
+            chosen, reason = 'elastic', 'standstill start: no excitation band, elastic'
+        elif bound <= target:
+            chosen = 'rigid'
+            reason = (f'omega_n {omega_n:.4g} rad/s = {omega_n / band:.3g} x band, quasi-static '
+                      f'error {bound:.2e} <= target')
+        else:
+            chosen = 'elastic'
+            reason = (f'omega_n {omega_n:.4g} rad/s = {omega_n / band:.3g} x band, quasi-static '
+                      f'error {bound:.2e} > target')
+        choices.append(FidelityChoice(el.name, 'spring', chosen, reason, cand))
+    return FidelityReport(target, omega_op, band, tuple(choices))
+
+
+def _adjacent_inertias(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, tuple[float, float]]:
+    """Per spring: (J_left, J_right) in kg m^2 of the adjacent rigid sections reduced to
+    the spring's two shafts, averaged over one revolution (all springs elastic)."""
+    from cvj_ros.physics.driveline import Driveline
+    levels = dict(joint_levels)
+    levels.update({el.name: 'elastic' for el in scene.driveline if isinstance(el, Spring)})
+    dl = Driveline(scene, levels)
+    out = {}
+    qs = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+    for k, sp in enumerate(dl.springs):
+        j_l = float(np.mean([dl._section(k, q)[3] / dl._section(k, q)[1] ** 2 for q in qs]))
+        j_r = float(np.mean([dl._section(k + 1, q)[3] for q in qs]))
+        out[sp.name] = (j_l, j_r)
+    return out

@@ -1,0 +1,72 @@
+"""Steady-state metrics of a sampled run (units follow the inputs: rad/s, rad/s^2, N m).
+
+* speed nonuniformity delta = (omega_max - omega_min) / omega_mean per shaft
+  (seed 004, coefficient of unevenness of rotation; dimensionless),
+* amplitude A = (max - min) / 2 of speed, acceleration and torque (seed 004 section
+  3.3.2 compares these amplitudes of drive and driven shafts, figs. 3.11-3.18).
+
+All are taken over a *steady window*: the start transient is skipped. By default the
+first half of the trace is skipped (``transient=None``); give ``transient`` (s) to
+choose. Acceleration is the numerical time derivative of the sampled speed
+(``numpy.gradient``, second order), so sample finely enough for it.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def steady_mask(t: ArrayLike, *, transient: float | None = None) -> NDArray[np.bool_]:
+    """Boolean mask of samples with t >= t0 + transient (default half the span)."""
+    tt = np.asarray(t, dtype=float)
+    if tt.size == 0:
+        return np.zeros(0, dtype=bool)
+    skip = 0.5 * (tt[-1] - tt[0]) if transient is None else float(transient)
+    mask = tt >= tt[0] + skip
+    if mask.sum() < 2:
+        mask[-2:] = True
+    return mask
+
+
+def nonuniformity(omega: ArrayLike) -> float:
+    """delta = (max - min) / mean of a speed series (-); inf if the mean is 0."""
+    w = np.asarray(omega, dtype=float)
+    mean = float(np.mean(w))
+    span = float(np.max(w) - np.min(w))
+    return span / abs(mean) if mean != 0.0 else float('inf')
+
+
+def amplitude(x: ArrayLike) -> float:
+    """(max - min) / 2 of a series (its unit)."""
+    a = np.asarray(x, dtype=float)
+    return 0.5 * float(np.max(a) - np.min(a))
+
+
+def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: ArrayLike, *,
+                  transient: float | None = None) -> dict[str, dict[str, float]]:
+    """Per shaft over the steady window: mean_speed (rad/s), delta (-), speed_amplitude
+    (rad/s), acceleration_amplitude (rad/s^2), mean_torque and torque_amplitude (N m)."""
+    tt = np.asarray(t, dtype=float)
+    vel = np.asarray(velocity, dtype=float)
+    eff = np.asarray(effort, dtype=float)
+    mask = steady_mask(tt, transient=transient)
+    out: dict[str, dict[str, float]] = {}
+    for i, name in enumerate(names):
+        w = vel[:, i]
+        acc = np.gradient(w, tt) if tt.size > 2 else np.zeros_like(w)
+        out[name] = {'mean_speed': float(np.mean(w[mask])),
+                     'delta': nonuniformity(w[mask]),
+                     'speed_amplitude': amplitude(w[mask]),
+                     'acceleration_amplitude': amplitude(acc[mask]),
+                     'mean_torque': float(np.mean(eff[mask, i])),
+                     'torque_amplitude': amplitude(eff[mask, i])}
+    return out
+
+
+def summarize(trace: Any, *, transient: float | None = None) -> dict[str, dict[str, float]]:
+    """:func:`shaft_metrics` of a :class:`cvj_ros.physics.simulate.Trace`."""
+    return shaft_metrics(trace.t, trace.names, trace.velocity, trace.effort, transient=transient)

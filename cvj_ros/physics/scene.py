@@ -1,0 +1,504 @@
+"""Scene files: a whole driveline (engine -> elements -> load) plus its run settings.
+
+A scene is YAML (format in docs/scenes.md). :func:`load_scene` reads a file,
+:func:`parse_scene` validates a plain dict; both return a frozen :class:`Scene`.
+Every user error raises :class:`cvj_ros.errors.SceneError` whose message starts with
+the dotted path of the offending field, e.g.
+``driveline[3].params.beta_deg: must be < 90, got 95``.
+
+Units: time s, inertia kg m^2, stiffness N m/rad, damping N m s/rad, speed rad/s
+(``*_rpm`` keys are converted), angles in scene files carry ``_deg`` or ``_rad``,
+lengths ``_m`` or ``_mm``; joint params are converted to SI (rad, m) for
+:func:`cvj_ros.physics.joints.make_joint`.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cvj_ros.errors import GeometryError, SceneError
+
+SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
+              'accuracy_target', 'solver', 'engine', 'load', 'initial', 'driveline')
+SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
+INITIAL_KEYS = ('speed_rad_s', 'speed_rpm', 'angle_deg')
+INERTIA_KEYS = ('type', 'name', 'J', 'limits')
+SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_deg',
+               'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits')
+JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
+ELEMENT_TYPES = ('inertia', 'spring', 'joint')
+SPRING_LAWS = ('linear', 'progressive')
+JOINT_FIDELITIES = ('auto', 'ideal', 'closed', 'exact')
+SPRING_FIDELITIES = ('auto', 'elastic', 'rigid')
+LIMIT_KEYS = ('max_angle_deg', 'max_speed_rad_s', 'max_torque_nm', 'max_twist_deg',
+              'max_nonuniformity')
+# Solver names of cvj_ros.physics.solvers.METHODS (validated here so a typo stops early).
+SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
+# unit suffix in a scene file -> (SI unit of the registry, factor to SI)
+_SUFFIX_TO_SI = {'_deg': ('rad', math.pi / 180.0), '_rad': ('rad', 1.0),
+                 '_mm': ('m', 1e-3), '_m': ('m', 1.0), '_kg': ('kg', 1.0)}
+
+
+# --- dataclasses -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Inertia:
+    """Rigid rotating mass ``J`` (kg m^2)."""
+
+    name: str
+    J: float
+    limits: Mapping[str, float] = field(default_factory=dict)
+    type: str = 'inertia'
+
+
+@dataclass(frozen=True)
+class Spring:
+    """Torsional spring-damper between two shafts.
+
+    stiffness c (N m/rad), damping d (N m s/rad), law 'linear' (T = c e) or
+    'progressive' (T = c e (1 + k2 e^2), k2 in 1/rad^2, rubber stiffening), optional
+    backlash (total free play, rad) regularised by a softplus dead zone of relative
+    width ``backlash_smoothing`` (fraction of the half gap). ``initial_twist`` (rad)
+    is the twist at t = 0; ``fidelity`` 'auto' | 'elastic' | 'rigid'.
+    """
+
+    name: str
+    stiffness: float
+    damping: float = 0.0
+    law: str = 'linear'
+    k2: float = 0.0
+    backlash: float = 0.0
+    backlash_smoothing: float = 0.1
+    initial_twist: float = 0.0
+    fidelity: str = 'auto'
+    limits: Mapping[str, float] = field(default_factory=dict)
+    type: str = 'spring'
+
+
+@dataclass(frozen=True)
+class Joint:
+    """Kinematic coupling from the registry (``kind``) with SI ``params`` (rad, m)."""
+
+    name: str
+    kind: str
+    fidelity: str = 'auto'
+    params: Mapping[str, Any] = field(default_factory=dict)        # SI (rad, m) for make_joint
+    params_file: Mapping[str, Any] = field(default_factory=dict)   # as written (unit keys)
+    limits: Mapping[str, float] = field(default_factory=dict)
+    type: str = 'joint'
+
+
+Element = Inertia | Spring | Joint
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Integrator choice: method name, rtol, atol (relative / absolute), h (s, fixed-step)."""
+
+    method: str = 'dopri5'
+    rtol: float = 1e-6
+    atol: float = 1e-9
+    h: float | None = None
+    max_step: float | None = None
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene (frozen). ``driveline`` is ordered from engine to load."""
+
+    name: str
+    description: str
+    seed: int
+    duration: float                    # s
+    exchange_step: float               # s, lockstep exchange period
+    solver: SolverSettings
+    engine: Mapping[str, Any]                       # spec for engine_from_spec
+    load: Mapping[str, Any] | list[Mapping[str, Any]]   # spec for load_from_spec (list = sum)
+    driveline: tuple[Element, ...]
+    initial_speed: float = 0.0         # rad/s of the first inertia
+    initial_angle: float = 0.0         # rad of the first inertia
+    accuracy_target: float | None = None
+    sample_step: float | None = None   # s, output sampling (default exchange_step)
+    source: str = '<dict>'
+
+    def element(self, name: str) -> Element:
+        """The driveline element called ``name`` (KeyError if absent)."""
+        for el in self.driveline:
+            if el.name == name:
+                return el
+        raise KeyError(name)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict in scene-file form; ``parse_scene(s.to_dict())`` == ``s`` (except source)."""
+        d: dict[str, Any] = {'name': self.name, 'description': self.description, 'seed': self.seed,
+                             'duration': self.duration, 'exchange_step': self.exchange_step}
+        if self.sample_step is not None:
+            d['sample_step'] = self.sample_step
+        if self.accuracy_target is not None:
+            d['accuracy_target'] = self.accuracy_target
+        sol: dict[str, Any] = {'method': self.solver.method, 'rtol': self.solver.rtol,
+                               'atol': self.solver.atol}
+        if self.solver.h is not None:
+            sol['h'] = self.solver.h
+        if self.solver.max_step is not None:
+            sol['max_step'] = self.solver.max_step
+        d['solver'] = sol
+        d['engine'] = _plain(self.engine)
+        d['load'] = _plain(self.load)
+        d['initial'] = {'speed_rad_s': self.initial_speed,
+                        'angle_deg': math.degrees(self.initial_angle)}
+        els = []
+        for el in self.driveline:
+            e: dict[str, Any]
+            if isinstance(el, Inertia):
+                e = {'type': 'inertia', 'name': el.name, 'J': el.J}
+            elif isinstance(el, Spring):
+                e = {'type': 'spring', 'name': el.name, 'stiffness': el.stiffness,
+                     'damping': el.damping, 'law': el.law}
+                if el.law == 'progressive':
+                    e['k2'] = el.k2
+                if el.backlash:
+                    e['backlash_deg'] = math.degrees(el.backlash)
+                    e['backlash_smoothing'] = el.backlash_smoothing
+                if el.initial_twist:
+                    e['initial_twist_deg'] = math.degrees(el.initial_twist)
+                if el.fidelity != 'auto':
+                    e['fidelity'] = el.fidelity
+            else:
+                e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
+                     'params': dict(el.params_file)}
+            if el.limits:
+                e['limits'] = dict(el.limits)
+            els.append(e)
+        d['driveline'] = els
+        return d
+
+    def to_yaml(self) -> str:
+        """The scene as YAML text (what is stored in bags as ``/driveline/scene``)."""
+        import yaml
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+# --- validation helpers ----------------------------------------------------------------
+
+def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], path: str) -> None:
+    for key in data:
+        if key not in allowed:
+            where = f'{path}.{key}' if path else str(key)
+            near = difflib.get_close_matches(str(key), allowed, n=1)
+            hint = f"; did you mean '{near[0]}'?" if near else f'; allowed: {", ".join(allowed)}'
+            raise SceneError(where, f'unknown key{hint}')
+
+
+def _mapping(value: Any, path: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise SceneError(path, f'must be a mapping, got {type(value).__name__}')
+    return value
+
+
+def _number(value: Any, path: str, *, positive: bool = False, nonneg: bool = False,
+            lo: float | None = None, hi: float | None = None, hi_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(path, f'must be a number, got {value!r}')
+    v = float(value)
+    if not math.isfinite(v):
+        raise SceneError(path, f'must be finite, got {v}')
+    if positive and v <= 0.0:
+        raise SceneError(path, f'must be > 0, got {value}')
+    if nonneg and v < 0.0:
+        raise SceneError(path, f'must be >= 0, got {value}')
+    if lo is not None and v < lo:
+        raise SceneError(path, f'must be >= {lo}, got {value}')
+    if hi is not None and (v > hi or (hi_open and v == hi)):
+        raise SceneError(path, f'must be {"<" if hi_open else "<="} {hi}, got {value}')
+    return v
+
+
+def _string(value: Any, path: str, *, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(value, str) or not value:
+        raise SceneError(path, f'must be a non-empty string, got {value!r}')
+    if choices is not None and value not in choices:
+        near = difflib.get_close_matches(value, choices, n=1)
+        hint = f"; did you mean '{near[0]}'?" if near else ''
+        raise SceneError(path, f'must be one of {", ".join(choices)}, got {value!r}{hint}')
+    return value
+
+
+def _limits(value: Any, path: str) -> dict[str, float]:
+    lim = _mapping(value, path)
+    _check_keys(lim, LIMIT_KEYS, path)
+    return {k: _number(v, f'{path}.{k}', positive=True) for k, v in lim.items()}
+
+
+def _joint_params(kind: str, raw: Mapping[str, Any], path: str) -> dict[str, Any]:
+    """Convert unit-suffixed scene params to the registry's SI names."""
+    from cvj_ros.physics.joints import JOINTS
+    spec = JOINTS[kind]
+    # accepted file keys: name + suffix for each unit of the registry entry
+    accepted: dict[str, tuple[str, float]] = {}
+    for si_name, desc in spec.params.items():
+        unit = desc.split(',')[0].strip()
+        matched = False
+        for suffix, (si_unit, factor) in _SUFFIX_TO_SI.items():
+            if si_unit == unit:
+                accepted[si_name + suffix] = (si_name, factor)
+                matched = True
+        if not matched:
+            accepted[si_name] = (si_name, 1.0)   # dimensionless or other unit: as is
+    out: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key not in accepted:
+            choices = tuple(accepted)
+            near = difflib.get_close_matches(str(key), choices, n=1)
+            hint = (f"; did you mean '{near[0]}'?" if near
+                    else f'; {kind} accepts: {", ".join(choices) or "no params"}')
+            raise SceneError(f'{path}.{key}', f'unknown parameter{hint}')
+        si_name, factor = accepted[key]
+        if si_name in out:
+            raise SceneError(f'{path}.{key}', f'{si_name} given twice (with different units)')
+        if isinstance(value, (str, list, dict)) and factor == 1.0 and key == si_name:
+            out[si_name] = value       # non-numeric option (e.g. double_cardan layout: Z)
+            continue
+        v = _number(value, f'{path}.{key}')
+        if key.endswith('_deg') and not (-360.0 <= v <= 360.0):
+            raise SceneError(f'{path}.{key}', f'angle out of range [-360, 360] deg, got {value}')
+        out[si_name] = v * factor
+    return out
+
+
+def _element(raw: Any, path: str) -> Element:
+    from cvj_ros.physics.joints import JOINTS, make_joint
+    el = _mapping(raw, path)
+    if 'type' not in el:
+        raise SceneError(f'{path}.type', f'missing; one of {", ".join(ELEMENT_TYPES)}')
+    etype = _string(el['type'], f'{path}.type', choices=ELEMENT_TYPES)
+    if 'name' not in el:
+        raise SceneError(f'{path}.name', 'missing')
+    name = _string(el['name'], f'{path}.name')
+    if not name.replace('_', 'a').isalnum() or not name[0].isalpha():
+        raise SceneError(f'{path}.name', f'must be an identifier (letters, digits, _), got {name!r}')
+    limits = _limits(el['limits'], f'{path}.limits') if 'limits' in el else {}
+    if etype == 'inertia':
+        _check_keys(el, INERTIA_KEYS, path)
+        if 'J' not in el:
+            raise SceneError(f'{path}.J', 'missing (kg m^2)')
+        return Inertia(name=name, J=_number(el['J'], f'{path}.J', positive=True), limits=limits)
+    if etype == 'spring':
+        _check_keys(el, SPRING_KEYS, path)
+        if 'stiffness' not in el:
+            raise SceneError(f'{path}.stiffness', 'missing (N m/rad)')
+        law = _string(el.get('law', 'linear'), f'{path}.law', choices=SPRING_LAWS)
+        if 'k2' in el and law != 'progressive':
+            raise SceneError(f'{path}.k2', "only for law 'progressive'")
+        backlash_deg = _number(el.get('backlash_deg', 0.0), f'{path}.backlash_deg', nonneg=True,
+                               hi=90.0, hi_open=True)
+        return Spring(
+            name=name, stiffness=_number(el['stiffness'], f'{path}.stiffness', positive=True),
+            damping=_number(el.get('damping', 0.0), f'{path}.damping', nonneg=True),
+            law=law, k2=_number(el.get('k2', 0.0), f'{path}.k2', nonneg=True),
+            backlash=math.radians(backlash_deg),
+            backlash_smoothing=_number(el.get('backlash_smoothing', 0.1),
+                                       f'{path}.backlash_smoothing', positive=True, hi=1.0),
+            initial_twist=math.radians(_number(el.get('initial_twist_deg', 0.0),
+                                               f'{path}.initial_twist_deg', lo=-90.0, hi=90.0)),
+            fidelity=_string(el.get('fidelity', 'auto'), f'{path}.fidelity',
+                             choices=SPRING_FIDELITIES),
+            limits=limits)
+    _check_keys(el, JOINT_KEYS, path)
+    if 'kind' not in el:
+        raise SceneError(f'{path}.kind', f'missing; one of {", ".join(sorted(JOINTS))}')
+    kind = _string(el['kind'], f'{path}.kind', choices=tuple(sorted(JOINTS)))
+    fidelity = _string(el.get('fidelity', 'auto'), f'{path}.fidelity', choices=JOINT_FIDELITIES)
+    if fidelity != 'auto' and fidelity not in JOINTS[kind].fidelities:
+        raise SceneError(f'{path}.fidelity', f'{kind} has fidelities '
+                                             f'{", ".join(JOINTS[kind].fidelities)}; got {fidelity!r}')
+    raw_params = _mapping(el.get('params', {}) or {}, f'{path}.params')
+    params = _joint_params(kind, raw_params, f'{path}.params')
+    # build once at the most detailed fidelity: the joint's own geometry checks apply
+    try:
+        make_joint(kind, fidelity=JOINTS[kind].fidelities[-1], **params)
+    except GeometryError as exc:
+        # report with the file's key (beta -> beta_deg) and the file's unit
+        file_key = next((k for k in raw_params if k.startswith(exc.parameter + '_')
+                         or k == exc.parameter), exc.parameter)
+        msg = str(exc)[len(exc.parameter) + 2:]
+        if file_key.endswith('_deg') and file_key in raw_params:
+            msg = _deg_message(msg, raw_params[file_key])
+        raise SceneError(f'{path}.params.{file_key}', msg) from None
+    return Joint(name=name, kind=kind, fidelity=fidelity, params=params,
+                 params_file={k: (float(v) if isinstance(v, (int, float)) else v)
+                              for k, v in raw_params.items()}, limits=limits)
+
+
+def _deg_message(msg: str, given: Any) -> str:
+    """Rewrite a rad-range message ('must be < 1.5707963 rad, got 1.65 rad') in degrees."""
+    import re
+    def repl(m: re.Match[str]) -> str:
+        return f'{math.degrees(float(m.group(1))):.6g}'
+    out = re.sub(r'(-?\d+(?:\.\d+)?(?:e-?\d+)?) rad', lambda m: repl(m) + ' deg', msg)
+    return re.sub(r'got [^ ]+ deg$', f'got {given} deg', out)
+
+
+def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
+    """Validate a scene given as a plain dict (YAML-loaded). Raises SceneError."""
+    d = _mapping(data, source if source != '<dict>' else 'scene')
+    _check_keys(d, SCENE_KEYS, '')
+    for key in ('name', 'duration', 'driveline', 'engine', 'load'):
+        if key not in d:
+            raise SceneError(key, 'missing')
+    name = _string(d['name'], 'name')
+    description = d.get('description', '')
+    if not isinstance(description, str):
+        raise SceneError('description', 'must be a string')
+    seed = d.get('seed', 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SceneError('seed', f'must be a non-negative integer, got {seed!r}')
+    duration = _number(d['duration'], 'duration', positive=True)
+    exchange_step = _number(d.get('exchange_step', 1e-3), 'exchange_step', positive=True)
+    if exchange_step > duration:
+        raise SceneError('exchange_step', f'must be <= duration ({duration} s), got {exchange_step}')
+    sample_step = (_number(d['sample_step'], 'sample_step', positive=True)
+                   if d.get('sample_step') is not None else None)
+    target = (_number(d['accuracy_target'], 'accuracy_target', positive=True, hi=1.0)
+              if d.get('accuracy_target') is not None else None)
+    sol = _mapping(d.get('solver', {}) or {}, 'solver')
+    _check_keys(sol, SOLVER_KEYS, 'solver')
+    solver = SolverSettings(
+        method=_string(sol.get('method', 'dopri5'), 'solver.method', choices=SOLVER_METHODS),
+        rtol=_number(sol.get('rtol', 1e-6), 'solver.rtol', positive=True, hi=1.0),
+        atol=_number(sol.get('atol', 1e-9), 'solver.atol', positive=True),
+        h=_number(sol['h'], 'solver.h', positive=True) if sol.get('h') is not None else None,
+        max_step=(_number(sol['max_step'], 'solver.max_step', positive=True)
+                  if sol.get('max_step') is not None else None))
+    engine = _mapping(d['engine'], 'engine')
+    load = d['load']
+    if not isinstance(load, list):
+        load = _mapping(load, 'load')
+    # build once so spec errors stop here, before any run
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.load import load_from_spec
+    engine_from_spec(engine, field='engine')
+    load_from_spec(load, seed=seed, field='load')
+    init = _mapping(d.get('initial', {}) or {}, 'initial')
+    _check_keys(init, INITIAL_KEYS, 'initial')
+    if 'speed_rad_s' in init and 'speed_rpm' in init:
+        raise SceneError('initial.speed_rpm', 'give either speed_rad_s or speed_rpm, not both')
+    speed = 0.0
+    if 'speed_rad_s' in init:
+        speed = _number(init['speed_rad_s'], 'initial.speed_rad_s')
+    elif 'speed_rpm' in init:
+        speed = _number(init['speed_rpm'], 'initial.speed_rpm') * math.pi / 30.0
+    angle = math.radians(_number(init.get('angle_deg', 0.0), 'initial.angle_deg'))
+    raw_chain = d['driveline']
+    if not isinstance(raw_chain, list) or not raw_chain:
+        raise SceneError('driveline', 'must be a non-empty list of elements')
+    chain = tuple(_element(el, f'driveline[{i}]') for i, el in enumerate(raw_chain))
+    seen: dict[str, int] = {}
+    for i, el in enumerate(chain):
+        if el.name in seen:
+            raise SceneError(f'driveline[{i}].name', f'duplicate name {el.name!r} '
+                                                     f'(also driveline[{seen[el.name]}])')
+        seen[el.name] = i
+    check_layout(chain)
+    return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
+                 exchange_step=exchange_step, solver=solver, engine=dict(engine),
+                 load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
+                 driveline=chain, initial_speed=speed, initial_angle=angle,
+                 accuracy_target=target, sample_step=sample_step, source=source)
+
+
+def check_layout(chain: tuple[Element, ...]) -> None:
+    """Reject chains the driveline cannot integrate (see docs/scenes.md, layouts).
+
+    Rules: first and last element are inertias (engine and load act on them); every
+    rigid section between two springs holds at least one inertia (a massless node
+    between springs would be an algebraic constraint).
+    """
+    if not isinstance(chain[0], Inertia):
+        raise SceneError('driveline[0].type', 'the first element must be an inertia '
+                                              '(the engine acts on it)')
+    last = len(chain) - 1
+    if not isinstance(chain[last], Inertia):
+        raise SceneError(f'driveline[{last}].type', 'the last element must be an inertia '
+                                                    '(the load acts on it)')
+    has_inertia = True
+    for i, el in enumerate(chain):
+        if isinstance(el, Spring):
+            if not has_inertia:
+                raise SceneError(f'driveline[{i}]', 'no inertia between this spring and the '
+                                                    'previous one (massless node); add an inertia')
+            has_inertia = False
+        elif isinstance(el, Inertia):
+            has_inertia = True
+
+
+# --- files ------------------------------------------------------------------------------
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """Read and validate a scene YAML file. Malformed YAML names the line."""
+    import yaml
+    p = Path(path)
+    try:
+        text = p.read_text(encoding='utf-8')
+    except OSError as exc:
+        raise SceneError(str(p), f'cannot read scene file ({exc.strerror})') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f'{p}:{mark.line + 1}' if mark is not None else str(p)
+        problem = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
+        raise SceneError(where, f'malformed YAML: {problem}') from None
+    if data is None:
+        raise SceneError(str(p), 'empty scene file')
+    return parse_scene(data, source=str(p))
+
+
+def scene_dirs() -> list[Path]:
+    """Directories searched for shipped scenes: the source tree's config/scenes and the
+    ament share directory ``share/cvj_ros/config/scenes`` when installed."""
+    dirs = [Path(__file__).resolve().parents[2] / 'config' / 'scenes']
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        dirs.append(Path(get_package_share_directory('cvj_ros')) / 'config' / 'scenes')
+    except Exception:  # noqa: BLE001  (ament index absent or package not installed)
+        pass
+    import sys
+    dirs.append(Path(sys.prefix) / 'share' / 'cvj_ros' / 'config' / 'scenes')
+    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
+
+
+def shipped_scenes() -> dict[str, Path]:
+    """Shipped scene name -> file (first directory of :func:`scene_dirs` wins)."""
+    out: dict[str, Path] = {}
+    for d in scene_dirs():
+        for f in sorted(d.glob('*.yaml')):
+            out.setdefault(f.stem, f)
+    return out
+
+
+def find_scene(name_or_path: str | os.PathLike[str]) -> Path:
+    """A scene file by path, or by shipped name (``kavz685_lever``). SceneError if neither."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    shipped = shipped_scenes()
+    stem = p.name[:-5] if p.name.endswith('.yaml') else p.name
+    if stem in shipped:
+        return shipped[stem]
+    near = difflib.get_close_matches(stem, list(shipped), n=1)
+    hint = f"; did you mean '{near[0]}'?" if near else f'; shipped: {", ".join(shipped)}'
+    raise SceneError('scene', f'no scene file or shipped scene {str(name_or_path)!r}{hint}')

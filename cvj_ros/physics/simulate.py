@@ -1,0 +1,198 @@
+"""Offline closed-loop simulation of a scene: engine and load inside the right-hand side.
+
+One persistent stepper (cvj_ros.physics.solvers.make_stepper) integrates the driveline
+(cvj_ros.physics.driveline) with the engine torque T_e(t, omega_e, phi_e) on the first
+inertia and the load torque T_l(t, omega_l, phi_l) on the last. The stepper lands
+exactly on every sample time (``sample_dt``, default the scene's ``sample_step`` or
+``exchange_step``), so the samples are solver steps, not interpolants; between samples
+it keeps its step-size proposal.
+
+The state is augmented with the work integrals (engine, load, damping; J), so every run
+reports the energy-balance residual (E_kin + E_el - E0 - W_engine + W_load + W_damp) /
+max energy scale (cvj_ros.physics.driveline.Driveline.energy_residual).
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cvj_ros.errors import SceneError, SolverError
+from cvj_ros.physics.driveline import Driveline
+from cvj_ros.physics.scene import Scene
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class Trace:
+    """Sampled run. Arrays are (samples,) or (samples, shafts); units: s, rad, rad/s, N m."""
+
+    t: FloatArray
+    names: list[str]
+    position: FloatArray
+    velocity: FloatArray
+    effort: FloatArray
+    engine_torque: FloatArray
+    load_torque: FloatArray
+    energy_residual: FloatArray          # (samples,) relative energy-balance residual
+    solver: dict[str, Any] = field(default_factory=dict)
+    wall_time: float = 0.0               # s of wall clock for the integration + sampling
+
+    @property
+    def max_energy_residual(self) -> float:
+        return float(np.max(np.abs(self.energy_residual))) if self.energy_residual.size else 0.0
+
+    def column(self, name: str) -> int:
+        """Index of shaft ``name`` in the arrays (KeyError if absent)."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(name) from None
+
+    def to_csv(self, path: str) -> None:
+        """Write t and every shaft's position/velocity/effort as CSV (header names units)."""
+        cols = ['t_s'] + [f'{n}_{q}' for n in self.names
+                          for q in ('position_rad', 'velocity_rad_s', 'effort_nm')]
+        cols += ['engine_torque_nm', 'load_torque_nm', 'energy_residual']
+        data = [self.t[:, None]]
+        for i in range(len(self.names)):
+            data.append(np.stack([self.position[:, i], self.velocity[:, i], self.effort[:, i]], 1))
+        data.append(np.stack([self.engine_torque, self.load_torque, self.energy_residual], 1))
+        np.savetxt(path, np.hstack(data), delimiter=',', header=','.join(cols), comments='')
+
+
+class Simulation:
+    """Offline closed loop of ``scene``.
+
+    Args:
+        scene: validated scene.
+        method, rtol, atol: override the scene's solver settings.
+        fidelity: per-element forced levels (joint: ideal|closed|exact, spring:
+            elastic|rigid), see cvj_ros.physics.fidelity.
+        engine, load: torque sources to use instead of building them from the scene
+            specs (anything with ``torque(t, omega, phi)`` and ``slope(...)``).
+    """
+
+    def __init__(self, scene: Scene, *, method: str | None = None, rtol: float | None = None,
+                 atol: float | None = None, fidelity: Mapping[str, str] | None = None,
+                 engine: Any = None, load: Any = None) -> None:
+        self.scene = scene
+        self.method = method or scene.solver.method
+        self.rtol = float(rtol if rtol is not None else scene.solver.rtol)
+        self.atol = float(atol if atol is not None else scene.solver.atol)
+        for name, v in (('rtol', self.rtol), ('atol', self.atol)):
+            if not (math.isfinite(v) and v > 0):
+                raise SceneError(f'solver.{name}', f'must be > 0, got {v}')
+        self.driveline = Driveline.from_scene(scene, fidelity=fidelity, track_energy=True)
+        self.fidelity_report = self.driveline.fidelity_report
+        if engine is None:
+            from cvj_ros.physics.engine import engine_from_spec
+            engine = engine_from_spec(scene.engine, field='engine')
+        if load is None:
+            from cvj_ros.physics.load import load_from_spec
+            load = load_from_spec(scene.load, seed=scene.seed, field='load')
+        self.engine = engine
+        self.load = load
+        self.last_trace: Trace | None = None
+        dl = self.driveline
+        n = dl.n_dof
+        rhs, load_state = dl.rhs, dl.load_state
+        e_torque, l_torque = engine.torque, load.torque
+
+        def fun(t: float, x: FloatArray) -> FloatArray:
+            phi_l, w_l = load_state(x)
+            return rhs(t, x, e_torque(t, x[n], x[0]), l_torque(t, w_l, phi_l))
+
+        def jac(t: float, x: FloatArray) -> FloatArray:
+            phi_l, w_l = load_state(x)
+            w_e, phi_e = float(x[n]), float(x[0])
+            return dl.jacobian(t, x, e_torque(t, w_e, phi_e), l_torque(t, w_l, phi_l),
+                               dTe_domega=engine.slope(t, w_e, phi_e),
+                               dTl_domega=load.slope(t, w_l, phi_l))
+
+        self.fun = fun
+        self.jac = jac
+
+    def torques(self, t: float, x: FloatArray) -> tuple[float, float]:
+        """(engine torque, load torque) in N m at state x."""
+        n = self.driveline.n_dof
+        phi_l, w_l = self.driveline.load_state(x)
+        return (float(self.engine.torque(t, float(x[n]), float(x[0]))),
+                float(self.load.torque(t, w_l, phi_l)))
+
+    def run(self, duration: float | None = None, *, sample_dt: float | None = None) -> Trace:
+        """Integrate from t = 0 over ``duration`` (s, default the scene's), sampling every
+        ``sample_dt`` (s). Raises SolverError if the state becomes non-finite."""
+        from cvj_ros.physics.solvers import make_stepper
+        sc = self.scene
+        dur = float(sc.duration if duration is None else duration)
+        if not (math.isfinite(dur) and dur > 0):
+            raise SceneError('duration', f'must be > 0, got {duration}')
+        dt = float(sample_dt or sc.sample_step or sc.exchange_step)
+        if not (math.isfinite(dt) and dt > 0):
+            raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
+        dl = self.driveline
+        x0 = dl.x0.copy()
+        h = sc.solver.h
+        if self.method in ('rk4', 'ros2') and h is None:
+            h = min(dt, sc.exchange_step) / 10.0
+        kwargs: dict[str, Any] = dict(rtol=self.rtol, atol=self.atol, h=h)
+        if sc.solver.max_step is not None:
+            kwargs['max_step'] = sc.solver.max_step
+        if self.method in ('rosenbrock', 'ros2'):
+            kwargs['jac'] = self.jac
+        stepper = make_stepper(self.method, self.fun, 0.0, x0, **kwargs)
+        n_samples = int(math.floor(dur / dt + 1e-9)) + 1
+        times = np.arange(n_samples) * dt
+        if times[-1] < dur - 1e-12:
+            times = np.append(times, dur)
+        n_sh = len(dl.shaft_names)
+        pos = np.empty((times.size, n_sh))
+        vel = np.empty_like(pos)
+        eff = np.empty_like(pos)
+        te = np.empty(times.size)
+        tl = np.empty(times.size)
+        res = np.empty(times.size)
+        e = dl.energy(x0)
+        e0 = e['kinetic'] + e['elastic']
+        wall0 = time.perf_counter()
+        x = x0
+        for k, tk in enumerate(times):
+            if k > 0:
+                x = stepper.advance_to(float(tk))
+                if not np.all(np.isfinite(x)):
+                    raise SolverError(f'state became non-finite at t = {tk:g} s')
+            te[k], tl[k] = self.torques(float(tk), x)
+            _names, pos[k], vel[k], eff[k] = dl.joint_states(x, te[k], tl[k])
+            res[k] = dl.energy_residual(x, e0)
+        wall = time.perf_counter() - wall0
+        stats = stepper.stats() if hasattr(stepper, 'stats') else {
+            'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,
+            'naccept': stepper.naccept, 'nreject': stepper.nreject}
+        stats.update(method=self.method, rtol=self.rtol, atol=self.atol)
+        trace = Trace(t=times, names=list(dl.shaft_names), position=pos, velocity=vel, effort=eff,
+                      engine_torque=te, load_torque=tl, energy_residual=res, solver=stats,
+                      wall_time=wall)
+        self.last_trace = trace
+        self.final_state = x
+        return trace
+
+    def summary(self, *, transient: float | None = None) -> dict[str, Any]:
+        """Summary of the last run (runs the scene first if needed): per-shaft metrics
+        (cvj_ros.physics.metrics), energy residual, solver stats, wall time per simulated
+        second, fidelity report."""
+        from cvj_ros.physics.metrics import summarize
+        tr = self.last_trace or self.run()
+        sim_time = float(tr.t[-1] - tr.t[0]) or 1.0
+        return {'scene': self.scene.name, 'duration': float(tr.t[-1]),
+                'shafts': summarize(tr, transient=transient),
+                'energy_residual': tr.max_energy_residual,
+                'solver': dict(tr.solver), 'wall_time': tr.wall_time,
+                'wall_per_sim_second': tr.wall_time / sim_time,
+                'fidelity': self.fidelity_report.to_dict()}

@@ -1,0 +1,132 @@
+"""Scene format: parsing, SI conversion, round trip, validation errors naming the field."""
+from __future__ import annotations
+
+import copy
+import math
+
+import pytest
+
+from cvj_ros.errors import SceneError
+from cvj_ros.physics.scene import Inertia, Joint, Spring, find_scene, load_scene, parse_scene
+
+BASE = {
+    'name': 'two_mass', 'description': 'test', 'seed': 3, 'duration': 1.0, 'exchange_step': 1e-3,
+    'solver': {'method': 'dopri5', 'rtol': 1e-7, 'atol': 1e-9},
+    'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': 100.0},
+    'initial': {'speed_rpm': 300.0},
+    'driveline': [
+        {'type': 'inertia', 'name': 'crank', 'J': 0.128},
+        {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35,
+         'law': 'progressive', 'k2': 2.0, 'backlash_deg': 1.0},
+        {'type': 'joint', 'name': 'cpl', 'kind': 'hooke', 'fidelity': 'exact',
+         'params': {'beta_deg': 15.0}, 'limits': {'max_angle_deg': 25.0}},
+        {'type': 'inertia', 'name': 'driven', 'J': 0.161},
+    ],
+}
+
+
+def scene_with(path: str, value: object) -> dict:
+    """Copy of BASE with the dotted/indexed ``path`` set to ``value``."""
+    d = copy.deepcopy(BASE)
+    node = d
+    parts = path.replace('[', '.').replace(']', '').split('.')
+    for p in parts[:-1]:
+        node = node[int(p)] if p.isdigit() else node[p]
+    last = parts[-1]
+    node[int(last) if last.isdigit() else last] = value
+    return d
+
+
+def test_parse_converts_units_to_si() -> None:
+    sc = parse_scene(BASE)
+    assert sc.initial_speed == pytest.approx(300.0 * math.pi / 30.0)
+    crank, bush, cpl, driven = sc.driveline
+    assert isinstance(crank, Inertia) and isinstance(bush, Spring) and isinstance(cpl, Joint)
+    assert cpl.params['beta'] == pytest.approx(math.radians(15.0))
+    assert bush.backlash == pytest.approx(math.radians(1.0))
+    assert cpl.limits == {'max_angle_deg': 25.0}
+    assert driven.J == 0.161
+
+
+def test_round_trip_to_dict() -> None:
+    sc = parse_scene(BASE)
+    again = parse_scene(sc.to_dict())
+    assert again == sc
+    assert parse_scene(__import__('yaml').safe_load(sc.to_yaml())) == sc
+
+
+def test_scene_is_frozen() -> None:
+    sc = parse_scene(BASE)
+    with pytest.raises(Exception):
+        sc.duration = 3.0  # type: ignore[misc]
+
+
+@pytest.mark.parametrize('path,value,field,words', [
+    ('driveline[2].params.beta_deg', 95.0, 'driveline[2].params.beta_deg', 'must be <'),
+    ('driveline[0].J', -1.0, 'driveline[0].J', 'must be > 0'),
+    ('driveline[0].J', 0.0, 'driveline[0].J', 'must be > 0'),
+    ('driveline[1].stiffness', 0.0, 'driveline[1].stiffness', 'must be > 0'),
+    ('driveline[1].damping', float('nan'), 'driveline[1].damping', 'finite'),
+    ('driveline[3].J', float('inf'), 'driveline[3].J', 'finite'),
+    ('driveline[2].kind', 'hoke', 'driveline[2].kind', "did you mean 'hooke'"),
+    ('driveline[0].J', 'heavy', 'driveline[0].J', 'must be a number'),
+    ('duration', -2.0, 'duration', 'must be > 0'),
+    ('solver.method', 'rk45', 'solver.method', 'must be one of'),
+    ('driveline[1].law', 'cubic', 'driveline[1].law', 'must be one of'),
+    ('driveline[2].fidelity', 'closed', 'driveline[2].fidelity', 'hooke has fidelities'),
+    ('driveline[2].params.beta_dge', 10.0, 'driveline[2].params.beta_dge', "did you mean 'beta_deg'"),
+    ('driveline[2].limits.max_angle_deg', -3.0, 'driveline[2].limits.max_angle_deg', '> 0'),
+    ('seed', 1.5, 'seed', 'non-negative integer'),
+    ('engine.m1', float('nan'), 'engine.m1', ''),
+    ('load.torqe', 1.0, 'load.torqe', ''),
+])
+def test_validation_names_field(path: str, value: object, field: str, words: str) -> None:
+    with pytest.raises(SceneError) as err:
+        parse_scene(scene_with(path, value))
+    assert str(err.value).startswith(field + ':'), str(err.value)
+    assert words in str(err.value)
+
+
+def test_unknown_top_level_key_did_you_mean() -> None:
+    d = copy.deepcopy(BASE)
+    d['duraton'] = 3.0
+    with pytest.raises(SceneError, match=r"^duraton: unknown key; did you mean 'duration'"):
+        parse_scene(d)
+
+
+def test_unknown_element_key() -> None:
+    d = scene_with('driveline[1].stifness', 3.0)
+    with pytest.raises(SceneError, match=r"^driveline\[1\]\.stifness: unknown key; did you mean 'stiffness'"):
+        parse_scene(d)
+
+
+def test_layout_errors() -> None:
+    d = copy.deepcopy(BASE)
+    d['driveline'] = d['driveline'][1:]
+    with pytest.raises(SceneError, match=r'^driveline\[0\]\.type: the first element must be an inertia'):
+        parse_scene(d)
+    d = copy.deepcopy(BASE)
+    d['driveline'].insert(2, {'type': 'spring', 'name': 's2', 'stiffness': 1.0})
+    with pytest.raises(SceneError, match=r'^driveline\[2\]: no inertia between'):
+        parse_scene(d)
+    d = copy.deepcopy(BASE)
+    d['driveline'][3]['name'] = 'crank'
+    with pytest.raises(SceneError, match=r'^driveline\[3\]\.name: duplicate'):
+        parse_scene(d)
+
+
+def test_malformed_yaml_names_line(tmp_path) -> None:
+    p = tmp_path / 'bad.yaml'
+    p.write_text('name: x\nduration: 1\ndriveline: [\n  {type: inertia\n')
+    with pytest.raises(SceneError) as err:
+        load_scene(p)
+    assert str(err.value).startswith(f'{p}:'), str(err.value)
+    assert 'malformed YAML' in str(err.value)
+
+
+def test_find_scene_by_path_and_name(tmp_path) -> None:
+    p = tmp_path / 'mine.yaml'
+    p.write_text('name: x\n')
+    assert find_scene(str(p)) == p
+    with pytest.raises(SceneError, match='^scene: no scene file'):
+        find_scene('definitely_not_a_scene')

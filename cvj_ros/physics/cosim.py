@@ -77,8 +77,13 @@ class CoupledStepper:
         method: solver name (cvj_ros.physics.solvers.METHODS); one stepper is
             created here and reused for the whole run (never one per exchange).
         t0: initial time (s). x0: initial state (default driveline.x0).
-        rtol, atol, h, max_step, autonomous, constant_jac: passed to make_stepper
+        rtol, atol, h, max_step, constant_jac: passed to make_stepper
             (h is required for the fixed-step methods 'rk4' and 'ros2').
+        autonomous: the coupled right-hand side has no explicit time dependence
+            (lets Rosenbrock methods skip the f_t difference, 2 fev per step).
+            Default: True for 'zoh' and 'linear_implicit' (the driveline is
+            time-invariant and the torques are frozen functions of the state),
+            False for 'extrapolate' (torques ramp in time).
         slope: 'reported' (use the slopes passed to advance) or 'estimate'
             (least squares over the last ``slope_window`` exchanges).
         slope_max: bound on |K| (N m s/rad) for estimated slopes.
@@ -87,7 +92,8 @@ class CoupledStepper:
     def __init__(self, driveline: DrivelineLike, *, scheme: str = 'zoh', method: str = 'dopri5',
                  t0: float = 0.0, x0: np.ndarray | None = None, rtol: float = 1e-6,
                  atol: float = 1e-9, h: float | None = None, max_step: float = math.inf,
-                 autonomous: bool = False, constant_jac: bool = False, slope: str = 'reported',
+                 autonomous: bool | None = None, constant_jac: bool = False,
+                 slope: str = 'reported',
                  slope_window: int = 6, slope_max: float = 1e6) -> None:
         if scheme not in SCHEMES:
             raise SolverOptionError('scheme', f'unknown coupling scheme {scheme!r}; choose one of '
@@ -117,6 +123,9 @@ class CoupledStepper:
         fun = {'zoh': self._rhs_zoh, 'extrapolate': self._rhs_extrapolate,
                'linear_implicit': self._rhs_linear_implicit}[scheme]
         jac = self._jac if hasattr(driveline, 'jacobian') else None
+        if autonomous is None:
+            autonomous = scheme != 'extrapolate'
+        self._omega_grad: dict[int, np.ndarray] = {}
         self.stepper: Stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
                                              jac=jac, max_step=max_step, autonomous=autonomous,
                                              constant_jac=constant_jac)
@@ -164,15 +173,29 @@ class CoupledStepper:
                 dT = 1.0
                 f1 = dl.rhs(t, x, Te + dT, Tl) if which == 0 else dl.rhs(t, x, Te, Tl + dT)
                 dfdT = (f1 - f0) / dT
-                w0 = omega_fn(x)
-                grad = np.empty(x.size)
-                for j in range(x.size):
-                    d = 1e-7 * max(1.0, abs(x[j]))
-                    xp = x.copy()
-                    xp[j] += d
-                    grad[j] = (omega_fn(xp) - w0) / d
-                J += K * np.outer(dfdT, grad)
+                J += K * np.outer(dfdT, self._omega_gradient(which, omega_fn, x))
         return J
+
+    def _omega_gradient(self, which: int, omega_fn, x: np.ndarray) -> np.ndarray:
+        """d omega / dx (1/s per state unit) by central differences; cached when the
+        speed is a plain state component (a unit vector gradient, the usual case)."""
+        cached = self._omega_grad.get(which)
+        if cached is not None:
+            return cached
+        grad = np.empty(x.size)
+        for j in range(x.size):
+            d = 1e-6 * max(1.0, abs(x[j]))
+            xp = x.copy()
+            xm = x.copy()
+            xp[j] += d
+            xm[j] -= d
+            grad[j] = (omega_fn(xp) - omega_fn(xm)) / (2 * d)
+        unit = np.round(grad)
+        if np.count_nonzero(unit) == 1 and np.max(np.abs(unit)) == 1.0 \
+                and np.allclose(grad, unit, atol=1e-8, rtol=0):
+            self._omega_grad[which] = unit
+            return unit
+        return grad
 
     # ------------------------------------------------------------------ exchange
     @property

@@ -87,22 +87,34 @@ PARAMS = (
 
 def reaction_to_wrench(values: dict[str, float]) -> tuple[tuple[float, float, float],
                                                           tuple[float, float, float]]:
-    """Map a joint's reaction dict to (force xyz N, torque xyz N m).
+    """Map a joint model's reaction dict to (force xyz in N, torque xyz in N m).
 
-    Keys are matched by their first letter (F/f = force; M/T/m/t = moment/torque) and
-    their axis letter (last character x/y/z); other keys are ignored.
+    Housing frame: z along the housing (output) shaft axis. A key is a force when it
+    contains 'force' or is ``F<axis>``, a torque when it contains 'moment'/'torque' or is
+    ``M<axis>``/``T<axis>``; its axis is the trailing x/y/z (``axial_force`` -> z). Where a
+    joint gives input- and output-side values, the output side (the housing) wins; keys
+    without an axis (magnitudes, ``torque_out``) are skipped.
     """
     force = [0.0, 0.0, 0.0]
     torque = [0.0, 0.0, 0.0]
+    rank_f = [-1, -1, -1]
+    rank_t = [-1, -1, -1]
     for key, val in values.items():
-        k = key.lower().replace('_', '')
-        if not k or k[-1] not in 'xyz':
+        k = key.lower()
+        compact = k.replace('_', '')
+        if k == 'axial_force':
+            axis = 2
+        elif compact[-1:] in ('x', 'y', 'z') and (k[-2:-1] == '_' or len(compact) == 2):
+            axis = 'xyz'.index(compact[-1])
+        else:
             continue
-        axis = 'xyz'.index(k[-1])
-        if k[0] == 'f':
-            force[axis] = float(val)
-        elif k[0] in 'mt':
-            torque[axis] = float(val)
+        rank = 2 if 'output' in k or 'housing' in k else (0 if 'input' in k else 1)
+        if 'force' in k or (len(compact) == 2 and compact[0] == 'f'):
+            if rank > rank_f[axis]:
+                force[axis], rank_f[axis] = float(val), rank
+        elif 'moment' in k or 'torque' in k or (len(compact) == 2 and compact[0] in 'mt'):
+            if rank > rank_t[axis]:
+                torque[axis], rank_t[axis] = float(val), rank
     return (force[0], force[1], force[2]), (torque[0], torque[1], torque[2])
 
 

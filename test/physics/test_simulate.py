@@ -235,6 +235,7 @@ def _run_6000rpm(revs: float) -> None:
         return (w_out.max() - w_out.min()) / w_out.mean()
     e_end = dl.energy(sim.final_state)['kinetic']
     assert delta(e_end) == pytest.approx(delta(e0), rel=bound)
-    # close to the single-joint closed form 1/cos b - cos b; the input inertia is only 20x
-    # the output one, so the input speed swings a little against it (~1 %)
-    assert delta(e0) == pytest.approx(1 / math.cos(beta) - math.cos(beta), rel=0.02)
+    # single joint at uniform input: 1/cos b - cos b; here the input speed swings against the
+    # output inertia: d ln w_out = d ln r (1 - J_b r^2 / M) ~ (1 - 0.05/1.05) d ln r
+    assert delta(e0) == pytest.approx((1 / math.cos(beta) - math.cos(beta)) * (1 - 0.05 / 1.05),
+                                      rel=0.005)

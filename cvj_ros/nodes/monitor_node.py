@@ -25,7 +25,6 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped

@@ -177,6 +177,7 @@ def prepare(scene: Any, cfg: BenchConfig, *, reference_tol: float) -> SceneProbl
 
 
 def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int) -> dict[str, Any]:
+    """Call ``run_once`` ``repeats`` times; wall time = min, spread = (max - min)/min."""
     walls: list[float] = []
     result: Any = None
     nfev = njev = 0
@@ -191,48 +192,57 @@ def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int) -> di
 
 def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
                 fidelity: str, cfg: BenchConfig) -> dict[str, Any]:
-    """Time one project configuration (Simulation.run, the project's own path)."""
+    """Time one project configuration: ``Simulation.run`` (the project's own path: persistent
+    stepper landing on every sample, joint states and energy residual per sample). Building
+    the Simulation (fidelity choice, joint set-up) is not timed, for project and baseline alike."""
     from cvj_ros.physics.simulate import Simulation
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
                            'fidelity': fidelity, 'tol': tol, 'h': h,
                            'label': f'{solver} {fidelity}'}
     tol_ = tol if tol is not None else 1e-6
+    try:
+        sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
+    except CvjError as exc:
+        return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
+    row['levels'] = ' '.join(f'{k}={v}' for k, v in sim.fidelity_report.levels.items())
+    plain_fun = sim.fun
 
     def once() -> tuple[Any, int, int]:
-        sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
-        sim.fun = _counted(sim.fun, cfg.max_rhs_evals)
+        sim.fun = _counted(plain_fun, cfg.max_rhs_evals)
         tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples)
-        row['levels'] = ' '.join(f'{k}={v}' for k, v in sim.fidelity_report.levels.items())
         return tr, int(tr.solver.get('nfev', sim.fun.count[0])), int(tr.solver.get('njev', 0))
     return _finish(row, prob, once, cfg)
 
 
 def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig) -> dict[str, Any]:
-    """Time plain solve_ivp on the same closed-loop equations (exact fidelity)."""
+    """Time plain solve_ivp on the same closed-loop equations (``Simulation.fun``, exact
+    fidelity): one call over the horizon with ``t_eval``, no Jacobian (its default usage)."""
     from scipy.integrate import solve_ivp
 
     from cvj_ros.physics.simulate import Simulation
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'baseline', 'solver': method,
                            'fidelity': 'exact', 'tol': tol, 'h': None, 'label': f'solve_ivp {method}'}
+    try:
+        sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
+    except CvjError as exc:
+        return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
+    dl = sim.driveline
 
     def once() -> tuple[Any, int, int]:
-        sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
         fun = _counted(sim.fun, cfg.max_rhs_evals)
-        sol = solve_ivp(fun, (0.0, prob.horizon), sim.driveline.x0.copy(), method=method,
+        sol = solve_ivp(fun, (0.0, prob.horizon), dl.x0.copy(), method=method,
                         t_eval=prob.t_eval, rtol=tol, atol=tol)
         if not sol.success:
             raise CvjError(f'solve_ivp {method}: {sol.message}')
-        dl = sim.driveline
-        states = sol.y.T
-        speed = np.array([dl.load_state(x)[1] for x in states])
-        angle = np.array([dl.load_state(x)[0] for x in states])
-        return (speed, angle), int(sol.nfev), int(sol.njev)
-    return _finish(row, prob, once, cfg)
+        return sol, int(sol.nfev), int(sol.njev)
+    row = _finish(row, prob, once, cfg, output=lambda sol: (
+        np.array([dl.load_state(x)[1] for x in sol.y.T]), np.array([dl.load_state(x)[0] for x in sol.y.T])))
+    return row
 
 
 def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
-            cfg: BenchConfig) -> dict[str, Any]:
+            cfg: BenchConfig, *, output: Callable[[Any], tuple[np.ndarray, np.ndarray]] = None) -> dict[str, Any]:
     try:
         timed = _time_runs(once, cfg.repeats)
     except _BudgetExceeded:
@@ -240,7 +250,7 @@ def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[An
     except (CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError) as exc:
         return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
     res = timed.pop('result')
-    speed, angle = _output(res) if row['family'] == 'project' else res
+    speed, angle = (output or _output)(res)
     if not (np.all(np.isfinite(speed)) and np.all(np.isfinite(angle))):
         return {**row, 'ok': False, 'note': 'non-finite output'}
     e_speed, e_angle = _errors(prob, speed, angle)
@@ -534,6 +544,9 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
     paths.append(p)
     for name in problems:
         paths.append(plot([r for r in rows if r['scene'] == name], scene=name, path=out / f'wp_{name}.png'))
+    if lock_rows:
+        from cvj_ros.plots import lockstep_plot
+        paths.append(lockstep_plot(lock_rows, path=out / 'lockstep.png'))
     md = ['# cvj_ros work-precision benchmark', '',
           f'Run: {time.strftime("%Y-%m-%d %H:%M:%S")}, total {duration:.1f} s wall; '
           f'horizon {cfg.horizon if cfg.horizon else "scene duration"} s, {cfg.samples} samples, '
@@ -554,10 +567,10 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                       f'{_g(e["speedup"], ".2f") + "x" if e["speedup"] else "-"} |')
         front = pareto_front(srows)
         md += ['', 'Pareto front (error vs cost, all configurations):', '',
-               '| config | error (speed, rel) | error (angle, rad) | cost s/s | rhs evals |',
-               '| --- | --- | --- | --- | --- |']
+               '| config | error (speed, rel) | error (angle, rad) | cost s/s | timing spread | rhs evals |',
+               '| --- | --- | --- | --- | --- | --- |']
         md += [f'| {_config_label(r)} | {_g(r["err_speed_rel"], ".2e")} | {_g(r["err_angle_rad"], ".2e")} | '
-               f'{_g(r["wall_per_sim_s"])} | {r["nfev"]} |' for r in front]
+               f'{_g(r["wall_per_sim_s"])} | {100 * r["wall_spread"]:.0f} % | {r["nfev"]} |' for r in front]
         auto = [r for r in srows if r['fidelity'] == 'auto' and r.get('ok')]
         if auto:
             on = [r for r in auto if r in front]

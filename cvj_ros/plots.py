@@ -212,3 +212,39 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         fig.savefig(p)
         plt.close(fig)
     return p
+
+
+def lockstep_plot(rows: Sequence[dict[str, Any]], *, path: str | Path) -> Path:
+    """Lockstep study: output-speed error vs exchange step (left) and real-time factor vs
+    error (right), one line per (scene, coupling scheme), log-log."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        e = r.get('err_speed_rel')
+        if r.get('ok') and e is not None and np.isfinite(e) and e > 0:
+            groups.setdefault((r['scene'], r['scheme']), []).append(r)
+    styles = {'zoh': ('o', '-'), 'extrapolate': ('s', '--'), 'linear_implicit': ('^', '-.')}
+    scenes = sorted({k[0] for k in groups})
+    colors = {s: plt.get_cmap('tab10')(i % 10) for i, s in enumerate(scenes)}
+    with plt.rc_context(_STYLE):
+        fig, (ax_h, ax_r) = plt.subplots(1, 2, figsize=(11, 4.8))
+        for (scene, scheme), rs in sorted(groups.items()):
+            rs = sorted(rs, key=lambda r: r['exchange_step'])
+            mk, ls = styles.get(scheme, ('o', '-'))
+            kw = dict(marker=mk, ls=ls, color=colors[scene], label=f'{scene} {scheme}', ms=5, lw=1.5)
+            ax_h.loglog([r['exchange_step'] for r in rs], [r['err_speed_rel'] for r in rs], **kw)
+            ax_r.loglog([r['err_speed_rel'] for r in rs], [r['rtf'] for r in rs], **kw)
+        ax_h.set_xlabel('exchange step H  [s]')
+        ax_h.set_ylabel('max relative error of output speed  [-]')
+        ax_h.set_title('Coupling error vs exchange step')
+        ax_r.set_xlabel('max relative error of output speed  [-]')
+        ax_r.set_ylabel('real-time factor (offline loop)  [-]')
+        ax_r.set_title('Real-time factor vs error')
+        for ax in (ax_h, ax_r):
+            ax.grid(True, which='both', alpha=0.25)
+            ax.legend(loc='best', fontsize=7, framealpha=0.85)
+        fig.tight_layout()
+        fig.savefig(p)
+        plt.close(fig)
+    return p

@@ -44,7 +44,7 @@ def _rows(res: dict, **match: object) -> list[dict]:
 
 def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
     res, out = result
-    for name in ('bench.csv', 'lockstep.csv', 'bench.md', 'wp_mini_lever.png'):
+    for name in ('bench.csv', 'lockstep.csv', 'bench.md', 'wp_mini_lever.png', 'lockstep.png'):
         assert (out / name).stat().st_size > 200, name
     with (out / 'bench.csv').open() as fh:
         rows = list(csv.DictReader(fh))
@@ -130,7 +130,8 @@ def test_cli_bench_reduced(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert rc == 0
     text = capsys.readouterr().out
     assert '# cvj_ros work-precision benchmark' in text and 'mini_lever' in text
-    assert sorted(p.name for p in out.iterdir()) == ['bench.csv', 'bench.md', 'lockstep.csv', 'wp_mini_lever.png']
+    assert sorted(p.name for p in out.iterdir()) == ['bench.csv', 'bench.md', 'lockstep.csv', 'lockstep.png',
+                                                     'wp_mini_lever.png']
     data = np.genfromtxt(out / 'bench.csv', delimiter=',', names=True, dtype=None, encoding='utf-8')
     assert np.all(np.isfinite(data['err_speed_rel']))
 

@@ -55,7 +55,6 @@ without bound as beta -> 90 deg and the Fourier series needs many terms).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -142,14 +141,16 @@ class Tripod:
     length ``l`` (m) from the spider centre to the output shaft's fixed point.
 
     ``roller_mass`` (kg) is the axially sliding mass per track (seed 000: plunger,
-    0.2 kg), used by :meth:`reactions`. See the module docstring for the model.
+    0.2 kg); ``spider_mass`` (kg) the spider with the part of its shaft lumped at the
+    spider centre (orbiting at three times the shaft speed; seed 000 neglects it,
+    default 0). Both are used by :meth:`reactions` only. See the module docstring for the model.
     """
 
     kind = 'tripod'
     mid_name = 'spider'
 
     def __init__(self, beta: float, r: float, l: float, *, fidelity: str = 'exact',
-                 roller_mass: float = SEED000_ROLLER_MASS) -> None:
+                 roller_mass: float = SEED000_ROLLER_MASS, spider_mass: float = 0.0) -> None:
         if fidelity not in _FIDELITIES:
             raise GeometryError('fidelity', f'tripod has fidelities {", ".join(_FIDELITIES)}; '
                                             f'got {fidelity!r}')
@@ -161,6 +162,7 @@ class Tripod:
                                      f'got r = {self.r} m >= l = {self.l} m')
         self.beta = check_range('beta', beta, lo=0.0, hi=math.pi / 2, hi_open=True, unit=' rad')
         self.roller_mass = check_range('roller_mass', roller_mass, lo=0.0, hi=None, unit=' kg')
+        self.spider_mass = check_range('spider_mass', spider_mass, lo=0.0, hi=None, unit=' kg')
         self.amplitude_closed = closed_form_amplitude(self.beta, self.r, self.l)
         sb, cb = math.sin(self.beta), math.cos(self.beta)
         self._n0 = np.array([sb, 0.0, cb])
@@ -178,7 +180,8 @@ class Tripod:
     # --- contract ----------------------------------------------------------------------
 
     def params(self) -> dict[str, float]:
-        return {'beta': self.beta, 'r': self.r, 'l': self.l, 'roller_mass': self.roller_mass}
+        return {'beta': self.beta, 'r': self.r, 'l': self.l, 'roller_mass': self.roller_mass,
+                'spider_mass': self.spider_mass}
 
     def nonuniformity(self) -> float:
         """Amplitude (rad) of phi_out - phi_in: max |deviation| over a period."""
@@ -209,7 +212,7 @@ class Tripod:
             out = phi - a * s3
             return JointEval(out, 1.0 - 3.0 * a * c3, 9.0 * a * s3, out.copy())
         sol = self.solve(phi)
-        out = phi + sol['deviation']
+        out = np.asarray(phi + sol['deviation'])
         return JointEval(out, sol['ratio'], sol['ratio_slope'], out.copy())
 
     def scalar(self, phi_in: float) -> tuple[float, float, float]:
@@ -326,6 +329,8 @@ class Tripod:
         the spider centre S_z (m), ``arm_length`` (3, N) roller centre to spider centre
         (m), ``roller_z`` (3, N) roller-centre axial positions (m) and their first and
         second derivatives over phi_in ``roller_dz``, ``roller_d2z`` (m/rad, m/rad^2),
+        ``spider_d``, ``spider_d2`` (3, N) first and second derivatives of the spider
+        centre position (m/rad, m/rad^2),
         ``spin_ratio`` (-): the spider's spin rate about its own axis n per unit input
         rate, Omega . n / omega_in. It differs from ``ratio`` by O((rho/l)^2) (the frame
         convention's own twist while n wobbles); power balances use it.
@@ -379,6 +384,8 @@ class Tripod:
             'roller_z': np.array([g['z'][j][0] for j in range(3)]),
             'roller_dz': np.array([g['z'][j][1] for j in range(3)]),
             'roller_d2z': np.array([2.0 * g['z'][j][2] for j in range(3)]),
+            'spider_d': np.array([g['S'][i][1] for i in range(3)]),
+            'spider_d2': np.array([2.0 * g['S'][i][2] for i in range(3)]),
             'residual': np.array([g['res'][j][0] for j in range(3)]),
         }
 
@@ -470,19 +477,28 @@ class Tripod:
         Inputs: phi_in (rad), omega_in (rad/s), torque_in (N m, delivered by the housing).
         Frictionless contacts: the track pushes a roller only across its track (no axial
         component), the trunnion only across its axis. Each roller/plunger of mass
-        ``roller_mass`` (kg) slides axially with acceleration a_j = omega^2 d2z_j/dphi^2
-        (m/s^2), so the spider's force on roller j, F_j, satisfies F_j . z = m a_j and
-        F_j . e_j = 0; the housing torque gives sum (R_j x F_j) . z = -torque_in and the
-        spider with its shaft, pivoting freely about P, balances the moments of -F_j about P
-        with a torque along n. That is a 10 x 10 linear system (F_j, torque_out).
+        ``roller_mass`` m (kg) slides axially with a_j = omega^2 d2z_j/dphi^2 (m/s^2, z_j
+        from the exact geometry by Taylor arithmetic), so the spider's force on roller j,
+        F_j (N), satisfies F_j . z = m a_j and F_j . e_j = 0; the housing torque gives
+        sum (R_j x F_j) . z = -torque_in; the spider with its shaft pivots freely about P:
+        sum (R_j - P) x (-F_j) + T n = (S - P) x m_s a_S. A 10 x 10 linear system.
+        Checked by virtual work and by the energy balance (test_tripod.py).
 
         Returns (N, N m, m/s^2): ``axial_force`` generated axial force on the output
-        shaft at P along n (seed 000 R_z''), ``output_force_x/y/z`` full bearing force at
-        P (fixed frame), ``input_force_x/y`` force on the housing's bearing
-        (reaction = -sum F_j in x, y), ``input_moment_x/y`` moment about the joint
-        centre O the bearing must react, ``torque_out`` (N m) the torque about the output shaft axis n (its power is
-        torque_out * Omega . n, see ``spin_ratio`` in :meth:`solve`), ``roller_accel_0..2`` and
-        ``roller_accel_sum`` (m/s^2, seed 000 eq. 20).
+        shaft at P along n (seed 000 R_z''); ``output_force_x/y/z`` bearing force at P on
+        the output shaft (fixed frame); ``input_force_x/y`` and ``input_moment_x/y``
+        reaction force and moment (about the joint centre O) the housing's bearing must
+        supply, -sum F_j and -sum R_j x F_j; ``torque_out`` (N m) torque about the output
+        axis n (power torque_out * Omega . n, see ``spin_ratio`` in :meth:`solve`);
+        ``roller_accel_0..2``, ``roller_accel_sum`` (m/s^2, seed 000 eq. 20).
+
+        Seed 000 example (m = 0.2 kg, 2000 rpm, r = 26 mm, l = 700 mm, beta = 25 deg): the
+        peak generated axial force is 3.5 N, each plunger needs m a_j ~ 109 N, the input
+        bearing about 8 N and 5 N m; not "8000 kilonewtons" (eq. 30). The exact sum of
+        the plunger accelerations is second order in rho/l (0.03 m/s^2 there), not
+        -6 omega^2 rho sin(beta) cos(3 phi) (eq. 20, 150 m/s^2): with the spider centre
+        held at distance l from P, n . S = -|S|^2 / (2 l), so sum z_j = 3 n . S / n_z.
+        Closed/ideal fidelity: first-order geometry without the orbit (:meth:`_reactions_small`).
         """
         phi = check_finite('phi_in', phi_in)
         omega = check_finite('omega_in', omega_in)
@@ -490,11 +506,14 @@ class Tripod:
         m = self.roller_mass
         if self.fidelity == 'exact':
             g = self.positions(phi)
-            acc = omega * omega * self.solve(np.array([phi]))['roller_d2z'][:, 0]
+            sol = self.solve(np.array([phi]))
+            acc = omega * omega * sol['roller_d2z'][:, 0]
+            acc_spider = omega * omega * sol['spider_d2'][:, 0]
             P, n, arms, rollers = g['P'], g['n'], g['arms'], g['rollers']
         else:
             return self._reactions_small(phi, omega, torque)
-        return self._solve_reactions(P, n, arms, rollers, acc, torque, m)
+        return self._solve_reactions(P, n, arms, rollers, acc, torque, m,
+                                     spider=g['S'], acc_spider=acc_spider, spider_mass=self.spider_mass)
 
     def _reactions_small(self, phi: float, omega: float, torque: float) -> dict[str, float]:
         """Closed/ideal fidelity: first-order geometry without the orbit (S = 0, n = n0).
@@ -515,8 +534,13 @@ class Tripod:
 
     @staticmethod
     def _solve_reactions(P: FloatArray, n: FloatArray, arms: FloatArray, rollers: FloatArray,
-                         acc: FloatArray, torque: float, m: float) -> dict[str, float]:
-        """Solve the 10 x 10 system of :meth:`reactions` (F_j in N, output torque in N m)."""
+                         acc: FloatArray, torque: float, m: float, *,
+                         spider: FloatArray | None = None, acc_spider: FloatArray | None = None,
+                         spider_mass: float = 0.0) -> dict[str, float]:
+        """Solve the 10 x 10 system of :meth:`reactions` (F_j in N, output torque in N m).
+        A spider point mass at S (kg) with acceleration acc_spider (m/s^2) adds its
+        moment (S - P) x m_s a_S about P and its inertia force to the bearing force."""
+        inertia = np.zeros(3) if spider is None or acc_spider is None else spider_mass * acc_spider
         A = np.zeros((10, 10))
         rhs = np.zeros(10)
         for j in range(3):
@@ -530,15 +554,18 @@ class Tripod:
                                                   [-d[1], d[0], 0.0]])
         A[7:10, 9] = n
         rhs[6] = -torque
+        if spider is not None:
+            rhs[7:10] = np.cross(spider - P, inertia)
         x = np.linalg.solve(A, rhs)
         F = x[:9].reshape(3, 3)
-        total = F.sum(axis=0)
+        on_rollers = F.sum(axis=0)              # the housing carries -on_rollers (x, y)
+        total = on_rollers + inertia            # bearing force at P on the output shaft
         moment = np.cross(rollers, F).sum(axis=0)
         out = {
             'axial_force': float(total @ n),
             'output_force_x': float(total[0]), 'output_force_y': float(total[1]),
             'output_force_z': float(total[2]),
-            'input_force_x': float(-total[0]), 'input_force_y': float(-total[1]),
+            'input_force_x': float(-on_rollers[0]), 'input_force_y': float(-on_rollers[1]),
             'input_moment_x': float(-moment[0]), 'input_moment_y': float(-moment[1]),
             'torque_out': float(-x[9]),
             'roller_accel_sum': float(acc.sum()),
@@ -549,8 +576,9 @@ class Tripod:
 
 
 def _factory(*, fidelity: str = 'exact', beta: float = 0.0, r: float = 0.026, l: float = 0.7,
-             roller_mass: float = SEED000_ROLLER_MASS, **_ignored: float) -> Tripod:
-    return Tripod(beta, r, l, fidelity=fidelity, roller_mass=roller_mass)
+             roller_mass: float = SEED000_ROLLER_MASS, spider_mass: float = 0.0,
+             **_ignored: float) -> Tripod:
+    return Tripod(beta, r, l, fidelity=fidelity, roller_mass=roller_mass, spider_mass=spider_mass)
 
 
 register(JointSpec(
@@ -558,5 +586,7 @@ register(JointSpec(
     params={'beta': 'rad, bend angle, 0 <= beta < pi/2 (exact: <= 60 deg; recommended <= 25 deg), default 0',
             'r': 'm, track radius (tulip radius), 0 < r < l, default 0.026 (seed 000)',
             'l': 'm, spider centre to the output shaft fixed point, default 0.7 (seed 000)',
-            'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (seed 000)'},
+            'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (seed 000)',
+            'spider_mass': 'kg, spider (+ lumped shaft) mass orbiting at 3x speed (reactions, exact '
+                           'fidelity), default 0 (seed 000 neglects it)'},
     source='seed 002 eq. 19; seed 000 eqs. 1-18, 20-34 (errata DESIGN.md section 5); exact: own geometry'))

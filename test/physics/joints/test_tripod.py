@@ -194,13 +194,34 @@ def test_reactions_virtual_work_and_energy_balance() -> None:
         spin = sol0['spin_ratio'][0]
         assert abs(spin - sol0['ratio'][0]) < 1e-3 * abs(1 - sol0['ratio'][0]) + 1e-3
         assert tp0.reactions(phi, omega, torque)['torque_out'] * spin == pytest.approx(torque, rel=1e-10)
-        tp = Tripod(math.radians(30.0), 0.05, 0.5, roller_mass=0.3)
+        tp = Tripod(math.radians(30.0), 0.05, 0.5, roller_mass=0.3, spider_mass=0.8)
         sol = tp.solve(np.array([phi]))
         rx = tp.reactions(phi, omega, torque)
         p_in = torque * omega
         p_out = rx['torque_out'] * omega * sol['spin_ratio'][0]
         dke = 0.3 * omega ** 3 * float(np.sum(sol['roller_dz'][:, 0] * sol['roller_d2z'][:, 0]))
+        dke += 0.8 * omega ** 3 * float(sol['spider_d'][:, 0] @ sol['spider_d2'][:, 0])
         assert p_in - p_out == pytest.approx(dke, rel=1e-8, abs=1e-9 * p_in)
+
+
+def test_spider_orbit_three_times_per_revolution() -> None:
+    """The spider centre circles at 3x shaft speed with radius ~ r (1/cos b - 1)/2 (classical
+    tripode result); its centripetal force ~ m_s rho (3 omega)^2 reaches the bearings."""
+    beta, r = math.radians(25.0), 0.026
+    tp = Tripod(beta, r, 0.7, roller_mass=0.0, spider_mass=0.5)
+    phi = np.linspace(0.0, 2 * math.pi, 721)
+    sol = tp.solve(phi)
+    rho = r * (1 / math.cos(beta) - 1) / 2
+    assert sol['orbit_radius'].mean() == pytest.approx(rho, rel=0.02)
+    turns = np.unwrap(sol['orbit_angle'])
+    assert abs(abs(turns[-1] - turns[0]) / (2 * math.pi) - 3.0) < 1e-9
+    omega = 200.0
+    straight = Tripod(beta, r, 0.7, roller_mass=0.0, spider_mass=0.0)
+    # the rollers carry it to the housing (bearing P is l away): housing force ~ m_s a_S
+    for p in np.linspace(0.0, 2.0, 5):
+        a, b = tp.reactions(float(p), omega, 0.0), straight.reactions(float(p), omega, 0.0)
+        f = math.hypot(a['input_force_x'] - b['input_force_x'], a['input_force_y'] - b['input_force_y'])
+        assert 0.85 * math.cos(beta) < f / (0.5 * rho * (3 * omega) ** 2) < 1.15
 
 
 def test_reactions_scale_with_omega_squared_and_vanish_straight() -> None:

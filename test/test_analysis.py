@@ -87,7 +87,12 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
                     level=b'\x00'[0], name='monitor', message='ok', hardware_id='',
                     values=[kv(key='energy_residual', value=f'{1e-9 * (i + 1):.6e}'),
                             kv(key='wait_us', value='120.0'), kv(key='note', value='text')])
-                arr = T['diagnostic_msgs/msg/DiagnosticArray'](header=hdr, status=[st])
+                statuses = [st]
+                if i == 1000:
+                    statuses.append(T['diagnostic_msgs/msg/DiagnosticStatus'](
+                        level=2, name='coupling_node', message='T_load: NaN rejected', hardware_id='',
+                        values=[]))
+                arr = T['diagnostic_msgs/msg/DiagnosticArray'](header=hdr, status=statuses)
                 w.write(cd, ns, ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
     return path
 
@@ -149,6 +154,10 @@ def test_lockstep_and_diagnostics(report: dict) -> None:
     assert figs['monitor/energy_residual']['last'] == pytest.approx(1e-9 * 4001, rel=1e-5)
     assert figs['monitor/wait_us']['mean'] == pytest.approx(120.0)
     assert 'monitor/note' not in figs
+    assert report['diagnostics']['levels'] == {'ok': 9, 'warn': 0, 'error': 1, 'stale': 0}
+    assert report['diagnostics']['errors'] == ['coupling_node at t = 1 s: T_load: NaN rejected']
+    text = analysis.format_report(report)
+    assert 'ERROR coupling_node at t = 1 s: T_load: NaN rejected' in text and '1 ERROR' in text
     assert report['scene']['present'] and report['scene']['seed'] == 7
     # Steady window: first quarter skipped by default.
     assert report['window']['skipped_s'] == pytest.approx(0.25 * DURATION, abs=DT)

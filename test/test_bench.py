@@ -142,3 +142,22 @@ def test_cli_bad_scene_and_option(capsys: pytest.CaptureFixture[str]) -> None:
     assert len(err) == 1 and err[0].startswith('cvj-sim: error: scene: ')
     assert main(['bench', '--tolerances', '2', '--no-ros']) == 2
     assert capsys.readouterr().err.startswith('cvj-sim: error: --tolerances:')
+
+
+def test_budget_exceeded_is_recorded_not_fatal(tmp_path: Path) -> None:
+    """Explicit dopri5 on a 1e6 N m/rad spring between small inertias is stability-limited
+    (h < ~2.8/omega_n): with a small rhs budget the run is recorded as failed, the
+    linearly implicit solver still succeeds, and the report lists the failure."""
+    stiff = dict(SCENE, name='mini_stiff', driveline=[
+        {'type': 'inertia', 'name': 'a', 'J': 0.01},
+        {'type': 'spring', 'name': 's', 'stiffness': 1e6, 'damping': 5.0},
+        {'type': 'inertia', 'name': 'b', 'J': 0.01}], load={'model': 'constant', 'torque': 10.0})
+    cfg = bench.BenchConfig(scenes=[parse_scene(stiff)], solvers=('dopri5', 'rosenbrock'), tolerances=(1e-3,),
+                            fidelities=('exact',), baselines=('RK45',), horizon=0.2, samples=4, repeats=1,
+                            max_rhs_evals=3000, exchange_steps=(), lockstep_scenes=(), round_trip_n=0)
+    res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
+    by = {(r['family'], r['solver']): r for r in res['rows']}
+    assert not by[('project', 'dopri5')]['ok'] and 'rhs evaluations' in by[('project', 'dopri5')]['note']
+    assert not by[('baseline', 'RK45')]['ok']
+    assert by[('project', 'rosenbrock')]['ok'] and by[('project', 'rosenbrock')]['err_speed_rel'] < 1e-2
+    assert 'runs failed or exceeded the budget' in (tmp_path / 'bench.md').read_text()

@@ -16,6 +16,9 @@ section 2): ``P = l n0``, ``n0 = (sin beta, 0, cos beta)``; beta is the bend ang
   (h_j ~ r varies) and along its track: R_j lies on track j.
 * Output-shaft frame (seed 000 eqs. 6-8: O''Y'' always perpendicular to ox):
   ``v = n x u0 / |n x u0|``, ``u = v x n`` with ``u0 = (cos beta, 0, -sin beta)``.
+  This is a convention for the angle of a shaft whose axis wobbles (by ~rho/l); its
+  own twist makes d phi_out/dt differ from the spin Omega . n by O((rho/l)^2)
+  (``spin_ratio`` in :meth:`Tripod.solve`), the same order as the closed form's error.
 * Zero: at phi_in = 0 track 0 (groove m1) lies in the bend plane (x > 0); phi_out = 0
   when trunnion 0 lies in the plane spanned by n and u0. By mirror symmetry
   (y -> -y) the deviation phi_out - phi_in is then odd in phi_in: a sine series.
@@ -28,7 +31,7 @@ to the track point minus S:  ``(r cos psi_j - S_x) e_jy - (r sin psi_j - S_y) e_
 (three equations; h_j then follows). Assumptions: rigid parts, no clearance, point
 roller centres, tracks exactly axial, the fixed point P does not move; the plunge
 (axial sliding) S_z and the spider orbit (s_u, s_v) are outputs, not inputs.
-This is the classical Duditza-Diaconescu tripode model behind seed 002 eq. 19 and
+This is the tripode geometry behind seed 002 eq. 19 (after Duditza-Diaconescu) and
 seed 000 eqs. 1-17 (where the rod-to-ball distance h_i also varies, seed 000 eq. 21).
 With a fixed arm length the system would be overdetermined (9 conditions, 6 unknowns).
 
@@ -41,7 +44,9 @@ Fidelities
   seed 000 eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the
   exact model in this convention (test_tripod.py checks it).
 * ``exact``: the three constraint equations solved by Newton (warm-started from a
-  spectral table built by continuation along the rotation) to |residual| <= 1e-12 m;
+  table built by continuation in beta, then along the rotation) to |residual| <=
+  1e-13 r (about 1e-13 rad; at angles reduced modulo 2 pi/3, so precision holds at
+  any number of revolutions);
   ratio and ratio_slope by implicit differentiation of the constraints (second-order
   Taylor arithmetic along the solution, no finite differences). ``scalar()`` uses a
   Fourier sine series in phi_in (period 2 pi/3) of the exact deviation, built at
@@ -49,8 +54,9 @@ Fidelities
 
 Working angle: seed 000 recommends beta <= 25 deg (:data:`RECOMMENDED_MAX_BETA`).
 The exact model needs beta < 90 deg; it is built and verified up to
-:data:`PRACTICAL_MAX_BETA` = 60 deg (the orbit radius r (1/cos beta - 1)/2 grows
-without bound as beta -> 90 deg and the Fourier series needs many terms).
+:data:`PRACTICAL_MAX_BETA` = 70 deg (the orbit radius r (1/cos beta - 1)/2 grows
+without bound as beta -> 90 deg, 41 Fourier terms at 70 deg; at 80 deg and r/l = 0.1
+the continuation fails).
 """
 from __future__ import annotations
 
@@ -67,7 +73,7 @@ from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, c
 FloatArray = NDArray[np.float64]
 
 RECOMMENDED_MAX_BETA = math.radians(25.0)   # seed 000 abstract and conclusion (4)
-PRACTICAL_MAX_BETA = math.radians(60.0)     # limit of the exact model's verified range
+PRACTICAL_MAX_BETA = math.radians(70.0)     # limit of the exact model's verified range
 SEED000_ROLLER_MASS = 0.2                   # kg, seed 000 section 4 example
 NEWTON_TOL = 1e-12                          # residual tolerance / r (~ rad) of the exact model
 TWO_PI_3 = 2.0 * math.pi / 3.0
@@ -583,7 +589,7 @@ def _factory(*, fidelity: str = 'exact', beta: float = 0.0, r: float = 0.026, l:
 
 register(JointSpec(
     kind='tripod', factory=_factory, fidelities=_FIDELITIES,
-    params={'beta': 'rad, bend angle, 0 <= beta < pi/2 (exact: <= 60 deg; recommended <= 25 deg), default 0',
+    params={'beta': 'rad, bend angle, 0 <= beta < pi/2 (exact: <= 70 deg; recommended <= 25 deg), default 0',
             'r': 'm, track radius (tulip radius), 0 < r < l, default 0.026 (seed 000)',
             'l': 'm, spider centre to the output shaft fixed point, default 0.7 (seed 000)',
             'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (seed 000)',

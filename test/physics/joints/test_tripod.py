@@ -245,7 +245,7 @@ def test_closed_reactions_close_to_exact() -> None:
             assert rc[key] == pytest.approx(re[key], rel=0.1, abs=0.5), key
 
 
-@pytest.mark.parametrize('beta_deg', [25.0, 27.5, 30.0, 60.0])
+@pytest.mark.parametrize('beta_deg', [25.0, 27.5, 30.0, 70.0])
 def test_large_angles_stable(beta_deg: float) -> None:
     tp = Tripod(math.radians(beta_deg), 0.11, 1.0)
     phi = np.linspace(-20.0, 20.0, 2001)
@@ -253,7 +253,7 @@ def test_large_angles_stable(beta_deg: float) -> None:
     assert np.all(np.isfinite(ev.ratio))
     amp = tp.nonuniformity()
     assert np.max(np.abs(ev.phi_out - phi)) <= amp * (1 + 1e-9)
-    assert amp == pytest.approx(tp.amplitude_closed, rel=0.02)
+    assert amp == pytest.approx(tp.amplitude_closed, rel=0.01 if beta_deg <= 30 else 0.05)
 
 
 def test_long_run_continuous() -> None:

@@ -60,6 +60,7 @@ __all__ = [
     'Stepper',
     'SolverOptionError',
     'make_stepper',
+    'sample_dense',
     'Dopri5Stepper',
     'Dop853Stepper',
     'RosenbrockStepper',
@@ -96,6 +97,8 @@ class Stepper(Protocol):
     nreject: int
 
     def advance_to(self, t_end: float) -> np.ndarray: ...
+
+    def step(self, t_bound: float = math.inf) -> float: ...
 
     def dense(self, t: float) -> np.ndarray: ...
 
@@ -206,6 +209,7 @@ class _AdaptiveStepper(_StepperBase):
         self._expo = 1.0 / (self.order + 1) - 0.75 * self.beta
         self._err_old = 1e-4
         self._last_rejected = False
+        self._nonfinite: tuple[np.ndarray, float] | None = None
 
     def _scale(self, y: np.ndarray, y_new: np.ndarray) -> np.ndarray:
         sc = np.maximum(np.abs(y), np.abs(y_new))
@@ -242,49 +246,70 @@ class _AdaptiveStepper(_StepperBase):
         non-finite state or step-size underflow.
         """
         t_end = self._check_t_end(t_end)
+        while self.t < t_end:
+            self._step_once(t_end)
+        return self.y
+
+    def step(self, t_bound: float = math.inf) -> float:
+        """Take one accepted step of the controller's natural size, never past
+        ``t_bound`` (s); returns the new t. For sampling with ``dense``."""
+        t_bound = self._check_t_end(t_bound) if math.isfinite(t_bound) else math.inf
+        if self.t < t_bound:
+            self._step_once(t_bound)
+        return self.t
+
+    def _underflow(self, h: float) -> None:
+        if self._nonfinite is not None:
+            y_bad, t_bad = self._nonfinite
+            self._raise_nonfinite(y_bad, t_bad, 'the step (also after step-size reduction)')
+        # name the state changing fastest relative to its tolerance
+        with np.errstate(all='ignore'):
+            rate = np.abs(np.asarray(self.fun(self.t, self.y), dtype=float))
+            rate /= np.abs(self.y) * self.rtol + self.atol
+        idx = int(np.nanargmax(rate)) if np.any(np.isfinite(rate)) else 0
+        raise SolverError(f't: step size underflow at t={self.t!r} s (h={h:.3g} s, '
+                          f'{self.method}), fastest state y[{idx}]={self.y[idx]:.6g}; '
+                          f'the problem may be stiff or singular, try method="rosenbrock"')
+
+    def _step_once(self, t_bound: float) -> None:
+        """One accepted step from self.t, clipped to land on t_bound when close."""
         if self.h is None:
             self.h = self._initial_step(self._first_derivative())
-        while self.t < t_end:
-            h_prop = self.h
-            remaining = t_end - self.t
-            clipped = h_prop * 1.01 >= remaining
-            h = remaining if clipped else h_prop
-            while True:
-                if h < 10 * _EPS * max(abs(self.t), 1e-300) or h <= 1e-300:
-                    # name the state changing fastest relative to its tolerance
-                    with np.errstate(all='ignore'):
-                        rate = np.abs(np.asarray(self.fun(self.t, self.y), dtype=float))
-                        rate /= np.abs(self.y) * self.rtol + self.atol
-                    idx = int(np.nanargmax(rate)) if np.any(np.isfinite(rate)) else 0
-                    raise SolverError(f't: step size underflow at t={self.t!r} s (h={h:.3g} s, '
-                                      f'{self.method}), fastest state y[{idx}]={self.y[idx]:.6g}; '
-                                      f'the problem may be stiff or singular, '
-                                      f'try method="rosenbrock"')
-                err, y_new = self._attempt(h)
-                if not math.isfinite(err):
-                    self._raise_nonfinite(y_new if not np.all(np.isfinite(y_new)) else
-                                          np.array([err]), self.t + h, 'the step')
-                fac11 = err ** self._expo if err > 0 else 0.0
-                if err <= 1.0:
-                    fac = fac11 / self._err_old ** self.beta / self.safety
-                    fac = min(1.0 / self.fac_min, max(1.0 / self.fac_max, fac)) if fac > 0 \
-                        else 1.0 / self.fac_max
-                    h_new = h / fac
-                    if self._last_rejected:
-                        h_new = min(h_new, h)
-                    self._err_old = max(err, 1e-4)
-                    self._last_rejected = False
-                    self.naccept += 1
-                    t_new = t_end if clipped else self.t + h
-                    self._accept(h, t_new, y_new)
-                    # a clipped step says little about the natural step: keep the proposal
-                    self.h = min(max(h_new, h_prop) if clipped else h_new, self.max_step)
-                    break
-                self.nreject += 1
-                self._last_rejected = True
-                clipped = False
-                h = h / min(1.0 / self.fac_min, fac11 / self.safety)
-        return self.y
+        h_prop = self.h
+        remaining = t_bound - self.t
+        clipped = h_prop * 1.01 >= remaining
+        h = remaining if clipped else h_prop
+        self._nonfinite = None
+        while True:
+            if h < 10 * _EPS * max(abs(self.t), 1e-300) or h <= 1e-300:
+                self._underflow(h)
+            err, y_new = self._attempt(h)
+            if err <= 1.0:  # False for NaN
+                fac11 = err ** self._expo
+                fac = fac11 / self._err_old ** self.beta / self.safety
+                fac = min(1.0 / self.fac_min, max(1.0 / self.fac_max, fac)) if fac > 0 \
+                    else 1.0 / self.fac_max
+                h_new = h / fac
+                if self._last_rejected:
+                    h_new = min(h_new, h)
+                self._err_old = max(err, 1e-4)
+                self._last_rejected = False
+                self.naccept += 1
+                t_new = t_bound if clipped else self.t + h
+                self._accept(h, t_new, y_new)
+                # a clipped step says little about the natural step: keep the proposal
+                self.h = min(max(h_new, h_prop) if clipped else h_new, self.max_step)
+                return
+            self.nreject += 1
+            self._last_rejected = True
+            clipped = False
+            if math.isfinite(err) and np.all(np.isfinite(y_new)):
+                h = h / min(1.0 / self.fac_min, err ** self._expo / self.safety)
+            else:
+                # a too-large step may leave the domain of fun (overflow, NaN): shrink hard
+                self._nonfinite = (y_new if not np.all(np.isfinite(y_new))
+                                   else np.full(self.n, math.nan), self.t + h)
+                h = h * self.fac_min
 
 
 # ------------------------------------------------------------------------ DOPRI5
@@ -754,17 +779,29 @@ class _FixedStepper(_StepperBase):
         t0 = self.t
         dt = span / n
         for k in range(1, n + 1):
-            t_new = t_end if k == n else t0 + k * dt
-            y_new = self._step(dt)
-            if not np.all(np.isfinite(y_new)):
-                self._raise_nonfinite(y_new, t_new, 'the step')
-            self._f_old = self._f
-            self.t_old, self.y_old = self.t, self.y
-            self.t, self.y = t_new, y_new
-            self._f = None
-            self.naccept += 1
-            self._after_step()
+            self._take(dt, t_end if k == n else t0 + k * dt)
         return self.y
+
+    def step(self, t_bound: float = math.inf) -> float:
+        """One step of h (shortened to end on ``t_bound``); returns the new t (s)."""
+        t_bound = self._check_t_end(t_bound) if math.isfinite(t_bound) else math.inf
+        if self.t < t_bound:
+            if self.h * (1 + 1e-12) >= t_bound - self.t:
+                self._take(t_bound - self.t, t_bound)
+            else:
+                self._take(self.h, self.t + self.h)
+        return self.t
+
+    def _take(self, dt: float, t_new: float) -> None:
+        y_new = self._step(dt)
+        if not np.all(np.isfinite(y_new)):
+            self._raise_nonfinite(y_new, t_new, 'the step')
+        self._f_old = self._f
+        self.t_old, self.y_old = self.t, self.y
+        self.t, self.y = t_new, y_new
+        self._f = None
+        self.naccept += 1
+        self._after_step()
 
     def _after_step(self) -> None:
         pass
@@ -835,6 +872,30 @@ class Ros2Stepper(_LinearlyImplicit, _FixedStepper):
 
     def restart(self) -> None:
         _LinearlyImplicit.restart(self)
+
+
+# ------------------------------------------------------------------------ sampling
+
+
+def sample_dense(stepper: Stepper, t_eval) -> np.ndarray:
+    """States at the increasing times ``t_eval`` (s), shape (len(t_eval), n).
+
+    The stepper takes its natural steps (``step``) up to the last time and each
+    sample comes from the dense output of the step that contains it, so dense
+    sampling does not shorten the steps (``advance_to`` per sample would).
+    Times before ``stepper.t`` are refused; a time equal to it returns y.
+    """
+    times = np.asarray(t_eval, dtype=float).reshape(-1)
+    if times.size and (np.any(np.diff(times) < 0) or times[0] < stepper.t
+                       or not np.all(np.isfinite(times))):
+        raise SolverOptionError('t_eval', f'must be finite, increasing and >= t={stepper.t!r}')
+    out = np.empty((times.size, stepper.y.size))
+    t_last = times[-1] if times.size else stepper.t
+    for i, t in enumerate(times):
+        while stepper.t < t:
+            stepper.step(t_last)
+        out[i] = stepper.y if t == stepper.t else stepper.dense(t)
+    return out
 
 
 # ------------------------------------------------------------------------ factory

@@ -285,3 +285,22 @@ def test_blow_up_raises_solver_error() -> None:
     with pytest.raises(SolverError, match=r'^(t: step size underflow at t=1\.0.*y\[0\]=|y\[0\]: )'):
         st.advance_to(2.0)
     assert 0.99 < st.t < 1.01
+
+
+@pytest.mark.parametrize('method', ADAPTIVE + FIXED)
+def test_sample_dense_matches_closed_form_without_shortening_steps(method: str) -> None:
+    from cvj_ros.physics.solvers import sample_dense
+
+    kw = dict(h=0.05 if method == 'rk4' else 0.002) if method in FIXED else dict(rtol=1e-9, atol=1e-12)
+    t_eval = np.linspace(0.0, 5.0, 501)  # samples 10 ms apart
+    st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], jac=oscillator_jac, **kw)
+    ys = sample_dense(st, t_eval)
+    exact = np.column_stack([np.cos(t_eval), -np.sin(t_eval)])
+    tol = {'rk4': 1e-5, 'ros2': 1e-4, 'rosenbrock': 1e-6}.get(method, 1e-7)
+    np.testing.assert_allclose(ys, exact, atol=tol)
+    assert st.t == 5.0
+    if method in ADAPTIVE:
+        # far fewer steps than samples: the samples did not cut the steps
+        assert st.naccept < 0.6 * t_eval.size
+    with pytest.raises(SolverOptionError, match='^t_eval:'):
+        sample_dense(st, [1.0])

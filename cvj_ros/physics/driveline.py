@@ -163,6 +163,8 @@ class Driveline:
         self.springs = springs
         self.shafts = shafts
         self.shaft_names = [s.name for s in shafts]
+        # (mid column, its joint's input column)
+        self._mid_index = [(i, i - 1) for i, sh in enumerate(shafts) if sh.role == 'mid']
         self.n_dof = len(sections)
         self._n_state = 2 * self.n_dof + (3 if track_energy else 0)
         self.x0 = self._initial_state()
@@ -417,7 +419,31 @@ class Driveline:
         intermediate member (cage, spider ...) carries no single shaft torque: effort 0.
         """
         pos, vel, eff, _react = self._walk(x, T_engine, T_load, reactions=False)
+        if self._mid_index:
+            self.fill_mid(pos[None, :], vel[None, :])
         return list(self.shaft_names), pos, vel, eff
+
+    def joint_states_fast(self, x: FloatArray, T_engine: float, T_load: float
+                          ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """As :meth:`joint_states` but intermediate members left as their joint's input
+        (fill them for many samples at once with :meth:`fill_mid`)."""
+        pos, vel, eff, _react = self._walk(x, T_engine, T_load, reactions=False)
+        return pos, vel, eff
+
+    def fill_mid(self, position: FloatArray, velocity: FloatArray) -> None:
+        """In place: intermediate-member columns of (samples, shafts) arrays from their
+        joint's input column, vectorised (phi_mid, and dphi_mid/dphi_in * omega_in by a
+        central difference, h = 1e-6 rad)."""
+        h = 1e-6
+        for i_mid, i_in in self._mid_index:
+            model = self.shafts[i_mid].joint
+            phi = position[:, i_in]
+            mid = model.evaluate(phi).phi_mid
+            if mid is None:
+                continue
+            d = (model.evaluate(phi + h).phi_mid - model.evaluate(phi - h).phi_mid) / (2 * h)
+            position[:, i_mid] = mid
+            velocity[:, i_mid] = d * velocity[:, i_in]
 
     def reactions(self, x: FloatArray, T_engine: float, T_load: float) -> dict[str, dict[str, float]]:
         """Per joint whose model has ``reactions(phi_in, omega_in, torque_in)``: its dict."""
@@ -459,12 +485,7 @@ class Driveline:
             before, after = states[sh.section][sh.op_index]
             phi, om, tq = before if sh.role in ('input', 'mid') else after
             if sh.role == 'mid':
-                h = 1e-6
-                ev = sh.joint.evaluate(np.array([phi - h, phi, phi + h]))
-                mid = ev.phi_mid
-                pos[i] = float(mid[1]) if mid is not None else phi
-                vel[i] = float((mid[2] - mid[0]) / (2 * h)) * om if mid is not None else om
-                eff[i] = 0.0
+                pos[i], vel[i], eff[i] = phi, om, 0.0     # filled by fill_mid
             else:
                 pos[i], vel[i], eff[i] = phi, om, tq
         return pos, vel, eff, react

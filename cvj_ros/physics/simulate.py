@@ -169,8 +169,9 @@ class Simulation:
                 if not np.all(np.isfinite(x)):
                     raise SolverError(f'state became non-finite at t = {tk:g} s')
             te[k], tl[k] = self.torques(float(tk), x)
-            _names, pos[k], vel[k], eff[k] = dl.joint_states(x, te[k], tl[k])
+            pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0)
+        dl.fill_mid(pos, vel)
         wall = time.perf_counter() - wall0
         stats = stepper.stats() if hasattr(stepper, 'stats') else {
             'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,

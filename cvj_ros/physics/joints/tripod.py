@@ -138,6 +138,7 @@ def _jrecip(a: Jet) -> Jet:
 
 
 def _jconst(value: Any, order: int) -> Jet:
+    """Constant jet; pass ``value`` already broadcast to the shape of the other jets."""
     z = value * 0.0
     return [value] + [z] * order
 

@@ -335,7 +335,7 @@ def _element(raw: Any, path: str) -> Element:
         file_key = next((k for k in raw_params if k.startswith(exc.parameter + '_')
                          or k == exc.parameter), exc.parameter)
         msg = str(exc)[len(exc.parameter) + 2:]
-        if file_key.endswith('_deg') and file_key in raw_params:
+        if file_key.endswith('_deg') and file_key in raw_params and 'deg' not in msg:
             msg = _deg_message(msg, raw_params[file_key])
         raise SceneError(f'{path}.params.{file_key}', msg) from None
     return Joint(name=name, kind=kind, fidelity=fidelity, params=params,

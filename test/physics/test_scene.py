@@ -62,7 +62,8 @@ def test_scene_is_frozen() -> None:
 
 
 @pytest.mark.parametrize('path,value,field,words', [
-    ('driveline[2].params.beta_deg', 95.0, 'driveline[2].params.beta_deg', 'must be <'),
+    ('driveline[2].params.beta_deg', 95.0, 'driveline[2].params.beta_deg', '< 90'),
+    ('driveline[2].params.beta_deg', 90.0, 'driveline[2].params.beta_deg', '< 90'),
     ('driveline[0].J', -1.0, 'driveline[0].J', 'must be > 0'),
     ('driveline[0].J', 0.0, 'driveline[0].J', 'must be > 0'),
     ('driveline[1].stiffness', 0.0, 'driveline[1].stiffness', 'must be > 0'),

@@ -1,0 +1,61 @@
+"""`cvj-sim simulate` and `cvj-sim scenes` through the CLI entry point."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from cvj_ros.cli import main
+
+
+def test_scenes_lists_shipped(capsys) -> None:
+    assert main(['scenes']) == 0
+    out = capsys.readouterr().out
+    for name in ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff'):
+        assert name in out
+
+
+def test_simulate_text_summary(capsys) -> None:
+    assert main(['simulate', 'kavz685_lever', '--duration', '0.3']) == 0
+    out = capsys.readouterr().out
+    assert 'drive_shaft' in out and 'energy balance residual' in out
+    assert 'per simulated s' in out and 'fidelity' in out
+
+
+def test_simulate_json_and_csv(tmp_path, capsys) -> None:
+    csv = tmp_path / 'run.csv'
+    assert main(['simulate', 'stiff', '--duration', '0.1', '--json', '--csv', str(csv),
+                 '--method', 'rosenbrock', '--rtol', '1e-7']) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary['solver']['method'] == 'rosenbrock'
+    assert summary['solver']['rtol'] == 1e-7
+    assert set(summary['shafts']) == {'drive', 'driven'}
+    data = np.loadtxt(csv, delimiter=',', skiprows=1)
+    header = csv.read_text().splitlines()[0].split(',')
+    assert header[0] == 't_s' and 'driven_velocity_rad_s' in header
+    assert data[-1, 0] == 0.1
+
+
+def test_simulate_fidelity_override(capsys) -> None:
+    assert main(['simulate', 'fwd_halfshaft', '--duration', '0.05', '--json',
+                 '--fidelity', 'tripod=exact', 'midshaft_twist=rigid']) == 0
+    levels = {c['name']: c['chosen'] for c in json.loads(capsys.readouterr().out)['fidelity']['choices']}
+    assert levels['tripod'] == 'exact' and levels['midshaft_twist'] == 'rigid'
+
+
+def test_user_errors_one_line_exit_2(tmp_path, capsys) -> None:
+    assert main(['simulate', 'stif']) == 2
+    assert capsys.readouterr().err.startswith("cvj-sim: error: scene: no scene file or shipped scene 'stif'")
+    assert main(['simulate', 'stiff', '--fidelity', 'stiff_spring=soft']) == 2
+    assert 'fidelity.stiff_spring: must be one of' in capsys.readouterr().err
+    assert main(['simulate', 'stiff', '--fidelity', 'oops']) == 2
+    assert 'expected NAME=LEVEL' in capsys.readouterr().err
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('name: b\nduration: 1\nengine: {model: linear}\nload: {model: constant}\n'
+                   'driveline:\n  - {type: inertia, name: a, J: 1}\n'
+                   '  - {type: joint, name: h, kind: hooke, params: {beta_deg: 95}}\n'
+                   '  - {type: inertia, name: b, J: 1}\n')
+    assert main(['simulate', str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('cvj-sim: error: driveline[1].params.beta_deg:') and 'Traceback' not in err
+    assert main(['simulate', 'stiff', '--duration', '-1']) == 2

@@ -304,3 +304,27 @@ def test_sample_dense_matches_closed_form_without_shortening_steps(method: str) 
         assert st.naccept < 0.6 * t_eval.size
     with pytest.raises(SolverOptionError, match='^t_eval:'):
         sample_dense(st, [1.0])
+
+
+@pytest.mark.parametrize('method', ['ros2', 'rosenbrock'])
+def test_rosenbrock_time_derivative_matches_autonomized_system(method: str) -> None:
+    """The f_t terms of a non-autonomous Rosenbrock step equal the same method on the
+    autonomized system (y, t)' = (f(t, y), 1) with its exact Jacobian, step for step."""
+    def f(t, y):
+        return np.array([-y[0] + math.sin(3 * t)])
+
+    def g(t, z):
+        return np.array([-z[0] + math.sin(3 * z[1]), 1.0])
+
+    def g_jac(t, z):
+        return np.array([[-1.0, 3 * math.cos(3 * z[1])], [0.0, 0.0]])
+
+    kw = dict(h=0.01) if method == 'ros2' else dict(h=0.05, max_step=0.05, rtol=1.0, atol=1.0)
+    a = make_stepper(method, f, 0.0, [1.0], jac=lambda t, y: np.array([[-1.0]]), **kw)
+    b = make_stepper(method, g, 0.0, [1.0, 0.0], jac=g_jac, autonomous=True, **kw)
+    ya = a.advance_to(2.0)
+    yb = b.advance_to(2.0)
+    assert a.naccept == b.naccept
+    assert ya[0] == pytest.approx(yb[0], abs=1e-9)
+    exact = 1.3 * math.exp(-2.0) + (math.sin(6.0) - 3 * math.cos(6.0)) / 10
+    assert abs(ya[0] - exact) < (1e-4 if method == 'ros2' else 1e-6)

@@ -43,8 +43,9 @@ Fidelities
   ratio ``1 - 3 A cos(3 phi_in)``, slope ``9 A sin(3 phi_in)`` (differentiated here;
   seed 000 eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the
   exact model in this convention (test_tripod.py checks it).
-* ``exact``: the three constraint equations solved by Newton (warm-started from a
-  table built by continuation in beta, then along the rotation) to |residual| <=
+* ``exact``: the three constraint equations solved by Newton (warm-started from
+  Fourier tables of the solution, themselves built from a continuation in beta and
+  then along the rotation) to |residual| <=
   1e-13 r (about 1e-13 rad; at angles reduced modulo 2 pi/3, so precision holds at
   any number of revolutions);
   ratio and ratio_slope by implicit differentiation of the constraints (second-order
@@ -177,6 +178,7 @@ class Tripod:
         self._sine_coeffs: FloatArray | None = None   # b_k of sin(3 k phi), k = 1..K
         self._table_phi: FloatArray | None = None
         self._table_q: FloatArray | None = None
+        self._orbit_spec: list[NDArray[np.complex128]] | None = None
         if fidelity == 'exact':
             if self.beta > PRACTICAL_MAX_BETA:
                 raise GeometryError('beta', f'exact tripod model is verified up to '
@@ -300,6 +302,10 @@ class Tripod:
         return res, jac
 
     def _newton(self, q: FloatArray, ph1: FloatArray, *, max_iter: int = 40) -> FloatArray:
+        return self._newton_jac(q, ph1, max_iter=max_iter)[0]
+
+    def _newton_jac(self, q: FloatArray, ph1: FloatArray, *,
+                    max_iter: int = 40) -> tuple[FloatArray, FloatArray | None]:
         """Newton on the three constraints from the start ``q`` (3, N).
 
         Converged when every residual is <= 1e-13 r (m), i.e. an angle error of about
@@ -311,10 +317,10 @@ class Tripod:
             res, jac = self._residual_and_jacobian(q, ph1)
             err = float(np.max(np.abs(res)))
             if err <= target:
-                return q
+                return q, jac
             q += np.linalg.solve(jac, -res.T[..., None])[..., 0].T
         if err <= NEWTON_TOL * self.r:
-            return q
+            return q, None
         raise SolverError(f'tripod: Newton did not converge (max residual {err / self.r:.3g} r)')
 
     def _start(self, ph1: FloatArray) -> FloatArray:
@@ -322,6 +328,15 @@ class Tripod:
         assert self._table_phi is not None and self._table_q is not None
         red = np.mod(ph1, TWO_PI_3)
         q = np.empty((3,) + ph1.shape)
+        if self._orbit_spec is not None and self._sine_coeffs is not None:
+            # Fourier tables: start within ~1e-15 of the solution
+            k = np.arange(len(self._orbit_spec[0]))
+            e = np.exp(3j * np.multiply.outer(red, k))
+            w = np.where(k == 0, 1.0, 2.0)
+            for i in range(2):
+                q[i] = (e @ (w * self._orbit_spec[i])).real
+            q[2] = ph1 + self._series(red)[0]
+            return q
         for i in range(3):
             q[i] = np.interp(red, self._table_phi, self._table_q[i])
         q[2] += ph1 - red
@@ -350,8 +365,8 @@ class Tripod:
         # the reduced angle so that sin/cos keep full precision at large angles.
         turns = np.round(ph1 / TWO_PI_3)
         red = ph1 - turns * TWO_PI_3
-        q = self._newton(self._start(red), red)
-        out = self._derivatives(q, red)
+        q, jac = self._newton_jac(self._start(red), red)
+        out = self._derivatives(q, red, jac)
         out['deviation'] = out['deviation'] + (ph1 - red - turns * TWO_PI_3)
         # per-roller arrays: reduced index (j + turns) mod 3 is the original roller j
         idx = (np.arange(3)[:, None] + turns[None, :].astype(int)) % 3
@@ -360,12 +375,15 @@ class Tripod:
         return {k: (v.reshape(v.shape[:-1] + shape) if v.ndim > 1 else v.reshape(shape))
                 for k, v in out.items()}
 
-    def _derivatives(self, q: FloatArray, ph1: FloatArray) -> dict[str, FloatArray]:
-        """Implicit differentiation: q(t) = q0 + q1 t + q2 t^2 along phi_in = ph1 + t."""
+    def _derivatives(self, q: FloatArray, ph1: FloatArray,
+                     jac: FloatArray | None = None) -> dict[str, FloatArray]:
+        """Implicit differentiation: q(t) = q0 + q1 t + q2 t^2 along phi_in = ph1 + t;
+        ``jac`` is the constraint Jacobian at q if already known."""
         zero = np.zeros_like(ph1)
         one = zero + 1.0
-        _, jac = self._residual_and_jacobian(q, ph1)
-        g = self._geometry_jets(*[[q[i], zero, zero] for i in range(3)], [ph1, one, zero])
+        if jac is None:
+            _, jac = self._residual_and_jacobian(q, ph1)
+        g = self._geometry_jets(*[[q[i], zero] for i in range(3)], [ph1, one])
         r1 = np.array([g['res'][i][1] for i in range(3)])
         q1 = np.linalg.solve(jac, -r1.T[..., None])[..., 0].T
         g = self._geometry_jets(*[[q[i], q1[i], zero] for i in range(3)], [ph1, one, zero])
@@ -441,7 +459,8 @@ class Tripod:
         coeffs = None
         for n_pts in (64, 128, 256, 512, 1024):
             x = np.arange(n_pts) * (TWO_PI_3 / n_pts)
-            dev = self._newton(self._start(x), x)[2] - x
+            q_pts = self._newton(self._start(x), x)
+            dev = q_pts[2] - x
             spec = np.fft.rfft(dev) / n_pts
             b = -2.0 * spec.imag[1:n_pts // 2]
             a = 2.0 * spec.real[1:n_pts // 2]
@@ -451,6 +470,9 @@ class Tripod:
             if tail < 1e-16:
                 keep = np.nonzero(np.abs(b) > 1e-16)[0]
                 coeffs = b[:keep[-1] + 1] if keep.size else b[:1]
+                # orbit offsets too, as warm starts for Newton in evaluate()
+                n_keep = len(coeffs) + 8
+                self._orbit_spec = [np.fft.rfft(q_pts[i])[:n_keep] / n_pts for i in range(2)]
                 break
         if coeffs is None:
             raise SolverError('tripod: Fourier series of the exact deviation did not converge')

@@ -130,7 +130,11 @@ class _StepperBase:
             raise SolverOptionError(f'y0[{bad[0]}]', f'must be finite, got {y[bad[0]]}')
         self.y = y
         self.n = y.size
-        if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and rtol > 0):
+        try:
+            rtol = float(rtol)
+        except (TypeError, ValueError):
+            raise SolverOptionError('rtol', f'must be a positive number, got {rtol!r}') from None
+        if not (math.isfinite(rtol) and rtol > 0):
             raise SolverOptionError('rtol', f'must be a positive number, got {rtol!r}')
         atol_arr = np.asarray(atol, dtype=float)
         if atol_arr.ndim > 1 or (atol_arr.ndim == 1 and atol_arr.size != self.n) \
@@ -140,10 +144,11 @@ class _StepperBase:
             raise SolverOptionError('rtol', f'must be >= {100 * _EPS:.3g}, got {rtol!r}')
         self.rtol = float(rtol)
         self.atol = float(atol_arr) if atol_arr.ndim == 0 else atol_arr.copy()
-        if not (max_step > 0):
+        if not (isinstance(max_step, (int, float, np.floating)) and max_step > 0):
             raise SolverOptionError('max_step', f'must be > 0, got {max_step!r}')
         self.max_step = float(max_step)
-        if h is not None and not (math.isfinite(h) and h > 0):
+        if h is not None and not (isinstance(h, (int, float, np.floating))
+                                  and math.isfinite(h) and h > 0):
             raise SolverOptionError('h', f'must be a positive finite step, got {h!r}')
         self.h: float | None = None if h is None else min(float(h), self.max_step)
         self.t_old = self.t
@@ -238,12 +243,23 @@ class _AdaptiveStepper(_StepperBase):
     def _first_derivative(self) -> np.ndarray:
         raise NotImplementedError
 
+    def _proposal(self, h: float, err: float) -> float:
+        """Next step (s) after an accepted step h with scaled error err <= 1: PI
+        controller, h * safe * err^-expo * err_old^beta, clamped."""
+        fac = err ** self._expo / self._err_old ** self.beta / self.safety
+        fac = min(1.0 / self.fac_min, max(1.0 / self.fac_max, fac)) if fac > 0 \
+            else 1.0 / self.fac_max
+        self._err_old = max(err, 1e-4)
+        return h / fac
+
     def advance_to(self, t_end: float) -> np.ndarray:
         """Integrate to exactly ``t_end`` (s) and return y(t_end).
 
         The last step is clipped to land on ``t_end``; the step-size proposal of
         the controller is kept for the next call. Raises SolverError on a
-        non-finite state or step-size underflow.
+        non-finite state or step-size underflow. The returned array is the
+        stepper's state (never modified in place by the stepper): copy it before
+        changing it.
         """
         t_end = self._check_t_end(t_end)
         while self.t < t_end:
@@ -285,14 +301,9 @@ class _AdaptiveStepper(_StepperBase):
                 self._underflow(h)
             err, y_new = self._attempt(h)
             if err <= 1.0:  # False for NaN
-                fac11 = err ** self._expo
-                fac = fac11 / self._err_old ** self.beta / self.safety
-                fac = min(1.0 / self.fac_min, max(1.0 / self.fac_max, fac)) if fac > 0 \
-                    else 1.0 / self.fac_max
-                h_new = h / fac
+                h_new = self._proposal(h, err)
                 if self._last_rejected:
                     h_new = min(h_new, h)
-                self._err_old = max(err, 1e-4)
                 self._last_rejected = False
                 self.naccept += 1
                 t_new = t_bound if clipped else self.t + h

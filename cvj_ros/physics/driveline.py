@@ -225,6 +225,16 @@ class Driveline:
 
     def rhs(self, t: float, x: FloatArray, T_engine: float, T_load: float) -> FloatArray:
         """dx/dt for engine torque ``T_engine`` and resisting load torque ``T_load`` (N m)."""
+        return self._rhs(t, x, T_engine, T_load, None, None)
+
+    def rhs_sources(self, t: float, x: FloatArray, engine: Any, load: Any) -> FloatArray:
+        """dx/dt with the torque sources evaluated inside (one kinematics pass):
+        T_e = engine.torque(t, omega_first, phi_first), T_l = load.torque(t, omega_last, phi_last)."""
+        return self._rhs(t, x, 0.0, 0.0, engine.torque, load.torque)
+
+    def _rhs(self, t: float, x: FloatArray, T_engine: float, T_load: float,
+             engine_fn: Callable[..., float] | None, load_fn: Callable[..., float] | None
+             ) -> FloatArray:
         n = self.n_dof
         xl = x.tolist()
         out = [0.0] * self._n_state
@@ -243,8 +253,11 @@ class Driveline:
                     a = r * a
                     phi = po
             ends.append((phi, a, m, c))
-        q_force[0] += T_engine
         a_load = ends[-1][1]
+        if engine_fn is not None:
+            T_engine = engine_fn(t, xl[n], xl[0])
+            T_load = load_fn(t, a_load * xl[2 * n - 1], ends[-1][0])
+        q_force[0] += T_engine
         q_force[-1] -= T_load * a_load
         p_damp = 0.0
         for k, sp in enumerate(self.springs):

@@ -102,12 +102,13 @@ class Simulation:
         self.last_trace: Trace | None = None
         dl = self.driveline
         n = dl.n_dof
-        rhs, load_state = dl.rhs, dl.load_state
+        load_state = dl.load_state
         e_torque, l_torque = engine.torque, load.torque
 
+        rhs_sources = dl.rhs_sources
+
         def fun(t: float, x: FloatArray) -> FloatArray:
-            phi_l, w_l = load_state(x)
-            return rhs(t, x, e_torque(t, x[n], x[0]), l_torque(t, w_l, phi_l))
+            return rhs_sources(t, x, engine, load)
 
         def jac(t: float, x: FloatArray) -> FloatArray:
             phi_l, w_l = load_state(x)

@@ -153,3 +153,21 @@ def test_rigid_spring_merges_sections() -> None:
         Driveline.from_scene(scene(MIXED), fidelity={'mdi': 'rigid'})
     with pytest.raises(SceneError, match='^fidelity.h1: must be one of'):
         Driveline.from_scene(scene(MIXED), fidelity={'h1': 'closed'})
+
+
+def test_rhs_sources_equals_rhs_with_evaluated_torques() -> None:
+    class Src:
+        def __init__(self, k: float) -> None:
+            self.k = k
+
+        def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
+            return self.k * (1.0 + 0.1 * omega + 0.01 * math.sin(phi) + t)
+
+    dl = Driveline.from_scene(scene(MIXED), track_energy=True)
+    x = dl.x0.copy()
+    x[:3] += [0.7, 0.1, -0.2]
+    x[3:6] += [1.0, -2.0, 0.5]
+    eng, load = Src(50.0), Src(7.0)
+    phi_l, w_l = dl.load_state(x)
+    expected = dl.rhs(0.3, x, eng.torque(0.3, x[3], x[0]), load.torque(0.3, w_l, phi_l))
+    assert np.array_equal(dl.rhs_sources(0.3, x, eng, load), expected)

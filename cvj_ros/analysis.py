@@ -213,7 +213,8 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None, skip_fracti
         i, o = sig.column(n_in), sig.column(n_out)
         nu = signal.joint_nonuniformity(sig.position[mask, i], sig.position[mask, o],
                                         sig.velocity[mask, i], sig.velocity[mask, o])
-        report['joints'][joint] = {'geometric_min_rad': _f(nu.geometric_min),
+        report['joints'][joint] = {'nominal_ratio': _f(nu.nominal_ratio),
+                                   'geometric_min_rad': _f(nu.geometric_min),
                                    'geometric_max_rad': _f(nu.geometric_max),
                                    'geometric_amplitude_rad': _f(nu.geometric_amplitude),
                                    'kinematic_min': _f(nu.kinematic_min),
@@ -313,7 +314,8 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append('joint nonuniformity (seed 002): geometric phi_out - phi_in (rad), '
                      'kinematic w_out/w_in - 1:')
         for name, j in report['joints'].items():
-            lines.append(f"  {name:<20} geometric {_fmt(j['geometric_min_rad'])} .. {_fmt(j['geometric_max_rad'])}"
+            ratio = '' if j['nominal_ratio'] == 1.0 else f" (ratio {_fmt(j['nominal_ratio'])})"
+            lines.append(f"  {name + ratio:<20} geometric {_fmt(j['geometric_min_rad'])} .. {_fmt(j['geometric_max_rad'])}"
                          f" (amplitude {_fmt(j['geometric_amplitude_rad'])})   kinematic "
                          f"{_fmt(j['kinematic_min'])} .. {_fmt(j['kinematic_max'])}")
     for key in ('engine', 'load'):

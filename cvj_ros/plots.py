@@ -99,17 +99,21 @@ def _plot_nonuniformity(sig: BagSignals, mask: np.ndarray, path: Path) -> Path:
         ax_g, ax_k = axes[1, 0], axes[2, 0]
         for joint, n_in, n_out in pairs:
             i, o = sig.column(n_in), sig.column(n_out)
-            dev = sig.position[mask, o] - sig.position[mask, i]
-            dev = dev - 2 * math.pi * round(float(np.mean(dev)) / (2 * math.pi))
+            nu = signal.joint_nonuniformity(sig.position[mask, i], sig.position[mask, o],
+                                            sig.velocity[mask, i], sig.velocity[mask, o])
+            r = nu.nominal_ratio
+            dev = sig.position[mask, o] - r * sig.position[mask, i]
+            dev = dev - (2 * math.pi * round(float(np.mean(dev)) / (2 * math.pi)) if r == 1.0 else float(np.mean(dev)))
             x, y = _wrapped(sig.position[mask, i], dev)
-            ax_g.plot(x, 1e3 * y, lw=1.0, label=joint)
+            label = joint if r == 1.0 else f'{joint} (ratio {r:.4g})'
+            ax_g.plot(x, 1e3 * y, lw=1.0, label=label)
             wi, wo = sig.velocity[mask, i], sig.velocity[mask, o]
             ok = np.abs(wi) > 1e-6
-            x, y = _wrapped(sig.position[mask, i][ok], wo[ok] / wi[ok] - 1.0)
-            ax_k.plot(x, y, lw=1.0, label=joint)
-        ax_g.set_ylabel(r'$\varphi_{out}-\varphi_{in}$  [mrad]')
+            x, y = _wrapped(sig.position[mask, i][ok], wo[ok] / (r * wi[ok]) - 1.0)
+            ax_k.plot(x, y, lw=1.0, label=label)
+        ax_g.set_ylabel(r'$\varphi_{out}-i\,\varphi_{in}$  [mrad]')
         ax_g.set_title('Geometric nonuniformity of the joints (seed 002)')
-        ax_k.set_ylabel(r'$\omega_{out}/\omega_{in} - 1$  [-]')
+        ax_k.set_ylabel(r'$\omega_{out}/(i\,\omega_{in}) - 1$  [-]')
         ax_k.set_title('Kinematic nonuniformity of the joints (seed 002)')
         for a in (ax_g, ax_k):
             a.set_xlabel('joint input angle mod 360  [deg]')

@@ -192,3 +192,18 @@ def test_missing_bag_and_missing_topic(tmp_path: Path) -> None:
     bag = write_synthetic_bag(tmp_path / 'nojs', duration=0.05, joint_states=False)
     with pytest.raises(BagError, match='^/driveline/joint_states: no messages in bag'):
         analysis.read_bag_signals(bag)
+
+
+def test_gear_stage_nonuniformity_is_relative_to_its_ratio() -> None:
+    """A 3.5:1 stage with a small 2nd-order ripple: ratio recovered, ripple measured."""
+    phi = np.linspace(0.0, 40.0, 8001)
+    out = 3.5 * phi + 1e-3 * np.sin(2 * phi) + 0.2
+    w_in = np.full_like(phi, 10.0)
+    w_out = 10.0 * (3.5 + 2e-3 * np.cos(2 * phi))
+    nu = signal.joint_nonuniformity(phi, out, w_in, w_out)
+    assert nu.nominal_ratio == pytest.approx(3.5, rel=1e-5)
+    # the slope fit over 12.7 ripple half-periods tilts the deviation by a few % of the ripple
+    assert nu.geometric_amplitude == pytest.approx(1e-3, rel=5e-2)
+    assert nu.kinematic_max == pytest.approx(2e-3 / 3.5, rel=1e-3)
+    cv = signal.joint_nonuniformity(phi, phi + 2 * np.pi, w_in, w_in)      # one whole turn apart
+    assert cv.nominal_ratio == 1.0 and cv.geometric_amplitude == 0.0 and cv.geometric_max == 0.0

@@ -153,11 +153,14 @@ def harmonics_over_angle(phi: ArrayLike, values: ArrayLike, *, n_harmonics: int 
 class JointNonuniformity:
     """Geometric and kinematic nonuniformity of one joint (seed 002 eqs. 20-23).
 
-    ``geometric_min``/``geometric_max``: range of Delta phi = phi_out - phi_in (rad; a whole
-    number of turns between the unwrapped angles is removed); ``geometric_amplitude``
-    = (max - min)/2 (rad). ``kinematic_min``/``kinematic_max``: range of omega_out/omega_in - 1 (-).
+    ``nominal_ratio`` i (-): 1 for a constant-velocity or cardan joint, the mean transmission
+    ratio for a gear or chain stage. ``geometric_min``/``geometric_max``: range of
+    Delta phi = phi_out - i phi_in (rad; a constant offset of whole turns, or for i != 1 the
+    mean, is removed); ``geometric_amplitude`` = (max - min)/2 (rad).
+    ``kinematic_min``/``kinematic_max``: range of omega_out/(i omega_in) - 1 (-).
     """
 
+    nominal_ratio: float
     geometric_min: float
     geometric_max: float
     geometric_amplitude: float
@@ -166,17 +169,31 @@ class JointNonuniformity:
 
 
 def joint_nonuniformity(phi_in: ArrayLike, phi_out: ArrayLike, omega_in: ArrayLike,
-                        omega_out: ArrayLike, *, min_speed: float = 1e-6) -> JointNonuniformity:
+                        omega_out: ArrayLike, *, min_speed: float = 1e-6,
+                        nominal_ratio: float | None = None) -> JointNonuniformity:
     """Nonuniformity of a joint from recorded input/output angles (rad) and speeds (rad/s).
 
+    ``nominal_ratio`` (-): default 1, unless the mean output/input speed ratio differs from
+    1 by more than 1 % (a gear stage), then the least-squares slope of phi_out over phi_in.
     Samples with |omega_in| below ``min_speed`` (rad/s) are left out of the kinematic ratio.
     """
-    dev = np.asarray(phi_out, dtype=float) - np.asarray(phi_in, dtype=float)
-    dev = dev - 2.0 * math.pi * round(float(np.mean(dev)) / (2.0 * math.pi))
+    pi_ = np.asarray(phi_in, dtype=float)
+    po = np.asarray(phi_out, dtype=float)
     wi = np.asarray(omega_in, dtype=float)
     wo = np.asarray(omega_out, dtype=float)
+    if nominal_ratio is None:
+        nominal_ratio = 1.0
+        mean_in = float(np.mean(wi))
+        if mean_in != 0.0 and abs(float(np.mean(wo)) / mean_in - 1.0) > 0.01 and np.ptp(pi_) > 0:
+            nominal_ratio = float(np.polyfit(pi_, po, 1)[0])
+    dev = po - nominal_ratio * pi_
+    if nominal_ratio == 1.0:
+        dev = dev - 2.0 * math.pi * round(float(np.mean(dev)) / (2.0 * math.pi))
+    else:
+        dev = dev - float(np.mean(dev))
     ok = np.abs(wi) > min_speed
-    kin = wo[ok] / wi[ok] - 1.0 if np.any(ok) else np.array([math.nan])
-    return JointNonuniformity(geometric_min=float(np.min(dev)), geometric_max=float(np.max(dev)),
+    kin = wo[ok] / (nominal_ratio * wi[ok]) - 1.0 if np.any(ok) else np.array([math.nan])
+    return JointNonuniformity(nominal_ratio=nominal_ratio,
+                              geometric_min=float(np.min(dev)), geometric_max=float(np.max(dev)),
                               geometric_amplitude=half_range(dev),
                               kinematic_min=float(np.min(kin)), kinematic_max=float(np.max(kin)))

@@ -95,7 +95,7 @@ JOINT_CASES = {
     'double_cardan': {'beta1_deg': 20.0, 'beta2_deg': 25.0, 'phase_deg': 10.0},
     'tripod': {'beta_deg': 20.0, 'r_m': 0.026, 'l_m': 0.1},
     'rzeppa': {'delta_deg': 40.0, 'alpha_deg': 18.0},
-    'lever_hinge': {},
+    'lever_hinge': {'alpha_deg': 15.0, 'delta_alpha_deg': 2.0},
 }
 
 

@@ -99,7 +99,8 @@ class SceneProblem:
     ref_speed: np.ndarray
     ref_angle: np.ndarray
     ref_wall: float
-    fidelity_levels: dict[str, dict[str, str]] = field(default_factory=dict)
+    levels: dict[str, str] = field(default_factory=dict)      # fidelity mode -> 'name=level ...'
+    aliases: dict[str, str] = field(default_factory=dict)     # mode -> earlier mode, same levels
 
 
 class _BudgetExceeded(Exception):
@@ -144,6 +145,16 @@ def forced_levels(scene: Any, mode: str) -> dict[str, str] | None:
         elif isinstance(el, Spring):
             out[el.name] = 'elastic'
     return out
+
+
+def _levels_key(scene: Any, mode: str) -> str | None:
+    """The per-element levels fidelity ``mode`` resolves to, as 'name=level ...' (None on error)."""
+    from cvj_ros.physics.fidelity import choose_fidelity
+    try:
+        levels = choose_fidelity(scene, overrides=forced_levels(scene, mode)).levels
+    except CvjError:
+        return None
+    return ' '.join(f'{k}={v}' for k, v in levels.items())
 
 
 def _scene_for(scene: Any, *, h: float | None = None) -> Any:
@@ -470,21 +481,19 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         problems[scene.name] = prob
         seen_levels: dict[str, str] = {}
         for fid in cfg.fidelities:
+            key = _levels_key(scene, fid)
+            prob.levels[fid] = key or '?'
+            if key is not None and key in seen_levels:   # same model as an earlier mode: not rerun
+                prob.aliases[fid] = seen_levels[key]
+                log(f'[bench] {scene.name}: fidelity {fid} = {seen_levels[key]} ({key}), not rerun')
+                continue
+            if key is not None:
+                seen_levels[key] = fid
             for solver in cfg.solvers:
                 grid = [(None, h) for h in cfg.rk4_steps] if solver in ('rk4', 'ros2') else \
                        [(tol, None) for tol in cfg.tolerances]
                 for tol, h in grid:
-                    row = run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg)
-                    rows.append(row)
-            lv = next((r.get('levels') for r in reversed(rows) if r['scene'] == scene.name
-                       and r['fidelity'] == fid and r.get('levels')), None)
-            if lv is not None:
-                dup = seen_levels.get(lv)
-                if dup:
-                    for r in rows:
-                        if r['scene'] == scene.name and r['fidelity'] == fid:
-                            r['note'] = (r.get('note') or '') + f' same levels as {dup}'
-                seen_levels.setdefault(lv, fid)
+                    rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg))
         for method in cfg.baselines:
             for tol in cfg.tolerances:
                 rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg))
@@ -576,10 +585,15 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                '| --- | --- | --- | --- | --- | --- |']
         md += [f'| {_config_label(r)} | {_g(r["err_speed_rel"], ".2e")} | {_g(r["err_angle_rad"], ".2e")} | '
                f'{_g(r["wall_per_sim_s"])} | {100 * r["wall_spread"]:.0f} % | {r["nfev"]} |' for r in front]
-        auto = [r for r in srows if r['fidelity'] == 'auto' and r.get('ok')]
-        if auto:
+        if prob.aliases:
+            md += ['', 'Same model, not rerun: ' + ', '.join(f'{k} = {v}' for k, v in prob.aliases.items())
+                   + '.']
+        if 'auto' in prob.levels:
+            same = prob.aliases.get('auto', 'auto')
+            auto = [r for r in srows if r['fidelity'] == same and r.get('ok')]
             on = [r for r in auto if r in front]
-            md += ['', f'Fidelity chooser\'s pick ({auto[0].get("levels", "")}): '
+            md += ['', f'Fidelity chooser\'s pick ({prob.levels["auto"]}'
+                   + (f', the same model as {same}' if same != 'auto' else '') + '): '
                    f'{len(on)} of {len(auto)} of its runs on the Pareto front'
                    + (f' ({", ".join(_config_label(r) for r in on)}).' if on else '.')]
         failed = [r for r in srows if not r.get('ok')]

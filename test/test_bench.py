@@ -48,7 +48,9 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
         assert (out / name).stat().st_size > 200, name
     with (out / 'bench.csv').open() as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 3 * (2 * 3 + 2) + 2 * 3
+    # 'auto' resolves to the exact model here (no accuracy target): not rerun
+    assert len(rows) == 2 * (2 * 3 + 2) + 2 * 3
+    assert res['rows'] and all(r['fidelity'] != 'auto' for r in res['rows'])
     for r in rows:
         assert r['ok'] == 'True', r
         for key in ('wall_s', 'wall_per_sim_s', 'err_speed_rel', 'err_angle_rad', 'nfev'):
@@ -57,6 +59,7 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
     md = (out / 'bench.md').read_text()
     assert '| 1e-03 |' in md and 'Pareto front' in md and '## Machine' in md and 'cores' in md
     assert 'nan' not in md.lower()
+    assert "Fidelity chooser's pick (hooke=exact bush=elastic, the same model as exact)" in md
 
 
 def test_errors_shrink_as_tolerances_tighten(result: tuple[dict, Path]) -> None:

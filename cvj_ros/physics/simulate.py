@@ -46,7 +46,9 @@ class Trace:
 
     @property
     def max_energy_residual(self) -> float:
-        return float(np.max(np.abs(self.energy_residual))) if self.energy_residual.size else 0.0
+        if not self.energy_residual.size or np.all(np.isnan(self.energy_residual)):
+            return math.nan
+        return float(np.nanmax(np.abs(self.energy_residual)))
 
     def column(self, name: str) -> int:
         """Index of shaft ``name`` in the arrays (KeyError if absent)."""
@@ -77,11 +79,13 @@ class Simulation:
             elastic|rigid), see cvj_ros.physics.fidelity.
         engine, load: torque sources to use instead of building them from the scene
             specs (anything with ``torque(t, omega, phi)`` and ``slope(...)``).
+        track_energy: integrate the work integrals and report the energy residual
+            (default); False keeps the state at 2 n_dof (benchmarks) and reports NaN.
     """
 
     def __init__(self, scene: Scene, *, method: str | None = None, rtol: float | None = None,
                  atol: float | None = None, fidelity: Mapping[str, str] | None = None,
-                 engine: Any = None, load: Any = None) -> None:
+                 engine: Any = None, load: Any = None, track_energy: bool = True) -> None:
         self.scene = scene
         self.method = method or scene.solver.method
         self.rtol = float(rtol if rtol is not None else scene.solver.rtol)
@@ -89,7 +93,7 @@ class Simulation:
         for name, v in (('rtol', self.rtol), ('atol', self.atol)):
             if not (math.isfinite(v) and v > 0):
                 raise SceneError(f'solver.{name}', f'must be > 0, got {v}')
-        self.driveline = Driveline.from_scene(scene, fidelity=fidelity, track_energy=True)
+        self.driveline = Driveline.from_scene(scene, fidelity=fidelity, track_energy=track_energy)
         self.fidelity_report = self.driveline.fidelity_report
         if engine is None:
             from cvj_ros.physics.engine import engine_from_spec
@@ -171,7 +175,7 @@ class Simulation:
                     raise SolverError(f'state became non-finite at t = {tk:g} s')
             te[k], tl[k] = self.torques(float(tk), x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
-            res[k] = dl.energy_residual(x, e0)
+            res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan
         dl.fill_mid(pos, vel)
         wall = time.perf_counter() - wall0
         stats = stepper.stats() if hasattr(stepper, 'stats') else {

@@ -1,0 +1,279 @@
+"""Bad input end to end through the real `cvj-sim` CLI (DESIGN.md section 9).
+
+Each case: exactly one stderr line ``cvj-sim: error: <field or topic>: <problem>``, a
+non-zero exit status (2 = user error), no traceback, nothing on stdout and no run started
+(no bag written). Scenes are checked through ``cvj-sim run`` (validation happens before
+any process starts); bags through ``cvj-sim analyze``, ``replay`` and ``run
+--load-from-bag``. Most cases call :func:`cvj_ros.cli.main` in-process (fast); a few run
+the installed ``cvj-sim`` executable to cover the real entry point.
+"""
+from __future__ import annotations
+
+import copy
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from cvj_ros import bag as bagmod
+from cvj_ros.cli import main as cli_main
+
+CVJ_SIM = str(Path(sys.executable).with_name('cvj-sim'))
+
+VALID: dict[str, Any] = {
+    'name': 'robust', 'seed': 1, 'duration': 0.1, 'exchange_step': 0.001,
+    'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': 50.0},
+    'initial': {'speed_rad_s': 30.0},
+    'driveline': [
+        {'type': 'inertia', 'name': 'crank', 'J': 0.128},
+        {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35},
+        {'type': 'joint', 'name': 'cardan', 'kind': 'hooke', 'params': {'beta_deg': 15.0}},
+        {'type': 'inertia', 'name': 'wheel', 'J': 0.161},
+    ],
+}
+
+
+def assert_one_error_line(code: int, out: str, err: str, field: str) -> str:
+    """The common contract of every bad-input case; returns the message after the field."""
+    assert code == 2, (code, out, err)
+    assert 'Traceback' not in err and 'Traceback' not in out
+    assert out == ''
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    prefix = f'cvj-sim: error: {field}: '
+    assert lines[0].startswith(prefix), lines[0]
+    return lines[0][len(prefix):]
+
+
+def run_scene(tmp_path: Path, capsys: pytest.CaptureFixture[str], scene: Any,
+              *, text: str | None = None) -> tuple[int, str, str]:
+    """`cvj-sim run SCENE --out DIR` in-process; asserts that no run directory appeared."""
+    path = tmp_path / 'scene.yaml'
+    path.write_text(text if text is not None else yaml.safe_dump(scene, sort_keys=False))
+    out_dir = tmp_path / 'run'
+    code = cli_main(['run', str(path), '--out', str(out_dir)])
+    out, err = capsys.readouterr()
+    assert not (out_dir / 'bag').exists()
+    return code, out, err
+
+
+def mutate(path: str, value: Any) -> dict[str, Any]:
+    """VALID with the dotted/indexed ``path`` set to ``value`` (``value is DELETE`` removes it)."""
+    scene = copy.deepcopy(VALID)
+    keys = [int(k) if k.isdigit() else k for k in re.findall(r'[^.\[\]]+', path)]
+    node = scene
+    for k in keys[:-1]:
+        node = node[k]
+    if value is DELETE:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    return scene
+
+
+DELETE = object()
+
+
+def test_valid_scene_passes_validation_helper(tmp_path: Path) -> None:
+    """Control: the base scene is valid, so every failure below comes from its mutation."""
+    from cvj_ros.physics.scene import parse_scene
+    assert parse_scene(copy.deepcopy(VALID)).name == 'robust'
+
+
+def test_malformed_yaml_names_the_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = yaml.safe_dump(VALID, sort_keys=False).splitlines()
+    bad_line = next(i for i, s in enumerate(text) if s.startswith('duration'))
+    text[bad_line] = 'duration: [0.1'                        # unclosed flow sequence
+    code, out, err = run_scene(tmp_path, capsys, None, text='\n'.join(text) + '\n')
+    assert code == 2 and err.count('\n') == 1 and 'Traceback' not in err
+    m = re.match(r'cvj-sim: error: (.+\.yaml):(\d+): malformed YAML', err)
+    assert m, err
+    # the parser reports where it noticed the problem: the bad line or the one after it
+    assert int(m.group(2)) in (bad_line + 1, bad_line + 2)
+
+
+def test_tab_indented_yaml_names_the_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = 'name: x\nduration: 1\nengine:\n\tmodel: linear\n'
+    code, out, err = run_scene(tmp_path, capsys, None, text=text)
+    assert re.match(r'cvj-sim: error: .+\.yaml:4: malformed YAML', err), err
+    assert code == 2 and err.count('\n') == 1
+
+
+@pytest.mark.parametrize('path,value,field,words', [
+    # unknown keys, with a did-you-mean
+    ('duraton', 1.0, 'duraton', "did you mean 'duration'"),
+    ('driveline[1].stifness', 1.0, 'driveline[1].stifness', "did you mean 'stiffness'"),
+    ('driveline[2].params.beta_dge', 10.0, 'driveline[2].params.beta_dge', "did you mean 'beta_deg'"),
+    ('driveline[2].kind', 'hoke', 'driveline[2].kind', "did you mean 'hooke'"),
+    ('solver', {'methd': 'dopri5'}, 'solver.methd', "did you mean 'method'"),
+    ('engine.m11', 600.0, 'engine.m11', "did you mean 'm1'"),
+    # wrong units: a bare angle without its unit suffix, a unit written into a value
+    ('driveline[2].params', {'beta': 15.0}, 'driveline[2].params.beta', "did you mean 'beta_"),
+    ('driveline[1].stiffness', '715.4 N m/rad', 'driveline[1].stiffness', 'must be a number'),
+    ('initial.speed_rpm', '3000 rpm', 'initial', ''),
+    ('exchange_step', '1 ms', 'exchange_step', 'must be a number'),
+    # wrong types
+    ('driveline[0].J', [0.1], 'driveline[0].J', 'must be a number'),
+    ('driveline[0].J', True, 'driveline[0].J', 'must be a number'),
+    ('driveline', {'a': 1}, 'driveline', 'list'),
+    ('seed', -3, 'seed', 'non-negative integer'),
+    ('driveline[0]', 'inertia', 'driveline[0]', 'mapping'),
+    # out of range: angles and stiffness / inertia
+    ('driveline[2].params.beta_deg', 90.0, 'driveline[2].params.beta_deg', '< 90'),
+    ('driveline[2].params.beta_deg', -5.0, 'driveline[2].params.beta_deg', '>= 0'),
+    ('driveline[1].stiffness', 0.0, 'driveline[1].stiffness', '> 0'),
+    ('driveline[1].stiffness', -1e6, 'driveline[1].stiffness', '> 0'),
+    ('driveline[0].J', 0.0, 'driveline[0].J', '> 0'),
+    ('driveline[1].damping', -1.0, 'driveline[1].damping', '>= 0'),
+    ('duration', -1.0, 'duration', '> 0'),
+    # NaN / inf
+    ('driveline[1].stiffness', float('nan'), 'driveline[1].stiffness', 'finite'),
+    ('driveline[0].J', float('inf'), 'driveline[0].J', 'finite'),
+    ('driveline[2].params.beta_deg', float('nan'), 'driveline[2].params.beta_deg', 'finite'),
+    ('initial.speed_rad_s', float('-inf'), 'initial.speed_rad_s', 'finite'),
+    ('engine.m1', float('nan'), 'engine.m1', ''),
+    ('load.torque', float('inf'), 'load.torque', ''),
+    # missing things
+    ('driveline[0].J', DELETE, 'driveline[0].J', 'missing'),
+    ('engine', DELETE, 'engine', 'missing'),
+    # non-monotonic time series (inline load samples)
+    ('load', {'model': 'time_series', 't': [0.0, 0.2, 0.1], 'torque': [1.0, 2.0, 3.0]},
+     'load.t', 'increasing'),
+    ('load', {'model': 'time_series', 't': [0.0, 0.1, 0.1], 'torque': [1.0, 2.0, 3.0]},
+     'load.t', 'increasing'),
+    ('load', {'model': 'time_series', 't': [0.0, float('nan')], 'torque': [1.0, 2.0]},
+     'load.t', ''),
+])
+def test_bad_scene_field(tmp_path: Path, capsys: pytest.CaptureFixture[str], path: str,
+                         value: Any, field: str, words: str) -> None:
+    code, out, err = run_scene(tmp_path, capsys, mutate(path, value))
+    # the field may carry an index/sub-key after the named prefix (load.t[2], initial.speed_rpm)
+    assert code == 2 and 'Traceback' not in err and out == '', err
+    assert err.count('\n') == 1, err
+    msg = err[len('cvj-sim: error: '):]
+    assert err.startswith('cvj-sim: error: ') and msg.startswith(field), err
+    assert words in msg, err
+
+
+def test_non_monotonic_time_series_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    csv = tmp_path / 'load.csv'
+    csv.write_text('t,torque\n0.0,10\n0.05,11\n0.04,12\n0.1,13\n')
+    code, out, err = run_scene(tmp_path, capsys, mutate('load', {'model': 'time_series',
+                                                                 'file': str(csv)}))
+    msg = assert_one_error_line(code, out, err, err[16:].split(':')[0])
+    assert err[16:].startswith('load.'), err
+    assert 'increasing' in msg, err
+
+
+def test_scene_not_found_did_you_mean(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli_main(['run', 'kavz685_levr', '--out', str(tmp_path / 'r')])
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, 'scene')
+    assert "did you mean 'kavz685_lever'" in msg
+
+
+# --- bags --------------------------------------------------------------------------------
+
+def _bag_with_clock_only(path: Path) -> Path:
+    """A valid rosbag2 bag holding only /clock messages (no joint states, no load)."""
+    from rosgraph_msgs.msg import Clock
+    from rclpy.serialization import serialize_message
+    from builtin_interfaces.msg import Time
+    with bagmod.BagWriter(path) as w:
+        w.add_topic('/clock')
+        for k in range(5):
+            w.write('/clock', k * 1_000_000, serialize_message(Clock(clock=Time(nanosec=k * 1_000_000))))
+    return path
+
+
+def test_analyze_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / 'nope'
+    code = cli_main(['analyze', str(missing)])
+    out, err = capsys.readouterr()
+    assert_one_error_line(code, out, err, str(missing))
+
+
+def test_analyze_bag_without_joint_states(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    b = _bag_with_clock_only(tmp_path / 'clock_only')
+    code = cli_main(['analyze', str(b)])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == '' and 'Traceback' not in err and err.count('\n') == 1, err
+    assert '/driveline/joint_states' in err
+
+
+def test_replay_missing_bag_and_topic(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / 'nope'
+    code = cli_main(['replay', str(missing)])
+    out, err = capsys.readouterr()
+    assert_one_error_line(code, out, err, str(missing))
+    b = _bag_with_clock_only(tmp_path / 'clock_only')
+    code = cli_main(['replay', str(b), '--topics', '/load/wrench'])
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, '--topics')
+    assert '/load/wrench' in msg
+
+
+def test_run_load_from_bag_without_load_topic(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    b = _bag_with_clock_only(tmp_path / 'clock_only')
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(VALID))
+    code = cli_main(['run', str(path), '--out', str(tmp_path / 'r'), '--load-from-bag', str(b)])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == '' and 'Traceback' not in err and err.count('\n') == 1, err
+    assert '/load/wrench' in err
+    assert not (tmp_path / 'r' / 'bag').exists()
+
+
+def test_run_load_from_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(VALID))
+    code = cli_main(['run', str(path), '--out', str(tmp_path / 'r'), '--load-from-bag',
+                     str(tmp_path / 'nope')])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == '' and 'Traceback' not in err and err.count('\n') == 1, err
+    assert str(tmp_path / 'nope') in err
+
+
+@pytest.mark.parametrize('argv,field', [
+    (['run', '{scene}', '--out', '{tmp}/r', '--exchange-step', '-0.001'], '--exchange-step'),
+    # named by its RunOptions name, not the flag (the other run options use the flag)
+    (['run', '{scene}', '--out', '{tmp}/r', '--peer-timeout', '0'], 'peer_timeout'),
+    (['run', '{scene}', '--out', '{tmp}/r', '--seed', '-1'], '--seed'),
+    (['analyze', '{tmp}/nope', '--skip', '-1'], '--skip'),
+])
+def test_bad_options(tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str],
+                     field: str) -> None:
+    scene = tmp_path / 's.yaml'
+    scene.write_text(yaml.safe_dump(VALID))
+    code = cli_main([a.format(scene=scene, tmp=tmp_path) for a in argv])
+    out, err = capsys.readouterr()
+    assert_one_error_line(code, out, err, field)
+    assert not (tmp_path / 'r' / 'bag').exists()
+
+
+def test_bad_option_through_the_executable(tmp_path: Path) -> None:
+    """The installed entry point (a real process): one line, exit 2, no traceback."""
+    scene = tmp_path / 's.yaml'
+    scene.write_text(yaml.safe_dump(VALID))
+    proc = subprocess.run([CVJ_SIM, 'run', str(scene), '--out', str(tmp_path / 'r'),
+                           '--duration', 'nan'], capture_output=True, text=True, timeout=60)
+    assert_one_error_line(proc.returncode, proc.stdout, proc.stderr, '--duration')
+    assert not (tmp_path / 'r' / 'bag').exists()
+
+
+def test_nan_in_yaml_through_the_executable(tmp_path: Path) -> None:
+    """YAML's own .nan spelling reaches the validator and is named by field."""
+    text = yaml.safe_dump(VALID, sort_keys=False).replace('stiffness: 715.4', 'stiffness: .nan')
+    assert '.nan' in text
+    scene = tmp_path / 's.yaml'
+    scene.write_text(text)
+    proc = subprocess.run([CVJ_SIM, 'run', str(scene), '--out', str(tmp_path / 'r')],
+                          capture_output=True, text=True, timeout=60)
+    msg = assert_one_error_line(proc.returncode, proc.stdout, proc.stderr, 'driveline[1].stiffness')
+    assert 'finite' in msg
+    assert not np.isfinite(float('nan'))

@@ -168,6 +168,7 @@ class Driveline:
         self.n_dof = len(sections)
         self._n_state = 2 * self.n_dof + (3 if track_energy else 0)
         self.x0 = self._initial_state()
+        self._fast = self._generate_rhs()
 
     # --- construction -------------------------------------------------------------------
 
@@ -225,12 +226,66 @@ class Driveline:
 
     def rhs(self, t: float, x: FloatArray, T_engine: float, T_load: float) -> FloatArray:
         """dx/dt for engine torque ``T_engine`` and resisting load torque ``T_load`` (N m)."""
-        return self._rhs(t, x, T_engine, T_load, None, None)
+        return self._fast(t, x, T_engine, T_load, None, None)
 
     def rhs_sources(self, t: float, x: FloatArray, engine: Any, load: Any) -> FloatArray:
         """dx/dt with the torque sources evaluated inside (one kinematics pass):
         T_e = engine.torque(t, omega_first, phi_first), T_l = load.torque(t, omega_last, phi_last)."""
-        return self._rhs(t, x, 0.0, 0.0, engine.torque, load.torque)
+        return self._fast(t, x, 0.0, 0.0, engine.torque, load.torque)
+
+    def _generate_rhs(self) -> Callable[..., FloatArray]:
+        """Straight-line Python for this chain (loops unrolled, constants inlined, a section's
+        inertias before its first joint summed at build time); same arithmetic as
+        :meth:`_rhs`, which stays the readable reference (tests compare the two)."""
+        n = self.n_dof
+        ns: dict[str, Any] = {'np_array': np.array}
+        L = ['def rhs(t, x, T_engine, T_load, engine_fn, load_fn):', ' xl = x.tolist()']
+        for g, ops in enumerate(self._ops):
+            L.append(f' q{g} = xl[{g}]; v{g} = xl[{n + g}]')
+            m0 = 0.0
+            k0 = len(ops)
+            for k, (jv, fn) in enumerate(ops):
+                if fn is not None:
+                    k0 = k
+                    break
+                m0 += jv
+            L.append(f' m{g} = {m0!r}; c{g} = 0.0')
+            if k0 == len(ops):
+                L.append(f' p{g} = q{g}; a{g} = 1.0; b{g} = 0.0')
+                continue
+            ns[f'F{g}_{k0}'] = ops[k0][1]
+            L.append(f' p{g}, a{g}, b{g} = F{g}_{k0}(q{g})')
+            for k in range(k0 + 1, len(ops)):
+                jv, fn = ops[k]
+                if fn is None:
+                    L.append(f' m{g} += {jv!r} * a{g} * a{g}; c{g} += {jv!r} * a{g} * b{g}')
+                else:
+                    ns[f'F{g}_{k}'] = fn
+                    L.append(f' p{g}, r, s = F{g}_{k}(p{g}); b{g} = s * a{g} * a{g} + r * b{g}; '
+                             f'a{g} = r * a{g}')
+        last = n - 1
+        L.append(' if engine_fn is not None:')
+        L.append(f'  T_engine = engine_fn(t, v0, q0); T_load = load_fn(t, a{last} * v{last}, p{last})')
+        L.append(' Q0 = T_engine')
+        for g in range(1, n):
+            L.append(f' Q{g} = 0.0')
+        L.append(f' Q{last} -= T_load * a{last}')
+        L.append(' pd = 0.0')
+        for k, sp in enumerate(self.springs):
+            L.append(f' th = p{k} - q{k + 1}; thd = a{k} * v{k} - v{k + 1}')
+            if sp.gap == 0.0:
+                el = f'{sp.c!r} * th' if sp.k2 == 0.0 else f'{sp.c!r} * (th + {sp.k2!r} * th * th * th)'
+                L.append(f' ts = {el} + {sp.d!r} * thd; pd += {sp.d!r} * thd * thd')
+            else:
+                ns[f'SP{k}'] = sp.evaluate
+                L.append(f' ts, _k, _kd, _v, pdk = SP{k}(th, thd); pd += pdk')
+            L.append(f' Q{k} -= ts * a{k}; Q{k + 1} += ts')
+        out = [f'v{g}' for g in range(n)] + [f'(Q{g} - c{g} * v{g} * v{g}) / m{g}' for g in range(n)]
+        if self.track_energy:
+            out += ['T_engine * v0', f'T_load * a{last} * v{last}', 'pd']
+        L.append(f' return np_array([{", ".join(out)}])')
+        exec(compile('\n'.join(L), f'<driveline rhs {self.scene.name}>', 'exec'), ns)  # noqa: S102
+        return ns['rhs']
 
     def _rhs(self, t: float, x: FloatArray, T_engine: float, T_load: float,
              engine_fn: Callable[..., float] | None, load_fn: Callable[..., float] | None

@@ -104,6 +104,7 @@ class RunResult:
     error: str | None = None
     stopped_by: str | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
+    phases: dict[str, float] = field(default_factory=dict)   # wall s since start of each phase end
 
 
 @dataclass
@@ -182,9 +183,49 @@ def _domain_env() -> tuple[dict[str, str], int]:
     return env, domain
 
 
+# Nodes that end by themselves (the coupling node after t_N) start through node_main(), which
+# flushes their publishers before exit (see node_main); the others are stopped by signal.
+FLUSH_ON_EXIT = ('coupling_node',)
+
+
+def node_main(name: str) -> None:
+    """Run node ``name``'s ``main()`` so that every publisher waits (at most 2 s) until all its
+    samples are acknowledged before the node is destroyed.
+
+    Work-around: cvj_ros.nodes.common.run_node destroys the node right after the last
+    publish, and the samples still in flight to a slower subscriber (the recorder, the
+    load node's answer to the final state) were lost - measured up to 23 of 201 joint
+    states. With the 20 ms heartbeat of :data:`FASTDDS_PROFILE` the wait ends within
+    milliseconds (measured 0-25 ms); it is bounded by 1 s in total. ``cvj-sim run`` starts the coupling node as
+    ``python -c 'from cvj_ros.orchestrate import node_main; node_main("coupling_node")' --ros-args ...``.
+    """
+    import importlib
+
+    from rclpy.duration import Duration
+    from rclpy.node import Node
+    destroy = Node.destroy_node
+
+    def destroy_after_flush(self: Node) -> Any:
+        deadline = time.monotonic() + 1.0  # one budget for all publishers
+        order = {bagmod.JOINT_STATES_TOPIC: 0, bagmod.CLOCK_TOPIC: 2}
+        for pub in sorted(self.publishers, key=lambda p: order.get(p.topic_name, 1)):
+            if bagmod.topic_type(pub.topic_name) is None:  # /rosout, /parameter_events
+                continue
+            try:
+                pub.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic())))
+            except Exception:  # noqa: BLE001 (context already shut down)
+                pass
+        return destroy(self)
+    Node.destroy_node = destroy_after_flush  # type: ignore[method-assign]
+    importlib.import_module(f'cvj_ros.nodes.{name}').main()
+
+
 def node_command(name: str) -> list[str]:
     """How to start node ``name``: the console script next to this Python, else on PATH,
-    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``."""
+    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``; nodes in
+    :data:`FLUSH_ON_EXIT` through :func:`node_main`."""
+    if name in FLUSH_ON_EXIT:
+        return [sys.executable, '-c', f'from cvj_ros.orchestrate import node_main; node_main({name!r})']
     exe = Path(sys.executable).with_name(name)
     if exe.exists():
         return [str(exe)]
@@ -235,7 +276,7 @@ def _die_with_parent() -> None:
 
 
 class _Recorder:
-    """BagRecorder on its own rclpy context, spun in a background thread of this process."""
+    """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
     def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int) -> None:
         import rclpy
@@ -245,18 +286,15 @@ class _Recorder:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
-        # SingleThreadedExecutor, not EventsExecutor: under bursts the EventsExecutor left
-        # received samples unread at the end of a run (measured: 58 of 201 joint states).
-        from rclpy.executors import SingleThreadedExecutor
-        self.executor: Any = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
         self.thread.start()
 
     def _spin(self) -> None:
-        while not self._stop.is_set() and self.ctx.ok():
-            self.executor.spin_once(timeout_sec=0.05)
+        # BagRecorder.spin takes every queued sample per wake. Executors were measured too slow
+        # or lossy here: SingleThreadedExecutor fell ~0.7 s behind a 200-step run, and
+        # rclpy.experimental.EventsExecutor left samples unread (24 of 101 joint states).
+        self.recorder.spin(self._stop)
 
     def publisher_count(self, topic: str) -> int:
         """Publishers matched by the recorder's subscription of ``topic``."""
@@ -282,7 +320,6 @@ class _Recorder:
         self.thread.join(2.0)
         try:
             self.recorder.destroy()
-            self.executor.shutdown()
             self.node.destroy_node()
         finally:
             if self.ctx.ok():
@@ -322,6 +359,20 @@ def error_line(log_path: Path) -> str | None:
     rest = [line.strip() for line in lines if line.strip()]
     return rest[-1] if rest else None  # e.g. the last line of a traceback
 
+
+# Fast DDS default writer profile for the node processes (unless the user gives one):
+# heartbeats every 20 ms instead of Fast DDS's 3 s, so a sample dropped on the way to a busy
+# subscriber (shared-memory port full on a loaded 2-core machine) is repaired within
+# milliseconds, and a writer's wait for acknowledgements at exit ends as soon as all arrived.
+FASTDDS_PROFILE = '''<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <publisher profile_name="cvj_ros_writer" is_default_profile="true">
+    <times>
+      <heartbeatPeriod><sec>0</sec><nanosec>20000000</nanosec></heartbeatPeriod>
+    </times>
+  </publisher>
+</profiles>
+'''
 
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
 
@@ -370,6 +421,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     logs = out / 'logs'
     logs.mkdir(parents=True, exist_ok=True)
     env['ROS_LOG_DIR'] = str(logs / 'ros')
+    if env.get('RMW_IMPLEMENTATION') == 'rmw_fastrtps_cpp' and not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
+        profile = out / 'fastdds_profile.xml'
+        profile.write_text(FASTDDS_PROFILE)
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
     load_override = None
     if prep.load_series is not None:
         load_override = out / 'load_override.npz'
@@ -386,6 +441,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             previous[sig] = signal.signal(sig, on_signal)
 
     wall0 = time.monotonic()
+    phases: dict[str, float] = {}
+
+    def mark(name: str) -> None:
+        phases[name] = round(time.monotonic() - wall0, 4)
     writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
     for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
                        ('cvj_ros.coupling_scheme', options.scheme),
@@ -408,6 +467,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 # volatile topics lose what is published before a match: the coupling node (which
                 # makes the peers talk) starts only once the recorder sees the peers' publishers
                 error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout)
+                mark('peers_connected')
                 if error is not None or stop_signal:
                     break
             params = node_parameters(prep, name, load_override=load_override)
@@ -426,6 +486,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             if error is not None:
                 break
             time.sleep(0.02)
+        mark('coupling_exited')
         if stop_signal or error is not None:
             stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
@@ -434,11 +495,17 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             recorder.drain(expected={}, idle=0.3, bound=2.0)
         else:
             rc = procs['coupling_node'].returncode
-            expected = {bagmod.JOINT_STATES_TOPIC: steps + 1} if rc == 0 and options.mode == 'lockstep' else {}
-            recorder.drain(expected=expected, idle=0.5, bound=5.0)
+            lockstep_ok = rc == 0 and options.mode == 'lockstep'
+            # lockstep: N+1 states and clocks are in flight when the coupling node exits
+            recorder.drain(expected={t: steps + 1 for t in (bagmod.CLOCK_TOPIC, bagmod.JOINT_STATES_TOPIC)}
+                           if lockstep_ok else {}, idle=2.0 if lockstep_ok else 0.5, bound=5.0)
+            # the peers answer the final state too (no one waits for those answers)
+            recorder.drain(expected={t: steps + 1 for t in PEER_TOPICS.values()} if lockstep_ok else {},
+                           idle=0.5, bound=2.0)
             if rc != 0:
                 line = error_line(logs / 'coupling_node.log')
                 error = f'coupling_node: {line}' if line else f'coupling_node: exited with status {rc}'
+        mark('drained')
         _stop_processes(procs, [n for n in procs if n != 'coupling_node'] + ['coupling_node']
                         if 'coupling_node' in procs else list(procs), options.grace)
     finally:
@@ -457,6 +524,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             if in_main:
                 for sig, handler in previous.items():
                     signal.signal(sig, handler)
+    mark('bag_closed')
     wall = time.monotonic() - wall0
     counts = dict(writer.counts)
     js = bagmod.JOINT_STATES_TOPIC
@@ -477,7 +545,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
         wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
         counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
-        stopped_by=stopped_by)
+        stopped_by=stopped_by, phases=phases)
     try:
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:

@@ -207,3 +207,23 @@ def test_recorder_writes_raw_messages_at_sim_time(tmp_path: Path, storage: str) 
     assert yaml.safe_load(bag.read_bag(tmp_path / 'b', ['/driveline/scene'])['/driveline/scene'].data[0]) == {'seed': 7}
     np.testing.assert_allclose(bag.read_bag(tmp_path / 'b', ['/coupling/rzeppa/wrench'])[
         '/coupling/rzeppa/wrench'].torque_z, np.arange(20.0))
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_writer_accepts_writes_from_other_threads(tmp_path: Path, storage: str) -> None:
+    """Recorder callbacks run on executor threads; sqlite3 objects are bound to their thread."""
+    import threading
+    w = bag.BagWriter(tmp_path / 'b', storage=storage)
+    w.add_topic('/load/wrench')
+
+    def writer(offset: int) -> None:
+        for k in range(50):
+            w.write('/load/wrench', (offset + k) * 1000, _wrench((offset + k) * 1e-6, float(offset + k)))
+    threads = [threading.Thread(target=writer, args=(i * 50,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    w.close()
+    _, tz = bag.load_torque_series(tmp_path / 'b')
+    np.testing.assert_array_equal(tz, np.arange(100.0))

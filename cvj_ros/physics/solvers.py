@@ -24,12 +24,16 @@ method          order  stability                        source
 
 Implementation notes (measured on the project machine, n = 4):
 
-* State vectors are small numpy arrays; stage combinations use one ``np.dot``
-  of a coefficient row with the stacked stage matrix ``K`` (one C call per stage
-  instead of one per term). Python-float lists were slower as soon as ``fun``
-  returns an ndarray (the conversion costs more than the arithmetic).
+* State vectors are small numpy arrays. Each stage argument is one ``np.dot``
+  of an h-scaled coefficient row with an extended stage matrix whose row 0 is y
+  (so ``y + h sum a_ij k_j`` is a single C call, ~1.5 us, plus ~0.4 us to store
+  the stage). Python-float lists were measured and rejected: a 6-term stage
+  combination as a list comprehension costs ~1.9 us, plus ~0.65 us to build the
+  ndarray that ``fun`` takes and ~0.2 us for ``tolist()`` of its result.
+  Overhead per step without fun: dopri5 ~15 us, dop853 ~22 us, RODAS ~34 us.
 * Step-size control: Hairer's PI controller (Gustafsson, "Lund stabilisation"),
-  ``h_new = h * safe * err^-(1/q - 0.75 beta) * err_old^beta``, clamped, with no
+  ``h_new = h * safe * err^-(1/(q+1) - 0.75 beta) * err_old^beta`` (q: order of
+  the error estimator), clamped, with no
   growth right after a rejection; initial step from Hairer's ``HINIT``
   (Hairer, Norsett, Wanner I, sec. II.4).
 * ``advance_to`` clips the last step to land exactly on ``t_end`` but keeps the

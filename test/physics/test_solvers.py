@@ -151,15 +151,17 @@ def test_dense_output_inside_last_step(method: str, tol: float) -> None:
         st.dense(st.t + 1.0)
 
 
-def test_dense_output_order_dopri5() -> None:
-    """Interpolation error at mid-step falls like h^5 (4th-order dense output)."""
+@pytest.mark.parametrize('method,local_order', [('dopri5', 5), ('rosenbrock', 5), ('rodas4', 4)])
+def test_dense_output_local_order(method: str, local_order: int) -> None:
+    """Interpolation error inside one step falls at least like h^(p+1) for a dense
+    output of order p (4 for dopri5 and RODAS5P, 3 for the Hermite of RODAS4)."""
     errs = []
-    for h in (0.4, 0.2):
-        st = make_stepper('dopri5', oscillator, 0.0, [1.0, 0.0], h=h, max_step=h, rtol=1, atol=1)
+    for h in (0.4, 0.2, 0.1):
+        st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], h=h, max_step=h, rtol=1, atol=1,
+                          jac=oscillator_jac)
         st.advance_to(h)
-        tm = 0.5 * h
-        errs.append(abs(st.dense(tm)[0] - math.cos(tm)))
-    assert math.log2(errs[0] / errs[1]) > 4.5
+        errs.append(max(abs(st.dense(x * h)[0] - math.cos(x * h)) for x in (0.2, 0.5, 0.7)))
+    assert math.log2(errs[1] / errs[2]) > local_order - 0.3, errs
 
 
 def test_rosenbrock_stiff_decay_few_steps() -> None:

@@ -16,7 +16,10 @@ the subscription callback, so the loop is event driven (no busy waiting). A watc
 timer ends the run with one ERROR line naming the missing topic when an answer takes
 longer than ``peer_timeout``. Answers with another stamp (late, duplicate,
 out-of-order) are ignored and counted; a NaN/inf torque is never integrated: ERROR
-diagnostic and exit 1. Before step 0 the node waits (bounded by ``start_timeout``) until
+diagnostic and exit 1. A second publisher on /driveline/joint_states, /engine/wrench or
+/load/wrench (another run on the same ROS domain) stops the loop with an ERROR naming the
+domain (checked before step 0 and on every watchdog tick), since its answers would carry
+the same stamps and mix into this loop. Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost. After t_N = duration it publishes the final joint
 state and exits 0.
@@ -31,6 +34,7 @@ first answer).
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -264,8 +268,32 @@ class CouplingNode(CvjNode):
                 missing.append(f'{topic} (no publisher)')
         return missing
 
+    def foreign_publishers(self) -> str | None:
+        """Lockstep: a description of extra publishers on the loop topics, else None.
+
+        The loop needs exactly one publisher of /driveline/joint_states (this node), of
+        /engine/wrench and of /load/wrench. More means another run shares this ROS domain:
+        its answers carry the same stamps and would be integrated here (silently wrong).
+        """
+        if self.mode != 'lockstep':
+            return None
+        extra = [f'{topic} has {n} publishers'
+                 for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
+                                  (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
+                                  (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count()))
+                 if n > 1]
+        if not extra:
+            return None
+        return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
+                f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
+                f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
+
     def _try_start(self) -> None:
         if self.started or self.exit_code is not None:
+            return
+        foreign = self.foreign_publishers()
+        if foreign:
+            self._stop_with_error(foreign)
             return
         missing = self.missing_peers()
         if missing:
@@ -294,7 +322,13 @@ class CouplingNode(CvjNode):
         self._wait_start_mono = time.monotonic()
 
     def _check_peers(self) -> None:
-        if not self.waiting or self.exit_code is not None:
+        if self.exit_code is not None:
+            return
+        foreign = self.foreign_publishers()
+        if foreign:
+            self._stop_with_error(foreign)
+            return
+        if not self.waiting:
             return
         if time.monotonic() - self._wait_start_mono > self.params['peer_timeout']:
             missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),

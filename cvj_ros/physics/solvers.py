@@ -973,18 +973,22 @@ def sample_dense(stepper: Stepper, t_eval) -> np.ndarray:
 
     The stepper takes its natural steps (``step``) up to the last time and each
     sample comes from the dense output of the step that contains it, so dense
-    sampling does not shorten the steps (``advance_to`` per sample would).
-    Times before ``stepper.t`` are refused; a time equal to it returns y.
+    sampling does not shorten the steps (``advance_to`` per sample would: one
+    step per sample when samples are closer than the natural step). Times may
+    start inside the last accepted step (>= ``stepper.t_old``), so the function
+    can be called sample by sample: ``x_k = sample_dense(st, [t_k])[0]``. The
+    stepper ends at or after the last time, not exactly on it: use
+    ``advance_to`` where the state must sit on a time (input changes).
     """
     times = np.asarray(t_eval, dtype=float).reshape(-1)
-    if times.size and (np.any(np.diff(times) < 0) or times[0] < stepper.t
+    if times.size and (np.any(np.diff(times) < 0) or times[0] < stepper.t_old
                        or not np.all(np.isfinite(times))):
-        raise SolverOptionError('t_eval', f'must be finite, increasing and >= t={stepper.t!r}')
+        raise SolverOptionError('t_eval', f'must be finite, increasing and >= the start of the '
+                                f'last step t_old={stepper.t_old!r}')
     out = np.empty((times.size, stepper.y.size))
-    t_last = times[-1] if times.size else stepper.t
     for i, t in enumerate(times):
         while stepper.t < t:
-            stepper.step(t_last)
+            stepper.step()
         out[i] = stepper.y if t == stepper.t else stepper.dense(t)
     return out
 

@@ -188,3 +188,17 @@ def test_generated_rhs_matches_reference_loop(track: bool) -> None:
             x[n:2 * n] += rng.uniform(-3, 3, n)
             ref = dl._rhs(0.1, x, 80.0, 20.0, None, None)
             assert np.allclose(dl.rhs(0.1, x, 80.0, 20.0), ref, rtol=1e-13, atol=1e-12), sc.name
+
+
+def test_reactions_use_the_joint_input_state() -> None:
+    """Driveline.reactions passes (phi_in, omega_in, torque_in) of each joint; a lossless
+    joint's reported output torque equals the output shaft's effort (T_in / ratio)."""
+    dl = Driveline.from_scene(scene(MIXED))
+    x = dl.x0.copy()
+    x[:3] += [0.4, 0.2, 0.1]
+    names, _pos, _vel, eff = dl.joint_states(x, 150.0, 42.0)
+    react = dl.reactions(x, 150.0, 42.0)
+    for j in ('h1', 'h2'):
+        if 'torque_out' not in react.get(j, {}):
+            pytest.skip('hooke model gives no torque_out reaction')
+        assert react[j]['torque_out'] == pytest.approx(eff[names.index(f'{j}_output')], rel=1e-9)

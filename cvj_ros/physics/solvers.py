@@ -96,6 +96,9 @@ class Stepper(Protocol):
     method: str
     t: float
     y: np.ndarray
+    t_old: float
+    y_old: np.ndarray
+    h: float | None
     nfev: int
     njev: int
     nlu: int

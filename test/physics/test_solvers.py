@@ -372,3 +372,15 @@ def test_rosenbrock_time_derivative_matches_autonomized_system(method: str) -> N
     assert ya[0] == pytest.approx(yb[0], abs=1e-9)
     exact = 1.3 * math.exp(-2.0) + (math.sin(6.0) - 3 * math.cos(6.0)) / 10
     assert abs(ya[0] - exact) < (1e-4 if method == 'ros2' else 1e-6)
+
+
+@pytest.mark.parametrize('method', list(METHODS))
+def test_every_method_satisfies_the_stepper_protocol(method: str) -> None:
+    from cvj_ros.physics.solvers import Stepper
+
+    st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], h=0.1, jac=oscillator_jac)
+    assert isinstance(st, Stepper)
+    st.advance_to(0.35)
+    stats = st.stats()
+    assert stats['method'] == method and stats['t'] == 0.35
+    assert stats['naccept'] == st.naccept > 0 and stats['nfev'] == st.nfev > 0

@@ -1,0 +1,205 @@
+"""Faults with the real node processes (DESIGN.md section 9), each run a few seconds of loop.
+
+* A node that answers late: once /clock shows the loop stepping (t >= 0.1 s), the engine
+  process is frozen (SIGSTOP) for 0.5 s, shorter than peer_timeout = 1.5 s: the lockstep loop waits and goes on, and the recorded states
+  still equal the offline coupled stepper at the same exchange step (so nothing was
+  integrated out of order). Later the load process is frozen for longer than
+  peer_timeout: the run stops with exit 1 and one error line naming /load/wrench and
+  peer_timeout; the bag is complete up to the stop (readable, consecutive stamps from 0,
+  an ERROR status on /diagnostics).
+* A second run on the same ROS domain at the same time: the running loop and the new one
+  both stop with exit 1 and an error naming the domain, instead of silently integrating
+  each other's torques; the first run's bag stays readable with its own states up to the
+  stop.
+
+Already covered elsewhere (not repeated): a killed engine node and SIGINT with a readable
+bag (test/e2e/test_run.py), duplicate / late / out-of-order stamps and NaN torques from the
+peers (test/nodes/test_coupling_node.py, in-process, exact stamps and momentum balance).
+"""
+from __future__ import annotations
+
+import io
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cvj_ros import bag
+
+pytestmark = [pytest.mark.e2e, pytest.mark.ros]
+
+CVJ_SIM = str(Path(sys.executable).with_name('cvj-sim'))
+H = 1e-3
+SCENE = {
+    'name': 'faults', 'seed': 5, 'duration': 1000.0, 'exchange_step': H,
+    'solver': {'method': 'dopri5', 'rtol': 1e-9, 'atol': 1e-11},
+    'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': 100.0},
+    'initial': {'speed_rpm': 300.0},
+    'driveline': [
+        {'type': 'inertia', 'name': 'crank', 'J': 0.128},
+        {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35},
+        {'type': 'joint', 'name': 'cpl', 'kind': 'hooke', 'fidelity': 'exact',
+         'params': {'beta_deg': 15.0}},
+        {'type': 'inertia', 'name': 'driven', 'J': 0.161},
+    ],
+}
+
+
+def wait_for_text(path: Path, text: str, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists() and text in path.read_text(errors='replace'):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f'{text!r} not in {path} after {timeout} s')
+
+
+def check_bag_up_to_stop(bag_path: Path) -> bag.JointStateSeries:
+    """Readable bag, joint states consecutive from t = 0 at exactly k * H, all finite."""
+    js = bag.read_bag(bag_path, ['/driveline/joint_states'])['/driveline/joint_states']
+    k = np.round(js.t / H).astype(np.int64)
+    np.testing.assert_array_equal(k, np.arange(k.size))
+    assert np.all(np.isfinite(js.position)) and np.all(np.isfinite(js.velocity))
+    return js
+
+
+def offline_lockstep(n_steps: int) -> np.ndarray:
+    """Shaft speeds at t_k of the same loop offline: CoupledStepper (zoh) with the engine and
+    load torques evaluated at the exchange points, as engine_node / load_node do."""
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.load import load_from_spec
+    from cvj_ros.physics.scene import parse_scene
+    sc = parse_scene(SCENE)
+    engine, load = engine_from_spec(sc.engine), load_from_spec(sc.load, seed=sc.seed)
+    dl = Driveline.from_scene(sc)
+    cs = CoupledStepper(dl, scheme='zoh', method=sc.solver.method, rtol=sc.solver.rtol,
+                        atol=sc.solver.atol)
+    x = dl.x0.copy()
+    out = [dl.joint_states(x, 0.0, 0.0)[2]]
+    for k in range(n_steps):
+        t = k * H
+        x = cs.advance((k + 1) * H, engine.torque(t, dl.engine_omega(x), dl.engine_phi(x)),
+                       load.torque(t, dl.load_omega(x), dl.load_phi(x)))
+        out.append(dl.joint_states(x, 0.0, 0.0)[2])
+    return np.asarray(out)
+
+
+class SimClock:
+    """Follows /clock from the test process (a subscriber only: no extra publisher)."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+
+        from cvj_ros.nodes.qos import CLOCK_TOPIC, DATA_QOS
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node('fault_test_clock', context=self.ctx)
+        self.t = -1.0
+        self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, DATA_QOS)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+
+    def _on_clock(self, msg) -> None:
+        self.t = msg.clock.sec + 1e-9 * msg.clock.nanosec
+
+    def wait_until(self, t_sim: float, timeout: float) -> float:
+        """Spin until simulated time >= t_sim (s); return the time seen."""
+        deadline = time.monotonic() + timeout
+        while self.t < t_sim:
+            assert time.monotonic() < deadline, f'/clock did not reach {t_sim} s'
+            self.executor.spin_once(timeout_sec=0.05)
+        return self.t
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def test_late_engine_recovers_and_frozen_load_stops_with_clear_error(tmp_path: Path) -> None:
+    from cvj_ros.orchestrate import RunOptions, run
+    scene = tmp_path / 'faults.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    out = tmp_path / 'run'
+    log = out / 'logs' / 'coupling_node.log'
+    events: dict[str, float] = {}
+
+    def freeze(proc: subprocess.Popen, seconds: float, name: str) -> None:
+        os.kill(proc.pid, signal.SIGSTOP)
+        events[f'{name}_stop'] = time.monotonic()
+        try:
+            time.sleep(seconds)
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+
+    def on_started(procs: dict[str, subprocess.Popen]) -> None:
+        def chaos() -> None:
+            clock = SimClock()
+            try:
+                events['t_engine_freeze'] = clock.wait_until(0.1, 60.0)   # loop is stepping
+                freeze(procs['engine_node'], 0.5, 'engine')   # late, within peer_timeout
+                events['t_after_engine'] = clock.wait_until(events['t_engine_freeze'] + 0.1, 30.0)
+                freeze(procs['load_node'], 3.0, 'load')       # beyond peer_timeout
+            finally:
+                clock.close()
+        threading.Thread(target=chaos, daemon=True).start()
+
+    result = run(RunOptions(scene=str(scene), out=out, peer_timeout=1.5), stream=io.StringIO(),
+                 on_started=on_started)
+    assert 'engine_stop' in events and 'load_stop' in events, events
+    assert result.exit_code == 1
+    assert result.error is not None and '\n' not in result.error
+    assert '/load/wrench' in result.error and 'peer_timeout' in result.error
+    assert '/engine/wrench' not in result.error
+    js = check_bag_up_to_stop(out / 'bag')
+    # the engine froze mid-run (t >= 0.1 s) and the loop went on for >= 0.1 s after it
+    assert events['t_engine_freeze'] >= 0.1
+    assert js.t[-1] >= events['t_after_engine'] >= events['t_engine_freeze'] + 0.1
+    # the 0.5 s engine freeze is inside the recorded run and changed nothing: states equal
+    # the offline loop (same arithmetic; solver tolerance and stamp rounding remain)
+    ref = offline_lockstep(js.t.size - 1)
+    np.testing.assert_allclose(js.velocity, ref, rtol=1e-6, atol=1e-9)
+    diag = bag.read_bag(out / 'bag', ['/diagnostics'])['/diagnostics']
+    errors = [s for msg in diag.statuses for s in msg if s['level'] == 2]
+    assert any('/load/wrench' in s['message'] for s in errors)
+
+
+def test_second_run_on_the_same_domain_stops_both(tmp_path: Path) -> None:
+    scene = tmp_path / 'faults.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    out_a, out_b = tmp_path / 'a', tmp_path / 'b'
+    env = dict(os.environ)
+    first = subprocess.Popen([CVJ_SIM, 'run', str(scene), '--out', str(out_a)], env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_text(out_a / 'logs' / 'coupling_node.log', 'waiting for peers', 60)
+        time.sleep(1.0)                                   # run A is stepping
+        second = subprocess.run([CVJ_SIM, 'run', str(scene), '--out', str(out_b)], env=env,
+                                capture_output=True, text=True, timeout=120)
+        out, err = first.communicate(timeout=60)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    domain = f'ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}'
+    for code, stderr in ((first.returncode, err), (second.returncode, second.stderr)):
+        assert code == 1, stderr
+        assert 'Traceback' not in stderr
+        lines = stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith('cvj-sim: error: coupling_node:'), stderr
+        assert domain in lines[0] and 'publishers' in lines[0]
+    js = check_bag_up_to_stop(out_a / 'bag')
+    assert js.t.size > 10
+    assert np.unique(js.t).size == js.t.size              # no state of run B mixed in

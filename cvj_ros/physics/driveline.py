@@ -345,77 +345,94 @@ class Driveline:
         Dependence of the torques on shaft angle (firing ripple) is not included."""
         n = self.n_dof
         ns = self._n_state
-        jac = np.zeros((ns, ns))
+        n2 = 2 * n
         xl = x.tolist()
         sec = []
         for g in range(n):
             q = xl[g]
-            phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
-            mp = 0.0
+            phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
+            has_joint = False
             for jv, fn in self._ops[g]:
                 if fn is None:
                     m += jv * a * a
                     c += jv * a * b
                     mp += 2.0 * jv * a * b
                 else:
+                    has_joint = True
                     po, r, s = fn(phi)
                     b = s * a * a + r * b
                     a = r * a
                     phi = po
-            h = 1e-6 * max(1.0, abs(q))
-            cp = (self._section(g, q + h)[4] - self._section(g, q - h)[4]) / (2.0 * h)
+            if has_joint:
+                h = 1e-6 * max(1.0, abs(q))
+                cp = (self._section(g, q + h)[4] - self._section(g, q - h)[4]) / (2.0 * h)
+            else:
+                cp = 0.0
             sec.append((phi, a, b, m, c, mp, cp))
         qf = [0.0] * n
-        dq = np.zeros((n, 2 * n))       # dQ_g / d[q, v]
+        dq = [[0.0] * n2 for _ in range(n)]      # dQ_g / d[q, v]
         qf[0] += T_engine
-        dq[0, n] += dTe_domega
-        _pl, al, bl = sec[-1][0], sec[-1][1], sec[-1][2]
-        vl = xl[2 * n - 1]
+        dq[0][n] += dTe_domega
+        al, bl = sec[-1][1], sec[-1][2]
+        vl = xl[n2 - 1]
         qf[-1] -= T_load * al
-        dq[n - 1, n - 1] += -T_load * bl - dTl_domega * bl * vl * al
-        dq[n - 1, 2 * n - 1] += -dTl_domega * al * al
-        dpd = np.zeros(2 * n)           # d(p_damp)/d[q, v]
+        dq[n - 1][n - 1] += -T_load * bl - dTl_domega * bl * vl * al
+        dq[n - 1][n2 - 1] += -dTl_domega * al * al
+        dpd = [0.0] * n2                         # d(p_damp)/d[q, v]
         for k, sp in enumerate(self.springs):
             phi_l, a_l, b_l = sec[k][0], sec[k][1], sec[k][2]
             th = phi_l - xl[k + 1]
             thd = a_l * xl[n + k] - xl[n + k + 1]
             ts, k_th, k_d, _v, _pd = sp.evaluate(th, thd)
-            # theta, thetadot partials w.r.t. (q_k, q_k+1, v_k, v_k+1)
-            dth = {k: a_l}
-            dth_q1 = -1.0
+            # partials: dtheta/dq_k = a_l, dtheta/dq_k+1 = -1; dthetadot/dq_k = b_l v_k,
+            # dthetadot/dv_k = a_l, dthetadot/dv_k+1 = -1
             dthd_qk = b_l * xl[n + k]
-            dts = np.zeros(2 * n)
-            dts[k] = k_th * dth[k] + k_d * dthd_qk
-            dts[k + 1] = k_th * dth_q1
-            dts[n + k] = k_d * a_l
-            dts[n + k + 1] = -k_d
+            d_qk = k_th * a_l + k_d * dthd_qk
+            d_qk1 = -k_th
+            d_vk = k_d * a_l
+            d_vk1 = -k_d
             qf[k] -= ts * a_l
             qf[k + 1] += ts
-            dq[k] -= dts * a_l
-            dq[k, k] -= ts * b_l
-            dq[k + 1] += dts
-            # dissipation power p = d e' thd^2 (its theta dependence through e')
-            _e, de, dde = sp.deflection(th)
-            dp_dth = sp.d * dde * thd * thd
-            dp_dthd = 2.0 * sp.d * de * thd
-            dpd[k] += dp_dth * a_l + dp_dthd * dthd_qk
-            dpd[k + 1] += -dp_dth
-            dpd[n + k] += dp_dthd * a_l
-            dpd[n + k + 1] += -dp_dthd
+            rk, rk1 = dq[k], dq[k + 1]
+            rk[k] -= d_qk * a_l + ts * b_l
+            rk[k + 1] -= d_qk1 * a_l
+            rk[n + k] -= d_vk * a_l
+            rk[n + k + 1] -= d_vk1 * a_l
+            rk1[k] += d_qk
+            rk1[k + 1] += d_qk1
+            rk1[n + k] += d_vk
+            rk1[n + k + 1] += d_vk1
+            if self.track_energy and sp.d != 0.0:
+                # dissipation power p = d e' thd^2 (theta dependence through e')
+                _e, de, dde = sp.deflection(th)
+                dp_dth = sp.d * dde * thd * thd
+                dp_dthd = 2.0 * sp.d * de * thd
+                dpd[k] += dp_dth * a_l + dp_dthd * dthd_qk
+                dpd[k + 1] -= dp_dth
+                dpd[n + k] += dp_dthd * a_l
+                dpd[n + k + 1] -= dp_dthd
+        pad = [0.0] * (ns - n2)
+        rows: list[list[float]] = []
+        for g in range(n):
+            row = [0.0] * ns
+            row[n + g] = 1.0
+            rows.append(row)
         for g in range(n):
             _phi, _a, _b, m, c, mp, cp = sec[g]
             v = xl[n + g]
-            jac[g, n + g] = 1.0
-            row = dq[g] / m
-            row[g] += -cp * v * v / m - (qf[g] - c * v * v) * mp / (m * m)
-            row[n + g] += -2.0 * c * v / m
-            jac[n + g, :2 * n] = row
+            inv = 1.0 / m
+            row = [d * inv for d in dq[g]]
+            row[g] += -cp * v * v * inv - (qf[g] - c * v * v) * mp * inv * inv
+            row[n + g] += -2.0 * c * v * inv
+            rows.append(row + pad)
         if self.track_energy:
-            jac[2 * n, n] = T_engine + dTe_domega * xl[n]
-            jac[2 * n + 1, n - 1] = T_load * bl * vl + dTl_domega * bl * vl * al * vl
-            jac[2 * n + 1, 2 * n - 1] = T_load * al + dTl_domega * al * al * vl
-            jac[2 * n + 2, :2 * n] = dpd
-        return jac
+            we = [0.0] * ns
+            we[n] = T_engine + dTe_domega * xl[n]
+            wl = [0.0] * ns
+            wl[n - 1] = T_load * bl * vl + dTl_domega * bl * vl * al * vl
+            wl[n2 - 1] = T_load * al + dTl_domega * al * al * vl
+            rows += [we, wl, dpd + pad]
+        return np.array(rows)
 
     # --- views ----------------------------------------------------------------------------
 

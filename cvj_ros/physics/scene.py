@@ -397,10 +397,11 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
     if 'speed_rad_s' in init and 'speed_rpm' in init:
         raise SceneError('initial.speed_rpm', 'give either speed_rad_s or speed_rpm, not both')
     speed = 0.0
+    # bounded so that squares of speeds stay far from float overflow (1e6 rad/s ~ 9.5e6 rpm)
     if 'speed_rad_s' in init:
-        speed = _number(init['speed_rad_s'], 'initial.speed_rad_s')
+        speed = _number(init['speed_rad_s'], 'initial.speed_rad_s', lo=-1e6, hi=1e6)
     elif 'speed_rpm' in init:
-        speed = _number(init['speed_rpm'], 'initial.speed_rpm') * math.pi / 30.0
+        speed = _number(init['speed_rpm'], 'initial.speed_rpm', lo=-9.5e6, hi=9.5e6) * math.pi / 30.0
     angle = math.radians(_number(init.get('angle_deg', 0.0), 'initial.angle_deg'))
     raw_chain = d['driveline']
     if not isinstance(raw_chain, list) or not raw_chain:

@@ -101,7 +101,8 @@ class CoupledStepper:
         if slope not in ('reported', 'estimate'):
             raise SolverOptionError('slope', f"must be 'reported' or 'estimate', got {slope!r}")
         if not (isinstance(slope_window, int) and slope_window >= 2):
-            raise SolverOptionError('slope_window', f'must be an integer >= 2, got {slope_window!r}')
+            raise SolverOptionError('slope_window',
+                                    f'must be an integer >= 2, got {slope_window!r}')
         if not (slope_max > 0):
             raise SolverOptionError('slope_max', f'must be > 0, got {slope_max!r}')
         self.driveline = driveline
@@ -167,7 +168,8 @@ class CoupledStepper:
         J = np.array(dl.jacobian(t, x, Te, Tl), dtype=float)
         if self.scheme == 'linear_implicit' and (self._Ke or self._Kl):
             f0 = dl.rhs(t, x, Te, Tl)
-            for K, omega_fn, which in ((self._Ke, dl.engine_omega, 0), (self._Kl, dl.load_omega, 1)):
+            for K, omega_fn, which in ((self._Ke, dl.engine_omega, 0),
+                                       (self._Kl, dl.load_omega, 1)):
                 if not K:
                     continue
                 dT = 1.0

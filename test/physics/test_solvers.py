@@ -141,7 +141,8 @@ def test_step_persistence_beats_restarting(method: str) -> None:
                                         ('rodas4', 1e-5),
                                         ('rk4', 1e-5), ('ros2', 1e-3)])
 def test_dense_output_inside_last_step(method: str, tol: float) -> None:
-    kw = dict(h=0.1 if method == 'rk4' else 0.01) if method in FIXED else dict(rtol=1e-9, atol=1e-12)
+    kw = (dict(h=0.1 if method == 'rk4' else 0.01) if method in FIXED
+          else dict(rtol=1e-9, atol=1e-12))
     st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], jac=oscillator_jac, **kw)
     st.advance_to(3.0)
     np.testing.assert_array_equal(st.dense(st.t), st.y)
@@ -329,7 +330,8 @@ def test_blow_up_raises_solver_error() -> None:
 def test_sample_dense_matches_closed_form_without_shortening_steps(method: str) -> None:
     from cvj_ros.physics.solvers import sample_dense
 
-    kw = dict(h=0.05 if method == 'rk4' else 0.002) if method in FIXED else dict(rtol=1e-9, atol=1e-12)
+    kw = (dict(h=0.05 if method == 'rk4' else 0.002) if method in FIXED
+          else dict(rtol=1e-9, atol=1e-12))
     t_eval = np.linspace(0.0, 5.0, 501)  # samples 10 ms apart
     st = make_stepper(method, oscillator, 0.0, [1.0, 0.0], jac=oscillator_jac, autonomous=True,
                       constant_jac=method == 'ros2', **kw)

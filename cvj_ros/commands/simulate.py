@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--atol', type=float, help='absolute tolerance (default: scene)')
     parser.add_argument('--fidelity', nargs='+', default=[], metavar='NAME=LEVEL',
                         help='force fidelity: joint=ideal|closed|exact, spring=elastic|rigid')
+    parser.add_argument('--dense', action='store_true',
+                        help='sample from the dense output (free steps) instead of landing on samples')
     parser.add_argument('--transient', type=float, help='seconds skipped before the metrics window')
     parser.add_argument('--csv', metavar='FILE', help='write the sampled trace as CSV')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
@@ -79,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(find_scene(args.scene))
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                      fidelity=parse_fidelity(args.fidelity))
-    trace = sim.run(args.duration, sample_dt=args.sample_dt)
+    trace = sim.run(args.duration, sample_dt=args.sample_dt,
+                    sampling='dense' if args.dense else 'land')
     summary = sim.summary(transient=args.transient)
     if args.csv:
         trace.to_csv(args.csv)

@@ -132,9 +132,16 @@ class Simulation:
         return (float(self.engine.torque(t, float(x[n]), float(x[0]))),
                 float(self.load.torque(t, w_l, phi_l)))
 
-    def run(self, duration: float | None = None, *, sample_dt: float | None = None) -> Trace:
+    def run(self, duration: float | None = None, *, sample_dt: float | None = None,
+            sampling: str = 'land') -> Trace:
         """Integrate from t = 0 over ``duration`` (s, default the scene's), sampling every
-        ``sample_dt`` (s). Raises SolverError if the state becomes non-finite."""
+        ``sample_dt`` (s). ``sampling='land'`` steps exactly onto every sample time (samples
+        are solver points; dense sampling then bounds the step); ``'dense'`` lets the
+        controller choose its steps and reads samples from the method's dense output
+        (interpolant of the method's dense order; cheaper when samples are denser than
+        steps). Raises SolverError if the state becomes non-finite."""
+        if sampling not in ('land', 'dense'):
+            raise SceneError('sampling', f"must be 'land' or 'dense', got {sampling!r}")
         from cvj_ros.physics.solvers import make_stepper
         sc = self.scene
         dur = float(sc.duration if duration is None else duration)
@@ -171,16 +178,34 @@ class Simulation:
         integ = 0.0
         clock = time.perf_counter
         x = x0
-        for k, tk in enumerate(times):
-            if k > 0:
-                c0 = clock()
-                x = stepper.advance_to(float(tk))
-                integ += clock() - c0
-                if not np.all(np.isfinite(x)):
-                    raise SolverError(f'state became non-finite at t = {tk:g} s')
-            te[k], tl[k] = self.torques(float(tk), x)
+
+        def record(k: int, x: FloatArray) -> None:
+            tk = float(times[k])
+            if not np.all(np.isfinite(x)):
+                raise SolverError(f'state became non-finite at t = {tk:g} s')
+            te[k], tl[k] = self.torques(tk, x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan
+
+        record(0, x)
+        if sampling == 'land':
+            for k in range(1, times.size):
+                c0 = clock()
+                x = stepper.advance_to(float(times[k]))
+                integ += clock() - c0
+                record(k, x)
+        else:
+            k = 1
+            t_end = float(times[-1])
+            while k < times.size:
+                c0 = clock()
+                t_new = stepper.step(t_end)
+                integ += clock() - c0
+                while k < times.size and times[k] <= t_new:
+                    x = stepper.y if times[k] == t_new else stepper.dense(float(times[k]))
+                    record(k, np.asarray(x, dtype=float))
+                    k += 1
+            x = stepper.y
         dl.fill_mid(pos, vel)
         wall = time.perf_counter() - wall0
         stats = stepper.stats() if hasattr(stepper, 'stats') else {

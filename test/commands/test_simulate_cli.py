@@ -25,7 +25,7 @@ def test_simulate_text_summary(capsys) -> None:
 def test_simulate_json_and_csv(tmp_path, capsys) -> None:
     csv = tmp_path / 'run.csv'
     assert main(['simulate', 'stiff', '--duration', '0.1', '--json', '--csv', str(csv),
-                 '--method', 'rosenbrock', '--rtol', '1e-7']) == 0
+                 '--method', 'rosenbrock', '--rtol', '1e-7', '--dense']) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary['solver']['method'] == 'rosenbrock'
     assert summary['solver']['rtol'] == 1e-7

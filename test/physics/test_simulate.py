@@ -254,3 +254,15 @@ def _run_6000rpm(revs: float) -> None:
     # output inertia: d ln w_out = d ln r (1 - J_b r^2 / M) ~ (1 - 0.05/1.05) d ln r
     assert delta(e0) == pytest.approx((1 / math.cos(beta) - math.cos(beta)) * (1 - 0.05 / 1.05),
                                       rel=0.005)
+
+
+@pytest.mark.parametrize('method', ['dopri5', 'dop853', 'rosenbrock'])
+def test_dense_sampling_matches_landing_with_fewer_steps(method: str) -> None:
+    sc = make([I('a', 0.128), S('s', 715.4, 6.35), Jt('h', 'hooke', beta_deg=15.0), I('b', 0.161)],
+              speed=39.0)
+    land = Simulation(sc, method=method, rtol=1e-8, atol=1e-10).run(0.5, sample_dt=2e-4)
+    dense = Simulation(sc, method=method, rtol=1e-8, atol=1e-10).run(0.5, sample_dt=2e-4, sampling='dense')
+    assert dense.solver['naccept'] < 0.5 * land.solver['naccept']
+    np.testing.assert_array_equal(dense.t, land.t)
+    assert np.max(np.abs(dense.velocity - land.velocity)) < 1e-4 * 39.0
+    assert dense.max_energy_residual < 1e-5

@@ -9,8 +9,10 @@ the same bag twice (DESIGN.md section 3, docs/contracts.md "Topics and bags"):
 
 * ``/clock`` (rosgraph_msgs/Clock): its ``clock`` field;
 * stamped data (sensor_msgs/JointState, geometry_msgs/WrenchStamped): ``header.stamp``;
-* everything else (``/driveline/scene``, ``/diagnostics``, ``/engine/throttle``): the
-  latest ``/clock`` time seen by the recorder (0 before the first ``/clock``).
+* ``/driveline/scene``: 0 (t0; it is published once before step 0, and when the latched
+  message arrives relative to /clock differs from run to run);
+* everything else (``/diagnostics``, ``/engine/throttle``): the latest ``/clock`` time
+  seen by the recorder (0 before the first ``/clock``).
   ``/diagnostics`` headers may carry wall-clock stamps, so they are not used.
 
 Both stamped layouts put a ``builtin_interfaces/Time`` first in the message, so the
@@ -542,7 +544,12 @@ class BagRecorder:
         import time
         if topic not in self.writer.counts:  # bag connections only for topics with messages
             self.writer.add_topic(topic, msgtype)
-        stamp = cdr_stamp_ns(data) if stamped else self.clock_ns
+        if stamped:
+            stamp = cdr_stamp_ns(data)
+        elif topic == SCENE_TOPIC:
+            stamp = 0  # published once before step 0 (t0 = 0); its arrival time races /clock
+        else:
+            stamp = self.clock_ns
         if is_clock:
             self.clock_ns = max(self.clock_ns, stamp)
         if topic == SCENE_TOPIC and self.scene_text is None:

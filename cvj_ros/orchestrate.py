@@ -485,6 +485,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                     error = f'{name}: ' + (error_line(logs / f'{name}.log') or 'bad parameter (exit 2)')
             if error is not None:
                 break
+            if 'loop_started' not in phases and recorder.recorder.counts.get(bagmod.JOINT_STATES_TOPIC):
+                mark('loop_started')
+                print(f'cvj-sim run: loop running (domain {domain}), recording to {out / "bag"}',
+                      file=stream, flush=True)
             time.sleep(0.02)
         mark('coupling_exited')
         if stop_signal or error is not None:

@@ -170,7 +170,6 @@ def test_recorder_writes_raw_messages_at_sim_time(tmp_path: Path, storage: str) 
         deadline = time.monotonic() + 5
         while any(p.get_subscription_count() == 0 for p in pubs.values()) and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
-        scene_pub.publish(String(data='seed: 7\n'))
         sent = []
         for k in range(20):
             c = Clock()
@@ -187,6 +186,7 @@ def test_recorder_writes_raw_messages_at_sim_time(tmp_path: Path, storage: str) 
             ex.spin_once(timeout_sec=0.05)
             assert time.monotonic() < deadline, writer.counts
         pubs['/engine/throttle'].publish(Float64(data=0.5))
+        scene_pub.publish(String(data='seed: 7\n'))  # after /clock 19 ms: still recorded at t0 = 0
         deadline = time.monotonic() + 5
         while not writer.counts.get('/engine/throttle') or not writer.counts.get('/driveline/scene'):
             ex.spin_once(timeout_sec=0.05)
@@ -203,6 +203,7 @@ def test_recorder_writes_raw_messages_at_sim_time(tmp_path: Path, storage: str) 
     assert [ts for _, _, ts, _ in raw] == [1_000_000 * k for k in range(20)]
     throttle = bag.read_raw(tmp_path / 'b', ['/engine/throttle'])
     assert throttle[0][2] == 19_000_000  # latest /clock time
+    assert bag.read_raw(tmp_path / 'b', ['/driveline/scene'])[0][2] == 0
     assert bag.bag_info(tmp_path / 'b').custom_data['cvj_ros.scene'] == 'seed: 7\n'
     assert yaml.safe_load(bag.read_bag(tmp_path / 'b', ['/driveline/scene'])['/driveline/scene'].data[0]) == {'seed': 7}
     np.testing.assert_allclose(bag.read_bag(tmp_path / 'b', ['/coupling/rzeppa/wrench'])[

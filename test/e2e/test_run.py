@@ -254,8 +254,9 @@ def test_sigint_leaves_readable_bag(work: Path) -> None:
     p = subprocess.Popen([CVJ_SIM, 'run', str(work / 'a.yaml'), '--out', str(out), '--duration', '1000'],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for(out / 'logs' / 'coupling_node.log', 'waiting for peers', 30)
-        time.sleep(1.0)
+        first = p.stdout.readline()  # printed once the first exchange is recorded
+        assert 'loop running' in first, first
+        time.sleep(0.3)
         p.send_signal(signal.SIGINT)
         stdout, stderr = p.communicate(timeout=30)
     finally:
@@ -274,16 +275,19 @@ def test_killed_engine_stops_run_with_clear_error(work: Path) -> None:
     out = work / 'run_kill'
     killed = []
 
+    import io
+    stream = io.StringIO()
+
     def kill_engine_later(procs) -> None:
         def killer() -> None:
-            _wait_for(out / 'logs' / 'coupling_node.log', 'waiting for peers', 30)
-            time.sleep(1.0)
+            deadline = time.monotonic() + 60
+            while 'loop running' not in stream.getvalue() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.3)
             os.kill(procs['engine_node'].pid, signal.SIGKILL)
             killed.append(time.monotonic())
         threading.Thread(target=killer, daemon=True).start()
 
-    import io
-    stream = io.StringIO()
     result = run(RunOptions(scene=str(work / 'a.yaml'), out=out, duration=1000.0, peer_timeout=1.0),
                  stream=stream, on_started=kill_engine_later)
     assert killed

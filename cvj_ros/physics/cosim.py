@@ -87,14 +87,20 @@ class CoupledStepper:
         slope: 'reported' (use the slopes passed to advance) or 'estimate'
             (least squares over the last ``slope_window`` exchanges).
         slope_max: bound on |K| (N m s/rad) for estimated slopes.
+        extrapolate_residual: 'linear_implicit' only: also extrapolate in time the
+            part of the torque the slope does not explain, R = T - K omega (firing
+            ripple, load over time or shaft angle): T = T_k + K (omega - omega_k)
+            + (R_k - R_{k-1}) (t - t_k) / (t_k - t_{k-1}). Second order for
+            time-varying torques; explicit in that part, so keep H well inside the
+            extrapolation's stability limit when the slope is inexact.
     """
 
     def __init__(self, driveline: DrivelineLike, *, scheme: str = 'zoh', method: str = 'dopri5',
                  t0: float = 0.0, x0: np.ndarray | None = None, rtol: float = 1e-6,
                  atol: float = 1e-9, h: float | None = None, max_step: float = math.inf,
                  autonomous: bool | None = None, constant_jac: bool = False,
-                 slope: str = 'reported',
-                 slope_window: int = 6, slope_max: float = 1e6) -> None:
+                 slope: str = 'reported', slope_window: int = 6, slope_max: float = 1e6,
+                 extrapolate_residual: bool = False) -> None:
         if scheme not in SCHEMES:
             raise SolverOptionError('scheme', f'unknown coupling scheme {scheme!r}; choose one of '
                                     f'{", ".join(SCHEMES)}')
@@ -107,6 +113,8 @@ class CoupledStepper:
             raise SolverOptionError('slope_max', f'must be > 0, got {slope_max!r}')
         self.driveline = driveline
         self.scheme = scheme
+        self.extrapolate_residual = bool(extrapolate_residual) and scheme == 'linear_implicit'
+        self._prev: tuple[float, float, float, float, float] | None = None  # t, we, Te, wl, Tl
         self.slope_mode = slope
         self.slope_max = float(slope_max)
         x_start = np.array(driveline.x0 if x0 is None else x0, dtype=float)
@@ -125,7 +133,7 @@ class CoupledStepper:
                'linear_implicit': self._rhs_linear_implicit}[scheme]
         jac = self._jac if hasattr(driveline, 'jacobian') else None
         if autonomous is None:
-            autonomous = scheme != 'extrapolate'
+            autonomous = scheme != 'extrapolate' and not self.extrapolate_residual
         self._omega_grad: dict[int, np.ndarray] = {}
         self.stepper: Stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
                                              jac=jac, max_step=max_step, autonomous=autonomous,
@@ -148,6 +156,10 @@ class CoupledStepper:
 
     def _rhs_linear_implicit(self, t: float, x: np.ndarray) -> np.ndarray:
         Te, Tl = self._torques_linear_implicit(x)
+        if self.extrapolate_residual:
+            dt = t - self._tk
+            Te += self._rate_e * dt
+            Tl += self._rate_l * dt
         return self.driveline.rhs(t, x, Te, Tl)
 
     def torques(self, t: float, x: np.ndarray) -> tuple[float, float]:
@@ -157,7 +169,12 @@ class CoupledStepper:
         if self.scheme == 'extrapolate':
             dt = t - self._tk
             return self._Te + self._rate_e * dt, self._Tl + self._rate_l * dt
-        return self._torques_linear_implicit(x)
+        Te, Tl = self._torques_linear_implicit(x)
+        if self.extrapolate_residual:
+            dt = t - self._tk
+            Te += self._rate_e * dt
+            Tl += self._rate_l * dt
+        return Te, Tl
 
     def _jac(self, t: float, x: np.ndarray) -> np.ndarray:
         """Jacobian of the coupled right-hand side: driveline.jacobian at the applied
@@ -271,6 +288,14 @@ class CoupledStepper:
                 # engine slope damps when negative, load slope when positive
                 self._Ke = self._estimate_slope(1, 2, -1.0, self._Ke)
                 self._Kl = self._estimate_slope(3, 4, +1.0, self._Kl)
+            if self.extrapolate_residual:
+                # residual R = T - K omega, both exchanges with the current slopes
+                if self._prev is not None and t_k > self._prev[0]:
+                    tp, wep, Tep, wlp, Tlp = self._prev
+                    dt = t_k - tp
+                    self._rate_e = ((T_engine - self._Ke * we) - (Tep - self._Ke * wep)) / dt
+                    self._rate_l = ((T_load - self._Kl * wl) - (Tlp - self._Kl * wlp)) / dt
+                self._prev = (t_k, we, T_engine, wl, T_load)
         self._tk = t_k
         self._Te = T_engine
         self._Tl = T_load

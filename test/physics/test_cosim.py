@@ -128,6 +128,8 @@ def test_zoh_unstable_beyond_2J_over_K_linear_implicit_stable() -> None:
         H = factor * limit
         zoh = run_loop(OneMass(), 'zoh', H, t_end)
         li = run_loop(OneMass(), 'linear_implicit', H, t_end)
+        li_res = run_loop(OneMass(), 'linear_implicit', H, t_end, extrapolate_residual=True)
+        assert abs(li_res.x[1] - w_eq) < 1e-6 * w_eq
         dev_zoh = abs(zoh.x[1] - w_eq)
         if zoh_stable:
             assert dev_zoh < 1e-3 * w_eq

@@ -571,35 +571,30 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
-def bag_metrics(bag: Path, *, steady_fraction: float = 0.5) -> dict[str, Any]:
-    """Key metrics of a run bag over its steady window (the last ``steady_fraction`` of the
-    samples, skipping the start transient).
+def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
+    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.metrics`: the
+    first half of the run is skipped as start transient unless ``transient`` (s) is given).
 
-    Per shaft: mean speed (rad/s), speed nonuniformity delta = (w_max - w_min)/w_mean
-    (seed 004, -), shaft torque amplitude (T_max - T_min)/2 (N m, seed 004 ch. 4);
-    per wrench topic: mean torque.z and its amplitude (N m).
+    ``shafts``: per JointState name ``mean_speed`` (rad/s), ``delta`` = speed nonuniformity
+    (w_max - w_min)/w_mean (-, seed 004), ``speed_amplitude`` (rad/s),
+    ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
+    (max - min)/2 (N m, seed 004 section 3.3.2) of the shaft torque; ``wrenches``: per
+    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m).
     """
+    from cvj_ros.physics import metrics
     data = bagmod.read_bag(bag, None)
     out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
     js = data.get(bagmod.JOINT_STATES_TOPIC)
-    if js is not None and js.t.size >= 2:
-        i0 = int(js.t.size * (1 - steady_fraction))
-        out['window_s'] = [float(js.t[i0]), float(js.t[-1])]
-        for j, name in enumerate(js.names):
-            w = js.velocity[i0:, j]
-            e = js.effort[i0:, j]
-            mean = float(np.mean(w))
-            out['shafts'][name] = {
-                'mean_speed': mean,
-                'nonuniformity': float((w.max() - w.min()) / mean) if abs(mean) > 1e-9 else math.nan,
-                'torque_amplitude': float((e.max() - e.min()) / 2) if np.all(np.isfinite(e)) else math.nan,
-            }
+    if js is not None and js.t.size >= 3:
+        mask = metrics.steady_mask(js.t, transient=transient)
+        out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
+        out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, transient=transient)
     for topic, series in data.items():
-        if isinstance(series, bagmod.WrenchSeries) and series.t.size:
-            i0 = int(series.t.size * (1 - steady_fraction))
-            tz = series.torque_z[i0:]
+        if isinstance(series, bagmod.WrenchSeries) and series.t.size >= 3:
+            mask = metrics.steady_mask(series.t, transient=transient)
+            tz = series.torque_z[mask]
             out['wrenches'][topic] = {'mean_torque': float(np.mean(tz)),
-                                      'torque_amplitude': float((tz.max() - tz.min()) / 2)}
+                                      'torque_amplitude': metrics.amplitude(tz)}
     return out
 
 
@@ -622,7 +617,7 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'  steady window {w0:.4g}..{w1:.4g} s:')
         p(f'    {"shaft":24s} {"mean speed rad/s":>16s} {"nonuniformity":>14s} {"torque ampl N m":>16s}')
         for name, m in shafts.items():
-            p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["nonuniformity"]:14.3e} {m["torque_amplitude"]:16.4f}')
+            p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["delta"]:14.3e} {m["torque_amplitude"]:16.4f}')
     for topic, m in r.metrics.get('wrenches', {}).items():
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:

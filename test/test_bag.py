@@ -228,3 +228,33 @@ def test_writer_accepts_writes_from_other_threads(tmp_path: Path, storage: str) 
     w.close()
     _, tz = bag.load_torque_series(tmp_path / 'b')
     np.testing.assert_array_equal(tz, np.arange(100.0))
+
+
+def test_run_report_metrics_from_bag_match_closed_form(tmp_path: Path) -> None:
+    """A bag with omega = W (1 + e sin(2 pi f t)) and torque T0 + A cos(...): delta = 2 e, amplitude A."""
+    from cvj_ros.orchestrate import bag_metrics
+    ts = _ts()
+    Time = ts.types['builtin_interfaces/msg/Time']
+    Header = ts.types['std_msgs/msg/Header']
+    JS = ts.types['sensor_msgs/msg/JointState']
+    W, e, f, T0, A = 40.0, 0.01, 25.0, 100.0, 7.5
+    n = 2001  # 2 s at 1 ms: the steady window (second half) holds 25 whole periods
+    with bag.BagWriter(tmp_path / 'b') as w:
+        w.add_topic('/driveline/joint_states')
+        w.add_topic('/load/wrench')
+        for k in range(n):
+            t = k * 1e-3
+            s = np.sin(2 * np.pi * f * t)
+            msg = JS(header=Header(stamp=Time(sec=int(t), nanosec=round((t - int(t)) * 1e9)), frame_id=''),
+                     name=['wheel'], position=np.array([W * t]), velocity=np.array([W * (1 + e * s)]),
+                     effort=np.array([T0 + A * np.cos(2 * np.pi * f * t)]))
+            w.write('/driveline/joint_states', k * 1_000_000, bytes(ts.serialize_cdr(msg, 'sensor_msgs/msg/JointState')))
+            w.write('/load/wrench', k * 1_000_000, _wrench(t, T0 + A * s))
+    m = bag_metrics(tmp_path / 'b')
+    wheel = m['shafts']['wheel']
+    assert wheel['mean_speed'] == pytest.approx(W, rel=1e-4)
+    assert wheel['delta'] == pytest.approx(2 * e, rel=1e-3)
+    assert wheel['torque_amplitude'] == pytest.approx(A, rel=1e-3)
+    assert wheel['acceleration_amplitude'] == pytest.approx(W * e * 2 * np.pi * f, rel=1e-2)
+    assert m['wrenches']['/load/wrench']['torque_amplitude'] == pytest.approx(A, rel=1e-3)
+    assert m['window_s'] == pytest.approx([1.0, 2.0])

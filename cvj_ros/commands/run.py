@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="use a bag's recorded /load/wrench torque as this run's load")
     parser.add_argument('--peer-timeout', type=float, default=5.0, metavar='S',
                         help='lockstep wait bound for engine/load answers in s (default 5)')
-    parser.add_argument('--overwrite', action='store_true', help='replace an existing OUT')
+    parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
 def run(args: argparse.Namespace) -> int:

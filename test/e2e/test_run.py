@@ -217,9 +217,16 @@ def test_same_seed_gives_identical_messages_across_storages(runs_b) -> None:
 
 def test_load_from_bag_reproduces_recorded_load(runs_b, work: Path) -> None:
     (_, b0), _ = runs_b
-    r = _cli(['run', str(work / 'a.yaml'), '--out', str(work / 'run_lb'), '--duration', '0.1',
-              '--load-from-bag', str(b0)])
+    (work / 'run_lb').mkdir()
+    (work / 'run_lb' / 'notes.txt').write_text('mine')
+    (work / 'run_lb' / 'report.json').write_text('{}')     # a previous run
+    args = ['run', str(work / 'a.yaml'), '--out', str(work / 'run_lb'), '--duration', '0.1',
+            '--load-from-bag', str(b0)]
+    r = _cli(args)
+    assert r.returncode == 2 and '--out:' in r.stderr and 'use --overwrite' in r.stderr
+    r = _cli(args + ['--overwrite'])
     assert r.returncode == 0, r.stdout + r.stderr
+    assert (work / 'run_lb' / 'notes.txt').read_text() == 'mine'   # --overwrite removes only run files
     t0, tz0 = bag.load_torque_series(b0)
     t1, tz1 = bag.load_torque_series(work / 'run_lb' / 'bag')
     assert t1.size in (100, 101)  # see _check_bag_layout on the answer to the final state
@@ -238,6 +245,11 @@ def test_bad_scene_exits_2_before_any_process(work: Path) -> None:
     assert r.returncode == 2 and 'scene' in r.stderr
     r = _cli(['run', str(work / 'a.yaml'), '--out', str(work / 'run_bad'), '--duration', '-1'])
     assert r.returncode == 2 and r.stderr.startswith('cvj-sim: error: --duration')
+    r = _cli(['run', str(work / 'a.yaml'), '--out', str(work / 'run_bad'), '--load-from-bag',
+              str(work / 'no_bag')])
+    assert r.returncode == 2 and r.stderr.startswith('cvj-sim: error: --load-from-bag:')
+    assert 'no such bag' in r.stderr
+    assert not (work / 'run_bad').exists()
 
 
 def _wait_for(path: Path, text: str, timeout: float) -> None:

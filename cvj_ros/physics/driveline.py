@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cvj_ros.errors import SceneError
-from cvj_ros.physics.joints import make_joint
+from cvj_ros.physics.joints import JOINTS, make_joint
 from cvj_ros.physics.scene import Inertia, Joint, Scene, Spring
 
 FloatArray = NDArray[np.float64]
@@ -135,7 +135,7 @@ class Driveline:
                 sections[sec].append((el.J, None))
                 names[sec].append(el.name)
             elif isinstance(el, Joint):
-                level = self.levels.get(el.name, 'exact')
+                level = self.levels.get(el.name) or JOINTS[el.kind].fidelities[-1]
                 try:
                     model = make_joint(el.kind, fidelity=level, **dict(el.params))
                 except ValueError as exc:

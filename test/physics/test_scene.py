@@ -131,3 +131,15 @@ def test_find_scene_by_path_and_name(tmp_path) -> None:
     assert find_scene(str(p)) == p
     with pytest.raises(SceneError, match='^scene: no scene file'):
         find_scene('definitely_not_a_scene')
+
+
+def test_documented_example_is_a_valid_scene() -> None:
+    """The annotated example in docs/scenes.md parses (keeps the documentation honest)."""
+    import pathlib
+
+    import yaml
+    doc = (pathlib.Path(__file__).resolve().parents[2] / 'docs' / 'scenes.md').read_text()
+    block = doc.split('```yaml\n', 1)[1].split('```', 1)[0]
+    sc = parse_scene(yaml.safe_load(block), source='docs/scenes.md')
+    assert [el.type for el in sc.driveline] == ['inertia', 'spring', 'joint', 'inertia']
+    assert sc.accuracy_target == 0.01

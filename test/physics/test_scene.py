@@ -143,3 +143,14 @@ def test_documented_example_is_a_valid_scene() -> None:
     sc = parse_scene(yaml.safe_load(block), source='docs/scenes.md')
     assert [el.type for el in sc.driveline] == ['inertia', 'spring', 'joint', 'inertia']
     assert sc.accuracy_target == 0.01
+
+
+def test_summed_load_list_round_trip() -> None:
+    d = copy.deepcopy(BASE)
+    d['load'] = [{'model': 'constant', 'torque': 50.0}, {'model': 'random', 'mean': 0.0, 'amplitude': 5.0}]
+    sc = parse_scene(d)
+    assert isinstance(sc.load, list) and len(sc.load) == 2
+    assert parse_scene(sc.to_dict()) == sc
+    d['load'][1]['amplitud'] = 1.0
+    with pytest.raises(SceneError, match=r'^load\[1\]\.amplitud'):
+        parse_scene(d)

@@ -261,21 +261,24 @@ def _wait_for(path: Path, text: str, timeout: float) -> None:
     raise AssertionError(f'{text!r} not in {path} after {timeout} s')
 
 
-def test_sigint_leaves_readable_bag(work: Path) -> None:
-    out = work / 'run_int'
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_signal_leaves_readable_bag(work: Path, sig: int) -> None:
+    out = work / f'run_sig{int(sig)}'
     p = subprocess.Popen([CVJ_SIM, 'run', str(work / 'a.yaml'), '--out', str(out), '--duration', '1000'],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         first = p.stdout.readline()  # printed once the first exchange is recorded
         assert 'loop running' in first, first
         time.sleep(0.3)
-        p.send_signal(signal.SIGINT)
+        p.send_signal(sig)
         stdout, stderr = p.communicate(timeout=30)
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 130, stdout + stderr
-    assert 'stopped by SIGINT' in stdout
+    assert p.returncode == 128 + int(sig), stdout + stderr
+    assert f'stopped by {signal.Signals(sig).name}' in stdout
+    report = yaml.safe_load((out / 'report.json').read_text())
+    assert all(code is not None for code in report['node_exit_codes'].values())  # no process left
     js = bag.read_bag(out / 'bag', ['/driveline/joint_states'])['/driveline/joint_states']
     assert js.t.size > 10 and np.all(np.diff(js.t) > 0)
     assert bag.bag_info(out / 'bag').counts['/driveline/scene'] == 1
@@ -306,6 +309,7 @@ def test_killed_engine_stops_run_with_clear_error(work: Path) -> None:
     assert result.exit_code == 1
     assert result.error is not None and result.error.startswith('coupling_node:')
     assert '/engine/wrench' in result.error, result.error
+    print(f'\nkilled engine -> {result.error}')
     assert result.node_exit_codes['coupling_node'] not in (0, None)
     assert 'FAILED' in stream.getvalue()
     js = bag.read_bag(out / 'bag', ['/driveline/joint_states'])['/driveline/joint_states']

@@ -3,8 +3,8 @@
 Each case: exactly one stderr line ``cvj-sim: error: <field or topic>: <problem>``, a
 non-zero exit status (2 = user error), no traceback, nothing on stdout and no run started
 (no bag written). Scenes are checked through ``cvj-sim run`` (validation happens before
-any process starts); bags through ``cvj-sim analyze``, ``replay`` and ``run
---load-from-bag``. Most cases call :func:`cvj_ros.cli.main` in-process (fast); a few run
+any process starts) and ``cvj-sim simulate``; bags through ``cvj-sim analyze``, ``replay``
+and ``run --load-from-bag``. Most cases call :func:`cvj_ros.cli.main` in-process (fast); a few run
 the installed ``cvj-sim`` executable to cover the real entry point.
 """
 from __future__ import annotations
@@ -51,12 +51,14 @@ def assert_one_error_line(code: int, out: str, err: str, field: str) -> str:
 
 
 def run_scene(tmp_path: Path, capsys: pytest.CaptureFixture[str], scene: Any,
-              *, text: str | None = None) -> tuple[int, str, str]:
-    """`cvj-sim run SCENE --out DIR` in-process; asserts that no run directory appeared."""
+              *, text: str | None = None, command: str = 'run') -> tuple[int, str, str]:
+    """`cvj-sim run SCENE --out DIR` (or `cvj-sim simulate SCENE`) in-process; asserts that
+    no run directory appeared."""
     path = tmp_path / 'scene.yaml'
     path.write_text(text if text is not None else yaml.safe_dump(scene, sort_keys=False))
     out_dir = tmp_path / 'run'
-    code = cli_main(['run', str(path), '--out', str(out_dir)])
+    argv = ['run', str(path), '--out', str(out_dir)] if command == 'run' else [command, str(path)]
+    code = cli_main(argv)
     out, err = capsys.readouterr()
     assert not (out_dir / 'bag').exists()
     return code, out, err
@@ -149,9 +151,10 @@ def test_tab_indented_yaml_names_the_line(tmp_path: Path, capsys: pytest.Capture
     ('load', {'model': 'time_series', 't': [0.0, float('nan')], 'torque': [1.0, 2.0]},
      'load.t', ''),
 ])
+@pytest.mark.parametrize('command', ['run', 'simulate'])
 def test_bad_scene_field(tmp_path: Path, capsys: pytest.CaptureFixture[str], path: str,
-                         value: Any, field: str, words: str) -> None:
-    code, out, err = run_scene(tmp_path, capsys, mutate(path, value))
+                         value: Any, field: str, words: str, command: str) -> None:
+    code, out, err = run_scene(tmp_path, capsys, mutate(path, value), command=command)
     # the field may carry an index/sub-key after the named prefix (load.t[2], initial.speed_rpm)
     assert code == 2 and 'Traceback' not in err and out == '', err
     assert err.count('\n') == 1, err
@@ -245,6 +248,11 @@ def test_run_load_from_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture
     (['run', '{scene}', '--out', '{tmp}/r', '--peer-timeout', '0'], 'peer_timeout'),
     (['run', '{scene}', '--out', '{tmp}/r', '--seed', '-1'], '--seed'),
     (['analyze', '{tmp}/nope', '--skip', '-1'], '--skip'),
+    (['simulate', '{scene}', '--method', 'rk45'], '--method'),
+    (['simulate', '{scene}', '--rtol', 'nan'], '--rtol'),
+    (['simulate', '{scene}', '--fidelity', 'cardan=closed'], 'fidelity.cardan'),
+    (['simulate', '{scene}', '--fidelity', 'nosuch=exact'], 'fidelity.nosuch'),
+    (['simulate', '{scene}', '--duration', '-2'], '--duration'),
 ])
 def test_bad_options(tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str],
                      field: str) -> None:

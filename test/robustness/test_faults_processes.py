@@ -7,6 +7,9 @@
   peer_timeout: the run stops with exit 1 and one error line naming /load/wrench and
   peer_timeout; the bag is complete up to the stop (readable, consecutive stamps from 0,
   an ERROR status on /diagnostics).
+* Bad pedal positions on /engine/throttle (NaN, +-inf, 1.5) sent by the test during the
+  same run: the engine node reports them as ERROR diagnostics and does not apply them
+  (the states still equal the offline loop).
 * A second run on the same ROS domain at the same time: the running loop and the new one
   both stop with exit 1 and an error naming the domain, instead of silently integrating
   each other's torques; the first run's bag stays readable with its own states up to the
@@ -19,6 +22,7 @@ peers (test/nodes/test_coupling_node.py, in-process, exact stamps and momentum b
 from __future__ import annotations
 
 import io
+import math
 import os
 import signal
 import subprocess
@@ -108,6 +112,11 @@ class SimClock:
         self.node = rclpy.create_node('fault_test_clock', context=self.ctx)
         self.t = -1.0
         self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, DATA_QOS)
+        from std_msgs.msg import Float64
+
+        from cvj_ros.nodes.qos import ENGINE_THROTTLE_TOPIC
+        self._float64 = Float64
+        self.throttle_pub = self.node.create_publisher(Float64, ENGINE_THROTTLE_TOPIC, DATA_QOS)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
 
@@ -121,6 +130,11 @@ class SimClock:
             assert time.monotonic() < deadline, f'/clock did not reach {t_sim} s'
             self.executor.spin_once(timeout_sec=0.05)
         return self.t
+
+    def send_throttle(self, value: float) -> None:
+        """Publish a pedal position on /engine/throttle (as a vehicle stack would)."""
+        self.throttle_pub.publish(self._float64(data=value))
+        self.executor.spin_once(timeout_sec=0.01)
 
     def close(self) -> None:
         import rclpy
@@ -149,7 +163,10 @@ def test_late_engine_recovers_and_frozen_load_stops_with_clear_error(tmp_path: P
         def chaos() -> None:
             clock = SimClock()
             try:
-                events['t_engine_freeze'] = clock.wait_until(0.1, 60.0)   # loop is stepping
+                clock.wait_until(0.05, 60.0)                       # loop is stepping
+                for bad in (math.nan, math.inf, -math.inf, 1.5):   # bad pedal inputs
+                    clock.send_throttle(bad)
+                events['t_engine_freeze'] = clock.wait_until(0.1, 60.0)
                 freeze(procs['engine_node'], 0.5, 'engine')   # late, within peer_timeout
                 events['t_after_engine'] = clock.wait_until(events['t_engine_freeze'] + 0.1, 30.0)
                 freeze(procs['load_node'], 3.0, 'load')       # beyond peer_timeout
@@ -173,8 +190,12 @@ def test_late_engine_recovers_and_frozen_load_stops_with_clear_error(tmp_path: P
     ref = offline_lockstep(js.t.size - 1)
     np.testing.assert_allclose(js.velocity, ref, rtol=1e-6, atol=1e-9)
     diag = bag.read_bag(out / 'bag', ['/diagnostics'])['/diagnostics']
-    errors = [s for msg in diag.statuses for s in msg if s['level'] == 2]
-    assert any('/load/wrench' in s['message'] for s in errors)
+    errors = [s['message'] for msg in diag.statuses for s in msg if s['level'] == 2]
+    assert any('/load/wrench' in m for m in errors), errors
+    # NaN / inf / out-of-range pedal positions: ERROR diagnostics from the engine node, not
+    # applied (the states above equal the offline loop at the scene's throttle)
+    bad_throttle = [m for m in errors if m.startswith('/engine/throttle:')]
+    assert len(bad_throttle) >= 1 and any('nan' in m for m in bad_throttle), errors
 
 
 def test_second_run_on_the_same_domain_stops_both(tmp_path: Path) -> None:

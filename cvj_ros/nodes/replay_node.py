@@ -119,11 +119,12 @@ class ReplayNode(CvjNode):
             self.fail(f'replay: {exc}')
 
     def _flush(self, timeout: float = 2.0) -> None:
-        """Wait (bounded, s) until reliable subscribers acknowledged everything sent."""
+        """Wait until reliable subscribers acknowledged everything sent (``timeout`` s in total)."""
         from rclpy.duration import Duration
+        deadline = time.monotonic() + timeout
         for pub in [*self.publishers_by_topic.values(), self.clock_pub]:
             if pub is not None:
-                pub.wait_for_all_acked(Duration(seconds=timeout))
+                pub.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic())))
 
     def _play_once(self) -> None:
         if not self.messages:

@@ -133,3 +133,52 @@ def test_bad_parameters_exit_2_naming_them(tmp_path: Path) -> None:
     assert main(['replay', str(tmp_path / 'missing')]) == 2
     assert main(['replay', str(tmp_path / 'b'), '--topics', '/engine/wrench']) == 2
     assert main(['replay', str(tmp_path / 'b'), '--rate', '0']) == 2
+
+
+def test_replay_recorded_again_gives_the_same_bag(tmp_path: Path) -> None:
+    """Bag -> replay_node -> BagRecorder (executor-free take loop) -> bag: identical messages and
+    record times, including the latched scene and /clock (replay's own clock = record times)."""
+    import threading
+
+    import rclpy
+    from rclpy.parameter import Parameter
+    from cvj_ros.nodes.replay_node import ReplayNode
+
+    _make_bag(tmp_path / 'a')
+    ts = bag.typestore()
+    scene = bytes(ts.serialize_cdr(ts.types['std_msgs/msg/String'](data='seed: 1\n'), 'std_msgs/msg/String'))
+    with bag.BagWriter(tmp_path / 'src', storage='sqlite3') as w:  # a's messages plus a scene message
+        for topic, msgtype, t, data in bag.read_raw(tmp_path / 'a'):
+            w.add_topic(topic, msgtype)
+            w.write(topic, t, data)
+        w.add_topic('/driveline/scene')
+        w.write('/driveline/scene', 0, scene)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    stop = threading.Event()
+    try:
+        rec_node = rclpy.create_node('rec', context=ctx)
+        writer = bag.BagWriter(tmp_path / 'copy')
+        recorder = bag.BagRecorder(rec_node, writer)
+        thread = threading.Thread(target=recorder.spin, args=(stop,), daemon=True)
+        thread.start()
+        node = ReplayNode(context=ctx, parameter_overrides=[
+            Parameter('bag', value=str(tmp_path / 'src')), Parameter('start_delay', value=0.5),
+            Parameter('rate', value=5.0)])
+        node.join(10)
+        assert node.exit_code == 0
+        deadline = time.monotonic() + 5
+        while sum(writer.counts.values()) < 3 * N + 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        stop.set()
+        thread.join(2)
+        recorder.destroy()
+        writer.close()
+        node.destroy_node()
+        rec_node.destroy_node()
+    finally:
+        stop.set()
+        rclpy.shutdown(context=ctx)
+    original = sorted((t, ts_, d) for t, _, ts_, d in bag.read_raw(tmp_path / 'src'))
+    copy = sorted((t, ts_, d) for t, _, ts_, d in bag.read_raw(tmp_path / 'copy'))
+    assert copy == original

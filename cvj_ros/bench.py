@@ -469,13 +469,17 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     rows: list[dict[str, Any]] = []
     lock_rows: list[dict[str, Any]] = []
     problems: dict[str, SceneProblem] = {}
+    # loop figures first (seconds), so partial reports of a long run carry them
+    rt = measure_rclpy_round_trip(cfg.round_trip_n)
     lock_names = list(cfg.lockstep_scenes) if cfg.lockstep_scenes is not None else []
     lock_spec: str | None = lock_names[0] if lock_names else None   # what `cvj-sim run` is given
+    if cfg.lockstep_scenes is None and cfg.scenes and isinstance(cfg.scenes[0], (str, os.PathLike)):
+        lock_spec = str(cfg.scenes[0])
+    real = real_lockstep_run(lock_spec, duration=1.0) if cfg.real_lockstep and lock_spec else None
     for i, spec in enumerate(cfg.scenes):
         scene = resolve_scene(spec)
         if cfg.lockstep_scenes is None and i == 0:
             lock_names.append(scene.name)
-            lock_spec = str(spec) if isinstance(spec, (str, os.PathLike)) else None
         log(f'[bench] {scene.name}: reference (dop853, rtol={ref_tol:g}, exact)')
         prob = prepare(scene, cfg, reference_tol=ref_tol)
         problems[scene.name] = prob
@@ -500,8 +504,9 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names:
             lock_rows += lockstep_study(prob, cfg)
-    rt = measure_rclpy_round_trip(cfg.round_trip_n)
-    real = real_lockstep_run(lock_spec, duration=1.0) if cfg.real_lockstep and lock_spec else None
+        # partial report after every scene: an interrupted long run keeps what it measured
+        _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
+                       time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
     studies = run_studies() if cfg.studies else None
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
@@ -540,7 +545,7 @@ def _config_label(r: dict[str, Any] | None) -> str:
 def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],
                    problems: dict[str, SceneProblem], rt: dict[str, Any], real: dict[str, Any] | None,
                    studies: dict[str, Any] | None, duration: float, ref_tol: float,
-                   plot: Callable[..., Path]) -> list[Path]:
+                   plot: Callable[..., Path], *, partial: bool = False) -> list[Path]:
     paths = []
     p = out / 'bench.csv'
     with p.open('w', newline='') as fh:
@@ -562,7 +567,8 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         from cvj_ros.plots import lockstep_plot
         paths.append(lockstep_plot(lock_rows, path=out / 'lockstep.png'))
     md = ['# cvj_ros work-precision benchmark', '',
-          f'Run: {time.strftime("%Y-%m-%d %H:%M:%S")}, total {duration:.1f} s wall; '
+          ('PARTIAL REPORT (run still going or interrupted): ' if partial else '')
+          + f'Run: {time.strftime("%Y-%m-%d %H:%M:%S")}, total {duration:.1f} s wall; '
           f'horizon {cfg.horizon if cfg.horizon else "scene duration"} s, {cfg.samples} samples, '
           f'{cfg.repeats} repeat(s) (min taken), reference dop853 rtol = atol = {ref_tol:g}, exact fidelity.', '',
           '## Machine', '']
@@ -611,6 +617,9 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md.append('Not run (cvj_ros.physics.cosim.CoupledStepper not available, or no lockstep scene).')
     md += ['', '## Loop overhead vs rclpy round trip', '']
     for ex, v in rt.items():
+        if ex == 'note':
+            md.append(f'- rclpy round trip: {v}')
+            continue
         md.append(f'- rclpy round trip, {ex} executor: ' + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median'
                                                             if isinstance(v, dict) and 'us_mean' in v else str(v)))
     if real:

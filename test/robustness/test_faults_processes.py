@@ -10,6 +10,8 @@
 * Bad pedal positions on /engine/throttle (NaN, +-inf, 1.5) sent by the test during the
   same run: the engine node reports them as ERROR diagnostics and does not apply them
   (the states still equal the offline loop).
+* The coupling node killed (SIGKILL) mid-run: exit 1, one line naming coupling_node, the
+  other nodes stopped, the bag complete up to the kill.
 * A second run on the same ROS domain at the same time: the running loop and the new one
   both stop with exit 1 and an error naming the domain, instead of silently integrating
   each other's torques; the first run's bag stays readable with its own states up to the
@@ -224,3 +226,34 @@ def test_second_run_on_the_same_domain_stops_both(tmp_path: Path) -> None:
     js = check_bag_up_to_stop(out_a / 'bag')
     assert js.t.size > 10
     assert np.unique(js.t).size == js.t.size              # no state of run B mixed in
+
+
+def test_coupling_node_killed_mid_run_closes_the_bag(tmp_path: Path) -> None:
+    """SIGKILL of the process that owns simulated time, once /clock shows t >= 0.1 s: the
+    run ends with exit 1 and one line naming coupling_node, every other node is stopped
+    and the bag holds every state recorded up to the kill."""
+    from cvj_ros.orchestrate import RunOptions, run
+    scene = tmp_path / 'faults.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    out = tmp_path / 'run'
+    seen: dict[str, float] = {}
+
+    def on_started(procs: dict[str, subprocess.Popen]) -> None:
+        def killer() -> None:
+            clock = SimClock()
+            try:
+                seen['t_kill'] = clock.wait_until(0.1, 60.0)
+                os.kill(procs['coupling_node'].pid, signal.SIGKILL)
+            finally:
+                clock.close()
+        threading.Thread(target=killer, daemon=True).start()
+
+    result = run(RunOptions(scene=str(scene), out=out), stream=io.StringIO(), on_started=on_started)
+    assert 't_kill' in seen
+    assert result.exit_code == 1
+    assert result.error is not None and '\n' not in result.error
+    assert result.error.startswith('coupling_node:'), result.error
+    assert result.node_exit_codes['coupling_node'] == -signal.SIGKILL
+    assert all(code is not None for code in result.node_exit_codes.values())   # all stopped
+    js = check_bag_up_to_stop(out / 'bag')
+    assert js.t[-1] >= seen['t_kill'] - 1e-9

@@ -436,6 +436,14 @@ class Driveline:
 
     # --- views ----------------------------------------------------------------------------
 
+    @property
+    def state_names(self) -> list[str]:
+        """Names of the entries of x: '<first shaft of section g>.angle' (rad), then '.speed'
+        (rad/s), then with track_energy 'W_engine', 'W_load', 'W_damp' (J)."""
+        first = [next(sh.name for sh in self.shafts if sh.section == g) for g in range(self.n_dof)]
+        names = [f'{f}.angle' for f in first] + [f'{f}.speed' for f in first]
+        return names + (['W_engine', 'W_load', 'W_damp'] if self.track_energy else [])
+
     def engine_omega(self, x: FloatArray) -> float:
         """Speed of the first inertia (rad/s), where the engine acts."""
         return float(x[self.n_dof])

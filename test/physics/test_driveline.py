@@ -53,6 +53,8 @@ def fd_jacobian(dl: Driveline, x: np.ndarray, te: float, tl: float) -> np.ndarra
 def test_sections_and_names() -> None:
     dl = Driveline.from_scene(scene(MIXED))
     assert dl.n_dof == 3
+    assert dl.state_names == ['crank.angle', 'h1_input.angle', 'wheel.angle',
+                              'crank.speed', 'h1_input.speed', 'wheel.speed']
     assert dl.shaft_names == ['crank', 'box_input', 'box_output', 'shaft', 'h1_input', 'h1_output',
                               'yoke', 'h2_input', 'h2_output', 'wheel']
 

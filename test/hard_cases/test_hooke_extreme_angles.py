@@ -4,7 +4,7 @@
 Already covered elsewhere (not repeated here, see docs/robustness.md):
 kinematics against the rotation-matrix construction and ratio range 1/cos b .. cos b at
 60/80/89 deg (test/physics/joints/test_hooke.py), rigid 89 deg energy run
-(test/physics/test_simulate.py::test_hooke_89_deg_rigid_conserves_energy), factory errors
+(test/physics/test_simulate.py::test_hooke_large_angle_rigid_conserves_energy), factory errors
 at >= 90 deg (test_hooke.py), kinematics CLI at 90/120 deg
 (test/commands/test_kinematics_cli.py), scene field error at 90/95 deg
 (test/physics/test_scene.py).

@@ -596,7 +596,7 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                    + '.']
         if 'auto' in prob.levels:
             same = prob.aliases.get('auto', 'auto')
-            auto = [r for r in srows if r['fidelity'] == same and r.get('ok')]
+            auto = [r for r in srows if r['family'] == 'project' and r['fidelity'] == same and r.get('ok')]
             on = [r for r in auto if r in front]
             md += ['', f'Fidelity chooser\'s pick ({prob.levels["auto"]}'
                    + (f', the same model as {same}' if same != 'auto' else '') + '): '

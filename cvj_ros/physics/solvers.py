@@ -236,18 +236,30 @@ class _AdaptiveStepper(_StepperBase):
         refined by one Euler step and the local derivative change; one fev."""
         y0 = self.y
         sc = np.abs(y0) * self.rtol + self.atol
-        d0 = math.sqrt(float(np.mean((y0 / sc) ** 2)))
-        d1 = math.sqrt(float(np.mean((f0 / sc) ** 2)))
+        with np.errstate(over='ignore'):
+            d0 = math.sqrt(float(np.mean((y0 / sc) ** 2)))
+            d1 = math.sqrt(float(np.mean((f0 / sc) ** 2)))
+        if not (math.isfinite(d0) and math.isfinite(d1)):
+            self._raise_norm_overflow()
         h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
         h0 = min(h0, self.max_step)
         f1 = self._eval(self.t + h0, y0 + h0 * f0)
-        d2 = math.sqrt(float(np.mean(((f1 - f0) / sc) ** 2))) / h0
+        with np.errstate(over='ignore', invalid='ignore'):
+            d2 = math.sqrt(float(np.mean(((f1 - f0) / sc) ** 2))) / h0
+        if not math.isfinite(d2):
+            self._raise_norm_overflow()
         dmax = max(d1, d2)
         if dmax <= 1e-15:
             h1 = max(1e-6, h0 * 1e-3)
         else:
             h1 = (0.01 / dmax) ** (1.0 / (self.order + 1))
         return min(100 * h0, h1, self.max_step)
+
+    def _raise_norm_overflow(self) -> None:
+        """|y| or |f| too large for the error norm (e.g. a torque of 1e300 N m): h0 would be 0."""
+        raise SolverError(f't: state or derivative too large to integrate at t={self.t!r} s '
+                          f'(its error norm overflows, {self.method}); check the torques, '
+                          f'inertias and initial speeds')
 
     def _first_derivative(self) -> np.ndarray:
         raise NotImplementedError

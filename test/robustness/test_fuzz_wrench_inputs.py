@@ -51,7 +51,7 @@ def test_coupled_stepper_torque_fuzz() -> None:
     from cvj_ros.physics.driveline import Driveline
     from cvj_ros.physics.scene import parse_scene
     rng = random.Random(2024)
-    # |T| > ~1e140 N m is left to test_huge_finite_torque_fails_loudly (known bug, xfail)
+    # |T| > ~1e140 N m: test_huge_finite_torque_fails_loudly
     values = [v for v in WILD if abs(v) < 1e300] + [1e12, math.nan, math.inf, -math.inf]
     n_rejected = n_solver = 0
     for case in range(60):
@@ -79,23 +79,23 @@ def test_coupled_stepper_torque_fuzz() -> None:
     assert n_rejected > 50
 
 
-@pytest.mark.xfail(strict=True, raises=ZeroDivisionError,
-                   reason='bug in solvers._initial_step: |f| ~ 1e301 overflows the RMS norm, h0 '
-                          'becomes 0 and d2 / h0 divides by zero (should be SolverError)')
 def test_huge_finite_torque_fails_loudly() -> None:
     """A finite but absurd torque (1e300 N m, e.g. from a broken peer) must end in a
-    CvjError (SolverError / LockstepError), never in another exception."""
+    CvjError (SolverError / LockstepError), never in another exception. (Was a
+    ZeroDivisionError in solvers._initial_step: the RMS norm overflowed, h0 became 0.)"""
     from cvj_ros.errors import CvjError
     from cvj_ros.physics.cosim import CoupledStepper
     from cvj_ros.physics.driveline import Driveline
     from cvj_ros.physics.scene import parse_scene
     dl = Driveline.from_scene(parse_scene(two_mass_scene()))
     cs = CoupledStepper(dl, scheme='zoh', method='dopri5', rtol=1e-8, atol=1e-10)
-    try:
-        x = cs.advance(1e-3, 1e300, 0.0)
-    except CvjError:
-        return
-    assert np.all(np.isfinite(x))
+    for torque in (1e300, -1e300, 1e200):
+        try:
+            x = cs.advance(cs.t + 1e-3, torque, 0.0)
+        except CvjError as exc:
+            assert str(exc).startswith('t: '), exc
+            continue
+        assert np.all(np.isfinite(x))
 
 
 # --- node level ------------------------------------------------------------------------

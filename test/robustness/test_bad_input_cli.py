@@ -285,3 +285,21 @@ def test_nan_in_yaml_through_the_executable(tmp_path: Path) -> None:
     msg = assert_one_error_line(proc.returncode, proc.stdout, proc.stderr, 'driveline[1].stiffness')
     assert 'finite' in msg
     assert not np.isfinite(float('nan'))
+
+
+@pytest.mark.parametrize('damage', ['truncate', 'garbage', 'no_metadata'])
+def test_analyze_damaged_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str) -> None:
+    """A bag cut short (recorder killed, disk full), overwritten or missing its metadata:
+    one line naming the bag directory, exit 2."""
+    b = _bag_with_clock_only(tmp_path / 'bag')
+    data_file = next(p for p in b.iterdir() if p.suffix == '.mcap')
+    if damage == 'truncate':
+        raw = data_file.read_bytes()
+        data_file.write_bytes(raw[:len(raw) // 2])
+    elif damage == 'garbage':
+        data_file.write_bytes(b'not an mcap file\n' * 10)
+    else:
+        (b / 'metadata.yaml').unlink()
+    code = cli_main(['analyze', str(b)])
+    out, err = capsys.readouterr()
+    assert_one_error_line(code, out, err, str(b))

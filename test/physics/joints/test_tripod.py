@@ -27,13 +27,14 @@ def seed002() -> Tripod:
     return Tripod(math.radians(47.0), 0.09, 1.0)
 
 
+@pytest.mark.parametrize('method', ['table', 'newton'])
 @pytest.mark.parametrize('fidelity', ['ideal', 'closed', 'exact'])
 @pytest.mark.parametrize('beta_deg', [15.0, 47.0])
-def test_ratio_and_slope_are_derivatives(fidelity: str, beta_deg: float) -> None:
+def test_ratio_and_slope_are_derivatives(fidelity: str, beta_deg: float, method: str) -> None:
     tp = Tripod(math.radians(beta_deg), 0.09, 1.0, fidelity=fidelity)
-    ev = tp.evaluate(PHI)
-    num_ratio = richardson(lambda x: tp.evaluate(x).phi_out, PHI)
-    num_slope = richardson(lambda x: tp.evaluate(x).ratio, PHI)
+    ev = tp.evaluate(PHI, method=method)
+    num_ratio = richardson(lambda x: tp.evaluate(x, method=method).phi_out, PHI)
+    num_slope = richardson(lambda x: tp.evaluate(x, method=method).ratio, PHI)
     np.testing.assert_allclose(ev.ratio, num_ratio, rtol=0, atol=1e-7)
     np.testing.assert_allclose(ev.ratio_slope, num_slope, rtol=0, atol=1e-7)
     # the scalar fast path (Fourier table for exact) too
@@ -47,9 +48,13 @@ def test_ratio_and_slope_are_derivatives(fidelity: str, beta_deg: float) -> None
 def test_spectral_table_matches_newton(seed002: Tripod) -> None:
     rng = np.random.default_rng(7)
     phi = np.concatenate([rng.uniform(-1e4, 1e4, 200), rng.uniform(0, TWO_PI_3, 200)])
-    ev = seed002.evaluate(phi)
+    ev = seed002.evaluate(phi, method='newton')
+    tab = seed002.evaluate(phi)
     sc = np.array([seed002.scalar(float(p)) for p in phi])
     np.testing.assert_allclose(sc[:, 0] - phi, ev.phi_out - phi, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tab.phi_out - phi, ev.phi_out - phi, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tab.ratio, ev.ratio, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(tab.ratio_slope, ev.ratio_slope, rtol=0, atol=1e-10)
     np.testing.assert_allclose(sc[:, 1], ev.ratio, rtol=0, atol=1e-11)
     np.testing.assert_allclose(sc[:, 2], ev.ratio_slope, rtol=0, atol=1e-10)
     assert seed002.spectral_error <= 1e-12

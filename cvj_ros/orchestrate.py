@@ -186,49 +186,10 @@ def _domain_env() -> tuple[dict[str, str], int]:
     return env, domain
 
 
-# Nodes that end by themselves (the coupling node after t_N) start through node_main(), which
-# flushes their publishers before exit (see node_main); the others are stopped by signal.
-FLUSH_ON_EXIT = ('coupling_node',)
-
-
-def node_main(name: str) -> None:
-    """Run node ``name``'s ``main()`` so that every publisher waits (at most 2 s) until all its
-    samples are acknowledged before the node is destroyed.
-
-    Work-around: cvj_ros.nodes.common.run_node destroys the node right after the last
-    publish, and the samples still in flight to a slower subscriber (the recorder, the
-    load node's answer to the final state) were lost - measured up to 23 of 201 joint
-    states. With the 20 ms heartbeat of :data:`FASTDDS_PROFILE` the wait ends within
-    milliseconds (measured 0-25 ms); it is bounded by 1 s in total. ``cvj-sim run`` starts the coupling node as
-    ``python -c 'from cvj_ros.orchestrate import node_main; node_main("coupling_node")' --ros-args ...``.
-    """
-    import importlib
-
-    from rclpy.duration import Duration
-    from rclpy.node import Node
-    destroy = Node.destroy_node
-
-    def destroy_after_flush(self: Node) -> Any:
-        deadline = time.monotonic() + 1.0  # one budget for all publishers
-        order = {bagmod.JOINT_STATES_TOPIC: 0, bagmod.CLOCK_TOPIC: 2}
-        for pub in sorted(self.publishers, key=lambda p: order.get(p.topic_name, 1)):
-            if bagmod.topic_type(pub.topic_name) is None:  # /rosout, /parameter_events
-                continue
-            try:
-                pub.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic())))
-            except Exception:  # noqa: BLE001 (context already shut down)
-                pass
-        return destroy(self)
-    Node.destroy_node = destroy_after_flush  # type: ignore[method-assign]
-    importlib.import_module(f'cvj_ros.nodes.{name}').main()
-
-
 def node_command(name: str) -> list[str]:
     """How to start node ``name``: the console script next to this Python, else on PATH,
-    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``; nodes in
-    :data:`FLUSH_ON_EXIT` through :func:`node_main`."""
-    if name in FLUSH_ON_EXIT:
-        return [sys.executable, '-c', f'from cvj_ros.orchestrate import node_main; node_main({name!r})']
+    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``. Every node flushes
+    its publishers before it exits (cvj_ros.nodes.common.flush_publishers)."""
     exe = Path(sys.executable).with_name(name)
     if exe.exists():
         return [str(exe)]

@@ -483,7 +483,8 @@ class Driveline:
         kin = 0.0
         for g in range(n):
             m = self._section(g, float(x[g]))[3]
-            kin += 0.5 * m * float(x[n + g]) ** 2
+            v = float(x[n + g])
+            kin += 0.5 * m * v * v    # v * v gives inf on overflow; float ** 2 would raise
         el = 0.0
         for k, sp in enumerate(self.springs):
             phi_l = self._section(k, float(x[k]))[0]

@@ -49,15 +49,21 @@ def amplitude(x: ArrayLike) -> float:
 def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: ArrayLike, *,
                   transient: float | None = None) -> dict[str, dict[str, float]]:
     """Per shaft over the steady window: mean_speed (rad/s), delta (-), speed_amplitude
-    (rad/s), acceleration_amplitude (rad/s^2), mean_torque and torque_amplitude (N m)."""
+    (rad/s), acceleration_amplitude (rad/s^2), mean_torque and torque_amplitude (N m).
+    acceleration_amplitude is NaN when the stamps are not strictly increasing (e.g. a bag
+    that recorded a second run on the same domain): no derivative over a zero time step."""
     tt = np.asarray(t, dtype=float)
     vel = np.asarray(velocity, dtype=float)
     eff = np.asarray(effort, dtype=float)
     mask = steady_mask(tt, transient=transient)
+    increasing = bool(np.all(np.diff(tt) > 0.0))
     out: dict[str, dict[str, float]] = {}
     for i, name in enumerate(names):
         w = vel[:, i]
-        acc = np.gradient(w, tt) if tt.size > 2 else np.zeros_like(w)
+        if tt.size <= 2:
+            acc = np.zeros_like(w)
+        else:
+            acc = np.gradient(w, tt) if increasing else np.full_like(w, np.nan)
         out[name] = {'mean_speed': float(np.mean(w[mask])),
                      'delta': nonuniformity(w[mask]),
                      'speed_amplitude': amplitude(w[mask]),

@@ -30,3 +30,22 @@ def test_energy_of_a_huge_speed_is_inf_not_an_exception(speed: float) -> None:
     assert e['kinetic'] == math.inf
     assert math.isfinite(e['elastic'])
     assert np.isfinite(dl.energy(dl.x0)['kinetic'])   # control: the normal state is finite
+
+
+def test_shaft_metrics_on_repeated_stamps_no_warning_nan_acceleration() -> None:
+    """A bag that recorded a second run on the same domain repeats stamps; the run report's
+    metrics must not spill numpy warnings onto stderr (the one-line error contract)."""
+    import warnings
+
+    from cvj_ros.physics.metrics import shaft_metrics
+    t = np.array([0.0, 1e-3, 1e-3, 2e-3, 3e-3, 3e-3, 4e-3])
+    w = np.linspace(10.0, 11.0, t.size)[:, None]
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        m = shaft_metrics(t, ['a'], w, w)['a']
+    assert math.isnan(m['acceleration_amplitude'])
+    assert m['mean_speed'] == pytest.approx(float(np.mean(w[t >= t[-1] / 2])))
+    # control: strictly increasing stamps give the finite derivative 1 rad/s / 6 ms
+    t_ok = np.linspace(0.0, 6e-3, 7)
+    m_ok = shaft_metrics(t_ok, ['a'], w, w)['a']
+    assert m_ok['acceleration_amplitude'] == pytest.approx(0.0, abs=1e-6)

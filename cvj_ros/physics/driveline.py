@@ -527,17 +527,22 @@ class Driveline:
     def fill_mid(self, position: FloatArray, velocity: FloatArray) -> None:
         """In place: intermediate-member columns of (samples, shafts) arrays from their
         joint's input column, vectorised (phi_mid, and dphi_mid/dphi_in * omega_in by a
-        central difference, h = 1e-6 rad)."""
-        h = 1e-6
+        Richardson-extrapolated central difference, h = 1e-3 rad: truncation O(h^4) ~ 1e-13,
+        round-off ~ 1e-16 |phi| / h, i.e. 4e-7 relative after 1e5 revolutions, where
+        h = 1e-6 gave 6e-5)."""
+        h = 1e-3
         for i_mid, i_in in self._mid_index:
             model = self.shafts[i_mid].joint
             phi = position[:, i_in]
             m = phi.size
-            mid3 = model.evaluate(np.concatenate([phi, phi + h, phi - h])).phi_mid  # one call
-            if mid3 is None:
+            mid = model.evaluate(np.concatenate([phi, phi + h, phi - h, phi + h / 2, phi - h / 2])
+                                 ).phi_mid  # one call
+            if mid is None:
                 continue
-            position[:, i_mid] = mid3[:m]
-            velocity[:, i_mid] = (mid3[m:2 * m] - mid3[2 * m:]) / (2 * h) * velocity[:, i_in]
+            position[:, i_mid] = mid[:m]
+            d_h = (mid[m:2 * m] - mid[2 * m:3 * m]) / (2 * h)
+            d_h2 = (mid[3 * m:4 * m] - mid[4 * m:]) / h
+            velocity[:, i_mid] = (4.0 * d_h2 - d_h) / 3.0 * velocity[:, i_in]
 
     def reactions(self, x: FloatArray, T_engine: float, T_load: float) -> dict[str, dict[str, float]]:
         """Per joint whose model has ``reactions(phi_in, omega_in, torque_in)``: its dict."""

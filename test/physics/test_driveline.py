@@ -204,3 +204,21 @@ def test_reactions_use_the_joint_input_state() -> None:
         if 'torque_out' not in react.get(j, {}):
             pytest.skip('hooke model gives no torque_out reaction')
         assert react[j]['torque_out'] == pytest.approx(eff[names.index(f'{j}_output')], rel=1e-9)
+
+
+@pytest.mark.parametrize('revolutions', [0.1, 1e5])
+def test_intermediate_member_speed_matches_cage_law_far_out(revolutions: float) -> None:
+    """Cage speed of a Rzeppa with a cage error = f'(phi) omega (seed 003 eq. 29 via
+    Rzeppa.cage), also after 1e5 revolutions where a plain 1e-6 rad difference loses 1e-4."""
+    from cvj_ros.physics.joints.rzeppa import Rzeppa
+    chain = [inertia('a', 0.1), joint('rz', 'rzeppa', delta_deg=40.0, alpha_deg=17.0),
+             inertia('b', 0.2)]
+    dl = Driveline.from_scene(scene(chain))
+    x = dl.x0.copy()
+    x[0] = 2 * math.pi * revolutions + 0.37
+    x[1] = 25.0
+    names, pos, vel, _eff = dl.joint_states(x, 0.0, 0.0)
+    i_cage = [k for k, n in enumerate(names) if n.startswith('rz_') and n not in ('rz_input', 'rz_output')]
+    assert len(i_cage) == 1
+    _phi3, f1, _f2 = Rzeppa(math.radians(40.0), alpha=math.radians(17.0)).cage(np.array([x[0]]))
+    assert vel[i_cage[0]] == pytest.approx(float(np.asarray(f1).ravel()[0]) * 25.0, rel=1e-6)

@@ -26,8 +26,9 @@ on a stiff scene at a loose tolerance) or fails is recorded with ``ok = False`` 
 
 The lockstep study runs :class:`cvj_ros.physics.cosim.CoupledStepper` offline (no ROS) over
 exchange steps and coupling schemes against the closed-loop reference, and compares the
-loop's overhead per exchange with the measured rclpy round trip
-(:func:`cvj_ros.nodes.roundtrip.measure_round_trip`).
+loop's overhead per exchange with the measured rclpy round trips, in one process
+(:func:`cvj_ros.nodes.roundtrip.measure_round_trip`) and across processes
+(:func:`cvj_ros.nodes.roundtrip.measure_round_trip_ipc`), ratios side by side.
 """
 from __future__ import annotations
 
@@ -371,21 +372,50 @@ def lockstep_study(prob: SceneProblem, cfg: BenchConfig) -> list[dict[str, Any]]
     return rows
 
 
+ROUND_TRIP_LABELS = {
+    'events': 'in-process, events executor',
+    'single': 'in-process, single-threaded executor',
+    'events_ipc': 'inter-process (1 echo process), events executor',
+    'events_ipc2': 'inter-process (2 echo processes = engine + load pattern), events executor',
+}
+
+
 def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
-    """rclpy publish/subscribe round trip (us) with both executors, or a note why not."""
+    """rclpy publish/subscribe round trip (us): in one process with both executors
+    (``events``, ``single``) and across processes with the events executor and one or two
+    echo processes (``events_ipc``, ``events_ipc2``), or a note why not."""
     out: dict[str, Any] = {}
     if n <= 0:
         return {'note': 'skipped'}
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     try:
-        from cvj_ros.nodes.roundtrip import measure_round_trip
+        from cvj_ros.nodes.roundtrip import measure_round_trip, measure_round_trip_ipc
     except ImportError as exc:
         return {'note': f'unavailable: {exc}'}
-    for ex in ('events', 'single'):
+    runs: dict[str, Callable[[], dict[str, Any]]] = {
+        'events': lambda: measure_round_trip(n, 'events'),
+        'single': lambda: measure_round_trip(n, 'single'),
+        'events_ipc': lambda: measure_round_trip_ipc(n, 'events', echoes=1),
+        'events_ipc2': lambda: measure_round_trip_ipc(n, 'events', echoes=2),
+    }
+    for key, run in runs.items():
         try:
-            out[ex] = measure_round_trip(n, ex)
+            out[key] = run()
         except Exception as exc:  # rclpy set-up problems must not kill the benchmark
-            out[ex] = {'note': f'{type(exc).__name__}: {str(exc)[:120]}'}
+            out[key] = {'note': f'{type(exc).__name__}: {str(exc)[:120]}'}
+    return out
+
+
+def overhead_ratios(real: dict[str, Any], rt: dict[str, Any]) -> dict[str, float]:
+    """Lockstep overhead per exchange (us) divided by each measured round trip's mean (us):
+    ``{'events': ..., 'events_ipc2': ...}`` for the round trips that were measured."""
+    out: dict[str, float] = {}
+    over = real.get('overhead_us_mean')
+    if not isinstance(over, (int, float)):
+        return out
+    for key, v in rt.items():
+        if isinstance(v, dict) and isinstance(v.get('us_mean'), (int, float)) and v['us_mean'] > 0:
+            out[key] = float(over) / float(v['us_mean'])
     return out
 
 
@@ -421,7 +451,7 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
                            'process_wall_s': wall}
     if loop:
         for key in ('exchange_wall_us_mean', 'lockstep_wait_us_mean', 'integration_us_mean',
-                    'overhead_us_mean', 'real_time_factor'):
+                    'overhead_us_mean', 'state_us_mean', 'real_time_factor'):
             try:
                 out[key] = float(loop[-1][key])
             except (KeyError, ValueError):
@@ -620,20 +650,26 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         if ex == 'note':
             md.append(f'- rclpy round trip: {v}')
             continue
-        md.append(f'- rclpy round trip, {ex} executor: ' + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median'
-                                                            if isinstance(v, dict) and 'us_mean' in v else str(v)))
+        label = ROUND_TRIP_LABELS.get(ex, ex)
+        md.append(f'- rclpy round trip, {label}: '
+                  + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median, '
+                     f'{v.get("us_p95", math.nan):.0f} us p95' if isinstance(v, dict) and 'us_mean' in v else str(v)))
     if real:
         if 'overhead_us_mean' in real:
-            ev = rt.get('events', {}).get('us_mean') if isinstance(rt.get('events'), dict) else None
-            ratio = real['overhead_us_mean'] / ev if ev else None
+            ratios = overhead_ratios(real, rt)
             md.append(f'- real lockstep run ({real["scene"]}, {real["exchanges"]} exchanges, `cvj-sim run`): '
                       f'{real.get("exchange_wall_us_mean", math.nan):.0f} us per exchange, of which integration '
                       f'{real.get("integration_us_mean", math.nan):.0f} us, lockstep wait '
-                      f'{real.get("lockstep_wait_us_mean", math.nan):.0f} us; overhead (exchange - integration) '
-                      f'{real["overhead_us_mean"]:.0f} us = '
-                      + (f'{ratio:.2f}x the events-executor round trip (target <= 1.5x: '
-                         f'{"met" if ratio <= 1.5 else "missed"})' if ratio else 'n/a (no round trip measured)')
-                      + f'; real-time factor {real.get("real_time_factor", math.nan):.3g}.')
+                      f'{real.get("lockstep_wait_us_mean", math.nan):.0f} us, joint-state evaluation + publication '
+                      f'{real.get("state_us_mean", math.nan):.0f} us; overhead (exchange - integration) '
+                      f'{real["overhead_us_mean"]:.0f} us; real-time factor {real.get("real_time_factor", math.nan):.3g}.')
+            if ratios:
+                md += ['', '| reference round trip (mean) | overhead / round trip | target <= 1.5x |',
+                       '| --- | --- | --- |']
+                md += [f'| {ROUND_TRIP_LABELS.get(k, k)}: {rt[k]["us_mean"]:.0f} us | {r:.2f}x | '
+                       f'{"met" if r <= 1.5 else "missed"} |' for k, r in ratios.items()]
+            else:
+                md.append('- overhead ratio: n/a (no round trip measured)')
         else:
             md.append(f'- real lockstep run: {real.get("note", real)}')
     if studies:

@@ -170,13 +170,9 @@ def prepare(options: RunOptions) -> _Prepared:
 
 
 def _domain_env() -> tuple[dict[str, str], int]:
-    env = dict(os.environ)
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    env.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-    # publish() puts the sample on the transport before returning, so the samples a node
-    # publishes just before it exits (the coupling node's final state) reach the recorder
-    # (measured: in asynchronous mode up to 5 final joint states of 201 were lost)
-    env.setdefault('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
+    from cvj_ros.nodes.qos import dds_environment
+    # localhost discovery, Fast DDS, synchronous publication (cvj_ros.nodes.qos.dds_environment)
+    env = dds_environment(dict(os.environ))
     if not env.get('ROS_DOMAIN_ID'):
         env['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
     try:
@@ -324,20 +320,6 @@ def error_line(log_path: Path) -> str | None:
     return rest[-1] if rest else None  # e.g. the last line of a traceback
 
 
-# Fast DDS default writer profile for the node processes (unless the user gives one):
-# heartbeats every 20 ms instead of Fast DDS's 3 s, so a sample dropped on the way to a busy
-# subscriber (shared-memory port full on a loaded 2-core machine) is repaired within
-# milliseconds, and a writer's wait for acknowledgements at exit ends as soon as all arrived.
-FASTDDS_PROFILE = '''<?xml version="1.0" encoding="UTF-8" ?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <publisher profile_name="cvj_ros_writer" is_default_profile="true">
-    <times>
-      <heartbeatPeriod><sec>0</sec><nanosec>20000000</nanosec></heartbeatPeriod>
-    </times>
-  </publisher>
-</profiles>
-'''
-
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
 
 
@@ -389,10 +371,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     logs = out / 'logs'
     logs.mkdir(parents=True, exist_ok=True)
     env['ROS_LOG_DIR'] = str(logs / 'ros')
-    if env.get('RMW_IMPLEMENTATION') == 'rmw_fastrtps_cpp' and not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
-        profile = out / 'fastdds_profile.xml'
-        profile.write_text(FASTDDS_PROFILE)
-        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
+    from cvj_ros.nodes.qos import dds_environment
+    dds_environment(env, profile_dir=str(out))   # writes out/fastdds_profile.xml unless the user set one
     load_override = None
     if prep.load_series is not None:
         load_override = out / 'load_override.npz'

@@ -451,6 +451,10 @@ class TorqueResponder(CvjNode):
         self._wrench_topic = wrench_topic
         self.wrench_pub = self.create_publisher(WrenchStamped, wrench_topic, DATA_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        # one answer message, reused (publish() serialises it before returning)
+        self._answer = WrenchStamped()
+        self._answer.header.frame_id = shaft
+        self._answer_torque = self._answer.wrench.torque
         self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states,
                                                DATA_QOS)
 
@@ -470,8 +474,10 @@ class TorqueResponder(CvjNode):
             diag_status(f'{self.get_name()}', level, message, values)]))
 
     def _on_joint_states(self, msg: Any) -> None:
-        self.last_stamp_ns = stamp_to_ns(msg.header.stamp)
-        i = self._shaft_index(msg.name)
+        stamp = msg.header.stamp
+        self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
+        names = msg.name
+        i = self._index if names == self._names else self._shaft_index(names)
         if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
             self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
                                f'and velocity (names: {", ".join(msg.name)}); not answered')
@@ -487,10 +493,9 @@ class TorqueResponder(CvjNode):
             self.report(ERROR, f'{self._wrench_topic}: model torque not finite ({torque}) at '
                                f't={t} s, omega={omega} rad/s; not published')
             return
-        out = self._wrench_cls()
-        out.header.stamp = msg.header.stamp
-        out.header.frame_id = self.shaft
-        out.wrench.torque.z = torque
+        out = self._answer
+        out.header.stamp = stamp
+        self._answer_torque.z = torque
         self.wrench_pub.publish(out)
         self.answered += 1
 

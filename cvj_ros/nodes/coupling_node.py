@@ -162,8 +162,24 @@ class CouplingNode(CvjNode):
                                                    self._on_engine, DATA_QOS)
         self.load_sub = self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
                                                  self._on_load, DATA_QOS)
+        # Reused message objects: one builtin_interfaces/Time shared by every header and
+        # /clock, updated in place each step (publish() serialises synchronously, so reuse is
+        # safe); WrenchStamped construction alone measured 27 us per message here.
+        self._stamp = ns_to_stamp(0)
         self._js_msg = JointState()
         self._js_msg.name = self.names
+        self._js_msg.header.stamp = self._stamp
+        self._clock_msg = Clock(clock=self._stamp)
+        self._reaction_msgs: dict[str, WrenchStamped] = {}
+        for j in self.reaction_joints:
+            w = WrenchStamped()
+            w.header.stamp = self._stamp
+            w.header.frame_id = f'{j}_housing'
+            self._reaction_msgs[j] = w
+        # one pass over the driveline gives joint states and reactions together
+        # (Driveline._walk; the public joint_states() + reactions() walk it twice)
+        self._walk = getattr(self.driveline, '_walk', None)
+        self._has_mid = bool(getattr(self.driveline, '_mid_index', True))
 
         # loop state
         self.k = 0
@@ -182,9 +198,9 @@ class CouplingNode(CvjNode):
         self.wait_total = 0.0
         self.integration_total = 0.0
         self.exchange_total = 0.0
+        self.state_total = 0.0      # joint-state evaluation + publication (critical path)
         self.exchanges = 0
         self._t_wall0 = 0.0
-        self._step_wall0 = 0.0
 
         self._publish_scene()
         self._start_deadline = time.monotonic() + p['start_timeout']
@@ -318,7 +334,6 @@ class CouplingNode(CvjNode):
     def _begin_wait(self) -> None:
         self._have_engine = self._have_load = False
         self.waiting = True
-        self._wait_start = time.perf_counter()
         self._wait_start_mono = time.monotonic()
 
     def _check_peers(self) -> None:
@@ -391,11 +406,12 @@ class CouplingNode(CvjNode):
             self.T_load, self._have_load = value, True
         if self._have_engine and self._have_load:
             self.waiting = False
-            now = time.perf_counter()
-            self.wait_total += now - self._wait_start
-            self._step()
+            sent = self._wait_start
+            self.wait_total += time.perf_counter() - sent
+            self._step()   # publishes the next state: sets _wait_start
             if self.exit_code is None:
-                self.exchange_total += time.perf_counter() - self._wait_start
+                # one exchange = joint-state publication to the next one
+                self.exchange_total += self._wait_start - sent
                 self.exchanges += 1
                 self._begin_wait()
 
@@ -438,29 +454,41 @@ class CouplingNode(CvjNode):
         self.exchanges += 1
 
     def _publish_state(self) -> None:
-        stamp = ns_to_stamp(self.t_ns)
-        self.clock_pub.publish(Clock(clock=stamp))
-        names, pos, vel, eff = self.driveline.joint_states(self.x, self.T_engine, self.T_load)
+        """Publish the state at t_k: /driveline/joint_states first (the peers wait for it),
+        then /clock and the reaction wrenches, which nobody in the loop waits for."""
+        c0 = time.perf_counter()
+        stamp = self._stamp
+        stamp.sec, stamp.nanosec = divmod(self.t_ns, NS_PER_S)
+        x, t_engine, t_load = self.x, self.T_engine, self.T_load
+        reactions: dict[str, dict[str, float]] | None = None
+        if self._walk is not None:
+            pos, vel, eff, reactions = self._walk(x, t_engine, t_load, reactions=bool(self.reaction_pubs))
+            if self._has_mid:
+                self.driveline.fill_mid(pos[None, :], vel[None, :])
+        else:
+            _names, pos, vel, eff = self.driveline.joint_states(x, t_engine, t_load)
         msg = self._js_msg
-        msg.header.stamp = stamp
-        msg.position = np.asarray(pos, dtype=float).tolist()
-        msg.velocity = np.asarray(vel, dtype=float).tolist()
-        msg.effort = np.asarray(eff, dtype=float).tolist()
+        msg.position = pos.tolist()
+        msg.velocity = vel.tolist()
+        msg.effort = eff.tolist()
         self.js_pub.publish(msg)
+        self._wait_start = time.perf_counter()   # the lockstep wait starts here
+        self.state_total += self._wait_start - c0
         self.joint_states_published += 1
+        self.clock_pub.publish(self._clock_msg)
         if self.reaction_pubs:
-            reactions = self.driveline.reactions(self.x, self.T_engine, self.T_load)
+            if reactions is None:
+                reactions = self.driveline.reactions(x, t_engine, t_load)
             for joint, pub in self.reaction_pubs.items():
                 values = reactions.get(joint)
                 if not values:
                     continue
                 force, torque = reaction_to_wrench(values)
-                w = WrenchStamped()
-                w.header.stamp = stamp
-                w.header.frame_id = f'{joint}_housing'
-                w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = force
-                w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = torque
-                pub.publish(w)
+                wrench = self._reaction_msgs[joint].wrench
+                f, m = wrench.force, wrench.torque
+                f.x, f.y, f.z = force
+                m.x, m.y, m.z = torque
+                pub.publish(self._reaction_msgs[joint])
 
     # --- diagnostics ------------------------------------------------------------------------
 
@@ -479,6 +507,7 @@ class CouplingNode(CvjNode):
             'exchange_wall_us_mean': 1e6 * self.exchange_total / n,
             'lockstep_wait_us_mean': 1e6 * self.wait_total / n,
             'integration_us_mean': 1e6 * self.integration_total / n,
+            'state_us_mean': 1e6 * self.state_total / max(self.joint_states_published, 1),
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
         }

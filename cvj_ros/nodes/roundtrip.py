@@ -1,15 +1,27 @@
 """Measure the rclpy publish -> callback -> publish -> callback round trip.
 
-Two nodes in one process and one executor: ``ping`` publishes a Float64 on a private
+In-process (:func:`measure_round_trip`): two nodes in one process and one executor: ``ping`` publishes a Float64 on a private
 topic, ``pong`` answers it in its callback on a second topic, and ``ping``'s callback
 records the elapsed wall time and publishes the next ping. This is exactly the message
 path of one lockstep exchange (joint state out, wrench back), minus the physics, so it
 is the floor the lockstep overhead per exchange is judged against (DESIGN.md sec. 3).
+
+Inter-process (:func:`measure_round_trip_ipc`): the lockstep runs its nodes in separate
+processes, so the fair floor is a round trip across processes: ``echoes`` echo nodes in
+subprocesses (``python -m cvj_ros.nodes.roundtrip echo ...``) answer every ping from this
+process, with the same QoS, executor and Fast DDS settings as the node processes of
+``cvj-sim run`` (:func:`cvj_ros.nodes.qos.dds_environment`). With ``echoes=2`` a round
+trip ends when both answers are in: the message pattern of one exchange with engine_node
+and load_node.
 """
 from __future__ import annotations
 
+import argparse
 import os
+import subprocess
+import sys
 import time
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -95,9 +107,6 @@ def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'e
             'us_p95': float(np.percentile(us, 95)), 'n': n, 'executor': executor}
 
 
-if __name__ == '__main__':
-    for name in EXECUTORS:
-        print(name, measure_round_trip(2000, name))
 
 
 def measure_lockstep(scene: str, *, duration: float | None = None, exchange_step: float | None = None,
@@ -154,3 +163,185 @@ def measure_lockstep(scene: str, *, duration: float | None = None, exchange_step
     finally:
         rclpy.shutdown(context=ctx)
     return stats
+
+
+def _echo_main(ping_topic: str, pong_topic: str, executor: str) -> int:
+    """Echo process: answer every Float64 on ``ping_topic`` on ``pong_topic`` until stdin closes."""
+    import threading
+
+    import rclpy
+    from rclpy.context import Context
+    from std_msgs.msg import Float64
+
+    from cvj_ros.nodes.common import make_executor
+    from cvj_ros.nodes.qos import DATA_QOS
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node(f'cvj_rt_echo_{os.getpid()}', context=ctx)
+    pub = node.create_publisher(Float64, pong_topic, DATA_QOS)
+    node.create_subscription(Float64, ping_topic, pub.publish, DATA_QOS)
+    ex = make_executor(executor, ctx)
+    ex.add_node(node)
+    from rclpy.task import Future
+    done = Future()
+
+    def watch_stdin() -> None:   # the parent closes our stdin (or dies): stop
+        sys.stdin.read()
+        done.set_result(True)
+
+    threading.Thread(target=watch_stdin, daemon=True).start()
+    print('ready', flush=True)
+    try:
+        while not done.done() and ctx.ok():
+            ex.spin_until_future_complete(done, timeout_sec=0.25)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    return 0
+
+
+def measure_round_trip_ipc(n: int = 1000, executor: Literal['events', 'single'] = 'events', *,
+                           echoes: int = 1, warmup: int = 50, timeout: float = 60.0) -> dict[str, float]:
+    """Inter-process round trip: ping from this process, answered by ``echoes`` subprocesses.
+
+    Every echo process subscribes the ping topic and publishes the same Float64 on its own
+    pong topic; a round trip is the wall time (``time.perf_counter``) from publishing a
+    ping to having the answers of all ``echoes`` processes. QoS :data:`~cvj_ros.nodes.qos.DATA_QOS`,
+    the given executor on both sides, and the node-process DDS settings of ``cvj-sim run``
+    (:func:`cvj_ros.nodes.qos.dds_environment`; in this process they apply only if rclpy
+    has not created a participant before, since Fast DDS reads them once per process).
+
+    Args:
+        n: measured round trips (after ``warmup`` discarded ones).
+        executor: 'events' or 'single' (both processes).
+        echoes: number of answering processes (1, or 2 = the engine + load pattern).
+        warmup: round trips discarded first (discovery, allocation).
+        timeout: wall seconds for start-up plus measurement (RuntimeError after it).
+
+    Returns:
+        dict with ``us_mean``, ``us_p50``, ``us_p95`` (microseconds per round trip), ``n``,
+        ``executor``, ``echoes``, ``processes`` = echoes + 1.
+    """
+    import tempfile
+
+    if executor not in EXECUTORS:
+        raise ValueError(f'executor: must be one of {EXECUTORS}, got {executor!r}')
+    if n < 1:
+        raise ValueError(f'n: must be >= 1, got {n}')
+    if not 1 <= echoes <= 8:
+        raise ValueError(f'echoes: must be in 1..8, got {echoes}')
+    from cvj_ros.nodes.qos import dds_environment
+    # a stable per-user directory: the profile path may stay in os.environ after this call
+    profile_dir = os.path.join(tempfile.gettempdir(), f'cvj_ros_dds_{os.getuid()}')
+    os.makedirs(profile_dir, exist_ok=True)
+    env = dds_environment(dict(os.environ), profile_dir=profile_dir)
+    for key in ('RMW_FASTRTPS_PUBLICATION_MODE', 'FASTRTPS_DEFAULT_PROFILES_FILE',
+                'ROS_AUTOMATIC_DISCOVERY_RANGE', 'RMW_IMPLEMENTATION'):
+        if key in env:
+            os.environ.setdefault(key, env[key])
+    return _measure_ipc(n, executor, echoes=echoes, warmup=warmup, timeout=timeout, env=env)
+
+
+def _measure_ipc(n: int, executor: str, *, echoes: int, warmup: int, timeout: float,
+                 env: dict[str, str]) -> dict[str, float]:
+    import rclpy
+    from rclpy.context import Context
+    from std_msgs.msg import Float64
+
+    from cvj_ros.nodes.common import make_executor
+    from cvj_ros.nodes.qos import DATA_QOS
+
+    suffix = f'{os.getpid()}_{time.monotonic_ns()}'
+    ping_topic = f'/cvj_rt/ipc_ping_{suffix}'
+    pong_topics = [f'/cvj_rt/ipc_pong_{suffix}_{i}' for i in range(echoes)]
+    procs = [subprocess.Popen([sys.executable, '-m', 'cvj_ros.nodes.roundtrip', 'echo', ping_topic, pong,
+                               executor], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+             for pong in pong_topics]
+    ctx = Context()
+    rclpy.init(context=ctx)
+    total = n + warmup
+    samples = np.empty(total)
+    try:
+        node = rclpy.create_node(f'cvj_rt_ipc_{os.getpid()}', context=ctx)
+        pub = node.create_publisher(Float64, ping_topic, DATA_QOS)
+        state = {'i': 0, 't0': 0.0, 'got': 0}
+        msg = Float64()
+
+        def on_pong(_m: Float64) -> None:
+            state['got'] += 1
+            if state['got'] < echoes:
+                return
+            samples[state['i']] = time.perf_counter() - state['t0']
+            state['i'] += 1
+            state['got'] = 0
+            if state['i'] < total:
+                state['t0'] = time.perf_counter()
+                pub.publish(msg)
+
+        subs = [node.create_subscription(Float64, t, on_pong, DATA_QOS) for t in pong_topics]
+        ex = make_executor(executor, ctx)
+        ex.add_node(node)
+        deadline = time.monotonic() + timeout
+        for p in procs:   # each echo process prints 'ready' once its node exists
+            line = b''
+            while p.stdout is not None and line.strip() != b'ready':
+                line = p.stdout.readline()
+                if not line:
+                    raise RuntimeError(f'round trip: echo process exited with {p.wait()}')
+        while (pub.get_subscription_count() < echoes
+               or any(s.get_publisher_count() < 1 for s in subs)):
+            ex.spin_once(timeout_sec=0.01)
+            if time.monotonic() > deadline:
+                raise RuntimeError('round trip: echo processes never matched')
+        state['t0'] = time.perf_counter()
+        pub.publish(msg)
+        while state['i'] < total:
+            ex.spin_once(timeout_sec=0.1)
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'round trip: only {state["i"]} of {total} exchanges in {timeout} s')
+        ex.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+        for p in procs:
+            if p.stdin is not None:
+                p.stdin.close()
+        for p in procs:
+            try:
+                p.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            if p.stdout is not None:
+                p.stdout.close()
+    us = samples[warmup:] * 1e6
+    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
+            'us_p95': float(np.percentile(us, 95)), 'n': n, 'executor': executor,
+            'echoes': echoes, 'processes': echoes + 1}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m cvj_ros.nodes.roundtrip [--n N]``: print both round trips for both executors;
+    ``... echo PING PONG EXECUTOR``: run one echo process (used by measure_round_trip_ipc)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ['echo']:
+        if len(argv) != 4:
+            print('roundtrip echo: error: expected PING_TOPIC PONG_TOPIC EXECUTOR', file=sys.stderr)
+            return 2
+        return _echo_main(argv[1], argv[2], argv[3])
+    parser = argparse.ArgumentParser(prog='python -m cvj_ros.nodes.roundtrip')
+    parser.add_argument('--n', type=int, default=2000, help='round trips per measurement')
+    args = parser.parse_args(argv)
+    for name in EXECUTORS:
+        print('in-process', name, measure_round_trip(args.n, name))  # type: ignore[arg-type]
+        for k in (1, 2):
+            print(f'inter-process x{k}', name, measure_round_trip_ipc(args.n, name, echoes=k))  # type: ignore[arg-type]
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -271,3 +271,57 @@ def test_hooke_scene_publishes_reaction_wrench_in_housing_frame(ctx, tmp_path):
     # the cross carries a moment: non-zero and finite once torque flows (step >= 1)
     t = got[-1].wrench.torque
     assert _m.isfinite(t.x) and _m.hypot(t.x, t.y) > 0.0
+
+
+def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_alias(ctx):
+    """The one-pass publication path (joint states + reactions from a single walk, reused
+    message objects) gives, for two different states, exactly what the public
+    Driveline.joint_states() and Driveline.reactions() of an independently built
+    driveline give; each published message is serialised at publish time, so the second
+    state does not overwrite the first."""
+    import numpy as np
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.scene import find_scene, load_scene
+
+    node = CouplingNode(context=ctx, parameter_overrides=[Parameter('scene', value='kavz685_lever')])
+    try:
+        assert node._has_mid and node.reaction_pubs   # lever: earring shaft + reaction wrench
+        sent: list[tuple[str, bytes]] = []
+        node.js_pub.publish = lambda m: sent.append(('js', serialize_message(m)))
+        node.clock_pub.publish = lambda m: sent.append(('clock', serialize_message(m)))
+        for j, pub in node.reaction_pubs.items():
+            pub.publish = lambda m, j=j: sent.append((j, serialize_message(m)))
+        ref = Driveline.from_scene(load_scene(find_scene('kavz685_lever')))
+        rng = np.random.default_rng(3)
+        cases = []
+        for k, t_ns in enumerate((1_000_000, 2_503_000_000)):
+            x = np.array(node.x, dtype=float)
+            x[:ref.n_dof] += rng.uniform(-0.3, 0.3, ref.n_dof) + 1.7 * k
+            x[ref.n_dof:2 * ref.n_dof] += rng.uniform(-5.0, 5.0, ref.n_dof)
+            node.x, node.t_ns, node.T_engine, node.T_load = x, t_ns, 120.0 + k, 95.0 - k
+            node._publish_state()
+            cases.append((x, t_ns, 120.0 + k, 95.0 - k))
+    finally:
+        node.destroy_node()
+    js = [deserialize_message(b, JointState) for kind, b in sent if kind == 'js']
+    clocks = [deserialize_message(b, Clock) for kind, b in sent if kind == 'clock']
+    wrenches = [(kind, deserialize_message(b, WrenchStamped)) for kind, b in sent
+                if kind not in ('js', 'clock')]
+    assert len(js) == len(clocks) == 2 and len(wrenches) == 2
+    for i, (x, t_ns, te, tl) in enumerate(cases):
+        names, pos, vel, eff = ref.joint_states(x, te, tl)
+        assert list(js[i].name) == list(names)
+        assert js[i].header.stamp.sec * 10**9 + js[i].header.stamp.nanosec == t_ns
+        assert clocks[i].clock.sec * 10**9 + clocks[i].clock.nanosec == t_ns
+        np.testing.assert_allclose(js[i].position, pos, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(js[i].velocity, vel, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(js[i].effort, eff, rtol=0, atol=1e-9)
+        joint, w = wrenches[i]
+        force, torque = reaction_to_wrench(ref.reactions(x, te, tl)[joint])
+        assert w.header.frame_id == f'{joint}_housing'
+        assert w.header.stamp.sec * 10**9 + w.header.stamp.nanosec == t_ns
+        np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.force.z], force, atol=1e-9)
+        np.testing.assert_allclose([w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z], torque, atol=1e-9)
+    assert js[0].position[0] != js[1].position[0]

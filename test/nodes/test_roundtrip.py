@@ -1,0 +1,46 @@
+"""Round-trip measurements (cvj_ros.nodes.roundtrip): in-process and inter-process.
+
+No timing assertions: the figures depend on the machine. Checked: the measurement
+completes with the requested count, its statistics are ordered and positive, the echo
+processes end, and bad arguments are rejected naming the argument.
+"""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from cvj_ros.nodes.roundtrip import main, measure_round_trip, measure_round_trip_ipc
+
+
+def _check_stats(r: dict, n: int) -> None:
+    assert r['n'] == n
+    for key in ('us_mean', 'us_p50', 'us_p95'):
+        assert math.isfinite(r[key]) and r[key] > 0.0
+    assert r['us_p50'] <= r['us_p95']
+
+
+@pytest.mark.parametrize('echoes', [1, 2])
+def test_inter_process_round_trip_completes(echoes: int) -> None:
+    r = measure_round_trip_ipc(60, 'events', echoes=echoes, warmup=10, timeout=60.0)
+    _check_stats(r, 60)
+    assert r['echoes'] == echoes and r['processes'] == echoes + 1
+    assert r['executor'] == 'events'
+
+
+def test_in_process_round_trip_completes() -> None:
+    _check_stats(measure_round_trip(60, 'events', warmup=10), 60)
+
+
+@pytest.mark.parametrize(('kwargs', 'field'), [
+    ({'n': 0}, 'n:'), ({'executor': 'multi'}, 'executor:'), ({'echoes': 0}, 'echoes:'),
+])
+def test_bad_arguments_name_the_argument(kwargs: dict, field: str) -> None:
+    args = {'n': 10, 'executor': 'events'} | kwargs
+    with pytest.raises(ValueError, match=f'^{field}'):
+        measure_round_trip_ipc(**args)
+
+
+def test_echo_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(['echo', '/only_one_topic']) == 2
+    assert 'expected PING_TOPIC PONG_TOPIC EXECUTOR' in capsys.readouterr().err

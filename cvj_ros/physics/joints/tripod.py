@@ -144,6 +144,14 @@ def _jconst(value: Any, order: int) -> Jet:
     return [value] + [z] * order
 
 
+# The exact model's Fourier table depends only on the geometry (beta, r, l); building it
+# (continuation + Newton + FFT) costs 0.15-1 s, and a scene builds the same joint for
+# validation, fidelity choice and the driveline. Tables are read-only once built.
+_SPECTRAL_FIELDS = ('_sine_coeffs', '_coeff_list', '_orbit_spec', '_table_phi', '_table_q',
+                    'spectral_error')
+_SPECTRAL_CACHE: dict[tuple[float, float, float], dict[str, Any]] = {}
+
+
 class Tripod:
     """Tripod joint with bend angle ``beta`` (rad), track radius ``r`` (m) and shaft
     length ``l`` (m) from the spider centre to the output shaft's fixed point.
@@ -184,7 +192,14 @@ class Tripod:
                 raise GeometryError('beta', f'exact tripod model is verified up to '
                                             f'{math.degrees(PRACTICAL_MAX_BETA):g} deg, got '
                                             f'{math.degrees(self.beta):.6g} deg')
-            self._build_spectral()
+            key = (self.beta, self.r, self.l)
+            cached = _SPECTRAL_CACHE.get(key)
+            if cached is None:
+                self._build_spectral()
+                _SPECTRAL_CACHE[key] = cached = {k: getattr(self, k) for k in _SPECTRAL_FIELDS}
+            else:
+                for k, v in cached.items():
+                    setattr(self, k, v)
 
     # --- contract ----------------------------------------------------------------------
 

@@ -273,12 +273,13 @@ def test_hooke_scene_publishes_reaction_wrench_in_housing_frame(ctx, tmp_path):
     assert _m.isfinite(t.x) and _m.hypot(t.x, t.y) > 0.0
 
 
-def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_alias(ctx):
-    """The one-pass publication path (joint states + reactions from a single walk, reused
-    message objects) gives, for two different states, exactly what the public
+@pytest.mark.parametrize('raw', [True, False])
+def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_alias(ctx, raw):
+    """The publication path (pre-serialised CDR bytes, or reused message objects when
+    raw publication is off) gives, for two different states, what the public
     Driveline.joint_states() and Driveline.reactions() of an independently built
-    driveline give; each published message is serialised at publish time, so the second
-    state does not overwrite the first."""
+    driveline give, decoded by rclpy's own deserialiser; each sample is serialised at
+    publish time, so the second state does not overwrite the first."""
     import numpy as np
     from rclpy.serialization import deserialize_message, serialize_message
 
@@ -288,11 +289,18 @@ def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_
     node = CouplingNode(context=ctx, parameter_overrides=[Parameter('scene', value='kavz685_lever')])
     try:
         assert node._has_mid and node.reaction_pubs   # lever: earring shaft + reaction wrench
+        assert node.raw_publication                   # the CDR encoders passed their self-check
+        node.raw_publication = raw
         sent: list[tuple[str, bytes]] = []
-        node.js_pub.publish = lambda m: sent.append(('js', serialize_message(m)))
-        node.clock_pub.publish = lambda m: sent.append(('clock', serialize_message(m)))
+
+        def keep(kind, m):
+            assert isinstance(m, bytes) == raw
+            sent.append((kind, m if raw else serialize_message(m)))
+
+        node.js_pub.publish = lambda m: keep('js', m)
+        node.clock_pub.publish = lambda m: keep('clock', m)
         for j, pub in node.reaction_pubs.items():
-            pub.publish = lambda m, j=j: sent.append((j, serialize_message(m)))
+            pub.publish = lambda m, j=j: keep(j, m)
         ref = Driveline.from_scene(load_scene(find_scene('kavz685_lever')))
         rng = np.random.default_rng(3)
         cases = []

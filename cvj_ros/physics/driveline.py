@@ -338,11 +338,12 @@ class Driveline:
         return np.array(out)
 
     def jacobian(self, t: float, x: FloatArray, T_engine: float, T_load: float, *,
-                 dTe_domega: float = 0.0, dTl_domega: float = 0.0) -> FloatArray:
-        """Analytic d(rhs)/dx; torque slopes dT/domega (N m s/rad) of engine and load
-        close the loop. Only dC/dq (third derivative of the joint position functions,
-        which the joint contract does not give) is a central difference of C(q).
-        Dependence of the torques on shaft angle (firing ripple) is not included."""
+                 dTe_domega: float = 0.0, dTl_domega: float = 0.0,
+                 dTe_dphi: float = 0.0, dTl_dphi: float = 0.0) -> FloatArray:
+        """Analytic d(rhs)/dx; torque slopes dT/domega (N m s/rad) and dT/dphi (N m/rad,
+        firing ripple, Fourier load over shaft angle) of engine and load close the loop.
+        Only dC/dq (third derivative of the joint position functions, which the joint
+        contract does not give) is a central difference of C(q)."""
         n = self.n_dof
         ns = self._n_state
         n2 = 2 * n
@@ -373,10 +374,11 @@ class Driveline:
         dq = [[0.0] * n2 for _ in range(n)]      # dQ_g / d[q, v]
         qf[0] += T_engine
         dq[0][n] += dTe_domega
+        dq[0][0] += dTe_dphi
         al, bl = sec[-1][1], sec[-1][2]
         vl = xl[n2 - 1]
         qf[-1] -= T_load * al
-        dq[n - 1][n - 1] += -T_load * bl - dTl_domega * bl * vl * al
+        dq[n - 1][n - 1] += -T_load * bl - dTl_domega * bl * vl * al - dTl_dphi * al * al
         dq[n - 1][n2 - 1] += -dTl_domega * al * al
         dpd = [0.0] * n2                         # d(p_damp)/d[q, v]
         for k, sp in enumerate(self.springs):

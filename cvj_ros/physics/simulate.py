@@ -118,9 +118,14 @@ class Simulation:
         def jac(t: float, x: FloatArray) -> FloatArray:
             phi_l, w_l = load_state(x)
             w_e, phi_e = float(x[n]), float(x[0])
+            # dT/dphi (firing ripple, load over angle) by a central difference: the torque
+            # contract gives only dT/domega. Without it Rosenbrock methods lose their order.
+            he, hl = 1e-6 * max(1.0, abs(phi_e)), 1e-6 * max(1.0, abs(phi_l))
             return dl.jacobian(t, x, e_torque(t, w_e, phi_e), l_torque(t, w_l, phi_l),
                                dTe_domega=engine.slope(t, w_e, phi_e),
-                               dTl_domega=load.slope(t, w_l, phi_l))
+                               dTl_domega=load.slope(t, w_l, phi_l),
+                               dTe_dphi=(e_torque(t, w_e, phi_e + he) - e_torque(t, w_e, phi_e - he)) / (2 * he),
+                               dTl_dphi=(l_torque(t, w_l, phi_l + hl) - l_torque(t, w_l, phi_l - hl)) / (2 * hl))
 
         self.fun = fun
         self.jac = jac

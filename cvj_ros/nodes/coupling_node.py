@@ -6,7 +6,13 @@ every joint whose model gives reactions (force N / torque N m in the joint's hou
 frame, frame_id ``<joint>_housing``), ``/driveline/scene`` (latched, once: YAML with
 ``scene``, ``seed``, ``fidelity``, ``mode``, ``coupling_scheme``) and its own loop
 diagnostics on ``/diagnostics`` (steps, real-time factor, lockstep wait per exchange,
-integration time, overhead per exchange, ignored stamps, energy residual).
+integration time, joint-state evaluation + publication time, overhead per exchange,
+process CPU time per exchange, ignored stamps, energy residual).
+
+Publication order per step: joint states first (the peers wait for them), then /clock and
+the reaction wrenches (computed while the peers answer). The loop's messages are published
+as pre-serialised CDR bytes (:class:`~cvj_ros.nodes.common.JointStateEncoder` etc.), which
+skips rclpy's Python-to-C conversion; the bytes decode to the same messages.
 
 Lockstep (default, deterministic; DESIGN.md section 3). Simulated time is integer
 nanoseconds t_k = k * h_ns. At step k the node publishes /clock and joint states
@@ -208,6 +214,7 @@ class CouplingNode(CvjNode):
         self.state_total = 0.0      # joint-state evaluation + publication (critical path)
         self.exchanges = 0
         self._t_wall0 = 0.0
+        self._cpu0 = 0.0
 
         self._publish_scene()
         self._start_deadline = time.monotonic() + p['start_timeout']
@@ -328,6 +335,7 @@ class CouplingNode(CvjNode):
         self._start_timer.cancel()
         self.started = True
         self._t_wall0 = time.perf_counter()
+        self._cpu0 = time.process_time()
         self._publish_state()
         if self.mode == 'lockstep':
             period = min(max(self.params['peer_timeout'] / 10.0, 0.005), 0.25)
@@ -449,7 +457,8 @@ class CouplingNode(CvjNode):
                 f'finished {self.k} steps, t={self.t_ns / NS_PER_S:g} s, real-time factor '
                 f'{st["real_time_factor"]:.3g}; per exchange: wall {st["exchange_wall_us_mean"]:.0f} us, '
                 f'integration {st["integration_us_mean"]:.0f} us, overhead {st["overhead_us_mean"]:.0f} us, '
-                f'wait {st["lockstep_wait_us_mean"]:.0f} us')
+                f'wait {st["lockstep_wait_us_mean"]:.0f} us, state {st["state_us_mean"]:.0f} us, '
+                f'process CPU {st["process_cpu_us_mean"]:.0f} us')
             self.finish()
 
     def _free_tick(self) -> None:
@@ -519,6 +528,8 @@ class CouplingNode(CvjNode):
             'lockstep_wait_us_mean': 1e6 * self.wait_total / n,
             'integration_us_mean': 1e6 * self.integration_total / n,
             'state_us_mean': 1e6 * self.state_total / max(self.joint_states_published, 1),
+            # CPU time of this process (all threads, DDS included) per exchange since step 0
+            'process_cpu_us_mean': 1e6 * (time.process_time() - self._cpu0) / n if self.started else 0.0,
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
         }

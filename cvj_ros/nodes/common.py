@@ -419,6 +419,28 @@ class JointStateEncoder:
                          np.asarray(effort, dtype='<f8').tobytes()))
 
 
+_LE_UINT32 = struct.Struct('<I')
+_LE_DOUBLE = struct.Struct('<d')
+
+
+def decode_wrench_stamp_torque_z(data: bytes) -> tuple[int, float]:
+    """(stamp in integer ns, torque.z in N m) of a serialised geometry_msgs/WrenchStamped.
+
+    Little-endian CDR is read directly (stamp at payload offset 0, frame_id string at 8,
+    then six float64 aligned to 8, torque.z last); other encodings go through
+    rclpy.serialization.deserialize_message.
+    """
+    if len(data) >= 16 and data[1] == 1:
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        off = 12 + _LE_UINT32.unpack_from(data, 12)[0]   # payload offset after frame_id
+        off += (-off) % 8
+        return sec * NS_PER_S + nanosec, _LE_DOUBLE.unpack_from(data, 4 + off + 40)[0]
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message
+    msg = deserialize_message(data, WrenchStamped)
+    return stamp_to_ns(msg.header.stamp), float(msg.wrench.torque.z)
+
+
 # --- node base and main loop ----------------------------------------------------------------
 
 class CvjNode(Node):

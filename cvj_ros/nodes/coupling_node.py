@@ -57,9 +57,10 @@ from std_msgs.msg import String
 from cvj_ros.errors import CvjError
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
-                                  WrenchStampedEncoder, declare_parameters, diag_array, diag_status, load_scene_param,
+                                  WrenchStampedEncoder, declare_parameters,
+                                  decode_wrench_stamp_torque_z, diag_array, diag_status, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
-                                  scene_seed, stamp_to_ns)
+                                  scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
                                JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
                                coupling_wrench_topic)
@@ -165,10 +166,11 @@ class CouplingNode(CvjNode):
         self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
         self.reaction_pubs = {j: self.create_publisher(WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
                               for j in self.reaction_joints}
+        # raw: the callbacks get the serialised answer and read stamp and torque.z directly
         self.engine_sub = self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                                   self._on_engine, DATA_QOS)
+                                                   self._on_engine, DATA_QOS, raw=True)
         self.load_sub = self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
-                                                 self._on_load, DATA_QOS)
+                                                 self._on_load, DATA_QOS, raw=True)
         # Reused message objects: one builtin_interfaces/Time shared by every header and
         # /clock, updated in place each step (publish() serialises synchronously, so reuse is
         # safe); WrenchStamped construction alone measured 27 us per message here.
@@ -379,31 +381,30 @@ class CouplingNode(CvjNode):
             if tm is not None:
                 tm.cancel()
 
-    def _torque_of(self, msg: WrenchStamped, topic: str) -> float | None:
-        """The message's torque.z when finite; else reject it (ERROR diagnostic)."""
-        value = msg.wrench.torque.z
+    def _torque_ok(self, value: float, stamp_ns: int, topic: str) -> bool:
+        """True when the torque is finite; else reject it (ERROR diagnostic)."""
         if math.isfinite(value):
-            return value
+            return True
         self.rejected_torques += 1
         text = (f'{topic}: torque.z not finite ({value}) at stamp '
-                f'{stamp_to_ns(msg.header.stamp) / NS_PER_S:.9g} s; rejected, never integrated')
+                f'{stamp_ns / NS_PER_S:.9g} s; rejected, never integrated')
         if self.mode == 'lockstep':
             self._stop_with_error(text)
         else:
             self.publish_diagnostics(ERROR, text)
-        return None
+        return False
 
-    def _on_engine(self, msg: WrenchStamped) -> None:
-        self._on_wrench(msg, ENGINE_WRENCH_TOPIC, engine=True)
+    def _on_engine(self, data: bytes) -> None:
+        self._on_wrench(*decode_wrench_stamp_torque_z(data), ENGINE_WRENCH_TOPIC, engine=True)
 
-    def _on_load(self, msg: WrenchStamped) -> None:
-        self._on_wrench(msg, LOAD_WRENCH_TOPIC, engine=False)
+    def _on_load(self, data: bytes) -> None:
+        self._on_wrench(*decode_wrench_stamp_torque_z(data), LOAD_WRENCH_TOPIC, engine=False)
 
-    def _on_wrench(self, msg: WrenchStamped, topic: str, *, engine: bool) -> None:
+    def _on_wrench(self, stamp_ns: int, value: float, topic: str, *, engine: bool) -> None:
+        """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
         if self.exit_code is not None:
             return
-        value = self._torque_of(msg, topic)
-        if value is None:
+        if not self._torque_ok(value, stamp_ns, topic):
             return
         if self.mode != 'lockstep':
             if engine:
@@ -412,7 +413,7 @@ class CouplingNode(CvjNode):
                 self.T_load = value
             return
         have = self._have_engine if engine else self._have_load
-        if not self.waiting or have or stamp_to_ns(msg.header.stamp) != self.t_ns:
+        if not self.waiting or have or stamp_ns != self.t_ns:
             self.ignored_stamps += 1     # late, duplicate or out-of-order answer
             return
         if engine:

@@ -58,3 +58,18 @@ def test_clock_encoder_matches_rclpy() -> None:
     ref.clock.sec, ref.clock.nanosec = 3, 1_000_000
     assert deserialize_message(enc.encode(3, 1_000_000), Clock) == ref
     assert len(enc.encode(3, 1_000_000)) == len(serialize_message(ref))
+
+
+@pytest.mark.parametrize('frame_id', ['', 'a', 'abc', 'abcd', 'engine_crank', 'wheel_x'])
+@pytest.mark.parametrize('torque', [123.456, -0.0, math.nan, -math.inf])
+def test_wrench_decoder_reads_rclpy_serialisation(frame_id: str, torque: float) -> None:
+    """Stamp and torque.z read from bytes serialised by rclpy (not by our encoder)."""
+    from cvj_ros.nodes.common import decode_wrench_stamp_torque_z
+    msg = WrenchStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 3_000_001
+    msg.header.frame_id = frame_id
+    msg.wrench.force.z, msg.wrench.torque.y, msg.wrench.torque.z = 9.0, -8.0, torque
+    stamp_ns, value = decode_wrench_stamp_torque_z(serialize_message(msg))
+    assert stamp_ns == 7_003_000_001
+    assert (math.isnan(value) and math.isnan(torque)) or (value == torque and
+                                                           math.copysign(1, value) == math.copysign(1, torque))

@@ -55,6 +55,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError
+from cvj_ros.physics.joints.wrench import wrench_from_reactions
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
@@ -97,39 +98,6 @@ PARAMS = (
 )
 
 
-def reaction_to_wrench(values: dict[str, float]) -> tuple[tuple[float, float, float],
-                                                          tuple[float, float, float]]:
-    """Map a joint model's reaction dict to (force xyz in N, torque xyz in N m).
-
-    Housing frame: z along the housing (output) shaft axis. A key is a force when it
-    contains 'force' or is ``F<axis>``, a torque when it contains 'moment'/'torque' or is
-    ``M<axis>``/``T<axis>``; its axis is the trailing x/y/z (``axial_force`` -> z). Where a
-    joint gives input- and output-side values, the output side (the housing) wins; keys
-    without an axis (magnitudes, ``torque_out``) are skipped.
-    """
-    force = [0.0, 0.0, 0.0]
-    torque = [0.0, 0.0, 0.0]
-    rank_f = [-1, -1, -1]
-    rank_t = [-1, -1, -1]
-    for key, val in values.items():
-        k = key.lower()
-        compact = k.replace('_', '')
-        if k == 'axial_force':
-            axis = 2
-        elif compact[-1:] in ('x', 'y', 'z') and (k[-2:-1] == '_' or len(compact) == 2):
-            axis = 'xyz'.index(compact[-1])
-        else:
-            continue
-        rank = 2 if 'output' in k or 'housing' in k else (0 if 'input' in k else 1)
-        if 'force' in k or (len(compact) == 2 and compact[0] == 'f'):
-            if rank > rank_f[axis]:
-                force[axis], rank_f[axis] = float(val), rank
-        elif 'moment' in k or 'torque' in k or (len(compact) == 2 and compact[0] in 'mt'):
-            if rank > rank_t[axis]:
-                torque[axis], rank_t[axis] = float(val), rank
-    return (force[0], force[1], force[2]), (torque[0], torque[1], torque[2])
-
-
 class CouplingNode(CvjNode):
     """The lockstep / free-run coupling node (see module docstring). Parameters: :data:`PARAMS`."""
 
@@ -166,6 +134,7 @@ class CouplingNode(CvjNode):
         self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
         self.reaction_pubs = {j: self.create_publisher(WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
                               for j in self.reaction_joints}
+        self._joint_kind = {name: m.kind for name, m in self.driveline.joint_models.items()}
         # raw: the callbacks get the serialised answer and read stamp and torque.z directly
         self.engine_sub = self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
                                                    self._on_engine, DATA_QOS, raw=True)
@@ -501,7 +470,7 @@ class CouplingNode(CvjNode):
                 values = reactions.get(joint)
                 if not values:
                     continue
-                force, torque = reaction_to_wrench(values)
+                force, torque = wrench_from_reactions(self._joint_kind[joint], values)
                 if raw:
                     pub.publish(self._reaction_cdr[joint].encode(sec, nanosec, *force, *torque))
                     continue

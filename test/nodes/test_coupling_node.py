@@ -18,7 +18,8 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from cvj_ros.nodes.common import ParameterError, make_executor  # noqa: E402
-from cvj_ros.nodes.coupling_node import CouplingNode, reaction_to_wrench  # noqa: E402
+from cvj_ros.nodes.coupling_node import CouplingNode  # noqa: E402
+from cvj_ros.physics.joints.wrench import wrench_from_reactions  # noqa: E402
 from cvj_ros.nodes.qos import DATA_QOS, LATCHED_QOS  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -226,19 +227,6 @@ def test_start_timeout_names_missing_topic(ctx, tmp_path):
     assert '/driveline/joint_states (' in node.error_message and 'of 60 subscribers)' in node.error_message
 
 
-def test_reaction_keys_map_to_wrench_axes():
-    force, torque = reaction_to_wrench({'Fx': 1.0, 'force_z': 3.0, 'Mz': 5.0, 'T_y': 4.0, 'other': 9.0})
-    assert force == (1.0, 0.0, 3.0) and torque == (0.0, 4.0, 5.0)
-    # Hooke-style keys: moments, secondary couples and magnitudes without an axis are skipped
-    force, torque = reaction_to_wrench({'torque_out': 7.0, 'moment_x': 1.0, 'moment_y': 2.0,
-                                        'secondary_in_x': 8.0, 'secondary_out': 9.0})
-    assert force == (0.0, 0.0, 0.0) and torque == (1.0, 2.0, 0.0)
-    # tripod-style keys: the output (housing) side wins over the input side; axial force -> z
-    force, _ = reaction_to_wrench({'input_force_x': -1.0, 'output_force_x': 2.0, 'axial_force': 6.0,
-                                   'input_force_y': 3.0})
-    assert force == (2.0, 3.0, 6.0)
-
-
 def test_hooke_scene_publishes_reaction_wrench_in_housing_frame(ctx, tmp_path):
     import math as _m
     data = yaml.safe_load(open(scene_file(tmp_path)).read())
@@ -268,9 +256,11 @@ def test_hooke_scene_publishes_reaction_wrench_in_housing_frame(ctx, tmp_path):
     # (the start check only waits for joint-state subscribers: the first reaction may be missed)
     assert len(got) >= 4 and all(w.header.frame_id == 'cardan_housing' for w in got)
     assert [ns(w.header.stamp) for w in got] == [k * 1_000_000 for k in range(6 - len(got), 6)]
-    # the cross carries a moment: non-zero and finite once torque flows (step >= 1)
+    # the cross carries a moment: non-zero and finite once torque flows (step >= 1), and
+    # torque.z is the torque delivered to the output shaft (housing_wrench convention)
     t = got[-1].wrench.torque
     assert _m.isfinite(t.x) and _m.hypot(t.x, t.y) > 0.0
+    assert t.z != 0.0 and _m.isfinite(t.z)
 
 
 @pytest.mark.parametrize('raw', [True, False])
@@ -327,7 +317,7 @@ def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_
         np.testing.assert_allclose(js[i].velocity, vel, rtol=0, atol=1e-9)
         np.testing.assert_allclose(js[i].effort, eff, rtol=0, atol=1e-9)
         joint, w = wrenches[i]
-        force, torque = reaction_to_wrench(ref.reactions(x, te, tl)[joint])
+        force, torque = wrench_from_reactions(ref.joint_models[joint].kind, ref.reactions(x, te, tl)[joint])
         assert w.header.frame_id == f'{joint}_housing'
         assert w.header.stamp.sec * 10**9 + w.header.stamp.nanosec == t_ns
         np.testing.assert_allclose([w.wrench.force.x, w.wrench.force.y, w.wrench.force.z], force, atol=1e-9)

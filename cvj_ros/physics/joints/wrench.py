@@ -20,6 +20,7 @@ Models without ``reactions()`` have no wrench (``None``).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 Vector3 = tuple[float, float, float]
@@ -37,9 +38,13 @@ def housing_wrench(model: Any, phi_in: float, omega_in: float,
     reactions = getattr(model, 'reactions', None)
     if reactions is None:
         return None
-    r = reactions(phi_in, omega_in, torque_in)
+    return wrench_from_reactions(getattr(model, 'kind', ''), reactions(phi_in, omega_in, torque_in))
+
+
+def wrench_from_reactions(kind: str, r: Mapping[str, float]) -> tuple[Vector3, Vector3]:
+    """The housing-frame wrench (module docstring) from a joint model's ``reactions()``
+    dict; ``kind`` is the joint's registry name."""
     t_out = float(r.get('torque_out', 0.0))
-    kind = getattr(model, 'kind', '')
     if kind == 'hooke':
         # hooke.py frame: input axis y, bend plane y-z, x normal -> housing (x, -z, y).
         return (0.0, 0.0, 0.0), (float(r['secondary_in_x']), -float(r['secondary_in_z']), t_out)

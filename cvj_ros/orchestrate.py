@@ -323,6 +323,13 @@ def error_line(log_path: Path) -> str | None:
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
 
 
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f'signal {signum}'
+
+
 def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
                     stop_signal: list[int], timeout: float) -> str | None:
     """Wait until the recorder matched engine/load publishers; an error line if a peer died or
@@ -454,7 +461,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             # the peers answer the final state too (no one waits for those answers)
             recorder.drain(expected={t: steps + 1 for t in PEER_TOPICS.values()} if lockstep_ok else {},
                            idle=0.5, bound=2.0)
-            if rc != 0:
+            if rc is not None and rc < 0:  # killed by a signal: its log holds no error line
+                error = f'coupling_node: killed by {_signal_name(-rc)} (exit status {rc})'
+            elif rc != 0:
                 line = error_line(logs / 'coupling_node.log')
                 error = f'coupling_node: {line}' if line else f'coupling_node: exited with status {rc}'
         mark('drained')
@@ -553,7 +562,7 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     p(f'cvj-sim run: {status}  scene={r.scene_path}  domain={r.domain_id}')
     if r.error:
         p(f'  error: {r.error}')
-    p(f'  simulated {r.sim_duration:.6g} s in {r.counts.get(bagmod.JOINT_STATES_TOPIC, 0) - 1} exchange steps '
+    p(f'  simulated {r.sim_duration:.6g} s in {max(0, r.counts.get(bagmod.JOINT_STATES_TOPIC, 0) - 1)} exchange steps '
       f'of {r.exchange_step:.6g} s (expected {r.steps_expected})')
     rtf = f'{r.real_time_factor:.3g}' if r.real_time_factor else 'n/a'
     per = f'{r.wall_per_step * 1e6:.0f} us' if r.wall_per_step else 'n/a'

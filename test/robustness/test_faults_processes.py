@@ -253,6 +253,7 @@ def test_coupling_node_killed_mid_run_closes_the_bag(tmp_path: Path) -> None:
     assert result.exit_code == 1
     assert result.error is not None and '\n' not in result.error
     assert result.error.startswith('coupling_node:'), result.error
+    assert 'killed by SIGKILL' in result.error, result.error
     assert result.node_exit_codes['coupling_node'] == -signal.SIGKILL
     assert all(code is not None for code in result.node_exit_codes.values())   # all stopped
     js = check_bag_up_to_stop(out / 'bag')

@@ -11,7 +11,6 @@ import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -42,14 +41,6 @@ def scene_file(tmp_path, duration=0.02, h=0.001) -> str:
     path = tmp_path / 'scene.yaml'
     path.write_text(yaml.safe_dump(data))
     return str(path)
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.shutdown(context=context)
 
 
 class FakePeers:

@@ -11,7 +11,6 @@ import yaml
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
@@ -38,14 +37,6 @@ def two_mass_scene(tmp_path, engine=None) -> str:
     path = tmp_path / 'two_mass.yaml'
     path.write_text(yaml.safe_dump(data))
     return str(path)
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.shutdown(context=context)
 
 
 class Harness:

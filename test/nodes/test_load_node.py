@@ -11,7 +11,6 @@ import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
@@ -36,14 +35,6 @@ def scene_file(tmp_path) -> str:
     path = tmp_path / 'scene.yaml'
     path.write_text(yaml.safe_dump(data))
     return str(path)
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.shutdown(context=context)
 
 
 def exchange(ctx, node, samples):

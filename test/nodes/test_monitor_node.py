@@ -11,7 +11,6 @@ import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
@@ -21,14 +20,6 @@ from cvj_ros.nodes.monitor_node import MonitorNode  # noqa: E402
 from cvj_ros.nodes.qos import DATA_QOS, LATCHED_QOS  # noqa: E402
 
 pytestmark = pytest.mark.ros
-
-
-@pytest.fixture
-def ctx():
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.shutdown(context=context)
 
 
 def values(status: DiagnosticStatus) -> dict[str, float]:

@@ -103,15 +103,6 @@ def test_huge_finite_torque_fails_loudly() -> None:
 rclpy = pytest.importorskip('rclpy')
 
 
-@pytest.fixture
-def ctx():
-    from rclpy.context import Context
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.shutdown(context=context)
-
-
 def junk_plan(rng: random.Random, k: int, inject: tuple[int, str] | None,
               topic: str) -> list[tuple[int, float]]:
     """(stamp ns, torque) messages of one responder for step k: junk, the answer, dups."""

@@ -23,8 +23,9 @@ class Gear:
 
     def __init__(self, gear_ratio: float, *, fidelity: str = 'exact') -> None:
         i = check_finite('gear_ratio', gear_ratio)
-        if i == 0.0:
-            raise GeometryError('gear_ratio', 'must be nonzero (omega_in / omega_out), got 0')
+        if not 1e-6 <= abs(i) <= 1e6:
+            raise GeometryError('gear_ratio', f'must satisfy 1e-6 <= |i| <= 1e6 (omega_in / omega_out), '
+                                              f'got {i:g}')
         self.gear_ratio = i
         self.fidelity = check_fidelity(fidelity, ('exact',), self.kind)
         self._k = 1.0 / i

@@ -195,7 +195,12 @@ class Tripod:
             key = (self.beta, self.r, self.l)
             cached = _SPECTRAL_CACHE.get(key)
             if cached is None:
-                self._build_spectral()
+                try:
+                    with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+                        self._build_spectral()
+                except SolverError as exc:   # degenerate geometry (e.g. r/l ~ 1e-300)
+                    raise GeometryError('l', f'exact tripod geometry cannot be solved for r = '
+                                             f'{self.r:g} m, l = {self.l:g} m ({exc})') from None
                 _SPECTRAL_CACHE[key] = cached = {k: getattr(self, k) for k in _SPECTRAL_FIELDS}
             else:
                 for k, v in cached.items():
@@ -505,7 +510,7 @@ class Tripod:
         # Verify against Newton between the sample points.
         xm = (np.arange(97) + 0.37) * (TWO_PI_3 / 97)
         err = np.max(np.abs(self._series(xm)[0] - (self._newton(self._start(xm), xm)[2] - xm)))
-        if err > 1e-12:
+        if not err <= 1e-12:   # also catches NaN from a degenerate geometry
             raise SolverError(f'tripod: Fourier table error {err:.3g} rad > 1e-12')
         self.spectral_error = float(err)
 

@@ -151,15 +151,19 @@ def check_scene_works(scene: Scene) -> None:
     te, tl = sim.torques(0.0, x0)
     if math.isfinite(te) and math.isfinite(tl) and np.all(np.isfinite(sim.fun(0.0, x0))):
         # a few exchange steps run: finite trace, or a loud SolverError (e.g. a huge rate)
+        # at most 3 ms simulated: a fuzzed exchange_step (scaled by 1e6) must not turn
+        # "a few steps" into a long run (seen: CI stuck for minutes in dop853)
+        step = min(scene.exchange_step, 1e-3)
         try:
-            tr = sim.run(3 * scene.exchange_step, sample_dt=scene.exchange_step)
+            tr = sim.run(3 * step, sample_dt=step)
         except SolverError:
             OVERFLOWS.append(scene.name)
             return
         assert np.all(np.isfinite(tr.velocity)) and np.all(np.isfinite(tr.effort))
         return
     with pytest.raises(SolverError):
-        sim.run(min(scene.duration, 10 * scene.exchange_step))
+        step = min(scene.exchange_step, 1e-3)
+        sim.run(min(scene.duration, 10 * step), sample_dt=step)
     OVERFLOWS.append(scene.name)
 
 

@@ -296,17 +296,7 @@ class Driveline:
         ends = []
         q_force = [0.0] * n
         for g in range(n):
-            q = xl[g]
-            phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
-            for jv, fn in self._ops[g]:
-                if fn is None:
-                    m += jv * a * a
-                    c += jv * a * b
-                else:
-                    po, r, s = fn(phi)
-                    b = s * a * a + r * b
-                    a = r * a
-                    phi = po
+            phi, a, _b, m, c = self._section(g, xl[g])
             ends.append((phi, a, m, c))
         a_load = ends[-1][1]
         if engine_fn is not None:

@@ -98,9 +98,6 @@ PARAMS = (
 )
 
 
-START_SETTLE_S = 0.5   # s, discovery settle time between "peers matched" and step 0 (lockstep)
-
-
 class CouplingNode(CvjNode):
     """The lockstep / free-run coupling node (see module docstring). Parameters: :data:`PARAMS`."""
 
@@ -189,7 +186,6 @@ class CouplingNode(CvjNode):
         self.exchanges = 0
         self._t_wall0 = 0.0
         self._cpu0 = 0.0
-        self._peers_since: float | None = None   # when all peers were first matched
 
         self._publish_scene()
         self._start_deadline = time.monotonic() + p['start_timeout']
@@ -302,22 +298,11 @@ class CouplingNode(CvjNode):
             return
         missing = self.missing_peers()
         if missing:
-            self._peers_since = None
             if time.monotonic() > self._start_deadline:
                 self._start_timer.cancel()
                 self.fail(f'start: peers not connected within start_timeout='
                           f'{self.params["start_timeout"]} s: {"; ".join(missing)}')
             return
-        # Lockstep: let discovery settle before step 0, so a loop already running on this
-        # domain (its coupling node, a second engine/load) is seen by foreign_publishers()
-        # before any state of ours can mix into its bag. Measured: without it a second run
-        # started under load published ~300 states before the first run's watchdog fired.
-        now = time.monotonic()
-        if self.mode == 'lockstep':
-            if self._peers_since is None:
-                self._peers_since = now
-            if now - self._peers_since < START_SETTLE_S:
-                return
         self._start_timer.cancel()
         self.started = True
         self._t_wall0 = time.perf_counter()

@@ -11,7 +11,7 @@ DEMO_SCENE    ?= config/scenes/fwd_halfshaft.yaml
 DEMO_DURATION ?= 3.0
 DEMO_OUT      ?= runs/demo
 
-.PHONY: all setup demo test test-fast bench clean
+.PHONY: all setup demo test test-fast test-stress bench clean
 
 all: test
 
@@ -33,6 +33,11 @@ test: $(STAMP)
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not e2e and not colcon"
+
+# ROS, e2e and process tests 5 times with both cores busy, each repetition on fresh domains
+# (scripts/stress.py); prints "stress: N/5 passed".
+test-stress: $(STAMP)
+	$(PY) scripts/stress.py
 
 bench: $(STAMP)
 	$(VENV)/bin/cvj-sim bench --out bench_out

@@ -1,16 +1,66 @@
-"""Test-wide settings: keep all DDS traffic on this machine, one ROS domain per test run."""
+"""Test-wide settings: keep all DDS traffic on this machine, one ROS domain per test.
+
+Domains. Every test runs with its own ``ROS_DOMAIN_ID`` (autouse fixture :func:`ros_domain`),
+taken in turn from a per-run block of ids, and subprocesses inherit it through ``os.environ``.
+So participants a test leaves behind (a slow echo process, a context not yet shut down) can
+never answer the next test's discovery, and a test that fails cannot make the next one fail.
+The block:
+
+* ``CVJ_TEST_DOMAINS=LO-HI`` (inclusive), e.g. ``110-129``: exactly these ids;
+* else ``ROS_DOMAIN_ID=B`` from the environment: ``B .. B + CVJ_TEST_DOMAIN_SPAN - 1``
+  (span 10 by default);
+* else (or with ``CVJ_TEST_FRESH_DOMAIN`` set) a block of 10 derived from the pid inside
+  1..100 (ids <= 101 allow any participant count per domain with Fast DDS's port mapping).
+
+Ids are capped at 232 (the largest the default RTPS port mapping allows). A block of ten
+means a domain is reused only ten tests later, long after that test's processes ended.
+Module-scoped fixtures that start processes (e2e runs) run between tests, one at a time,
+on the block's first id.
+"""
 from __future__ import annotations
 
+import itertools
 import os
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-if 'ROS_DOMAIN_ID' not in os.environ or os.environ.get('CVJ_TEST_FRESH_DOMAIN'):
-    # Domain ids 0..101 are safe for any participant count; derive one from the pid.
-    os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+
+MAX_DOMAIN_ID = 232          # RTPS port mapping: 7400 + 250 * id + offsets must stay < 65536
+
+
+def _domain_block() -> list[int]:
+    """The ROS domain ids this pytest run hands out, in order (see the module docstring)."""
+    spec = os.environ.get('CVJ_TEST_DOMAINS', '').strip()
+    if spec:
+        lo_s, _, hi_s = spec.partition('-')
+        lo, hi = int(lo_s), int(hi_s or lo_s)
+    else:
+        span = int(os.environ.get('CVJ_TEST_DOMAIN_SPAN', '10'))
+        if os.environ.get('ROS_DOMAIN_ID') and not os.environ.get('CVJ_TEST_FRESH_DOMAIN'):
+            lo = int(os.environ['ROS_DOMAIN_ID'])
+        else:
+            lo = 1 + (os.getpid() % 10) * 10
+        hi = lo + span - 1
+    lo, hi = max(0, lo), min(MAX_DOMAIN_ID, hi)
+    if hi < lo:
+        raise ValueError(f'CVJ_TEST_DOMAINS: empty block {lo}-{hi}')
+    return list(range(lo, hi + 1))
+
+
+DOMAINS = _domain_block()
+os.environ['ROS_DOMAIN_ID'] = str(DOMAINS[0])
+_next_domain = itertools.cycle(DOMAINS[1:] or DOMAINS)
 
 
 import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
+    """A ROS domain id of its own for this test, exported as ROS_DOMAIN_ID (restored after)."""
+    domain = next(_next_domain)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    return domain
 
 
 @pytest.fixture

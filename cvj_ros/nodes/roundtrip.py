@@ -27,6 +27,8 @@ from typing import Literal
 import numpy as np
 
 EXECUTORS = ('events', 'single')
+# Bound on discovery of the pinging process by an echo process (s); matching takes ~0.1-1 s idle.
+ECHO_MATCH_TIMEOUT_S = 30.0
 
 
 def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'events', *,
@@ -180,11 +182,25 @@ def _echo_main(ping_topic: str, pong_topic: str, executor: str) -> int:
     rclpy.init(context=ctx)
     node = rclpy.create_node(f'cvj_rt_echo_{os.getpid()}', context=ctx)
     pub = node.create_publisher(Float64, pong_topic, DATA_QOS)
-    node.create_subscription(Float64, ping_topic, pub.publish, DATA_QOS)
+    sub = node.create_subscription(Float64, ping_topic, pub.publish, DATA_QOS)
     ex = make_executor(executor, ctx)
     ex.add_node(node)
     from rclpy.task import Future
     done = Future()
+    # 'ready' only once both of our endpoints see the pinging process (matching is seen from
+    # each side separately): a pong published before our writer has matched the parent's reader
+    # is dropped for good (volatile durability), and the parent would wait for it forever. That
+    # was the cause of "only 0 of 70 exchanges" under load. Bounded wait, no fixed sleep.
+    deadline = time.monotonic() + ECHO_MATCH_TIMEOUT_S
+    while pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1:
+        if time.monotonic() > deadline:
+            print(f'roundtrip echo: error: {ping_topic}: pinging process not matched within '
+                  f'{ECHO_MATCH_TIMEOUT_S} s', file=sys.stderr)
+            ex.shutdown()
+            node.destroy_node()
+            rclpy.shutdown(context=ctx)
+            return 1
+        ex.spin_once(timeout_sec=0.01)
 
     def watch_stdin() -> None:   # the parent closes our stdin (or dies): stop
         sys.stdin.read()
@@ -246,6 +262,23 @@ def measure_round_trip_ipc(n: int = 1000, executor: Literal['events', 'single'] 
     return _measure_ipc(n, executor, echoes=echoes, warmup=warmup, timeout=timeout, env=env)
 
 
+def _wait_ready(proc: subprocess.Popen, deadline: float) -> None:
+    """Read ``proc``'s stdout until its 'ready' line, at most until ``deadline`` (monotonic s)."""
+    import selectors
+    assert proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not sel.select(timeout=left):
+                raise RuntimeError('round trip: echo process not ready (discovery) in time')
+            line = proc.stdout.readline()
+            if not line:
+                raise RuntimeError(f'round trip: echo process exited with {proc.wait()}')
+            if line.strip() == b'ready':
+                return
+
+
 def _measure_ipc(n: int, executor: str, *, echoes: int, warmup: int, timeout: float,
                  env: dict[str, str]) -> dict[str, float]:
     import rclpy
@@ -286,12 +319,8 @@ def _measure_ipc(n: int, executor: str, *, echoes: int, warmup: int, timeout: fl
         ex = make_executor(executor, ctx)
         ex.add_node(node)
         deadline = time.monotonic() + timeout
-        for p in procs:   # each echo process prints 'ready' once its node exists
-            line = b''
-            while p.stdout is not None and line.strip() != b'ready':
-                line = p.stdout.readline()
-                if not line:
-                    raise RuntimeError(f'round trip: echo process exited with {p.wait()}')
+        for p in procs:   # each echo process prints 'ready' once it has matched our endpoints
+            _wait_ready(p, deadline)
         while (pub.get_subscription_count() < echoes
                or any(s.get_publisher_count() < 1 for s in subs)):
             ex.spin_once(timeout_sec=0.01)

@@ -269,7 +269,7 @@ def test_signal_leaves_readable_bag(work: Path, sig: int) -> None:
     try:
         first = p.stdout.readline()  # printed once the first exchange is recorded
         assert 'loop running' in first, first
-        time.sleep(0.3)
+        time.sleep(0.3)   # not a discovery wait: let the loop record ~0.3 s of states before the signal
         p.send_signal(sig)
         stdout, stderr = p.communicate(timeout=30)
     finally:
@@ -298,7 +298,7 @@ def test_killed_engine_stops_run_with_clear_error(work: Path) -> None:
             deadline = time.monotonic() + 60
             while 'loop running' not in stream.getvalue() and time.monotonic() < deadline:
                 time.sleep(0.02)
-            time.sleep(0.3)
+            time.sleep(0.3)   # not a discovery wait: the loop runs ~0.3 s before the kill
             os.kill(procs['engine_node'].pid, signal.SIGKILL)
             killed.append(time.monotonic())
         threading.Thread(target=killer, daemon=True).start()

@@ -110,16 +110,27 @@ def test_shipped_stiff_scene_through_cvj_sim_simulate(capsys: pytest.CaptureFixt
     """`cvj-sim simulate stiff --json` (shipped scene, 1 s at 1 ms samples): the stiffness is
     real - dopri5 needs > 4000 steps (explicit stability h < 3.3/omega_n = 2.3e-4 s) -
     while rosenbrock stays at ~1 step per 1 ms sample; both hold the steady speed
-    (M1 - M_load)/K1 = 100 rad/s to 1e-6 and the energy balance to 1e-6."""
+    (M1 - M_load)/K1 = 100 rad/s and the energy balance.
+
+    Bounds (the scene asks for rtol 1e-6): an error-controlled method owes its tolerance
+    scale, rtol x |omega| = 1e-6 x 100 rad/s = 1e-4 rad/s on the speed and rtol = 1e-6 on
+    the relative energy residual, not the last digits: dopri5 at its stability limit
+    rounds differently with each BLAS kernel. Measured on this machine kind (2026-11,
+    OPENBLAS_CORETYPE unset/Haswell: -6.4e-6 rad/s, Sandybridge: -7.1e-6 rad/s, SkylakeX on an
+    AVX-512 host: +7e-7 rad/s; energy residual 4.2e-8 at most): >= 14x inside the speed
+    bound, >= 24x inside the energy bound. Rosenbrock measured 4.8e-10 rad/s and 1.7e-10:
+    asserted at 1e-6, > 2000x margin."""
     import json
 
     from cvj_ros.cli import main as cli_main
+    rtol, omega_steady = 1e-6, 100.0          # the scene's solver.rtol; (M1 - M_load)/K1 in rad/s
+    speed_bound = {'rosenbrock': 1e-6, 'dopri5': rtol * omega_steady}
     steps = {}
     for method in ('rosenbrock', 'dopri5'):
         assert cli_main(['simulate', 'stiff', '--json', '--method', method]) == 0
         summary = json.loads(capsys.readouterr().out)
-        assert summary['energy_residual'] < 1e-6
+        assert summary['energy_residual'] < rtol
         for shaft in summary['shafts'].values():
-            assert shaft['mean_speed'] == pytest.approx(100.0, abs=1e-6)
+            assert shaft['mean_speed'] == pytest.approx(omega_steady, abs=speed_bound[method])
         steps[method] = summary['solver']['naccept']
     assert steps['dopri5'] > 4000 and steps['rosenbrock'] < 1500

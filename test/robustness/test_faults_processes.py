@@ -208,8 +208,10 @@ def test_second_run_on_the_same_domain_stops_both(tmp_path: Path) -> None:
     first = subprocess.Popen([CVJ_SIM, 'run', str(scene), '--out', str(out_a)], env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_for_text(out_a / 'logs' / 'coupling_node.log', 'waiting for peers', 60)
-        time.sleep(1.0)                                   # run A is stepping
+        # run A is stepping once it prints 'loop running' (after its first recorded exchange):
+        # a bounded wait on the event itself, not a fixed sleep (readline ends at A's exit)
+        first_line = first.stdout.readline()
+        assert 'loop running' in first_line, first_line
         second = subprocess.run([CVJ_SIM, 'run', str(scene), '--out', str(out_b)], env=env,
                                 capture_output=True, text=True, timeout=120)
         out, err = first.communicate(timeout=60)

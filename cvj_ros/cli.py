@@ -2,7 +2,9 @@
 
 Subcommands live in :mod:`cvj_ros.commands` (one module each). A user error
 (:class:`cvj_ros.errors.CvjError`) prints one line ``cvj-sim: error: <field>: <problem>``
-to stderr and exits with status 2; no traceback.
+to stderr and exits with status 2; anything unexpected prints one line naming the file or
+bag being read and exits 1 (:mod:`cvj_ros.guard`); the traceback only with ``--debug``
+(before the subcommand) or ``CVJ_DEBUG=1``.
 """
 from __future__ import annotations
 
@@ -12,7 +14,6 @@ import sys
 from collections.abc import Sequence
 
 from cvj_ros.commands import COMMANDS
-from cvj_ros.errors import CvjError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -20,6 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog='cvj-sim',
         description='cvj_ros virtual driveline: kinematics, offline simulation, ROS runs, '
                     'bag replay and analysis, benchmark.')
+    parser.add_argument('--debug', action='store_true',
+                        help='print the traceback of an error (also: CVJ_DEBUG=1)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     sub.required = True
     for name in COMMANDS:
@@ -37,13 +40,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from cvj_ros.guard import guarded, reading
     parser = build_parser()
     args = parser.parse_args(argv)
+    # what the user handed in, for the error line of an unexpected exception
+    label = getattr(args, 'scene', None) or getattr(args, 'bag', None) or args.command
     try:
-        return int(args._run(args) or 0)
-    except CvjError as exc:
-        print(f'cvj-sim: error: {exc}', file=sys.stderr)
-        return 2
+        with reading(str(label)):
+            return int(guarded('cvj-sim', args._run, args, debug=args.debug) or 0)
     except KeyboardInterrupt:
         print('cvj-sim: interrupted', file=sys.stderr)
         return 130

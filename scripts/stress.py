@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--load', type=int, default=2, help='CPU burner processes (default 2)')
     parser.add_argument('pytest_args', nargs='*', help='extra pytest arguments (after --)')
     args = parser.parse_args(argv)
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     base = int(os.environ.get('CVJ_STRESS_DOMAIN_BASE') or os.environ.get('ROS_DOMAIN_ID') or 100)
     span = int(os.environ.get('CVJ_STRESS_DOMAIN_SPAN', '4'))
     paths = [p for p in STRESS_PATHS if (ROOT / p).exists()]
@@ -61,21 +63,25 @@ def main(argv: list[str] | None = None) -> int:
         env.pop('CVJ_TEST_FRESH_DOMAIN', None)
         burners = _burners(args.load)
         t0 = time.monotonic()
+        proc = subprocess.Popen([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
+                                 '-m', 'not slow and not colcon', *paths, *args.pytest_args],
+                                cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, start_new_session=True)
         try:
-            proc = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
-                                   '-m', 'not slow and not colcon', *paths, *args.pytest_args],
-                                  cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True)
-        finally:
+            output, _ = proc.communicate()
+        finally:   # also on Ctrl-C / SIGTERM: no burner and no test process left behind
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
             _stop(burners)
-        tail = [ln for ln in proc.stdout.strip().splitlines() if ln.strip()][-1:] or ['']
+        tail = [ln for ln in output.strip().splitlines() if ln.strip()][-1:] or ['']
         ok = proc.returncode == 0
         passed += ok
         print(f'stress: repetition {r + 1}/{args.reps} on domains {lo}-{lo + span - 1} with '
               f'{args.load} burners: {"passed" if ok else "FAILED"} in {time.monotonic() - t0:.0f} s: '
               f'{tail[0]}', flush=True)
         if not ok:
-            print(proc.stdout[-6000:], flush=True)
+            print(output[-6000:], flush=True)
     print(f'stress: {passed}/{args.reps} passed', flush=True)
     return 0 if passed == args.reps else 1
 

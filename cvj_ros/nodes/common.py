@@ -497,7 +497,16 @@ def run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pro
 
     0: finished (or stopped by Ctrl-C / SIGTERM), 1: runtime error, 2: bad parameter or
     scene (one line ``<prog>: error: <parameter>: <problem>`` on stderr, no traceback).
+    Anything unexpected: one line and exit 1 (:func:`cvj_ros.guard.guarded`; the traceback
+    with CVJ_DEBUG=1).
     """
+    from cvj_ros.guard import guarded
+    return int(guarded(prog, _run_node, factory, args, prog=prog, executor=executor))
+
+
+def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, prog: str,
+              executor: str = 'events') -> int:
+    """:func:`run_node` without the guard."""
     import signal
 
     from rclpy.executors import ExternalShutdownException

@@ -451,13 +451,13 @@ def check_layout(chain: tuple[Element, ...]) -> None:
 def load_scene(path: str | os.PathLike[str]) -> Scene:
     """Read and validate a scene YAML file. Malformed YAML names the line."""
     import yaml
+
+    from cvj_ros.textfile import load_yaml_bounded, read_text_file
     p = Path(path)
+    # UTF-8 text of at most 1 MiB, YAML at most 64 levels deep, aliases bounded (textfile.py)
+    text = read_text_file(p, what='scene file')
     try:
-        text = p.read_text(encoding='utf-8')
-    except OSError as exc:
-        raise SceneError(str(p), f'cannot read scene file ({exc.strerror})') from None
-    try:
-        data = yaml.safe_load(text)
+        data = load_yaml_bounded(text, str(p))
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         where = f'{p}:{mark.line + 1}' if mark is not None else str(p)

@@ -501,7 +501,7 @@ def run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pro
     with CVJ_DEBUG=1).
     """
     from cvj_ros.guard import guarded
-    return int(guarded(prog, _run_node, factory, args, prog=prog, executor=executor))
+    return int(guarded(prog, lambda: _run_node(factory, args, prog=prog, executor=executor)))
 
 
 def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, prog: str,

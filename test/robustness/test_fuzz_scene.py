@@ -12,8 +12,9 @@ builds, its right-hand side and the engine/load torques at the initial state are
 finite and three exchange steps run to a finite trace - or stop with a SolverError) or
 raise SceneError whose ``field`` is a non-empty path and whose message starts
 with it. Any other exception fails the test and prints the reproducing case. The case
-count is fixed (deterministic: seed = case index) and the run time is bounded (< 20 s
-asserted; ~5 s measured on this 2-core machine).
+counts are fixed (1500 cases on the cheap scenes, 8 on the tripod scenes; seed = case
+index), so a run is reproducible on any machine and at any load; no time box and no
+timing assertion (~5-9 s measured on this 2-core machine, idle).
 """
 from __future__ import annotations
 
@@ -34,8 +35,7 @@ from cvj_ros.errors import CvjError, SceneError
 from cvj_ros.physics.scene import SCENE_KEYS, Scene, load_scene, parse_scene, shipped_scenes
 
 N_CASES = 1500          # on the cheap starting scenes
-TRIPOD_BUDGET_S = 4.0   # extra cases on the tripod scenes until this much time is spent
-TIME_BOUND_S = 20.0
+N_TRIPOD_CASES = 8      # on the tripod scenes (0.15-1 s each to build the exact tripod)
 FILE_FIELD_RE = re.compile(r'^(:\d+)?$')     # file path, optionally :line
 
 SMALL = {
@@ -63,7 +63,7 @@ WEIRD_VALUES: list[Any] = [
 
 def bases() -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """(cheap, tripod) starting scenes. Building an exact tripod costs 0.15-1 s (its Fourier
-    table), so scenes with a tripod get a separate, time-boxed share of the cases."""
+    table), so scenes with a tripod get a separate, smaller share of the cases."""
     cheap, tripod = [copy.deepcopy(SMALL)], []
     for path in shipped_scenes().values():
         data = yaml.safe_load(path.read_text())
@@ -245,17 +245,13 @@ def test_fuzz_scene_parser(tmp_path: Path) -> None:
         check_scene_works(parse_scene(copy.deepcopy(b)))
     outcomes = [run_case(case, cheap, tmp_path) for case in range(N_CASES)]
     t_cheap = time.perf_counter() - start
-    t0 = time.perf_counter()
-    n_tripod = 0
-    while time.perf_counter() - t0 < TRIPOD_BUDGET_S:
-        outcomes.append(run_case(100_000 + n_tripod, tripod, tmp_path))
-        n_tripod += 1
+    n_tripod = N_TRIPOD_CASES
+    outcomes += [run_case(100_000 + k, tripod, tmp_path) for k in range(n_tripod)]
     wall = time.perf_counter() - start
     accepted, rejected = outcomes.count(True), outcomes.count(False)
     print(f'\nscene fuzz: {N_CASES} cases in {t_cheap:.1f} s + {n_tripod} tripod-scene cases; '
           f'{rejected} rejected with a field path, {accepted} accepted and built '
           f'({len(OVERFLOWS)} of them stopped by a SolverError in the first steps); '
           f'{wall:.1f} s')
-    assert wall < TIME_BOUND_S
     # the mutator really explores: both outcomes occur often
-    assert rejected > N_CASES // 3 and accepted > 20 and n_tripod >= 2
+    assert rejected > N_CASES // 3 and accepted > 20

@@ -65,6 +65,18 @@ STAMPED_TYPES = frozenset({
 STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9
 
+# Flush policy of BagWriter (what a hard kill - SIGKILL, OOM killer, power loss - can lose).
+# rosbags alone keeps an mcap chunk in memory until it holds 1 MiB (several simulated seconds of
+# a run, and the schema/channel records are in the first chunk: a run killed before it lost
+# everything) and commits a sqlite3 bag only at close (a kill lost all). BagWriter instead
+# closes the mcap chunk / commits the sqlite3 transaction and fsyncs the file as soon as the
+# pending messages span FLUSH_SIM_SPAN_S of record (= simulated) time, or FLUSH_WALL_S of wall
+# time passed since the last flush with messages pending. On disk is then everything up to
+# at most FLUSH_SIM_SPAN_S before the newest message the writer received; what `cvj-sim
+# reindex` recovers after a kill (measured: test/robustness/test_hard_kill.py).
+FLUSH_SIM_SPAN_S = 0.25
+FLUSH_WALL_S = 0.5
+
 _TYPESTORE = None
 
 
@@ -153,12 +165,21 @@ class BagWriter:
             self._opened.set()
             return
         self._opened.set()
+        import queue
+        import time
+        flusher = _Flusher(writer)
         while True:
-            op, *args = self._queue.get()
+            try:
+                op, *args = self._queue.get(timeout=FLUSH_WALL_S)
+            except queue.Empty:
+                op, args = 'idle', []
             try:
                 if op == 'write':
                     if self._error is None:
                         writer.write(connections[args[0]], args[1], args[2])
+                        flusher.wrote(args[1])
+                if op in ('write', 'idle') and self._error is None:
+                    flusher.maybe_flush(time.monotonic())
                 elif op == 'topic':
                     connections[args[0]] = writer.add_connection(args[0], args[1], typestore=typestore())
                 elif op == 'custom':
@@ -173,6 +194,7 @@ class BagWriter:
                     return
 
     def _raise_error(self) -> None:
+        """Raise the first storage error as BagError."""
         if self._error is not None:
             raise BagError(f'{self.path}: bag storage error: {self._error}') from self._error
 
@@ -222,6 +244,45 @@ class BagWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _Flusher:
+    """Puts a rosbags Writer's pending messages on disk (see FLUSH_SIM_SPAN_S): closes the
+    pending mcap chunk and fsyncs the file, or commits the sqlite3 transaction (sqlite's
+    default synchronous=FULL syncs it). Reaches into rosbags' storage objects
+    (McapWriter.chunk/close_chunk/bio, Sqlite3Writer.conn) - checked by test_bag.py."""
+
+    def __init__(self, writer: Any) -> None:
+        import time
+        self.storage = writer.storage
+        self.first_ns: int | None = None      # record time of the oldest unflushed message
+        self.last_ns = 0
+        self.last_flush = time.monotonic()
+
+    def wrote(self, timestamp_ns: int) -> None:
+        if self.first_ns is None:
+            self.first_ns = timestamp_ns
+        self.last_ns = max(self.last_ns, timestamp_ns)
+
+    def maybe_flush(self, now: float) -> None:
+        if self.first_ns is None:
+            return
+        if (self.last_ns - self.first_ns >= FLUSH_SIM_SPAN_S * 1e9
+                or now - self.last_flush >= FLUSH_WALL_S):
+            self.flush(now)
+
+    def flush(self, now: float) -> None:
+        import os
+        st = self.storage
+        if hasattr(st, 'close_chunk'):          # mcap
+            if st.chunk.msgs:
+                st.close_chunk()
+            st.bio.flush()
+            os.fsync(st.bio.fileno())
+        elif hasattr(st, 'conn'):               # sqlite3
+            st.conn.commit()
+        self.first_ns = None
+        self.last_flush = now
 
 
 # --------------------------------------------------------------------------- reading
@@ -304,6 +365,9 @@ def _check_bag(path: str | Path) -> Path:
     if not p.exists():
         raise BagError(f'{p}: no such bag')
     if p.is_dir() and not (p / 'metadata.yaml').exists():
+        if any(p.glob('*.mcap')) or any(p.glob('*.db3')):
+            raise BagError(f'{p}: no metadata.yaml (recording killed before it was finalised?); '
+                           f'rebuild it from the data on disk with: cvj-sim reindex {p}')
         raise BagError(f'{p}: not a rosbag2 bag (no metadata.yaml; was the recording finalised?)')
     return p
 
@@ -333,11 +397,16 @@ def bag_info(path: str | Path) -> BagInfo:
         end = reader.end_time * 1e-9 if reader.message_count else 0.0
     finally:
         reader.close()
-    meta = yaml.safe_load((p / 'metadata.yaml').read_text()) if p.is_dir() else {}
-    info = (meta or {}).get('rosbag2_bagfile_information', {})
-    storage = info.get('storage_identifier', '')
-    custom = info.get('custom_data') or {}
-    return BagInfo(p, storage, counts, types, start, end, dict(custom))
+    try:
+        meta = yaml.safe_load((p / 'metadata.yaml').read_text(encoding='utf-8')) if p.is_dir() else {}
+    except (OSError, ValueError, yaml.YAMLError) as exc:   # ValueError: not UTF-8
+        raise BagError(f'{p / "metadata.yaml"}: cannot read: {str(exc).splitlines()[0]}') from None
+    info = meta.get('rosbag2_bagfile_information', {}) if isinstance(meta, dict) else {}
+    info = info if isinstance(info, dict) else {}
+    storage = str(info.get('storage_identifier') or '')
+    custom = info.get('custom_data')
+    custom = {str(k): str(v) for k, v in custom.items()} if isinstance(custom, dict) else {}
+    return BagInfo(p, storage, counts, types, start, end, custom)
 
 
 def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> list[tuple[str, str, int, bytes]]:
@@ -345,9 +414,29 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> list[tupl
     reader = _open_reader(path)
     try:
         conns = _select(reader, topics, path)
-        return [(c.topic, c.msgtype, ts, bytes(raw)) for c, ts, raw in reader.messages(connections=conns)]
+        with _damage_as_bag_error(path):
+            return [(c.topic, c.msgtype, ts, bytes(raw)) for c, ts, raw in reader.messages(connections=conns)]
     finally:
         reader.close()
+
+
+class _damage_as_bag_error:
+    """Context manager: an exception of rosbags (or of a decoder) while reading the messages of
+    a damaged bag becomes ``BagError('<path>: cannot read bag: ...')``."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = path
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, typ: Any, exc: Any, tb: Any) -> bool:
+        if exc is None or isinstance(exc, (BagError, KeyboardInterrupt, SystemExit)):
+            return False
+        if isinstance(exc, Exception):
+            text = ' '.join(str(exc).split())[:200] or type(exc).__name__
+            raise BagError(f'{self.path}: cannot read bag: {text}') from exc
+        return False
 
 
 def _select(reader: Any, topics: Iterable[str] | None, path: str | Path) -> list[Any]:
@@ -385,8 +474,10 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
     rows: dict[str, list[tuple[int, Any]]] = {}
     types: dict[str, str] = {}
     try:
-        for conn, ts, raw in reader.messages(connections=_select(reader, topics, path)):
-            rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
+        selected = _select(reader, topics, path)
+        with _damage_as_bag_error(path):
+            for conn, ts, raw in reader.messages(connections=selected):
+                rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
             types[conn.topic] = conn.msgtype
         for conn in reader.connections:  # topics with zero messages
             if topics is None or conn.topic in rows or any(
@@ -395,7 +486,8 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
                 rows.setdefault(conn.topic, [])
     finally:
         reader.close()
-    return {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
+    with _damage_as_bag_error(path):
+        return {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
 
 
 def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:

@@ -379,8 +379,18 @@ def _open_reader(path: str | Path) -> Any:
         reader = AnyReader([p], default_typestore=typestore())
         reader.open()
     except Exception as exc:  # rosbags raises several types for unreadable bags
-        raise BagError(f'{p}: cannot read bag: {exc}') from exc
+        text = ' '.join(str(exc).split())                      # one line, bounded length
+        text = text if len(text) <= 200 else text[:197] + '...'
+        raise BagError(f'{p}: cannot read bag: {text or type(exc).__name__}') from exc
     return reader
+
+
+def _close_quietly(reader: Any) -> None:
+    """Close a rosbags reader; a damaged bag can make close() itself fail (it is closed then)."""
+    try:
+        reader.close()
+    except Exception:  # noqa: BLE001  (e.g. AttributeError on a metadata.yaml with wrong types)
+        pass
 
 
 def bag_info(path: str | Path) -> BagInfo:
@@ -388,15 +398,16 @@ def bag_info(path: str | Path) -> BagInfo:
     p = _check_bag(path)
     reader = _open_reader(p)
     try:
-        counts: dict[str, int] = {}
-        types: dict[str, str] = {}
-        for conn in reader.connections:
-            counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
-            types[conn.topic] = conn.msgtype
-        start = reader.start_time * 1e-9 if reader.message_count else 0.0
-        end = reader.end_time * 1e-9 if reader.message_count else 0.0
+        with _damage_as_bag_error(p):
+            counts: dict[str, int] = {}
+            types: dict[str, str] = {}
+            for conn in reader.connections:
+                counts[conn.topic] = counts.get(conn.topic, 0) + int(conn.msgcount)
+                types[conn.topic] = str(conn.msgtype)
+            start = reader.start_time * 1e-9 if reader.message_count else 0.0
+            end = reader.end_time * 1e-9 if reader.message_count else 0.0
     finally:
-        reader.close()
+        _close_quietly(reader)
     try:
         meta = yaml.safe_load((p / 'metadata.yaml').read_text(encoding='utf-8')) if p.is_dir() else {}
     except (OSError, ValueError, yaml.YAMLError) as exc:   # ValueError: not UTF-8
@@ -417,7 +428,7 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> list[tupl
         with _damage_as_bag_error(path):
             return [(c.topic, c.msgtype, ts, bytes(raw)) for c, ts, raw in reader.messages(connections=conns)]
     finally:
-        reader.close()
+        _close_quietly(reader)
 
 
 class _damage_as_bag_error:
@@ -485,7 +496,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
                 types.setdefault(conn.topic, conn.msgtype)
                 rows.setdefault(conn.topic, [])
     finally:
-        reader.close()
+        _close_quietly(reader)
     with _damage_as_bag_error(path):
         return {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
 

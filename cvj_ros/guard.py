@@ -85,7 +85,7 @@ def guarded(prog: str, entry: Callable[..., T], *args: Any, debug: bool = False,
         return EXIT_BROKEN_PIPE
     except CvjError as exc:
         trace(exc)
-        print(f'{prog}: error: {exc}', file=sys.stderr)
+        print(f'{prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)   # one line
         return EXIT_USER
     except Exception as exc:  # noqa: BLE001  (the point of the guard)
         trace(exc)

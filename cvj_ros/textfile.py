@@ -112,6 +112,21 @@ def _expanded_size_exceeds(node: Any, budget: int) -> bool:
     return False
 
 
+def _reject_huge_integers(data: Any, error: ErrorFactory) -> None:
+    """``error(<field path>, ...)`` for an integer beyond the float range (|n| >= 2**1024):
+    no scene value can be one, and float(n) would raise OverflowError deep in the parser."""
+    stack: list[tuple[str, Any]] = [('', data)]
+    while stack:
+        path, v = stack.pop()
+        if isinstance(v, dict):
+            stack += [(f'{path}.{k}' if path else str(k), x) for k, x in v.items()]
+        elif isinstance(v, list):
+            stack += [(f'{path}[{i}]', x) for i, x in enumerate(v)]
+        elif isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 2 ** 1024:
+            _raise(error, path or '<document>', f'must be a finite number, got an integer of '
+                                                f'{len(str(abs(v)))} digits (beyond the float range)')
+
+
 def load_yaml_bounded(text: str, where: str, *, error: ErrorFactory = SceneError) -> Any:
     """``yaml.safe_load(text)`` with the depth and alias-expansion bounds of this module.
 
@@ -132,8 +147,10 @@ def load_yaml_bounded(text: str, where: str, *, error: ErrorFactory = SceneError
             return _raise(error, where, f'YAML aliases expand to more than {MAX_YAML_NODES} values '
                                         '(alias bomb?)')
         try:
-            return loader.construct_document(node)
+            data = loader.construct_document(node)
         except (ValueError, OverflowError, TypeError, RecursionError) as exc:
             return _raise(error, where, f'cannot convert a YAML value: {str(exc).splitlines()[0].split(";")[0]}')
+        _reject_huge_integers(data, error)
+        return data
     finally:
         loader.dispose()

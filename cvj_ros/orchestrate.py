@@ -331,11 +331,20 @@ def _signal_name(signum: int) -> str:
 
 
 def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
-                    stop_signal: list[int], timeout: float) -> str | None:
+                    stop_signal: list[int], timeout: float, *, lockstep: bool = True,
+                    domain: int | None = None) -> str | None:
     """Wait until the recorder matched engine/load publishers; an error line if a peer died or
     ``timeout`` (s) passed, else None."""
     deadline = time.monotonic() + timeout
     while not stop_signal:
+        # another run on this domain: stop before our coupling node publishes a single state
+        # into the other run's bag (its own watchdog can take 0.25 s and more under load)
+        extra = [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+                 if (n := recorder.publisher_count(topic)) > 1]
+        if extra and lockstep:
+            return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
+                    f'{domain if domain is not None else os.environ.get("ROS_DOMAIN_ID", "0")} before the loop started: another run or '
+                    'node shares this domain; give each run its own ROS_DOMAIN_ID')
         missing = [n for n, topic in PEER_TOPICS.items() if recorder.publisher_count(topic) < 1]
         if not missing:
             return None
@@ -421,7 +430,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             if name == 'coupling_node':
                 # volatile topics lose what is published before a match: the coupling node (which
                 # makes the peers talk) starts only once the recorder sees the peers' publishers
-                error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout)
+                error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout,
+                                        lockstep=options.mode == 'lockstep', domain=domain)
                 mark('peers_connected')
                 if error is not None or stop_signal:
                     break

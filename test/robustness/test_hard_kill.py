@@ -132,8 +132,9 @@ def test_sigkill_of_the_whole_run_loses_at_most_1s_and_reindex_recovers(
     k = np.round(js.t / h).astype(np.int64)
     np.testing.assert_array_equal(k, np.arange(k.size))      # consecutive from t = 0, no hole
     lost = r['t_seen'] - js.t[-1]
-    print(f'\nhard kill ({storage}): killed at t >= {r["t_seen"]:.3f} s, recovered up to '
-          f'{js.t[-1]:.3f} s: lost {lost:.3f} s of simulated time')
+    with capsys.disabled():
+        print(f'\nhard kill ({storage}): killed at t >= {r["t_seen"]:.3f} s, recovered up to '
+              f'{js.t[-1]:.3f} s: lost {lost:.3f} s of simulated time')
     assert lost <= MAX_LOSS_S
     assert cli_main(['analyze', str(bag_dir), '--json']) == 0
     capsys.readouterr()

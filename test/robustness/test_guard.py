@@ -86,3 +86,26 @@ def test_cli_in_process_unexpected_error_names_the_scene(monkeypatch: pytest.Mon
     monkeypatch.setattr(simulate, 'run', broken)
     assert cli_main(['simulate', 'stiff']) == guard.EXIT_UNEXPECTED
     assert capsys.readouterr().err.startswith('cvj-sim: error: stiff: RuntimeError: internal state lost')
+
+
+_BOMB = b'\n'.join([b'a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]']
+                   + [f'a{i}: &a{i} [{", ".join([f"*a{i - 1}"] * 9)}]'.encode() for i in range(1, 10)])
+
+
+@pytest.mark.parametrize(('content', 'line'), [
+    ('name: x\n'.encode('utf-16'), '{f}: UTF-16 text; cvj_ros reads UTF-8: save the file as UTF-8'),
+    (b'name: x\n\x00\x01', '{f}: binary data (NUL byte at offset 8), not a UTF-8 text file'),
+    (b'#' * ((1 << 20) + 1), '{f}: scene file larger than 1024 KiB; not a scene file?'),
+    (b'name: x\nextra: ' + b'[' * 10_000 + b']' * 10_000, '{f}:2: YAML nested deeper than 64 levels'),
+    (_BOMB, '{f}: YAML aliases expand to more than 100000 values (alias bomb?)'),
+    (b'name: x\nduration: 1' + b'0' * 400, 'duration: must be a finite number, got an integer of 401 '
+                                           'digits (beyond the float range)'),
+])
+def test_scene_file_rejections_are_one_exact_line(tmp_path: Path, content: bytes, line: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/robustness.md, table "Bad input": scene files that are not small UTF-8 YAML."""
+    f = tmp_path / 'scene.yaml'
+    f.write_bytes(content)
+    assert cli_main(['simulate', str(f)]) == 2
+    out, err = capsys.readouterr()
+    assert out == '' and err == f'cvj-sim: error: {line.format(f=f)}\n'

@@ -97,3 +97,41 @@ def test_reindex_cli_report_and_errors(originals, tmp_path: Path, capsys: pytest
                                        '(no MCAP magic at the start)\n')
     assert cli_main(['reindex', str(tmp_path / 'nope')]) == 2
     assert capsys.readouterr().err == f'cvj-sim: error: {tmp_path / "nope"}: no such bag\n'
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_bag_writer_puts_all_but_the_last_flush_span_on_disk_while_open(tmp_path: Path, storage: str) -> None:
+    """BagWriter's flush policy (cvj_ros/bag.py FLUSH_SIM_SPAN_S): with the writer still open
+    (as at a SIGKILL), a copy of what is on disk, reindexed, holds every message up to at
+    most FLUSH_SIM_SPAN_S (+ one 1 ms step) before the newest one written."""
+    import time
+
+    from cvj_ros.bag import FLUSH_SIM_SPAN_S, BagWriter, typestore
+    ts = typestore()
+    Clock, Time = ts.types['rosgraph_msgs/msg/Clock'], ts.types['builtin_interfaces/msg/Time']
+    writer = BagWriter(tmp_path / 'live', storage=storage)
+    writer.add_topic('/clock')
+    n = 1001                                                       # 0 .. 1.0 s at 1 ms
+    for k in range(n):
+        t_ns = k * 1_000_000
+        cdr = ts.serialize_cdr(Clock(clock=Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9)),
+                               'rosgraph_msgs/msg/Clock')
+        writer.write('/clock', t_ns, cdr)
+    t_newest = (n - 1) * 1e-3
+    deadline = time.monotonic() + 10.0                             # the writer thread catches up
+    recovered = -1.0
+    try:
+        while time.monotonic() < deadline:
+            snap = tmp_path / f'snap{int(time.monotonic() * 1e3)}'
+            shutil.copytree(tmp_path / 'live', snap)
+            try:
+                reindex(snap)
+                recovered = bag.bag_info(snap).end
+            except BagError:
+                pass                                               # nothing flushed yet
+            if recovered >= t_newest - FLUSH_SIM_SPAN_S - 1e-3:
+                break
+            time.sleep(0.05)                                       # poll interval, bounded above
+    finally:
+        writer.close()
+    assert recovered >= t_newest - FLUSH_SIM_SPAN_S - 1e-3, recovered

@@ -4,4 +4,4 @@ Each module defines ``NAME`` (str), ``HELP`` (str), ``add_arguments(parser)`` an
 ``run(args) -> int``. :mod:`cvj_ros.cli` discovers them from ``COMMANDS``.
 """
 
-COMMANDS = ('kinematics', 'scenes', 'simulate', 'run', 'replay', 'analyze', 'bench')
+COMMANDS = ('kinematics', 'scenes', 'simulate', 'run', 'record', 'replay', 'analyze', 'bench')

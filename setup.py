@@ -21,6 +21,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
         ('share/' + package_name + '/config/params', glob('config/params/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/examples', glob('examples/*.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

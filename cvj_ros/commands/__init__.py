@@ -4,4 +4,5 @@ Each module defines ``NAME`` (str), ``HELP`` (str), ``add_arguments(parser)`` an
 ``run(args) -> int``. :mod:`cvj_ros.cli` discovers them from ``COMMANDS``.
 """
 
-COMMANDS = ('kinematics', 'scenes', 'simulate', 'run', 'replay', 'analyze', 'reindex', 'bench')
+COMMANDS = ('kinematics', 'scenes', 'simulate', 'run', 'record', 'replay', 'analyze', 'reindex',
+            'bench')

@@ -33,7 +33,7 @@ def test_colcon_build_installs_runnable_executables(tmp_path: Path) -> None:
     for name in ('setup.py', 'setup.cfg', 'package.xml'):
         shutil.copy2(REPO / name, pkg / name)
     ignore = shutil.ignore_patterns('__pycache__', '*.pyc')
-    for name in ('cvj_ros', 'resource', 'config'):
+    for name in ('cvj_ros', 'resource', 'config', 'launch', 'examples'):
         shutil.copytree(REPO / name, pkg / name, ignore=ignore)
     env = dict(os.environ)
     env['PATH'] = f'{Path(sys.executable).parent}{os.pathsep}{env.get("PATH", "")}'
@@ -45,6 +45,17 @@ def test_colcon_build_installs_runnable_executables(tmp_path: Path) -> None:
     assert sorted(p.name for p in lib.iterdir()) == sorted(NODES + ['cvj-sim'])
     assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'cvj_ros').exists()
     assert (prefix / 'share' / 'cvj_ros' / 'package.xml').exists()
+    # the launch file is installed where `ros2 launch cvj_ros driveline.launch.py` finds it, and
+    # every executable it starts is in the install tree
+    launch_file = prefix / 'share' / 'cvj_ros' / 'launch' / 'driveline.launch.py'
+    assert launch_file.exists()
+    import importlib.util
+    spec = importlib.util.spec_from_file_location('installed_launch', launch_file)
+    launch_mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(launch_mod)
+    for exe in (*launch_mod.NODE_EXECUTABLES, launch_mod.RECORDER_EXECUTABLE):
+        assert (lib / exe).exists(), exe
+    assert (prefix / 'share' / 'cvj_ros' / 'examples' / 'vehicle_stack.py').exists()
     site = next((prefix / 'lib').glob('python3*/site-packages'))
     assert (site / 'cvj_ros' / 'bag.py').exists()
     # Run the installed executables with the install tree first on the path (what

@@ -1,0 +1,103 @@
+"""`cvj-sim record OUT`: the run recorder standalone, for nodes started by hand or by a launch file.
+
+The same recorder ``cvj-sim run`` uses (:class:`cvj_ros.bag.BagRecorder`: raw CDR, record
+time = the message's simulated stamp, every contract topic plus ``/coupling/*/wrench`` as
+they appear, the latched ``/driveline/scene`` message stored in the bag and in its
+metadata). It records on the current ``ROS_DOMAIN_ID`` until Ctrl-C / SIGTERM, until
+``--duration`` wall seconds have passed, or (``--until-idle S``) until nothing arrived for
+S seconds after the first message; on every one of these paths the bag is finalised
+(metadata.yaml written), so everything recorded stays readable.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from cvj_ros.errors import CvjError
+
+NAME = 'record'
+HELP = 'record the driveline topics of nodes started elsewhere to a bag'
+DESCRIPTION = """Record every cvj_ros topic on this ROS domain to a rosbag2 bag (mcap or sqlite3),
+for nodes started by hand (`ros2 run` / console scripts) or by launch/driveline.launch.py.
+Stops on Ctrl-C or SIGTERM (bag finalised, exit 0), after --duration wall seconds, or
+with --until-idle S once no message arrived for S seconds.
+
+examples:
+  cvj-sim record runs/manual                      # Ctrl-C to stop
+  cvj-sim record runs/manual --storage sqlite3 --until-idle 2
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('out', help='output directory; the bag is written to OUT/bag')
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                        help='bag storage (default mcap)')
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing OUT/bag')
+    parser.add_argument('--duration', type=float, default=None, metavar='S',
+                        help='stop after S wall seconds (default: until Ctrl-C)')
+    parser.add_argument('--until-idle', type=float, default=None, metavar='S',
+                        help='stop once no message arrived for S wall seconds (after the first one)')
+    parser.add_argument('--topics', nargs='+', default=[], metavar='T',
+                        help='extra topics to record at once (contract types); '
+                             '/coupling/*/wrench are found by themselves')
+
+
+def _check(args: argparse.Namespace) -> None:
+    for opt, value in (('--duration', args.duration), ('--until-idle', args.until_idle)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
+
+
+def run(args: argparse.Namespace) -> int:
+    from cvj_ros import bag as bagmod
+    _check(args)
+    out = Path(args.out)
+    writer = bagmod.BagWriter(out / 'bag', storage=args.storage, overwrite=args.overwrite)
+    writer.set_custom_data('cvj_ros.recorded_by', 'cvj-sim record')
+    stop: list[int] = []
+    previous: dict[int, Any] = {}
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop.append(signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, on_signal)
+    recorder = None
+    wall0 = time.monotonic()
+    domain = int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
+    try:
+        from cvj_ros.orchestrate import _Recorder
+        recorder = _Recorder(writer, list(args.topics), domain)
+        print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
+              f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
+        while not stop:
+            now = time.monotonic()
+            if args.duration is not None and now - wall0 >= args.duration:
+                break
+            last = recorder.recorder.last_message_wall
+            if args.until_idle is not None and last and now - last >= args.until_idle:
+                break
+            time.sleep(0.02)
+    finally:
+        try:
+            if recorder is not None:
+                recorder.close()
+        finally:
+            writer.close()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+    counts = dict(writer.counts)
+    total = sum(counts.values())
+    print(f'cvj-sim record: {total} messages on {len(counts)} topics in {out / "bag"}'
+          + (f' (stopped by {signal.Signals(stop[0]).name})' if stop else ''), file=sys.stderr)
+    for topic in sorted(counts):
+        print(f'  {topic:32s} {counts[topic]:8d}', file=sys.stderr)
+    if recorder is not None and recorder.recorder.scene_text is None and total:
+        print('cvj-sim record: note: no /driveline/scene message was received '
+              '(start the recorder before coupling_node to store the scene)', file=sys.stderr)
+    return 0

@@ -1,0 +1,117 @@
+"""Launch the cvj_ros driveline: engine, coupling, load and monitor nodes, and the recorder.
+
+    ros2 launch cvj_ros driveline.launch.py scene:=fwd_halfshaft duration:=5.0
+    ros2 launch cvj_ros driveline.launch.py scene:=kavz685_lever mode:=free-run record:=false
+    ros2 launch cvj_ros driveline.launch.py external:=load out:=runs/stack   # your stack answers /load/wrench
+
+Arguments (see ``ARGUMENTS``): ``scene`` (name or YAML path), ``mode`` (lockstep |
+free-run), ``coupling_scheme`` (zoh | extrapolate | linear_implicit), ``duration`` (s, 0 =
+the scene's), ``seed`` (-1 = the scene's), ``external`` (none | load | engine | both: those
+peers are NOT started; an outside node must answer, see docs/ros.md), ``record`` (true |
+false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after the run
+goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false).
+
+The mapping from launch arguments to node parameters is plain Python
+(:func:`node_parameters`), importable without ``launch`` so the test suite checks it
+against every node's declared parameters; ``launch``/``launch_ros`` are imported only
+inside :func:`generate_launch_description`.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+PACKAGE = 'cvj_ros'
+
+# argument -> (default, description)
+ARGUMENTS: dict[str, tuple[str, str]] = {
+    'scene': ('fwd_halfshaft', 'scene name (cvj-sim scenes) or scene YAML path'),
+    'mode': ('lockstep', 'loop mode: lockstep | free-run'),
+    'coupling_scheme': ('zoh', 'torque coupling at the exchange: zoh | extrapolate | linear_implicit'),
+    'duration': ('0.0', 'simulated duration [s]; 0 = the scene duration'),
+    'seed': ('-1', 'random seed; -1 = the scene seed'),
+    'external': ('none', 'peers an outside node provides instead: none | load | engine | both'),
+    'record': ('true', 'record every topic with `cvj-sim record OUT`: true | false'),
+    'out': ('runs/launch', 'output directory of the recording (bag in OUT/bag)'),
+    'storage': ('mcap', 'bag storage: mcap | sqlite3'),
+    'monitor': ('true', 'start monitor_node: true | false'),
+}
+
+CHOICES: dict[str, tuple[str, ...]] = {
+    'mode': ('lockstep', 'free-run'),
+    'coupling_scheme': ('zoh', 'extrapolate', 'linear_implicit'),
+    'external': ('none', 'load', 'engine', 'both'),
+    'record': ('true', 'false'),
+    'storage': ('mcap', 'sqlite3'),
+    'monitor': ('true', 'false'),
+}
+
+NODE_EXECUTABLES = ('engine_node', 'coupling_node', 'load_node', 'monitor_node')
+RECORDER_EXECUTABLE = 'cvj-sim'
+
+
+def _flag(value: str) -> bool:
+    return value.strip().lower() == 'true'
+
+
+def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
+    """ROS parameters per node to start, from the launch arguments (strings, as launch gives
+    them). Nodes an outside peer replaces are absent. Raises ValueError naming a bad argument."""
+    args = {k: str(arguments.get(k, default)) for k, (default, _d) in ARGUMENTS.items()}
+    for key, choices in CHOICES.items():
+        if args[key] not in choices:
+            raise ValueError(f'{key}: must be one of {", ".join(choices)}, got {args[key]!r}')
+    try:
+        duration = float(args['duration'])
+        seed = int(args['seed'])
+    except ValueError as exc:
+        raise ValueError(f'duration/seed: not a number ({exc})') from None
+    external = args['external']
+    started = ['coupling_node']
+    if external not in ('engine', 'both'):
+        started.append('engine_node')
+    if external not in ('load', 'both'):
+        started.append('load_node')
+    if _flag(args['monitor']):
+        started.append('monitor_node')
+    common = {'scene': args['scene'], 'seed': seed}
+    # subscribers of /driveline/joint_states before step 0: engine + load (ours or outside),
+    # monitor, recorder: no message is lost to a late match
+    min_subs = 2 + _flag(args['monitor']) + _flag(args['record'])
+    params: dict[str, dict[str, Any]] = {
+        'coupling_node': dict(common, mode=args['mode'], coupling_scheme=args['coupling_scheme'],
+                              duration=duration, min_subscribers=min_subs),
+        'engine_node': dict(common),
+        'load_node': dict(common),
+        'monitor_node': {'scene': args['scene']},
+    }
+    return {name: params[name] for name in NODE_EXECUTABLES if name in started}
+
+
+def recorder_arguments(arguments: dict[str, str]) -> list[str] | None:
+    """Command-line arguments of ``cvj-sim`` for the recorder, or None when record is false."""
+    args = {k: str(arguments.get(k, default)) for k, (default, _d) in ARGUMENTS.items()}
+    if not _flag(args['record']):
+        return None
+    return ['record', args['out'], '--storage', args['storage'], '--overwrite', '--until-idle', '2.0']
+
+
+def generate_launch_description() -> Any:
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+    from launch_ros.actions import Node
+
+    def setup(context: Any) -> list[Any]:
+        values = {k: context.launch_configurations.get(k, d) for k, (d, _x) in ARGUMENTS.items()}
+        actions: list[Any] = []
+        rec = recorder_arguments(values)
+        if rec is not None:  # first, so it matches every topic before step 0
+            actions.append(Node(package=PACKAGE, executable=RECORDER_EXECUTABLE, arguments=rec,
+                                output='screen'))
+        for name, params in node_parameters(values).items():
+            actions.append(Node(package=PACKAGE, executable=name, name=name, parameters=[params],
+                                output='screen'))
+        return actions
+
+    return LaunchDescription(
+        [DeclareLaunchArgument(k, default_value=d, description=x) for k, (d, x) in ARGUMENTS.items()]
+        + [OpaqueFunction(function=setup)])

@@ -4,26 +4,13 @@ Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these
 """
 
 import math
-import struct
-import sys
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
-from rclpy.context import Context
-from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                              ParameterException)
-from rclpy.node import Node
-from rclpy.parameter import Parameter
+from diagnostic_msgs.msg import DiagnosticArray
 
-from cvj_ros.errors import CvjError
 
 from cvj_ros.nodes.executor import CvjNode
 from cvj_ros.nodes.diagnostics import ERROR, WARN, diag_array, diag_status

@@ -1,0 +1,144 @@
+"""Hand-written CDR encoders/decoders for the hot-path messages (JointState, WrenchStamped, Clock).
+
+Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+"""
+
+import struct
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+
+from cvj_ros.nodes.parameters import NS_PER_S
+from cvj_ros.nodes.diagnostics import stamp_to_ns
+
+_CDR_HEADER = b'\x00\x01\x00\x00'
+_STAMP = struct.Struct('<iI')
+
+
+def _cdr_string(text: str, offset: int) -> tuple[bytes, int]:
+    """CDR of a string starting at payload ``offset``: (bytes incl. alignment, new offset)."""
+    data = text.encode('utf-8') + b'\x00'
+    pad = (-offset) % 4
+    out = b'\x00' * pad + struct.pack('<I', len(data)) + data
+    return out, offset + len(out)
+
+
+def _align(offset: int, size: int) -> tuple[bytes, int]:
+    pad = (-offset) % size
+    return b'\x00' * pad, offset + pad
+
+
+def _self_check(encoded: bytes, msg: Any) -> bool:
+    """Same length as rclpy's serialisation and decodes to ``msg`` (rclpy leaves alignment
+    padding uninitialised, so the bytes themselves may differ there; ours are zeros)."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    try:
+        return (len(serialize_message(msg)) == len(encoded)
+                and deserialize_message(encoded, type(msg)) == msg)
+    except Exception:  # noqa: BLE001 (no typesupport: use message objects)
+        return False
+
+
+class WrenchStampedEncoder:
+    """CDR of geometry_msgs/WrenchStamped with a fixed ``frame_id``.
+
+    ``encode(sec, nanosec, fx, fy, fz, tx, ty, tz)``: stamp (s, ns), force (N), torque (N m).
+    """
+
+    def __init__(self, frame_id: str) -> None:
+        from geometry_msgs.msg import WrenchStamped
+        text, off = _cdr_string(frame_id, _STAMP.size)
+        pad, off = _align(off, 8)
+        self._head = text + pad
+        self._body = struct.Struct('<6d')
+        probe = WrenchStamped()
+        probe.header.stamp.sec, probe.header.stamp.nanosec = -3, 7
+        probe.header.frame_id = frame_id
+        probe.wrench.force.x, probe.wrench.torque.z = 1.5, -2.25
+        self.ok = _self_check(self.encode(-3, 7, 1.5, 0.0, 0.0, 0.0, 0.0, -2.25), probe)
+
+    def encode(self, sec: int, nanosec: int, fx: float, fy: float, fz: float,
+               tx: float, ty: float, tz: float) -> bytes:
+        return b''.join((_CDR_HEADER, _STAMP.pack(sec, nanosec), self._head,
+                         self._body.pack(fx, fy, fz, tx, ty, tz)))
+
+
+class ClockEncoder:
+    """CDR of rosgraph_msgs/Clock: ``encode(sec, nanosec)``."""
+
+    def __init__(self) -> None:
+        from rosgraph_msgs.msg import Clock
+        probe = Clock()
+        probe.clock.sec, probe.clock.nanosec = 12, 345
+        self.ok = _self_check(self.encode(12, 345), probe)
+
+    @staticmethod
+    def encode(sec: int, nanosec: int) -> bytes:
+        return _CDR_HEADER + _STAMP.pack(sec, nanosec)
+
+
+class JointStateEncoder:
+    """CDR of sensor_msgs/JointState with fixed ``names`` (frame_id '') and position (rad),
+    velocity (rad/s), effort (N m) arrays of len(names) float64 values each:
+    ``encode(sec, nanosec, position, velocity, effort)`` (numpy float64 arrays)."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        from sensor_msgs.msg import JointState
+        self.n = n = len(names)
+        parts: list[bytes] = []
+        text, off = _cdr_string('', _STAMP.size)                  # header.frame_id
+        parts.append(text)
+        pad, off = _align(off, 4)
+        parts.append(pad + struct.pack('<I', n))                  # name sequence
+        off += 4
+        for name in names:
+            text, off = _cdr_string(name, off)
+            parts.append(text)
+        self._gaps: list[bytes] = []
+        for _array in range(3):                                   # position, velocity, effort
+            pad, off = _align(off, 4)
+            gap = pad + struct.pack('<I', n)
+            off += 4
+            pad, off = _align(off, 8) if n else (b'', off)
+            self._gaps.append(gap + pad)
+            off += 8 * n
+        self._head = b''.join(parts) + self._gaps[0]
+        probe = JointState()
+        probe.header.stamp.sec, probe.header.stamp.nanosec = 5, 6
+        probe.name = list(names)
+        values = np.arange(3 * n, dtype=float).reshape(3, n) + 0.25
+        probe.position, probe.velocity, probe.effort = (v.tolist() for v in values)
+        self.ok = _self_check(self.encode(5, 6, values[0], values[1], values[2]), probe)
+
+    def encode(self, sec: int, nanosec: int, position: Any, velocity: Any, effort: Any) -> bytes:
+        return b''.join((_CDR_HEADER, _STAMP.pack(sec, nanosec), self._head,
+                         np.asarray(position, dtype='<f8').tobytes(), self._gaps[1],
+                         np.asarray(velocity, dtype='<f8').tobytes(), self._gaps[2],
+                         np.asarray(effort, dtype='<f8').tobytes()))
+
+
+_LE_UINT32 = struct.Struct('<I')
+_LE_DOUBLE = struct.Struct('<d')
+
+
+def decode_wrench_stamp_torque_z(data: bytes) -> tuple[int, float]:
+    """(stamp in integer ns, torque.z in N m) of a serialised geometry_msgs/WrenchStamped.
+
+    Little-endian CDR is read directly (stamp at payload offset 0, frame_id string at 8,
+    then six float64 aligned to 8, torque.z last); other encodings go through
+    rclpy.serialization.deserialize_message.
+    """
+    if len(data) >= 16 and data[1] == 1:
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        off = 12 + _LE_UINT32.unpack_from(data, 12)[0]   # payload offset after frame_id
+        off += (-off) % 8
+        return sec * NS_PER_S + nanosec, _LE_DOUBLE.unpack_from(data, 4 + off + 40)[0]
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message
+    msg = deserialize_message(data, WrenchStamped)
+    return stamp_to_ns(msg.header.stamp), float(msg.wrench.torque.z)
+
+
+# --- node base and main loop ----------------------------------------------------------------

@@ -1,0 +1,124 @@
+"""TorqueResponder: the node that answers each joint state with a stamped torque (engine, load).
+
+Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+"""
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+
+
+from cvj_ros.nodes.executor import CvjNode
+from cvj_ros.nodes.diagnostics import ERROR, WARN, diag_array, diag_status
+from cvj_ros.nodes.parameters import NS_PER_S, ParameterError
+from cvj_ros.nodes.cdr import WrenchStampedEncoder
+
+class TorqueResponder(CvjNode):
+    """Answers every /driveline/joint_states sample with a WrenchStamped from a torque source.
+
+    ``torque.z`` = ``source.torque(t, omega, phi)`` (N m) at the speed omega (rad/s) and
+    unwrapped angle phi (rad) of shaft ``shaft`` in the joint-state message, t (s) = its
+    stamp; the answer's stamp echoes the joint-state stamp exactly and its frame_id is the
+    shaft name. A non-finite input or torque is never published: an ERROR diagnostic
+    names it (the coupling node then times out with a clear error).
+    """
+
+    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str) -> None:
+        """Create the publishers and the joint-state subscription (call once, after validation)."""
+        from geometry_msgs.msg import WrenchStamped
+        from sensor_msgs.msg import JointState
+
+        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC, JOINT_STATES_TOPIC
+        self._wrench_cls = WrenchStamped
+        self.source = source
+        self.shaft = shaft
+        self.answered = 0
+        self._names: list[str] | None = None
+        self._index = -1
+        self.last_stamp_ns = 0
+        self._wrench_topic = wrench_topic
+        self.wrench_pub = self.create_publisher(WrenchStamped, wrench_topic, DATA_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        # one answer message, reused (publish() serialises it before returning)
+        self._answer = WrenchStamped()
+        self._answer.header.frame_id = shaft
+        self._answer_torque = self._answer.wrench.torque
+        self._answer_cdr = WrenchStampedEncoder(shaft)
+        self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states,
+                                               DATA_QOS)
+
+    def _shaft_index(self, names: Sequence[str]) -> int:
+        if self._names is None or list(names) != self._names:
+            self._names = list(names)
+            self._index = self._names.index(self.shaft) if self.shaft in self._names else -1
+        return self._index
+
+    def report(self, level: bytes, message: str, values: Mapping[str, Any] | None = None) -> None:
+        """Publish one diagnostic status named after this node (and log it when not OK)."""
+        if level == ERROR:
+            self.get_logger().error(message)
+        elif level == WARN:
+            self.get_logger().warning(message)
+        self.diag_pub.publish(diag_array(self.last_stamp_ns, [
+            diag_status(f'{self.get_name()}', level, message, values)]))
+
+    def _on_joint_states(self, msg: Any) -> None:
+        stamp = msg.header.stamp
+        self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
+        names = msg.name
+        i = self._index if names == self._names else self._shaft_index(names)
+        if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
+            self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
+                               f'and velocity (names: {", ".join(msg.name)}); not answered')
+            return
+        omega, phi = float(msg.velocity[i]), float(msg.position[i])
+        if not (math.isfinite(omega) and math.isfinite(phi)):
+            self.report(ERROR, f'/driveline/joint_states: {self.shaft} position/velocity not finite '
+                               f'({phi}, {omega}); not answered')
+            return
+        t = self.last_stamp_ns / NS_PER_S
+        torque = float(self.source.torque(t, omega, phi))
+        if not math.isfinite(torque):
+            self.report(ERROR, f'{self._wrench_topic}: model torque not finite ({torque}) at '
+                               f't={t} s, omega={omega} rad/s; not published')
+            return
+        if self._answer_cdr.ok:
+            self.wrench_pub.publish(self._answer_cdr.encode(stamp.sec, stamp.nanosec,
+                                                            0.0, 0.0, 0.0, 0.0, 0.0, torque))
+        else:
+            out = self._answer
+            out.header.stamp = stamp
+            self._answer_torque.z = torque
+            self.wrench_pub.publish(out)
+        self.answered += 1
+
+
+def load_torque_series_file(name: str, path: str) -> tuple[Any, Any]:
+    """Read a load torque time series: ``.npz`` with arrays ``t`` (s) and ``torque`` (N m),
+    or YAML/JSON with the same keys as lists. Raises ParameterError naming ``name``."""
+    import numpy as np
+    import yaml
+    try:
+        if path.endswith('.npz'):
+            with np.load(path) as data:
+                t, torque = np.asarray(data['t'], float), np.asarray(data['torque'], float)
+        else:
+            with open(path, encoding='utf-8') as fh:
+                data = yaml.safe_load(fh)
+            if not isinstance(data, dict):
+                raise ParameterError(name, f'{path}: must be a mapping with keys t and torque')
+            t = np.asarray(data['t'], float)
+            torque = np.asarray(data['torque'], float)
+    except OSError as exc:
+        raise ParameterError(name, f'{path}: cannot read ({exc.strerror or exc})') from None
+    except KeyError as exc:
+        raise ParameterError(name, f'{path}: missing array {exc.args[0]!r} (need t and torque)') from None
+    except (ValueError, TypeError, yaml.YAMLError) as exc:
+        raise ParameterError(name, f'{path}: {str(exc).splitlines()[0]}') from None
+    if t.ndim != 1 or t.shape != torque.shape or t.size < 2:
+        raise ParameterError(name, f'{path}: t and torque must be 1-D arrays of equal length >= 2')
+    return t, torque

@@ -25,8 +25,9 @@ timer ends the run with one ERROR line naming the missing topic when an answer t
 longer than ``peer_timeout``. Answers with another stamp (late, duplicate,
 out-of-order) are ignored and counted; the first one per topic while t_k is awaited is
 said at once in one WARN line ("answers on /load/wrench are
-stamped 0.000 s, expected 0.001 s: echo the joint-state stamp ..."), and a stall after it
-ends with that line instead of "is load_node running?". A NaN/inf torque is never
+stamped 0.000 s, expected 0.001 s: echo the joint-state stamp ..."), and a stall with
+only wrong stamps from a topic ends after ``WRONG_STAMP_STALL_S`` (1 s, or peer_timeout if
+shorter) with that line instead of "is load_node running?". A NaN/inf torque is never
 integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1; with
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
 counted as ``held_torques`` (diagnostics level WARN, first one logged). A second publisher on /driveline/joint_states, /engine/wrench or
@@ -77,6 +78,12 @@ MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
 NONFINITE_POLICIES = ('stop', 'hold')
+# A stall during which only wrong-stamped answers came from a topic ends after this many
+# seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
+# (e.g. with now() under use_sim_time a step behind) never sends the right stamp, while a
+# peer that sends junk next to its right answer sends the right one within milliseconds
+# (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
+WRONG_STAMP_STALL_S = 1.0
 
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
@@ -350,16 +357,20 @@ class CouplingNode(CvjNode):
             return
         if not self.waiting:
             return
-        if time.monotonic() - self._wait_start_mono > self.params['peer_timeout']:
+        waited = time.monotonic() - self._wait_start_mono
+        stall = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
+                                   (LOAD_WRENCH_TOPIC, self._have_load))
+                 if not have and t in self._wrong_in_wait]
+        stall_bound = min(WRONG_STAMP_STALL_S, self.params['peer_timeout'])
+        if stall and waited > stall_bound:
+            self._stop_with_error(
+                f'lockstep: no answer stamped t={self.t_ns / NS_PER_S:.9g} s (step {self.k}) '
+                f'on {stall[0]} within {stall_bound:g} s, only wrongly stamped ones; '
+                + self.wrong_stamp_line(stall[0], *self._wrong_in_wait[stall[0]]))
+            return
+        if waited > self.params['peer_timeout']:
             missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
                                          (LOAD_WRENCH_TOPIC, self._have_load)) if not have]
-            stamped = [t for t in missing if t in self._wrong_in_wait]
-            if stamped:   # answers arrive, with the wrong stamp: say that, not "is it running?"
-                self._stop_with_error(
-                    f'lockstep: no answer stamped t={self.t_ns / NS_PER_S:.9g} s (step {self.k}) '
-                    f'within peer_timeout={self.params["peer_timeout"]} s; '
-                    + self.wrong_stamp_line(stamped[0], *self._wrong_in_wait[stamped[0]]))
-                return
             self._stop_with_error(
                 f'lockstep: no answer on {" and ".join(missing)} for t={self.t_ns / NS_PER_S:.9g} s '
                 f'(step {self.k}) within peer_timeout={self.params["peer_timeout"]} s; '
@@ -508,16 +519,17 @@ class CouplingNode(CvjNode):
         c0 = time.perf_counter()
         sec, nanosec = divmod(self.t_ns, NS_PER_S)
         x, t_engine, t_load = self.x, self.T_engine, self.T_load
-        pos, vel, eff = self.driveline.joint_states_fast(x, t_engine, t_load)
-        if self._has_mid:
-            self.driveline.fill_mid(pos[None, :], vel[None, :])
         raw = self.raw_publication
         if not raw:
             self._stamp.sec, self._stamp.nanosec = sec, nanosec   # shared by /clock and headers
         # /clock for t_k goes out BEFORE the joint state stamped t_k: an outside node under
         # use_sim_time has then (as far as its executor takes the clock first) now() == t_k
-        # in its joint-state callback. Costs one publication on the critical path.
+        # in its joint-state callback. Costs one publication on the critical path; the
+        # joint-state evaluation below gives the clock sample a head start.
         self.clock_pub.publish(self._clock_cdr.encode(sec, nanosec) if raw else self._clock_msg)
+        pos, vel, eff = self.driveline.joint_states_fast(x, t_engine, t_load)
+        if self._has_mid:
+            self.driveline.fill_mid(pos[None, :], vel[None, :])
         if raw:
             self.js_pub.publish(self._js_cdr.encode(sec, nanosec, pos, vel, eff))
         else:

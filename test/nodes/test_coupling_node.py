@@ -347,8 +347,12 @@ def test_wrong_stamp_answers_are_named_in_one_line_not_is_it_running(ctx, tmp_pa
         if topic == 'load' and k >= 1:
             return [(Time(sec=0, nanosec=(k - 1) * 1_000_000), T_LOAD)]
         return [(stamp, T_ENGINE if topic == 'engine' else T_LOAD)]
-    node, peers, wall = run(ctx, tmp_path, behave=behave, peer_timeout=0.3)
+    node, peers, wall = run(ctx, tmp_path, behave=behave, peer_timeout=60.0, timeout=20.0)
     assert node.exit_code == 1
+    # ends WRONG_STAMP_STALL_S = 1 s after the wrong answer, not after peer_timeout = 60 s
+    # (bound: 1 s + node start-up, measured ~0.3 s here, with a 3 s margin for a busy machine)
+    assert wall < 1.0 + 3.0, wall
+    assert 'within 1 s, only wrongly stamped ones' in node.error_message, node.error_message
     assert 'is load_node running' not in node.error_message
     assert node.error_message.endswith('answers on /load/wrench are stamped 0.000 s, expected '
                                        '0.001 s: echo the joint-state stamp (header) in the answer'), \

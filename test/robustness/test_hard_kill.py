@@ -16,7 +16,6 @@ machine): see docs/robustness.md, "Hard kill".
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -31,7 +30,7 @@ from cvj_ros.cli import main as cli_main
 
 pytestmark = pytest.mark.e2e
 
-CVJ_SIM = shutil.which('cvj-sim') or 'cvj-sim'
+CVJ_SIM = str(Path(sys.executable).with_name('cvj-sim'))
 T_KILL_S = 1.62         # simulated time of the kill (not a multiple of the flush span)
 MAX_LOSS_S = 1.0        # issue 11: a hard kill loses at most 1 s of simulated time
 

@@ -583,6 +583,12 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:
         result.metrics = {'error': str(exc)}
+    try:
+        counters = loop_counters(result.bag)
+    except CvjError:
+        counters = {}
+    if counters:
+        result.metrics['loop_counters'] = counters
     (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
@@ -627,6 +633,22 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
     return out
 
 
+LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+
+
+def loop_counters(bag: Path) -> dict[str, int]:
+    """The coupling node's last recorded counters (``/diagnostics`` status ``coupling_node:
+    loop``): ignored stamps, rejected and held (``nonfinite_torque=hold``) torques."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop':
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+    return {}
+
+
 def print_report(r: RunResult, stream: TextIO) -> None:
     """The short human report of a run."""
     p = lambda s='': print(s, file=stream)  # noqa: E731
@@ -652,5 +674,10 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
+    counters = r.metrics.get('loop_counters', {})
+    if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
+        p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
+          + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'
+             if counters.get('held_torques') else ''))
     p('  messages: ' + ', '.join(f'{t} {n}' for t, n in sorted(r.counts.items())))
     p(f'  bag: {r.bag}')

@@ -223,3 +223,52 @@ def test_run_external_stack_stamping_with_sim_time_now(tmp_path: Path) -> None:
         assert code == 1 and 'answers on /load/wrench are stamped' in err and \
             'echo the joint-state stamp' in err, out + err
     print(f'now()-stamping stack: exit {code}', err.strip().splitlines()[-1:] if code else '')
+
+
+NAN_STACK = """
+import math
+import sys
+sys.path.insert(0, {examples!r})
+import vehicle_stack
+
+
+class NanStack(vehicle_stack.VehicleStack):
+    # a stack glitch: NaN road load for the joint states stamped 0.100 and 0.101 s
+    def on_joint_states(self, msg):
+        self._t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        super().on_joint_states(msg)
+
+    def road_torque(self, omega):
+        return math.nan if self._t_ns in (100_000_000, 101_000_000) else super().road_torque(omega)
+
+
+vehicle_stack.VehicleStack = NanStack
+sys.exit(vehicle_stack.main())
+"""
+
+
+def test_run_external_nonfinite_torque_hold(tmp_path: Path) -> None:
+    """--nonfinite-torque hold: two NaN answers of the outside stack are replaced by the last
+    finite load, the run finishes, held_torques = 2 in /diagnostics (WARN) and in the report."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    script = tmp_path / 'nan_stack.py'
+    script.write_text(NAN_STACK.format(examples=str(REPO / 'examples')))
+    code, out, err = _run_external(tmp_path, scene, [sys.executable, str(script), '--ros-args', '-p',
+                                                     'use_sim_time:=true'], '--nonfinite-torque', 'hold')
+    assert code == 0, out + err
+    assert 'WARN coupling loop: ignored stamps 0, rejected torques 0, held torques 2' in out, out
+    data = bag.read_bag(tmp_path / 'run' / 'bag')
+    js, load = data[bag.JOINT_STATES_TOPIC], data['/load/wrench']
+    assert len(js.t) == N + 1
+    k = int(np.searchsorted(js.t, 0.1 - 1e-12))       # index of t = 0.100 s
+    assert np.isnan(load.torque_z[k]) and np.isnan(load.torque_z[k + 1])   # recorded as sent
+    i_wheel = js.shaft('wheel')
+    # the integrated load at t_(k+1) and t_(k+2) is the held last finite value (answer k-1)
+    # (rtol 1e-12 as above: the effort goes through the joint-state arithmetic, ~1 ulp here)
+    np.testing.assert_allclose(js.effort[k + 1:k + 3, i_wheel], load.torque_z[k - 1], rtol=1e-12)
+    assert load.torque_z[k - 1] != load.torque_z[k + 2]   # the load moves on afterwards
+    assert np.all(np.isfinite(js.velocity))
+    last = [s for statuses in data['/diagnostics'].statuses for s in statuses
+            if s['name'] == 'coupling_node: loop'][-1]
+    assert last['values']['held_torques'] == '2' and last['level'] == 1   # WARN

@@ -152,6 +152,9 @@ def prepare(options: RunOptions) -> _Prepared:
     unknown = [e for e in options.external if e not in EXTERNAL_PEERS]
     if unknown:
         raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)} or both, got {unknown[0]!r}')
+    if options.load_from_bag is not None and 'load' in options.external:
+        raise CvjError('--load-from-bag: cannot be combined with --external load (no load_node '
+                       'is started to play the recorded load)')
     if not options.external_timeout > 0:
         raise CvjError(f'--external-timeout: must be > 0, got {options.external_timeout}')
     if options.nonfinite_torque not in ('stop', 'hold'):

@@ -99,13 +99,22 @@ def test_simulate_cli_progress_on_a_terminal_only(monkeypatch, capsys) -> None:
     assert err.endswith('\r')                      # the line is erased at the end
 
 
+# test/test_bench.py's reduced lever scene (seed 004 KAVZ-685 inertias and bushing)
+BENCH_SCENE = {'name': 'mini_lever', 'duration': 1.0, 'engine': {'model': 'linear'},
+               'load': {'model': 'constant', 'torque': 107.5}, 'initial': {'speed_rad_s': 30.0},
+               'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': 0.128},
+                             {'type': 'joint', 'name': 'hooke', 'kind': 'hooke',
+                              'params': {'beta_deg': 15}},
+                             {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35},
+                             {'type': 'inertia', 'name': 'wheel', 'J': 0.161}]}
+
+
 def test_bench_cli_progress_counts_runs(tmp_path, monkeypatch, capsys) -> None:
     import yaml
 
     from cvj_ros.cli import main
-    from test.test_bench import SCENE
     scene_file = tmp_path / 'mini_lever.yaml'
-    scene_file.write_text(yaml.safe_dump(SCENE))
+    scene_file.write_text(yaml.safe_dump(BENCH_SCENE))
     _ticking_clock(monkeypatch)
     tty = FakeTTY()
     monkeypatch.setattr('sys.stderr', tty)

@@ -9,8 +9,9 @@ diagnostics on ``/diagnostics`` (steps, real-time factor, lockstep wait per exch
 integration time, joint-state evaluation + publication time, overhead per exchange,
 process CPU time per exchange, ignored stamps, energy residual).
 
-Publication order per step: /clock for t_k first, then the joint states stamped t_k (the
-peers wait for them; an outside node under ``use_sim_time`` then sees ``now() == t_k`` in its
+Publication order per step: /clock for t_k first (lockstep: as soon as both answers for
+t_(k-1) are in, before the integration), then the joint states stamped t_k (the peers wait
+for them; an outside node under ``use_sim_time`` then sees ``now() == t_k`` in its
 callback as far as its executor takes the clock first), then the reaction wrenches
 (computed while the peers answer). The loop's messages are published
 as pre-serialised CDR bytes (:class:`~cvj_ros.nodes.common.JointStateEncoder` etc.), which
@@ -202,6 +203,7 @@ class CouplingNode(CvjNode):
         self.wrong_stamp: dict[str, tuple[int, int]] = {}
         self._wrong_in_wait: dict[str, tuple[int, int]] = {}
         self.joint_states_published = 0
+        self._clock_sent_ns = -1          # last /clock time published (ns)
         # timing (wall, perf_counter seconds)
         self._wait_start = 0.0
         self.wait_total = 0.0
@@ -467,6 +469,10 @@ class CouplingNode(CvjNode):
             self.waiting = False
             sent = self._wait_start
             self.wait_total += time.perf_counter() - sent
+            # /clock t_(k+1) goes out now, before the integration: the longest head start
+            # over the joint state t_(k+1) an outside node's executor can get (both answers
+            # for t_k are in, so nobody in the loop works at t_k any more)
+            self._publish_clock(self.t_ns + self.h_ns)
             self._step()   # publishes the next state: sets _wait_start
             if self.exit_code is None:
                 # one exchange = joint-state publication to the next one
@@ -513,6 +519,18 @@ class CouplingNode(CvjNode):
         self.exchange_total += time.perf_counter() - now
         self.exchanges += 1
 
+    def _publish_clock(self, t_ns: int) -> None:
+        """Publish /clock = ``t_ns`` (once per time: :meth:`_publish_state` skips it then)."""
+        if t_ns == self._clock_sent_ns:
+            return
+        sec, nanosec = divmod(t_ns, NS_PER_S)
+        if self.raw_publication:
+            self.clock_pub.publish(self._clock_cdr.encode(sec, nanosec))
+        else:
+            self._stamp.sec, self._stamp.nanosec = sec, nanosec
+            self.clock_pub.publish(self._clock_msg)
+        self._clock_sent_ns = t_ns
+
     def _publish_state(self) -> None:
         """Publish the state at t_k: /clock, then /driveline/joint_states (the peers wait for
         it), then the reaction wrenches, which nobody in the loop waits for."""
@@ -524,9 +542,9 @@ class CouplingNode(CvjNode):
             self._stamp.sec, self._stamp.nanosec = sec, nanosec   # shared by /clock and headers
         # /clock for t_k goes out BEFORE the joint state stamped t_k: an outside node under
         # use_sim_time has then (as far as its executor takes the clock first) now() == t_k
-        # in its joint-state callback. Costs one publication on the critical path; the
-        # joint-state evaluation below gives the clock sample a head start.
-        self.clock_pub.publish(self._clock_cdr.encode(sec, nanosec) if raw else self._clock_msg)
+        # in its joint-state callback. In lockstep it went out already before the
+        # integration (_on_wrench); else here, ahead of the joint-state evaluation.
+        self._publish_clock(self.t_ns)
         pos, vel, eff = self.driveline.joint_states_fast(x, t_engine, t_load)
         if self._has_mid:
             self.driveline.fill_mid(pos[None, :], vel[None, :])

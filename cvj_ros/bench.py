@@ -488,9 +488,20 @@ CSV_FIELDS = ('scene', 'family', 'solver', 'fidelity', 'tol', 'h', 'label', 'ok'
 LOCKSTEP_FIELDS = ('scene', 'scheme', 'exchange_step', 'ok', 'err_speed_rel', 'rtf', 'us_per_exchange', 'note')
 
 
-def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print) -> dict[str, Any]:
+def planned_runs(cfg: BenchConfig) -> int:
+    """Upper bound of the solver runs :func:`run_bench` makes (fidelity modes that turn out
+    to be the same model as an earlier one are skipped, so fewer may be made)."""
+    per_fidelity = sum(len(cfg.rk4_steps) if s in ('rk4', 'ros2') else len(cfg.tolerances)
+                       for s in cfg.solvers)
+    return len(cfg.scenes) * (len(cfg.fidelities) * per_fidelity + len(cfg.baselines) * len(cfg.tolerances))
+
+
+def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print,
+              progress: Callable[[float], None] | None = None) -> dict[str, Any]:
     """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``bench.md`` and one
-    ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths)."""
+    ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths).
+    ``progress``, if given, is called with the number of solver runs done (of
+    :func:`planned_runs`) after each one."""
     from cvj_ros.plots import work_precision_plot
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -528,9 +539,13 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                        [(tol, None) for tol in cfg.tolerances]
                 for tol, h in grid:
                     rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg))
+                    if progress is not None:
+                        progress(len(rows))
         for method in cfg.baselines:
             for tol in cfg.tolerances:
                 rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg))
+                if progress is not None:
+                    progress(len(rows))
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names:
             lock_rows += lockstep_study(prob, cfg)

@@ -70,6 +70,10 @@ class RunOptions:
         peer_timeout: s, the coupling node's lockstep wait bound.
         grace: s between SIGINT and SIGTERM (and SIGTERM and SIGKILL) when stopping nodes.
         start_timeout: s to wait for the engine/load nodes to connect before the coupling starts.
+        external: peers not started by the run (``'engine'``, ``'load'``): an outside node
+            answers on their topic instead (see :data:`EXTERNAL_PEERS`).
+        external_timeout: s to wait for the outside peers to publish their topic.
+        nonfinite_torque: the coupling node's NaN/inf torque policy, ``'stop'`` or ``'hold'``.
     """
     scene: str
     out: Path
@@ -84,6 +88,9 @@ class RunOptions:
     peer_timeout: float = 5.0
     grace: float = 3.0
     start_timeout: float = 20.0
+    external: tuple[str, ...] = ()
+    external_timeout: float = 30.0
+    nonfinite_torque: str = 'stop'
 
 
 @dataclass
@@ -107,6 +114,7 @@ class RunResult:
     stopped_by: str | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
     phases: dict[str, float] = field(default_factory=dict)   # wall s since start of each phase end
+    external: list[str] = field(default_factory=list)        # peers answered by outside nodes
 
 
 @dataclass
@@ -141,6 +149,16 @@ def prepare(options: RunOptions) -> _Prepared:
         raise CvjError(f'--exchange-step: must be a finite number > 0, got {options.exchange_step}')
     if h > duration:
         raise CvjError(f'--exchange-step: {h} s is longer than the duration {duration} s')
+    unknown = [e for e in options.external if e not in EXTERNAL_PEERS]
+    if unknown:
+        raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)} or both, got {unknown[0]!r}')
+    if options.load_from_bag is not None and 'load' in options.external:
+        raise CvjError('--load-from-bag: cannot be combined with --external load (no load_node '
+                       'is started to play the recorded load)')
+    if not options.external_timeout > 0:
+        raise CvjError(f'--external-timeout: must be > 0, got {options.external_timeout}')
+    if options.nonfinite_torque not in ('stop', 'hold'):
+        raise CvjError(f'--nonfinite-torque: must be stop or hold, got {options.nonfinite_torque!r}')
     if options.seed is not None and not 0 <= options.seed < 2**31:
         raise CvjError(f'--seed: must be in 0..2**31-1, got {options.seed}')
     if not options.peer_timeout > 0:
@@ -161,8 +179,12 @@ def prepare(options: RunOptions) -> _Prepared:
             raise CvjError(f'--load-from-bag: {options.load_from_bag}: needs >= 2 /load/wrench samples')
     joints = [el.name for el in scene.driveline if isinstance(el, Joint)]
     import importlib.util
-    nodes = tuple(n for n in NODE_ORDER if importlib.util.find_spec(f'cvj_ros.nodes.{n}') is not None)
+    outside = {EXTERNAL_PEERS[e][0] for e in options.external}
+    nodes = tuple(n for n in NODE_ORDER if n not in outside
+                  and importlib.util.find_spec(f'cvj_ros.nodes.{n}') is not None)
     for required in ('engine_node', 'load_node', 'coupling_node'):
+        if required in outside:
+            continue
         if required not in nodes:
             raise CvjError(f'{required}: module cvj_ros.nodes.{required} is not installed')
     return _Prepared(options, scene, scene_path, duration, h, options.seed, load_series,
@@ -204,6 +226,7 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
     if name == 'coupling_node':
         params.update(mode=o.mode, coupling_scheme=o.scheme, exchange_step=float(prep.exchange_step),
                       duration=float(prep.duration), peer_timeout=float(o.peer_timeout),
+                      nonfinite_torque=o.nonfinite_torque,
                       # engine, load, the recorder (and monitor) see /driveline/joint_states before step 0
                       min_subscribers=3 + ('monitor_node' in prep.nodes))
     if load_override is not None and name in ('coupling_node', 'load_node'):
@@ -321,6 +344,22 @@ def error_line(log_path: Path) -> str | None:
 
 
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
+# --external NAME: (the node it replaces, what the outside node must publish)
+EXTERNAL_PEERS = {
+    'engine': ('engine_node', 'the engine torque on the first shaft, torque.z in N m (driving '
+                              'positive)'),
+    'load': ('load_node', 'the resisting torque on the last shaft, torque.z in N m (positive '
+                          'opposes positive rotation)'),
+}
+
+
+def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> str:
+    """The one line printed while a run waits for outside peers: which topic, what to publish."""
+    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
+    return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
+            f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
+            f'every message with a geometry_msgs/WrenchStamped whose header (stamp, frame_id) '
+            f'echoes the joint state\'s (docs/ros.md, "Outside nodes")')
 
 
 def _signal_name(signum: int) -> str:
@@ -332,10 +371,13 @@ def _signal_name(signum: int) -> str:
 
 def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
                     stop_signal: list[int], timeout: float, *, lockstep: bool = True,
-                    domain: int | None = None) -> str | None:
+                    domain: int | None = None, external: Sequence[str] = (),
+                    external_timeout: float = 30.0) -> str | None:
     """Wait until the recorder matched engine/load publishers; an error line if a peer died or
-    ``timeout`` (s) passed, else None."""
-    deadline = time.monotonic() + timeout
+    ``timeout`` (s; ``external_timeout`` for outside peers) passed, else None."""
+    t0 = time.monotonic()
+    deadline = t0 + timeout
+    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
     while not stop_signal:
         # another run on this domain: stop before our coupling node publishes a single state
         # into the other run's bag (its own watchdog can take 0.25 s and more under load)
@@ -349,11 +391,19 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
         if not missing:
             return None
         for name in missing:
-            rc = procs[name].poll()
+            rc = procs[name].poll() if name in procs else None
             if rc is not None:
                 return f'{name}: ' + (error_line(logs / f'{name}.log') or f'exited with status {rc}')
-        if time.monotonic() > deadline:
-            return f'{missing[0]}: {PEER_TOPICS[missing[0]]} not connected within {timeout:g} s'
+        now = time.monotonic()
+        for name in missing:
+            if name in outside and now > t0 + external_timeout:
+                return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
+                        f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s; '
+                        f'start it on that domain (e.g. ROS_DOMAIN_ID={domain} python3 '
+                        f'examples/vehicle_stack.py --ros-args -p use_sim_time:=true)')
+        if now > deadline and any(name not in outside for name in missing):
+            name = next(n for n in missing if n not in outside)
+            return f'{name}: {PEER_TOPICS[name]} not connected within {timeout:g} s'
         time.sleep(0.02)
     return None
 
@@ -414,7 +464,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                        ('cvj_ros.coupling_scheme', options.scheme),
                        ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
                        ('cvj_ros.duration', repr(prep.duration)),
-                       ('cvj_ros.exchange_step', repr(prep.exchange_step))):
+                       ('cvj_ros.exchange_step', repr(prep.exchange_step)),
+                       ('cvj_ros.external', ','.join(options.external))):
         writer.set_custom_data(key, value)
     procs: dict[str, subprocess.Popen[bytes]] = {}
     log_files: list[Any] = []
@@ -422,6 +473,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     error: str | None = None
     stopped_by: str | None = None
     steps = int(round(prep.duration / prep.exchange_step))
+    from cvj_ros.progress import Progress
+    # simulated time, real-time factor, ETA on stderr at most once a second, only on a terminal
+    progress = Progress(prep.duration, label='cvj-sim run')
     try:
         recorder = _Recorder(writer, prep.coupling_topics, domain)
         for name in prep.nodes:
@@ -430,8 +484,14 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             if name == 'coupling_node':
                 # volatile topics lose what is published before a match: the coupling node (which
                 # makes the peers talk) starts only once the recorder sees the peers' publishers
+                if options.external:
+                    progress.clear()
+                    print(external_wait_line(options.external, domain, options.external_timeout),
+                          file=stream, flush=True)
                 error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout,
-                                        lockstep=options.mode == 'lockstep', domain=domain)
+                                        lockstep=options.mode == 'lockstep', domain=domain,
+                                        external=options.external,
+                                        external_timeout=options.external_timeout)
                 mark('peers_connected')
                 if error is not None or stop_signal:
                     break
@@ -450,11 +510,15 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                     error = f'{name}: ' + (error_line(logs / f'{name}.log') or 'bad parameter (exit 2)')
             if error is not None:
                 break
-            if 'loop_started' not in phases and recorder.recorder.counts.get(bagmod.JOINT_STATES_TOPIC):
+            states = recorder.recorder.counts.get(bagmod.JOINT_STATES_TOPIC, 0)
+            if 'loop_started' not in phases and states:
                 mark('loop_started')
                 print(f'cvj-sim run: loop running (domain {domain}), recording to {out / "bag"}',
                       file=stream, flush=True)
+            if states:
+                progress.update((states - 1) * prep.exchange_step)
             time.sleep(0.02)
+        progress.close()
         mark('coupling_exited')
         if stop_signal or error is not None:
             stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
@@ -480,6 +544,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         _stop_processes(procs, [n for n in procs if n != 'coupling_node'] + ['coupling_node']
                         if 'coupling_node' in procs else list(procs), options.grace)
     finally:
+        progress.close()   # erase the progress line (idempotent) before any other output
         # the bag is finalised on every path (errors, signals): everything recorded stays readable
         try:
             if procs:
@@ -516,11 +581,17 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
         wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
         counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
-        stopped_by=stopped_by, phases=phases)
+        stopped_by=stopped_by, phases=phases, external=list(options.external))
     try:
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:
         result.metrics = {'error': str(exc)}
+    try:
+        counters = loop_counters(result.bag)
+    except CvjError:
+        counters = {}
+    if counters:
+        result.metrics['loop_counters'] = counters
     (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
@@ -565,11 +636,28 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
     return out
 
 
+LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+
+
+def loop_counters(bag: Path) -> dict[str, int]:
+    """The coupling node's last recorded counters (``/diagnostics`` status ``coupling_node:
+    loop``): ignored stamps, rejected and held (``nonfinite_torque=hold``) torques."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop':
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+    return {}
+
+
 def print_report(r: RunResult, stream: TextIO) -> None:
     """The short human report of a run."""
     p = lambda s='': print(s, file=stream)  # noqa: E731
     status = 'finished' if r.exit_code == 0 else (f'stopped by {r.stopped_by}' if r.stopped_by else 'FAILED')
-    p(f'cvj-sim run: {status}  scene={r.scene_path}  domain={r.domain_id}')
+    p(f'cvj-sim run: {status}  scene={r.scene_path}  domain={r.domain_id}'
+      + (f'  external={",".join(r.external)}' if r.external else ''))
     if r.error:
         p(f'  error: {r.error}')
     p(f'  simulated {r.sim_duration:.6g} s in {max(0, r.counts.get(bagmod.JOINT_STATES_TOPIC, 0) - 1)} exchange steps '
@@ -589,5 +677,10 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
+    counters = r.metrics.get('loop_counters', {})
+    if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
+        p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
+          + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'
+             if counters.get('held_torques') else ''))
     p('  messages: ' + ', '.join(f'{t} {n}' for t, n in sorted(r.counts.items())))
     p(f'  bag: {r.bag}')

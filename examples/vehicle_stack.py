@@ -11,10 +11,10 @@ It plays two roles a vehicle software stack plays against a driveline:
 
 What an answerer must echo (docs/ros.md, "Outside nodes"): the answer's ``header.stamp``
 is the joint-state ``header.stamp`` it answers, and its ``header.frame_id`` is the
-joint-state ``header.frame_id`` (it carries the run token). ``torque.z`` is the resisting
-torque on the output shaft in N m (positive opposes positive rotation). Do not stamp the
-answer with ``get_clock().now()``: under ``use_sim_time`` it can lag the joint state by
-a step; echoing is always right.
+joint-state ``header.frame_id`` (copy the whole header, whatever it carries). ``torque.z``
+is the resisting torque on the output shaft in N m (positive opposes positive rotation).
+Do not stamp the answer with ``get_clock().now()``: under ``use_sim_time`` it can lag the
+joint state by a step; echoing is always right.
 
 Road load at the wheel (SI units): wheel speed omega (rad/s) -> vehicle speed
 v = omega r_w (m/s), force F = m g c_r + 1/2 rho c_d A v |v| + m g sin(grade) (N),
@@ -102,7 +102,7 @@ class VehicleStack(Node):
             self.last_throttle = throttle
         answer = WrenchStamped()
         answer.header.stamp = msg.header.stamp          # echo the stamp ...
-        answer.header.frame_id = msg.header.frame_id    # ... and the frame (run token)
+        answer.header.frame_id = msg.header.frame_id    # ... and the frame_id
         answer.wrench.torque.z = self.road_torque(float(msg.velocity[self.index]))
         self.load_pub.publish(answer)
         self.answers += 1

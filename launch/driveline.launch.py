@@ -9,7 +9,8 @@ free-run), ``coupling_scheme`` (zoh | extrapolate | linear_implicit), ``duration
 the scene's), ``seed`` (-1 = the scene's), ``external`` (none | load | engine | both: those
 peers are NOT started; an outside node must answer, see docs/ros.md), ``record`` (true |
 false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after the run
-goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false).
+goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false),
+``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy).
 
 The mapping from launch arguments to node parameters is plain Python
 (:func:`node_parameters`), importable without ``launch`` so the test suite checks it
@@ -34,6 +35,8 @@ ARGUMENTS: dict[str, tuple[str, str]] = {
     'out': ('runs/launch', 'output directory of the recording (bag in OUT/bag)'),
     'storage': ('mcap', 'bag storage: mcap | sqlite3'),
     'monitor': ('true', 'start monitor_node: true | false'),
+    'nonfinite_torque': ('stop', 'a NaN/inf torque answer stops the run (stop) or the last finite '
+                                 'torque is held and counted (hold)'),
 }
 
 CHOICES: dict[str, tuple[str, ...]] = {
@@ -43,6 +46,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     'record': ('true', 'false'),
     'storage': ('mcap', 'sqlite3'),
     'monitor': ('true', 'false'),
+    'nonfinite_torque': ('stop', 'hold'),
 }
 
 NODE_EXECUTABLES = ('engine_node', 'coupling_node', 'load_node', 'monitor_node')
@@ -79,7 +83,8 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
     min_subs = 2 + _flag(args['monitor']) + _flag(args['record'])
     params: dict[str, dict[str, Any]] = {
         'coupling_node': dict(common, mode=args['mode'], coupling_scheme=args['coupling_scheme'],
-                              duration=duration, min_subscribers=min_subs),
+                              duration=duration, min_subscribers=min_subs,
+                              nonfinite_torque=args['nonfinite_torque']),
         'engine_node': dict(common),
         'load_node': dict(common),
         'monitor_node': {'scene': args['scene']},

@@ -18,6 +18,7 @@ the output angle against a dop853 reference at exact fidelity. The same equation
 by plain scipy.integrate.solve_ivp (RK45, LSODA, Radau) as the baseline in the same run.
 Also the lockstep loop (exchange step vs error per coupling scheme, real-time factor) and
 the rclpy round trip. Writes bench.csv, lockstep.csv, bench.md and wp_<scene>.png to --out.
+On a terminal, stderr shows a progress line (solver runs done, ETA) at most once a second.
 """
 
 
@@ -76,6 +77,17 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     for s in cfg.scenes:           # fail fast on a bad scene name, before any timing
         resolve_scene(s)
-    res = run_bench(cfg, args.out, log=lambda m: print(m, file=sys.stderr))
+    from cvj_ros.bench import planned_runs
+    from cvj_ros.progress import Progress
+    # progress line on stderr, only on a terminal; cleared before every log line
+    progress = Progress(planned_runs(cfg), label='cvj-sim bench', unit='runs')
+
+    def log(message: str) -> None:
+        progress.clear()
+        print(message, file=sys.stderr)
+    try:
+        res = run_bench(cfg, args.out, log=log, progress=progress.update)
+    finally:
+        progress.close()
     print((res['paths'][-1]).read_text())
     return 0

@@ -20,6 +20,10 @@ examples:
   cvj-sim run kavz685_lever --out runs/kavz --duration 2
   cvj-sim run fwd_halfshaft --out runs/fwd --scheme linear_implicit --storage sqlite3
   cvj-sim run fwd_halfshaft --out runs/replay_load --load-from-bag runs/fwd/bag
+  cvj-sim run fwd_halfshaft --out runs/stack --external load   # + your stack answering /load/wrench
+
+On a terminal, stderr shows a progress line (simulated time, real-time factor, ETA) at
+most once a second; nothing when stderr is not a terminal.
 """
 
 
@@ -39,6 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="use a bag's recorded /load/wrench torque as this run's load")
     parser.add_argument('--peer-timeout', type=float, default=5.0, metavar='S',
                         help='lockstep wait bound for engine/load answers in s (default 5)')
+    parser.add_argument('--external', choices=('load', 'engine', 'both'), default=None,
+                        help='do not start that peer: an outside node (your vehicle stack) answers '
+                             'on /load/wrench and/or /engine/wrench instead; recorded as usual')
+    parser.add_argument('--external-timeout', type=float, default=30.0, metavar='S',
+                        help='longest wait for the outside node to publish, s (default 30)')
+    parser.add_argument('--nonfinite-torque', choices=('stop', 'hold'), default='stop',
+                        help='a NaN/inf torque answer stops the run (default) or the last finite '
+                             'torque is held, counted with a WARN')
     parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
@@ -47,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
     result = run_scene(RunOptions(
         scene=args.scene, out=args.out, duration=args.duration, seed=args.seed, storage=args.storage,
         mode=args.mode, scheme=args.scheme, exchange_step=args.exchange_step,
-        load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout))
+        load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout,
+        external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
+        external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque))
     if result.error:
         import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)

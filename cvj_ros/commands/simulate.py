@@ -13,6 +13,8 @@ DESCRIPTION = """Integrate a scene offline with one persistent solver (engine an
 right-hand side) and print: mean speed, nonuniformity delta and torque amplitude per shaft
 over the steady window (second half of the run unless --transient), the energy-balance
 residual, solver counters, wall time per simulated second and the fidelity report.
+On a terminal, stderr shows a progress line (simulated time, real-time factor, ETA) at
+most once a second; nothing when stderr is not a terminal.
 
 examples:
   cvj-sim simulate kavz685_lever
@@ -81,8 +83,15 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(find_scene(args.scene))
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                      fidelity=parse_fidelity(args.fidelity))
-    trace = sim.run(args.duration, sample_dt=args.sample_dt,
-                    sampling='dense' if args.dense else 'land')
+    from cvj_ros.progress import Progress
+    # progress line on stderr, only on a terminal (stdout keeps the summary / JSON)
+    progress = Progress(scene.duration if args.duration is None else args.duration,
+                        label='cvj-sim simulate')
+    try:
+        trace = sim.run(args.duration, sample_dt=args.sample_dt,
+                        sampling='dense' if args.dense else 'land', progress=progress.update)
+    finally:
+        progress.close()
     summary = sim.summary(transient=args.transient)
     if args.csv:
         trace.to_csv(args.csv)

@@ -9,8 +9,11 @@ diagnostics on ``/diagnostics`` (steps, real-time factor, lockstep wait per exch
 integration time, joint-state evaluation + publication time, overhead per exchange,
 process CPU time per exchange, ignored stamps, energy residual).
 
-Publication order per step: joint states first (the peers wait for them), then /clock and
-the reaction wrenches (computed while the peers answer). The loop's messages are published
+Publication order per step: /clock for t_k first (lockstep: as soon as both answers for
+t_(k-1) are in, before the integration), then the joint states stamped t_k (the peers wait
+for them; an outside node under ``use_sim_time`` then sees ``now() == t_k`` in its
+callback as far as its executor takes the clock first), then the reaction wrenches
+(computed while the peers answer). The loop's messages are published
 as pre-serialised CDR bytes (:class:`~cvj_ros.nodes.common.JointStateEncoder` etc.), which
 skips rclpy's Python-to-C conversion; the bytes decode to the same messages.
 
@@ -21,8 +24,14 @@ both are in, the stepper integrates to t_{k+1} and the next state goes out - all
 the subscription callback, so the loop is event driven (no busy waiting). A watchdog
 timer ends the run with one ERROR line naming the missing topic when an answer takes
 longer than ``peer_timeout``. Answers with another stamp (late, duplicate,
-out-of-order) are ignored and counted; a NaN/inf torque is never integrated: ERROR
-diagnostic and exit 1. A second publisher on /driveline/joint_states, /engine/wrench or
+out-of-order) are ignored and counted; the first one per topic while t_k is awaited is
+said at once in one WARN line ("answers on /load/wrench are
+stamped 0.000 s, expected 0.001 s: echo the joint-state stamp ..."), and a stall with
+only wrong stamps from a topic ends after ``WRONG_STAMP_STALL_S`` (1 s, or peer_timeout if
+shorter) with that line instead of "is load_node running?". A NaN/inf torque is never
+integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1; with
+``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
+counted as ``held_torques`` (diagnostics level WARN, first one logged). A second publisher on /driveline/joint_states, /engine/wrench or
 /load/wrench (another run on the same ROS domain) stops the loop with an ERROR naming the
 domain (checked before step 0 and on every watchdog tick), since its answers would carry
 the same stamps and mix into this loop. Before step 0 the node waits (bounded by ``start_timeout``) until
@@ -69,6 +78,13 @@ from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
+NONFINITE_POLICIES = ('stop', 'hold')
+# A stall during which only wrong-stamped answers came from a topic ends after this many
+# seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
+# (e.g. with now() under use_sim_time a step behind) never sends the right stamp, while a
+# peer that sends junk next to its right answer sends the right one within milliseconds
+# (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
+WRONG_STAMP_STALL_S = 1.0
 
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
@@ -95,6 +111,9 @@ PARAMS = (
     ParamSpec('diagnostics_every', 100, 'publish loop diagnostics every N exchange steps',
               lo=1, hi=10**9),
     ParamSpec('track_energy', True, 'integrate work integrals and report the energy residual'),
+    ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
+              '(stop) or is replaced by the last finite torque of that topic, counted as '
+              'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
 )
 
 
@@ -176,7 +195,15 @@ class CouplingNode(CvjNode):
         self.started = False
         self.ignored_stamps = 0
         self.rejected_torques = 0
+        self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
+        self._last_finite = {ENGINE_WRENCH_TOPIC: 0.0, LOAD_WRENCH_TOPIC: 0.0}   # N m
+        # answers with a stamp other than t_k while t_k is awaited: (stamp ns, expected ns)
+        # per topic, the first of the run (said at once in one WARN line) and the latest of
+        # the current wait (named by the stall error instead of "is load_node running?")
+        self.wrong_stamp: dict[str, tuple[int, int]] = {}
+        self._wrong_in_wait: dict[str, tuple[int, int]] = {}
         self.joint_states_published = 0
+        self._clock_sent_ns = -1          # last /clock time published (ns)
         # timing (wall, perf_counter seconds)
         self._wait_start = 0.0
         self.wait_total = 0.0
@@ -319,6 +346,7 @@ class CouplingNode(CvjNode):
 
     def _begin_wait(self) -> None:
         self._have_engine = self._have_load = False
+        self._wrong_in_wait.clear()
         self.waiting = True
         self._wait_start_mono = time.monotonic()
 
@@ -331,7 +359,18 @@ class CouplingNode(CvjNode):
             return
         if not self.waiting:
             return
-        if time.monotonic() - self._wait_start_mono > self.params['peer_timeout']:
+        waited = time.monotonic() - self._wait_start_mono
+        stall = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
+                                   (LOAD_WRENCH_TOPIC, self._have_load))
+                 if not have and t in self._wrong_in_wait]
+        stall_bound = min(WRONG_STAMP_STALL_S, self.params['peer_timeout'])
+        if stall and waited > stall_bound:
+            self._stop_with_error(
+                f'lockstep: no answer stamped t={self.t_ns / NS_PER_S:.9g} s (step {self.k}) '
+                f'on {stall[0]} within {stall_bound:g} s, only wrongly stamped ones; '
+                + self.wrong_stamp_line(stall[0], *self._wrong_in_wait[stall[0]]))
+            return
+        if waited > self.params['peer_timeout']:
             missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
                                          (LOAD_WRENCH_TOPIC, self._have_load)) if not have]
             self._stop_with_error(
@@ -349,6 +388,36 @@ class CouplingNode(CvjNode):
         for tm in (self._watchdog, self._free_timer, self._start_timer):
             if tm is not None:
                 tm.cancel()
+
+    def wrong_stamp_line(self, topic: str, got: int, expected: int) -> str:
+        """The one line saying that answers on ``topic`` are stamped ``got`` ns, not ``expected``."""
+        # as many decimals as the exchange step needs (1 ms -> 0.001), at least 3
+        decimals = max(3, 9 - (len(str(self.h_ns)) - len(str(self.h_ns).rstrip('0'))))
+        return (f'answers on {topic} are stamped {got / NS_PER_S:.{decimals}f} s, expected '
+                f'{expected / NS_PER_S:.{decimals}f} s: echo the joint-state stamp (header) in the answer')
+
+    def _note_wrong_stamp(self, topic: str, stamp_ns: int) -> None:
+        """A wrong stamp on ``topic`` while t_k is awaited; the first of the run is said at
+        once in one WARN line (log and /diagnostics), later ones only counted."""
+        self._wrong_in_wait[topic] = (stamp_ns, self.t_ns)
+        if topic in self.wrong_stamp:
+            return
+        self.wrong_stamp[topic] = (stamp_ns, self.t_ns)
+        line = self.wrong_stamp_line(topic, stamp_ns, self.t_ns)
+        self.get_logger().warning(line)
+        self.publish_diagnostics(WARN, line)
+
+    def _hold_nonfinite(self, value: float, stamp_ns: int, topic: str) -> float:
+        """nonfinite_torque=hold: the last finite torque of ``topic`` (0 N m before the
+        first); counted in ``held_torques`` (WARN); the first one is logged in one line."""
+        held = self._last_finite[topic]
+        self.held_torques += 1
+        if self.held_torques == 1:
+            self.get_logger().warning(
+                f'{topic}: torque.z not finite ({value}) at stamp {stamp_ns / NS_PER_S:.9g} s; '
+                f'holding the last finite value {held:g} N m (nonfinite_torque=hold; '
+                f'further ones are counted as held_torques in /diagnostics)')
+        return held
 
     def _torque_ok(self, value: float, stamp_ns: int, topic: str) -> bool:
         """True when the torque is finite; else reject it (ERROR diagnostic)."""
@@ -373,6 +442,11 @@ class CouplingNode(CvjNode):
         """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
         if self.exit_code is not None:
             return
+        if self.mode == 'lockstep' and self.params['nonfinite_torque'] == 'hold':
+            if math.isfinite(value):
+                self._last_finite[topic] = value
+            else:
+                value = self._hold_nonfinite(value, stamp_ns, topic)
         if not self._torque_ok(value, stamp_ns, topic):
             return
         if self.mode != 'lockstep':
@@ -384,6 +458,8 @@ class CouplingNode(CvjNode):
         have = self._have_engine if engine else self._have_load
         if not self.waiting or have or stamp_ns != self.t_ns:
             self.ignored_stamps += 1     # late, duplicate or out-of-order answer
+            if self.waiting and not have:
+                self._note_wrong_stamp(topic, stamp_ns)
             return
         if engine:
             self.T_engine, self._have_engine = value, True
@@ -393,6 +469,10 @@ class CouplingNode(CvjNode):
             self.waiting = False
             sent = self._wait_start
             self.wait_total += time.perf_counter() - sent
+            # /clock t_(k+1) goes out now, before the integration: the longest head start
+            # over the joint state t_(k+1) an outside node's executor can get (both answers
+            # for t_k are in, so nobody in the loop works at t_k any more)
+            self._publish_clock(self.t_ns + self.h_ns)
             self._step()   # publishes the next state: sets _wait_start
             if self.exit_code is None:
                 # one exchange = joint-state publication to the next one
@@ -417,11 +497,11 @@ class CouplingNode(CvjNode):
         self.t_ns = t_next_ns
         self._publish_state()
         if self.k % self.params['diagnostics_every'] == 0:
-            self.publish_diagnostics(OK if not self.ignored_stamps else WARN, 'running')
+            self.publish_diagnostics(self._level(), 'running')
         if self.k >= self.n_steps:
             self.waiting = False
             self._cancel_timers()
-            self.publish_diagnostics(OK if not self.ignored_stamps else WARN, 'finished')
+            self.publish_diagnostics(self._level(), 'finished')
             st = self.loop_stats()
             self.get_logger().info(
                 f'finished {self.k} steps, t={self.t_ns / NS_PER_S:g} s, real-time factor '
@@ -439,21 +519,38 @@ class CouplingNode(CvjNode):
         self.exchange_total += time.perf_counter() - now
         self.exchanges += 1
 
+    def _publish_clock(self, t_ns: int) -> None:
+        """Publish /clock = ``t_ns`` (once per time: :meth:`_publish_state` skips it then)."""
+        if t_ns == self._clock_sent_ns:
+            return
+        sec, nanosec = divmod(t_ns, NS_PER_S)
+        if self.raw_publication:
+            self.clock_pub.publish(self._clock_cdr.encode(sec, nanosec))
+        else:
+            self._stamp.sec, self._stamp.nanosec = sec, nanosec
+            self.clock_pub.publish(self._clock_msg)
+        self._clock_sent_ns = t_ns
+
     def _publish_state(self) -> None:
-        """Publish the state at t_k: /driveline/joint_states first (the peers wait for it),
-        then /clock and the reaction wrenches, which nobody in the loop waits for."""
+        """Publish the state at t_k: /clock, then /driveline/joint_states (the peers wait for
+        it), then the reaction wrenches, which nobody in the loop waits for."""
         c0 = time.perf_counter()
         sec, nanosec = divmod(self.t_ns, NS_PER_S)
         x, t_engine, t_load = self.x, self.T_engine, self.T_load
+        raw = self.raw_publication
+        if not raw:
+            self._stamp.sec, self._stamp.nanosec = sec, nanosec   # shared by /clock and headers
+        # /clock for t_k goes out BEFORE the joint state stamped t_k: an outside node under
+        # use_sim_time has then (as far as its executor takes the clock first) now() == t_k
+        # in its joint-state callback. In lockstep it went out already before the
+        # integration (_on_wrench); else here, ahead of the joint-state evaluation.
+        self._publish_clock(self.t_ns)
         pos, vel, eff = self.driveline.joint_states_fast(x, t_engine, t_load)
         if self._has_mid:
             self.driveline.fill_mid(pos[None, :], vel[None, :])
-        raw = self.raw_publication
         if raw:
             self.js_pub.publish(self._js_cdr.encode(sec, nanosec, pos, vel, eff))
         else:
-            stamp = self._stamp
-            stamp.sec, stamp.nanosec = sec, nanosec
             msg = self._js_msg
             msg.position = pos.tolist()
             msg.velocity = vel.tolist()
@@ -462,7 +559,6 @@ class CouplingNode(CvjNode):
         self._wait_start = time.perf_counter()   # the lockstep wait starts here
         self.state_total += self._wait_start - c0
         self.joint_states_published += 1
-        self.clock_pub.publish(self._clock_cdr.encode(sec, nanosec) if raw else self._clock_msg)
         if self.reaction_pubs:
             # computed while engine_node and load_node answer (tripod reactions: ~200 us)
             reactions = self.driveline.reactions(x, t_engine, t_load)
@@ -481,6 +577,10 @@ class CouplingNode(CvjNode):
                 pub.publish(self._reaction_msgs[joint])
 
     # --- diagnostics ------------------------------------------------------------------------
+
+    def _level(self) -> bytes:
+        """WARN once a stamp was ignored or a torque held, else OK."""
+        return WARN if self.ignored_stamps or self.held_torques else OK
 
     def real_time_factor(self) -> float:
         """Simulated seconds per wall second since step 0."""
@@ -502,6 +602,7 @@ class CouplingNode(CvjNode):
             'process_cpu_us_mean': 1e6 * (time.process_time() - self._cpu0) / n if self.started else 0.0,
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
+            'held_torques': self.held_torques,
         }
         if getattr(self.driveline, 'track_energy', False):
             try:

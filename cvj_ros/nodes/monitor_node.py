@@ -215,7 +215,7 @@ class MonitorNode(CvjNode):
                 lv_msgs.append(f'real-time factor {rtf:.3g} < {p["real_time_factor_warn"]:g}')
             keys = ('energy_residual', 'real_time_factor', 'lockstep_wait_us_mean',
                     'overhead_us_mean', 'integration_us_mean', 'steps', 'ignored_stamps',
-                    'rejected_torques')
+                    'rejected_torques', 'held_torques')
             out.append(diag_status('monitor: loop', LEVELS[lv], '; '.join(lv_msgs) or 'ok',
                                    {k: self.loop_values[k] for k in keys if k in self.loop_values}))
         return out

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,13 +138,15 @@ class Simulation:
                 float(self.load.torque(t, w_l, phi_l)))
 
     def run(self, duration: float | None = None, *, sample_dt: float | None = None,
-            sampling: str = 'land') -> Trace:
+            sampling: str = 'land', progress: Callable[[float], None] | None = None) -> Trace:
         """Integrate from t = 0 over ``duration`` (s, default the scene's), sampling every
         ``sample_dt`` (s). ``sampling='land'`` steps exactly onto every sample time (samples
         are solver points; dense sampling then bounds the step); ``'dense'`` lets the
         controller choose its steps and reads samples from the method's dense output
         (interpolant of the method's dense order; cheaper when samples are denser than
-        steps). Raises SolverError if the state becomes non-finite."""
+        steps). ``progress``, if given, is called with the simulated time (s) of every sample
+        (e.g. :meth:`cvj_ros.progress.Progress.update`). Raises SolverError if the state
+        becomes non-finite."""
         if sampling not in ('land', 'dense'):
             raise SceneError('sampling', f"must be 'land' or 'dense', got {sampling!r}")
         from cvj_ros.physics.solvers import make_stepper
@@ -191,6 +193,8 @@ class Simulation:
             te[k], tl[k] = self.torques(tk, x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan
+            if progress is not None:
+                progress(tk)
 
         record(0, x)
         if sampling == 'land':

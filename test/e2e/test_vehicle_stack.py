@@ -88,7 +88,14 @@ def test_outside_stack_answers_the_load_and_is_recorded(tmp_path: Path) -> None:
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
     assert 'answered' in (tmp_path / 'stack.log').read_text()
-    data = bag.read_bag(tmp_path / 'out' / 'bag')
+    check_stack_torques(tmp_path / 'out' / 'bag', scene)
+
+
+def check_stack_torques(bag_path: Path, scene: Path, *, stack_law: bool = True) -> None:
+    """The stack's load answers are in the bag (stamp echoed, the example's road-load law
+    when ``stack_law``), the wheel effort is the answered load, and an offline
+    CoupledStepper fed with the recorded torques reproduces every recorded speed."""
+    data = bag.read_bag(bag_path)
     js = data[bag.JOINT_STATES_TOPIC]
     load = data['/load/wrench']
     eng = data['/engine/wrench']
@@ -97,9 +104,10 @@ def test_outside_stack_answers_the_load_and_is_recorded(tmp_path: Path) -> None:
     i_wheel = js.shaft('wheel')
     # every joint state answered once, stamp echoed (t equal), torque = the stack's law
     assert len(load.t) >= N and np.array_equal(load.t[:N], js.t[:N])
-    expected = np.array([_road_torque(w) for w in js.velocity[:N, i_wheel]])
-    np.testing.assert_allclose(load.torque_z[:N], expected, rtol=1e-12, atol=1e-12)
-    assert np.ptp(expected) > 1.0           # the load varies: the check is not vacuous
+    if stack_law:
+        expected = np.array([_road_torque(w) for w in js.velocity[:N, i_wheel]])
+        np.testing.assert_allclose(load.torque_z[:N], expected, rtol=1e-12, atol=1e-12)
+    assert np.ptp(load.torque_z[:N]) > 1.0  # the load varies: the check is not vacuous
     # the integrated load: wheel effort at t_k = load answered for t_(k-1)
     np.testing.assert_allclose(js.effort[1:N + 1, i_wheel], load.torque_z[:N], rtol=1e-12, atol=1e-12)
     # and the speeds are what those torques integrate to
@@ -117,3 +125,150 @@ def test_outside_stack_answers_the_load_and_is_recorded(tmp_path: Path) -> None:
         for i in (i_crank, i_wheel):
             worst = max(worst, abs(vel[i] - js.velocity[k + 1, i]) / max(1.0, abs(vel[i])))
     assert worst < 1e-9, worst
+
+
+def _run_external(tmp_path: Path, scene: Path, stack_cmd: list[str] | None, *extra: str,
+                  timeout: float = 240.0) -> tuple[int, str, str]:
+    """`cvj-sim run SCENE --external load` with ``stack_cmd`` started once the run says it
+    waits (bounded by the run's own --external-timeout); returns exit code, stdout, stderr."""
+    run = subprocess.Popen([str(BIN / 'cvj-sim'), 'run', str(scene), '--out', str(tmp_path / 'run'),
+                            '--external', 'load', '--peer-timeout', '30', *extra],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           stdin=subprocess.DEVNULL, env=dict(os.environ), start_new_session=True)
+    stack = None
+    try:
+        first = run.stdout.readline()        # the wait line comes before any node answers
+        assert first.startswith('cvj-sim run: waiting up to'), first
+        if stack_cmd is not None:
+            stack = _start(stack_cmd, tmp_path / 'stack.log')
+        out, err = run.communicate(timeout=timeout)
+    finally:
+        for p in (run, stack):
+            if p is not None and p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    os.killpg(p.pid, signal.SIGKILL)
+    return run.returncode, first + out, err
+
+
+def test_run_external_load_with_the_example_stack(tmp_path: Path) -> None:
+    """`cvj-sim run --external load` + examples/vehicle_stack.py: the run starts everything
+    but load_node, waits for the stack, records its torques, which are the integrated ones."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    code, out, err = _run_external(tmp_path, scene, [
+        sys.executable, str(REPO / 'examples' / 'vehicle_stack.py'), '--ros-args', '-p',
+        'use_sim_time:=true'])
+    assert code == 0, out + err
+    assert f'waiting up to 30 s for an outside node on ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]} ' \
+           'to publish /load/wrench (the resisting torque' in out
+    assert 'external=load' in out
+    assert not (tmp_path / 'run' / 'logs' / 'load_node.log').exists()   # load_node not started
+    check_stack_torques(tmp_path / 'run' / 'bag', scene)
+    info = bag.bag_info(tmp_path / 'run' / 'bag')
+    assert info.counts['/load/wrench'] >= N
+
+
+def test_run_external_bounded_wait_names_the_topic(tmp_path: Path) -> None:
+    """Nobody answers: after --external-timeout the run ends with one line naming the topic,
+    the domain and how to start the stack; exit 1, no traceback."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    t0 = time.monotonic()
+    code, out, err = _run_external(tmp_path, scene, None, '--external-timeout', '2')
+    wall = time.monotonic() - t0
+    assert code == 1, out + err
+    domain = os.environ['ROS_DOMAIN_ID']
+    assert (f'cvj-sim: error: --external load: no outside node published /load/wrench on '
+            f'ROS_DOMAIN_ID={domain} within --external-timeout=2 s; start it on that domain') in err, err
+    assert 'Traceback' not in out + err
+    assert wall < 2 + 30   # the 2 s bound + process start and stop (measured ~6 s here)
+
+
+NOW_STACK = """
+import sys
+sys.path.insert(0, {examples!r})
+import vehicle_stack
+
+
+class NowStampingStack(vehicle_stack.VehicleStack):
+    # the sim-time trap: stamp the answer with get_clock().now() instead of echoing
+    def on_joint_states(self, msg):
+        msg.header.stamp = self.get_clock().now().to_msg()
+        super().on_joint_states(msg)
+
+
+vehicle_stack.VehicleStack = NowStampingStack
+sys.exit(vehicle_stack.main())
+"""
+
+
+def test_run_external_stack_stamping_with_sim_time_now(tmp_path: Path) -> None:
+    """A stack that stamps its answers with get_clock().now() under use_sim_time: /clock t_k
+    goes out before the joint state t_k, so its clock is at t_k when it answers (run
+    finishes, torques integrated); if its executor still takes a joint state before the
+    clock, the run ends with the one stamp line, not with "is load_node running?"."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    script = tmp_path / 'now_stack.py'
+    script.write_text(NOW_STACK.format(examples=str(REPO / 'examples')))
+    code, out, err = _run_external(tmp_path, scene, [sys.executable, str(script), '--ros-args', '-p',
+                                                     'use_sim_time:=true'], '--peer-timeout', '5')
+    assert 'is load_node running' not in out + err
+    if code == 0:
+        check_stack_torques(tmp_path / 'run' / 'bag', scene)
+    else:
+        assert code == 1 and 'answers on /load/wrench are stamped' in err and \
+            'echo the joint-state stamp' in err, out + err
+    print(f'now()-stamping stack: exit {code}', err.strip().splitlines()[-1:] if code else '')
+
+
+NAN_STACK = """
+import math
+import sys
+sys.path.insert(0, {examples!r})
+import vehicle_stack
+
+
+class NanStack(vehicle_stack.VehicleStack):
+    # a stack glitch: NaN road load for the joint states stamped 0.100 and 0.101 s
+    def on_joint_states(self, msg):
+        self._t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        super().on_joint_states(msg)
+
+    def road_torque(self, omega):
+        return math.nan if self._t_ns in (100_000_000, 101_000_000) else super().road_torque(omega)
+
+
+vehicle_stack.VehicleStack = NanStack
+sys.exit(vehicle_stack.main())
+"""
+
+
+def test_run_external_nonfinite_torque_hold(tmp_path: Path) -> None:
+    """--nonfinite-torque hold: two NaN answers of the outside stack are replaced by the last
+    finite load, the run finishes, held_torques = 2 in /diagnostics (WARN) and in the report."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    script = tmp_path / 'nan_stack.py'
+    script.write_text(NAN_STACK.format(examples=str(REPO / 'examples')))
+    code, out, err = _run_external(tmp_path, scene, [sys.executable, str(script), '--ros-args', '-p',
+                                                     'use_sim_time:=true'], '--nonfinite-torque', 'hold')
+    assert code == 0, out + err
+    assert 'WARN coupling loop: ignored stamps 0, rejected torques 0, held torques 2' in out, out
+    data = bag.read_bag(tmp_path / 'run' / 'bag')
+    js, load = data[bag.JOINT_STATES_TOPIC], data['/load/wrench']
+    assert len(js.t) == N + 1
+    k = int(np.searchsorted(js.t, 0.1 - 1e-12))       # index of t = 0.100 s
+    assert np.isnan(load.torque_z[k]) and np.isnan(load.torque_z[k + 1])   # recorded as sent
+    i_wheel = js.shaft('wheel')
+    # the integrated load at t_(k+1) and t_(k+2) is the held last finite value (answer k-1)
+    # (rtol 1e-12 as above: the effort goes through the joint-state arithmetic, ~1 ulp here)
+    np.testing.assert_allclose(js.effort[k + 1:k + 3, i_wheel], load.torque_z[k - 1], rtol=1e-12)
+    assert load.torque_z[k - 1] != load.torque_z[k + 2]   # the load moves on afterwards
+    assert np.all(np.isfinite(js.velocity))
+    last = [s for statuses in data['/diagnostics'].statuses for s in statuses
+            if s['name'] == 'coupling_node: loop'][-1]
+    assert last['values']['held_torques'] == '2' and last['level'] == 1   # WARN

@@ -44,7 +44,7 @@ def test_parameters_match_the_nodes_declared_parameters(external: str, record: s
     pytest.importorskip('rclpy')
     mod = _launch_module()
     args = {'external': external, 'record': record, 'duration': '5.0', 'seed': '7',
-            'mode': 'free-run', 'coupling_scheme': 'linear_implicit'}
+            'mode': 'free-run', 'coupling_scheme': 'linear_implicit', 'nonfinite_torque': 'hold'}
     params = mod.node_parameters(args)
     assert 'coupling_node' in params
     assert ('load_node' in params) == (external in ('none', 'engine'))
@@ -57,6 +57,7 @@ def test_parameters_match_the_nodes_declared_parameters(external: str, record: s
     cp = params['coupling_node']
     assert cp['mode'] == 'free-run' and cp['coupling_scheme'] == 'linear_implicit'
     assert cp['duration'] == 5.0 and cp['seed'] == 7
+    assert cp['nonfinite_torque'] == 'hold'
     # engine + load (ours or outside) + monitor + recorder see the first joint state
     assert cp['min_subscribers'] == 3 + (record == 'true')
 
@@ -67,6 +68,7 @@ def test_choices_match_the_nodes_choices() -> None:
     coupling = _declared('coupling_node')
     assert set(mod.CHOICES['mode']) == set(coupling['mode'].choices)
     assert set(mod.CHOICES['coupling_scheme']) == set(coupling['coupling_scheme'].choices)
+    assert set(mod.CHOICES['nonfinite_torque']) == set(coupling['nonfinite_torque'].choices)
 
 
 def test_bad_argument_names_the_argument() -> None:

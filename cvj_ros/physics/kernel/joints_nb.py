@@ -1,0 +1,27 @@
+"""Compiled joint position functions (issue 9): (phi_out, ratio, ratio_slope) per op code.
+
+Each joint formula is written once, as a plain float function in its joint module
+(``cvj_ros/physics/joints/*.py``, seed equation in that docstring); this module compiles
+that same function with numba, so the numpy/Python API and the kernel cannot drift apart.
+"""
+from __future__ import annotations
+
+from numba import njit
+
+from cvj_ros.physics.joints.hooke import hooke_stage_scalar
+from cvj_ros.physics.kernel.layout import OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY
+
+hooke_stage_nb = njit(cache=True)(hooke_stage_scalar)
+
+
+@njit(cache=True)
+def joint_eval(code, phi, fp, off):
+    """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
+    if code == OP_HOOKE:
+        return hooke_stage_nb(phi, fp[off])
+    if code == OP_GEAR:
+        k = fp[off]
+        return phi * k, k, 0.0        # joints/gear.py Gear.scalar
+    if code == OP_JOINT_IDENTITY:
+        return phi, 1.0, 0.0
+    return phi, 1.0, 0.0   # unreachable: layout.build_model rejects unknown joints

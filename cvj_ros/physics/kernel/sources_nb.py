@@ -3,7 +3,9 @@
 ``engine_eval(t, omega, phi, ip, fp, ioff, foff) -> (T, dT/domega, dT/dphi)`` (N m,
 N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Codes and
 parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
-M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign).
+M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
+load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
+Hermite between pre-generated knots).
 """
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ import math
 
 from numba import njit
 
-from cvj_ros.physics.kernel.layout import ENGINE_LINEAR, LOAD_CONSTANT
+from cvj_ros.physics.kernel.layout import ENGINE_LINEAR, LOAD_CONSTANT, LOAD_RANDOM, LOAD_ROAD
 
 
 @njit(cache=True)
@@ -34,4 +36,48 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
             return fp[foff], 0.0, 0.0
         th = math.tanh(omega / s)
         return fp[foff] * th, fp[foff] * (1.0 - th * th) / s, 0.0
+    if code == LOAD_ROAD:
+        roll = fp[foff]
+        aero = fp[foff + 1]
+        lever = fp[foff + 3]
+        vs = fp[foff + 4]
+        v = omega * lever
+        th = math.tanh(v / vs)
+        force = roll * th + aero * v * abs(v) + fp[foff + 2]
+        dfdv = roll * (1.0 - th * th) / vs + 2.0 * aero * abs(v)
+        return force * lever, dfdv * lever * lever, 0.0
+    if code == LOAD_RANDOM:
+        return random_load(t, fp, foff), 0.0, 0.0
     return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def random_load(t, fp, foff):
+    """M_m + A H(t) (N m): cubic Hermite with Fritsch-Butland PCHIP knot slopes between the
+    pre-generated knots u_k at t_k = k dt (same expression order as load.RandomLoad)."""
+    mean = fp[foff]
+    amp = fp[foff + 1]
+    dt = fp[foff + 2]
+    k0 = int(fp[foff + 3])
+    nk = int(fp[foff + 4])
+    base = foff + 5
+    s = t / dt
+    k = math.floor(s)
+    tau = s - k
+    i = int(k) - 1 - k0
+    if i < 0 or i + 3 >= nk:
+        return math.nan
+    um = fp[base + i]
+    u0 = fp[base + i + 1]
+    u1 = fp[base + i + 2]
+    u2 = fp[base + i + 3]
+    dm = u0 - um
+    d0 = u1 - u0
+    d1 = u2 - u1
+    m0 = 2.0 * dm * d0 / (dm + d0) if dm * d0 > 0.0 else 0.0
+    m1 = 2.0 * d0 * d1 / (d0 + d1) if d0 * d1 > 0.0 else 0.0
+    t2 = tau * tau
+    t3 = tau * tau * tau
+    val = ((2 * t3 - 3 * t2 + 1) * u0 + (t3 - 2 * t2 + tau) * m0 + (-2 * t3 + 3 * t2) * u1
+           + (t3 - t2) * m1)
+    return mean + amp * val

@@ -65,7 +65,10 @@ CASES = {
         {'type': 'inertia', 'name': 'c', 'J': 0.4}],
 }
 LOADS = {'constant': {'model': 'constant', 'torque': 40.0},
-         'constant_tanh': {'model': 'constant', 'torque': 40.0, 'speed_scale': 5.0}}
+         'constant_tanh': {'model': 'constant', 'torque': 40.0, 'speed_scale': 5.0},
+         'road': {'model': 'road', 'mass': 1300.0, 'wheel_radius': 0.3, 'grade_percent': 4.0,
+                  'speed_scale': 2.0},
+         'random': {'model': 'random', 'mean': 40.0, 'amplitude': 8.8, 'sample_interval': 0.01}}
 
 
 def _states(dl, rng, k=5):
@@ -88,7 +91,7 @@ def _close(a, b, rel=REL):
 
 def _check(dl, engine, load, rng, sources_in_kernel=True):
     model = build_model(dl, engine=engine if sources_in_kernel else None,
-                        load=load if sources_in_kernel else None)
+                        load=load if sources_in_kernel else None, horizon=3.0)
     for x in _states(dl, rng):
         t = float(rng.uniform(0.0, 2.0))
         n = dl.n_dof
@@ -165,3 +168,15 @@ def test_throttle_and_uncovered_elements():
     with pytest.raises(NotImplementedError, match='tripod'):
         build_model(Driveline.from_scene(tri))
     assert math.isfinite(dy[-1])
+
+
+def test_random_load_outside_horizon_is_nan():
+    sc = _scene(CASES['hooke_linear_spring'], load=LOADS['random'])
+    dl = Driveline.from_scene(sc)
+    load = load_from_spec(sc.load, seed=sc.seed, field='load')
+    model = build_model(dl, engine=engine_from_spec(sc.engine), load=load, horizon=0.5)
+    dy = np.empty(model.n_state)
+    rhs(0.49, np.array(dl.x0), model.ip, model.fp, dy)
+    assert np.all(np.isfinite(dy))
+    rhs(0.6, np.array(dl.x0), model.ip, model.fp, dy)
+    assert not np.all(np.isfinite(dy))

@@ -9,9 +9,13 @@ from __future__ import annotations
 from numba import njit
 
 from cvj_ros.physics.joints.hooke import hooke_stage_scalar
-from cvj_ros.physics.kernel.layout import OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY
+from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
+from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY,
+                                          OP_LEVER_CLOSED, OP_LEVER_EXACT)
 
 hooke_stage_nb = njit(cache=True)(hooke_stage_scalar)
+lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
+lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
 
 
 @njit(cache=True)
@@ -19,6 +23,10 @@ def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
         return hooke_stage_nb(phi, fp[off])
+    if code == OP_LEVER_EXACT:
+        return lever_exact_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
+    if code == OP_LEVER_CLOSED:
+        return lever_closed_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
     if code == OP_GEAR:
         k = fp[off]
         return phi * k, k, 0.0        # joints/gear.py Gear.scalar

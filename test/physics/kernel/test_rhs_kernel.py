@@ -59,6 +59,20 @@ CASES = {
         {'type': 'inertia', 'name': 'c', 'J': 0.4},
         {'type': 'joint', 'name': 'g', 'kind': 'gear', 'params': {'gear_ratio': -2.0}},
         {'type': 'inertia', 'name': 'd', 'J': 1.5}],
+    'lever_hinge_exact': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'joint', 'name': 'lh', 'kind': 'lever_hinge', 'fidelity': 'exact',
+         'params': {'alpha_deg': 15.0, 'delta_alpha_deg': 1.72, 'twist_deg': 2.0}},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4}],
+    'lever_hinge_closed': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'joint', 'name': 'lh', 'kind': 'lever_hinge', 'fidelity': 'closed',
+         'params': {'alpha_deg': 15.0, 'delta_alpha_deg': 1.72, 'twist_deg': -3.0}},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4}],
     'hooke_ideal_fidelity': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, dict(HOOKE, fidelity='ideal'),
         {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},

@@ -84,67 +84,72 @@ def spring_eval(th, thd, fp, off):
 
 
 @njit(cache=True)
-def torques(t, y, ip, fp, phi_load, a_load):
-    """(Te, dTe/domega, dTe/dphi, Tl, dTl/domega, dTl/dphi) at the engine shaft
-    (omega = y[n], phi = y[0]) and the load shaft (omega = a_load y[2n-1], phi_load)."""
+def engine_torque(t, y, ip, fp):
+    """(Te, dTe/domega, dTe/dphi) at the engine shaft (omega = y[n], phi = y[0])."""
     n = ip[H_NDOF]
     inp = ip[H_INPUT_F]
     we = y[n]
-    wl = a_load * y[2 * n - 1]
     if ip[H_ENGINE] == ENGINE_INPUTS:
         te = fp[inp + IN_TE] + fp[inp + IN_TE_RATE] * (t - fp[inp + IN_TK]) \
             + fp[inp + IN_KE] * (we - fp[inp + IN_WE])
-        dte, dtep = fp[inp + IN_KE], 0.0
-    else:
-        te, dte, dtep = engine_eval(t, we, y[0], ip, fp, H_ENGINE, ip[H_ENGINE_F])
+        return te, fp[inp + IN_KE], 0.0
+    return engine_eval(t, we, y[0], ip, fp, H_ENGINE, ip[H_ENGINE_F])
+
+
+@njit(cache=True)
+def load_torque(t, y, ip, fp, phi_load, a_load):
+    """(Tl, dTl/domega, dTl/dphi) at the load shaft (omega = a_load y[2n-1], phi_load)."""
+    n = ip[H_NDOF]
+    inp = ip[H_INPUT_F]
+    wl = a_load * y[2 * n - 1]
     if ip[H_LOAD] == LOAD_INPUTS:
         tl = fp[inp + IN_TL] + fp[inp + IN_TL_RATE] * (t - fp[inp + IN_TK]) \
             + fp[inp + IN_KL] * (wl - fp[inp + IN_WL])
-        dtl, dtlp = fp[inp + IN_KL], 0.0
-    else:
-        tl, dtl, dtlp = load_eval(t, wl, phi_load, ip, fp, H_LOAD, ip[H_LOAD_F])
-    return te, dte, dtep, tl, dtl, dtlp
+        return tl, fp[inp + IN_KL], 0.0
+    return load_eval(t, wl, phi_load, ip, fp, H_LOAD, ip[H_LOAD_F])
 
 
 @njit(cache=True)
 def rhs(t, y, ip, fp, dy):
-    """dy/dt (filled in place, length n_state) of the driveline state y."""
+    """dy/dt (filled in place, length n_state) of the driveline state y.
+
+    One sweep engine -> load, no allocation: section g's generalised force is complete once
+    the spring to its right is evaluated. The additions keep the oracle's order
+    (Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g)."""
     n = ip[H_NDOF]
     sp0 = ip[H_SPRING_F]
-    phis = np.empty(n)
-    aa = np.empty(n)
-    mm = np.empty(n)
-    cc = np.empty(n)
-    qf = np.zeros(n)
+    te, _dte, _dtep = engine_torque(t, y, ip, fp)
+    tl = 0.0
+    a_load = 1.0
+    carry = 0.0
+    p_damp = 0.0
     for g in range(n):
         phi, a, _b, m, c, _mp, _hj = section(g, y[g], ip, fp)
-        phis[g] = phi
-        aa[g] = a
-        mm[g] = m
-        cc[g] = c
-    a_load = aa[n - 1]
-    te, _dte, _dtep, tl, _dtl, _dtlp = torques(t, y, ip, fp, phis[n - 1], a_load)
-    qf[0] += te
-    qf[n - 1] -= tl * a_load
-    p_damp = 0.0
-    for k in range(n - 1):
-        off = sp0 + SPRING_STRIDE * k
-        a_l = aa[k]
-        th = phis[k] - y[k + 1]
-        thd = a_l * y[n + k] - y[n + k + 1]
-        if fp[off + 3] == 0.0:
-            d = fp[off + 1]
-            ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
-            p_damp += d * thd * thd
-        else:
-            ts, _k, _kd, pd = spring_eval(th, thd, fp, off)
-            p_damp += pd
-        qf[k] -= ts * a_l
-        qf[k + 1] += ts
-    for g in range(n):
+        qf = 0.0
+        if g == 0:
+            qf += te
+        if g == n - 1:
+            a_load = a
+            tl, _dtl, _dtlp = load_torque(t, y, ip, fp, phi, a)
+            qf -= tl * a
+        if g > 0:
+            qf += carry
+        if g < n - 1:
+            off = sp0 + SPRING_STRIDE * g
+            th = phi - y[g + 1]
+            thd = a * y[n + g] - y[n + g + 1]
+            if fp[off + 3] == 0.0:
+                d = fp[off + 1]
+                ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
+                p_damp += d * thd * thd
+            else:
+                ts, _k, _kd, pd = spring_eval(th, thd, fp, off)
+                p_damp += pd
+            qf -= ts * a
+            carry = ts
         v = y[n + g]
         dy[g] = v
-        dy[n + g] = (qf[g] - cc[g] * v * v) / mm[g]
+        dy[n + g] = (qf - c * v * v) / m
     if ip[H_ENERGY] != 0:
         dy[2 * n] = te * y[n]
         dy[2 * n + 1] = tl * a_load * y[2 * n - 1]
@@ -192,7 +197,8 @@ def jac(t, y, ip, fp, J):
     al = aa[n - 1]
     bl = bb[n - 1]
     vl = y[n2 - 1]
-    te, dte, dtep, tl, dtl, dtlp = torques(t, y, ip, fp, phis[n - 1], al)
+    te, dte, dtep = engine_torque(t, y, ip, fp)
+    tl, dtl, dtlp = load_torque(t, y, ip, fp, phis[n - 1], al)
     qf[0] += te
     dq[0, n] += dte
     dq[0, 0] += dtep

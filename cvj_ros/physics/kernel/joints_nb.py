@@ -6,16 +6,33 @@ that same function with numba, so the numpy/Python API and the kernel cannot dri
 """
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from numba import njit
+from numba.extending import overload
+
+
+@overload(math.fmod)
+def _math_fmod(x, y):
+    """numba has no math.fmod; C fmod via np.fmod (exact, same result as math.fmod)."""
+    def impl(x, y):
+        return np.fmod(x, y)
+    return impl
+
 
 from cvj_ros.physics.joints.hooke import hooke_stage_scalar
+from cvj_ros.physics.joints.tripod import tripod_closed_scalar, tripod_series_scalar
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY,
-                                          OP_LEVER_CLOSED, OP_LEVER_EXACT)
+                                          OP_LEVER_CLOSED, OP_LEVER_EXACT, OP_TRIPOD_CLOSED,
+                                          OP_TRIPOD_SERIES)
 
 hooke_stage_nb = njit(cache=True)(hooke_stage_scalar)
 lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
 lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
+tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
+tripod_series_nb = njit(cache=True)(tripod_series_scalar)
 
 
 @njit(cache=True)
@@ -23,6 +40,11 @@ def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
         return hooke_stage_nb(phi, fp[off])
+    if code == OP_TRIPOD_SERIES:
+        nc = int(fp[off])
+        return tripod_series_nb(phi, fp[off + 1:off + 1 + nc])
+    if code == OP_TRIPOD_CLOSED:
+        return tripod_closed_nb(phi, fp[off])
     if code == OP_LEVER_EXACT:
         return lever_exact_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
     if code == OP_LEVER_CLOSED:

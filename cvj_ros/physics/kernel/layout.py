@@ -14,7 +14,8 @@ section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
     phi_out = phi_in); OP_HOOKE fp[off] = cos(beta); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
-    fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions).
+    fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions);
+    OP_TRIPOD_CLOSED fp = [a]; OP_TRIPOD_SERIES fp = [n_coeff, b_1 .. b_n] (joints/tripod.py).
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
 input block (9 floats): t_k, Te, Te_rate, Ke, we, Tl, Tl_rate, Kl, wl (see set_torque_inputs).
@@ -25,7 +26,8 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     the Python RandomLoad itself over [0, horizon], so the values are the oracle's; outside
     that span the kernel returns NaN and the integrator stops loudly).
 
-Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), gear, ideal CV, any joint whose 'ideal' fidelity is
+Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
+    Fourier table), gear, ideal CV, any joint whose 'ideal' fidelity is
     the identity (checked at build time), springs (linear,
 progressive, backlash), work integrals, linear engine, constant load, input-block torques.
 Anything else raises NotImplementedError naming the element (no silent fallback).
@@ -52,6 +54,8 @@ OP_HOOKE = 2
 OP_GEAR = 3
 OP_LEVER_CLOSED = 4
 OP_LEVER_EXACT = 5
+OP_TRIPOD_CLOSED = 6
+OP_TRIPOD_SERIES = 7
 
 # torque source codes
 ENGINE_INPUTS = 0
@@ -98,6 +102,14 @@ def _joint_op(name: str, model: Any, fp: list[float]) -> tuple[int, int]:
         off = len(fp)
         fp.extend([model._ca, model._sa2, model.twist, model._ca2, model._sa22])
         return OP_LEVER_EXACT, off
+    if model.kind == 'tripod' and fid == 'closed':
+        fp.append(float(model.amplitude_closed))
+        return OP_TRIPOD_CLOSED, len(fp) - 1
+    if model.kind == 'tripod' and fid == 'exact':
+        off = len(fp)
+        fp.append(float(len(model._coeff_list)))
+        fp.extend(model._coeff_list)
+        return OP_TRIPOD_SERIES, off
     raise NotImplementedError(f'compiled kernel: joint {name!r} kind {model.kind!r} '
                               f'fidelity {fid!r} is not covered yet')
 

@@ -33,6 +33,7 @@ def _scene(driveline, *, engine=None, load=None):
 
 HOOKE = {'type': 'joint', 'name': 'h1', 'kind': 'hooke', 'fidelity': 'exact',
          'params': {'beta_deg': 25.0}}
+TRIPOD = {'beta_deg': 20.0, 'r_m': 0.026, 'l_m': 0.7}
 CASES = {
     'hooke_linear_spring': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, HOOKE,
@@ -72,6 +73,20 @@ CASES = {
         {'type': 'inertia', 'name': 'b', 'J': 0.05},
         {'type': 'joint', 'name': 'lh', 'kind': 'lever_hinge', 'fidelity': 'closed',
          'params': {'alpha_deg': 15.0, 'delta_alpha_deg': 1.72, 'twist_deg': -3.0}},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4}],
+    'tripod_closed': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'joint', 'name': 'tp', 'kind': 'tripod', 'fidelity': 'closed',
+         'params': TRIPOD},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4}],
+    'tripod_exact_table': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'joint', 'name': 'tp', 'kind': 'tripod', 'fidelity': 'exact',
+         'params': TRIPOD},
         {'type': 'inertia', 'name': 'c', 'J': 0.4}],
     'hooke_ideal_fidelity': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, dict(HOOKE, fidelity='ideal'),
@@ -175,12 +190,8 @@ def test_throttle_and_uncovered_elements():
     dy = np.empty(model.n_state)
     rhs(0.1, x, model.ip, model.fp, dy)
     _close(dy, dl._rhs(0.1, x, 0.0, 0.0, engine.torque, load.torque))
-    tri = _scene([{'type': 'inertia', 'name': 'a', 'J': 0.3},
-                  {'type': 'joint', 'name': 't', 'kind': 'tripod', 'fidelity': 'exact',
-                   'params': {'beta_deg': 10.0}},
-                  {'type': 'inertia', 'name': 'b', 'J': 0.3}])
-    with pytest.raises(NotImplementedError, match='tripod'):
-        build_model(Driveline.from_scene(tri))
+    with pytest.raises(NotImplementedError, match='MapEngine'):
+        build_model(dl, engine=engine_from_spec({'model': 'map'}), load=load)
     assert math.isfinite(dy[-1])
 
 

@@ -15,6 +15,7 @@ ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any j
     phi_out = phi_in); OP_HOOKE fp[off] = cos(beta); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
     fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions);
+    OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = k;
     OP_TRIPOD_CLOSED fp = [a]; OP_TRIPOD_SERIES fp = [n_coeff, b_1 .. b_n] (joints/tripod.py).
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
@@ -27,7 +28,7 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     that span the kernel returns NaN and the integrator stops loudly).
 
 Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
-    Fourier table), gear, ideal CV, any joint whose 'ideal' fidelity is
+    Fourier table), Rzeppa (cage error), double cardan, gear, ideal CV, any joint whose 'ideal' fidelity is
     the identity (checked at build time), springs (linear,
 progressive, backlash), work integrals, linear engine, constant load, input-block torques.
 Anything else raises NotImplementedError naming the element (no silent fallback).
@@ -56,6 +57,7 @@ OP_LEVER_CLOSED = 4
 OP_LEVER_EXACT = 5
 OP_TRIPOD_CLOSED = 6
 OP_TRIPOD_SERIES = 7
+OP_DOUBLE_CARDAN = 8
 
 # torque source codes
 ENGINE_INPUTS = 0
@@ -91,6 +93,13 @@ def _joint_op(name: str, model: Any, fp: list[float]) -> tuple[int, int]:
     if model.kind == 'ideal_cv' or (fid == 'ideal' and all(
             model.scalar(p) == (p, 1.0, 0.0) for p in (-2.3, 0.0, 0.7, 4.1))):
         return OP_JOINT_IDENTITY, 0
+    if model.kind == 'rzeppa':          # non-ideal: one Hooke stage with cos = k (rzeppa.py)
+        fp.append(float(model.k))
+        return OP_HOOKE, len(fp) - 1
+    if model.kind == 'double_cardan':
+        off = len(fp)
+        fp.extend([model._c1, model._c2, model._off])
+        return OP_DOUBLE_CARDAN, off
     if model.kind == 'hooke' and fid == 'exact':
         fp.append(math.cos(model.beta))
         return OP_HOOKE, len(fp) - 1

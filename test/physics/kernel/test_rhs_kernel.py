@@ -34,6 +34,7 @@ def _scene(driveline, *, engine=None, load=None):
 HOOKE = {'type': 'joint', 'name': 'h1', 'kind': 'hooke', 'fidelity': 'exact',
          'params': {'beta_deg': 25.0}}
 TRIPOD = {'beta_deg': 20.0, 'r_m': 0.026, 'l_m': 0.7}
+RZEPPA = {'delta_deg': 30.0, 'alpha_deg': 13.0}     # alpha != delta/2: cage error, k != 1
 CASES = {
     'hooke_linear_spring': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, HOOKE,
@@ -88,6 +89,16 @@ CASES = {
         {'type': 'joint', 'name': 'tp', 'kind': 'tripod', 'fidelity': 'exact',
          'params': TRIPOD},
         {'type': 'inertia', 'name': 'c', 'J': 0.4}],
+    'rzeppa_double_cardan': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'joint', 'name': 'dc', 'kind': 'double_cardan', 'fidelity': 'exact',
+         'params': {'beta1_deg': 20.0, 'beta2_deg': 14.0, 'phase_deg': 7.0}},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4},
+        {'type': 'joint', 'name': 'rz', 'kind': 'rzeppa', 'fidelity': 'exact',
+         'params': RZEPPA},
+        {'type': 'inertia', 'name': 'd', 'J': 0.7}],
     'hooke_ideal_fidelity': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, dict(HOOKE, fidelity='ideal'),
         {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},

@@ -28,7 +28,8 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     that span the kernel returns NaN and the integrator stops loudly).
 
 Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
-    Fourier table), Rzeppa (cage error), double cardan, gear, ideal CV, any joint whose 'ideal' fidelity is
+    Fourier table), Rzeppa (cage error), double cardan, chains (flattened into
+    their stages), gear, ideal CV, any joint whose 'ideal' fidelity is
     the identity (checked at build time), springs (linear,
 progressive, backlash), work integrals, linear engine, constant load, input-block torques.
 Anything else raises NotImplementedError naming the element (no silent fallback).
@@ -179,7 +180,10 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
                 fp.append(float(el.J))
                 ops.append((OP_INERTIA, len(fp) - 1))
             elif isinstance(el, Joint):
-                ops.append(_joint_op(name, driveline.joint_models[name], fp))
+                model = driveline.joint_models[name]
+                stages = model.joints if model.kind == 'chain' else [model]
+                for stage in stages:    # a chain is its stages in series (same chain rule)
+                    ops.append(_joint_op(name, stage, fp))
         sec_start.append(len(ops))
     spring_f = len(fp)
     for sp in driveline.springs:

@@ -99,6 +99,15 @@ CASES = {
         {'type': 'joint', 'name': 'rz', 'kind': 'rzeppa', 'fidelity': 'exact',
          'params': RZEPPA},
         {'type': 'inertia', 'name': 'd', 'J': 0.7}],
+    'chain_hooke_tripod_gear': [
+        {'type': 'inertia', 'name': 'a', 'J': 0.3},
+        {'type': 'joint', 'name': 'ch', 'kind': 'chain', 'fidelity': 'exact',
+         'params': {'joints': [{'kind': 'hooke', 'beta': 0.4},
+                               {'kind': 'tripod', 'beta': 0.3, 'r': 0.026, 'l': 0.7},
+                               {'kind': 'gear', 'gear_ratio': 2.0}]}},
+        {'type': 'inertia', 'name': 'b', 'J': 0.05},
+        {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},
+        {'type': 'inertia', 'name': 'c', 'J': 0.4}],
     'hooke_ideal_fidelity': [
         {'type': 'inertia', 'name': 'a', 'J': 0.3}, dict(HOOKE, fidelity='ideal'),
         {'type': 'spring', 'name': 's', 'stiffness': 3000.0, 'damping': 2.0},

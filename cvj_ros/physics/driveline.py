@@ -314,8 +314,10 @@ class Driveline:
         if self.track_energy:
             we = [0.0] * ns
             we[n] = T_engine + dTe_domega * xl[n]
+            we[0] = dTe_dphi * xl[n]               # W_e' = T_e(q_0, v_0) v_0
             wl = [0.0] * ns
-            wl[n - 1] = T_load * bl * vl + dTl_domega * bl * vl * al * vl
+            wl[n - 1] = (T_load * bl * vl + dTl_domega * bl * vl * al * vl
+                         + dTl_dphi * al * al * vl)  # W_l' = T_l(phi_l(q), a v) a v
             wl[n2 - 1] = T_load * al + dTl_domega * al * al * vl
             rows += [we, wl, dpd + pad]
         return np.array(rows)

@@ -248,7 +248,8 @@ def jac(t, y, ip, fp, J):
         J[r, n + g] += -2.0 * cc[g] * v * inv
     if energy:
         J[n2, n] = te + dte * y[n]
-        J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl
+        J[n2, 0] += dtep * y[n]
+        J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl + dtlp * al * al * vl
         J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
         for j in range(n2):
             J[n2 + 2, j] = dpd[j]

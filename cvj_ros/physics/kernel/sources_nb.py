@@ -5,7 +5,7 @@ N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Code
 parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
 M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
 load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
-Hermite between pre-generated knots).
+Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4).
 """
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import math
 
 from numba import njit
 
-from cvj_ros.physics.kernel.layout import ENGINE_LINEAR, LOAD_CONSTANT, LOAD_RANDOM, LOAD_ROAD
+from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_CONSTANT, LOAD_FOURIER,
+                                          LOAD_RANDOM, LOAD_ROAD)
 
 
 @njit(cache=True)
@@ -48,6 +49,20 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
         return force * lever, dfdv * lever * lever, 0.0
     if code == LOAD_RANDOM:
         return random_load(t, fp, foff), 0.0, 0.0
+    if code == LOAD_FOURIER:
+        # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (seed 004 eq. 4.4);
+        # dT/dphi = sum n (b_n cos(n x) - a_n sin(n x)); same summation order as FourierLoad
+        x = phi - fp[foff + 1]
+        total = fp[foff]
+        dphi = 0.0
+        for j in range(int(fp[foff + 2])):
+            o = foff + 3 + 3 * j
+            n = fp[o]
+            c = math.cos(n * x)
+            sn = math.sin(n * x)
+            total += fp[o + 1] * c + fp[o + 2] * sn
+            dphi += n * (fp[o + 2] * c - fp[o + 1] * sn)
+        return total, 0.0, dphi
     return 0.0, 0.0, 0.0
 
 

@@ -5,7 +5,7 @@ N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Code
 parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
 M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
 load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
-Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4).
+Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps.
 """
 from __future__ import annotations
 
@@ -13,7 +13,12 @@ import math
 
 from numba import njit
 
-from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_CONSTANT, LOAD_FOURIER,
+from cvj_ros.physics.engine import smoothstep
+
+smoothstep_nb = njit(cache=True)(smoothstep)     # engine.smoothstep, one source
+
+from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
+                                          LOAD_FOURIER,
                                           LOAD_RANDOM, LOAD_ROAD)
 
 
@@ -49,6 +54,25 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
         return force * lever, dfdv * lever * lever, 0.0
     if code == LOAD_RANDOM:
         return random_load(t, fp, foff), 0.0, 0.0
+    if code == LOAD_BRAKE_STEPS:
+        # load.BrakeStepsLoad: L(t) = sum of jumps, each smoothstep-ramped over ramp s;
+        # T = base + L tanh(omega / speed_scale) (speed_scale 0: T = base + L)
+        ramp = fp[foff + 1]
+        vs = fp[foff + 2]
+        lv = 0.0
+        for j in range(int(fp[foff + 3])):
+            t_on = fp[foff + 4 + 2 * j]
+            jump = fp[foff + 5 + 2 * j]
+            if t < t_on:
+                break
+            if ramp > 0.0:
+                lv += jump * smoothstep_nb((t - t_on) / ramp)[0]
+            else:
+                lv += jump
+        if vs > 0.0:
+            th = math.tanh(omega / vs)
+            return fp[foff] + lv * th, lv * (1.0 - th * th) / vs, 0.0
+        return fp[foff] + lv, 0.0, 0.0
     if code == LOAD_FOURIER:
         # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (seed 004 eq. 4.4);
         # dT/dphi = sum n (b_n cos(n x) - a_n sin(n x)); same summation order as FourierLoad

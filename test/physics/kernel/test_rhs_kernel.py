@@ -119,6 +119,8 @@ LOADS = {'constant': {'model': 'constant', 'torque': 40.0},
                   'speed_scale': 2.0},
          'fourier': {'model': 'fourier', 'table_4_12': {'shaft': 'driven', 'cycle': 2},
                      'phase_rad': 0.3},
+         'brake_steps': {'model': 'brake_steps', 'steps': [[0.2, 30.0], [0.9, 80.0], [1.5, 10.0]],
+                         'ramp_time': 0.3, 'base': 5.0, 'speed_scale': 2.0},
          'random': {'model': 'random', 'mean': 40.0, 'amplitude': 8.8, 'sample_interval': 0.01}}
 
 

@@ -27,7 +27,8 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     the Python RandomLoad itself over [0, horizon], so the values are the oracle's; outside
     that span the kernel returns NaN and the integrator stops loudly),
     LOAD_FOURIER fp = [mean N m, phase rad, n_terms, (order, a_n, b_n) per term] (load.FourierLoad),
-    LOAD_BRAKE_STEPS fp = [base N m, ramp s, speed_scale rad/s, n, (t_on, jump) per step].
+    LOAD_BRAKE_STEPS fp = [base N m, ramp s, speed_scale rad/s, n, (t_on, jump) per step],
+    LOAD_TIME_SERIES fp = [outside_zero 0/1, n, t_0 .. t_n-1 s, T_0 .. T_n-1 N m] (bag replay).
 
 Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
     Fourier table), Rzeppa (cage error), double cardan, chains (flattened into
@@ -71,6 +72,7 @@ LOAD_ROAD = 2
 LOAD_RANDOM = 3
 LOAD_FOURIER = 4
 LOAD_BRAKE_STEPS = 5
+LOAD_TIME_SERIES = 6
 
 SPRING_STRIDE = 5
 N_INPUT = 9
@@ -167,6 +169,13 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
         for t_on, jump in zip(load.times, load._jumps):
             fp.extend([t_on, jump])
         return LOAD_BRAKE_STEPS, off
+    from cvj_ros.physics.load import TimeSeriesLoad
+    if type(load) is TimeSeriesLoad:
+        off = len(fp)
+        fp.extend([1.0 if load.outside == 'zero' else 0.0, float(len(load.t))])
+        fp.extend(load.t)
+        fp.extend(load.values)
+        return LOAD_TIME_SERIES, off
     if type(load) is RandomLoad:
         off = len(fp)
         k0 = -2

@@ -5,7 +5,7 @@ N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Code
 parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
 M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
 load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
-Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps.
+Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps, time series (bag replay).
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from cvj_ros.physics.engine import smoothstep
 smoothstep_nb = njit(cache=True)(smoothstep)     # engine.smoothstep, one source
 
 from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
-                                          LOAD_FOURIER,
+                                          LOAD_FOURIER, LOAD_TIME_SERIES,
                                           LOAD_RANDOM, LOAD_ROAD)
 
 
@@ -73,6 +73,8 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
             th = math.tanh(omega / vs)
             return fp[foff] + lv * th, lv * (1.0 - th * th) / vs, 0.0
         return fp[foff] + lv, 0.0, 0.0
+    if code == LOAD_TIME_SERIES:
+        return time_series_load(t, fp, foff), 0.0, 0.0
     if code == LOAD_FOURIER:
         # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (seed 004 eq. 4.4);
         # dT/dphi = sum n (b_n cos(n x) - a_n sin(n x)); same summation order as FourierLoad
@@ -120,3 +122,25 @@ def random_load(t, fp, foff):
     val = ((2 * t3 - 3 * t2 + 1) * u0 + (t3 - 2 * t2 + tau) * m0 + (-2 * t3 + 3 * t2) * u1
            + (t3 - t2) * m1)
     return mean + amp * val
+
+
+@njit(cache=True)
+def time_series_load(t, fp, foff):
+    """load.TimeSeriesLoad: linear interpolation of samples (t_i, T_i), held (or zero) outside."""
+    n = int(fp[foff + 1])
+    ts = foff + 2
+    vs = ts + n
+    if t <= fp[ts] or t >= fp[ts + n - 1]:
+        if fp[foff] != 0.0 and (t < fp[ts] or t > fp[ts + n - 1]):
+            return 0.0
+        return fp[vs] if t <= fp[ts] else fp[vs + n - 1]
+    lo = 0            # largest j with t_j <= t (bisect_right - 1), t_0 < t < t_n-1 here
+    hi = n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fp[ts + mid] <= t:
+            lo = mid
+        else:
+            hi = mid
+    w = (t - fp[ts + lo]) / (fp[ts + lo + 1] - fp[ts + lo])
+    return fp[vs + lo] + w * (fp[vs + lo + 1] - fp[vs + lo])

@@ -235,3 +235,20 @@ def test_random_load_outside_horizon_is_nan():
     assert np.all(np.isfinite(dy))
     rhs(0.6, np.array(dl.x0), model.ip, model.fp, dy)
     assert not np.all(np.isfinite(dy))
+
+
+@pytest.mark.parametrize('outside', ['hold', 'zero'])
+def test_kernel_time_series_load(outside):
+    from cvj_ros.physics.load import TimeSeriesLoad
+    sc = _scene(CASES['hooke_linear_spring'])
+    dl = Driveline.from_scene(sc, track_energy=True)
+    rng = np.random.default_rng(11)
+    ts = np.sort(rng.uniform(0.1, 1.8, 40))
+    load = TimeSeriesLoad.from_arrays(ts, rng.uniform(-50.0, 50.0, 40), outside=outside)
+    engine = engine_from_spec(sc.engine)
+    _check(dl, engine, load, rng)
+    model = build_model(dl, engine=engine, load=load)
+    dy = np.empty(model.n_state)
+    for t in (0.0, 0.05, float(ts[0]), float(ts[7]), float(ts[-1]), 1.95):
+        rhs(t, np.array(dl.x0), model.ip, model.fp, dy)
+        _close(dy, dl._rhs(t, np.array(dl.x0), 0.0, 0.0, engine.torque, load.torque))

@@ -35,80 +35,18 @@ cage, spider, yoke, earring) and ``<joint>_output``.
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cvj_ros.errors import SceneError
-from cvj_ros.physics.joints import JOINTS, make_joint
-from cvj_ros.physics.scene import Inertia, Joint, Scene, Spring
+from cvj_ros.physics.fidelity import choose_fidelity
+from cvj_ros.physics.scene import Scene, Spring
+from cvj_ros.physics.sections import (  # noqa: F401  (SpringLaw, Shaft re-exported)
+    ScalarFn, Shaft, SpringLaw, build_sections, section_kinematics)
 
 FloatArray = NDArray[np.float64]
-ScalarFn = Callable[[float], tuple[float, float, float]]
-
-
-@dataclass(frozen=True)
-class SpringLaw:
-    """Torque law of one elastic spring (units: N m/rad, N m s/rad, 1/rad^2, rad).
-
-    Elastic deflection e(theta) is theta itself, or with backlash a softplus dead zone
-    e = w ln(1+exp((theta-g)/w)) - w ln(1+exp((-theta-g)/w)), g = half gap, w = smoothing*g,
-    which tends to theta -/+ g outside the gap and to ~0 inside, smooth everywhere so
-    adaptive solvers keep their order. Potential V = c (e^2/2 + k2 e^4/4) (k2 = 0 for
-    'linear'); torque T = dV/dtheta + d e'(theta) thetadot (damping acts only in contact).
-    """
-
-    name: str
-    c: float
-    d: float
-    k2: float
-    gap: float       # half gap g (rad), 0 = no backlash
-    width: float     # smoothing width w (rad)
-
-    def deflection(self, th: float) -> tuple[float, float, float]:
-        """(e, de/dtheta, d2e/dtheta2) of the (regularised) dead zone."""
-        g = self.gap
-        if g == 0.0:
-            return th, 1.0, 0.0
-        w = self.width
-        u1, u2 = (th - g) / w, (-th - g) / w
-        sp1 = w * (max(u1, 0.0) + math.log1p(math.exp(-abs(u1))))
-        sp2 = w * (max(u2, 0.0) + math.log1p(math.exp(-abs(u2))))
-        s1 = _sigmoid(u1)
-        s2 = _sigmoid(u2)
-        return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
-
-    def evaluate(self, th: float, thd: float) -> tuple[float, float, float, float, float]:
-        """(torque N m, dT/dtheta, dT/dthetadot, potential J, dissipated power W)."""
-        e, de, dde = self.deflection(th)
-        c, k2, d = self.c, self.k2, self.d
-        f_el = c * (e + k2 * e * e * e)          # dV/de
-        t = f_el * de + d * de * thd
-        k_th = c * (1.0 + 3.0 * k2 * e * e) * de * de + f_el * dde + d * dde * thd
-        v = c * (0.5 * e * e + 0.25 * k2 * e ** 4)
-        return t, k_th, d * de, v, d * de * thd * thd
-
-
-def _sigmoid(u: float) -> float:
-    if u >= 0.0:
-        return 1.0 / (1.0 + math.exp(-u))
-    z = math.exp(u)
-    return z / (1.0 + z)
-
-
-@dataclass(frozen=True)
-class Shaft:
-    """One named JointState shaft: section index, position in the op list, role."""
-
-    name: str
-    section: int
-    op_index: int          # op of the section whose before/after state this shaft is
-    role: str              # 'inertia' | 'input' | 'output' | 'mid'
-    joint: Any = None      # joint model for 'mid'
 
 
 class Driveline:
@@ -122,43 +60,10 @@ class Driveline:
         self.scene = scene
         self.levels = dict(levels)
         self.track_energy = track_energy
-        self.joint_models: dict[str, Any] = {}
-        # ops per section: (J, None) for an inertia, (0.0, scalar_fn) for a joint
-        sections: list[list[tuple[float, ScalarFn | None]]] = [[]]
-        names: list[list[str]] = [[]]
-        springs: list[SpringLaw] = []
-        shafts: list[Shaft] = []
-        for i, el in enumerate(scene.driveline):
-            sec = len(sections) - 1
-            if isinstance(el, Inertia):
-                shafts.append(Shaft(el.name, sec, len(sections[sec]), 'inertia'))
-                sections[sec].append((el.J, None))
-                names[sec].append(el.name)
-            elif isinstance(el, Joint):
-                level = self.levels.get(el.name) or JOINTS[el.kind].fidelities[-1]
-                try:
-                    model = make_joint(el.kind, fidelity=level, **dict(el.params))
-                except ValueError as exc:
-                    raise SceneError(f'driveline[{i}]', str(exc)) from None
-                self.joint_models[el.name] = model
-                k = len(sections[sec])
-                shafts.append(Shaft(f'{el.name}_input', sec, k, 'input'))
-                mid = getattr(model, 'mid_name', None)
-                if mid:
-                    shafts.append(Shaft(f'{el.name}_{mid}', sec, k, 'mid', model))
-                shafts.append(Shaft(f'{el.name}_output', sec, k, 'output'))
-                sections[sec].append((0.0, model.scalar))
-                names[sec].append(el.name)
-            elif isinstance(el, Spring):
-                if self.levels.get(el.name, 'elastic') == 'rigid':
-                    continue    # merged: the two sections become one rigid body
-                g = 0.5 * el.backlash
-                springs.append(SpringLaw(el.name, el.stiffness, el.damping,
-                                         el.k2 if el.law == 'progressive' else 0.0,
-                                         g, el.backlash_smoothing * g))
-                sections.append([])
-                names.append([])
-        self._ops = [tuple(s) for s in sections]
+        chain = build_sections(scene, self.levels)
+        self.joint_models: dict[str, Any] = chain.joint_models
+        sections, names, springs, shafts = chain.ops, chain.names, chain.springs, chain.shafts
+        self._ops = sections
         self._section_names = names
         self.springs = springs
         self.shafts = shafts
@@ -180,7 +85,6 @@ class Driveline:
         ``fidelity`` forces levels by element name (joints: ideal|closed|exact, springs:
         elastic|rigid); the rest follows the scene (auto -> accuracy_target rule).
         """
-        from cvj_ros.physics.fidelity import choose_fidelity
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report
@@ -206,17 +110,7 @@ class Driveline:
 
     def _section(self, g: int, q: float) -> tuple[float, float, float, float, float]:
         """(phi_end, a_end, b_end, M, C) of section g at q (rad, -, 1/rad, kg m^2, kg m^2/rad)."""
-        phi, a, b, m, c = q, 1.0, 0.0, 0.0, 0.0
-        for jv, fn in self._ops[g]:
-            if fn is None:
-                m += jv * a * a
-                c += jv * a * b
-            else:
-                po, r, s = fn(phi)
-                b = s * a * a + r * b
-                a = r * a
-                phi = po
-        return phi, a, b, m, c
+        return section_kinematics(self._ops[g], q)
 
     def mass(self, x: FloatArray) -> FloatArray:
         """Generalised inertias M_g(q_g) (kg m^2)."""
@@ -420,8 +314,10 @@ class Driveline:
         if self.track_energy:
             we = [0.0] * ns
             we[n] = T_engine + dTe_domega * xl[n]
+            we[0] = dTe_dphi * xl[n]               # W_e' = T_e(q_0, v_0) v_0
             wl = [0.0] * ns
-            wl[n - 1] = T_load * bl * vl + dTl_domega * bl * vl * al * vl
+            wl[n - 1] = (T_load * bl * vl + dTl_domega * bl * vl * al * vl
+                         + dTl_dphi * al * al * vl)  # W_l' = T_l(phi_l(q), a v) a v
             wl[n2 - 1] = T_load * al + dTl_domega * al * al * vl
             rows += [we, wl, dpd + pad]
         return np.array(rows)

@@ -35,6 +35,7 @@ import numpy as np
 from cvj_ros.errors import SceneError
 from cvj_ros.physics.joints import JOINTS, make_joint
 from cvj_ros.physics.scene import Joint, Scene, Spring
+from cvj_ros.physics.sections import build_sections, section_kinematics
 
 N_SAMPLES = 2048          # samples per revolution for joint error bounds
 HARMONIC_FLOOR = 0.01     # joint harmonics above this fraction of the largest count
@@ -201,14 +202,15 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
 def _adjacent_inertias(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, tuple[float, float]]:
     """Per spring: (J_left, J_right) in kg m^2 of the adjacent rigid sections reduced to
     the spring's two shafts, averaged over one revolution (all springs elastic)."""
-    from cvj_ros.physics.driveline import Driveline
     levels = dict(joint_levels)
     levels.update({el.name: 'elastic' for el in scene.driveline if isinstance(el, Spring)})
-    dl = Driveline(scene, levels)
+    chain = build_sections(scene, levels)
+    ops = chain.ops
     out = {}
     qs = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
-    for k, sp in enumerate(dl.springs):
-        j_l = float(np.mean([dl._section(k, q)[3] / dl._section(k, q)[1] ** 2 for q in qs]))
-        j_r = float(np.mean([dl._section(k + 1, q)[3] for q in qs]))
+    for k, sp in enumerate(chain.springs):
+        j_l = float(np.mean([section_kinematics(ops[k], q)[3]
+                             / section_kinematics(ops[k], q)[1] ** 2 for q in qs]))
+        j_r = float(np.mean([section_kinematics(ops[k + 1], q)[3] for q in qs]))
         out[sp.name] = (j_l, j_r)
     return out

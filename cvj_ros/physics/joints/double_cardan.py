@@ -50,6 +50,16 @@ LAYOUTS = ('Z', 'W')
 _HALF_PI = 0.5 * math.pi
 
 
+def double_cardan_scalar(phi_in: float, c1: float, c2: float, off: float
+                         ) -> tuple[float, float, float]:
+    """(phi_out rad, ratio -, ratio_slope 1/rad) of two Hooke stages in series (cos beta1 = c1,
+    cos beta2 = c2, yoke phase offset ``off`` rad; see the module docstring). Plain float
+    function, also compiled by cvj_ros/physics/kernel/joints_nb.py (one source for both)."""
+    mid, r1, s1 = hooke_stage_scalar(phi_in, c1)
+    v, r2, s2 = hooke_stage_scalar(mid + off, c2)
+    return v - off, r2 * r1, s2 * r1 * r1 + r2 * s1
+
+
 class DoubleCardan:
     """Two Hooke joints with angles ``beta1``, ``beta2`` (rad, each in [0, pi/2)),
     intermediate-yoke ``phase`` (rad), ``layout`` 'Z' | 'W' and ``bend_plane`` (rad).
@@ -99,9 +109,7 @@ class DoubleCardan:
     def scalar(self, phi_in: float) -> tuple[float, float, float]:
         if self.fidelity == 'ideal':
             return phi_in, 1.0, 0.0
-        mid, r1, s1 = hooke_stage_scalar(phi_in, self._c1)
-        v, r2, s2 = hooke_stage_scalar(mid + self._off, self._c2)
-        return v - self._off, r2 * r1, s2 * r1 * r1 + r2 * s1
+        return double_cardan_scalar(phi_in, self._c1, self._c2, self._off)
 
     def nonuniformity(self) -> float:
         """Amplitude (rad): half the peak-to-peak of phi_out - phi_in over its period pi,

@@ -108,6 +108,36 @@ def _inverse_dev(c_ang: FloatArray, cos_a: float) -> FloatArray:
     return np.arctan2((cos_a - 1.0) * s * c, c * c + cos_a * s * s)
 
 
+def lever_hinge_closed_scalar(phi_in: float, ca: float, sa2: float, ta: float, tw: float,
+                              da: float) -> tuple[float, float, float]:
+    """'closed' fidelity (phi_out rad, ratio -, ratio_slope 1/rad): first order in twist and
+    delta_alpha, see the module docstring. ca = cos alpha, sa2 = sin^2 alpha, ta = tan alpha,
+    tw = twist (rad), da = delta_alpha (rad). Plain float function, also compiled by
+    cvj_ros/physics/kernel/joints_nb.py (one source for both)."""
+    s2, c2, c1 = math.sin(2.0 * phi_in), math.cos(2.0 * phi_in), math.cos(phi_in)
+    return (phi_in + tw * (1.0 - sa2 * c1 * c1) / ca - 0.5 * da * ta * s2,
+            1.0 + tw * sa2 * s2 / ca - da * ta * c2,
+            2.0 * tw * sa2 * c2 / ca + 2.0 * da * ta * s2)
+
+
+def lever_hinge_exact_scalar(phi_in: float, ca: float, sa2: float, twist: float, ca2: float,
+                             sa22: float) -> tuple[float, float, float]:
+    """'exact' fidelity (phi_out rad, ratio -, ratio_slope 1/rad): two cross stages in series
+    (module docstring). ca, sa2: cos alpha, sin^2 alpha; ca2, sa22: the same of
+    alpha + delta_alpha; twist (rad). Also compiled by kernel/joints_nb.py."""
+    s, c = math.sin(phi_in), math.cos(phi_in)
+    den1 = 1.0 - sa2 * c * c
+    h1 = ca / den1
+    h2 = -ca * sa2 * 2.0 * s * c / (den1 * den1)
+    c2 = phi_in + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + twist
+    s_, c_ = math.sin(c2), math.cos(c2)
+    den2 = 1.0 - sa22 * s_ * s_
+    g1 = ca2 / den2
+    g2 = ca2 * sa22 * 2.0 * s_ * c_ / (den2 * den2)
+    out = c2 + math.atan2((ca2 - 1.0) * s_ * c_, c_ * c_ + ca2 * s_ * s_)
+    return out, g1 * h1, g2 * h1 * h1 + g1 * h2
+
+
 class LeverHinge:
     """Lever-hinge coupling, shaft divergence ``alpha`` (rad), driven-shaft support tilt
     ``delta_alpha`` (rad) and driven earring twist ``twist`` (rad); see the module docstring."""
@@ -176,24 +206,10 @@ class LeverHinge:
         if self.fidelity == 'ideal':
             return phi_in, 1.0, 0.0
         if self.fidelity == 'closed':
-            ca, sa2, ta, tw, da = self._ca, self._sa2, self._ta, self.twist, self.delta_alpha
-            s2, c2, c1 = math.sin(2.0 * phi_in), math.cos(2.0 * phi_in), math.cos(phi_in)
-            return (phi_in + tw * (1.0 - sa2 * c1 * c1) / ca - 0.5 * da * ta * s2,
-                    1.0 + tw * sa2 * s2 / ca - da * ta * c2,
-                    2.0 * tw * sa2 * c2 / ca + 2.0 * da * ta * s2)
-        ca, sa2 = self._ca, self._sa2
-        s, c = math.sin(phi_in), math.cos(phi_in)
-        den1 = 1.0 - sa2 * c * c
-        h1 = ca / den1
-        h2 = -ca * sa2 * 2.0 * s * c / (den1 * den1)
-        c2 = phi_in + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + self.twist
-        ca2, sa22 = self._ca2, self._sa22
-        s_, c_ = math.sin(c2), math.cos(c2)
-        den2 = 1.0 - sa22 * s_ * s_
-        g1 = ca2 / den2
-        g2 = ca2 * sa22 * 2.0 * s_ * c_ / (den2 * den2)
-        out = c2 + math.atan2((ca2 - 1.0) * s_ * c_, c_ * c_ + ca2 * s_ * s_)
-        return out, g1 * h1, g2 * h1 * h1 + g1 * h2
+            return lever_hinge_closed_scalar(phi_in, self._ca, self._sa2, self._ta, self.twist,
+                                             self.delta_alpha)
+        return lever_hinge_exact_scalar(phi_in, self._ca, self._sa2, self.twist, self._ca2,
+                                        self._sa22)
 
     def reactions(self, phi_in: float, omega_in: float, torque_in: float) -> dict[str, float]:
         """Output torque (N m) from the power balance of the rigid linkage (no losses):

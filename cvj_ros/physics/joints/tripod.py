@@ -152,6 +152,33 @@ _SPECTRAL_FIELDS = ('_sine_coeffs', '_coeff_list', '_orbit_spec', '_table_phi', 
 _SPECTRAL_CACHE: dict[tuple[float, float, float], dict[str, Any]] = {}
 
 
+def tripod_closed_scalar(phi_in: float, a: float) -> tuple[float, float, float]:
+    """'closed' fidelity (phi_out rad, ratio -, ratio_slope 1/rad): phi_out = phi_in - a sin 3phi_in
+    with a = closed_form_amplitude (module docstring). Plain float function, also compiled by
+    cvj_ros/physics/kernel/joints_nb.py (one source for both)."""
+    x = 3.0 * phi_in
+    s3, c3 = math.sin(x), math.cos(x)
+    return phi_in - a * s3, 1.0 - 3.0 * a * c3, 9.0 * a * s3
+
+
+def tripod_series_scalar(phi_in: float, coeffs: Any) -> tuple[float, float, float]:
+    """'exact' fidelity from its Fourier table: phi_out = phi_in + sum_k b_k sin(3 k phi_in)
+    (sequence ``coeffs`` = b_1, b_2, ...), derivatives by the angle-addition recurrence. Also
+    compiled by kernel/joints_nb.py (coeffs then a float64 array view)."""
+    x = 3.0 * (math.fmod(phi_in, TWO_PI_3))
+    s1, c1 = math.sin(x), math.cos(x)
+    sk, ck = s1, c1
+    dev = d1 = d2 = 0.0
+    k = 1
+    for b in coeffs:
+        dev += b * sk
+        d1 += b * k * ck
+        d2 -= b * k * k * sk
+        sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
+        k += 1
+    return phi_in + dev, 1.0 + 3.0 * d1, 9.0 * d2
+
+
 class Tripod:
     """Tripod joint with bend angle ``beta`` (rad), track radius ``r`` (m) and shaft
     length ``l`` (m) from the spider centre to the output shaft's fixed point.
@@ -258,23 +285,8 @@ class Tripod:
         if self.fidelity == 'ideal':
             return phi_in, 1.0, 0.0
         if self.fidelity == 'closed':
-            a = self.amplitude_closed
-            x = 3.0 * phi_in
-            s3, c3 = math.sin(x), math.cos(x)
-            return phi_in - a * s3, 1.0 - 3.0 * a * c3, 9.0 * a * s3
-        # Sine series: sum b_k sin(k x), x = 3 phi; angle addition recurrence.
-        x = 3.0 * (math.fmod(phi_in, TWO_PI_3))
-        s1, c1 = math.sin(x), math.cos(x)
-        sk, ck = s1, c1
-        dev = d1 = d2 = 0.0
-        k = 1
-        for b in self._coeff_list:
-            dev += b * sk
-            d1 += b * k * ck
-            d2 -= b * k * k * sk
-            sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
-            k += 1
-        return phi_in + dev, 1.0 + 3.0 * d1, 9.0 * d2
+            return tripod_closed_scalar(phi_in, self.amplitude_closed)
+        return tripod_series_scalar(phi_in, self._coeff_list)
 
     # --- exact model -------------------------------------------------------------------
 

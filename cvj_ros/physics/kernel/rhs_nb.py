@@ -1,0 +1,255 @@
+"""Compiled driveline right-hand side and analytic Jacobian (issue 9).
+
+Same equations as the readable oracle ``Driveline._rhs`` / ``Driveline.jacobian``
+(see cvj_ros/physics/driveline.py module docstring: M(q) qddot + C(q) qdot^2 = Q per rigid
+section, springs on the bounded twist theta = phi_end(q_k) - q_{k+1}), evaluated from the
+arrays of ``kernel/layout.py``. Plain loops only (no BLAS, no numpy reductions), cache=True,
+no fastmath, so the bytes do not depend on the CPU's BLAS kernel.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from numba import njit
+
+from cvj_ros.physics.kernel.joints_nb import joint_eval
+from cvj_ros.physics.kernel.layout import (
+    ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_INPUT_F, H_LOAD, H_LOAD_F, H_NDOF, H_SEC,
+    H_SPRING_F, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
+    LOAD_INPUTS, OP_INERTIA, SPRING_STRIDE)
+from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
+
+
+@njit(cache=True)
+def section(g, q, ip, fp):
+    """(phi_end rad, a_end -, b_end 1/rad, M kg m^2, C kg m^2/rad, dM/dq, has_joint) of
+    section g at angle q: chain rule a <- r a, b <- s a^2 + r b over the section's ops."""
+    n = ip[H_NDOF]
+    tab = ip[H_SEC]
+    ops = tab + n + 1
+    phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
+    has_joint = False
+    for k in range(ip[tab + g], ip[tab + g + 1]):
+        code = ip[ops + 2 * k]
+        off = ip[ops + 2 * k + 1]
+        if code == OP_INERTIA:
+            jv = fp[off]
+            m += jv * a * a
+            c += jv * a * b
+            mp += 2.0 * jv * a * b
+        else:
+            has_joint = True
+            po, r, s = joint_eval(code, phi, fp, off)
+            b = s * a * a + r * b
+            a = r * a
+            phi = po
+    return phi, a, b, m, c, mp, has_joint
+
+
+@njit(cache=True)
+def _sigmoid(u):
+    if u >= 0.0:
+        return 1.0 / (1.0 + math.exp(-u))
+    z = math.exp(u)
+    return z / (1.0 + z)
+
+
+@njit(cache=True)
+def spring_deflection(th, g, w):
+    """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw)."""
+    if g == 0.0:
+        return th, 1.0, 0.0
+    u1 = (th - g) / w
+    u2 = (-th - g) / w
+    sp1 = w * (max(u1, 0.0) + math.log1p(math.exp(-abs(u1))))
+    sp2 = w * (max(u2, 0.0) + math.log1p(math.exp(-abs(u2))))
+    s1 = _sigmoid(u1)
+    s2 = _sigmoid(u2)
+    return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
+
+
+@njit(cache=True)
+def spring_eval(th, thd, fp, off):
+    """(torque N m, dT/dtheta, dT/dthetadot, dissipated power W) of spring at fp[off:off+5]."""
+    c = fp[off]
+    d = fp[off + 1]
+    k2 = fp[off + 2]
+    e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
+    f_el = c * (e + k2 * e * e * e)
+    t = f_el * de + d * de * thd
+    k_th = c * (1.0 + 3.0 * k2 * e * e) * de * de + f_el * dde + d * dde * thd
+    return t, k_th, d * de, d * de * thd * thd
+
+
+@njit(cache=True)
+def engine_torque(t, y, ip, fp):
+    """(Te, dTe/domega, dTe/dphi) at the engine shaft (omega = y[n], phi = y[0])."""
+    n = ip[H_NDOF]
+    inp = ip[H_INPUT_F]
+    we = y[n]
+    if ip[H_ENGINE] == ENGINE_INPUTS:
+        te = fp[inp + IN_TE] + fp[inp + IN_TE_RATE] * (t - fp[inp + IN_TK]) \
+            + fp[inp + IN_KE] * (we - fp[inp + IN_WE])
+        return te, fp[inp + IN_KE], 0.0
+    return engine_eval(t, we, y[0], ip, fp, H_ENGINE, ip[H_ENGINE_F])
+
+
+@njit(cache=True)
+def load_torque(t, y, ip, fp, phi_load, a_load):
+    """(Tl, dTl/domega, dTl/dphi) at the load shaft (omega = a_load y[2n-1], phi_load)."""
+    n = ip[H_NDOF]
+    inp = ip[H_INPUT_F]
+    wl = a_load * y[2 * n - 1]
+    if ip[H_LOAD] == LOAD_INPUTS:
+        tl = fp[inp + IN_TL] + fp[inp + IN_TL_RATE] * (t - fp[inp + IN_TK]) \
+            + fp[inp + IN_KL] * (wl - fp[inp + IN_WL])
+        return tl, fp[inp + IN_KL], 0.0
+    return load_eval(t, wl, phi_load, ip, fp, H_LOAD, ip[H_LOAD_F])
+
+
+@njit(cache=True)
+def rhs(t, y, ip, fp, dy):
+    """dy/dt (filled in place, length n_state) of the driveline state y.
+
+    One sweep engine -> load, no allocation: section g's generalised force is complete once
+    the spring to its right is evaluated. The additions keep the oracle's order
+    (Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g)."""
+    n = ip[H_NDOF]
+    sp0 = ip[H_SPRING_F]
+    te, _dte, _dtep = engine_torque(t, y, ip, fp)
+    tl = 0.0
+    a_load = 1.0
+    carry = 0.0
+    p_damp = 0.0
+    for g in range(n):
+        phi, a, _b, m, c, _mp, _hj = section(g, y[g], ip, fp)
+        qf = 0.0
+        if g == 0:
+            qf += te
+        if g == n - 1:
+            a_load = a
+            tl, _dtl, _dtlp = load_torque(t, y, ip, fp, phi, a)
+            qf -= tl * a
+        if g > 0:
+            qf += carry
+        if g < n - 1:
+            off = sp0 + SPRING_STRIDE * g
+            th = phi - y[g + 1]
+            thd = a * y[n + g] - y[n + g + 1]
+            if fp[off + 3] == 0.0:
+                d = fp[off + 1]
+                ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
+                p_damp += d * thd * thd
+            else:
+                ts, _k, _kd, pd = spring_eval(th, thd, fp, off)
+                p_damp += pd
+            qf -= ts * a
+            carry = ts
+        v = y[n + g]
+        dy[g] = v
+        dy[n + g] = (qf - c * v * v) / m
+    if ip[H_ENERGY] != 0:
+        dy[2 * n] = te * y[n]
+        dy[2 * n + 1] = tl * a_load * y[2 * n - 1]
+        dy[2 * n + 2] = p_damp
+
+
+@njit(cache=True)
+def jac(t, y, ip, fp, J):
+    """Analytic d(rhs)/dy into J (n_state x n_state, overwritten). As the oracle
+    Driveline.jacobian, only dC/dq (third derivative of the position functions, not in the
+    joint contract) is a central difference of C(q) with h = 1e-6 max(1, |q|)."""
+    n = ip[H_NDOF]
+    n2 = 2 * n
+    ns = J.shape[0]
+    sp0 = ip[H_SPRING_F]
+    energy = ip[H_ENERGY] != 0
+    for i in range(ns):
+        for j in range(ns):
+            J[i, j] = 0.0
+    phis = np.empty(n)
+    aa = np.empty(n)
+    bb = np.empty(n)
+    mm = np.empty(n)
+    cc = np.empty(n)
+    mps = np.empty(n)
+    cps = np.empty(n)
+    for g in range(n):
+        q = y[g]
+        phi, a, b, m, c, mp, hj = section(g, q, ip, fp)
+        if hj:
+            h = 1e-6 * max(1.0, abs(q))
+            cp = (section(g, q + h, ip, fp)[4] - section(g, q - h, ip, fp)[4]) / (2.0 * h)
+        else:
+            cp = 0.0
+        phis[g] = phi
+        aa[g] = a
+        bb[g] = b
+        mm[g] = m
+        cc[g] = c
+        mps[g] = mp
+        cps[g] = cp
+    qf = np.zeros(n)
+    dq = np.zeros((n, n2))
+    dpd = np.zeros(n2)
+    al = aa[n - 1]
+    bl = bb[n - 1]
+    vl = y[n2 - 1]
+    te, dte, dtep = engine_torque(t, y, ip, fp)
+    tl, dtl, dtlp = load_torque(t, y, ip, fp, phis[n - 1], al)
+    qf[0] += te
+    dq[0, n] += dte
+    dq[0, 0] += dtep
+    qf[n - 1] -= tl * al
+    dq[n - 1, n - 1] += -tl * bl - dtl * bl * vl * al - dtlp * al * al
+    dq[n - 1, n2 - 1] += -dtl * al * al
+    for k in range(n - 1):
+        off = sp0 + SPRING_STRIDE * k
+        a_l = aa[k]
+        b_l = bb[k]
+        th = phis[k] - y[k + 1]
+        thd = a_l * y[n + k] - y[n + k + 1]
+        ts, k_th, k_d, _pd = spring_eval(th, thd, fp, off)
+        dthd_qk = b_l * y[n + k]
+        d_qk = k_th * a_l + k_d * dthd_qk
+        d_qk1 = -k_th
+        d_vk = k_d * a_l
+        d_vk1 = -k_d
+        qf[k] -= ts * a_l
+        qf[k + 1] += ts
+        dq[k, k] -= d_qk * a_l + ts * b_l
+        dq[k, k + 1] -= d_qk1 * a_l
+        dq[k, n + k] -= d_vk * a_l
+        dq[k, n + k + 1] -= d_vk1 * a_l
+        dq[k + 1, k] += d_qk
+        dq[k + 1, k + 1] += d_qk1
+        dq[k + 1, n + k] += d_vk
+        dq[k + 1, n + k + 1] += d_vk1
+        d = fp[off + 1]
+        if energy and d != 0.0:
+            _e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
+            dp_dth = d * dde * thd * thd
+            dp_dthd = 2.0 * d * de * thd
+            dpd[k] += dp_dth * a_l + dp_dthd * dthd_qk
+            dpd[k + 1] -= dp_dth
+            dpd[n + k] += dp_dthd * a_l
+            dpd[n + k + 1] -= dp_dthd
+    for g in range(n):
+        J[g, n + g] = 1.0
+    for g in range(n):
+        v = y[n + g]
+        inv = 1.0 / mm[g]
+        r = n + g
+        for j in range(n2):
+            J[r, j] = dq[g, j] * inv
+        J[r, g] += -cps[g] * v * v * inv - (qf[g] - cc[g] * v * v) * mps[g] * inv * inv
+        J[r, n + g] += -2.0 * cc[g] * v * inv
+    if energy:
+        J[n2, n] = te + dte * y[n]
+        J[n2, 0] += dtep * y[n]
+        J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl + dtlp * al * al * vl
+        J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
+        for j in range(n2):
+            J[n2 + 2, j] = dpd[j]

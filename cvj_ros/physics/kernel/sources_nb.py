@@ -1,0 +1,146 @@
+"""Compiled engine / load torque models (issue 9).
+
+``engine_eval(t, omega, phi, ip, fp, ioff, foff) -> (T, dT/domega, dT/dphi)`` (N m,
+N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Codes and
+parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
+M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
+load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
+Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps, time series (bag replay).
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from cvj_ros.physics.engine import smoothstep
+
+smoothstep_nb = njit(cache=True)(smoothstep)     # engine.smoothstep, one source
+
+from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
+                                          LOAD_FOURIER, LOAD_TIME_SERIES,
+                                          LOAD_RANDOM, LOAD_ROAD)
+
+
+@njit(cache=True)
+def engine_eval(t, omega, phi, ip, fp, ioff, foff):
+    """Engine torque and slopes; ip[ioff] is the model code (rhs passes layout.H_ENGINE),
+    fp[foff:] its parameters."""
+    code = ip[ioff]
+    if code == ENGINE_LINEAR:
+        return fp[foff] * fp[foff + 1] - fp[foff + 2] * omega, -fp[foff + 2], 0.0
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def load_eval(t, omega, phi, ip, fp, ioff, foff):
+    """Load torque (resisting) and slopes; ip[ioff] is the code (layout.H_LOAD)."""
+    code = ip[ioff]
+    if code == LOAD_CONSTANT:
+        s = fp[foff + 1]
+        if s == 0.0:
+            return fp[foff], 0.0, 0.0
+        th = math.tanh(omega / s)
+        return fp[foff] * th, fp[foff] * (1.0 - th * th) / s, 0.0
+    if code == LOAD_ROAD:
+        roll = fp[foff]
+        aero = fp[foff + 1]
+        lever = fp[foff + 3]
+        vs = fp[foff + 4]
+        v = omega * lever
+        th = math.tanh(v / vs)
+        force = roll * th + aero * v * abs(v) + fp[foff + 2]
+        dfdv = roll * (1.0 - th * th) / vs + 2.0 * aero * abs(v)
+        return force * lever, dfdv * lever * lever, 0.0
+    if code == LOAD_RANDOM:
+        return random_load(t, fp, foff), 0.0, 0.0
+    if code == LOAD_BRAKE_STEPS:
+        # load.BrakeStepsLoad: L(t) = sum of jumps, each smoothstep-ramped over ramp s;
+        # T = base + L tanh(omega / speed_scale) (speed_scale 0: T = base + L)
+        ramp = fp[foff + 1]
+        vs = fp[foff + 2]
+        lv = 0.0
+        for j in range(int(fp[foff + 3])):
+            t_on = fp[foff + 4 + 2 * j]
+            jump = fp[foff + 5 + 2 * j]
+            if t < t_on:
+                break
+            if ramp > 0.0:
+                lv += jump * smoothstep_nb((t - t_on) / ramp)[0]
+            else:
+                lv += jump
+        if vs > 0.0:
+            th = math.tanh(omega / vs)
+            return fp[foff] + lv * th, lv * (1.0 - th * th) / vs, 0.0
+        return fp[foff] + lv, 0.0, 0.0
+    if code == LOAD_TIME_SERIES:
+        return time_series_load(t, fp, foff), 0.0, 0.0
+    if code == LOAD_FOURIER:
+        # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (seed 004 eq. 4.4);
+        # dT/dphi = sum n (b_n cos(n x) - a_n sin(n x)); same summation order as FourierLoad
+        x = phi - fp[foff + 1]
+        total = fp[foff]
+        dphi = 0.0
+        for j in range(int(fp[foff + 2])):
+            o = foff + 3 + 3 * j
+            n = fp[o]
+            c = math.cos(n * x)
+            sn = math.sin(n * x)
+            total += fp[o + 1] * c + fp[o + 2] * sn
+            dphi += n * (fp[o + 2] * c - fp[o + 1] * sn)
+        return total, 0.0, dphi
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def random_load(t, fp, foff):
+    """M_m + A H(t) (N m): cubic Hermite with Fritsch-Butland PCHIP knot slopes between the
+    pre-generated knots u_k at t_k = k dt (same expression order as load.RandomLoad)."""
+    mean = fp[foff]
+    amp = fp[foff + 1]
+    dt = fp[foff + 2]
+    k0 = int(fp[foff + 3])
+    nk = int(fp[foff + 4])
+    base = foff + 5
+    s = t / dt
+    k = math.floor(s)
+    tau = s - k
+    i = int(k) - 1 - k0
+    if i < 0 or i + 3 >= nk:
+        return math.nan
+    um = fp[base + i]
+    u0 = fp[base + i + 1]
+    u1 = fp[base + i + 2]
+    u2 = fp[base + i + 3]
+    dm = u0 - um
+    d0 = u1 - u0
+    d1 = u2 - u1
+    m0 = 2.0 * dm * d0 / (dm + d0) if dm * d0 > 0.0 else 0.0
+    m1 = 2.0 * d0 * d1 / (d0 + d1) if d0 * d1 > 0.0 else 0.0
+    t2 = tau * tau
+    t3 = tau * tau * tau
+    val = ((2 * t3 - 3 * t2 + 1) * u0 + (t3 - 2 * t2 + tau) * m0 + (-2 * t3 + 3 * t2) * u1
+           + (t3 - t2) * m1)
+    return mean + amp * val
+
+
+@njit(cache=True)
+def time_series_load(t, fp, foff):
+    """load.TimeSeriesLoad: linear interpolation of samples (t_i, T_i), held (or zero) outside."""
+    n = int(fp[foff + 1])
+    ts = foff + 2
+    vs = ts + n
+    if t <= fp[ts] or t >= fp[ts + n - 1]:
+        if fp[foff] != 0.0 and (t < fp[ts] or t > fp[ts + n - 1]):
+            return 0.0
+        return fp[vs] if t <= fp[ts] else fp[vs + n - 1]
+    lo = 0            # largest j with t_j <= t (bisect_right - 1), t_0 < t < t_n-1 here
+    hi = n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fp[ts + mid] <= t:
+            lo = mid
+        else:
+            hi = mid
+    w = (t - fp[ts + lo]) / (fp[ts + lo + 1] - fp[ts + lo])
+    return fp[vs + lo] + w * (fp[vs + lo + 1] - fp[vs + lo])

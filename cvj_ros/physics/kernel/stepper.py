@@ -1,0 +1,138 @@
+"""Python wrappers implementing the ``solvers.Stepper`` protocol on compiled steppers.
+
+``KernelStepper(method, rhs, ip, fp, t0, y0, ...)`` drives the ``@njit`` steppers of
+``steppers_nb`` over a compiled right-hand side ``rhs(t, y, ip, fp, dy)`` (a numba
+dispatcher: core-A's ``rhs_nb.rhs`` for a ModelData, or a toy rhs in the tests).
+State persists in arrays between calls, so ``advance_to`` at every exchange step
+does not restart the stepper. numba is imported here (lazily by callers), so
+commands that do not integrate do not pay for it.
+
+Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermite
+dense output). Not yet compiled: dop853, rosenbrock (RODAS5P), rodas4, ros2 -
+``make_kernel_stepper`` raises SolverOptionError('method', ...) for them so the
+caller can fall back to the Python stepper.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..solvers import SolverError, SolverOptionError, _StepperBase
+from . import steppers_nb as nb
+
+KERNEL_METHODS = ('dopri5', 'rk4')
+
+
+class KernelStepper(_StepperBase):
+    """Stepper protocol over a compiled rhs. Argument checks are those of the
+    Python steppers (``_StepperBase``); counters and t/h live in the arrays of
+    ``steppers_nb`` and are exposed as attributes."""
+
+    def __init__(self, method: str, rhs, ip: np.ndarray, fp: np.ndarray, t0: float, y0, *,
+                 rtol: float = 1e-6, atol: float | np.ndarray = 1e-9, h: float | None = None,
+                 max_step: float = math.inf) -> None:
+        if method not in KERNEL_METHODS:
+            raise SolverOptionError('method', f'not compiled: {method!r} (compiled: '
+                                    f'{", ".join(KERNEL_METHODS)})')
+        self.method = method
+        super().__init__(None, t0, y0, rtol=rtol, atol=atol, h=h, jac=None, max_step=max_step)
+        if method == 'rk4' and self.h is None:
+            raise SolverOptionError('h', f'required for the fixed-step method {method!r}')
+        self._rhs = rhs
+        self.ip = np.ascontiguousarray(ip, dtype=np.int64)
+        self.fp = fp  # not copied: set_torque_inputs writes into it between exchange steps
+        self._y = self.y.copy()
+        stages = 6 if method == 'dopri5' else 4
+        self._fs, self._cnt, self._y_old, self._K, self._work = nb.new_state(self.n, stages)
+        self._y_old[:] = self._y
+        self._fs[nb.FS_T] = self.t
+        self._fs[nb.FS_TOLD] = self.t
+        self._fs[nb.FS_H] = 0.0 if self.h is None else self.h
+        self._atol = np.broadcast_to(np.asarray(self.atol, dtype=float), (self.n,)).copy()
+        self._dense_out = np.empty(self.n)
+
+    # -- protocol attributes backed by the kernel arrays
+    def _sync(self) -> None:
+        fs, cnt = self._fs, self._cnt
+        self.t = float(fs[nb.FS_T])
+        self.t_old = float(fs[nb.FS_TOLD])
+        self.h = float(fs[nb.FS_H]) if fs[nb.FS_H] > 0 else None
+        self.nfev, self.njev, self.nlu = int(cnt[nb.C_NFEV]), int(cnt[nb.C_NJEV]), int(cnt[nb.C_NLU])
+        self.naccept, self.nreject = int(cnt[nb.C_NACC]), int(cnt[nb.C_NREJ])
+        self.y = self._y.copy()
+        self.y_old = self._y_old.copy()
+
+    def _check(self, status: int) -> None:
+        self._sync()
+        if status == nb.ST_OK:
+            return
+        t_bad = float(self._fs[nb.FS_TBAD])
+        if status == nb.ST_NONFINITE:
+            idx = int(self._cnt[nb.C_BADIDX])
+            if idx < 0:
+                raise SolverError(f't: state or derivative too large to integrate at '
+                                  f't={t_bad!r} s (its error norm overflows, {self.method})')
+            raise SolverError(f'y[{idx}]: non-finite value in the step at t={t_bad:.9g} s '
+                              f'({self.method}, step from t={self.t:.9g} s)')
+        raise SolverError(f't: step size underflow at t={self.t!r} s ({self.method}); the '
+                          f'problem may be stiff or singular, try method="rosenbrock"')
+
+    def advance_to(self, t_end: float) -> np.ndarray:
+        """Integrate to exactly t_end (s); the step-size proposal is kept."""
+        t_end = self._check_t_end(t_end)
+        a = (self._rhs, t_end, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        if self.method == 'dopri5':
+            st = nb.dopri5_advance(*a, self.rtol, self._atol, self.max_step, self._K, self._work)
+        else:
+            st = nb.rk4_advance(*a, self._K, self._work)
+        self._check(st)
+        return self.y
+
+    def step(self, t_bound: float = math.inf) -> float:
+        """One natural step never past t_bound (s); returns the new t."""
+        t_bound = self._check_t_end(t_bound) if math.isfinite(t_bound) else math.inf
+        a = (self._rhs, t_bound, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        if self.method == 'dopri5':
+            st = nb.dopri5_step_once(*a, self.rtol, self._atol, self.max_step, self._K,
+                                     self._work)
+        else:
+            st = nb.rk4_step_once(*a, self._K, self._work)
+        self._check(st)
+        return self.t
+
+    def dense(self, t: float) -> np.ndarray:
+        """y(t) inside the last accepted step (dopri5: 4th order; rk4: cubic Hermite)."""
+        t = self._check_dense_t(t)
+        out = np.empty(self.n)
+        if self.method == 'dopri5':
+            if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
+                return self.y.copy()
+            nb.dopri5_dense(t, self._y_old, self._fs, self._K, out)
+        else:
+            nb.hermite_dense(self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+                             self._cnt, self._K, out)
+            self._sync()
+        return out
+
+    def sample(self, t_eval) -> np.ndarray:
+        """Compiled sampled loop: states at the increasing times t_eval (s), (m, n)."""
+        t_eval = np.ascontiguousarray(t_eval, dtype=float)
+        if t_eval.ndim != 1 or (t_eval.size and (np.any(np.diff(t_eval) < 0)
+                                                or not np.all(np.isfinite(t_eval)))):
+            raise SolverOptionError('t_eval', 'must be a finite, non-decreasing 1-d array')
+        Y = np.empty((t_eval.size, self.n))
+        if t_eval.size == 0:
+            return Y
+        a = (self._rhs, t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        if self.method == 'dopri5':
+            st, _ = nb.dopri5_sample(*a, self.rtol, self._atol, self.max_step, self._K,
+                                     self._work, Y)
+        else:
+            st, _ = nb.rk4_sample(*a, self._K, self._work, Y)
+        self._check(st)
+        return Y
+
+    def restart(self) -> None:
+        """Inputs changed discontinuously: drop the FSAL derivative; keep h."""
+        self._cnt[nb.C_HAVEF] = 0

@@ -1,0 +1,142 @@
+"""Compiled steppers (kernel/steppers_nb.py, kernel/stepper.py) on toy compiled
+right-hand sides with the kernel signature rhs(t, y, ip, fp, dy).
+
+Oracles: closed-form solutions (linear 2-DOF engine-spring-load chain via the
+matrix exponential, harmonic oscillator) and the Python steppers of solvers.py
+on the same problem (same tableau and controller, so the same step sequence).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numba import njit
+from scipy.linalg import expm
+
+from cvj_ros.physics import solvers
+from cvj_ros.physics.kernel.stepper import KernelStepper
+
+# 2-DOF chain, states (phi_e, phi_l, w_e, w_l): J_e w_e' = T_e - k dphi - c dw,
+# J_l w_l' = k dphi + c dw - T_l. fp = (J_e, J_l, k, c, T_e, T_l).
+FP_CHAIN = np.array([0.2, 1.5, 800.0, 0.4, 50.0, 20.0])
+IP_NONE = np.zeros(1, np.int64)
+Y0_CHAIN = np.array([0.0, 0.0, 10.0, 10.0])
+
+
+@njit(cache=False)  # toy rhs: not cached (test module names vary between runners)
+def chain_rhs(t, y, ip, fp, dy):
+    dphi = y[0] - y[1]
+    dw = y[2] - y[3]
+    tq = fp[2] * dphi + fp[3] * dw
+    dy[0] = y[2]
+    dy[1] = y[3]
+    dy[2] = (fp[4] - tq) / fp[0]
+    dy[3] = (tq - fp[5]) / fp[1]
+
+
+def chain_py(t, y):
+    dy = np.empty(4)
+    chain_rhs.py_func(t, y, IP_NONE, FP_CHAIN, dy)
+    return dy
+
+
+def chain_exact(t: float) -> np.ndarray:
+    """Closed form of the affine linear chain: augmented matrix exponential."""
+    je, jl, k, c, te, tl = FP_CHAIN
+    M = np.zeros((5, 5))
+    M[0, 2] = M[1, 3] = 1.0
+    M[2, :4] = [-k / je, k / je, -c / je, c / je]
+    M[3, :4] = [k / jl, -k / jl, c / jl, -c / jl]
+    M[2, 4], M[3, 4] = te / je, -tl / jl
+    return (expm(M * t) @ np.r_[Y0_CHAIN, 1.0])[:4]
+
+
+def _rel(a, b):
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+@pytest.mark.parametrize('rtol', [1e-4, 1e-7, 1e-10])
+def test_dopri5_matches_python_oracle_and_closed_form(rtol):
+    atol = rtol * 1e-2
+    ks = KernelStepper('dopri5', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN, rtol=rtol, atol=atol)
+    ps = solvers.make_stepper('dopri5', chain_py, 0.0, Y0_CHAIN, rtol=rtol, atol=atol)
+    for t_x in np.arange(1, 21) * 0.05:  # 20 exchange steps, stepper not restarted
+        yk = ks.advance_to(t_x)
+        yp = ps.advance_to(t_x)
+    # same tableau + controller: same step sequence; states differ by rounding only
+    # (numpy dot vs loops). Measured <= 3e-14 relative; bound 1e-11 (>= 300x).
+    assert (ks.naccept, ks.nreject, ks.nfev) == (ps.naccept, ps.nreject, ps.nfev)
+    assert _rel(yk, yp) < 1e-11
+    # global error of a 5th-order method with local control rtol: below 100 * rtol
+    # over this run (measured 2-30 x rtol).
+    assert _rel(yk, chain_exact(1.0)) < 100 * rtol
+    # dense output inside the last step: same polynomial as the Python stepper
+    tm = 0.5 * (ks.t_old + ks.t)
+    assert _rel(ks.dense(tm), ps.dense(tm)) < 1e-11
+
+
+def test_dopri5_sampled_loop_equals_step_and_dense():
+    t_eval = np.linspace(0.0, 1.0, 101)
+    a = KernelStepper('dopri5', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN, rtol=1e-8,
+                      atol=1e-10)
+    Y = a.sample(t_eval)
+    ps = solvers.make_stepper('dopri5', chain_py, 0.0, Y0_CHAIN, rtol=1e-8, atol=1e-10)
+    Yp = solvers.sample_dense(ps, t_eval)
+    assert Y.shape == (101, 4)
+    # rounding only, as above; the compiled loop clips its last step to land on
+    # t_eval[-1] (sample_dense steps past it and interpolates), so compare the end
+    # point with the closed form below only
+    assert _rel(Y[:-1], Yp[:-1]) < 1e-11
+    exact = np.array([chain_exact(t) for t in t_eval])
+    # dense output is 4th order: interpolation error ~ rtol-level, bound 1e3 * rtol
+    # (measured ~1e-8 relative at rtol 1e-8)
+    assert _rel(Y, exact) < 1e-5
+    assert a.t == 1.0
+
+
+def test_dopri5_bit_identical_reruns():
+    """Same inputs -> same bytes (no CPU-dependent library in the path)."""
+    runs = []
+    for _ in range(2):
+        s = KernelStepper('dopri5', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN, rtol=1e-9,
+                          atol=1e-12)
+        runs.append(s.sample(np.linspace(0, 2, 50)).tobytes())
+    assert runs[0] == runs[1]
+
+
+def test_rk4_fourth_order_and_python_oracle():
+    errs = []
+    for h in (4e-3, 2e-3):
+        ks = KernelStepper('rk4', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN, h=h)
+        ps = solvers.make_stepper('rk4', chain_py, 0.0, Y0_CHAIN, h=h)
+        y = ks.advance_to(0.5)
+        yp = ps.advance_to(0.5)
+        assert ks.nfev == ps.nfev and ks.naccept == ps.naccept
+        assert _rel(y, yp) < 1e-12   # identical arithmetic up to operation order
+        errs.append(_rel(y, chain_exact(0.5)))
+        t = 0.5 - 0.3 * h
+        assert _rel(ks.dense(t), ps.dense(t)) < 1e-12
+    # halving h divides the error by 2^4 = 16 for a 4th-order method; accept 12..20
+    assert 12 < errs[0] / errs[1] < 20
+
+
+def test_rk4_advance_lands_with_equal_substeps():
+    ks = KernelStepper('rk4', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN, h=0.003)
+    ks.advance_to(0.01)   # ceil(0.01/0.003) = 4 substeps of 0.0025
+    assert ks.t == 0.01 and ks.naccept == 4
+
+
+@njit(cache=False)  # toy rhs: not cached (test module names vary between runners)
+def blowup_rhs(t, y, ip, fp, dy):
+    dy[0] = y[0] * y[0]   # y = 1/(1 - t): blows up at t = 1
+
+
+def test_errors_are_solver_errors_not_crashes():
+    s = KernelStepper('dopri5', blowup_rhs, IP_NONE, np.zeros(1), 0.0, [1.0], rtol=1e-6)
+    with pytest.raises(solvers.SolverError, match=r'^(t: step size underflow|y\[0\])'):
+        s.advance_to(2.0)
+    with pytest.raises(solvers.SolverOptionError, match='^method'):
+        KernelStepper('dop853', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN)
+    with pytest.raises(solvers.SolverOptionError, match='^h'):
+        KernelStepper('rk4', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN)

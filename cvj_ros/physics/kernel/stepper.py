@@ -8,7 +8,9 @@ does not restart the stepper. numba is imported here (lazily by callers), so
 commands that do not integrate do not pay for it.
 
 Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermite
-dense output). Not yet compiled: dop853, rosenbrock (RODAS5P), rodas4, ros2 -
+dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compiled
+``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output). Not yet compiled:
+dop853, rosenbrock (RODAS5P), rodas4 -
 ``make_kernel_stepper`` raises SolverOptionError('method', ...) for them so the
 caller can fall back to the Python stepper.
 """
@@ -21,7 +23,7 @@ import numpy as np
 from ..solvers import SolverError, SolverOptionError, _StepperBase
 from . import steppers_nb as nb
 
-KERNEL_METHODS = ('dopri5', 'rk4')
+KERNEL_METHODS = ('dopri5', 'rk4', 'ros2')
 
 
 class KernelStepper(_StepperBase):
@@ -31,19 +33,30 @@ class KernelStepper(_StepperBase):
 
     def __init__(self, method: str, rhs, ip: np.ndarray, fp: np.ndarray, t0: float, y0, *,
                  rtol: float = 1e-6, atol: float | np.ndarray = 1e-9, h: float | None = None,
-                 max_step: float = math.inf) -> None:
+                 max_step: float = math.inf, jac=None, autonomous: bool = False,
+                 constant_jac: bool = False) -> None:
         if method not in KERNEL_METHODS:
             raise SolverOptionError('method', f'not compiled: {method!r} (compiled: '
                                     f'{", ".join(KERNEL_METHODS)})')
         self.method = method
         super().__init__(None, t0, y0, rtol=rtol, atol=atol, h=h, jac=None, max_step=max_step)
-        if method == 'rk4' and self.h is None:
+        if method in ('rk4', 'ros2') and self.h is None:
             raise SolverOptionError('h', f'required for the fixed-step method {method!r}')
         self._rhs = rhs
         self.ip = np.ascontiguousarray(ip, dtype=np.int64)
         self.fp = fp  # not copied: set_torque_inputs writes into it between exchange steps
         self._y = self.y.copy()
+        if method == 'ros2' and jac is None:
+            raise SolverOptionError('jac', 'the compiled ros2 needs the compiled jac(t, y, ip, fp, J)')
+        self._jac = jac
+        self._autonomous = bool(autonomous)
+        self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
+        if method == 'ros2':
+            self._J = np.zeros((self.n, self.n))
+            self._LU = np.zeros((self.n, self.n))
+            self._piv = np.zeros(self.n, np.int64)
+            self._ft = np.zeros(self.n)
         self._fs, self._cnt, self._y_old, self._K, self._work = nb.new_state(self.n, stages)
         self._y_old[:] = self._y
         self._fs[nb.FS_T] = self.t
@@ -68,6 +81,9 @@ class KernelStepper(_StepperBase):
         if status == nb.ST_OK:
             return
         t_bad = float(self._fs[nb.FS_TBAD])
+        if status == nb.ST_SINGULAR:
+            raise SolverError(f'h: matrix I/(h*gamma) - J is singular or non-finite at '
+                              f't={t_bad:.9g} s ({self.method})')
         if status == nb.ST_NONFINITE:
             idx = int(self._cnt[nb.C_BADIDX])
             if idx < 0:
@@ -84,6 +100,8 @@ class KernelStepper(_StepperBase):
         a = (self._rhs, t_end, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
             st = nb.dopri5_advance(*a, self.rtol, self._atol, self.max_step, self._K, self._work)
+        elif self.method == 'ros2':
+            st = nb.ros2_advance(self._rhs, self._jac, *a[1:], *self._ros_args())
         else:
             st = nb.rk4_advance(*a, self._K, self._work)
         self._check(st)
@@ -96,10 +114,16 @@ class KernelStepper(_StepperBase):
         if self.method == 'dopri5':
             st = nb.dopri5_step_once(*a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work)
+        elif self.method == 'ros2':
+            st = nb.ros2_step_once(self._rhs, self._jac, *a[1:], *self._ros_args())
         else:
             st = nb.rk4_step_once(*a, self._K, self._work)
         self._check(st)
         return self.t
+
+    def _ros_args(self) -> tuple:
+        return (self._autonomous, self._constant_jac, self._J, self._LU, self._piv, self._ft,
+                self._K, self._work)
 
     def dense(self, t: float) -> np.ndarray:
         """y(t) inside the last accepted step (dopri5: 4th order; rk4: cubic Hermite)."""
@@ -125,6 +149,8 @@ class KernelStepper(_StepperBase):
         if t_eval.size == 0:
             return Y
         a = (self._rhs, t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        if self.method == 'ros2':
+            return super_sample(self, t_eval)
         if self.method == 'dopri5':
             st, _ = nb.dopri5_sample(*a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work, Y)
@@ -136,3 +162,12 @@ class KernelStepper(_StepperBase):
     def restart(self) -> None:
         """Inputs changed discontinuously: drop the FSAL derivative; keep h."""
         self._cnt[nb.C_HAVEF] = 0
+        self._cnt[nb.C_HAVEJ] = 0
+        self._cnt[nb.C_HAVELU] = 0
+
+
+def super_sample(stepper: KernelStepper, t_eval: np.ndarray) -> np.ndarray:
+    """Sampling by natural steps + dense output from Python (methods without a
+    compiled sampled loop yet: ros2); same contract as solvers.sample_dense."""
+    from ..solvers import sample_dense
+    return sample_dense(stepper, t_eval)

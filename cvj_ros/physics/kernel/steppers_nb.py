@@ -43,8 +43,10 @@ from numba import njit
 # ------------------------------------------------------------------ layout
 FS_T, FS_H, FS_TOLD, FS_ERROLD, FS_HLAST, FS_TBAD = 0, 1, 2, 3, 4, 5
 NFS = 8
-C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX = range(8)
-NCNT = 8
+C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX, C_HAVEJ, C_HAVELU = range(10)
+NCNT = 10
+FS_LUH = 6      # h of the current LU factors (Rosenbrock)
+ST_SINGULAR = 3  # I/(h gamma) - J singular or non-finite
 ST_OK, ST_NONFINITE, ST_UNDERFLOW = 0, 1, 2
 
 _EPS = np.finfo(float).eps
@@ -458,3 +460,216 @@ def rk4_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
                 hermite_dense(rhs, t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k])
             k += 1
     return ST_OK, k
+
+
+# ------------------------------------------------------------ Rosenbrock (ros2)
+# Linear algebra by hand (partial pivoting LU, row order fixed), no LAPACK/BLAS.
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+ROS2_A = np.array([[0.0, 0.0], [1.0 / ROS2_GAMMA, 0.0]])
+ROS2_C = np.array([[0.0, 0.0], [-2.0 / ROS2_GAMMA, 0.0]])
+ROS2_M = np.array([1.5 / ROS2_GAMMA, 0.5 / ROS2_GAMMA])
+ROS2_ALPHA = np.array([0.0, 1.0])
+ROS2_GSUM = np.array([ROS2_GAMMA, -ROS2_GAMMA])
+
+
+@njit(cache=True)
+def lu_factor(G, piv):
+    """In-place LU with partial pivoting (Doolittle, row interchanges in piv).
+    Returns False when a pivot is zero or the factors are not finite."""
+    n = G.shape[0]
+    for k in range(n):
+        p = k
+        big = abs(G[k, k])
+        for i in range(k + 1, n):
+            if abs(G[i, k]) > big:
+                big = abs(G[i, k])
+                p = i
+        piv[k] = p
+        if big == 0.0 or not math.isfinite(big):
+            return False
+        if p != k:
+            for j in range(n):
+                tmp = G[k, j]
+                G[k, j] = G[p, j]
+                G[p, j] = tmp
+        inv = 1.0 / G[k, k]
+        for i in range(k + 1, n):
+            G[i, k] *= inv
+            lik = G[i, k]
+            if lik != 0.0:
+                for j in range(k + 1, n):
+                    G[i, j] -= lik * G[k, j]
+    for i in range(n):
+        for j in range(n):
+            if not math.isfinite(G[i, j]):
+                return False
+    return True
+
+
+@njit(cache=True)
+def lu_solve(LU, piv, b):
+    """Solve (LU) x = b in place in b (forward then back substitution)."""
+    n = LU.shape[0]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            tmp = b[k]
+            b[k] = b[p]
+            b[p] = tmp
+    for i in range(n):
+        acc = b[i]
+        for j in range(i):
+            acc -= LU[i, j] * b[j]
+        b[i] = acc
+    for i in range(n - 1, -1, -1):
+        acc = b[i]
+        for j in range(i + 1, n):
+            acc -= LU[i, j] * b[j]
+        b[i] = acc / LU[i, i]
+
+
+@njit(cache=True)
+def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
+    """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed
+    (same policy as solvers._LinearlyImplicit._prepare). K[0] = f(t, y)."""
+    n = y.shape[0]
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if cnt[C_HAVEJ] == 0:
+        jac(t, y, ip, fp, J)
+        cnt[C_NJEV] += 1
+        cnt[C_HAVELU] = 0
+        if autonomous:
+            for i in range(n):
+                ft[i] = 0.0
+        else:
+            # central difference: error ~ eps^(2/3)
+            delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
+            rhs(t + delta, y, ip, fp, work[2])
+            rhs(t - delta, y, ip, fp, work[3])
+            cnt[C_NFEV] += 2
+            for i in range(n):
+                ft[i] = (work[2, i] - work[3, i]) / (2.0 * delta)
+        cnt[C_HAVEJ] = 1
+    if cnt[C_HAVELU] == 0 or abs(fs[FS_LUH] - h) > 1e-12 * h:
+        d = 1.0 / (h * gamma)
+        for i in range(n):
+            for j in range(n):
+                LU[i, j] = -J[i, j]
+            LU[i, i] += d
+        cnt[C_NLU] += 1
+        if not lu_factor(LU, piv):
+            fs[FS_TBAD] = t
+            return ST_SINGULAR
+        fs[FS_LUH] = h
+        cnt[C_HAVELU] = 1
+    return ST_OK
+
+
+@njit(cache=True)
+def _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
+    """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
+    y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
+    (K[0] = f(t, y)). y_new into work[1]."""
+    n = y.shape[0]
+    st = M.shape[0]
+    t = fs[FS_T]
+    arg = work[0]
+    for s in range(st):
+        b = K[s + 1]
+        if s == 0:
+            for i in range(n):
+                b[i] = K[0, i] + (h * gsum[0]) * ft[i]
+        else:
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A[s, j] * K[j + 1, i]
+                arg[i] = y[i] + acc
+            rhs(t + alpha[s] * h, arg, ip, fp, b)
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += (C[s, j] / h) * K[j + 1, i]
+                b[i] += acc + (h * gsum[s]) * ft[i]
+        lu_solve(LU, piv, b)
+    cnt[C_NFEV] += st - 1
+    ynew = work[1]
+    for i in range(n):
+        acc = 0.0
+        for j in range(st):
+            acc += M[j] * K[j + 1, i]
+        ynew[i] = y[i] + acc
+
+
+@njit(cache=True)
+def _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+               J, LU, piv, ft, K, work):
+    """One ROS2 step of dt (solvers.Ros2Stepper._step + _FixedStepper._take)."""
+    n = y.shape[0]
+    st = _ros_prepare(rhs, jac, dt, ROS2_GAMMA, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
+                      ft, K, work)
+    if st != ST_OK:
+        return st
+    _ros_stages(rhs, dt, y, ip, fp, fs, cnt, ROS2_A, ROS2_C, ROS2_M, ROS2_ALPHA, ROS2_GSUM,
+                LU, piv, ft, K, work)
+    ynew = work[1]
+    bad = _first_nonfinite(ynew)
+    if bad >= 0:
+        cnt[C_BADIDX] = bad
+        fs[FS_TBAD] = t_new
+        return ST_NONFINITE
+    for i in range(n):
+        y_old[i] = y[i]
+        y[i] = ynew[i]
+        K[4, i] = K[0, i]   # f at the step start, for Hermite dense output (K has 5 rows)
+    fs[FS_TOLD] = fs[FS_T]
+    fs[FS_HLAST] = t_new - fs[FS_T]
+    fs[FS_T] = t_new
+    cnt[C_HAVEF] = 0
+    if not constant_jac:
+        cnt[C_HAVEJ] = 0
+    cnt[C_NACC] += 1
+    return ST_OK
+
+
+@njit(cache=True)
+def ros2_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                 J, LU, piv, ft, K, work):
+    """ROS2 to exactly t_end with ceil(span/h) equal substeps <= h. Returns ST_*."""
+    t0 = fs[FS_T]
+    span = t_end - t0
+    if span <= 0.0:
+        return ST_OK
+    nsub = max(1, int(math.ceil(span / fs[FS_H] * (1 - 1e-12))))
+    dt = span / nsub
+    for k in range(1, nsub + 1):
+        t_new = t_end if k == nsub else t0 + k * dt
+        st = _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous,
+                        constant_jac, J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                   J, LU, piv, ft, K, work):
+    """One ROS2 step of h shortened to end on t_bound; returns ST_*."""
+    t = fs[FS_T]
+    if t >= t_bound:
+        return ST_OK
+    h = fs[FS_H]
+    if h * (1 + 1e-12) >= t_bound - t:
+        return _ros2_take(rhs, jac, t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt,
+                          autonomous, constant_jac, J, LU, piv, ft, K, work)
+    return _ros2_take(rhs, jac, h, t + h, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                      J, LU, piv, ft, K, work)

@@ -198,3 +198,28 @@ def test_ros2_l_stable_on_a_stiff_chain():
     # rigid body: J_tot w' = T_e - T_l -> w(1) = 10 + 30/1.7
     w_rigid = 10.0 + (50.0 - 20.0) / (0.2 + 1.5)
     assert abs(y[2] - w_rigid) < 1e-6 * w_rigid and abs(y[3] - w_rigid) < 1e-6 * w_rigid
+
+
+@pytest.mark.parametrize('method', ['rosenbrock', 'rodas4'])
+@pytest.mark.parametrize('stiff', [False, True])
+def test_adaptive_rosenbrock_matches_python_oracle(method, stiff):
+    fp = FP_CHAIN.copy()
+    if stiff:   # stiff spring + damper as in test_ros2_l_stable_on_a_stiff_chain
+        fp[2], fp[3] = 8e7, 4e3
+    rtol, atol = 1e-7, 1e-9
+    ks = KernelStepper(method, chain_rhs, IP_NONE, fp, 0.0, Y0_CHAIN, rtol=rtol, atol=atol,
+                       jac=chain_jac)
+    ps = solvers.make_stepper(method, lambda t, y: chain_py(t, y, fp), 0.0, Y0_CHAIN, rtol=rtol,
+                              atol=atol, jac=lambda t, y: chain_jac_py(t, y, fp))
+    for t_x in np.arange(1, 11) * 0.1:   # 10 exchange steps, not restarted
+        y = ks.advance_to(t_x)
+        yp = ps.advance_to(t_x)
+    # same tableau and controller; hand LU vs LAPACK changes rounding only
+    # (measured <= 1e-13 relative); bound 1e-10
+    assert (ks.naccept, ks.nreject, ks.nfev, ks.njev, ks.nlu) == \
+        (ps.naccept, ps.nreject, ps.nfev, ps.njev, ps.nlu)
+    assert _rel(y, yp) < 1e-10
+    # global error vs the closed form: below 100 * rtol (measured <= ~10 x rtol)
+    assert _rel(y, chain_exact(1.0, fp)) < 100 * rtol
+    tm = ks.t_old + 0.3 * (ks.t - ks.t_old)
+    assert _rel(ks.dense(tm), ps.dense(tm)) < 1e-10

@@ -9,8 +9,9 @@ commands that do not integrate do not pay for it.
 
 Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermite
 dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compiled
-``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output). Not yet compiled:
-dop853, rosenbrock (RODAS5P), rodas4 -
+``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output), 'rosenbrock'
+(RODAS5P, its own dense output) and 'rodas4' (Hermite dense output), adaptive.
+Not yet compiled: dop853 -
 ``make_kernel_stepper`` raises SolverOptionError('method', ...) for them so the
 caller can fall back to the Python stepper.
 """
@@ -23,7 +24,8 @@ import numpy as np
 from ..solvers import SolverError, SolverOptionError, _StepperBase
 from . import steppers_nb as nb
 
-KERNEL_METHODS = ('dopri5', 'rk4', 'ros2')
+KERNEL_METHODS = ('dopri5', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
+_ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4')
 
 
 class KernelStepper(_StepperBase):
@@ -46,13 +48,25 @@ class KernelStepper(_StepperBase):
         self.ip = np.ascontiguousarray(ip, dtype=np.int64)
         self.fp = fp  # not copied: set_torque_inputs writes into it between exchange steps
         self._y = self.y.copy()
-        if method == 'ros2' and jac is None:
-            raise SolverOptionError('jac', 'the compiled ros2 needs the compiled jac(t, y, ip, fp, J)')
+        if method in _ROSENBROCK and jac is None:
+            raise SolverOptionError('jac', f'the compiled {method} needs the compiled '
+                                    f'jac(t, y, ip, fp, J)')
         self._jac = jac
         self._autonomous = bool(autonomous)
         self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
-        if method == 'ros2':
+        if method in ('rosenbrock', 'rodas4'):
+            from .. import solvers
+            cls = solvers.METHODS[method]
+            tab = cls._tableau()
+            self._tab = (float(tab['gamma']), np.ascontiguousarray(tab['A']),
+                         np.ascontiguousarray(tab['C']), np.ascontiguousarray(tab['M']),
+                         np.ascontiguousarray(tab['E']), np.ascontiguousarray(tab['alpha']),
+                         np.ascontiguousarray(tab['gamma_sum']), int(cls.order),
+                         float(cls.fac_max))
+            self._H = np.ascontiguousarray(tab['H']) if 'H' in tab else None
+            stages = len(tab['M']) + 1   # K rows: f, stages, f at the last step start
+        if method in _ROSENBROCK:
             self._J = np.zeros((self.n, self.n))
             self._LU = np.zeros((self.n, self.n))
             self._piv = np.zeros(self.n, np.int64)
@@ -102,6 +116,8 @@ class KernelStepper(_StepperBase):
             st = nb.dopri5_advance(*a, self.rtol, self._atol, self.max_step, self._K, self._work)
         elif self.method == 'ros2':
             st = nb.ros2_advance(self._rhs, self._jac, *a[1:], *self._ros_args())
+        elif self.method in _ROSENBROCK:
+            st = nb.ros_advance(self._rhs, self._jac, *a[1:], *self._rodas_args())
         else:
             st = nb.rk4_advance(*a, self._K, self._work)
         self._check(st)
@@ -116,6 +132,9 @@ class KernelStepper(_StepperBase):
                                      self._work)
         elif self.method == 'ros2':
             st = nb.ros2_step_once(self._rhs, self._jac, *a[1:], *self._ros_args())
+        elif self.method in _ROSENBROCK:
+            st = nb.ST_OK if self.t >= t_bound else nb.ros_step(
+                self._rhs, self._jac, *a[1:], *self._rodas_args())
         else:
             st = nb.rk4_step_once(*a, self._K, self._work)
         self._check(st)
@@ -125,6 +144,10 @@ class KernelStepper(_StepperBase):
         return (self._autonomous, self._constant_jac, self._J, self._LU, self._piv, self._ft,
                 self._K, self._work)
 
+    def _rodas_args(self) -> tuple:
+        return (self.rtol, self._atol, self.max_step, self._autonomous, self._constant_jac,
+                *self._tab, self._J, self._LU, self._piv, self._ft, self._K, self._work)
+
     def dense(self, t: float) -> np.ndarray:
         """y(t) inside the last accepted step (dopri5: 4th order; rk4: cubic Hermite)."""
         t = self._check_dense_t(t)
@@ -133,6 +156,16 @@ class KernelStepper(_StepperBase):
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
             nb.dopri5_dense(t, self._y_old, self._fs, self._K, out)
+        elif self.method == 'rosenbrock':
+            if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
+                return self.y.copy()
+            nb.ros_dense_h(t, self._y, self._y_old, self._fs, self._H, self._K, out)
+        elif self.method == 'rodas4':
+            if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
+                return self.y.copy()
+            nb.hermite_dense(self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+                             self._cnt, self._K, out, self._K.shape[0] - 1)
+            self._sync()
         else:
             nb.hermite_dense(self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                              self._cnt, self._K, out)
@@ -149,7 +182,7 @@ class KernelStepper(_StepperBase):
         if t_eval.size == 0:
             return Y
         a = (self._rhs, t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
-        if self.method == 'ros2':
+        if self.method in _ROSENBROCK:
             return super_sample(self, t_eval)
         if self.method == 'dopri5':
             st, _ = nb.dopri5_sample(*a, self.rtol, self._atol, self.max_step, self._K,

@@ -141,13 +141,13 @@ def _initial_step(rhs, y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp,
 
 
 @njit(cache=True)
-def _proposal(h, err, fs, expo):
+def _proposal(h, err, fs, expo, fac_max):
     """PI controller after an accepted step (solvers._proposal)."""
     fac = err ** expo / fs[FS_ERROLD] ** BETA / SAFETY
     if fac > 0:
-        fac = min(1.0 / FAC_MIN, max(1.0 / FAC_MAX, fac))
+        fac = min(1.0 / FAC_MIN, max(1.0 / fac_max, fac))
     else:
-        fac = 1.0 / FAC_MAX
+        fac = 1.0 / fac_max
     fs[FS_ERROLD] = max(err, 1e-4)
     return h / fac
 
@@ -221,7 +221,7 @@ def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K
             return ST_NONFINITE if nonfinite else ST_UNDERFLOW
         err = _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work)
         if err <= 1.0:
-            h_new = _proposal(h, err, fs, expo)
+            h_new = _proposal(h, err, fs, expo, FAC_MAX)
             if cnt[C_LASTREJ] == 1:
                 h_new = min(h_new, h)
             cnt[C_LASTREJ] = 0
@@ -410,9 +410,9 @@ def rk4_step_once(rhs, t_bound, y, y_old, ip, fp, fs, cnt, K, work):
 
 
 @njit(cache=True)
-def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out):
+def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
     """Cubic Hermite y(t) inside the last fixed step (3rd order), from f at the
-    step start (K[4]) and f at the step end (computed once into K[0], reused by
+    step start (K[frow]) and f at the step end (computed once into K[0], reused by
     the next step as its first stage: cnt[C_HAVEF] = 1)."""
     n = y.shape[0]
     h = fs[FS_HLAST]
@@ -432,7 +432,7 @@ def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out):
     h01 = -2 * s3 + 3 * s2
     h11 = s3 - s2
     for i in range(n):
-        out[i] = h00 * y_old[i] + h10 * h * K[4, i] + h01 * y[i] + h11 * h * K[0, i]
+        out[i] = h00 * y_old[i] + h10 * h * K[frow, i] + h01 * y[i] + h11 * h * K[0, i]
 
 
 @njit(cache=True)
@@ -673,3 +673,122 @@ def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, con
                           autonomous, constant_jac, J, LU, piv, ft, K, work)
     return _ros2_take(rhs, jac, h, t + h, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                       J, LU, piv, ft, K, work)
+
+
+# ------------------------------------------------ adaptive Rosenbrock (RODAS)
+# Tableau arrays (K form of solvers._rodas5p_tableau / _rodas4_tableau) are passed
+# in; K has s + 2 rows: K[0] = f(t, y), K[1..s] the stages, K[s+1] = f at the
+# start of the last accepted step (Hermite dense output for RODAS4).
+@njit(cache=True)
+def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+             constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft, K,
+             work):
+    """One accepted adaptive Rosenbrock step (solvers.RosenbrockStepper with
+    _AdaptiveStepper._step_once): the Jacobian is kept across rejected attempts,
+    the LU is refactored when h changes. Returns ST_*."""
+    n = y.shape[0]
+    st_n = M.shape[0]
+    expo = 1.0 / (order + 1) - 0.75 * BETA
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if fs[FS_H] <= 0.0:
+        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, order,
+                           work[0], work[2])
+        if h0 < 0.0:
+            cnt[C_BADIDX] = -1
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        fs[FS_H] = h0
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    nonfinite = False
+    ynew = work[1]
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        st = _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft,
+                          K, work)
+        if st != ST_OK:
+            return st
+        _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work)
+        ss = 0.0
+        for i in range(n):
+            e = 0.0
+            for j in range(st_n):
+                e += E[j] * K[j + 1, i]
+            sc = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            ss += (e / sc) ** 2
+        err = math.sqrt(ss / n)
+        if err <= 1.0:
+            h_new = _proposal(h, err, fs, expo, fac_max)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            for i in range(n):
+                K[st_n + 1, i] = K[0, i]
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_HAVEF] = 0
+            if not constant_jac:
+                cnt[C_HAVEJ] = 0
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            cnt[C_BADIDX] = _first_nonfinite(ynew)
+            fs[FS_TBAD] = t + h
+            h = h * FAC_MIN
+
+
+@njit(cache=True)
+def ros_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+                constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
+                K, work):
+    """Adaptive Rosenbrock to exactly t_end; returns ST_*."""
+    while fs[FS_T] < t_end:
+        st = ros_step(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                      autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max,
+                      J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def ros_dense_h(t, y, y_old, fs, H, K, out):
+    """RODAS5P continuous extension inside the last accepted step:
+    y(x) = (1-x) y0 + x (y1 + (1-x) (D1 + x (D2 + x D3))), D = H K (solvers)."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    x = (t - fs[FS_TOLD]) / h
+    x1 = 1.0 - x
+    st_n = H.shape[1]
+    for i in range(n):
+        d0 = 0.0
+        d1 = 0.0
+        d2 = 0.0
+        for j in range(st_n):
+            d0 += H[0, j] * K[j + 1, i]
+            d1 += H[1, j] * K[j + 1, i]
+            d2 += H[2, j] * K[j + 1, i]
+        out[i] = x1 * y_old[i] + x * (y[i] + x1 * (d0 + x * (d1 + x * d2)))

@@ -10,10 +10,10 @@ commands that do not integrate do not pay for it.
 Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermite
 dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compiled
 ``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output), 'rosenbrock'
-(RODAS5P, its own dense output) and 'rodas4' (Hermite dense output), adaptive.
-Not yet compiled: dop853 -
-``make_kernel_stepper`` raises SolverOptionError('method', ...) for them so the
-caller can fall back to the Python stepper.
+(RODAS5P, its own dense output) and 'rodas4' (Hermite dense output), adaptive, and
+'dop853' (8(5,3), 7th-order dense output). Every method of solvers.METHODS is compiled;
+unknown names raise
+SolverOptionError('method', ...).
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import numpy as np
 from ..solvers import SolverError, SolverOptionError, _StepperBase
 from . import steppers_nb as nb
 
-KERNEL_METHODS = ('dopri5', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
+KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
 _ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4')
 
 
@@ -55,6 +55,17 @@ class KernelStepper(_StepperBase):
         self._autonomous = bool(autonomous)
         self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
+        if method == 'dop853':
+            from scipy.integrate import DOP853 as D8
+            self._d8 = (np.ascontiguousarray(D8.C, dtype=float),
+                        np.ascontiguousarray(D8.A, dtype=float),
+                        np.ascontiguousarray(D8.B, dtype=float),
+                        np.ascontiguousarray(D8.E5, dtype=float),
+                        np.ascontiguousarray(D8.E3, dtype=float))
+            self._d8_dense = (np.ascontiguousarray(D8.D, dtype=float),
+                              np.ascontiguousarray(D8.A_EXTRA, dtype=float),
+                              np.ascontiguousarray(D8.C_EXTRA, dtype=float))
+            stages = 22   # K rows: 13 stages + FSAL, 3 dense stages, 7 dense coefficients
         if method in ('rosenbrock', 'rodas4'):
             from .. import solvers
             cls = solvers.METHODS[method]
@@ -114,6 +125,9 @@ class KernelStepper(_StepperBase):
         a = (self._rhs, t_end, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
             st = nb.dopri5_advance(*a, self.rtol, self._atol, self.max_step, self._K, self._work)
+        elif self.method == 'dop853':
+            st = nb.dop853_advance(*a, self.rtol, self._atol, self.max_step, *self._d8, self._K,
+                                   self._work)
         elif self.method == 'ros2':
             st = nb.ros2_advance(self._rhs, self._jac, *a[1:], *self._ros_args())
         elif self.method in _ROSENBROCK:
@@ -130,6 +144,9 @@ class KernelStepper(_StepperBase):
         if self.method == 'dopri5':
             st = nb.dopri5_step_once(*a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work)
+        elif self.method == 'dop853':
+            st = nb.ST_OK if self.t >= t_bound else nb.dop853_step(
+                *a, self.rtol, self._atol, self.max_step, *self._d8, self._K, self._work)
         elif self.method == 'ros2':
             st = nb.ros2_step_once(self._rhs, self._jac, *a[1:], *self._ros_args())
         elif self.method in _ROSENBROCK:
@@ -156,6 +173,12 @@ class KernelStepper(_StepperBase):
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
             nb.dopri5_dense(t, self._y_old, self._fs, self._K, out)
+        elif self.method == 'dop853':
+            if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
+                return self.y.copy()
+            nb.dop853_dense(self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+                            self._cnt, *self._d8_dense, self._K, out)
+            self._sync()
         elif self.method == 'rosenbrock':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
@@ -182,7 +205,7 @@ class KernelStepper(_StepperBase):
         if t_eval.size == 0:
             return Y
         a = (self._rhs, t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
-        if self.method in _ROSENBROCK:
+        if self.method in _ROSENBROCK or self.method == 'dop853':
             return super_sample(self, t_eval)
         if self.method == 'dopri5':
             st, _ = nb.dopri5_sample(*a, self.rtol, self._atol, self.max_step, self._K,

@@ -43,8 +43,9 @@ from numba import njit
 # ------------------------------------------------------------------ layout
 FS_T, FS_H, FS_TOLD, FS_ERROLD, FS_HLAST, FS_TBAD = 0, 1, 2, 3, 4, 5
 NFS = 8
-C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX, C_HAVEJ, C_HAVELU = range(10)
-NCNT = 10
+(C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX, C_HAVEJ, C_HAVELU,
+ C_DENSE) = range(11)
+NCNT = 11
 FS_LUH = 6      # h of the current LU factors (Rosenbrock)
 ST_SINGULAR = 3  # I/(h gamma) - J singular or non-finite
 ST_OK, ST_NONFINITE, ST_UNDERFLOW = 0, 1, 2
@@ -792,3 +793,171 @@ def ros_dense_h(t, y, y_old, fs, H, K, out):
             d1 += H[1, j] * K[j + 1, i]
             d2 += H[2, j] * K[j + 1, i]
         out[i] = x1 * y_old[i] + x * (y[i] + x1 * (d0 + x * (d1 + x * d2)))
+
+
+# ------------------------------------------------------------------ dop853
+# Coefficients (scipy.integrate.DOP853: C, A, B, E5, E3, D, A_EXTRA, C_EXTRA) are
+# passed in by the wrapper. K rows: 0..11 stages k0..k11, 12 = f(t+h, y_new)
+# (FSAL), 13..15 the three extra dense stages, 16..22 the dense coefficients F.
+D8_ORDER = 7
+D8_FAC_MIN = 0.333
+D8_FAC_MAX = 6.0
+
+
+@njit(cache=True)
+def _proposal_nobeta(h, err, fac_min, fac_max, expo):
+    """solvers._proposal with beta = 0 (DOP853): h * (safety / err^expo), clamped."""
+    fac = err ** expo / SAFETY
+    if fac > 0:
+        fac = min(1.0 / fac_min, max(1.0 / fac_max, fac))
+    else:
+        fac = 1.0 / fac_max
+    return h / fac
+
+
+@njit(cache=True)
+def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
+                K, work):
+    """One accepted DOP853 step (solvers.Dop853Stepper + _step_once). Returns ST_*."""
+    n = y.shape[0]
+    ns = B.shape[0]   # 12
+    expo = 1.0 / (D8_ORDER + 1)
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 2:
+        for i in range(n):
+            K[0, i] = K[ns, i]
+        cnt[C_HAVEF] = 1
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if fs[FS_H] <= 0.0:
+        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, D8_ORDER,
+                           work[0], work[2])
+        if h0 < 0.0:
+            cnt[C_BADIDX] = -1
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        fs[FS_H] = h0
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    nonfinite = False
+    arg = work[0]
+    ynew = work[1]
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        for s in range(1, ns):
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A[s, j] * K[j, i]
+                arg[i] = y[i] + h * acc
+            rhs(t + C[s] * h, arg, ip, fp, K[s])
+        for i in range(n):
+            acc = 0.0
+            for j in range(ns):
+                acc += B[j] * K[j, i]
+            ynew[i] = y[i] + h * acc
+        rhs(t + h, ynew, ip, fp, K[ns])
+        cnt[C_NFEV] += ns
+        e5n = 0.0
+        e3n = 0.0
+        for i in range(n):
+            e5 = 0.0
+            e3 = 0.0
+            for j in range(ns + 1):
+                e5 += E5[j] * K[j, i]
+                e3 += E3[j] * K[j, i]
+            sc = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            e5n += (e5 / sc) ** 2
+            e3n += (e3 / sc) ** 2
+        if e5n == 0.0 and e3n == 0.0:
+            err = 0.0
+        else:
+            err = abs(h) * e5n / math.sqrt((e5n + 0.01 * e3n) * n)
+        if err <= 1.0:
+            h_new = _proposal_nobeta(h, err, D8_FAC_MIN, D8_FAC_MAX, expo)
+            fs[FS_ERROLD] = max(err, 1e-4)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            for i in range(n):
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_HAVEF] = 2
+            cnt[C_DENSE] = 0
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / D8_FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            cnt[C_BADIDX] = _first_nonfinite(ynew)
+            fs[FS_TBAD] = t + h
+            h = h * D8_FAC_MIN
+
+
+@njit(cache=True)
+def dop853_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
+                   E3, K, work):
+    """DOP853 to exactly t_end; returns ST_*."""
+    while fs[FS_T] < t_end:
+        st = dop853_step(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B,
+                         E5, E3, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def dop853_dense(rhs, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
+    """7th-order dense output of DOP853 inside the last accepted step; the three
+    extra stages (3 fev) and the coefficients F are computed once per step."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    t_old = fs[FS_TOLD]
+    if cnt[C_DENSE] == 0:
+        arg = np.empty(n)
+        for r in range(3):
+            s = 13 + r
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A_EXTRA[r, j] * K[j, i]
+                arg[i] = y_old[i] + h * acc
+            rhs(t_old + C_EXTRA[r] * h, arg, ip, fp, K[s])
+        cnt[C_NFEV] += 3
+        for i in range(n):
+            dy = y[i] - y_old[i]
+            K[16, i] = dy
+            K[17, i] = h * K[0, i] - dy
+            K[18, i] = 2 * dy - h * (K[12, i] + K[0, i])
+            for r in range(4):
+                acc = 0.0
+                for j in range(16):
+                    acc += D[r, j] * K[j, i]
+                K[19 + r, i] = h * acc
+        cnt[C_DENSE] = 1
+    x = (t - t_old) / h
+    for i in range(n):
+        acc = 0.0
+        for q in range(7):
+            acc += K[22 - q, i]
+            acc *= x if q % 2 == 0 else 1.0 - x
+        out[i] = acc + y_old[i]

@@ -225,3 +225,50 @@ def test_adaptive_rosenbrock_matches_python_oracle(method, stiff):
     assert _rel(y, chain_exact(1.0, fp)) < 100 * rtol
     tm = ks.t_old + 0.3 * (ks.t - ks.t_old)
     assert _rel(ks.dense(tm), ps.dense(tm)) < 1e-10
+
+
+_DIGEST_SCRIPT = r'''
+import hashlib, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import test_kernel_steppers as T
+h = hashlib.sha256()
+fp = T.FP_CHAIN.copy()
+fp[2], fp[3] = 8e7, 4e3
+for method, p in (('dopri5', T.FP_CHAIN), ('rosenbrock', fp)):
+    s = T.KernelStepper(method, T.chain_rhs, T.IP_NONE, p, 0.0, T.Y0_CHAIN, rtol=1e-8,
+                        atol=1e-10, jac=T.chain_jac)
+    for t_x in np.linspace(0.05, 1.0, 20):
+        h.update(s.advance_to(t_x).tobytes())
+print(h.hexdigest())
+'''
+
+
+def test_kernel_bytes_do_not_depend_on_openblas_coretype():
+    """Issue 9 item 4: the compiled path uses no BLAS, so the trajectory bytes are
+    identical in fresh interpreters under every OPENBLAS_CORETYPE and in-process."""
+    import hashlib
+    import os
+    import subprocess
+    import sys
+    here = os.path.dirname(os.path.abspath(__file__))
+    digests = {}
+    for core in (None, 'Haswell', 'SkylakeX', 'Sandybridge'):
+        env = dict(os.environ)
+        env.pop('OPENBLAS_CORETYPE', None)
+        if core:
+            env['OPENBLAS_CORETYPE'] = core
+        out = subprocess.run([sys.executable, '-c', _DIGEST_SCRIPT, here], env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        digests[core] = out.stdout.strip().splitlines()[-1]
+    h = hashlib.sha256()
+    fp = FP_CHAIN.copy()
+    fp[2], fp[3] = 8e7, 4e3
+    for method, p in (('dopri5', FP_CHAIN), ('rosenbrock', fp)):
+        s = KernelStepper(method, chain_rhs, IP_NONE, p, 0.0, Y0_CHAIN, rtol=1e-8, atol=1e-10,
+                          jac=chain_jac)
+        for t_x in np.linspace(0.05, 1.0, 20):
+            h.update(s.advance_to(t_x).tobytes())
+    digests['in-process'] = h.hexdigest()
+    assert len(set(digests.values())) == 1, digests

@@ -162,19 +162,28 @@ def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
     n = y.shape[0]
     t = fs[FS_T]
     arg = work[0]
+    # stage sums row by row (contiguous rows of K, fixed order j = 0, 1, ...):
+    # arg = y + (h a_s0) k_0 + (h a_s1) k_1 + ..., the order of the Python oracle's
+    # product with the h-scaled coefficient row
     for s in range(1, 6):
         for i in range(n):
-            acc = 0.0
-            for j in range(s):
-                acc += DP_A[s, j] * K[j, i]
-            arg[i] = y[i] + h * acc
+            arg[i] = y[i]
+        for j in range(s):
+            c = h * DP_A[s, j]
+            if c != 0.0:
+                kj = K[j]
+                for i in range(n):
+                    arg[i] += c * kj[i]
         rhs(t + DP_C[s] * h, arg, ip, fp, K[s])
     ynew = work[1]
     for i in range(n):
-        acc = 0.0
-        for j in range(6):
-            acc += DP_B[j] * K[j, i]
-        ynew[i] = y[i] + h * acc
+        ynew[i] = y[i]
+    for j in range(6):
+        c = h * DP_B[j]
+        if c != 0.0:
+            kj = K[j]
+            for i in range(n):
+                ynew[i] += c * kj[i]
     rhs(t + h, ynew, ip, fp, K[6])
     cnt[C_NFEV] += 6
     ss = 0.0

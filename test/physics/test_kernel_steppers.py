@@ -272,3 +272,16 @@ def test_kernel_bytes_do_not_depend_on_openblas_coretype():
             h.update(s.advance_to(t_x).tobytes())
     digests['in-process'] = h.hexdigest()
     assert len(set(digests.values())) == 1, digests
+
+
+def test_cache_dir_falls_back_to_user_cache_when_install_is_read_only(tmp_path):
+    from cvj_ros.physics.kernel import choose_cache_dir
+    pkg = str(tmp_path / 'site-packages' / 'kernel')
+    env = {'HOME': str(tmp_path / 'home')}
+    assert choose_cache_dir(pkg, env, lambda p: True) is None           # writable install
+    assert choose_cache_dir(pkg, env, lambda p: False) == \
+        str(tmp_path / 'home' / '.cache' / 'cvj_ros' / 'numba')
+    env['XDG_CACHE_HOME'] = str(tmp_path / 'xdg')
+    assert choose_cache_dir(pkg, env, lambda p: False) == str(tmp_path / 'xdg' / 'cvj_ros' / 'numba')
+    env['NUMBA_CACHE_DIR'] = '/x'
+    assert choose_cache_dir(pkg, env, lambda p: False) == '/x'       # the user's choice wins

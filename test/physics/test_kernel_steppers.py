@@ -142,6 +142,10 @@ def test_errors_are_solver_errors_not_crashes():
         KernelStepper('rk45', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN)
     with pytest.raises(solvers.SolverOptionError, match='^h'):
         KernelStepper('rk4', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN)
+    with pytest.raises(solvers.SolverOptionError, match='^fp'):   # entry points need float64
+        KernelStepper('dopri5', chain_rhs, IP_NONE, FP_CHAIN.astype(np.float32), 0.0, Y0_CHAIN)
+    with pytest.raises(solvers.SolverOptionError, match='^jac'):
+        KernelStepper('rosenbrock', chain_rhs, IP_NONE, FP_CHAIN, 0.0, Y0_CHAIN)
 
 
 @njit(cache=False)  # toy jac: not cached (test module names vary between runners)

@@ -1,0 +1,972 @@
+"""Compiled (numba) steppers over a right-hand side ``rhs(t, y, ip, fp, dy)``.
+
+Issue 9. Every function here is ``@njit(cache=True)`` without fastmath, and
+every sum is a hand-written loop in a fixed order (no BLAS, no numpy reductions
+whose order could depend on the CPU), so the bytes of a trajectory do not
+depend on ``OPENBLAS_CORETYPE`` or the machine.
+
+The right-hand side is passed as a first-class numba dispatcher ``rhs`` with the
+signature of ``kernel/rhs_nb.py`` (``rhs(t, y, ip, fp, dy) -> None``, dy filled
+in place; ip: int64 codes, fp: float64 parameters). numba specialises each
+stepper once per rhs dispatcher (one for the driveline kernel, one per toy rhs
+in the tests) and caches it on disk.
+
+Persistent state lives in arrays owned by the caller (``kernel/stepper.py``), so
+a stepper is not restarted at each exchange step:
+
+``fs`` (float64[NFS]) : FS_T t (s), FS_H next step proposal (s, 0 = unset),
+    FS_TOLD start of the last accepted step (s), FS_ERROLD PI controller memory,
+    FS_HLAST length of the last accepted step (s), FS_TBAD t of a non-finite state.
+``cnt`` (int64[NCNT]) : C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF (1 = the
+    FSAL derivative K[0] / f is valid), C_LASTREJ (1 = last attempt rejected),
+    C_BADIDX (index of the first non-finite state for the error message).
+
+Step-size control copies ``solvers._AdaptiveStepper`` (Hairer's HINIT initial
+step, PI controller with safety 0.9, fac_min 0.2, fac_max 10, beta 0.04, step
+clipped to land on t_bound when within 1 %, proposal kept across a clipped
+step), so the compiled and the Python steppers take the same steps up to
+rounding. Return codes: ST_OK, ST_NONFINITE (a state or derivative is not
+finite even after shrinking the step), ST_UNDERFLOW (h < 10 eps |t|).
+
+Sources: Dormand & Prince, J. Comp. Appl. Math. 6 (1980) 19-26; Hairer,
+Norsett & Wanner, Solving ODEs I (2nd ed.), sec. II.4 (HINIT), II.5 (table
+5.2), IV.2 (PI control); dense output coefficients of Shampine, Math. Comp. 46
+(1986) as in scipy.integrate.RK45; classic RK4: Kutta, Z. Math. Phys. 46 (1901).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# ------------------------------------------------------------------ layout
+FS_T, FS_H, FS_TOLD, FS_ERROLD, FS_HLAST, FS_TBAD = 0, 1, 2, 3, 4, 5
+NFS = 8
+(C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX, C_HAVEJ, C_HAVELU,
+ C_DENSE) = range(11)
+NCNT = 11
+FS_LUH = 6      # h of the current LU factors (Rosenbrock)
+ST_SINGULAR = 3  # I/(h gamma) - J singular or non-finite
+ST_OK, ST_NONFINITE, ST_UNDERFLOW = 0, 1, 2
+
+_EPS = np.finfo(float).eps
+SAFETY = 0.9
+FAC_MIN = 0.2
+FAC_MAX = 10.0
+BETA = 0.04
+
+# ------------------------------------------------- Dormand-Prince 5(4) tableau
+# Exactly the doubles of scipy.integrate.RK45 (C, A, B, E, P), so the Python
+# oracle (solvers.Dopri5Stepper) and this kernel use the same coefficients.
+DP_C = np.array([0.0, 0.2, 0.3, 0.8, 0.8888888888888888, 1.0])
+DP_A = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0],
+    [0.2, 0.0, 0.0, 0.0, 0.0],
+    [0.075, 0.225, 0.0, 0.0, 0.0],
+    [0.9777777777777777, -3.7333333333333334, 3.5555555555555554, 0.0, 0.0],
+    [2.9525986892242035, -11.595793324188385, 9.822892851699436, -0.2908093278463649, 0.0],
+    [2.8462752525252526, -10.757575757575758, 8.906422717743473, 0.2784090909090909,
+     -0.2735313036020583]])
+DP_B = np.array([0.09114583333333333, 0.0, 0.44923629829290207, 0.6510416666666666,
+                 -0.322376179245283, 0.13095238095238096])
+DP_E = np.array([-0.0012326388888888888, 0.0, 0.0042527702905061394, -0.03697916666666667,
+                 0.05086379716981132, -0.0419047619047619, 0.025])
+DP_P = np.array([
+    [1.0, -2.8535800653862835, 3.0717434641059005, -1.1270175653862835],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 4.023133379230305, -6.249321565289, 2.675424484351598],
+    [0.0, -3.7324019615885042, 10.068970589843675, -5.685526961588504],
+    [0.0, 2.5548038301849423, -6.399112377351017, 3.5219323679207912],
+    [0.0, -1.3744241142186024, 3.272657752246729, -1.7672812570757455],
+    [0.0, 1.3824689317781436, -3.764937863556287, 2.382468931778144]])
+DP_ORDER = 4  # order of the error estimator: controller exponent 1/(order+1)
+
+
+def new_state(n: int, stages: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                             np.ndarray]:
+    """Fresh persistent arrays for an n-state stepper: (fs, cnt, y_old, K, work).
+
+    K (stages+1, n) holds the stage derivatives (row 0 = f at the step start,
+    FSAL); work (4, n) is scratch (stage argument, y_new, error, spare)."""
+    fs = np.zeros(NFS)
+    fs[FS_ERROLD] = 1e-4
+    return fs, np.zeros(NCNT, np.int64), np.zeros(n), np.zeros((stages + 1, n)), np.zeros((4, n))
+
+
+# ------------------------------------------------------------------ helpers
+@njit(cache=True)
+def _first_nonfinite(v: np.ndarray) -> int:
+    """Index of the first non-finite entry of v, -1 when all are finite."""
+    for i in range(v.shape[0]):
+        if not math.isfinite(v[i]):
+            return i
+    return -1
+
+
+@njit(cache=True)
+def _initial_step(rhs, y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp, f1):
+    """Hairer's HINIT (HNW I, sec. II.4), same arithmetic as solvers._initial_step;
+    one fev. Returns h0 (s), or -1.0 when the error norm overflows."""
+    n = y.shape[0]
+    t = fs[FS_T]
+    s0 = 0.0
+    s1 = 0.0
+    for i in range(n):
+        sc = abs(y[i]) * rtol + atol[i]
+        s0 += (y[i] / sc) ** 2
+        s1 += (f0[i] / sc) ** 2
+    d0 = math.sqrt(s0 / n)
+    d1 = math.sqrt(s1 / n)
+    if not (math.isfinite(d0) and math.isfinite(d1)):
+        return -1.0
+    h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
+    h0 = min(h0, max_step)
+    for i in range(n):
+        tmp[i] = y[i] + h0 * f0[i]
+    rhs(t + h0, tmp, ip, fp, f1)
+    cnt[C_NFEV] += 1
+    s2 = 0.0
+    for i in range(n):
+        sc = abs(y[i]) * rtol + atol[i]
+        s2 += ((f1[i] - f0[i]) / sc) ** 2
+    d2 = math.sqrt(s2 / n) / h0
+    if not math.isfinite(d2):
+        return -1.0
+    dmax = max(d1, d2)
+    if dmax <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / dmax) ** (1.0 / (order + 1))
+    return min(100 * h0, h1, max_step)
+
+
+@njit(cache=True)
+def _proposal(h, err, fs, expo, fac_max):
+    """PI controller after an accepted step (solvers._proposal)."""
+    fac = err ** expo / fs[FS_ERROLD] ** BETA / SAFETY
+    if fac > 0:
+        fac = min(1.0 / FAC_MIN, max(1.0 / fac_max, fac))
+    else:
+        fac = 1.0 / fac_max
+    fs[FS_ERROLD] = max(err, 1e-4)
+    return h / fac
+
+
+# ------------------------------------------------------------------ dopri5
+@njit(cache=True)
+def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
+    """One DOPRI5 attempt of size h from (fs[FS_T], y) with K[0] = f(t, y).
+    Fills K[1..6] (K[6] = f(t+h, y_new), FSAL) and work[1] = y_new; returns the
+    scaled RMS error (NaN when a stage is not finite)."""
+    n = y.shape[0]
+    t = fs[FS_T]
+    arg = work[0]
+    # stage sums row by row (contiguous rows of K, fixed order j = 0, 1, ...):
+    # arg = y + (h a_s0) k_0 + (h a_s1) k_1 + ..., the order of the Python oracle's
+    # product with the h-scaled coefficient row
+    for s in range(1, 6):
+        for i in range(n):
+            arg[i] = y[i]
+        for j in range(s):
+            c = h * DP_A[s, j]
+            if c != 0.0:
+                kj = K[j]
+                for i in range(n):
+                    arg[i] += c * kj[i]
+        rhs(t + DP_C[s] * h, arg, ip, fp, K[s])
+    ynew = work[1]
+    for i in range(n):
+        ynew[i] = y[i]
+    for j in range(6):
+        c = h * DP_B[j]
+        if c != 0.0:
+            kj = K[j]
+            for i in range(n):
+                ynew[i] += c * kj[i]
+    rhs(t + h, ynew, ip, fp, K[6])
+    cnt[C_NFEV] += 6
+    ss = 0.0
+    for i in range(n):
+        e = 0.0
+        for j in range(7):
+            e += DP_E[j] * K[j, i]
+        sc = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+        ss += (e / sc) ** 2
+    return abs(h) * math.sqrt(ss / n)
+
+
+@njit(cache=True)
+def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+    """One accepted DOPRI5 step from fs[FS_T] of the controller's size, clipped to
+    land on t_bound when within 1 %. y is updated in place (old value in
+    y_old); K keeps the stages of the step for ``dopri5_dense``. Returns ST_*."""
+    n = y.shape[0]
+    expo = 1.0 / (DP_ORDER + 1) - 0.75 * BETA
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if fs[FS_H] <= 0.0:
+        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, DP_ORDER,
+                           work[0], work[2])
+        if h0 < 0.0:
+            cnt[C_BADIDX] = -1
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        fs[FS_H] = h0
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    nonfinite = False
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        err = _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work)
+        if err <= 1.0:
+            h_new = _proposal(h, err, fs, expo, FAC_MAX)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            ynew = work[1]
+            for i in range(n):
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            # K[0] <- FSAL value after the dense data are no longer needed: keep
+            # the stages in K[0..6] for dense output and move FSAL on next step.
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_HAVEF] = 2  # 2: FSAL value sits in K[6]
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        ynew = work[1]
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            bad = _first_nonfinite(ynew)
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t + h
+            h = h * FAC_MIN
+
+
+@njit(cache=True)
+def _dopri5_fsal(K, cnt):
+    """Move the FSAL derivative of the last accepted step (K[6]) to K[0]."""
+    if cnt[C_HAVEF] == 2:
+        for i in range(K.shape[1]):
+            K[0, i] = K[6, i]
+        cnt[C_HAVEF] = 1
+
+
+@njit(cache=True)
+def dopri5_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+    """Integrate to exactly t_end (s); keeps h across calls. Returns ST_*.
+    After return K holds the last step's stages (dense output valid)."""
+    while fs[FS_T] < t_end:
+        _dopri5_fsal(K, cnt)
+        st = dopri5_step(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def dopri5_step_once(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+    """One natural step never past t_bound (Stepper.step); returns ST_*."""
+    if fs[FS_T] < t_bound:
+        _dopri5_fsal(K, cnt)
+        return dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                           K, work)
+    return ST_OK
+
+
+@njit(cache=True)
+def dopri5_dense(t, y_old, fs, K, out):
+    """4th-order continuous extension inside the last accepted step:
+    out = y_old + h * sum_j K[j] * (P[j] . [x, x^2, x^3, x^4]), x = (t - t_old)/h."""
+    n = y_old.shape[0]
+    h = fs[FS_HLAST]
+    if h == 0.0:
+        for i in range(n):
+            out[i] = y_old[i]
+        return
+    x = (t - fs[FS_TOLD]) / h
+    x2 = x * x
+    x3 = x2 * x
+    x4 = x3 * x
+    for i in range(n):
+        acc = 0.0
+        for j in range(7):
+            q = DP_P[j, 0] * x + DP_P[j, 1] * x2 + DP_P[j, 2] * x3 + DP_P[j, 3] * x4
+            acc += K[j, i] * q
+        out[i] = y_old[i] + h * acc
+
+
+@njit(cache=True)
+def dopri5_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, Y):
+    """Compiled sampled loop: natural steps to t_eval[-1], each output time
+    (ascending, >= fs[FS_T]) filled into Y[k] by dense output (exact end point
+    at the step end). Returns (status, number of rows written)."""
+    m = t_eval.shape[0]
+    k = 0
+    n = y.shape[0]
+    while k < m and t_eval[k] <= fs[FS_T]:
+        for i in range(n):
+            Y[k, i] = y[i]
+        k += 1
+    if k >= m:
+        return ST_OK, k
+    t_last = t_eval[m - 1]
+    while k < m:
+        _dopri5_fsal(K, cnt)
+        st = dopri5_step(rhs, t_last, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
+        if st != ST_OK:
+            return st, k
+        t_now = fs[FS_T]
+        while k < m and t_eval[k] <= t_now:
+            if t_eval[k] == t_now:
+                for i in range(n):
+                    Y[k, i] = y[i]
+            else:
+                dopri5_dense(t_eval[k], y_old, fs, K, Y[k])
+            k += 1
+    return ST_OK, k
+
+
+# ---------------------------------------------------------------------- rk4
+@njit(cache=True)
+def _rk4_take(rhs, dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
+    """One classic RK4 step of dt; K[0] = f(t, y) on entry (computed when
+    cnt[C_HAVEF] == 0), K[4] = f at the new point is left invalid (cnt[C_HAVEF]=0)."""
+    n = y.shape[0]
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+    hh = 0.5 * dt
+    arg = work[0]
+    for i in range(n):
+        arg[i] = y[i] + hh * K[0, i]
+    rhs(t + hh, arg, ip, fp, K[1])
+    for i in range(n):
+        arg[i] = y[i] + hh * K[1, i]
+    rhs(t + hh, arg, ip, fp, K[2])
+    for i in range(n):
+        arg[i] = y[i] + dt * K[2, i]
+    rhs(t + dt, arg, ip, fp, K[3])
+    cnt[C_NFEV] += 3
+    ynew = work[1]
+    for i in range(n):
+        ynew[i] = y[i] + (dt / 6.0) * (K[0, i] + 2.0 * (K[1, i] + K[2, i]) + K[3, i])
+    bad = _first_nonfinite(ynew)
+    if bad >= 0:
+        cnt[C_BADIDX] = bad
+        fs[FS_TBAD] = t_new
+        return ST_NONFINITE
+    for i in range(n):
+        y_old[i] = y[i]
+        y[i] = ynew[i]
+        K[4, i] = K[0, i]   # f at the step start, kept for Hermite dense output
+    fs[FS_TOLD] = t
+    fs[FS_T] = t_new
+    fs[FS_HLAST] = t_new - t
+    cnt[C_HAVEF] = 0
+    cnt[C_NACC] += 1
+    return ST_OK
+
+
+@njit(cache=True)
+def rk4_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, K, work):
+    """Integrate to exactly t_end with ceil((t_end - t)/h) equal substeps <= h
+    (h = fs[FS_H]), as solvers._FixedStepper.advance_to. Returns ST_*."""
+    t0 = fs[FS_T]
+    span = t_end - t0
+    if span <= 0.0:
+        return ST_OK
+    nsub = max(1, int(math.ceil(span / fs[FS_H] * (1 - 1e-12))))
+    dt = span / nsub
+    for k in range(1, nsub + 1):
+        t_new = t_end if k == nsub else t0 + k * dt
+        st = _rk4_take(rhs, dt, t_new, y, y_old, ip, fp, fs, cnt, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def rk4_step_once(rhs, t_bound, y, y_old, ip, fp, fs, cnt, K, work):
+    """One step of h shortened to end on t_bound (Stepper.step); returns ST_*."""
+    t = fs[FS_T]
+    if t >= t_bound:
+        return ST_OK
+    h = fs[FS_H]
+    if h * (1 + 1e-12) >= t_bound - t:
+        return _rk4_take(rhs, t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt, K, work)
+    return _rk4_take(rhs, h, t + h, y, y_old, ip, fp, fs, cnt, K, work)
+
+
+@njit(cache=True)
+def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
+    """Cubic Hermite y(t) inside the last fixed step (3rd order), from f at the
+    step start (K[frow]) and f at the step end (computed once into K[0], reused by
+    the next step as its first stage: cnt[C_HAVEF] = 1)."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    if h == 0.0 or t == fs[FS_T]:
+        for i in range(n):
+            out[i] = y[i]
+        return
+    if cnt[C_HAVEF] == 0:
+        rhs(fs[FS_T], y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        cnt[C_HAVEF] = 1
+    s = (t - fs[FS_TOLD]) / h
+    s2 = s * s
+    s3 = s2 * s
+    h00 = 2 * s3 - 3 * s2 + 1
+    h10 = s3 - 2 * s2 + s
+    h01 = -2 * s3 + 3 * s2
+    h11 = s3 - s2
+    for i in range(n):
+        out[i] = h00 * y_old[i] + h10 * h * K[frow, i] + h01 * y[i] + h11 * h * K[0, i]
+
+
+@njit(cache=True)
+def rk4_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
+    """Compiled sampled loop for rk4: steps of h to t_eval[-1], Hermite dense
+    output at each output time. Returns (status, rows written)."""
+    m = t_eval.shape[0]
+    n = y.shape[0]
+    k = 0
+    while k < m and t_eval[k] <= fs[FS_T]:
+        for i in range(n):
+            Y[k, i] = y[i]
+        k += 1
+    t_last = t_eval[m - 1] if m > 0 else fs[FS_T]
+    while k < m:
+        st = rk4_step_once(rhs, t_last, y, y_old, ip, fp, fs, cnt, K, work)
+        if st != ST_OK:
+            return st, k
+        t_now = fs[FS_T]
+        while k < m and t_eval[k] <= t_now:
+            if t_eval[k] == t_now:
+                for i in range(n):
+                    Y[k, i] = y[i]
+            else:
+                hermite_dense(rhs, t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k])
+            k += 1
+    return ST_OK, k
+
+
+# ------------------------------------------------------------ Rosenbrock (ros2)
+# Linear algebra by hand (partial pivoting LU, row order fixed), no LAPACK/BLAS.
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+ROS2_A = np.array([[0.0, 0.0], [1.0 / ROS2_GAMMA, 0.0]])
+ROS2_C = np.array([[0.0, 0.0], [-2.0 / ROS2_GAMMA, 0.0]])
+ROS2_M = np.array([1.5 / ROS2_GAMMA, 0.5 / ROS2_GAMMA])
+ROS2_ALPHA = np.array([0.0, 1.0])
+ROS2_GSUM = np.array([ROS2_GAMMA, -ROS2_GAMMA])
+
+
+@njit(cache=True)
+def lu_factor(G, piv):
+    """In-place LU with partial pivoting (Doolittle, row interchanges in piv).
+    Returns False when a pivot is zero or the factors are not finite."""
+    n = G.shape[0]
+    for k in range(n):
+        p = k
+        big = abs(G[k, k])
+        for i in range(k + 1, n):
+            if abs(G[i, k]) > big:
+                big = abs(G[i, k])
+                p = i
+        piv[k] = p
+        if big == 0.0 or not math.isfinite(big):
+            return False
+        if p != k:
+            for j in range(n):
+                tmp = G[k, j]
+                G[k, j] = G[p, j]
+                G[p, j] = tmp
+        inv = 1.0 / G[k, k]
+        for i in range(k + 1, n):
+            G[i, k] *= inv
+            lik = G[i, k]
+            if lik != 0.0:
+                for j in range(k + 1, n):
+                    G[i, j] -= lik * G[k, j]
+    for i in range(n):
+        for j in range(n):
+            if not math.isfinite(G[i, j]):
+                return False
+    return True
+
+
+@njit(cache=True)
+def lu_solve(LU, piv, b):
+    """Solve (LU) x = b in place in b (forward then back substitution)."""
+    n = LU.shape[0]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            tmp = b[k]
+            b[k] = b[p]
+            b[p] = tmp
+    for i in range(n):
+        acc = b[i]
+        for j in range(i):
+            acc -= LU[i, j] * b[j]
+        b[i] = acc
+    for i in range(n - 1, -1, -1):
+        acc = b[i]
+        for j in range(i + 1, n):
+            acc -= LU[i, j] * b[j]
+        b[i] = acc / LU[i, i]
+
+
+@njit(cache=True)
+def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
+    """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed
+    (same policy as solvers._LinearlyImplicit._prepare). K[0] = f(t, y)."""
+    n = y.shape[0]
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if cnt[C_HAVEJ] == 0:
+        jac(t, y, ip, fp, J)
+        cnt[C_NJEV] += 1
+        cnt[C_HAVELU] = 0
+        if autonomous:
+            for i in range(n):
+                ft[i] = 0.0
+        else:
+            # central difference: error ~ eps^(2/3)
+            delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
+            rhs(t + delta, y, ip, fp, work[2])
+            rhs(t - delta, y, ip, fp, work[3])
+            cnt[C_NFEV] += 2
+            for i in range(n):
+                ft[i] = (work[2, i] - work[3, i]) / (2.0 * delta)
+        cnt[C_HAVEJ] = 1
+    if cnt[C_HAVELU] == 0 or abs(fs[FS_LUH] - h) > 1e-12 * h:
+        d = 1.0 / (h * gamma)
+        for i in range(n):
+            for j in range(n):
+                LU[i, j] = -J[i, j]
+            LU[i, i] += d
+        cnt[C_NLU] += 1
+        if not lu_factor(LU, piv):
+            fs[FS_TBAD] = t
+            return ST_SINGULAR
+        fs[FS_LUH] = h
+        cnt[C_HAVELU] = 1
+    return ST_OK
+
+
+@njit(cache=True)
+def _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
+    """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
+    y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
+    (K[0] = f(t, y)). y_new into work[1]."""
+    n = y.shape[0]
+    st = M.shape[0]
+    t = fs[FS_T]
+    arg = work[0]
+    for s in range(st):
+        b = K[s + 1]
+        if s == 0:
+            for i in range(n):
+                b[i] = K[0, i] + (h * gsum[0]) * ft[i]
+        else:
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A[s, j] * K[j + 1, i]
+                arg[i] = y[i] + acc
+            rhs(t + alpha[s] * h, arg, ip, fp, b)
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += (C[s, j] / h) * K[j + 1, i]
+                b[i] += acc + (h * gsum[s]) * ft[i]
+        lu_solve(LU, piv, b)
+    cnt[C_NFEV] += st - 1
+    ynew = work[1]
+    for i in range(n):
+        acc = 0.0
+        for j in range(st):
+            acc += M[j] * K[j + 1, i]
+        ynew[i] = y[i] + acc
+
+
+@njit(cache=True)
+def _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+               J, LU, piv, ft, K, work):
+    """One ROS2 step of dt (solvers.Ros2Stepper._step + _FixedStepper._take)."""
+    n = y.shape[0]
+    st = _ros_prepare(rhs, jac, dt, ROS2_GAMMA, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
+                      ft, K, work)
+    if st != ST_OK:
+        return st
+    _ros_stages(rhs, dt, y, ip, fp, fs, cnt, ROS2_A, ROS2_C, ROS2_M, ROS2_ALPHA, ROS2_GSUM,
+                LU, piv, ft, K, work)
+    ynew = work[1]
+    bad = _first_nonfinite(ynew)
+    if bad >= 0:
+        cnt[C_BADIDX] = bad
+        fs[FS_TBAD] = t_new
+        return ST_NONFINITE
+    for i in range(n):
+        y_old[i] = y[i]
+        y[i] = ynew[i]
+        K[4, i] = K[0, i]   # f at the step start, for Hermite dense output (K has 5 rows)
+    fs[FS_TOLD] = fs[FS_T]
+    fs[FS_HLAST] = t_new - fs[FS_T]
+    fs[FS_T] = t_new
+    cnt[C_HAVEF] = 0
+    if not constant_jac:
+        cnt[C_HAVEJ] = 0
+    cnt[C_NACC] += 1
+    return ST_OK
+
+
+@njit(cache=True)
+def ros2_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                 J, LU, piv, ft, K, work):
+    """ROS2 to exactly t_end with ceil(span/h) equal substeps <= h. Returns ST_*."""
+    t0 = fs[FS_T]
+    span = t_end - t0
+    if span <= 0.0:
+        return ST_OK
+    nsub = max(1, int(math.ceil(span / fs[FS_H] * (1 - 1e-12))))
+    dt = span / nsub
+    for k in range(1, nsub + 1):
+        t_new = t_end if k == nsub else t0 + k * dt
+        st = _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous,
+                        constant_jac, J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                   J, LU, piv, ft, K, work):
+    """One ROS2 step of h shortened to end on t_bound; returns ST_*."""
+    t = fs[FS_T]
+    if t >= t_bound:
+        return ST_OK
+    h = fs[FS_H]
+    if h * (1 + 1e-12) >= t_bound - t:
+        return _ros2_take(rhs, jac, t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt,
+                          autonomous, constant_jac, J, LU, piv, ft, K, work)
+    return _ros2_take(rhs, jac, h, t + h, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                      J, LU, piv, ft, K, work)
+
+
+# ------------------------------------------------ adaptive Rosenbrock (RODAS)
+# Tableau arrays (K form of solvers._rodas5p_tableau / _rodas4_tableau) are passed
+# in; K has s + 2 rows: K[0] = f(t, y), K[1..s] the stages, K[s+1] = f at the
+# start of the last accepted step (Hermite dense output for RODAS4).
+@njit(cache=True)
+def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+             constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft, K,
+             work):
+    """One accepted adaptive Rosenbrock step (solvers.RosenbrockStepper with
+    _AdaptiveStepper._step_once): the Jacobian is kept across rejected attempts,
+    the LU is refactored when h changes. Returns ST_*."""
+    n = y.shape[0]
+    st_n = M.shape[0]
+    expo = 1.0 / (order + 1) - 0.75 * BETA
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if fs[FS_H] <= 0.0:
+        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, order,
+                           work[0], work[2])
+        if h0 < 0.0:
+            cnt[C_BADIDX] = -1
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        fs[FS_H] = h0
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    nonfinite = False
+    ynew = work[1]
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        st = _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft,
+                          K, work)
+        if st != ST_OK:
+            return st
+        _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work)
+        ss = 0.0
+        for i in range(n):
+            e = 0.0
+            for j in range(st_n):
+                e += E[j] * K[j + 1, i]
+            sc = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            ss += (e / sc) ** 2
+        err = math.sqrt(ss / n)
+        if err <= 1.0:
+            h_new = _proposal(h, err, fs, expo, fac_max)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            for i in range(n):
+                K[st_n + 1, i] = K[0, i]
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_HAVEF] = 0
+            if not constant_jac:
+                cnt[C_HAVEJ] = 0
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            cnt[C_BADIDX] = _first_nonfinite(ynew)
+            fs[FS_TBAD] = t + h
+            h = h * FAC_MIN
+
+
+@njit(cache=True)
+def ros_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+                constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
+                K, work):
+    """Adaptive Rosenbrock to exactly t_end; returns ST_*."""
+    while fs[FS_T] < t_end:
+        st = ros_step(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                      autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max,
+                      J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def ros_dense_h(t, y, y_old, fs, H, K, out):
+    """RODAS5P continuous extension inside the last accepted step:
+    y(x) = (1-x) y0 + x (y1 + (1-x) (D1 + x (D2 + x D3))), D = H K (solvers)."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    x = (t - fs[FS_TOLD]) / h
+    x1 = 1.0 - x
+    st_n = H.shape[1]
+    for i in range(n):
+        d0 = 0.0
+        d1 = 0.0
+        d2 = 0.0
+        for j in range(st_n):
+            d0 += H[0, j] * K[j + 1, i]
+            d1 += H[1, j] * K[j + 1, i]
+            d2 += H[2, j] * K[j + 1, i]
+        out[i] = x1 * y_old[i] + x * (y[i] + x1 * (d0 + x * (d1 + x * d2)))
+
+
+# ------------------------------------------------------------------ dop853
+# Coefficients (scipy.integrate.DOP853: C, A, B, E5, E3, D, A_EXTRA, C_EXTRA) are
+# passed in by the wrapper. K rows: 0..11 stages k0..k11, 12 = f(t+h, y_new)
+# (FSAL), 13..15 the three extra dense stages, 16..22 the dense coefficients F.
+D8_ORDER = 7
+D8_FAC_MIN = 0.333
+D8_FAC_MAX = 6.0
+
+
+@njit(cache=True)
+def _proposal_nobeta(h, err, fac_min, fac_max, expo):
+    """solvers._proposal with beta = 0 (DOP853): h * (safety / err^expo), clamped."""
+    fac = err ** expo / SAFETY
+    if fac > 0:
+        fac = min(1.0 / fac_min, max(1.0 / fac_max, fac))
+    else:
+        fac = 1.0 / fac_max
+    return h / fac
+
+
+@njit(cache=True)
+def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
+                K, work):
+    """One accepted DOP853 step (solvers.Dop853Stepper + _step_once). Returns ST_*."""
+    n = y.shape[0]
+    ns = B.shape[0]   # 12
+    expo = 1.0 / (D8_ORDER + 1)
+    t = fs[FS_T]
+    if cnt[C_HAVEF] == 2:
+        for i in range(n):
+            K[0, i] = K[ns, i]
+        cnt[C_HAVEF] = 1
+    if cnt[C_HAVEF] == 0:
+        rhs(t, y, ip, fp, K[0])
+        cnt[C_NFEV] += 1
+        bad = _first_nonfinite(K[0])
+        if bad >= 0:
+            cnt[C_BADIDX] = bad
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        cnt[C_HAVEF] = 1
+    if fs[FS_H] <= 0.0:
+        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, D8_ORDER,
+                           work[0], work[2])
+        if h0 < 0.0:
+            cnt[C_BADIDX] = -1
+            fs[FS_TBAD] = t
+            return ST_NONFINITE
+        fs[FS_H] = h0
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    nonfinite = False
+    arg = work[0]
+    ynew = work[1]
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        for s in range(1, ns):
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A[s, j] * K[j, i]
+                arg[i] = y[i] + h * acc
+            rhs(t + C[s] * h, arg, ip, fp, K[s])
+        for i in range(n):
+            acc = 0.0
+            for j in range(ns):
+                acc += B[j] * K[j, i]
+            ynew[i] = y[i] + h * acc
+        rhs(t + h, ynew, ip, fp, K[ns])
+        cnt[C_NFEV] += ns
+        e5n = 0.0
+        e3n = 0.0
+        for i in range(n):
+            e5 = 0.0
+            e3 = 0.0
+            for j in range(ns + 1):
+                e5 += E5[j] * K[j, i]
+                e3 += E3[j] * K[j, i]
+            sc = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            e5n += (e5 / sc) ** 2
+            e3n += (e3 / sc) ** 2
+        if e5n == 0.0 and e3n == 0.0:
+            err = 0.0
+        else:
+            err = abs(h) * e5n / math.sqrt((e5n + 0.01 * e3n) * n)
+        if err <= 1.0:
+            h_new = _proposal_nobeta(h, err, D8_FAC_MIN, D8_FAC_MAX, expo)
+            fs[FS_ERROLD] = max(err, 1e-4)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            for i in range(n):
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_HAVEF] = 2
+            cnt[C_DENSE] = 0
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / D8_FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            cnt[C_BADIDX] = _first_nonfinite(ynew)
+            fs[FS_TBAD] = t + h
+            h = h * D8_FAC_MIN
+
+
+@njit(cache=True)
+def dop853_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
+                   E3, K, work):
+    """DOP853 to exactly t_end; returns ST_*."""
+    while fs[FS_T] < t_end:
+        st = dop853_step(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B,
+                         E5, E3, K, work)
+        if st != ST_OK:
+            return st
+    return ST_OK
+
+
+@njit(cache=True)
+def dop853_dense(rhs, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
+    """7th-order dense output of DOP853 inside the last accepted step; the three
+    extra stages (3 fev) and the coefficients F are computed once per step."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    t_old = fs[FS_TOLD]
+    if cnt[C_DENSE] == 0:
+        arg = np.empty(n)
+        for r in range(3):
+            s = 13 + r
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A_EXTRA[r, j] * K[j, i]
+                arg[i] = y_old[i] + h * acc
+            rhs(t_old + C_EXTRA[r] * h, arg, ip, fp, K[s])
+        cnt[C_NFEV] += 3
+        for i in range(n):
+            dy = y[i] - y_old[i]
+            K[16, i] = dy
+            K[17, i] = h * K[0, i] - dy
+            K[18, i] = 2 * dy - h * (K[12, i] + K[0, i])
+            for r in range(4):
+                acc = 0.0
+                for j in range(16):
+                    acc += D[r, j] * K[j, i]
+                K[19 + r, i] = h * acc
+        cnt[C_DENSE] = 1
+    x = (t - t_old) / h
+    for i in range(n):
+        acc = 0.0
+        for q in range(7):
+            acc += K[22 - q, i]
+            acc *= x if q % 2 == 0 else 1.0 - x
+        out[i] = acc + y_old[i]

@@ -364,7 +364,9 @@ class _ExplicitRK(_AdaptiveStepper):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         s, n = self._S, self.n
-        self._KE = np.empty((s + 2 + self._EXTRA_ROWS, n))
+        # zeros, not empty: DOP853's error estimate multiplies the (not yet computed) dense
+        # rows by zero weights, and 0 * NaN from stale memory made every step non-finite
+        self._KE = np.zeros((s + 2 + self._EXTRA_ROWS, n))
         A_ext = np.zeros((s + 1, s + 2))
         A = self._A_FULL[:s, :s]
         A_ext[:s, 1:1 + A.shape[1]] = A
@@ -497,7 +499,8 @@ class Dop853Stepper(_ExplicitRK):
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
         y_new = self._stages(h)
         y = self.y
-        e = np.dot(self._E35, self._KE)  # rows: err5, err3
+        n_step = self._S + 2   # KE rows a step fills (y, k0..k12); dense rows excluded
+        e = np.dot(self._E35[:, :n_step], self._KE[:n_step])  # rows: err5, err3
         sc = np.abs(y)
         np.maximum(sc, np.abs(y_new), out=sc)
         sc *= self.rtol

@@ -7,6 +7,13 @@ exactly on every sample time (``sample_dt``, default the scene's ``sample_step``
 ``exchange_step``), so the samples are solver steps, not interpolants; between samples
 it keeps its step-size proposal.
 
+Backends: ``'kernel'`` (default) packs the scene into data (cvj_ros.physics.kernel.layout)
+and integrates it with the compiled steppers (kernel/stepper.py) - engine and load are
+evaluated inside the compiled right-hand side; ``'python'`` runs the readable reference
+right-hand side (Driveline.rhs_sources) with the Python steppers, the test oracle. A scene
+element the kernel does not cover falls back to ``'python'`` with one line saying which
+(``Simulation.backend_note``); nothing falls back silently.
+
 The state is augmented with the work integrals (engine, load, damping; J), so every run
 reports the energy-balance residual (E_kin + E_el - E0 - W_engine + W_load + W_damp) /
 max energy scale (cvj_ros.physics.driveline.Driveline.energy_residual).
@@ -27,6 +34,18 @@ from cvj_ros.physics.driveline import Driveline
 from cvj_ros.physics.scene import Scene
 
 FloatArray = NDArray[np.float64]
+BACKENDS = ('kernel', 'python')
+
+
+def kernel_gap(driveline: Driveline, engine: Any, load: Any, horizon: float) -> str | None:
+    """Why the compiled kernel cannot run this driveline with these sources (one line
+    naming the element), or None when it can."""
+    from cvj_ros.physics.kernel.layout import build_model
+    try:
+        build_model(driveline, engine=engine, load=load, horizon=horizon)
+    except NotImplementedError as exc:
+        return str(exc).removeprefix('compiled kernel: ')
+    return None
 
 
 @dataclass
@@ -82,11 +101,17 @@ class Simulation:
             specs (anything with ``torque(t, omega, phi)`` and ``slope(...)``).
         track_energy: integrate the work integrals and report the energy residual
             (default); False keeps the state at 2 n_dof (benchmarks) and reports NaN.
+        backend: 'kernel' (compiled, default; falls back to 'python' with
+            ``backend_note`` set when an element is not compiled) or 'python'
+            (the reference right-hand side and Python steppers).
     """
 
     def __init__(self, scene: Scene, *, method: str | None = None, rtol: float | None = None,
                  atol: float | None = None, fidelity: Mapping[str, str] | None = None,
-                 engine: Any = None, load: Any = None, track_energy: bool = True) -> None:
+                 engine: Any = None, load: Any = None, track_energy: bool = True,
+                 backend: str = 'kernel') -> None:
+        if backend not in BACKENDS:
+            raise SceneError('backend', f'must be one of {", ".join(BACKENDS)}, got {backend!r}')
         self.scene = scene
         self.method = method or scene.solver.method
         self.rtol = float(rtol if rtol is not None else scene.solver.rtol)
@@ -129,6 +154,35 @@ class Simulation:
 
         self.fun = fun
         self.jac = jac
+        self.backend = backend
+        self.backend_note: str | None = None
+        self.compile_seconds: float | None = None
+        if backend == 'kernel':
+            reason = kernel_gap(dl, engine, load, float(scene.duration))
+            if reason is not None:
+                self.backend = 'python'
+                self.backend_note = f'compiled kernel: {reason}; running the Python reference'
+
+    def _model(self, horizon: float):
+        from cvj_ros.physics.kernel.layout import build_model
+        return build_model(self.driveline, engine=self.engine, load=self.load,
+                           horizon=max(horizon, float(self.scene.duration)))
+
+    def make_stepper(self, x0: FloatArray, horizon: float, **kwargs: Any) -> Any:
+        """A persistent stepper of this scene's closed loop from t = 0 (backend-dependent);
+        ``horizon`` (s) bounds pre-generated source sequences (seeded random load)."""
+        if self.backend == 'python':
+            from cvj_ros.physics.solvers import make_stepper
+            if self.method in ('rosenbrock', 'ros2'):
+                kwargs['jac'] = self.jac
+            return make_stepper(self.method, self.fun, 0.0, x0, **kwargs)
+        from cvj_ros.physics.kernel import rhs_nb
+        from cvj_ros.physics.kernel.stepper import KernelStepper
+        model = self._model(horizon)
+        self.model = model
+        stepper = KernelStepper(self.method, rhs_nb.rhs, model.ip, model.fp, 0.0, x0,
+                                jac=rhs_nb.jac, **kwargs)
+        return stepper
 
     def torques(self, t: float, x: FloatArray) -> tuple[float, float]:
         """(engine torque, load torque) in N m at state x."""
@@ -149,7 +203,6 @@ class Simulation:
         becomes non-finite."""
         if sampling not in ('land', 'dense'):
             raise SceneError('sampling', f"must be 'land' or 'dense', got {sampling!r}")
-        from cvj_ros.physics.solvers import make_stepper
         sc = self.scene
         dur = float(sc.duration if duration is None else duration)
         if not (math.isfinite(dur) and dur > 0):
@@ -165,9 +218,7 @@ class Simulation:
         kwargs: dict[str, Any] = dict(rtol=self.rtol, atol=self.atol, h=h)
         if sc.solver.max_step is not None:
             kwargs['max_step'] = sc.solver.max_step
-        if self.method in ('rosenbrock', 'ros2'):
-            kwargs['jac'] = self.jac
-        stepper = make_stepper(self.method, self.fun, 0.0, x0, **kwargs)
+        stepper = self.make_stepper(x0, dur, **kwargs)
         n_samples = int(math.floor(dur / dt + 1e-9)) + 1
         times = np.arange(n_samples) * dt
         if times[-1] < dur - 1e-12:

@@ -263,5 +263,9 @@ def test_coupling_node_killed_mid_run_closes_the_bag(tmp_path: Path) -> None:
     assert all(code is not None for code in result.node_exit_codes.values())   # all stopped
     js = check_bag_up_to_stop(out / 'bag')
     # /clock t_k goes out before the joint state t_k (lockstep: before the integration to
-    # t_k), so at the kill the last state may be t_kill - H
-    assert js.t[-1] >= seen['t_kill'] - H - 1e-9
+    # t_k), so at the kill the last state may be t_kill - H; and states the coupling node
+    # had published but DDS had not yet delivered die with its process (not lost by the
+    # recorder: the bag is consecutive from 0 above). Measured with both cores busy
+    # (make test-stress): up to 6 undelivered exchanges (last state 0.094 s at a kill seen at
+    # 0.1 s); the bound allows 50 (8x).
+    assert js.t[-1] >= seen['t_kill'] - 50 * H - 1e-9

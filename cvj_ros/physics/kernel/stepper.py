@@ -22,7 +22,41 @@ import math
 import numpy as np
 
 from ..solvers import SolverError, SolverOptionError, _StepperBase
-from . import steppers_nb as nb
+from . import steppers_nb
+from . import steppers_nb as nb   # layout constants (FS_*, C_*, ST_*)
+
+_COPIES: dict = {}
+
+
+def steppers_for(rhs, jac=None):
+    """The compiled steppers calling ``rhs``/``jac``: ``steppers_nb`` itself for the
+    driveline kernel (rhs_nb.rhs / rhs_nb.jac, disk-cached), else a private copy of that
+    module whose globals RHS/JAC are the given dispatchers, with disk caching off (a toy
+    rhs in a test would otherwise overwrite the kernel's cache entries of the same
+    signature). Copies are made once per (rhs, jac) and process."""
+    from . import rhs_nb
+    if rhs is rhs_nb.rhs and (jac is None or jac is rhs_nb.jac):
+        return steppers_nb
+    key = (id(rhs), id(jac))
+    mod = _COPIES.get(key)
+    if mod is None:
+        import importlib.util
+
+        from numba.core.caching import NullCache
+        from numba.core.registry import CPUDispatcher
+        name = f'{__package__}._steppers_copy_{len(_COPIES)}'
+        spec = importlib.util.spec_from_file_location(name, steppers_nb.__file__)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        for obj in vars(mod).values():
+            if isinstance(obj, CPUDispatcher):
+                obj._cache = NullCache()
+        mod.RHS = rhs
+        mod.JAC = jac if jac is not None else rhs_nb.jac
+        _COPIES[key] = (mod, rhs, jac)   # keep rhs/jac alive so their ids stay unique
+    else:
+        mod = mod[0]
+    return mod
 
 KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
 _ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4')
@@ -56,19 +90,20 @@ class KernelStepper(_StepperBase):
             raise SolverOptionError('jac', f'the compiled {method} needs the compiled '
                                     f'jac(t, y, ip, fp, J)')
         self._jac = jac
+        self._nb = steppers_for(rhs, jac)
         self._autonomous = bool(autonomous)
         self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
         if method == 'dop853':
             from scipy.integrate import DOP853 as D8
-            self._d8 = (np.ascontiguousarray(D8.C, dtype=float),
-                        np.ascontiguousarray(D8.A, dtype=float),
-                        np.ascontiguousarray(D8.B, dtype=float),
-                        np.ascontiguousarray(D8.E5, dtype=float),
-                        np.ascontiguousarray(D8.E3, dtype=float))
-            self._d8_dense = (np.ascontiguousarray(D8.D, dtype=float),
-                              np.ascontiguousarray(D8.A_EXTRA, dtype=float),
-                              np.ascontiguousarray(D8.C_EXTRA, dtype=float))
+            self._d8 = (np.array(D8.C, dtype=float),
+                        np.array(D8.A, dtype=float),
+                        np.array(D8.B, dtype=float),
+                        np.array(D8.E5, dtype=float),
+                        np.array(D8.E3, dtype=float))
+            self._d8_dense = (np.array(D8.D, dtype=float),
+                              np.array(D8.A_EXTRA, dtype=float),
+                              np.array(D8.C_EXTRA, dtype=float))
             stages = 22   # K rows: 13 stages + FSAL, 3 dense stages, 7 dense coefficients
         if method in ('rosenbrock', 'rodas4'):
             from .. import solvers
@@ -143,38 +178,38 @@ class KernelStepper(_StepperBase):
     def advance_to(self, t_end: float) -> np.ndarray:
         """Integrate to exactly t_end (s); the step-size proposal is kept."""
         t_end = self._check_t_end(t_end)
-        a = (self._rhs, t_end, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        a = (t_end, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
-            st = self._call(nb.dopri5_advance, *a, self.rtol, self._atol, self.max_step, self._K, self._work)
+            st = self._call(self._nb.dopri5_advance, *a, self.rtol, self._atol, self.max_step, self._K, self._work)
         elif self.method == 'dop853':
-            st = self._call(nb.dop853_advance, *a, self.rtol, self._atol, self.max_step, *self._d8, self._K,
+            st = self._call(self._nb.dop853_advance, *a, self.rtol, self._atol, self.max_step, *self._d8, self._K,
                                    self._work)
         elif self.method == 'ros2':
-            st = self._call(nb.ros2_advance, self._rhs, self._jac, *a[1:], *self._ros_args())
+            st = self._call(self._nb.ros2_advance, *a, *self._ros_args())
         elif self.method in _ROSENBROCK:
-            st = self._call(nb.ros_advance, self._rhs, self._jac, *a[1:], *self._rodas_args())
+            st = self._call(self._nb.ros_advance, *a, *self._rodas_args())
         else:
-            st = self._call(nb.rk4_advance, *a, self._K, self._work)
+            st = self._call(self._nb.rk4_advance, *a, self._K, self._work)
         self._check(st)
         return self.y
 
     def step(self, t_bound: float = math.inf) -> float:
         """One natural step never past t_bound (s); returns the new t."""
         t_bound = self._check_t_end(t_bound) if math.isfinite(t_bound) else math.inf
-        a = (self._rhs, t_bound, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        a = (t_bound, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
-            st = self._call(nb.dopri5_step_once, *a, self.rtol, self._atol, self.max_step, self._K,
+            st = self._call(self._nb.dopri5_step_once, *a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work)
         elif self.method == 'dop853':
-            st = nb.ST_OK if self.t >= t_bound else self._call(nb.dop853_step, 
+            st = nb.ST_OK if self.t >= t_bound else self._call(self._nb.dop853_step, 
                 *a, self.rtol, self._atol, self.max_step, *self._d8, self._K, self._work)
         elif self.method == 'ros2':
-            st = self._call(nb.ros2_step_once, self._rhs, self._jac, *a[1:], *self._ros_args())
+            st = self._call(self._nb.ros2_step_once, *a, *self._ros_args())
         elif self.method in _ROSENBROCK:
-            st = nb.ST_OK if self.t >= t_bound else self._call(nb.ros_step, 
-                self._rhs, self._jac, *a[1:], *self._rodas_args())
+            st = nb.ST_OK if self.t >= t_bound else self._call(self._nb.ros_step, 
+                *a, *self._rodas_args())
         else:
-            st = self._call(nb.rk4_step_once, *a, self._K, self._work)
+            st = self._call(self._nb.rk4_step_once, *a, self._K, self._work)
         self._check(st)
         return self.t
 
@@ -193,25 +228,25 @@ class KernelStepper(_StepperBase):
         if self.method == 'dopri5':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
-            self._call(nb.dopri5_dense, t, self._y_old, self._fs, self._K, out)
+            self._call(self._nb.dopri5_dense, t, self._y_old, self._fs, self._K, out)
         elif self.method == 'dop853':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
-            self._call(nb.dop853_dense, self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+            self._call(self._nb.dop853_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                             self._cnt, *self._d8_dense, self._K, out)
             self._sync()
         elif self.method == 'rosenbrock':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
-            self._call(nb.ros_dense_h, t, self._y, self._y_old, self._fs, self._H, self._K, out)
+            self._call(self._nb.ros_dense_h, t, self._y, self._y_old, self._fs, self._H, self._K, out)
         elif self.method == 'rodas4':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
-            self._call(nb.hermite_dense, self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+            self._call(self._nb.hermite_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                              self._cnt, self._K, out, self._K.shape[0] - 1)
             self._sync()
         else:
-            self._call(nb.hermite_dense, self._rhs, t, self._y, self._y_old, self.ip, self.fp, self._fs,
+            self._call(self._nb.hermite_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                              self._cnt, self._K, out)
             self._sync()
         return out
@@ -225,14 +260,14 @@ class KernelStepper(_StepperBase):
         Y = np.empty((t_eval.size, self.n))
         if t_eval.size == 0:
             return Y
-        a = (self._rhs, t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        a = (t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method in _ROSENBROCK or self.method == 'dop853':
             return super_sample(self, t_eval)
         if self.method == 'dopri5':
-            st, _ = self._call(nb.dopri5_sample, *a, self.rtol, self._atol, self.max_step, self._K,
+            st, _ = self._call(self._nb.dopri5_sample, *a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work, Y)
         else:
-            st, _ = self._call(nb.rk4_sample, *a, self._K, self._work, Y)
+            st, _ = self._call(self._nb.rk4_sample, *a, self._K, self._work, Y)
         self._check(st)
         return Y
 

@@ -1,15 +1,18 @@
-"""Compiled (numba) steppers over a right-hand side ``rhs(t, y, ip, fp, dy)``.
+"""Compiled (numba) steppers over a right-hand side ``RHS(t, y, ip, fp, dy)``.
 
 Issue 9. Every function here is ``@njit(cache=True)`` without fastmath, and
 every sum is a hand-written loop in a fixed order (no BLAS, no numpy reductions
 whose order could depend on the CPU), so the bytes of a trajectory do not
 depend on ``OPENBLAS_CORETYPE`` or the machine.
 
-The right-hand side is passed as a first-class numba dispatcher ``rhs`` with the
-signature of ``kernel/rhs_nb.py`` (``rhs(t, y, ip, fp, dy) -> None``, dy filled
-in place; ip: int64 codes, fp: float64 parameters). numba specialises each
-stepper once per rhs dispatcher (one for the driveline kernel, one per toy rhs
-in the tests) and caches it on disk.
+The right-hand side and its Jacobian are the module globals ``RHS`` and ``JAC``:
+``kernel/rhs_nb.py``'s ``rhs(t, y, ip, fp, dy)`` / ``jac(t, y, ip, fp, J)`` (filled in
+place; ip: int64 codes, fp: float64 parameters - the scene as data). Globals, not
+arguments: a numba function with a dispatcher among its arguments is compiled afresh in
+every process (the disk cache keys on the dispatcher object; measured 20-30 s per method
+per process), while calls to a global dispatcher are linked into the cached code. Toy
+right-hand sides (tests) get a private, uncached copy of this module with other globals:
+:func:`cvj_ros.physics.kernel.stepper.steppers_for`.
 
 Persistent state lives in arrays owned by the caller (``kernel/stepper.py``), so
 a stepper is not restarted at each exchange step:
@@ -39,6 +42,9 @@ import math
 
 import numpy as np
 from numba import njit
+
+from .rhs_nb import jac as JAC
+from .rhs_nb import rhs as RHS
 
 # ------------------------------------------------------------------ layout
 FS_T, FS_H, FS_TOLD, FS_ERROLD, FS_HLAST, FS_TBAD = 0, 1, 2, 3, 4, 5
@@ -105,7 +111,7 @@ def _first_nonfinite(v: np.ndarray) -> int:
 
 
 @njit(cache=True)
-def _initial_step(rhs, y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp, f1):
+def _initial_step(y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp, f1):
     """Hairer's HINIT (HNW I, sec. II.4), same arithmetic as solvers._initial_step;
     one fev. Returns h0 (s), or -1.0 when the error norm overflows."""
     n = y.shape[0]
@@ -124,7 +130,7 @@ def _initial_step(rhs, y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp,
     h0 = min(h0, max_step)
     for i in range(n):
         tmp[i] = y[i] + h0 * f0[i]
-    rhs(t + h0, tmp, ip, fp, f1)
+    RHS(t + h0, tmp, ip, fp, f1)
     cnt[C_NFEV] += 1
     s2 = 0.0
     for i in range(n):
@@ -155,7 +161,7 @@ def _proposal(h, err, fs, expo, fac_max):
 
 # ------------------------------------------------------------------ dopri5
 @njit(cache=True)
-def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
+def _dopri5_attempt(h, y, ip, fp, fs, cnt, rtol, atol, K, work):
     """One DOPRI5 attempt of size h from (fs[FS_T], y) with K[0] = f(t, y).
     Fills K[1..6] (K[6] = f(t+h, y_new), FSAL) and work[1] = y_new; returns the
     scaled RMS error (NaN when a stage is not finite)."""
@@ -174,7 +180,7 @@ def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
                 kj = K[j]
                 for i in range(n):
                     arg[i] += c * kj[i]
-        rhs(t + DP_C[s] * h, arg, ip, fp, K[s])
+        RHS(t + DP_C[s] * h, arg, ip, fp, K[s])
     ynew = work[1]
     for i in range(n):
         ynew[i] = y[i]
@@ -184,7 +190,7 @@ def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
             kj = K[j]
             for i in range(n):
                 ynew[i] += c * kj[i]
-    rhs(t + h, ynew, ip, fp, K[6])
+    RHS(t + h, ynew, ip, fp, K[6])
     cnt[C_NFEV] += 6
     ss = 0.0
     for i in range(n):
@@ -197,7 +203,7 @@ def _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work):
 
 
 @njit(cache=True)
-def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+def dopri5_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """One accepted DOPRI5 step from fs[FS_T] of the controller's size, clipped to
     land on t_bound when within 1 %. y is updated in place (old value in
     y_old); K keeps the stages of the step for ``dopri5_dense``. Returns ST_*."""
@@ -205,7 +211,7 @@ def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K
     expo = 1.0 / (DP_ORDER + 1) - 0.75 * BETA
     t = fs[FS_T]
     if cnt[C_HAVEF] == 0:
-        rhs(t, y, ip, fp, K[0])
+        RHS(t, y, ip, fp, K[0])
         cnt[C_NFEV] += 1
         bad = _first_nonfinite(K[0])
         if bad >= 0:
@@ -214,7 +220,7 @@ def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K
             return ST_NONFINITE
         cnt[C_HAVEF] = 1
     if fs[FS_H] <= 0.0:
-        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, DP_ORDER,
+        h0 = _initial_step(y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, DP_ORDER,
                            work[0], work[2])
         if h0 < 0.0:
             cnt[C_BADIDX] = -1
@@ -229,7 +235,7 @@ def dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K
     while True:
         if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
             return ST_NONFINITE if nonfinite else ST_UNDERFLOW
-        err = _dopri5_attempt(rhs, h, y, ip, fp, fs, cnt, rtol, atol, K, work)
+        err = _dopri5_attempt(h, y, ip, fp, fs, cnt, rtol, atol, K, work)
         if err <= 1.0:
             h_new = _proposal(h, err, fs, expo, FAC_MAX)
             if cnt[C_LASTREJ] == 1:
@@ -273,23 +279,23 @@ def _dopri5_fsal(K, cnt):
 
 
 @njit(cache=True)
-def dopri5_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+def dopri5_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """Integrate to exactly t_end (s); keeps h across calls. Returns ST_*.
     After return K holds the last step's stages (dense output valid)."""
     while fs[FS_T] < t_end:
         _dopri5_fsal(K, cnt)
-        st = dopri5_step(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
+        st = dopri5_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
         if st != ST_OK:
             return st
     return ST_OK
 
 
 @njit(cache=True)
-def dopri5_step_once(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+def dopri5_step_once(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """One natural step never past t_bound (Stepper.step); returns ST_*."""
     if fs[FS_T] < t_bound:
         _dopri5_fsal(K, cnt)
-        return dopri5_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+        return dopri5_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
                            K, work)
     return ST_OK
 
@@ -317,7 +323,7 @@ def dopri5_dense(t, y_old, fs, K, out):
 
 
 @njit(cache=True)
-def dopri5_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, Y):
+def dopri5_sample(t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, Y):
     """Compiled sampled loop: natural steps to t_eval[-1], each output time
     (ascending, >= fs[FS_T]) filled into Y[k] by dense output (exact end point
     at the step end). Returns (status, number of rows written)."""
@@ -333,7 +339,7 @@ def dopri5_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, 
     t_last = t_eval[m - 1]
     while k < m:
         _dopri5_fsal(K, cnt)
-        st = dopri5_step(rhs, t_last, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
+        st = dopri5_step(t_last, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
         if st != ST_OK:
             return st, k
         t_now = fs[FS_T]
@@ -349,25 +355,25 @@ def dopri5_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, 
 
 # ---------------------------------------------------------------------- rk4
 @njit(cache=True)
-def _rk4_take(rhs, dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
+def _rk4_take(dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
     """One classic RK4 step of dt; K[0] = f(t, y) on entry (computed when
     cnt[C_HAVEF] == 0), K[4] = f at the new point is left invalid (cnt[C_HAVEF]=0)."""
     n = y.shape[0]
     t = fs[FS_T]
     if cnt[C_HAVEF] == 0:
-        rhs(t, y, ip, fp, K[0])
+        RHS(t, y, ip, fp, K[0])
         cnt[C_NFEV] += 1
     hh = 0.5 * dt
     arg = work[0]
     for i in range(n):
         arg[i] = y[i] + hh * K[0, i]
-    rhs(t + hh, arg, ip, fp, K[1])
+    RHS(t + hh, arg, ip, fp, K[1])
     for i in range(n):
         arg[i] = y[i] + hh * K[1, i]
-    rhs(t + hh, arg, ip, fp, K[2])
+    RHS(t + hh, arg, ip, fp, K[2])
     for i in range(n):
         arg[i] = y[i] + dt * K[2, i]
-    rhs(t + dt, arg, ip, fp, K[3])
+    RHS(t + dt, arg, ip, fp, K[3])
     cnt[C_NFEV] += 3
     ynew = work[1]
     for i in range(n):
@@ -390,7 +396,7 @@ def _rk4_take(rhs, dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
 
 
 @njit(cache=True)
-def rk4_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, K, work):
+def rk4_advance(t_end, y, y_old, ip, fp, fs, cnt, K, work):
     """Integrate to exactly t_end with ceil((t_end - t)/h) equal substeps <= h
     (h = fs[FS_H]), as solvers._FixedStepper.advance_to. Returns ST_*."""
     t0 = fs[FS_T]
@@ -401,26 +407,26 @@ def rk4_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, K, work):
     dt = span / nsub
     for k in range(1, nsub + 1):
         t_new = t_end if k == nsub else t0 + k * dt
-        st = _rk4_take(rhs, dt, t_new, y, y_old, ip, fp, fs, cnt, K, work)
+        st = _rk4_take(dt, t_new, y, y_old, ip, fp, fs, cnt, K, work)
         if st != ST_OK:
             return st
     return ST_OK
 
 
 @njit(cache=True)
-def rk4_step_once(rhs, t_bound, y, y_old, ip, fp, fs, cnt, K, work):
+def rk4_step_once(t_bound, y, y_old, ip, fp, fs, cnt, K, work):
     """One step of h shortened to end on t_bound (Stepper.step); returns ST_*."""
     t = fs[FS_T]
     if t >= t_bound:
         return ST_OK
     h = fs[FS_H]
     if h * (1 + 1e-12) >= t_bound - t:
-        return _rk4_take(rhs, t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt, K, work)
-    return _rk4_take(rhs, h, t + h, y, y_old, ip, fp, fs, cnt, K, work)
+        return _rk4_take(t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt, K, work)
+    return _rk4_take(h, t + h, y, y_old, ip, fp, fs, cnt, K, work)
 
 
 @njit(cache=True)
-def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
+def hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
     """Cubic Hermite y(t) inside the last fixed step (3rd order), from f at the
     step start (K[frow]) and f at the step end (computed once into K[0], reused by
     the next step as its first stage: cnt[C_HAVEF] = 1)."""
@@ -431,7 +437,7 @@ def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
             out[i] = y[i]
         return
     if cnt[C_HAVEF] == 0:
-        rhs(fs[FS_T], y, ip, fp, K[0])
+        RHS(fs[FS_T], y, ip, fp, K[0])
         cnt[C_NFEV] += 1
         cnt[C_HAVEF] = 1
     s = (t - fs[FS_TOLD]) / h
@@ -446,7 +452,7 @@ def hermite_dense(rhs, t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
 
 
 @njit(cache=True)
-def rk4_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
+def rk4_sample(t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
     """Compiled sampled loop for rk4: steps of h to t_eval[-1], Hermite dense
     output at each output time. Returns (status, rows written)."""
     m = t_eval.shape[0]
@@ -458,7 +464,7 @@ def rk4_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
         k += 1
     t_last = t_eval[m - 1] if m > 0 else fs[FS_T]
     while k < m:
-        st = rk4_step_once(rhs, t_last, y, y_old, ip, fp, fs, cnt, K, work)
+        st = rk4_step_once(t_last, y, y_old, ip, fp, fs, cnt, K, work)
         if st != ST_OK:
             return st, k
         t_now = fs[FS_T]
@@ -467,7 +473,7 @@ def rk4_sample(rhs, t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
                 for i in range(n):
                     Y[k, i] = y[i]
             else:
-                hermite_dense(rhs, t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k])
+                hermite_dense(t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k])
             k += 1
     return ST_OK, k
 
@@ -539,13 +545,13 @@ def lu_solve(LU, piv, b):
 
 
 @njit(cache=True)
-def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
+def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
     """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed
     (same policy as solvers._LinearlyImplicit._prepare). K[0] = f(t, y)."""
     n = y.shape[0]
     t = fs[FS_T]
     if cnt[C_HAVEF] == 0:
-        rhs(t, y, ip, fp, K[0])
+        RHS(t, y, ip, fp, K[0])
         cnt[C_NFEV] += 1
         bad = _first_nonfinite(K[0])
         if bad >= 0:
@@ -554,7 +560,7 @@ def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
             return ST_NONFINITE
         cnt[C_HAVEF] = 1
     if cnt[C_HAVEJ] == 0:
-        jac(t, y, ip, fp, J)
+        JAC(t, y, ip, fp, J)
         cnt[C_NJEV] += 1
         cnt[C_HAVELU] = 0
         if autonomous:
@@ -563,8 +569,8 @@ def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
         else:
             # central difference: error ~ eps^(2/3)
             delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
-            rhs(t + delta, y, ip, fp, work[2])
-            rhs(t - delta, y, ip, fp, work[3])
+            RHS(t + delta, y, ip, fp, work[2])
+            RHS(t - delta, y, ip, fp, work[3])
             cnt[C_NFEV] += 2
             for i in range(n):
                 ft[i] = (work[2, i] - work[3, i]) / (2.0 * delta)
@@ -585,7 +591,7 @@ def _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
 
 
 @njit(cache=True)
-def _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
+def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
     """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
     y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
     (K[0] = f(t, y)). y_new into work[1]."""
@@ -604,7 +610,7 @@ def _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K
                 for j in range(s):
                     acc += A[s, j] * K[j + 1, i]
                 arg[i] = y[i] + acc
-            rhs(t + alpha[s] * h, arg, ip, fp, b)
+            RHS(t + alpha[s] * h, arg, ip, fp, b)
             for i in range(n):
                 acc = 0.0
                 for j in range(s):
@@ -621,15 +627,15 @@ def _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K
 
 
 @njit(cache=True)
-def _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+def _ros2_take(dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                J, LU, piv, ft, K, work):
     """One ROS2 step of dt (solvers.Ros2Stepper._step + _FixedStepper._take)."""
     n = y.shape[0]
-    st = _ros_prepare(rhs, jac, dt, ROS2_GAMMA, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
+    st = _ros_prepare(dt, ROS2_GAMMA, y, ip, fp, fs, cnt, autonomous, J, LU, piv,
                       ft, K, work)
     if st != ST_OK:
         return st
-    _ros_stages(rhs, dt, y, ip, fp, fs, cnt, ROS2_A, ROS2_C, ROS2_M, ROS2_ALPHA, ROS2_GSUM,
+    _ros_stages(dt, y, ip, fp, fs, cnt, ROS2_A, ROS2_C, ROS2_M, ROS2_ALPHA, ROS2_GSUM,
                 LU, piv, ft, K, work)
     ynew = work[1]
     bad = _first_nonfinite(ynew)
@@ -652,7 +658,7 @@ def _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, const
 
 
 @njit(cache=True)
-def ros2_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+def ros2_advance(t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                  J, LU, piv, ft, K, work):
     """ROS2 to exactly t_end with ceil(span/h) equal substeps <= h. Returns ST_*."""
     t0 = fs[FS_T]
@@ -663,7 +669,7 @@ def ros2_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, autonomous, constan
     dt = span / nsub
     for k in range(1, nsub + 1):
         t_new = t_end if k == nsub else t0 + k * dt
-        st = _ros2_take(rhs, jac, dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous,
+        st = _ros2_take(dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous,
                         constant_jac, J, LU, piv, ft, K, work)
         if st != ST_OK:
             return st
@@ -671,7 +677,7 @@ def ros2_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, autonomous, constan
 
 
 @njit(cache=True)
-def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+def ros2_step_once(t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                    J, LU, piv, ft, K, work):
     """One ROS2 step of h shortened to end on t_bound; returns ST_*."""
     t = fs[FS_T]
@@ -679,9 +685,9 @@ def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, con
         return ST_OK
     h = fs[FS_H]
     if h * (1 + 1e-12) >= t_bound - t:
-        return _ros2_take(rhs, jac, t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt,
+        return _ros2_take(t_bound - t, t_bound, y, y_old, ip, fp, fs, cnt,
                           autonomous, constant_jac, J, LU, piv, ft, K, work)
-    return _ros2_take(rhs, jac, h, t + h, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+    return _ros2_take(h, t + h, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                       J, LU, piv, ft, K, work)
 
 
@@ -690,7 +696,7 @@ def ros2_step_once(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, autonomous, con
 # in; K has s + 2 rows: K[0] = f(t, y), K[1..s] the stages, K[s+1] = f at the
 # start of the last accepted step (Hermite dense output for RODAS4).
 @njit(cache=True)
-def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+def ros_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
              constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft, K,
              work):
     """One accepted adaptive Rosenbrock step (solvers.RosenbrockStepper with
@@ -701,7 +707,7 @@ def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
     expo = 1.0 / (order + 1) - 0.75 * BETA
     t = fs[FS_T]
     if cnt[C_HAVEF] == 0:
-        rhs(t, y, ip, fp, K[0])
+        RHS(t, y, ip, fp, K[0])
         cnt[C_NFEV] += 1
         bad = _first_nonfinite(K[0])
         if bad >= 0:
@@ -710,7 +716,7 @@ def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
             return ST_NONFINITE
         cnt[C_HAVEF] = 1
     if fs[FS_H] <= 0.0:
-        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, order,
+        h0 = _initial_step(y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, order,
                            work[0], work[2])
         if h0 < 0.0:
             cnt[C_BADIDX] = -1
@@ -726,11 +732,11 @@ def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
     while True:
         if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
             return ST_NONFINITE if nonfinite else ST_UNDERFLOW
-        st = _ros_prepare(rhs, jac, h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft,
+        st = _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft,
                           K, work)
         if st != ST_OK:
             return st
-        _ros_stages(rhs, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work)
+        _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work)
         ss = 0.0
         for i in range(n):
             e = 0.0
@@ -771,12 +777,12 @@ def ros_step(rhs, jac, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
 
 
 @njit(cache=True)
-def ros_advance(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+def ros_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
                 constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
                 K, work):
     """Adaptive Rosenbrock to exactly t_end; returns ST_*."""
     while fs[FS_T] < t_end:
-        st = ros_step(rhs, jac, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+        st = ros_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
                       autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max,
                       J, LU, piv, ft, K, work)
         if st != ST_OK:
@@ -825,7 +831,7 @@ def _proposal_nobeta(h, err, fac_min, fac_max, expo):
 
 
 @njit(cache=True)
-def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
+def dop853_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
                 K, work):
     """One accepted DOP853 step (solvers.Dop853Stepper + _step_once). Returns ST_*."""
     n = y.shape[0]
@@ -837,7 +843,7 @@ def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C
             K[0, i] = K[ns, i]
         cnt[C_HAVEF] = 1
     if cnt[C_HAVEF] == 0:
-        rhs(t, y, ip, fp, K[0])
+        RHS(t, y, ip, fp, K[0])
         cnt[C_NFEV] += 1
         bad = _first_nonfinite(K[0])
         if bad >= 0:
@@ -846,7 +852,7 @@ def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C
             return ST_NONFINITE
         cnt[C_HAVEF] = 1
     if fs[FS_H] <= 0.0:
-        h0 = _initial_step(rhs, y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, D8_ORDER,
+        h0 = _initial_step(y, K[0], ip, fp, fs, cnt, rtol, atol, max_step, D8_ORDER,
                            work[0], work[2])
         if h0 < 0.0:
             cnt[C_BADIDX] = -1
@@ -869,13 +875,13 @@ def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C
                 for j in range(s):
                     acc += A[s, j] * K[j, i]
                 arg[i] = y[i] + h * acc
-            rhs(t + C[s] * h, arg, ip, fp, K[s])
+            RHS(t + C[s] * h, arg, ip, fp, K[s])
         for i in range(n):
             acc = 0.0
             for j in range(ns):
                 acc += B[j] * K[j, i]
             ynew[i] = y[i] + h * acc
-        rhs(t + h, ynew, ip, fp, K[ns])
+        RHS(t + h, ynew, ip, fp, K[ns])
         cnt[C_NFEV] += ns
         e5n = 0.0
         e3n = 0.0
@@ -923,11 +929,11 @@ def dop853_step(rhs, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C
 
 
 @njit(cache=True)
-def dop853_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
+def dop853_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
                    E3, K, work):
     """DOP853 to exactly t_end; returns ST_*."""
     while fs[FS_T] < t_end:
-        st = dop853_step(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B,
+        st = dop853_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B,
                          E5, E3, K, work)
         if st != ST_OK:
             return st
@@ -935,7 +941,7 @@ def dop853_advance(rhs, t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, 
 
 
 @njit(cache=True)
-def dop853_dense(rhs, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
+def dop853_dense(t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
     """7th-order dense output of DOP853 inside the last accepted step; the three
     extra stages (3 fev) and the coefficients F are computed once per step."""
     n = y.shape[0]
@@ -950,7 +956,7 @@ def dop853_dense(rhs, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out)
                 for j in range(s):
                     acc += A_EXTRA[r, j] * K[j, i]
                 arg[i] = y_old[i] + h * acc
-            rhs(t_old + C_EXTRA[r] * h, arg, ip, fp, K[s])
+            RHS(t_old + C_EXTRA[r] * h, arg, ip, fp, K[s])
         cnt[C_NFEV] += 3
         for i in range(n):
             dy = y[i] - y_old[i]

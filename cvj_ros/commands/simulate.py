@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--transient', type=float, help='seconds skipped before the metrics window')
     parser.add_argument('--csv', metavar='FILE', help='write the sampled trace as CSV')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
+    parser.add_argument('--backend', choices=('kernel', 'python'), default='kernel',
+                        help='kernel: compiled (default; an element it does not cover falls back '
+                             'to python with one line on stderr); python: the reference rhs')
 
 
 def parse_fidelity(items: list[str]) -> dict[str, str]:
@@ -82,7 +85,10 @@ def run(args: argparse.Namespace) -> int:
             raise SceneError('--method', f'must be one of {", ".join(SOLVER_METHODS)}, got {args.method!r}')
     scene = load_scene(find_scene(args.scene))
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
-                     fidelity=parse_fidelity(args.fidelity))
+                     fidelity=parse_fidelity(args.fidelity), backend=args.backend)
+    import sys
+    if sim.backend_note:
+        print(f'cvj-sim simulate: {sim.backend_note}', file=sys.stderr)
     from cvj_ros.progress import Progress
     # progress line on stderr, only on a terminal (stdout keeps the summary / JSON)
     progress = Progress(scene.duration if args.duration is None else args.duration,
@@ -92,6 +98,9 @@ def run(args: argparse.Namespace) -> int:
                         sampling='dense' if args.dense else 'land', progress=progress.update)
     finally:
         progress.close()
+    if sim.compile_seconds:
+        print(f'cvj-sim simulate: compiled the kernel in {sim.compile_seconds:.1f} s (first run; '
+              f'cached in {sim.cache_path} for later runs)', file=sys.stderr)
     summary = sim.summary(transient=args.transient)
     if args.csv:
         trace.to_csv(args.csv)

@@ -93,6 +93,12 @@ class CoupledStepper:
             + (R_k - R_{k-1}) (t - t_k) / (t_k - t_{k-1}). Second order for
             time-varying torques; explicit in that part, so keep H well inside the
             extrapolation's stability limit when the slope is inexact.
+        backend: 'auto' (default: the compiled kernel when the driveline is a
+            :class:`~cvj_ros.physics.driveline.Driveline` it covers, else Python),
+            'kernel' (SolverOptionError if not covered) or 'python' (the readable
+            reference: driveline.rhs with the Python steppers). The kernel applies the
+            same torque law through its input block (kernel.layout.set_torque_inputs):
+            T = T_k + rate (t - t_k) + K (omega - omega_k).
     """
 
     def __init__(self, driveline: DrivelineLike, *, scheme: str = 'zoh', method: str = 'dopri5',
@@ -100,7 +106,7 @@ class CoupledStepper:
                  atol: float = 1e-9, h: float | None = None, max_step: float = math.inf,
                  autonomous: bool | None = None, constant_jac: bool = False,
                  slope: str = 'reported', slope_window: int = 6, slope_max: float = 1e6,
-                 extrapolate_residual: bool = False) -> None:
+                 extrapolate_residual: bool = False, backend: str = 'auto') -> None:
         if scheme not in SCHEMES:
             raise SolverOptionError('scheme', f'unknown coupling scheme {scheme!r}; choose one of '
                                     f'{", ".join(SCHEMES)}')
@@ -135,10 +141,51 @@ class CoupledStepper:
         if autonomous is None:
             autonomous = scheme != 'extrapolate' and not self.extrapolate_residual
         self._omega_grad: dict[int, np.ndarray] = {}
-        self.stepper: Stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
-                                             jac=jac, max_step=max_step, autonomous=autonomous,
-                                             constant_jac=constant_jac)
+        self.model = self._kernel_model(driveline, backend)
+        self.backend = 'python' if self.model is None else 'kernel'
+        if self.model is not None:
+            from cvj_ros.physics.kernel import rhs_nb
+            from cvj_ros.physics.kernel.stepper import KernelStepper
+            self.stepper = KernelStepper(method, rhs_nb.rhs, self.model.ip, self.model.fp, t0,
+                                         x_start, rtol=rtol, atol=atol, h=h, max_step=max_step,
+                                         jac=rhs_nb.jac, autonomous=autonomous,
+                                         constant_jac=constant_jac)
+        else:
+            self.stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
+                                        jac=jac, max_step=max_step, autonomous=autonomous,
+                                        constant_jac=constant_jac)
         self.n_exchanges = 0
+
+    @staticmethod
+    def _kernel_model(driveline: DrivelineLike, backend: str):
+        """ModelData of the driveline with input-block torques, or None for Python."""
+        if backend not in ('auto', 'kernel', 'python'):
+            raise SolverOptionError('backend', f"must be 'auto', 'kernel' or 'python', got {backend!r}")
+        if backend == 'python':
+            return None
+        from cvj_ros.physics.driveline import Driveline
+        if not isinstance(driveline, Driveline):
+            if backend == 'kernel':
+                raise SolverOptionError('backend', 'the compiled kernel needs a Driveline')
+            return None
+        from cvj_ros.physics.kernel.layout import build_model
+        try:
+            return build_model(driveline)
+        except NotImplementedError as exc:
+            if backend == 'kernel':
+                raise SolverOptionError('backend', str(exc)) from None
+            return None
+
+    def _set_kernel_inputs(self) -> None:
+        """Write this step's torque law into the kernel's input block."""
+        from cvj_ros.physics.kernel.layout import set_torque_inputs
+        ramp = self.scheme == 'extrapolate' or self.extrapolate_residual
+        slope = self.scheme == 'linear_implicit'
+        set_torque_inputs(self.model, t_k=self._tk, Te=self._Te, Tl=self._Tl,
+                          Te_rate=self._rate_e if ramp else 0.0,
+                          Tl_rate=self._rate_l if ramp else 0.0,
+                          Ke=self._Ke if slope else 0.0, we=self._we if slope else 0.0,
+                          Kl=self._Kl if slope else 0.0, wl=self._wl if slope else 0.0)
 
     # ------------------------------------------------------------ right-hand sides
     def _rhs_zoh(self, t: float, x: np.ndarray) -> np.ndarray:
@@ -299,6 +346,8 @@ class CoupledStepper:
         self._tk = t_k
         self._Te = T_engine
         self._Tl = T_load
+        if self.model is not None:
+            self._set_kernel_inputs()
         self.stepper.restart()  # the input changed at t_k: FSAL / Jacobian are stale
         self.n_exchanges += 1
         return self.stepper.advance_to(t_next)
@@ -311,6 +360,6 @@ class CoupledStepper:
     def stats(self) -> dict:
         """Stepper counters plus scheme and exchange count."""
         out = self.stepper.stats()
-        out.update(scheme=self.scheme, n_exchanges=self.n_exchanges,
+        out.update(scheme=self.scheme, n_exchanges=self.n_exchanges, backend=self.backend,
                    slope_engine=self._Ke, slope_load=self._Kl)
         return out

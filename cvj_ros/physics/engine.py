@@ -31,7 +31,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from cvj_ros.errors import SceneError
 
@@ -377,6 +376,7 @@ class MapEngine(Engine):
         omega_tab = rpm * RPM
         # PCHIP interior slopes, zero end slopes: C1, monotone-preserving, flat outside.
         if len(rpm) >= 3:
+            from scipy.interpolate import PchipInterpolator   # lazy: ~0.9 s of import
             d = PchipInterpolator(omega_tab, tq).derivative()(omega_tab)
         else:
             d = np.zeros_like(tq)

@@ -267,11 +267,14 @@ class Simulation:
                     k += 1
             x = stepper.y
         dl.fill_mid(pos, vel)
+        self.compile_seconds = getattr(stepper, 'compile_seconds', None)
+        self.cache_path = getattr(stepper, 'cache_path', None)
         wall = time.perf_counter() - wall0
         stats = stepper.stats() if hasattr(stepper, 'stats') else {
             'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,
             'naccept': stepper.naccept, 'nreject': stepper.nreject}
-        stats.update(method=self.method, rtol=self.rtol, atol=self.atol, integration_wall_time=integ)
+        stats.update(method=self.method, rtol=self.rtol, atol=self.atol, integration_wall_time=integ,
+                     backend=self.backend)
         trace = Trace(t=times, names=list(dl.shaft_names), position=pos, velocity=vel, effort=eff,
                       engine_torque=te, load_torque=tl, energy_residual=res, solver=stats,
                       wall_time=wall)

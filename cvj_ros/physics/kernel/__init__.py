@@ -5,10 +5,21 @@ Importing this package does not import numba; ``steppers_nb`` (and core-A's
 at a writable place: numba's default (``__pycache__`` next to the sources) when
 the install is writable, else a user cache directory, so read-only site-packages
 and colcon install trees work. ``NUMBA_CACHE_DIR`` set by the user always wins.
+
+numba checks a cached function against its own source file only, so code that inlines
+functions of other modules (the steppers inline rhs_nb, which inlines the joint and source
+formulas) would stay stale after an edit of those modules. :func:`drop_stale_cache` keeps
+a digest of every physics source beside the cache and deletes the package's cache files
+when it changes (hashing ~40 files costs ~2 ms per process).
 """
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
+
+PHYSICS_DIR = Path(__file__).resolve().parents[1]
+STAMP_NAME = 'cvj_kernel_sources.sha256'
 
 
 def choose_cache_dir(package_dir: str, env: dict, writable) -> str | None:
@@ -35,4 +46,51 @@ def configure_cache() -> None:
         os.environ['NUMBA_CACHE_DIR'] = path
 
 
+def sources_digest(physics_dir: Path = PHYSICS_DIR) -> str:
+    """sha256 over the names and bytes of every .py file under cvj_ros/physics."""
+    h = hashlib.sha256()
+    for path in sorted(physics_dir.rglob('*.py')):
+        h.update(str(path.relative_to(physics_dir)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _cache_files(cache_dir: str | None, physics_dir: Path) -> list[Path]:
+    """numba index/data files of this package's compiled functions."""
+    if cache_dir is None:   # numba's default: __pycache__ beside each source file
+        roots = [p for p in physics_dir.rglob('__pycache__') if p.is_dir()]
+    else:
+        roots = [Path(cache_dir)] if Path(cache_dir).is_dir() else []
+    out: list[Path] = []
+    for root in roots:
+        for pattern in ('*.nbi', '*.nbc'):
+            out.extend(p for p in root.rglob(pattern)
+                       if cache_dir is None or 'cvj_ros' in str(p))
+    return out
+
+
+def drop_stale_cache(cache_dir: str | None = None, physics_dir: Path = PHYSICS_DIR) -> bool:
+    """Delete the package's numba cache files when the physics sources changed since
+    they were written; returns True when it deleted any. Never raises (a cache that
+    cannot be cleaned is numba's to rebuild or to ignore)."""
+    try:
+        stamp_dir = Path(cache_dir) if cache_dir else physics_dir / 'kernel' / '__pycache__'
+        stamp = stamp_dir / STAMP_NAME
+        digest = sources_digest(physics_dir)
+        old = stamp.read_text().strip() if stamp.is_file() else None
+        if old == digest:
+            return False
+        files = _cache_files(cache_dir, physics_dir)
+        for f in files:
+            f.unlink(missing_ok=True)
+        stamp_dir.mkdir(parents=True, exist_ok=True)
+        tmp = stamp.with_name(f'{STAMP_NAME}.tmp{os.getpid()}')
+        tmp.write_text(digest + '\n')
+        os.replace(tmp, stamp)
+        return bool(files)
+    except OSError:
+        return False
+
+
 configure_cache()
+drop_stale_cache(os.environ.get('NUMBA_CACHE_DIR') or None)

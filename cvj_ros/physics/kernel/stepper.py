@@ -18,10 +18,12 @@ SolverOptionError('method', ...).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
-from ..solvers import SolverError, SolverOptionError, _StepperBase
+from ...errors import SolverError
+from ..stepper_base import SolverOptionError, _StepperBase
 from . import steppers_nb
 from . import steppers_nb as nb   # layout constants (FS_*, C_*, ST_*)
 
@@ -80,6 +82,8 @@ class KernelStepper(_StepperBase):
             raise SolverOptionError('h', f'required for the fixed-step method {method!r}')
         self._rhs = rhs
         self._entries: dict = {}
+        self.compile_seconds = 0.0   # wall spent compiling (cache misses), s
+        self.cache_path: str | None = None
         self.ip = np.ascontiguousarray(ip, dtype=np.int64)
         if not (isinstance(fp, np.ndarray) and fp.dtype == np.float64 and fp.ndim == 1
                 and fp.flags.c_contiguous):
@@ -138,7 +142,12 @@ class KernelStepper(_StepperBase):
         entry = self._entries.get(fn)
         if entry is not None:
             return entry(*args)
+        misses = sum(fn.stats.cache_misses.values()) if hasattr(fn, 'stats') else 0
+        c0 = time.perf_counter()
         result = fn(*args)
+        if hasattr(fn, 'stats') and sum(fn.stats.cache_misses.values()) > misses:
+            self.compile_seconds += time.perf_counter() - c0   # compiled, not loaded
+            self.cache_path = fn.stats.cache_path
         from numba import typeof
         try:
             self._entries[fn] = fn.overloads[tuple(typeof(a) for a in args)].entry_point

@@ -1,0 +1,66 @@
+"""Compile (or load) every compiled stepper of the driveline kernel once: ``python -m
+cvj_ros.physics.kernel.warmup``.
+
+Run by ``make`` after installing (and by the test session), so the first user command
+or node does not pay the cold compile (measured here ~10-20 s per method family) inside
+a run whose peers are waiting for it. With a warm cache it only loads (~0.5 s).
+Prints one line per method with the wall time and whether it compiled or loaded.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+from cvj_ros.physics.kernel.stepper import KERNEL_METHODS
+
+
+def tiny_model():
+    """A two-inertia driveline (engine inertia, spring, load inertia) as kernel data."""
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.scene import parse_scene
+    scene = parse_scene({
+        'name': 'warmup', 'duration': 0.01, 'exchange_step': 0.001,
+        'driveline': [{'type': 'inertia', 'name': 'a', 'J': 0.1},
+                      {'type': 'spring', 'name': 's', 'stiffness': 1000.0, 'damping': 1.0},
+                      {'type': 'inertia', 'name': 'b', 'J': 0.2}],
+        'engine': {'model': 'linear', 'm1': 10.0, 'k1': 0.1},
+        'load': {'model': 'constant', 'torque': 5.0}})
+    return build_model(Driveline.from_scene(scene))
+
+
+def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
+    """Compile or load each method's entry points (advance, step, dense, sample); returns
+    the total wall time (s)."""
+    import numpy as np
+
+    from cvj_ros.physics.kernel import rhs_nb
+    from cvj_ros.physics.kernel.layout import set_torque_inputs
+    from cvj_ros.physics.kernel.stepper import KernelStepper
+    model = tiny_model()
+    set_torque_inputs(model, t_k=0.0, Te=1.0, Tl=0.5)
+    total = 0.0
+    for method in methods:
+        t0 = time.perf_counter()
+        st = KernelStepper(method, rhs_nb.rhs, model.ip, model.fp.copy(), 0.0, model.x0,
+                           rtol=1e-6, atol=1e-9, h=1e-4 if method in ('rk4', 'ros2') else None,
+                           jac=rhs_nb.jac)
+        st.advance_to(1e-3)
+        st.step(2e-3)
+        st.dense(0.5 * (st.t_old + st.t))
+        st.sample(np.array([st.t, st.t + 1e-3]))
+        dt = time.perf_counter() - t0
+        total += dt
+        how = f'compiled in {st.compile_seconds:.1f} s' if st.compile_seconds else 'loaded'
+        print(f'kernel {method}: {how} ({dt:.2f} s)', file=out)
+    return total
+
+
+def main() -> int:
+    total = warm()
+    print(f'kernel ready: {total:.1f} s', file=sys.stdout)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -146,10 +146,16 @@ class CoupledStepper:
         if self.model is not None:
             from cvj_ros.physics.kernel import rhs_nb
             from cvj_ros.physics.kernel.stepper import KernelStepper
+            kw = dict(rtol=rtol, atol=atol, h=h, max_step=max_step, jac=rhs_nb.jac,
+                      autonomous=autonomous, constant_jac=constant_jac)
             self.stepper = KernelStepper(method, rhs_nb.rhs, self.model.ip, self.model.fp, t0,
-                                         x_start, rtol=rtol, atol=atol, h=h, max_step=max_step,
-                                         jac=rhs_nb.jac, autonomous=autonomous,
-                                         constant_jac=constant_jac)
+                                         x_start, **kw)
+            # Load (or compile) the compiled entry point now, on a throwaway copy, so the
+            # first exchange of a running loop does not pay it (~0.5 s warm, 10+ s cold).
+            warm = KernelStepper(method, rhs_nb.rhs, self.model.ip, self.model.fp.copy(), t0,
+                                 x_start, **kw)
+            warm.advance_to(t0 + 1e-6)
+            self.compile_seconds = warm.compile_seconds
         else:
             self.stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
                                         jac=jac, max_step=max_step, autonomous=autonomous,

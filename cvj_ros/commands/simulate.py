@@ -62,6 +62,8 @@ def format_summary(summary: dict) -> str:
     lines.append(f"solver {sol['method']} rtol {sol['rtol']:g} atol {sol['atol']:g}: "
                  f"{sol.get('naccept', 0)} steps, {sol.get('nreject', 0)} rejected, "
                  f"{sol.get('nfev', 0)} rhs evaluations, {sol.get('njev', 0)} Jacobians")
+    fallback = sol.get('backend_fallback')
+    lines.append(f"backend {sol.get('backend', 'python')}" + (f" ({fallback})" if fallback else ''))
     lines.append(f"energy balance residual {summary['energy_residual']:.3e} (relative)")
     lines.append(f"{'shaft':<24}{'mean rad/s':>12}{'delta':>11}{'A_speed':>11}{'A_accel':>11}"
                  f"{'mean N m':>11}{'A_torque':>11}")

@@ -222,7 +222,8 @@ class CouplingNode(CvjNode):
         self.get_logger().info(
             f'scene {scene.name!r}: {len(self.names)} shafts, {self.driveline.n_dof} DOF, '
             f'{self.n_steps} steps of {self.h_ns / NS_PER_S:g} s, mode {self.mode}, '
-            f'scheme {self.scheme}; waiting for peers')
+            f'scheme {self.scheme}, backend {getattr(self.stepper, "backend", "python")}; '
+            f'waiting for peers')
 
     # --- physics set-up ---------------------------------------------------------------------
 
@@ -277,7 +278,9 @@ class CouplingNode(CvjNode):
             'scene': scene, 'seed': self.seed, 'fidelity': self.fidelity_report(),
             'mode': self.mode, 'coupling_scheme': self.scheme,
             'exchange_step': self.h_ns / NS_PER_S, 'duration': self.n_steps * self.h_ns / NS_PER_S,
-            'solver': {'method': self.method, 'rtol': self.rtol, 'atol': self.atol},
+            'solver': {'method': self.method, 'rtol': self.rtol, 'atol': self.atol,
+                       'backend': getattr(self.stepper, 'backend', 'python'),
+                       'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))

@@ -141,6 +141,7 @@ class CoupledStepper:
         if autonomous is None:
             autonomous = scheme != 'extrapolate' and not self.extrapolate_residual
         self._omega_grad: dict[int, np.ndarray] = {}
+        self.backend_fallback: str | None = None   # why 'auto' ran python, one line
         self.model = self._kernel_model(driveline, backend)
         self.backend = 'python' if self.model is None else 'kernel'
         if self.model is not None:
@@ -162,8 +163,7 @@ class CoupledStepper:
                                         constant_jac=constant_jac)
         self.n_exchanges = 0
 
-    @staticmethod
-    def _kernel_model(driveline: DrivelineLike, backend: str):
+    def _kernel_model(self, driveline: DrivelineLike, backend: str):
         """ModelData of the driveline with input-block torques, or None for Python."""
         if backend not in ('auto', 'kernel', 'python'):
             raise SolverOptionError('backend', f"must be 'auto', 'kernel' or 'python', got {backend!r}")
@@ -173,6 +173,7 @@ class CoupledStepper:
         if not isinstance(driveline, Driveline):
             if backend == 'kernel':
                 raise SolverOptionError('backend', 'the compiled kernel needs a Driveline')
+            self.backend_fallback = f'{type(driveline).__name__} is not a Driveline'
             return None
         from cvj_ros.physics.kernel.layout import build_model
         try:
@@ -180,6 +181,7 @@ class CoupledStepper:
         except NotImplementedError as exc:
             if backend == 'kernel':
                 raise SolverOptionError('backend', str(exc)) from None
+            self.backend_fallback = str(exc)
             return None
 
     def _set_kernel_inputs(self) -> None:
@@ -367,5 +369,6 @@ class CoupledStepper:
         """Stepper counters plus scheme and exchange count."""
         out = self.stepper.stats()
         out.update(scheme=self.scheme, n_exchanges=self.n_exchanges, backend=self.backend,
+                   backend_fallback=self.backend_fallback,
                    slope_engine=self._Ke, slope_load=self._Kl)
         return out

@@ -274,7 +274,7 @@ class Simulation:
             'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,
             'naccept': stepper.naccept, 'nreject': stepper.nreject}
         stats.update(method=self.method, rtol=self.rtol, atol=self.atol, integration_wall_time=integ,
-                     backend=self.backend)
+                     backend=self.backend, backend_fallback=self.backend_note)
         trace = Trace(t=times, names=list(dl.shaft_names), position=pos, velocity=vel, effort=eff,
                       engine_torque=te, load_torque=tl, energy_residual=res, solver=stats,
                       wall_time=wall)

@@ -214,6 +214,78 @@ def smoothstep(u: float) -> tuple[float, float]:
     return u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u)
 
 
+def hermite_table(omega: float, w, tq, d) -> tuple[float, float]:
+    """C1 cubic Hermite through (w[i], tq[i]) with slopes d[i], held flat outside the table:
+    value (N m) and d/domega (N m s/rad). ``w`` strictly increasing (rad/s); lists or arrays
+    (the compiled kernel calls this same function). Bisection by hand (same interval as
+    bisect_right - 1)."""
+    n = len(w)
+    if omega <= w[0]:
+        return tq[0], 0.0
+    if omega >= w[n - 1]:
+        return tq[n - 1], 0.0
+    lo, hi = 0, n - 1          # w[lo] <= omega < w[hi]
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if w[mid] <= omega:
+            lo = mid
+        else:
+            hi = mid
+    i = lo
+    h = w[i + 1] - w[i]
+    s = (omega - w[i]) / h
+    s2, s3 = s * s, s * s * s
+    h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+    val = h00 * tq[i] + h10 * h * d[i] + h01 * tq[i + 1] + h11 * h * d[i + 1]
+    dh00, dh10, dh01, dh11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
+    der = (dh00 * tq[i] + dh01 * tq[i + 1]) / h + dh10 * d[i] + dh11 * d[i + 1]
+    return val, der
+
+
+def map_engine_eval(omega: float, phi: float, x: float, w, tq, d, p: float, c0: float,
+                    c1: float, c2: float, omega_s: float, idle_rpm: float, idle_gain: float,
+                    cutoff_rpm: float, cutoff_band: float, stall_rpm: float,
+                    ripple_amplitude: float, ripple_order: float, ripple_phase: float
+                    ) -> tuple[float, float, float]:
+    """Map engine (MapEngine's docstring states every piece): T (N m), dT/domega
+    (N m s/rad), dT/dphi (N m/rad) at crank speed omega (rad/s), angle phi (rad), pedal x.
+    The one source of the formula: MapEngine.torque/slope and the compiled kernel
+    (kernel/sources_nb.py) both call it. ``ripple_amplitude`` 0 = no ripple."""
+    tf, dtf = hermite_table(omega, w, tq, d)
+    # motoring: -(c0 tanh(omega/omega_s) + c1 omega + c2 omega |omega|)
+    th = math.tanh(omega / omega_s)
+    tm = -(c0 * th + c1 * omega + c2 * omega * abs(omega))
+    dtm = -(c0 * (1.0 - th * th) / omega_s + c1 + 2.0 * c2 * abs(omega))
+    # effective throttle with the proportional idle governor
+    if idle_rpm <= 0.0:
+        xe, dxe = x, 0.0
+    else:
+        g, dg_du = smooth_ramp(idle_gain * (idle_rpm - omega / RPM), 0.05)
+        xe, dxe = x + (1.0 - x) * g, (1.0 - x) * dg_du * (-idle_gain / RPM)
+    # combustion factor: rev limiter times the optional stall fade
+    n_rpm = omega / RPM
+    sc, dsc = smoothstep((n_rpm - cutoff_rpm + cutoff_band) / cutoff_band)
+    c, dc = 1.0 - sc, -dsc / (cutoff_band * RPM)
+    if stall_rpm > 0.0:
+        half = 0.5 * stall_rpm
+        f, df = smoothstep((n_rpm - half) / half)
+        c, dc = c * f, dc * f + c * df / (half * RPM)
+    if p == 1.0:
+        gx, dgx = xe, dxe
+    else:
+        gx = xe ** p
+        dgx = p * xe ** (p - 1.0) * dxe if xe > 0.0 else 0.0
+    span, dspan = tf - tm, dtf - dtm
+    fired = gx * span * c
+    dfired = dgx * span * c + gx * dspan * c + gx * span * dc
+    if ripple_amplitude == 0.0:
+        return tm + fired, dtm + dfired, 0.0
+    arg = ripple_order * (phi - ripple_phase)
+    rip = 1.0 + ripple_amplitude * math.cos(arg)
+    return (tm + fired * rip, dtm + dfired * rip,
+            -fired * ripple_amplitude * ripple_order * math.sin(arg))
+
+
 # --- engines -------------------------------------------------------------------------------
 
 class Engine:
@@ -402,20 +474,7 @@ class MapEngine(Engine):
     # -- pieces (each returns value and d/domega) --
     def full_load(self, omega: float) -> tuple[float, float]:
         """T_full (N m) and dT_full/domega (N m s/rad); C1 Hermite, flat outside the table."""
-        w, tq, d = self._w, self._t, self._d
-        if omega <= w[0]:
-            return tq[0], 0.0
-        if omega >= w[-1]:
-            return tq[-1], 0.0
-        i = bisect.bisect_right(w, omega) - 1
-        h = w[i + 1] - w[i]
-        s = (omega - w[i]) / h
-        s2, s3 = s * s, s * s * s
-        h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
-        val = h00 * tq[i] + h10 * h * d[i] + h01 * tq[i + 1] + h11 * h * d[i + 1]
-        dh00, dh10, dh01, dh11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
-        der = (dh00 * tq[i] + dh01 * tq[i + 1]) / h + dh10 * d[i] + dh11 * d[i + 1]
-        return val, der
+        return hermite_table(omega, self._w, self._t, self._d)
 
     def motoring(self, omega: float) -> tuple[float, float]:
         """T_mot (N m, <= 0 for omega >= 0) and its slope (N m s/rad)."""
@@ -465,15 +524,20 @@ class MapEngine(Engine):
             return 1.0
         return 1.0 + self.ripple_amplitude * math.cos(self.ripple_order * (phi - self.ripple_phase))
 
+    def kernel_params(self) -> tuple:
+        """Arguments of :func:`map_engine_eval` after (omega, phi, x): table and constants."""
+        amp = self.ripple_amplitude if self.cylinders else 0.0
+        return (self._w, self._t, self._d, self.p, self.c0, self.c1, self.c2, self.omega_s,
+                self.idle_rpm, self.idle_gain, self.cutoff_rpm, self.cutoff_band, self.stall_rpm,
+                amp, self.ripple_order, self.ripple_phase)
+
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
         """T = T_mot + F (1 + a cos(k (phi - phi0))) in N m (see class docstring)."""
-        tm, _, fired, _ = self._parts(omega)
-        return tm + fired * self._ripple(phi)
+        return map_engine_eval(omega, phi, self.throttle, *self.kernel_params())[0]
 
     def slope(self, t: float, omega: float, phi: float = 0.0) -> float:
         """dT/domega (N m s/rad), analytic."""
-        _, dtm, _, dfired = self._parts(omega)
-        return dtm + dfired * self._ripple(phi)
+        return map_engine_eval(omega, phi, self.throttle, *self.kernel_params())[1]
 
     def describe(self) -> str:
         i = int(np.argmax(self.full_load_torque))

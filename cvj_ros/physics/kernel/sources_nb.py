@@ -3,7 +3,8 @@
 ``engine_eval(t, omega, phi, ip, fp, ioff, foff) -> (T, dT/domega, dT/dphi)`` (N m,
 N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Codes and
 parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
-M = x M1 - K1 omega), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
+M = x M1 - K1 omega), map engine (engine.map_engine_eval: full-load table, throttle, idle
+governor, motoring, rev limiter, stall fade, firing ripple), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
 load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
 Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps, time series (bag replay).
 """
@@ -13,11 +14,41 @@ import math
 
 from numba import njit
 
-from cvj_ros.physics.engine import smoothstep
+from numba.extending import overload
+
+from cvj_ros.physics.engine import hermite_table, map_engine_eval, smooth_ramp, smoothstep
 
 smoothstep_nb = njit(cache=True)(smoothstep)     # engine.smoothstep, one source
+smooth_ramp_nb = njit(cache=True)(smooth_ramp)
+hermite_table_nb = njit(cache=True)(hermite_table)
 
-from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
+
+# Calls of the plain helpers inside other compiled plain functions (map_engine_eval)
+# compile the same Python source.
+@overload(smoothstep)
+def _smoothstep_in_jit(u):
+    def impl(u):
+        return smoothstep_nb(u)
+    return impl
+
+
+@overload(smooth_ramp)
+def _smooth_ramp_in_jit(u, width):
+    def impl(u, width):
+        return smooth_ramp_nb(u, width)
+    return impl
+
+
+@overload(hermite_table)
+def _hermite_table_in_jit(omega, w, tq, d):
+    def impl(omega, w, tq, d):
+        return hermite_table_nb(omega, w, tq, d)
+    return impl
+
+
+map_engine_nb = njit(cache=True)(map_engine_eval)     # engine.map_engine_eval, one source
+
+from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, ENGINE_MAP, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
                                           LOAD_FOURIER, LOAD_TIME_SERIES,
                                           LOAD_RANDOM, LOAD_ROAD)
 
@@ -29,6 +60,16 @@ def engine_eval(t, omega, phi, ip, fp, ioff, foff):
     code = ip[ioff]
     if code == ENGINE_LINEAR:
         return fp[foff] * fp[foff + 1] - fp[foff + 2] * omega, -fp[foff + 2], 0.0
+    if code == ENGINE_MAP:
+        # fp: x, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm, cutoff_band,
+        # stall_rpm, ripple_amplitude, ripple_order, ripple_phase, n, w[n], T[n], d[n]
+        n = int(fp[foff + 14])
+        o = foff + 15
+        return map_engine_nb(omega, phi, fp[foff], fp[o:o + n], fp[o + n:o + 2 * n],
+                             fp[o + 2 * n:o + 3 * n], fp[foff + 1], fp[foff + 2], fp[foff + 3],
+                             fp[foff + 4], fp[foff + 5], fp[foff + 6], fp[foff + 7],
+                             fp[foff + 8], fp[foff + 9], fp[foff + 10], fp[foff + 11],
+                             fp[foff + 12], fp[foff + 13])
     return 0.0, 0.0, 0.0
 
 

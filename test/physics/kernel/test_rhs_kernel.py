@@ -164,7 +164,17 @@ def _check(dl, engine, load, rng, sources_in_kernel=True):
             dtlp = sum(k * (b * math.cos(k * xx) - a * math.sin(k * xx)) for k, a, b in load._terms)
         if not sources_in_kernel and dtlp != 0.0:
             return    # the input block has no dT/dphi term (contract: rates and K only)
-        jref = dl.jacobian(t, x, te, tl, dTe_domega=dte, dTl_domega=dtl, dTl_dphi=dtlp)
+        dtep = 0.0
+        if getattr(engine, 'ripple_amplitude', 0.0) and getattr(engine, 'cylinders', 0):
+            # map engine firing ripple: d/dphi of F (1 + a cos(k (phi - phi0))), from the
+            # class's piecewise methods (_parts), not from map_engine_eval
+            fired = engine._parts(w_e)[2]
+            k, a = engine.ripple_order, engine.ripple_amplitude
+            dtep = -fired * a * k * math.sin(k * (float(x[0]) - engine.ripple_phase))
+        if not sources_in_kernel and dtep != 0.0:
+            return
+        jref = dl.jacobian(t, x, te, tl, dTe_domega=dte, dTl_domega=dtl, dTl_dphi=dtlp,
+                           dTe_dphi=dtep)
         J = np.empty((model.n_state, model.n_state))
         jac(t, x, model.ip, model.fp, J)
         _close(J, jref)
@@ -220,9 +230,43 @@ def test_throttle_and_uncovered_elements():
     dy = np.empty(model.n_state)
     rhs(0.1, x, model.ip, model.fp, dy)
     _close(dy, dl._rhs(0.1, x, 0.0, 0.0, engine.torque, load.torque))
-    with pytest.raises(NotImplementedError, match='MapEngine'):
-        build_model(dl, engine=engine_from_spec({'model': 'map'}), load=load)
     assert math.isfinite(dy[-1])
+    # the map engine's pedal is in the kernel too
+    model = build_model(dl, engine=engine_from_spec({'model': 'map'}), load=load)
+    set_throttle(model, 0.25)
+    assert model.fp[int(model.ip[3 + 3])] == 0.25      # H_ENGINE_F -> fp[off] = throttle
+    with pytest.raises(NotImplementedError, match='OwnEngine'):
+        build_model(dl, engine=type('OwnEngine', (), {})(), load=load)
+
+
+MAP_SPECS = {
+    'default': {'model': 'map'},
+    'part_load_governor_ripple': {'model': 'map', 'throttle': 0.3, 'throttle_exponent': 1.3,
+                                  'idle_rpm': 850, 'cylinders': 4, 'ripple_amplitude': 0.4,
+                                  'ripple_phase_rad': 0.3},
+    'stall_two_stroke': {'model': 'map', 'throttle': 0.7, 'stall_rpm': 500, 'cylinders': 3,
+                         'strokes': 2, 'ripple_amplitude': 0.2, 'full_load_rpm': [900, 3000],
+                         'full_load_torque': [80, 120]},
+}
+
+
+@pytest.mark.parametrize('spec', sorted(MAP_SPECS))
+def test_map_engine_in_kernel_matches_the_class_pieces(spec):
+    """Compiled map engine (engine.map_engine_eval through the kernel) against MapEngine's
+    piecewise methods (full_load, motoring, effective_throttle, cut_factor, _parts, _ripple)
+    over speeds from standstill past the cut-off, at several crank angles."""
+    from cvj_ros.physics.kernel.sources_nb import engine_eval
+    eng = engine_from_spec(MAP_SPECS[spec])
+    sc = _scene(CASES['hooke_linear_spring'])
+    model = build_model(Driveline.from_scene(sc), engine=eng)
+    for omega in np.linspace(-20.0, 760.0, 157):
+        for phi in (0.0, 0.7, 2.9):
+            tm, dtm, fired, dfired = eng._parts(float(omega))
+            rip = eng._ripple(phi)
+            T, dT, dTp = engine_eval(0.0, float(omega), phi, model.ip, model.fp, 3,
+                                     int(model.ip[6]))
+            assert T == pytest.approx(tm + fired * rip, rel=REL, abs=1e-12)
+            assert dT == pytest.approx(dtm + dfired * rip, rel=REL, abs=1e-12)
 
 
 def test_random_load_outside_horizon_is_nan():

@@ -168,6 +168,17 @@ class Simulation:
         return build_model(self.driveline, engine=self.engine, load=self.load,
                            horizon=max(horizon, float(self.scene.duration)))
 
+    def _kernel_outputs(self, times: FloatArray, X: FloatArray, e0: float, pos: FloatArray,
+                        vel: FloatArray, eff: FloatArray, te: FloatArray, tl: FloatArray,
+                        res: FloatArray) -> None:
+        """Joint states, torques and energy residual of every sample, compiled
+        (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
+        from cvj_ros.physics.kernel.outputs_nb import sample_outputs, shaft_table
+        bad = sample_outputs(times, X, self.model.ip, self.model.fp, shaft_table(self.driveline),
+                             float(e0), pos, vel, eff, te, tl, res)
+        if bad >= 0:
+            raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
+
     def make_stepper(self, x0: FloatArray, horizon: float, **kwargs: Any) -> Any:
         """A persistent stepper of this scene's closed loop from t = 0 (backend-dependent);
         ``horizon`` (s) bounds pre-generated source sequences (seeded random load)."""
@@ -247,8 +258,27 @@ class Simulation:
             if progress is not None:
                 progress(tk)
 
-        record(0, x)
-        if sampling == 'land':
+        if self.backend == 'kernel':
+            X = np.empty((times.size, x0.size))
+            X[0] = x0
+            if sampling == 'land':
+                for k in range(1, times.size):
+                    c0 = clock()
+                    X[k] = stepper.advance_to(float(times[k]))
+                    integ += clock() - c0
+                    if progress is not None:
+                        progress(float(times[k]))
+            else:
+                c0 = clock()
+                X[1:] = stepper.sample(times[1:])
+                integ += clock() - c0
+            x = X[-1]
+            self._kernel_outputs(times, X, e0, pos, vel, eff, te, tl, res)
+        else:
+            record(0, x)
+        if self.backend == 'kernel':
+            pass
+        elif sampling == 'land':
             for k in range(1, times.size):
                 c0 = clock()
                 x = stepper.advance_to(float(times[k]))

@@ -59,6 +59,10 @@ def test_simulation_kernel_matches_python_reference(name: str) -> None:
     d_pos = float(np.max(np.abs(a.position - b.position)))
     assert d_eff <= REL * max(1.0, float(np.max(np.abs(b.effort)))) + 10 * c_max * d_pos
     assert np.allclose(a.energy_residual, b.energy_residual, rtol=0, atol=1e-9)
+    # the kernel's samples come from the compiled walk (kernel/outputs_nb.py), the Python
+    # ones from Driveline._walk / energy: torques and names must agree too
+    assert _rel(a.engine_torque, b.engine_torque) < REL and _rel(a.load_torque, b.load_torque) < REL
+    assert a.names == b.names
 
 
 def test_a_source_the_kernel_does_not_cover_falls_back_with_one_line() -> None:

@@ -79,6 +79,7 @@ class BenchConfig:
     round_trip_n: int = 1000             # 0: skip the rclpy round-trip measurement
     real_lockstep: bool = False          # also time a real `cvj-sim run` lockstep run
     studies: bool = False                # run `pytest -m slow` and append its summary
+    compiled_baselines: bool = True      # also solve_ivp over the compiled rhs (expert baseline)
 
     @classmethod
     def quick(cls) -> BenchConfig:
@@ -102,6 +103,7 @@ class SceneProblem:
     ref_wall: float
     levels: dict[str, str] = field(default_factory=dict)      # fidelity mode -> 'name=level ...'
     aliases: dict[str, str] = field(default_factory=dict)     # mode -> earlier mode, same levels
+    rhs_cost: dict[str, Any] = field(default_factory=dict)    # see rhs_cost()
 
 
 class _BudgetExceeded(Exception):
@@ -228,26 +230,81 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
     def once() -> tuple[Any, int, int]:
         sim.fun = _counted(plain_fun, cfg.max_rhs_evals)
         tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples)
-        return tr, int(tr.solver.get('nfev', sim.fun.count[0])), int(tr.solver.get('njev', 0))
+        nfev = int(tr.solver.get('nfev', sim.fun.count[0]))
+        if nfev > cfg.max_rhs_evals:    # the compiled path is not stopped midway: checked after
+            raise _BudgetExceeded
+        return tr, nfev, int(tr.solver.get('njev', 0))
     return _finish(row, prob, once, cfg)
 
 
-def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig) -> dict[str, Any]:
-    """Time plain solve_ivp on the same closed-loop equations (``Simulation.fun``, exact
-    fidelity): one call over the horizon with ``t_eval``, no Jacobian (its default usage)."""
+def compiled_rhs_function(sim: Any, horizon: float) -> Callable[[float, np.ndarray], np.ndarray]:
+    """What an expert writes for solve_ivp: the compiled driveline rhs (kernel/rhs_nb.py,
+    engine and load inside) behind a thin Python function ``f(t, y) -> dy``."""
+    from cvj_ros.physics.kernel import rhs_nb
+    from cvj_ros.physics.kernel.layout import build_model
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load,
+                        horizon=max(horizon, float(sim.scene.duration)))
+    rhs, ip, fp = rhs_nb.rhs, model.ip, model.fp
+    rhs(0.0, model.x0.copy(), ip, fp, np.empty(model.n_state))   # compile / load outside the timing
+
+    def fun(t: float, y: np.ndarray) -> np.ndarray:
+        dy = np.empty(y.shape[0])
+        rhs(t, y, ip, fp, dy)
+        return dy
+    return fun
+
+
+def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
+    """Cost of one right-hand side (exact fidelity, engine and load inside): ns per call of
+    the compiled rhs called from a compiled loop, us per call of the same rhs from Python
+    (the solve_ivp wrapper) and of the Python reference rhs. Best of 3."""
+    from cvj_ros.physics.kernel.outputs_nb import time_rhs_calls
+    from cvj_ros.physics.simulate import Simulation
+    sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))
+    from cvj_ros.physics.kernel.layout import build_model
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+    y = model.x0.copy()
+    time_rhs_calls(10, 0.0, y, model.ip, model.fp)
+    best = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        time_rhs_calls(calls, 0.001, y, model.ip, model.fp)
+        best = min(best, (time.perf_counter() - t0) / calls)
+    out = {'compiled_ns': best * 1e9}
+    for key, fun, n in (('compiled_from_python_us', compiled_rhs_function(sim, 1.0), 20_000),
+                        ('python_us', sim.fun, 2_000)):
+        b = math.inf
+        for _ in range(3):
+            t0 = time.perf_counter()
+            for _k in range(n):
+                fun(0.001, y)
+            b = min(b, (time.perf_counter() - t0) / n)
+        out[key] = b * 1e6
+    return out
+
+
+def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig,
+                 compiled: bool = False) -> dict[str, Any]:
+    """Time plain solve_ivp on the same closed-loop equations (exact fidelity): one call over
+    the horizon with ``t_eval``, no Jacobian (its default usage). ``compiled``: the rhs is the
+    compiled kernel behind a thin Python function (family 'baseline_compiled'), else the
+    Python reference ``Simulation.fun`` (family 'baseline', what a user writes)."""
     from scipy.integrate import solve_ivp
 
     from cvj_ros.physics.simulate import Simulation
-    row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'baseline', 'solver': method,
-                           'fidelity': 'exact', 'tol': tol, 'h': None, 'label': f'solve_ivp {method}'}
+    row: dict[str, Any] = {'scene': prob.scene.name,
+                           'family': 'baseline_compiled' if compiled else 'baseline',
+                           'solver': method, 'fidelity': 'exact', 'tol': tol, 'h': None,
+                           'label': f'solve_ivp {method}' + (' + compiled rhs' if compiled else '')}
     try:
         sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
-    except CvjError as exc:
+        rhs_fun = compiled_rhs_function(sim, prob.horizon) if compiled else sim.fun
+    except (CvjError, NotImplementedError) as exc:
         return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
     dl = sim.driveline
 
     def once() -> tuple[Any, int, int]:
-        fun = _counted(sim.fun, cfg.max_rhs_evals)
+        fun = _counted(rhs_fun, cfg.max_rhs_evals)
         sol = solve_ivp(fun, (0.0, prob.horizon), dl.x0.copy(), method=method,
                         t_eval=prob.t_eval, rtol=tol, atol=tol)
         if not sol.success:
@@ -297,11 +354,12 @@ def best_at_levels(rows: Sequence[dict[str, Any]], *, levels: Sequence[float] = 
     out = []
     for lv in levels:
         entry: dict[str, Any] = {'level': lv}
-        for fam in ('project', 'baseline'):
+        for fam in ('project', 'baseline', 'baseline_compiled'):
             cand = [r for r in rows if r.get('ok') and r['family'] == fam and r[error_key] <= lv]
             entry[fam] = min(cand, key=lambda r: r['wall_per_sim_s']) if cand else None
-        p, b = entry['project'], entry['baseline']
+        p, b, bc = entry['project'], entry['baseline'], entry['baseline_compiled']
         entry['speedup'] = b['wall_per_sim_s'] / p['wall_per_sim_s'] if p and b else None
+        entry['speedup_compiled'] = bc['wall_per_sim_s'] / p['wall_per_sim_s'] if p and bc else None
         out.append(entry)
     return out
 
@@ -493,7 +551,9 @@ def planned_runs(cfg: BenchConfig) -> int:
     to be the same model as an earlier one are skipped, so fewer may be made)."""
     per_fidelity = sum(len(cfg.rk4_steps) if s in ('rk4', 'ros2') else len(cfg.tolerances)
                        for s in cfg.solvers)
-    return len(cfg.scenes) * (len(cfg.fidelities) * per_fidelity + len(cfg.baselines) * len(cfg.tolerances))
+    families = 2 if cfg.compiled_baselines else 1
+    return len(cfg.scenes) * (len(cfg.fidelities) * per_fidelity
+                              + families * len(cfg.baselines) * len(cfg.tolerances))
 
 
 def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print,
@@ -541,11 +601,16 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg))
                     if progress is not None:
                         progress(len(rows))
-        for method in cfg.baselines:
-            for tol in cfg.tolerances:
-                rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg))
-                if progress is not None:
-                    progress(len(rows))
+        for compiled in ((False, True) if cfg.compiled_baselines else (False,)):
+            for method in cfg.baselines:
+                for tol in cfg.tolerances:
+                    rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg, compiled=compiled))
+                    if progress is not None:
+                        progress(len(rows))
+        try:
+            prob.rhs_cost = rhs_cost(scene)
+        except (CvjError, NotImplementedError) as exc:
+            prob.rhs_cost = {'note': str(exc).splitlines()[0][:160]}
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names:
             lock_rows += lockstep_study(prob, cfg)
@@ -623,13 +688,24 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md += ['', f'## {name}', '',
                f'Horizon {prob.horizon:g} s; reference took {prob.ref_wall:.2f} s. '
                f'Error = max relative error of the output-shaft speed; cost = wall s per simulated s.', '',
-               '| error level | best project config | cost | best solve_ivp | cost | speedup |',
-               '| --- | --- | --- | --- | --- | --- |']
+               '| error level | best project config | cost | best solve_ivp (Python rhs) | cost | speedup '
+               '| best solve_ivp (compiled rhs) | cost | speedup |',
+               '| --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for e in best_at_levels(srows):
-            pr, bl = e['project'], e['baseline']
+            pr, bl, bc = e['project'], e['baseline'], e['baseline_compiled']
             md.append(f'| {e["level"]:.0e} | {_config_label(pr)} | {_g(pr and pr["wall_per_sim_s"])} | '
                       f'{_config_label(bl)} | {_g(bl and bl["wall_per_sim_s"])} | '
-                      f'{_g(e["speedup"], ".2f") + "x" if e["speedup"] else "-"} |')
+                      f'{_g(e["speedup"], ".2f") + "x" if e["speedup"] else "-"} | '
+                      f'{_config_label(bc)} | {_g(bc and bc["wall_per_sim_s"])} | '
+                      f'{_g(e["speedup_compiled"], ".2f") + "x" if e["speedup_compiled"] else "-"} |')
+        rc = getattr(prob, 'rhs_cost', None) or {}
+        if 'compiled_ns' in rc:
+            md += ['', f'Right-hand side (exact fidelity, engine and load inside): compiled '
+                   f'{rc["compiled_ns"]:.0f} ns per call from a compiled loop; '
+                   f'{rc["compiled_from_python_us"]:.2f} us per call from Python (the solve_ivp wrapper); '
+                   f'Python reference {rc["python_us"]:.1f} us per call.']
+        elif rc:
+            md += ['', f'Right-hand side cost: not measured ({rc.get("note", "")}).']
         front = pareto_front(srows)
         md += ['', 'Pareto front (error vs cost, all configurations):', '',
                '| config | error (speed, rel) | error (angle, rad) | cost s/s | timing spread | rhs evals |',

@@ -49,7 +49,10 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
     with (out / 'bench.csv').open() as fh:
         rows = list(csv.DictReader(fh))
     # 'auto' resolves to the exact model here (no accuracy target): not rerun
-    assert len(rows) == 2 * (2 * 3 + 2) + 2 * 3
+    # project: 2 fidelities x (2 adaptive x 3 tol + 2 rk4 steps); baselines: 2 methods x 3 tol,
+    # once with the Python rhs and once with the compiled rhs
+    assert len(rows) == 2 * (2 * 3 + 2) + 2 * 2 * 3
+    assert sum(r['family'] == 'baseline_compiled' for r in rows) == 2 * 3
     assert res['rows'] and all(r['fidelity'] != 'auto' for r in res['rows'])
     for r in rows:
         assert r['ok'] == 'True', r
@@ -58,6 +61,7 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
             assert math.isfinite(v) and v >= 0, (key, r)
     md = (out / 'bench.md').read_text()
     assert '| 1e-03 |' in md and 'Pareto front' in md and '## Machine' in md and 'cores' in md
+    assert 'best solve_ivp (compiled rhs)' in md and 'ns per call from a compiled loop' in md
     assert 'nan' not in md.lower()
     assert "Fidelity chooser's pick (hooke=exact bush=elastic, the same model as exact)" in md
 

@@ -623,6 +623,11 @@ class BagRecorder:
         self._subs: dict[str, Any] = {}
         self._types: dict[str, str] = {}
         self._lock = threading.Lock()
+        # topics whose messages are dropped (counted in ``held``) until the run's own loop
+        # starts: `cvj-sim run` holds the loop topics while it checks that no other run shares
+        # the domain, so a refused run's bag never holds the other run's messages
+        self.hold: frozenset[str] = frozenset()
+        self.held = 0
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
         self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None
@@ -653,6 +658,9 @@ class BagRecorder:
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
                     is_clock: bool) -> None:
         import time
+        if topic in self.hold:
+            self.held += 1
+            return
         if topic not in self.writer.counts:  # bag connections only for topics with messages
             self.writer.add_topic(topic, msgtype)
         if stamped:

@@ -261,7 +261,8 @@ def _die_with_parent() -> None:
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
-    def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int) -> None:
+    def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
+                 hold: Sequence[str] = ()) -> None:
         import rclpy
         from rclpy.signals import SignalHandlerOptions
         self.ctx = rclpy.context.Context()
@@ -269,6 +270,7 @@ class _Recorder:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
+        self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
         self.thread.start()
@@ -344,6 +346,13 @@ def error_line(log_path: Path) -> str | None:
 
 
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
+# How long "our peers are up, nobody else is" must hold before a lockstep loop starts (s).
+# The recorder's participant exists from before the peers were started (>= ~1 s of process
+# start), so another run's endpoints have usually been discovered already; this covers a
+# slow discovery under load at the cost of 0.3 s per run.
+DISCOVERY_SETTLE_S = 0.3
+LOOP_TOPICS = (bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, bagmod.SCENE_TOPIC,
+               '/engine/wrench', '/load/wrench')
 # --external NAME: (the node it replaces, what the outside node must publish)
 EXTERNAL_PEERS = {
     'engine': ('engine_node', 'the engine torque on the first shaft, torque.z in N m (driving '
@@ -378,18 +387,34 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
     t0 = time.monotonic()
     deadline = t0 + timeout
     outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    settled_since: float | None = None
+    dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
     while not stop_signal:
         # another run on this domain: stop before our coupling node publishes a single state
-        # into the other run's bag (its own watchdog can take 0.25 s and more under load)
-        extra = [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
-                 if (n := recorder.publisher_count(topic)) > 1]
+        # into the other run's bag (its own watchdog can take 0.25 s and more under load).
+        # Our coupling node is not started yet, so any joint-state publisher is another run's;
+        # engine/load counts alone cannot tell: the other run's peers, discovered before ours
+        # start, made a count of 1 look like "our peer is up" (measured: the second run then
+        # started and mixed into the first one's bag).
+        n_js = recorder.publisher_count(bagmod.JOINT_STATES_TOPIC)
+        extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
+            [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+             if (n := recorder.publisher_count(topic)) > 1]
         if extra and lockstep:
-            return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
-                    f'{domain if domain is not None else os.environ.get("ROS_DOMAIN_ID", "0")} before the loop started: another run or '
+            return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
+                    f'{dom} before the loop started: another run or '
                     'node shares this domain; give each run its own ROS_DOMAIN_ID')
         missing = [n for n, topic in PEER_TOPICS.items() if recorder.publisher_count(topic) < 1]
         if not missing:
-            return None
+            # hold the all-clear for DISCOVERY_SETTLE_S: endpoints of another run on the
+            # domain may still be arriving
+            now = time.monotonic()
+            settled_since = now if settled_since is None else settled_since
+            if not lockstep or now - settled_since >= DISCOVERY_SETTLE_S:
+                return None
+            time.sleep(0.02)
+            continue
+        settled_since = None
         for name in missing:
             rc = procs[name].poll() if name in procs else None
             if rc is not None:
@@ -477,7 +502,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     # simulated time, real-time factor, ETA on stderr at most once a second, only on a terminal
     progress = Progress(prep.duration, label='cvj-sim run')
     try:
-        recorder = _Recorder(writer, prep.coupling_topics, domain)
+        # lockstep: nothing of ours flows on the loop topics before our coupling node starts
+        recorder = _Recorder(writer, prep.coupling_topics, domain,
+                             hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
+                             if options.mode == 'lockstep' else ())
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
@@ -495,6 +523,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 mark('peers_connected')
                 if error is not None or stop_signal:
                     break
+                recorder.recorder.hold = frozenset()
             params = node_parameters(prep, name, load_override=load_override)
             fh = open(logs / f'{name}.log', 'wb')
             log_files.append(fh)

@@ -99,12 +99,14 @@ def build_sections(scene: Scene, levels: Mapping[str, str]) -> SectionChain:
     names: list[list[str]] = [[]]
     springs: list[SpringLaw] = []
     shafts: list[Shaft] = []
+    made_by: list[int] = []            # per shaft: index of the element that made it
     for i, el in enumerate(scene.driveline):
         sec = len(sections) - 1
         if isinstance(el, Inertia):
             shafts.append(Shaft(el.name, sec, len(sections[sec]), 'inertia'))
             sections[sec].append((el.J, None))
             names[sec].append(el.name)
+            made_by.append(i)
         elif isinstance(el, Joint):
             level = levels.get(el.name) or JOINTS[el.kind].fidelities[-1]
             try:
@@ -120,6 +122,7 @@ def build_sections(scene: Scene, levels: Mapping[str, str]) -> SectionChain:
             shafts.append(Shaft(f'{el.name}_output', sec, k, 'output'))
             sections[sec].append((0.0, model.scalar))
             names[sec].append(el.name)
+            made_by.extend([i] * (len(shafts) - len(made_by)))
         elif isinstance(el, Spring):
             if levels.get(el.name, 'elastic') == 'rigid':
                 continue    # merged: the two sections become one rigid body
@@ -129,6 +132,15 @@ def build_sections(scene: Scene, levels: Mapping[str, str]) -> SectionChain:
                                      g, el.backlash_smoothing * g))
             sections.append([])
             names.append([])
+    origin: dict[str, int] = {}        # unique JointState names, by construction
+    for sh, i in zip(shafts, made_by):
+        j = origin.setdefault(sh.name, i)
+        if j != i:
+            a, b = scene.driveline[j].name, scene.driveline[i].name
+            raise SceneError(f'driveline[{i}].name',
+                             f'shaft name {sh.name!r} is made by both driveline[{j}] ({a!r}) and '
+                             f'driveline[{i}] ({b!r}; a joint names its shafts <name>_input, '
+                             f'<name>_output and <name>_<member>); rename one of them')
     return SectionChain([tuple(s) for s in sections], names, springs, shafts, joint_models)
 
 

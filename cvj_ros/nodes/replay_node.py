@@ -87,7 +87,9 @@ class ReplayNode(CvjNode):
             self.publishers_by_topic[topic] = self.create_publisher(cls, topic, qos)
         self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, DATA_QOS) if self.publish_clock else None
         self.messages_published = 0
+        self.published_by_topic: dict[str, int] = {}
         self.loops = 0
+        self._wall_start: float | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name='replay', daemon=True)
         if autostart:
@@ -114,9 +116,22 @@ class ReplayNode(CvjNode):
                 if not self.loop or not self.messages:
                     break
             self._flush()
+            print(self.summary(), flush=True)
             self.finish()
         except Exception as exc:  # report, never a silent dead thread
             self.fail(f'replay: {exc}')
+
+    def summary(self) -> str:
+        """What was published: total, topics, bag-time span, wall time, rate; one line per topic."""
+        span = (self.messages[-1][2] - self.messages[0][2]) * 1e-9 if self.messages else 0.0
+        wall = time.monotonic() - self._wall_start if self._wall_start is not None else 0.0
+        head = (f'replay: published {self.messages_published} messages on '
+                f'{len(self.published_by_topic)} topics, {self.loops} pass(es) over {span:.6g} s of '
+                f'bag time in {wall:.3g} s wall (rate {self.rate:g}x'
+                + (', /clock from the bag stamps' if self.publish_clock else '') + ')')
+        width = max((len(t) for t in self.published_by_topic), default=0)
+        return '\n'.join([head] + [f'  {t:<{width}}  {n}' for t, n in
+                                    sorted(self.published_by_topic.items())])
 
     def _flush(self, timeout: float = 2.0) -> None:
         """Wait until reliable subscribers acknowledged everything sent (``timeout`` s in total)."""
@@ -131,6 +146,8 @@ class ReplayNode(CvjNode):
             return
         t_first = self.messages[0][2]
         wall0 = time.monotonic()
+        if self._wall_start is None:
+            self._wall_start = wall0
         last_clock = None
         for topic, _msgtype, ts, data in self.messages:
             due = wall0 + (ts - t_first) * 1e-9 / self.rate
@@ -146,6 +163,7 @@ class ReplayNode(CvjNode):
                 last_clock = ts
             self.publishers_by_topic[topic].publish(data)
             self.messages_published += 1
+            self.published_by_topic[topic] = self.published_by_topic.get(topic, 0) + 1
 
 
 def main(args: Sequence[str] | None = None) -> None:

@@ -187,3 +187,20 @@ def test_replay_recorded_again_gives_the_same_bag(tmp_path: Path) -> None:
     original = sorted((t, ts_, d) for t, _, ts_, d in bag.read_raw(tmp_path / 'src'))
     copy = sorted((t, ts_, d) for t, _, ts_, d in bag.read_raw(tmp_path / 'copy'))
     assert copy == original
+
+
+def test_cvj_sim_replay_says_what_it_published(tmp_path: Path) -> None:
+    """`cvj-sim replay` used to print nothing and exit 0 (issue 14): it now ends with one
+    summary line (messages, topics, passes, bag-time span, wall time, rate) and a count per
+    topic."""
+    _make_bag(tmp_path / 'b')
+    exe = Path(sys.executable).with_name('cvj-sim')
+    r = subprocess.run([str(exe), 'replay', str(tmp_path / 'b'), '--rate', '10'],
+                       capture_output=True, text=True, timeout=60, env=dict(os.environ))
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.strip().splitlines()
+    assert lines[0].startswith(f'replay: published {2 * N} messages on 2 topics, 1 pass(es) over '
+                               f'{(N - 1) * H_NS * 1e-9:.6g} s of bag time in '), lines
+    assert lines[0].endswith('(rate 10x, /clock from the bag stamps)'), lines[0]
+    assert sorted(line.split() for line in lines[1:]) == [['/driveline/joint_states', str(N)],
+                                                          ['/load/wrench', str(N)]]

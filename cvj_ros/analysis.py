@@ -325,7 +325,8 @@ def format_report(report: dict[str, Any]) -> str:
                          f"amplitude {_fmt(e['torque_amplitude_Nm'])} N m")
     ls = report['lockstep']
     lines.append('')
-    lines.append(f"lockstep: {ls['steps']} steps over {_fmt(ls['duration_s'])} s, exchange step "
+    mode = report.get('scene', {}).get('mode') or 'lockstep'    # recorded by the coupling node
+    lines.append(f"{mode}: {ls['steps']} steps over {_fmt(ls['duration_s'])} s, exchange step "
                  f"{_fmt(ls.get('exchange_step_s'))} s (min {_fmt(ls.get('exchange_step_min_s'))}, "
                  f"max {_fmt(ls.get('exchange_step_max_s'))}), stamps "
                  f"{'strictly increasing' if ls['stamps_strictly_increasing'] else 'NOT monotonic (%d)' % ls['non_increasing_stamps']}")

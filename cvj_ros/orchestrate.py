@@ -82,6 +82,7 @@ class RunOptions:
     storage: str = 'mcap'
     mode: str = 'lockstep'
     scheme: str = 'zoh'
+    fail_on: str = 'error'       # exit 1 when the monitor recorded: 'error' | 'warn' | 'never'
     exchange_step: float | None = None
     load_from_bag: Path | None = None
     overwrite: bool = False
@@ -115,6 +116,7 @@ class RunResult:
     metrics: dict[str, Any] = field(default_factory=dict)
     phases: dict[str, float] = field(default_factory=dict)   # wall s since start of each phase end
     external: list[str] = field(default_factory=list)        # peers answered by outside nodes
+    settings: dict[str, Any] = field(default_factory=dict)    # seed, mode, scheme, storage, fidelity
 
 
 @dataclass
@@ -621,9 +623,37 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         counters = {}
     if counters:
         result.metrics['loop_counters'] = counters
+    try:
+        result.metrics['monitor'] = monitor_statuses(result.bag)
+    except CvjError:
+        pass
+    result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
+                       'mode': options.mode, 'scheme': options.scheme,
+                       'storage': options.storage}
+    fid = _recorded_fidelity(result.bag)
+    if fid:
+        result.settings['fidelity'] = fid
+    mon = result.metrics.get('monitor', {})
+    if result.exit_code == 0 and (
+            (options.fail_on == 'error' and mon.get('error')) or
+            (options.fail_on == 'warn' and (mon.get('error') or mon.get('warn')))):
+        result.exit_code = 1
+        result.error = (f'monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN '
+                        f'statuses (--fail-on {options.fail_on}); worst: {mon.get("worst")}')
     (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
+
+
+def _recorded_fidelity(bag: Path) -> str | None:
+    """'joint=level ...' from the recorded /driveline/scene message, if any."""
+    try:
+        from cvj_ros.analysis import _scene_summary
+        msgs = bagmod.read_bag(bag, [bagmod.SCENE_TOPIC]).get(bagmod.SCENE_TOPIC)
+        text = msgs.data[0] if msgs is not None and getattr(msgs, 'data', None) else None
+    except (CvjError, AttributeError, IndexError):
+        return None
+    return _scene_summary(text).get('fidelity') if text else None
 
 
 def _jsonable(value: Any) -> Any:
@@ -681,6 +711,29 @@ def loop_counters(bag: Path) -> dict[str, int]:
     return {}
 
 
+def monitor_statuses(bag: Path) -> dict[str, Any]:
+    """WARN and ERROR statuses recorded on /diagnostics (every node but the coupling loop's
+    counters, reported on their own): counts, the first of each level and the first of the
+    worst level seen, each as 't = T s NAME: MESSAGE'."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    out: dict[str, Any] = {'warn': 0, 'error': 0}
+    if diags is None:
+        return out
+    for t, statuses in zip(diags.t, diags.statuses):
+        for st in statuses:
+            level = int(st['level'])
+            if st['name'] == 'coupling_node: loop' or level not in (1, 2):
+                continue
+            key = 'warn' if level == 1 else 'error'
+            out[key] += 1
+            out.setdefault(f'first_{key}', f't = {float(t):.6g} s {st["name"]}: '
+                                           f'{st["message"] or st["values"]}')
+    worst = 'error' if out['error'] else ('warn' if out['warn'] else None)
+    if worst:
+        out['worst'] = f'{worst.upper()} ' + out[f'first_{worst}']
+    return out
+
+
 def print_report(r: RunResult, stream: TextIO) -> None:
     """The short human report of a run."""
     p = lambda s='': print(s, file=stream)  # noqa: E731
@@ -711,5 +764,14 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
           + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'
              if counters.get('held_torques') else ''))
+    mon = r.metrics.get('monitor', {})
+    if mon.get('warn') or mon.get('error'):
+        p(f'  monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN statuses; '
+          f'worst: {mon.get("worst")}')
+        for key in ('first_error', 'first_warn'):
+            if key in mon:
+                p(f'    first {key[6:].upper()}: {mon[key]}')
+    if r.settings:
+        p('  settings: ' + ', '.join(f'{k} {v}' for k, v in r.settings.items()))
     p('  messages: ' + ', '.join(f'{t} {n}' for t, n in sorted(r.counts.items())))
     p(f'  bag: {r.bag}')

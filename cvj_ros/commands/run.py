@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--nonfinite-torque', choices=('stop', 'hold'), default='stop',
                         help='a NaN/inf torque answer stops the run (default) or the last finite '
                              'torque is held, counted with a WARN')
+    parser.add_argument('--fail-on', choices=('error', 'warn', 'never'), default='error',
+                        help='exit 1 when the monitor recorded an ERROR (default: a limit of the '
+                             'scene was violated, so scripts must notice), any WARN or ERROR, or never')
     parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
@@ -61,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         mode=args.mode, scheme=args.scheme, exchange_step=args.exchange_step,
         load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout,
         external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
-        external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque))
+        external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
+        fail_on=args.fail_on))
     if result.error:
         import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)

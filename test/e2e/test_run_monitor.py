@@ -36,8 +36,8 @@ def _run(tmp_path: Path, name: str, *extra: str) -> subprocess.CompletedProcess[
                           capture_output=True, text=True, timeout=180)
 
 
-def test_monitor_errors_fail_the_run_by_default_and_are_reported(tmp_path: Path) -> None:
-    r = _run(tmp_path, 'default')
+def test_fail_on_error_fails_the_run_and_reports(tmp_path: Path) -> None:
+    r = _run(tmp_path, 'default', '--fail-on', 'error')
     assert r.returncode == 1, r.stdout + r.stderr
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith('cvj-sim: error: monitor: '), r.stderr
@@ -49,8 +49,8 @@ def test_monitor_errors_fail_the_run_by_default_and_are_reported(tmp_path: Path)
     assert report['metrics']['monitor']['error'] >= 1 and report['exit_code'] == 1
 
 
-def test_fail_on_never_keeps_exit_0_and_still_reports(tmp_path: Path) -> None:
-    r = _run(tmp_path, 'never', '--fail-on', 'never', '--storage', 'sqlite3')
+def test_default_never_keeps_exit_0_and_still_reports(tmp_path: Path) -> None:
+    r = _run(tmp_path, 'never', '--storage', 'sqlite3')
     assert r.returncode == 0, r.stdout + r.stderr
     assert r.stdout.startswith('cvj-sim run: loop running') and 'cvj-sim run: finished' in r.stdout
     assert '  monitor: ' in r.stdout and 'worst: ERROR' in r.stdout

@@ -133,6 +133,17 @@ class SimClock:
             self.executor.spin_once(timeout_sec=0.05)
         return self.t
 
+    def wait_for_engine(self, timeout: float) -> None:
+        """Spin until the engine node's /engine/throttle subscription is matched.
+
+        A volatile topic drops what is published before discovery matched both ends (CI failed
+        once: the four bad values were sent 0.05 s into the loop and none reached the engine).
+        """
+        deadline = time.monotonic() + timeout
+        while self.throttle_pub.get_subscription_count() < 1:
+            assert time.monotonic() < deadline, 'engine_node never subscribed to /engine/throttle'
+            self.executor.spin_once(timeout_sec=0.05)
+
     def send_throttle(self, value: float) -> None:
         """Publish a pedal position on /engine/throttle (as a vehicle stack would)."""
         self.throttle_pub.publish(self._float64(data=value))
@@ -166,8 +177,13 @@ def test_late_engine_recovers_and_frozen_load_stops_with_clear_error(tmp_path: P
             clock = SimClock()
             try:
                 clock.wait_until(0.05, 60.0)                       # loop is stepping
-                for bad in (math.nan, math.inf, -math.inf, 1.5):   # bad pedal inputs
-                    clock.send_throttle(bad)
+                clock.wait_for_engine(30.0)
+                # bad pedal inputs, sent twice: the writer side matching a moment before the
+                # reader side would otherwise still lose a single burst
+                for t_send in (0.05, 0.075):
+                    clock.wait_until(t_send, 60.0)
+                    for bad in (math.nan, math.inf, -math.inf, 1.5):
+                        clock.send_throttle(bad)
                 events['t_engine_freeze'] = clock.wait_until(0.1, 60.0)
                 freeze(procs['engine_node'], 0.5, 'engine')   # late, within peer_timeout
                 events['t_after_engine'] = clock.wait_until(events['t_engine_freeze'] + 0.1, 30.0)

@@ -126,7 +126,11 @@ def _check_bag_layout(bag_path: Path, shafts: list[str], joints: list[str]) -> b
         np.testing.assert_array_equal(stamps[:N], js.t[:N])
         assert stamps.size in (N, N + 1) and (stamps.size == N or stamps[-1] == js.t[-1])
     np.testing.assert_array_equal(data['/clock'].value, js.t)
-    assert data['/engine/wrench'].frame_id == shafts[0] and data['/load/wrench'].frame_id == shafts[-1]
+    # answers are tagged '<shaft>@<run token>' (cvj_ros.nodes.run_token)
+    token = info.custom_data['cvj_ros.run_token']
+    assert len(token) == 8
+    assert data['/engine/wrench'].frame_id == f'{shafts[0]}@{token}'
+    assert data['/load/wrench'].frame_id == f'{shafts[-1]}@{token}'
     assert np.all(np.isfinite(js.position)) and np.all(np.isfinite(js.velocity))
     return js
 

@@ -624,9 +624,12 @@ class BagRecorder:
     nodes, /engine/throttle) are recorded. /clock has no header: a /clock sample is
     recorded only while exactly one /clock publisher is matched (with two runs on the
     domain neither bag gets the other's /clock; both lose /clock while both publish it,
-    counted in ``foreign['/clock']``) and, once the owner set :attr:`loop_ended`, not
-    beyond one exchange step after the run's own latest joint state (the other run's
-    /clock while this run's coupling node is already gone).
+    counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
+    s0, s1) are in, /clock samples are kept back and then written only if they lie in
+    [s0, s1 + (s1 - s0)] (a /clock of another run that was the only one matched before
+    this run's coupling node came up); once the owner set :attr:`loop_ended`, not beyond
+    one exchange step after the run's own latest joint state (the other run's /clock
+    while this run's coupling node is already gone).
     """
 
     def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
@@ -652,6 +655,8 @@ class BagRecorder:
         # set by the owner once the run's coupling node exited: /clock samples beyond one
         # exchange step after the latest own joint state are then another run's
         self.loop_ended = False
+        # /clock samples (value ns, CDR) received before the run's own first two joint states
+        self._pending_clock: list[tuple[int, bytes]] = []
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
         self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None
@@ -681,13 +686,22 @@ class BagRecorder:
 
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
                     is_clock: bool) -> None:
-        import time
         if topic in self.hold:
             self.held += 1
             return
-        if self.run_token and not self._is_ours(topic, msgtype, data, is_clock=is_clock):
-            self.foreign[topic] = self.foreign.get(topic, 0) + 1
-            return
+        if self.run_token:
+            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock)
+            if verdict is None:            # a /clock sample kept until it can be attributed
+                return
+            if not verdict:
+                self.foreign[topic] = self.foreign.get(topic, 0) + 1
+                return
+        self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock)
+        if self.run_token and topic == JOINT_STATES_TOPIC and self._pending_clock:
+            self._flush_pending_clock()
+
+    def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
+        import time
         if topic not in self.writer.counts:  # bag connections only for topics with messages
             self.writer.add_topic(topic, msgtype)
         if stamped:
@@ -707,8 +721,28 @@ class BagRecorder:
         self.first_wall.setdefault(topic, now)
         self.last_wall[topic] = now
 
-    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool:
-        """Run-token check of one message (class docstring); notes own joint-state stamps."""
+    def _flush_pending_clock(self) -> None:
+        """Write the /clock samples kept before the run's own first two joint states (s0, s1):
+        after s0 those equal to s0; after s1 those in [s0, s1 + (s1 - s0)], the rest are
+        another run's (counted)."""
+        own = self._own_js_ns
+        if len(own) == 1:
+            keep = [(v, d) for v, d in self._pending_clock if v == own[0]]
+            self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
+        else:
+            hi = own[1] + (own[1] - own[0])
+            keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
+            n_foreign = len(self._pending_clock) - len(keep)
+            if n_foreign:
+                self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + n_foreign
+            self._pending_clock = []
+        for _v, data in sorted(keep, key=lambda vd: vd[0]):
+            self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
+
+    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool | None:
+        """Run-token check of one message (class docstring); notes own joint-state stamps.
+        None: a /clock sample kept in ``_pending_clock`` until the run's own first joint
+        states tell whose it is."""
         from cvj_ros.nodes.run_token import cdr_is_foreign
         if msgtype in HEADER_TYPES:
             if cdr_is_foreign(data, self.run_token):
@@ -726,7 +760,10 @@ class BagRecorder:
             if sub is not None and sub.get_publisher_count() > 1:
                 return False
             own = self._own_js_ns
-            if self.loop_ended and len(own) >= 2:
+            if len(own) < 2:
+                self._pending_clock.append((cdr_stamp_ns(data), bytes(data)))
+                return None
+            if self.loop_ended:
                 step = own[1] - own[0]
                 return cdr_stamp_ns(data) <= own[-1] + step
             return True

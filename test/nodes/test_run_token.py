@@ -301,7 +301,8 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
     """BagRecorder with a token, fed serialised messages directly (no DDS traffic): another
     run's joint states, answers, reaction wrenches, diagnostics and scene are dropped and
     counted; untagged ones are kept; after loop_ended a /clock beyond one step after the
-    latest own state is dropped."""
+    latest own state is dropped; a /clock before the run's first two states is kept back
+    and written only if it lies within them."""
     node = rclpy.create_node('rec_token_test', context=ctx)
     writer = bag.BagWriter(tmp_path / 'b')
     try:
@@ -322,6 +323,9 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
         diag_other.header.frame_id, diag_ours.header.frame_id = f'x@{OTHER}', f'x@{OURS}'
         feed('/driveline/scene', String(data=yaml.safe_dump({'run_token': OTHER})))
         feed('/driveline/scene', String(data=yaml.safe_dump({'run_token': OURS})))
+        # another run's /clock, the only one matched before our coupling node came up: kept
+        # back until our first two states (0, 1 ms) show it is not ours
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=50_000_000)))
         for k in range(3):
             feed('/clock', Clock(clock=Time(sec=0, nanosec=k * 1_000_000)))
             feed('/driveline/joint_states', _js(f'driveline@{OTHER}', k))
@@ -338,9 +342,12 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
         assert rec.counts == {'/driveline/scene': 1, '/clock': 4, '/driveline/joint_states': 3,
                               '/load/wrench': 3, '/engine/wrench': 3, '/diagnostics': 1}
         assert rec.foreign == {'/driveline/scene': 1, '/driveline/joint_states': 3, '/load/wrench': 3,
-                               '/coupling/cardan/wrench': 3, '/diagnostics': 1, '/clock': 1}
+                               '/coupling/cardan/wrench': 3, '/diagnostics': 1, '/clock': 2}
         assert yaml.safe_load(rec.scene_text)['run_token'] == OURS
         rec.destroy()
+        writer.close()
+        clock = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock']
+        assert [round(v * 1e9) for v in clock.value] == [0, 1_000_000, 2_000_000, 3_000_000]
     finally:
         writer.close()
         node.destroy_node()

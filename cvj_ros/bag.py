@@ -626,7 +626,7 @@ class BagRecorder:
     domain neither bag gets the other's /clock; both lose /clock while both publish it,
     counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
     s0, s1) are in, /clock samples are kept back and then written only if they lie in
-    [s0, s1 + (s1 - s0)] (a /clock of another run that was the only one matched before
+    [s0, s1 + 2 (s1 - s0)] (a /clock of another run that was the only one matched before
     this run's coupling node came up); once the owner set :attr:`loop_ended`, not beyond
     one exchange step after the run's own latest joint state (the other run's /clock
     while this run's coupling node is already gone).
@@ -723,14 +723,15 @@ class BagRecorder:
 
     def _flush_pending_clock(self) -> None:
         """Write the /clock samples kept before the run's own first two joint states (s0, s1):
-        after s0 those equal to s0; after s1 those in [s0, s1 + (s1 - s0)], the rest are
+        after s0 those equal to s0; after s1 those in [s0, s1 + 2 (s1 - s0)] (/clock t_(k+1)
+        goes out after the state t_k, which may be taken after it), the rest are
         another run's (counted)."""
         own = self._own_js_ns
         if len(own) == 1:
             keep = [(v, d) for v, d in self._pending_clock if v == own[0]]
             self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
         else:
-            hi = own[1] + (own[1] - own[0])
+            hi = own[1] + 2 * (own[1] - own[0])
             keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
             n_foreign = len(self._pending_clock) - len(keep)
             if n_foreign:
@@ -796,7 +797,9 @@ class BagRecorder:
                 self.discover()
                 next_discovery = now + discover_period
             with self._lock:
-                subs = list(self._subs.items())
+                # /clock last in each wake: joint states queued before it are taken first, so
+                # the run-token check rarely has to keep a /clock sample back (_is_ours)
+                subs = sorted(self._subs.items(), key=lambda item: item[0] == CLOCK_TOPIC)
             if wait_set is None or len(subs) != len(entries):
                 entries = [(topic, sub, self._types[topic] in STAMPED_TYPES, topic == CLOCK_TOPIC,
                             self._types[topic]) for topic, sub in subs]

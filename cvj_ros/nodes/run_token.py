@@ -35,14 +35,20 @@ import secrets
 
 TOKEN_SEPARATOR = '@'
 TOKEN_RE = re.compile(r'^[0-9a-f]{8}$')
+_HAS_LETTER = re.compile(r'[a-df]')
 JOINT_STATES_FRAME = 'driveline'
 
 
 def new_run_token() -> str:
-    """A fresh random run token: 8 lowercase hex characters (32 random bits, ``secrets``).
-
-    Two runs draw the same token with probability 2**-32 per pair."""
-    return secrets.token_hex(4)
+    """A fresh random run token: 8 lowercase hex characters (``secrets``) with at least one
+    of a-d or f, so that ``--ros-args -p run_token:=<token>`` never reads it as a number
+    (``75555527`` would be an INTEGER parameter, ``12345e67`` a DOUBLE: measured, the node
+    then exits 2). That leaves 16**8 - 11**8 = 4.08e9 tokens: two runs draw the same one
+    with probability 2.5e-10 per pair."""
+    while True:
+        token = secrets.token_hex(4)
+        if _HAS_LETTER.search(token):
+            return token
 
 
 def check_run_token(token: str) -> str:

@@ -43,6 +43,9 @@ DURATION, H = 0.02, 0.001       # s
 def test_new_tokens_are_8_hex_and_differ() -> None:
     tokens = {rt.new_run_token() for _ in range(1000)}
     assert all(rt.TOKEN_RE.match(t) for t in tokens)
+    # never numeric under ROS parameter YAML (an all-digit token became an INTEGER parameter)
+    assert all(not isinstance(yaml.safe_load(t), (int, float)) for t in tokens)
+    assert all(any(c in 'abcdf' for c in t) for t in tokens)
     assert len(tokens) == 1000        # P(any collision in 1000 draws) = ~1e3^2 / 2^33 = 1.2e-4
 
 

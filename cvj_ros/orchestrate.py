@@ -710,6 +710,8 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
 
 
 LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
+IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
 
 
 def loop_counters(bag: Path) -> dict[str, int]:
@@ -721,7 +723,8 @@ def loop_counters(bag: Path) -> dict[str, int]:
     for statuses in reversed(diags.statuses):
         for st in statuses:
             if st['name'] == 'coupling_node: loop':
-                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
+                        if k in st['values']}
     return {}
 
 
@@ -773,7 +776,13 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
-    counters = r.metrics.get('loop_counters', {})
+    identity = r.metrics.get('run_identity', {})
+    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
+    dropped = sum(identity.get('foreign_dropped', {}).values())
+    if foreign or dropped:
+        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
+          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
           + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'

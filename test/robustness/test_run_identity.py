@@ -170,3 +170,134 @@ def test_two_runs_started_together_under_load_never_mix(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_two_runs_started_together_under_load_never_mix_20_reps(tmp_path: Path) -> None:
     check(two_runs_at_once(tmp_path, reps=20))
+
+
+class Intruder:
+    """Another run's traffic, as nasty as it gets: once the real run is stepping, every
+    joint state of the real run is followed at once by this node's joint state, /clock,
+    /engine/wrench and /load/wrench with the SAME stamp (the one the real loop awaits),
+    frame_id '<frame>@<other token>' and a torque of 1e4 N m. Runs in its own rclpy
+    context in a thread of the test process."""
+
+    OTHER = 'feedbeef'
+    TORQUE = 1.0e4    # N m: integrated once, it would move the crank speed by ~1e4 * 1e-3 / 0.128 = 78 rad/s
+
+    def __init__(self) -> None:
+        import threading
+
+        import rclpy
+        from geometry_msgs.msg import WrenchStamped
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+
+        from cvj_ros.nodes.qos import DATA_QOS
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node('intruder', context=self.ctx)
+        self.sent = 0
+        self.Clock, self.JointState, self.WrenchStamped = Clock, JointState, WrenchStamped
+        self.qos = DATA_QOS
+        # publishers only once the real loop steps: before step 0 cvj-sim and the coupling
+        # node refuse a domain with another run's publishers (the refusal test's case)
+        self.pubs: dict = {}
+        self.node.create_subscription(JointState, '/driveline/joint_states', self._on_js, DATA_QOS)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_js(self, msg) -> None:
+        if msg.header.frame_id.endswith(self.OTHER) or msg.header.stamp.nanosec < 20 * H_NS \
+                and msg.header.stamp.sec == 0:
+            return      # our own echo, or the real loop not yet 20 steps in (its start check)
+        if not self.pubs:
+            self.pubs = {t: self.node.create_publisher(c, t, self.qos) for t, c in (
+                ('/clock', self.Clock), ('/driveline/joint_states', self.JointState),
+                ('/engine/wrench', self.WrenchStamped), ('/load/wrench', self.WrenchStamped))}
+        stamp = msg.header.stamp
+        self.pubs['/clock'].publish(self.Clock(clock=stamp))
+        js = self.JointState(name=list(msg.name), position=list(msg.position),
+                             velocity=[v + 100.0 for v in msg.velocity], effort=list(msg.effort))
+        js.header.stamp, js.header.frame_id = stamp, f'driveline@{self.OTHER}'
+        self.pubs['/driveline/joint_states'].publish(js)
+        for topic in ('/engine/wrench', '/load/wrench'):
+            w = self.WrenchStamped()
+            w.header.stamp, w.header.frame_id = stamp, f'x@{self.OTHER}'
+            w.wrench.torque.z = self.TORQUE
+            self.pubs[topic].publish(w)
+        self.sent += 1
+
+    def close(self) -> None:
+        import rclpy
+        self._stop.set()
+        self.thread.join(2.0)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def offline_speeds(scene: dict, n_steps: int) -> np.ndarray:
+    """Shaft speeds at t_k of the same lockstep loop offline (CoupledStepper, zoh, engine
+    and load torques at the exchange points as engine_node / load_node evaluate them); the
+    same reference as test_faults_processes.offline_lockstep."""
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.load import load_from_spec
+    from cvj_ros.physics.scene import parse_scene
+    sc = parse_scene(scene)
+    engine, load = engine_from_spec(sc.engine), load_from_spec(sc.load, seed=sc.seed)
+    dl = Driveline.from_scene(sc)
+    cs = CoupledStepper(dl, scheme='zoh', method=sc.solver.method, rtol=sc.solver.rtol,
+                        atol=sc.solver.atol)
+    x = dl.x0.copy()
+    h = H_NS / 1e9
+    out = [dl.joint_states(x, 0.0, 0.0)[2]]   # velocities (as test_faults_processes)
+    for k in range(n_steps):
+        t = k * h
+        x = cs.advance((k + 1) * h, engine.torque(t, dl.engine_omega(x), dl.engine_phi(x)),
+                       load.torque(t, dl.load_omega(x), dl.load_phi(x)))
+        out.append(dl.joint_states(x, 0.0, 0.0)[2])
+    return np.asarray(out)
+
+
+def test_running_loop_ignores_another_runs_messages_with_its_stamps(tmp_path: Path) -> None:
+    """A run steps while 'another run' (Intruder) answers every one of its states with the
+    awaited stamp but its own token: the run ends normally (exit 0), its states equal the
+    offline loop (so no foreign torque was integrated), its bag holds none of the other
+    run's messages, and the coupling node counted the foreign answers."""
+    import io
+
+    from cvj_ros.orchestrate import RunOptions, run
+    scene = dict(SCENE, duration=0.5)
+    path = tmp_path / 'identity.yaml'
+    path.write_text(yaml.safe_dump(scene, sort_keys=False))
+    intruder = Intruder()
+    try:
+        result = run(RunOptions(scene=str(path), out=tmp_path / 'run'), stream=io.StringIO())
+    finally:
+        intruder.close()
+    print(f'intruder sent {intruder.sent}; loop {result.metrics.get("loop_counters")}; recorder dropped '
+          f'{result.metrics["run_identity"]["foreign_dropped"]}; counts {result.counts}; '
+          f'wall {result.wall_time:.1f} s, phases {result.phases}')
+    assert result.exit_code == 0, result.error
+    assert intruder.sent > 100        # it answered most of the run's 480 states after step 20
+    bad, counts, problems = mixed_messages(tmp_path / 'run' / 'bag')
+    assert bad == 0, problems
+    n = round(scene['duration'] * 1e9 / H_NS)
+    assert counts['/driveline/joint_states'] == n + 1
+    dropped = result.metrics['run_identity']['foreign_dropped']
+    assert dropped['/driveline/joint_states'] > 0 and dropped['/engine/wrench'] > 0
+    # /clock cannot carry a token: while two /clock publishers were matched none was recorded
+    assert counts.get('/clock', 0) + dropped.get('/clock', 0) >= n + 1
+    js = bag.read_bag(tmp_path / 'run' / 'bag', ['/driveline/joint_states'])['/driveline/joint_states']
+    # same arithmetic as the offline loop: only solver tolerance (rtol 1e-9) and stamp
+    # rounding remain; one foreign 1e4 N m torque would move speeds by ~78 rad/s
+    np.testing.assert_allclose(js.velocity, offline_speeds(scene, n), rtol=1e-6, atol=1e-9)
+    assert result.metrics['loop_counters'].get('foreign_answers', 0) > 0, result.metrics['loop_counters']

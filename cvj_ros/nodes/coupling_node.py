@@ -31,10 +31,18 @@ only wrong stamps from a topic ends after ``WRONG_STAMP_STALL_S`` (1 s, or peer_
 shorter) with that line instead of "is load_node running?". A NaN/inf torque is never
 integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1; with
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
-counted as ``held_torques`` (diagnostics level WARN, first one logged). A second publisher on /driveline/joint_states, /engine/wrench or
-/load/wrench (another run on the same ROS domain) stops the loop with an ERROR naming the
-domain (checked before step 0 and on every watchdog tick), since its answers would carry
-the same stamps and mix into this loop. Before step 0 the node waits (bounded by ``start_timeout``) until
+counted as ``held_torques`` (diagnostics level WARN, first one logged).
+
+Run identity (``run_token``, cvj_ros.nodes.run_token): with a token the joint states go
+out with frame_id ``driveline@<token>`` (reaction wrenches ``<joint>_housing@<token>``,
+diagnostics ``coupling_node@<token>``, ``run_token`` in /driveline/scene); an answer whose
+frame_id ends in another run's token is ignored and counted (``foreign_answers``, first
+one in one WARN line), one without ``@`` is accepted (``untokened_answers``: an outside
+node that echoes only the stamp). A second publisher on /driveline/joint_states,
+/engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
+ERROR naming the domain before step 0 (counts cannot tell our peers from the other
+run's), and after step 0 only without a token or once an untagged answer came (those
+could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost. After t_N = duration it publishes the final joint
 state and exits 0.

@@ -219,10 +219,14 @@ def node_command(name: str) -> list[str]:
     return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
 
 
-def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -> dict[str, Any]:
-    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS)."""
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None,
+                    run_token: str = '') -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS);
+    ``run_token``: the run's identity (cvj_ros.nodes.run_token), '' = none."""
     o = prep.options
     params: dict[str, Any] = {'scene': str(prep.scene_path)}
+    if run_token:
+        params['run_token'] = run_token
     if prep.seed is not None:
         params['seed'] = int(prep.seed)
     if name == 'coupling_node':
@@ -264,14 +268,14 @@ class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
     def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
-                 hold: Sequence[str] = ()) -> None:
+                 hold: Sequence[str] = (), run_token: str = '') -> None:
         import rclpy
         from rclpy.signals import SignalHandlerOptions
         self.ctx = rclpy.context.Context()
         rclpy.init(context=self.ctx, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
-        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
+        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics, run_token=run_token)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
@@ -487,6 +491,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
     writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    # run identity: every node and the recorder drop messages tagged with another token
+    from cvj_ros.nodes.run_token import new_run_token
+    run_token = new_run_token()
+    writer.set_custom_data('cvj_ros.run_token', run_token)
     for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
                        ('cvj_ros.coupling_scheme', options.scheme),
                        ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
@@ -507,7 +515,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         # lockstep: nothing of ours flows on the loop topics before our coupling node starts
         recorder = _Recorder(writer, prep.coupling_topics, domain,
                              hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
-                             if options.mode == 'lockstep' else ())
+                             if options.mode == 'lockstep' else (), run_token=run_token)
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
@@ -526,7 +534,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 if error is not None or stop_signal:
                     break
                 recorder.recorder.hold = frozenset()
-            params = node_parameters(prep, name, load_override=load_override)
+            params = node_parameters(prep, name, load_override=load_override, run_token=run_token)
             fh = open(logs / f'{name}.log', 'wb')
             log_files.append(fh)
             procs[name] = subprocess.Popen(
@@ -551,6 +559,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             time.sleep(0.02)
         progress.close()
         mark('coupling_exited')
+        if recorder is not None:
+            recorder.recorder.loop_ended = True   # later /clock beyond our last state: not ours
         if stop_signal or error is not None:
             stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
@@ -582,8 +592,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 _stop_processes(procs, list(procs), options.grace)
         finally:
             rec_state = None
+            foreign_dropped: dict[str, int] = {}
             if recorder is not None:
                 rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
+                foreign_dropped = dict(recorder.recorder.foreign)
                 recorder.close()
             writer.close()
             for fh in log_files:
@@ -623,6 +635,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         counters = {}
     if counters:
         result.metrics['loop_counters'] = counters
+    # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
+    result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
     try:
         result.metrics['monitor'] = monitor_statuses(result.bag)
     except CvjError:
@@ -696,6 +710,8 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
 
 
 LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
+IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
 
 
 def loop_counters(bag: Path) -> dict[str, int]:
@@ -707,7 +723,8 @@ def loop_counters(bag: Path) -> dict[str, int]:
     for statuses in reversed(diags.statuses):
         for st in statuses:
             if st['name'] == 'coupling_node: loop':
-                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
+                        if k in st['values']}
     return {}
 
 
@@ -759,7 +776,13 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
-    counters = r.metrics.get('loop_counters', {})
+    identity = r.metrics.get('run_identity', {})
+    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
+    dropped = sum(identity.get('foreign_dropped', {}).values())
+    if foreign or dropped:
+        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
+          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
           + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'

@@ -640,6 +640,12 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             timing = {}
         if timing:
             result.metrics['free_run'] = timing
+            # skipped ticks advance simulated time without a joint state: the simulated
+            # span is ticks handled x h, not (joint states - 1) x h
+            if timing.get('ticks_handled'):
+                result.sim_duration = timing['ticks_handled'] * prep.exchange_step
+                if loop_wall:
+                    result.real_time_factor = result.sim_duration / loop_wall
     try:
         result.metrics['monitor'] = monitor_statuses(result.bag)
     except CvjError:

@@ -192,6 +192,7 @@ def test_free_run_counts_every_late_tick_and_tracks_wall_time(tmp_path: Path, ca
     report = json.loads((out / 'report.json').read_text())
     fr = report['metrics']['free_run']
     assert fr['catch_up'] == catch_up and fr['ticks_handled'] == N
+    assert report['sim_duration'] == pytest.approx(DURATION)     # skipped ticks included
     assert f'free-run (catch-up {catch_up}):' in stdout and 'overruns' in stdout
 
     data = bag.read_bag(out / 'bag')

@@ -76,6 +76,7 @@ class RunOptions:
         nonfinite_torque: the coupling node's NaN/inf torque policy, ``'stop'`` or ``'hold'``.
         catch_up: free-run catch-up policy ``'skip'`` or ``'burst'`` (cvj_ros.nodes.freerun).
         burst_max: free-run burst bound (ticks back to back per wake-up, >= 1).
+        rt_priority: free-run: SCHED_FIFO priority of the coupling loop thread (0 = off).
     """
     scene: str
     out: Path
@@ -96,6 +97,7 @@ class RunOptions:
     nonfinite_torque: str = 'stop'
     catch_up: str = 'skip'
     burst_max: int = 10
+    rt_priority: int = 0
 
 
 @dataclass
@@ -149,6 +151,8 @@ def prepare(options: RunOptions) -> _Prepared:
         raise CvjError(f'--catch-up: must be skip or burst, got {options.catch_up!r}')
     if not 1 <= options.burst_max <= 10**6:
         raise CvjError(f'--burst-max: must be an integer in 1..1000000, got {options.burst_max}')
+    if not 0 <= options.rt_priority <= 99:
+        raise CvjError(f'--rt-priority: must be an integer in 0..99, got {options.rt_priority}')
     if options.storage not in bagmod.STORAGES:
         raise CvjError(f'--storage: must be one of {", ".join(bagmod.STORAGES)}, got {options.storage!r}')
     duration = scene.duration if options.duration is None else float(options.duration)
@@ -237,8 +241,8 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
         params.update(mode=o.mode, coupling_scheme=o.scheme, exchange_step=float(prep.exchange_step),
                       duration=float(prep.duration), peer_timeout=float(o.peer_timeout),
                       nonfinite_torque=o.nonfinite_torque,
-                      **({'catch_up': o.catch_up, 'burst_max': int(o.burst_max)}
-                         if o.mode == 'free-run' else {}),
+                      **({'catch_up': o.catch_up, 'burst_max': int(o.burst_max),
+                          'realtime_priority': int(o.rt_priority)} if o.mode == 'free-run' else {}),
                       # engine, load, the recorder (and monitor) see /driveline/joint_states before step 0
                       min_subscribers=3 + ('monitor_node' in prep.nodes))
     if load_override is not None and name in ('coupling_node', 'load_node'):
@@ -736,7 +740,7 @@ def loop_counters(bag: Path) -> dict[str, int]:
 
 FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'overruns',
                  'lateness_us_p50', 'lateness_us_p99', 'lateness_us_max', 'lateness_us_mean',
-                 'drift_s', 'drift_max_s')
+                 'drift_s', 'drift_max_s', 'realtime_priority')
 
 
 def free_run_timing(bag: Path) -> dict[str, Any]:
@@ -752,7 +756,8 @@ def free_run_timing(bag: Path) -> dict[str, Any]:
             if st['name'] == 'coupling_node: loop' and 'overruns' in st['values']:
                 vals = st['values']
                 return {k: (vals[k] if k == 'catch_up' else
-                            int(float(vals[k])) if k.startswith(('ticks', 'overruns')) else float(vals[k]))
+                            int(float(vals[k])) if k.startswith(('ticks', 'overruns', 'realtime'))
+                            else float(vals[k]))
                         for k in FREE_RUN_KEYS if k in vals}
     return {}
 
@@ -812,7 +817,8 @@ def print_report(r: RunResult, stream: TextIO) -> None:
              if counters.get('held_torques') else ''))
     fr = r.metrics.get('free_run', {})
     if fr:
-        p(f'  free-run (catch-up {fr.get("catch_up")}): {fr.get("ticks_run", 0)} ticks run, '
+        rt = f', SCHED_FIFO {fr["realtime_priority"]}' if fr.get('realtime_priority') else ''
+        p(f'  free-run (catch-up {fr.get("catch_up")}{rt}): {fr.get("ticks_run", 0)} ticks run, '
           f'{fr.get("ticks_skipped", 0)} skipped, {fr.get("overruns", 0)} overruns (late by >= 1 step); '
           f'lateness p50 {fr.get("lateness_us_p50", 0):.0f} us, p99 {fr.get("lateness_us_p99", 0):.0f} us, '
           f'max {fr.get("lateness_us_max", 0):.0f} us; drift {1e3 * fr.get("drift_s", 0):.3f} ms '

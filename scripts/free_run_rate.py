@@ -34,6 +34,8 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=10.0, help='simulated s per run')
     ap.add_argument('--scene', default=None, help='scene (default: the e2e two-mass scene)')
     ap.add_argument('--catch-up', choices=('skip', 'burst'), default='skip')
+    ap.add_argument('--rt-priority', type=int, default=0,
+                    help="the coupling loop thread's SCHED_FIFO priority (cvj-sim run --rt-priority)")
     ap.add_argument('--out', type=Path, required=True, help='directory for the runs')
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -53,7 +55,8 @@ def main() -> int:
         out = args.out / f'h{h:g}'
         proc = subprocess.run([cvj_sim, 'run', scene, '--out', str(out), '--overwrite', '--mode',
                                'free-run', '--exchange-step', str(h), '--duration', str(args.duration),
-                               '--catch-up', args.catch_up], capture_output=True, text=True)
+                               '--catch-up', args.catch_up, '--rt-priority', str(args.rt_priority)],
+                              capture_output=True, text=True)
         try:
             report = json.loads((out / 'report.json').read_text())
             fr = report['metrics']['free_run']

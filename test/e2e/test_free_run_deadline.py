@@ -250,3 +250,39 @@ def test_free_run_counts_every_late_tick_and_tracks_wall_time(tmp_path: Path, ca
     assert np.all(dist <= 1e-9), np.unique(np.round(x, 6))
     assert len(set(np.round(x, 6))) >= 2          # the pedal changed during the run
     assert all(math.isfinite(v) for v in js.velocity.ravel())
+
+
+def test_free_run_rt_priority_is_applied_or_refused_with_one_warning(tmp_path: Path) -> None:
+    """`--rt-priority 5`: the coupling node's threads run under SCHED_FIFO 5 when the process
+    may (CAP_SYS_NICE) - the report and report.json say so - else one WARN line in its log
+    and realtime_priority 0; the run finishes either way."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(dict(SCENE, duration=0.5), sort_keys=False))
+    out = tmp_path / 'run'
+    proc = subprocess.run([str(BIN / 'cvj-sim'), 'run', str(scene), '--out', str(out), '--mode',
+                           'free-run', '--rt-priority', '5'], capture_output=True, text=True,
+                          timeout=180, stdin=subprocess.DEVNULL, env=dict(os.environ))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    fr = json.loads((out / 'report.json').read_text())['metrics']['free_run']
+    log = (out / 'logs' / 'coupling_node.log').read_text()
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(5))   # may this machine?
+        allowed = True
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except PermissionError:
+        allowed = False
+    if allowed:
+        assert fr['realtime_priority'] == 5 and 'SCHED_FIFO 5' in proc.stdout
+        assert 'SCHED_FIFO refused' not in log
+    else:
+        assert fr['realtime_priority'] == 0 and log.count('SCHED_FIFO refused') == 1
+    assert fr['ticks_handled'] == 100
+
+
+def test_bad_rt_priority_is_one_line_exit_2(tmp_path: Path) -> None:
+    proc = subprocess.run([str(BIN / 'cvj-sim'), 'run', 'kavz685_lever', '--out', str(tmp_path / 'r'),
+                           '--mode', 'free-run', '--rt-priority', '100'], capture_output=True,
+                          text=True, timeout=60, stdin=subprocess.DEVNULL, env=dict(os.environ))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert '--rt-priority: must be an integer in 0..99, got 100' in proc.stderr
+    assert 'Traceback' not in proc.stderr

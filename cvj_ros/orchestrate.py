@@ -92,6 +92,8 @@ class RunOptions:
     external: tuple[str, ...] = ()
     external_timeout: float = 30.0
     nonfinite_torque: str = 'stop'
+    composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
+    executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
 
 
 @dataclass
@@ -451,6 +453,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     Raises:
         CvjError: bad scene or option, before any process starts.
     """
+    if options.composed:   # one process, one executor: cvj_ros.composed
+        from cvj_ros.composed import run_composed
+        return run_composed(options, stream=stream)
     stream = sys.stdout if stream is None else stream
     prep = prepare(options)
     env, domain = _domain_env()

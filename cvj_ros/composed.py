@@ -136,13 +136,18 @@ class ComposedDriveline:
     """
 
     def __init__(self, context: Any, *, executor: str = 'events') -> None:
+        import rclpy
         self.context = context
         self.executor, self.executor_kind, self.executor_note = make_composed_executor(executor, context)
         self.nodes: dict[str, Any] = {}
         self.recorder: Any = None
-        self._recorder_node: Any = None
-        self._never = None
         self.batching: BatchingWriter | None = None
+        self._recorder_node: Any = None
+        self._wake: Any = None
+        # the container's own node (as rclcpp's component manager has one): its timers end
+        # the timed spins, see _spin
+        self._container = rclpy.create_node(PROG, context=context)
+        self.executor.add_node(self._container)
 
     def add_node(self, name: str, *, cli_args: Sequence[str] | None = None) -> Any:
         """Create hosted node ``name`` with its own ``--ros-args`` (``cli_args``, e.g. ``-p
@@ -154,6 +159,7 @@ class ComposedDriveline:
             kwargs['cli_args'] = list(cli_args)
         node = cls(**kwargs)
         self.nodes[name] = node
+        node.done.add_done_callback(lambda _f: self.wake())   # finished or failed: stop spinning
         self.executor.add_node(node)
         return node
 
@@ -177,13 +183,32 @@ class ComposedDriveline:
         sub = None if self.recorder is None else self.recorder._subs.get(topic)
         return 0 if sub is None else sub.get_publisher_count()
 
-    def spin_for(self, seconds: float) -> None:
-        """Run callbacks for ``seconds`` (wall s)."""
+    def wake(self) -> None:
+        """End the current spin (safe from a signal handler and from callbacks)."""
+        wake = self._wake
+        if wake is not None and not wake.done():
+            wake.set_result(True)
+
+    def _spin(self, seconds: float) -> None:
+        """Run callbacks for ``seconds`` (wall s) or until :meth:`wake`.
+
+        The end is a timer on the container node, not the executor's timeout: measured here,
+        ``EventsExecutor.spin_until_future_complete(timeout_sec=...)`` does not return while
+        events keep arriving (a lockstep loop never pauses), so a timeout alone would never
+        give control back for Ctrl-C or progress until the run ends."""
         from rclpy.task import Future
-        if self._never is None:
-            self._never = Future()   # never completed: spin_until_future_complete = timed spin
-        self.executor.spin_until_future_complete(self._never, timeout_sec=max(0.0, seconds))
-        self.flush()
+        self._wake = Future()
+        timer = self._container.create_timer(max(seconds, 1e-4), self.wake)
+        try:
+            self.executor.spin_until_future_complete(self._wake, timeout_sec=max(seconds, 1e-4) + 1.0)
+        finally:
+            self._container.destroy_timer(timer)
+            self._wake = None
+            self.flush()
+
+    def spin_for(self, seconds: float) -> None:
+        """Run callbacks for ``seconds`` (wall s), or until :meth:`wake` / a hosted node ends."""
+        self._spin(seconds)
 
     def flush(self) -> None:
         """Hand the recorder's collected messages to the bag writer thread."""
@@ -192,11 +217,11 @@ class ComposedDriveline:
 
     def spin_until_done(self, node: Any, *, stop: Callable[[], bool] = lambda: False,
                         on_tick: Callable[[], None] | None = None, tick: float = 0.25) -> None:
-        """Spin until ``node.exit_code`` is set, any hosted node failed, ``stop()`` or the
-        context shut down; ``on_tick`` runs every ``tick`` s (progress, signals)."""
+        """Spin until ``node.exit_code`` is set, any hosted node failed, ``stop()`` (call
+        :meth:`wake` with it from the signal handler) or the context shut down; ``on_tick``
+        runs every ``tick`` s (progress)."""
         while node.exit_code is None and self.context.ok() and not stop() and self.failed() is None:
-            self.executor.spin_until_future_complete(node.done, timeout_sec=tick)
-            self.flush()
+            self._spin(tick)
             if on_tick is not None:
                 on_tick()
 
@@ -216,6 +241,7 @@ class ComposedDriveline:
         for node in reversed(list(self.nodes.values())):
             node.destroy_node()
         self.nodes.clear()
+        self._container.destroy_node()
         if self.recorder is not None:
             self.recorder.destroy()
             self.flush()
@@ -316,10 +342,16 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
     os.environ.update(env)
     stop_signal: list[int] = []
     previous: dict[int, Any] = {}
+    comp: ComposedDriveline | None = None
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop_signal.append(signum)
+        if comp is not None:
+            comp.wake()
     in_main = threading.current_thread() is threading.main_thread()
     if in_main:
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda signum, _f: stop_signal.append(signum))
+            previous[sig] = signal.signal(sig, on_signal)
 
     wall0 = time.monotonic()
     phases: dict[str, float] = {}
@@ -338,7 +370,6 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
     steps = int(round(prep.duration / prep.exchange_step))
     error: str | None = None
     stopped_by: str | None = None
-    comp: ComposedDriveline | None = None
     ctx = None
     exit_codes: dict[str, int | None] = {}
     rec_state = None
@@ -527,9 +558,12 @@ def _main(args: Sequence[str] | None) -> int:
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     stop: list[int] = []
-    previous = {sig: signal.signal(sig, lambda signum, _f: stop.append(signum))
-                for sig in (signal.SIGINT, signal.SIGTERM)}
     comp = ComposedDriveline(ctx, executor=opts.executor)
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop.append(signum)
+        comp.wake()
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     writer = None
     try:
         if comp.executor_note:

@@ -116,13 +116,24 @@ def loop_status(bag_path: Path) -> dict[str, float]:
     return {}
 
 
+def _children_cpu_s() -> float:
+    """User + system CPU s of every finished, waited-for descendant (cvj-sim and its nodes)."""
+    import resource
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
 def run_once(scene: str, composed: bool, duration: float, h: float) -> dict[str, Any]:
+    """One `cvj-sim run` in a fresh process: report figures, coupling loop statistics and
+    ``cpu_s``, the CPU time of cvj-sim and all its node processes (start-up included)."""
     cvj_sim = str(Path(sys.executable).with_name('cvj-sim'))
+    cpu0 = _children_cpu_s()
     with tempfile.TemporaryDirectory(prefix='cvj_bench_') as tmp:
         out = Path(tmp) / 'run'
         cmd = [cvj_sim, 'run', scene, '--out', str(out), '--duration', str(duration),
                '--exchange-step', str(h)] + (['--composed'] if composed else [])
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        cpu_s = _children_cpu_s() - cpu0
         if r.returncode != 0:
             raise RuntimeError(f'{" ".join(cmd)}: exit {r.returncode}\n{r.stdout}{r.stderr}')
         rep = json.loads((out / 'report.json').read_text())
@@ -131,7 +142,8 @@ def run_once(scene: str, composed: bool, duration: float, h: float) -> dict[str,
     return {'rtf': rep['real_time_factor'], 'wall_us': wall_us,
             'integration_us': st.get('integration_us_mean', float('nan')),
             'overhead_us': wall_us - st.get('integration_us_mean', float('nan')),
-            'cpu_us': st.get('process_cpu_us_mean', float('nan'))}
+            'cpu_us': st.get('process_cpu_us_mean', float('nan')), 'cpu_s': cpu_s,
+            'steps': rep['counts'].get('/driveline/joint_states', 1) - 1}
 
 
 def main() -> None:
@@ -157,14 +169,19 @@ def main() -> None:
             mode = 'composed' if composed else 'separate'
             rt = rt_in if composed else rt_ipc
             rows = []
+            # start-up CPU (imports, kernel load, discovery) of a run of 50 exchanges, taken
+            # off every run: total CPU per exchange = (cpu_s - base cpu_s) / (steps - base steps)
+            base = run_once(scene, composed, 50 * a.exchange_step, a.exchange_step)
             for i in range(a.runs):
                 row = run_once(scene, composed, a.duration, a.exchange_step)
                 row['ratio'] = row['overhead_us'] / rt['us_mean']
+                row['total_cpu_us'] = (row['cpu_s'] - base['cpu_s']) / (row['steps'] - base['steps']) * 1e6
                 rows.append(row)
                 print(f'{scene:14s} {mode:8s} run {i + 1}: real-time factor {row["rtf"]:.3g}, '
                       f'{row["wall_us"]:.0f} us/exchange (integration {row["integration_us"]:.0f}, '
                       f'overhead {row["overhead_us"]:.0f} = {row["ratio"]:.2f}x the {mode} 2-peer '
-                      f'round trip {rt["us_mean"]:.0f} us; coupling process CPU {row["cpu_us"]:.0f} us)',
+                      f'round trip {rt["us_mean"]:.0f} us; CPU per exchange: coupling process '
+                      f'{row["cpu_us"]:.0f} us, all processes {row["total_cpu_us"]:.0f} us)',
                       flush=True)
             med = statistics.median(r['rtf'] for r in rows)
             print(f'{scene:14s} {mode:8s} median real-time factor {med:.3g}', flush=True)

@@ -98,6 +98,8 @@ class RunOptions:
     catch_up: str = 'skip'
     burst_max: int = 10
     rt_priority: int = 0
+    composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
+    executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
 
 
 @dataclass
@@ -469,6 +471,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     Raises:
         CvjError: bad scene or option, before any process starts.
     """
+    if options.composed:   # one process, one executor: cvj_ros.composed
+        from cvj_ros.composed import run_composed
+        return run_composed(options, stream=stream)
     stream = sys.stdout if stream is None else stream
     prep = prepare(options)
     env, domain = _domain_env()
@@ -639,6 +644,17 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
         counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
         stopped_by=stopped_by, phases=phases, external=list(options.external))
+    return finish_result(result, options, prep, stream=stream, run_token=run_token,
+                         foreign_dropped=foreign_dropped)
+
+
+def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, stream: TextIO,
+                  run_token: str, foreign_dropped: dict[str, int],
+                  settings: dict[str, Any] | None = None) -> RunResult:
+    """The tail of every run (separate processes or composed): metrics read back from the bag,
+    loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
+    report.json and the printed report."""
+    loop_wall = result.loop_wall_time
     try:
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:
@@ -670,7 +686,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         pass
     result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
                        'mode': options.mode, 'scheme': options.scheme,
-                       'storage': options.storage}
+                       'storage': options.storage, **(settings or {})}
     fid = _recorded_fidelity(result.bag)
     if fid:
         result.settings['fidelity'] = fid

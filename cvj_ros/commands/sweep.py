@@ -53,6 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--sample-dt', type=float,
                         help='sample period of each run for the metrics, s (default: the scene\'s '
                              'sample_step or exchange_step, as cvj-sim simulate)')
+    parser.add_argument('--sampling', choices=('dense', 'land'), default='dense',
+                        help='dense (default): samples from the solver\'s dense output, steps '
+                             'free; land: steps land on every sample (cvj-sim simulate\'s '
+                             'default; 2-6x slower, metrics within 2e-3 relative here)')
     parser.add_argument('--transient', type=float,
                         help='seconds skipped before the metrics window (default: first half)')
     parser.add_argument('--fidelity', nargs='+', default=[], metavar='NAME=LEVEL',
@@ -111,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
     base = load_scene_data(path)
     sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
     options = RunOptions(sample_dt=args.sample_dt, transient=args.transient,
-                         fidelity=parse_fidelity(args.fidelity), backend=args.backend)
+                         fidelity=parse_fidelity(args.fidelity), backend=args.backend,
+                         sampling=args.sampling)
     executor = make_executor(args.workers, args.cluster)
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'

@@ -341,8 +341,10 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
     axis_cols = [a.column for a in sweep.axes]
 
     def label(i: int) -> str:
-        return 'variant ' + str(i) + ' (' + ', '.join(
-            f'{a.path}={v}' for a, v in zip(sweep.axes, sweep.variants[i])) + ')'
+        """'variant 7 (a=1, b=2)' with the varied fields (fixed ones add nothing)."""
+        varied = [f'{a.path}={v}' for a, v in zip(sweep.axes, sweep.variants[i])
+                  if a.range is not None or len(a.values) > 1]
+        return f'variant {i}' + (f' ({", ".join(varied)})' if varied else '')
 
     # validate every variant to run (parse_scene: ~0.1 ms each) before simulating any
     todo: list[tuple[int, tuple[Any, ...]]] = []

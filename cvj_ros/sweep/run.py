@@ -12,8 +12,9 @@ Executors (all return the same rows; only the timing differs):
 
 * :class:`SerialExecutor` - in this process (``--workers 1``);
 * :class:`ProcessExecutor` - a local process pool (``--workers N``, default all cores).
-  Workers are started with ``spawn`` and ignore SIGINT (the parent handles Ctrl-C); each
-  worker loads the compiled kernel once, on its first variant, and keeps it;
+  Workers are forked from a ``forkserver`` that loaded the compiled kernel once
+  (:mod:`cvj_ros.sweep.preload`), keep it for all their variants, and ignore SIGINT (the
+  parent handles Ctrl-C);
 * :class:`DaskExecutor` - a Dask ``distributed`` cluster (``--cluster tcp://host:port``
   or a ``Client``); the workers must be able to import this cvj_ros.
 
@@ -188,7 +189,11 @@ class ProcessExecutor:
         self.workers = workers
         # a threaded BLAS in every worker would oversubscribe the cores (see Makefile)
         os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
-        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context('spawn'),
+        # forkserver: workers fork from a server that loaded the kernel once (preload.py);
+        # no fork of this (possibly threaded) process, no per-worker kernel load
+        ctx = mp.get_context('forkserver')
+        ctx.set_forkserver_preload(['cvj_ros.sweep.preload'])
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                            initializer=_init_worker)
         self.futures: list[Any] = []
 

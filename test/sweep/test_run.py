@@ -163,20 +163,24 @@ def test_same_bytes_with_two_workers_and_after_resume(tmp_path: Path, serial_ref
     assert manifest['versions']['numba'] and manifest['definition']['scene']['sha256']
 
 
-def test_ctrl_c_keeps_finished_variants_and_rerun_completes(tmp_path: Path) -> None:
+@pytest.mark.slow   # 24 s wall at load average 11 on 2 cores (2.3 s CPU): two CLI start-ups
+def test_ctrl_c_keeps_finished_variants_and_rerun_completes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """SIGINT to `cvj-sim sweep --workers 2` once the first rows are on disk: exit 130, one
-    line, the finished rows in results.csv; the same command again runs only the rest."""
+    line, the finished rows in results.csv; the same command again runs only the rest. The
+    Python backend (~0.3-1 s a variant here) keeps the sweep running when SIGINT comes."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, '-m', 'cvj_ros.cli', 'sweep', 'kavz685_lever', '--set', 'duration=1.0',
-           '--set', 'driveline[bushings].stiffness=400:1200:120', '--out', str(tmp_path),
-           '--workers', '2', '--no-plots']
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    args = ['sweep', 'kavz685_lever', '--set', 'duration=0.2', '--set',
+            'driveline[bushings].stiffness=400:1200:8', '--backend', 'python',
+            '--out', str(tmp_path), '--no-plots']
+    proc = subprocess.Popen([sys.executable, '-m', 'cvj_ros.cli', *args, '--workers', '2'], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rows = tmp_path / ROWS
-    deadline = time.monotonic() + 90.0        # spawn + kernel load: ~2-10 s on a shared machine
+    deadline = time.monotonic() + 90.0        # start-up: ~2-10 s on a shared machine
     while time.monotonic() < deadline and proc.poll() is None:
         if rows.is_file() and rows.stat().st_size > 0:
             break
-        time.sleep(0.05)
+        time.sleep(0.02)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
@@ -184,11 +188,10 @@ def test_ctrl_c_keeps_finished_variants_and_rerun_completes(tmp_path: Path) -> N
     assert 'Traceback' not in err
     assert 'cvj-sim sweep: interrupted;' in err and 'rerun the same command to resume' in err
     _, partial = read_results(tmp_path / 'results.csv')
-    assert 0 < len(partial) < 120
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    assert f'120 ok, 0 invalid, 0 failed; {len(partial)} already done (resumed)' in done.stdout
+    assert 0 < len(partial) < 8
+    assert main([*args, '--workers', '1']) == 0
+    assert f'8 ok, 0 invalid, 0 failed; {len(partial)} already done (resumed)' in capsys.readouterr().out
     _, full = read_results(tmp_path / 'results.csv')
-    assert [int(r['variant']) for r in full] == list(range(120))
+    assert [int(r['variant']) for r in full] == list(range(8))
     by_variant = {r['variant']: r for r in full}
     assert all(by_variant[r['variant']] == r for r in partial)

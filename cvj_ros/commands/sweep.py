@@ -57,6 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='dense (default): samples from the solver\'s dense output, steps '
                              'free; land: steps land on every sample (cvj-sim simulate\'s '
                              'default; 2-6x slower, metrics within 2e-3 relative here)')
+    parser.add_argument('--orders', type=int, default=4,
+                        help="engine orders of a shaft's torque kept per variant (columns "
+                             'SHAFT.torque_order<k>, N m; 0: none; default 4)')
+    parser.add_argument('--orders-shaft', metavar='SHAFT',
+                        help='shaft whose torque --orders analyses (default: the first, the '
+                             'torque the engine shaft passes on)')
     parser.add_argument('--transient', type=float,
                         help='seconds skipped before the metrics window (default: first half)')
     parser.add_argument('--fidelity', nargs='+', default=[], metavar='NAME=LEVEL',
@@ -105,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, opt)
         if v is not None and not (math.isfinite(v) and (v > 0 or (opt == 'transient' and v >= 0))):
             raise SceneError(f'--{opt.replace("_", "-")}', f'must be > 0, got {v}')
+    if not 0 <= args.orders <= 64:
+        raise SweepError(f'--orders: must be in 0..64, got {args.orders}')
     if args.workers is not None and args.workers < 1:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     if args.workers is not None and args.cluster:
@@ -116,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
     options = RunOptions(sample_dt=args.sample_dt, transient=args.transient,
                          fidelity=parse_fidelity(args.fidelity), backend=args.backend,
-                         sampling=args.sampling)
+                         sampling=args.sampling, orders=args.orders,
+                         orders_shaft=args.orders_shaft)
     executor = make_executor(args.workers, args.cluster)
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'

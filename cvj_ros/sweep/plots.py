@@ -275,25 +275,50 @@ def _edges(centres: Sequence[float], log: bool) -> np.ndarray:
 
 
 def _resonance_plot(rows, header, varied, axes, scene, random, plots: Path) -> Path | None:
-    speed = next((a for a in varied if re.search(r'speed|rpm', a)), None)
+    """Torque amplitude per engine order over the first shaft's mean speed (a Campbell-style
+    resonance map), when the rows hold torque orders and that speed varies by > 10 %.
+    In a grid, the varied parameter that moves the speed most is kept, the others held."""
     order_cols = [c for c in header if re.search(r'\.torque_order\d+$', c)]
-    if speed is None or not order_cols:
+    speed_cols = [c for c in header if c.endswith('.mean_speed')]
+    if not order_cols or not speed_cols:
         return None
-    sel, note = (rows, '') if random else _held(rows, varied, axes, (speed,))
-    x = np.array([as_float(r[speed]) for r in sel])
+    speed = speed_cols[0]
+
+    def span(part: list[dict[str, str]]) -> float:
+        w = _values(part, speed)
+        w = w[np.isfinite(w)]
+        return float(w.max() - w.min()) / max(abs(float(np.mean(w))), 1e-300) if w.size > 1 else 0.0
+
+    if random:
+        sel, note, driver = rows, f'{len(rows)} random samples', None
+    else:
+        best = max(varied, key=lambda a: span(_held(rows, varied, axes, (a,))[0]))
+        sel, note = _held(rows, varied, axes, (best,))
+        driver = best
+        note = (f'speed varied by {best}' + note).strip()
+    if span(sel) < 0.1:
+        return None
+    x = _values(sel, speed)
     order = np.argsort(x)
     fig, ax = plt.subplots(figsize=(7.0, 4.4))
     shaft = order_cols[0].rsplit('.', 1)[0]
-    for col in order_cols:
-        k = col.rsplit('order', 1)[1]
-        ax.plot(x[order], _values(sel, col)[order], '.-' if not random else '.', ms=4, lw=1.2,
-                label=f'order {k}')
-    ax.set_xlabel(axis_label(speed))
-    ax.set_ylabel(f'{shaft}: torque amplitude of the order (N m)')
+    cmap = plt.get_cmap('tab10')
+    for k, col in enumerate(order_cols):
+        n = col.rsplit('order', 1)[1]
+        ax.plot(x[order], _values(sel, col)[order], '.' if random else 'o-', ms=3, lw=1.2,
+                color=cmap(k % 10), label=f'order {n}')
+    ax.set_xlabel(f'{speed.rsplit(".", 1)[0]}: mean speed (rad/s)')
+    ax.set_ylabel(f'{shaft}: torque amplitude (N m)')
     ax.set_yscale('log')
-    ax.legend(loc='best', ncol=2)
-    ax.set_title(f'{scene}: resonance map, {shaft} torque per order' +
+    top = np.nanmax([_values(sel, c) for c in order_cols])
+    if np.isfinite(top) and top > 0:
+        # orders the joint does not excite sit at round-off / load noise: keep 4 decades
+        ax.set_ylim(bottom=1e-4 * top, top=2.0 * top)
+        note = (note + '; orders below 1e-4 of the largest not shown').lstrip('; ')
+    ax.legend(loc='best', ncol=2, title='engine order')
+    ax.set_title(f'{scene}: {shaft} torque per engine order over speed' +
                  (f'\n{note.lstrip("; ")}' if note else ''))
+    del driver
     fig.tight_layout()
     path = plots / 'resonance.png'
     fig.savefig(path)

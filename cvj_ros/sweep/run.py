@@ -52,11 +52,15 @@ class RunOptions:
     backend: 'kernel' or 'python'; sampling: 'dense' (default: the controller chooses its
     steps and samples come from the method's dense output - measured on kavz685_lever at
     alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', 2-6x faster) or
-    'land' (steps land on every sample, exactly ``cvj-sim simulate``'s default).
+    'land' (steps land on every sample, exactly ``cvj-sim simulate``'s default); orders:
+    engine orders 1..orders of a shaft's torque kept per variant (0: none), columns
+    ``SHAFT.torque_order<k>`` (N m), see :func:`order_amplitudes`.
     """
 
     sample_dt: float | None = None
     sampling: str = 'dense'
+    orders: int = 4
+    orders_shaft: str | None = None     # shaft whose torque is analysed (None: the first)
     transient: float | None = None
     fidelity: Mapping[str, str] = field(default_factory=dict)
     backend: str = 'kernel'
@@ -64,7 +68,8 @@ class RunOptions:
     def to_dict(self) -> dict[str, Any]:
         return {'sample_dt': self.sample_dt, 'transient': self.transient,
                 'fidelity': dict(self.fidelity), 'backend': self.backend,
-                'sampling': self.sampling}
+                'sampling': self.sampling, 'orders': self.orders,
+                'orders_shaft': self.orders_shaft}
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,27 @@ def metrics_row(summary: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
+def order_amplitudes(trace: Any, orders: int, transient: float | None,
+                     shaft: str | None = None) -> dict[str, float]:
+    """Amplitudes (N m) of engine orders 1..``orders`` of the torque of ``shaft`` (default
+    the first shaft: the torque the engine shaft passes on) over the first shaft's angle, in the steady window of :func:`cvj_ros.physics.metrics.steady_mask`
+    (:func:`cvj_ros.physics.signal.harmonics_over_angle`, seed 004 eqs. 4.1-4.3, 72 points
+    per revolution). NaN when the window holds less than one whole revolution or the
+    angle is not monotonic (the engine stopped or reversed)."""
+    from cvj_ros.physics.metrics import steady_mask
+    from cvj_ros.physics.signal import harmonics_over_angle
+    shaft = shaft or trace.names[0]
+    col = trace.column(shaft)
+    mask = steady_mask(trace.t, transient=transient)
+    try:
+        h = harmonics_over_angle(trace.position[mask, 0], trace.effort[mask, col],
+                                 n_harmonics=orders, samples_per_rev=max(72, 2 * orders + 2))
+        amps = [float(a) for a in h.amplitudes]
+    except ValueError:
+        amps = [math.nan] * orders
+    return {f'{shaft}.torque_order{k + 1}': a for k, a in enumerate(amps)}
+
+
 def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dict[str, Any], float]:
     """Simulate one variant: (row, wall s). row['status'] is 'ok', 'invalid' (scene error,
     row['error'] names the field) or 'failed' (the run raised; row['error'] says what)."""
@@ -122,7 +148,15 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     try:
         sim = Simulation(scene, fidelity=dict(options.fidelity) or None, backend=options.backend)
         sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-        row = {'status': 'ok', **metrics_row(sim.summary(transient=options.transient)), 'error': ''}
+        row = {'status': 'ok', **metrics_row(sim.summary(transient=options.transient))}
+        if options.orders > 0:
+            try:
+                row.update(order_amplitudes(sim.last_trace, options.orders, options.transient,
+                                            options.orders_shaft))
+            except KeyError:
+                raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
+                                 f'{", ".join(sim.last_trace.names)}') from None
+        row['error'] = ''
     except CvjError as exc:
         row = {'status': 'failed', 'error': ' '.join(str(exc).split())}
     except Exception as exc:  # noqa: BLE001  (one bad variant must not end a sweep of thousands)

@@ -155,7 +155,9 @@ def _line_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set
         y = _values(rows, metric)
         if len(varied) >= 2:
             c = np.array([as_float(r[varied[1]]) for r in rows])
-            sc = ax.scatter(x, y, c=c, s=14, cmap='viridis')
+            from matplotlib.colors import LogNorm
+            sc = ax.scatter(x, y, c=c, s=14, cmap='viridis',
+                            norm=LogNorm() if varied[1] in logs else None)
             fig.colorbar(sc, ax=ax, label=axis_label(varied[1]))
         else:
             ax.scatter(x, y, s=14)

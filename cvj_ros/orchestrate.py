@@ -697,7 +697,7 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
         result.exit_code = 1
         result.error = (f'monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN '
                         f'statuses (--fail-on {options.fail_on}); worst: {mon.get("worst")}')
-    (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
+    (result.out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
 

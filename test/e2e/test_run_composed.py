@@ -68,13 +68,24 @@ def raw_messages(bag_path: Path) -> dict[str, list[tuple[int, bytes]]]:
     Canonical = decoded and encoded again (rosbags): the same message gives the same bytes,
     every field bit for bit, while the trailing alignment padding that DDS may append to a
     sample (3 zero bytes after the /driveline/scene string between processes, none inside
-    one) does not count."""
+    one) does not count. Each run's random token is the one intended difference (frame_id
+    '<frame>@<token>', ``run_token`` in the scene; cvj_ros.nodes.run_token): taken out
+    before comparing, so a tagged and an untagged run compare too."""
+    import re
+
     from rosbags.rosbag2 import Reader
     store = bag.typestore()
     out: dict[str, list[tuple[int, bytes]]] = {}
     with Reader(bag_path) as reader:
         for conn, stamp, data in reader.messages():
             msg = store.deserialize_cdr(bytes(data), conn.msgtype)
+            if hasattr(msg, 'header'):
+                frame = msg.header.frame_id
+                msg.header.frame_id = frame.rpartition('@')[0] if '@' in frame else frame
+                if conn.topic == '/driveline/joint_states':   # 'driveline@<token>' or '' untagged
+                    msg.header.frame_id = ''
+            if conn.topic == '/driveline/scene':
+                msg.data = re.sub(r'(?m)^run_token: .*$', 'run_token: RUNTOKEN', msg.data)
             out.setdefault(conn.topic, []).append(
                 (int(stamp), bytes(store.serialize_cdr(msg, conn.msgtype))))
     for msgs in out.values():

@@ -52,7 +52,7 @@ Bounds and where they come from (measured numbers: 200 scenes, this machine, 202
   truncation O(h^2 f''') + rounding O(eps |f| / h) ~ 1e-9, bound REL_FD = 1e-6; measured
   <= 1.4e-8.
 
-Runtime (normal suite, both backends): ~14 s CPU rk4, ~17 s ros2 (100 scenes), ~8 s dopri5,
+Runtime (normal suite, both backends): ~14 s CPU rk4, ~10 s ros2 (60 scenes), ~8 s dopri5,
 ~2 s rhs/jac; wall time is larger when the machine is shared.
 """
 from __future__ import annotations
@@ -87,7 +87,7 @@ EPS = float(np.finfo(float).eps)
 MID_H = 1e-3             # rad, Driveline.fill_mid's difference step
 MID_ULPS = 8.0
 REL_ROS2 = 1e-11
-N_ROS2 = 100
+N_ROS2 = 60
 REL_FD = 1e-6
 
 # tripod geometries are drawn from a few, so the exact tripod's Fourier table (0.15-1 s
@@ -563,3 +563,126 @@ def test_rhs_and_jac_match_python_on_fuzzed_scenes(capsys: pytest.CaptureFixture
         assert r['rhs'] < REL_RHS, r
         assert r['jac_vs_bound'] < 1.0, r
         assert r['fd'] < REL_FD, r
+
+
+DIGEST_SCRIPT = r'''
+import importlib.util, sys
+spec = importlib.util.spec_from_file_location('fuzz_backends', sys.argv[1])
+fz = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(fz)
+seeds = [int(s) for s in sys.argv[4].split(',')]
+print(fz.trace_digest(sys.argv[2], sys.argv[3].split(','), seeds))
+'''
+# one fixed-step, one explicit adaptive, one Rosenbrock (hand-written LU) method
+OPENBLAS_METHODS = ('rk4', 'dopri5', 'rosenbrock')
+
+
+def has_exact_tripod(scene: Any) -> bool:
+    """True if a tripod runs at exact fidelity in ``scene`` (alone or as a chain stage of
+    an exact chain: the generator's chain stages take the chain's fidelity). Its Fourier
+    table is built in Python with BLAS/LAPACK calls (joints/tripod.py: np.linalg.solve in
+    _newton_jac and the Jacobian-based start, matrix products of the spectral start), so
+    its coefficients depend on the OpenBLAS kernel in their last bits."""
+    for el in scene.driveline:
+        if not isinstance(el, Joint) or el.fidelity != 'exact':
+            continue
+        if el.kind == 'tripod' or (el.kind == 'chain' and any(
+                st.get('kind') == 'tripod' for st in el.params.get('joints', []))):
+            return True
+    return False
+
+
+def openblas_seeds(exact_tripod: bool) -> list[int]:
+    """One fuzzed scene per joint variant (the first seed carrying it) with or without an
+    exact tripod."""
+    out = []
+    for v in range(len(VARIANTS)):
+        for seed in range(v, 40 * len(VARIANTS), len(VARIANTS)):
+            if has_exact_tripod(parse_scene(random_scene(seed))) == exact_tripod:
+                out.append(seed)
+                break
+    return out
+
+
+def trace_digest(backend: str, methods: list[str] | tuple[str, ...], seeds: list[int]) -> str:
+    """sha256 over the bytes of every output array of the fuzzed scenes ``seeds`` run with
+    each of ``methods`` on ``backend`` (0.05 s each)."""
+    import hashlib
+    h = hashlib.sha256()
+    for method in methods:
+        for seed in seeds:
+            sc = parse_scene(random_scene(seed, method=method))
+            tr = Simulation(sc, backend=backend).run(DURATION, sample_dt=SAMPLE)
+            assert tr.solver['backend'] == backend
+            for arr in (tr.t, tr.position, tr.velocity, tr.effort, tr.engine_torque,
+                        tr.load_torque, tr.energy_residual):
+                h.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+def cpu_runs(core: str | None) -> bool:
+    """Whether this CPU can execute OpenBLAS kernels for ``core``: SkylakeX kernels are
+    AVX-512 (forcing them on an AVX2-only CPU kills the first BLAS call with SIGILL)."""
+    if core != 'SkylakeX':
+        return True
+    try:
+        with open('/proc/cpuinfo') as f:
+            return 'avx512f' in f.read()
+    except OSError:
+        return False
+
+
+def openblas_digests(backend: str, methods: tuple[str, ...], seeds: list[int],
+                     cores: tuple[str | None, ...] = ('Haswell', 'SkylakeX', 'Sandybridge', None)
+                     ) -> dict[str | None, str]:
+    """trace_digest in fresh interpreters, one per OPENBLAS_CORETYPE (None: unset); each
+    inherits this process's environment but that one variable. A crashed child's digest
+    is 'exit <code>: <last stderr line>'."""
+    import os
+    import subprocess
+    import sys
+    out: dict[str | None, str] = {}
+    for core in cores:
+        env = dict(os.environ)
+        env.pop('OPENBLAS_CORETYPE', None)
+        if core is not None:
+            env['OPENBLAS_CORETYPE'] = core
+        proc = subprocess.run([sys.executable, '-c', DIGEST_SCRIPT, __file__, backend,
+                               ','.join(methods), ','.join(map(str, seeds))],
+                              capture_output=True, text=True, timeout=600, env=env)
+        out[core] = (proc.stdout.strip().splitlines()[-1] if proc.returncode == 0 else
+                     f'exit {proc.returncode}: {(proc.stderr.strip().splitlines() or [""])[-1]}')
+    return out
+
+
+def _cores() -> tuple[str | None, ...]:
+    return tuple(c for c in ('Haswell', 'SkylakeX', 'Sandybridge', None) if cpu_runs(c))
+
+
+def test_kernel_traces_do_not_depend_on_openblas_kernel() -> None:
+    """Issue 9 (b): the compiled integration path calls no BLAS (its Rosenbrock LU is
+    hand-written), so one fuzzed scene per joint variant (16: every variant but the exact
+    tripod, see the next test) with rk4, dopri5 and rosenbrock gives bit-identical output
+    arrays in-process and in fresh interpreters under OPENBLAS_CORETYPE = Haswell,
+    Sandybridge, unset, and SkylakeX where the CPU has AVX-512 (not this machine's).
+    Scenes may still hold ideal/closed tripods: parsing builds every joint at its most
+    detailed fidelity once (a BLAS call), but only an exact tripod uses the table.
+    (test_backends.py checks the `cvj-sim simulate` CSV bytes of kavz685_lever the same way.)"""
+    seeds = openblas_seeds(exact_tripod=False)
+    assert len(seeds) == len(VARIANTS) - 1
+    here = trace_digest('kernel', OPENBLAS_METHODS, seeds)
+    for core, digest in openblas_digests('kernel', OPENBLAS_METHODS, seeds, _cores()).items():
+        assert digest == here, core
+
+
+@pytest.mark.xfail(reason='known: the exact tripod\'s Fourier table is built with BLAS/LAPACK '
+                          '(joints/tripod.py np.linalg.solve, @), so its last bits and the '
+                          'kernel traces of exact-tripod scenes follow OPENBLAS_CORETYPE '
+                          '(measured: Sandybridge differs from Haswell)', strict=False)
+def test_exact_tripod_traces_do_not_depend_on_openblas_kernel() -> None:
+    """The exact-tripod variant of the previous test (rk4 only: the difference is in the
+    table, not in the stepper)."""
+    seeds = openblas_seeds(exact_tripod=True)[:1]
+    here = trace_digest('kernel', ('rk4',), seeds)
+    for core, digest in openblas_digests('kernel', ('rk4',), seeds, _cores()).items():
+        assert digest == here, core

@@ -58,6 +58,7 @@ Runtime (normal suite, both backends): ~14 s CPU rk4, ~10 s ros2 (60 scenes), ~8
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import defaultdict
 from typing import Any
@@ -72,7 +73,8 @@ from cvj_ros.physics.scene import Joint, Spring, parse_scene
 from cvj_ros.physics.simulate import Simulation
 
 N_SCENES = 200            # normal suite
-N_SCENES_SLOW = 1000      # @slow
+# @slow; CVJ_FUZZ_SLOW_SCENES overrides (a quick check of the slow path)
+N_SCENES_SLOW = int(os.environ.get('CVJ_FUZZ_SLOW_SCENES', '1000'))
 DURATION = 0.05           # s simulated per scene (normal suite)
 SAMPLE = 0.005            # s between samples
 H_FIXED = 1e-4            # s, rk4 step (stable: h omega_max <= 0.23 < 2.8, see random_scene)

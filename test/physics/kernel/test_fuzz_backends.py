@@ -677,13 +677,10 @@ def test_kernel_traces_do_not_depend_on_openblas_kernel() -> None:
         assert digest == here, core
 
 
-@pytest.mark.xfail(reason='known: the exact tripod\'s Fourier table is built with BLAS/LAPACK '
-                          '(joints/tripod.py np.linalg.solve, @), so its last bits and the '
-                          'kernel traces of exact-tripod scenes follow OPENBLAS_CORETYPE '
-                          '(measured: Sandybridge differs from Haswell)', strict=False)
 def test_exact_tripod_traces_do_not_depend_on_openblas_kernel() -> None:
-    """The exact-tripod variant of the previous test (rk4 only: the difference is in the
-    table, not in the stepper)."""
+    """The exact-tripod variant of the previous test (rk4 only: the difference was in the
+    table, not in the stepper). Its Fourier table was built with np.linalg.solve and @
+    (Sandybridge gave other bytes than Haswell); it now uses cvj_ros.physics.fixed_order."""
     seeds = openblas_seeds(exact_tripod=True)[:1]
     here = trace_digest('kernel', ('rk4',), seeds)
     for core, digest in openblas_digests('kernel', ('rk4',), seeds, _cores()).items():

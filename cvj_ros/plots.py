@@ -325,7 +325,7 @@ def _uniform_axis(ax: Any, p2p: float, unit: str) -> None:
     """Y-limits and note of an axis whose every series is uniform (not stretched noise)."""
     ax.set_ylim(-1.0, 1.0)
     u = f' {unit}' if unit else ''
-    ax.text(0.5, 0.72, f'uniform: peak-to-peak {p2p:.2g}{u} < {UNIFORM_FLOOR:g}{u} (rounding level)',
+    ax.text(0.5, 0.72, f'uniform\npeak-to-peak {p2p:.2g}{u} < {UNIFORM_FLOOR:g}{u}',
             transform=ax.transAxes, ha='center', va='center', fontsize=10,
             bbox={'boxstyle': 'round', 'fc': 'white', 'ec': '0.6', 'alpha': 0.9})
 
@@ -390,11 +390,12 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
         kin = wo[ok] / (r * wi[ok]) - 1.0
         name = joint if r == 1.0 else f'{joint} (ratio {r:.4g})'
         st = series_style(len(sig.joint_names) + k)
-        for ax, phi, y, scale, unit in ((ax_g, phi_i, dev, 1e3, 'rad'), (ax_k, phi_i[ok], kin, 1.0, '')):
+        for ax, phi, y, scale, unit, shown in ((ax_g, phi_i, dev, 1e3, 'rad', 'mrad'),
+                                               (ax_k, phi_i[ok], kin, 1.0, '', '')):
             p2p = _peak_to_peak(y)
             h, _ = _draw_folded(ax, phi, y, scale=scale, n_bins=360, style=st, seen=[], span=0.0, name=name)
             uni = p2p < UNIFORM_FLOOR
-            lab = f'{name}: uniform' if uni else f'{name}: peak-to-peak {p2p:.3g} {unit}'.rstrip()
+            lab = f'{name}: uniform' if uni else f'{name}: peak-to-peak {scale * p2p:.3g} {shown}'.rstrip()
             if uni:
                 _uniform_axis(ax, p2p, unit)
             ax.legend([h], [lab], loc='best', framealpha=0.85)

@@ -203,6 +203,29 @@ def _legend(ax: Any, handles: list[Any], labels: list[str], *, outside: bool = T
               ncol=1 if len(labels) <= 14 else 2, borderaxespad=0.0 if outside else 0.5, **kw)
 
 
+def scene_settings(sig: BagSignals) -> tuple[float | None, dict[str, str]]:
+    """(solver rtol, {joint or spring name: chosen fidelity}) from the scene YAML recorded in
+    the bag (``/driveline/scene``); (None, {}) when absent or unreadable."""
+    if not sig.scene_yaml:
+        return None, {}
+    import yaml
+    try:
+        data = yaml.safe_load(sig.scene_yaml)
+    except yaml.YAMLError:
+        return None, {}
+    if not isinstance(data, dict):
+        return None, {}
+    solver = data.get('solver')
+    rtol = solver.get('rtol') if isinstance(solver, dict) else None
+    rtol = float(rtol) if isinstance(rtol, (int, float)) and math.isfinite(rtol) and rtol > 0 else None
+    fid = data.get('fidelity')
+    chosen: dict[str, str] = {}
+    if isinstance(fid, dict) and isinstance(fid.get('choices'), list):
+        chosen = {str(c['name']): str(c['chosen']) for c in fid['choices']
+                  if isinstance(c, dict) and 'name' in c and 'chosen' in c}
+    return rtol, chosen
+
+
 def _bag_label(sig: BagSignals) -> str:
     p = sig.path if sig.path.is_dir() else sig.path.parent
     return f'{p.parent.name}/{p.name}' if p.name == 'bag' else p.name
@@ -290,12 +313,12 @@ def speeds_torques_figure(sig: BagSignals, t0: float) -> Any:
 
 def _draw_folded(ax: Any, phi: np.ndarray, y: np.ndarray, *, scale: float, n_bins: int,
                  style: dict[str, Any], seen: list[tuple[str, np.ndarray]], span: float,
-                 name: str) -> tuple[Any, str | None]:
+                 name: str, floor: float = UNIFORM_FLOOR) -> tuple[Any, str | None]:
     """Fold ``y`` over ``phi`` and draw the mean line and the min-max band (``scale`` converts
-    to display units; a peak-to-peak below :data:`UNIFORM_FLOOR` draws flat at 0). When the
+    to display units; a peak-to-peak below ``floor`` draws flat at 0). When the
     folded curve covers one in ``seen`` (within COINCIDENT x ``span``, display units) no band
     is drawn. Returns (legend handle, label of the covered curve or None); appends to seen."""
-    if _peak_to_peak(y) < UNIFORM_FLOOR:
+    if _peak_to_peak(y) < floor:
         x = np.array([0.0, 360.0])
         mean = lo = hi = np.zeros(2)
     else:
@@ -311,21 +334,22 @@ def _draw_folded(ax: Any, phi: np.ndarray, y: np.ndarray, *, scale: float, n_bin
     return (line, band), same
 
 
-def _folded_span(pairs: Sequence[tuple[np.ndarray, np.ndarray]], scale: float, n_bins: int) -> float:
+def _folded_span(pairs: Sequence[tuple[np.ndarray, np.ndarray]], scale: float, n_bins: int,
+                 floor: float = UNIFORM_FLOOR) -> float:
     """Display-unit span of the min-max bands of (phi, y) pairs folded over one revolution."""
     arrs = []
     for phi, y in pairs:
-        if y.size and _peak_to_peak(y) >= UNIFORM_FLOOR:
+        if y.size and _peak_to_peak(y) >= floor:
             _, _, lo, hi, _ = fold_over_angle(phi, y, n_bins)
             arrs += [scale * lo, scale * hi]
     return _span(arrs)
 
 
-def _uniform_axis(ax: Any, p2p: float, unit: str) -> None:
+def _uniform_axis(ax: Any, p2p: float, unit: str, floor: float = UNIFORM_FLOOR, why: str = '') -> None:
     """Y-limits and note of an axis whose every series is uniform (not stretched noise)."""
     ax.set_ylim(-1.0, 1.0)
     u = f' {unit}' if unit else ''
-    ax.text(0.5, 0.72, f'uniform\npeak-to-peak {p2p:.2g}{u} < {UNIFORM_FLOOR:g}{u}',
+    ax.text(0.5, 0.72, f'uniform{why}\npeak-to-peak {p2p:.2g}{u} < {floor:g}{u}',
             transform=ax.transAxes, ha='center', va='center', fontsize=10,
             bbox={'boxstyle': 'round', 'fc': 'white', 'ec': '0.6', 'alpha': 0.9})
 
@@ -337,7 +361,13 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
     revolution centred on the sample (:func:`revolution_mean_speed`), so a slow drift of the
     window does not smear it. Curves are folded over one revolution: line = mean over the
     revolutions of the steady window, band = min-max. A deviation whose peak-to-peak is below
-    :data:`UNIFORM_FLOOR` is drawn flat and the axis says "uniform"."""
+    :data:`UNIFORM_FLOOR` (speeds: below the solver's rtol recorded in the scene, if larger:
+    the integrator does not resolve relative speed changes below it) is drawn flat and the
+    axis says "uniform". Joint titles name the fidelity the scene ran (an ``ideal`` joint is
+    uniform by construction, not by physics)."""
+    rtol, fidelity = scene_settings(sig)
+    speed_floor = max(UNIFORM_FLOOR, rtol or 0.0)
+    speed_why = ' (below the solver rtol)' if speed_floor > UNIFORM_FLOOR else ''
     means = _steady_means(sig, mask)
     levels = speed_levels(means)
     labels = shaft_labels(sig.joint_names)
@@ -354,7 +384,7 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
             w_rev = revolution_mean_speed(t, phi)
             ok = np.isfinite(w_rev) & (w_rev != 0.0)
             data[j] = (phi[ok], w[ok] / w_rev[ok] - 1.0)
-        span = _folded_span(list(data.values()), 100.0, 72)
+        span = _folded_span(list(data.values()), 100.0, 72, speed_floor)
         handles, names, seen, p2ps = [], [], [], []
         for j in level:
             w = sig.velocity[mask, j]
@@ -366,12 +396,12 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
                 continue
             p2ps.append(_peak_to_peak(dev))
             h, same = _draw_folded(ax, phi, dev, scale=100.0, n_bins=72, style=series_style(j),
-                                   seen=seen, span=span, name=labels[j])
+                                   seen=seen, span=span, name=labels[j], floor=speed_floor)
             delta = signal.speed_nonuniformity(w)
             handles.append(h)
             names.append(f'{labels[j]} (delta = {delta:.3g})' + (f' = {same}' if same else ''))
-        if p2ps and max(p2ps) < UNIFORM_FLOOR:
-            _uniform_axis(ax, max(p2ps), '')
+        if p2ps and max(p2ps) < speed_floor:
+            _uniform_axis(ax, max(p2ps), '', speed_floor, speed_why)
         ax.set_ylabel(r'$\omega/\bar\omega_{rev} - 1$  [%]')
         ax.set_xlabel('own shaft angle mod 360  [deg]')
         ax.set_title(f'Speed deviation over own shaft angle, {_level_title(means, level)}')
@@ -397,12 +427,14 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
             uni = p2p < UNIFORM_FLOOR
             lab = f'{name}: uniform' if uni else f'{name}: peak-to-peak {scale * p2p:.3g} {shown}'.rstrip()
             if uni:
-                _uniform_axis(ax, p2p, unit)
+                _uniform_axis(ax, p2p, unit, why=' (ideal model: output = ratio x input)'
+                              if fidelity.get(joint) == 'ideal' else '')
             ax.legend([h], [lab], loc='best', framealpha=0.85)
         ax_g.set_ylabel(r'$\varphi_{out}-i\,\varphi_{in}$  [mrad]')
-        ax_g.set_title(f'{joint}: geometric nonuniformity (seed 002)')
+        model = f', {fidelity[joint]} model' if joint in fidelity else ''
+        ax_g.set_title(f'{joint}: geometric nonuniformity (seed 002){model}')
         ax_k.set_ylabel(r'$\omega_{out}/(i\,\omega_{in}) - 1$  [-]')
-        ax_k.set_title(f'{joint}: kinematic nonuniformity (seed 002)')
+        ax_k.set_title(f'{joint}: kinematic nonuniformity (seed 002){model}')
         for a in (ax_g, ax_k):
             a.set_xlabel('joint input angle mod 360  [deg]')
     for a in fig.axes:

@@ -281,3 +281,33 @@ def test_write_analysis_plots_writes_three_pngs(sig_report, tmp_path: Path) -> N
     assert sorted(p.name for p in paths) == ['harmonics.png', 'nonuniformity.png', 'speeds_torques.png']
     assert all(p.read_bytes()[:4] == b'\x89PNG' for p in paths)
     assert not plt.get_fignums()                                 # all figures closed
+
+
+def test_speed_ripple_below_solver_rtol_is_uniform_and_ideal_joint_named() -> None:
+    # 1e-8 relative speed ripple under a scene run with rtol 1e-6: 100x below what the
+    # integrator resolves -> flat, "uniform (below the solver rtol)"; the ideal joint's panels
+    # name the model that makes it uniform
+    t = np.arange(0.0, 1.0, 1e-3)
+    phi = 100.0 * t + 1e-8 * np.sin(100.0 * t)
+    w = 100.0 * (1.0 + 1e-8 * np.cos(100.0 * t))
+    sig = BagSignals(path=Path('tiny/bag'), joint_names=['j_input', 'j_output'], t=t,
+                     position=np.column_stack([phi, phi]), velocity=np.column_stack([w, w]),
+                     effort=np.ones((t.size, 2)))
+    sig.scene_yaml = 'solver: {method: dopri5, rtol: 1.0e-6}\nfidelity: {choices: [{name: j, chosen: ideal}]}\n'
+    assert plots.scene_settings(sig) == (1e-6, {'j': 'ideal'})
+    fig = plots.nonuniformity_figure(sig, t >= 0.25)
+    try:
+        ax_s = fig.axes[0]
+        assert np.all(ax_s.get_lines()[0].get_ydata() == 0.0) and ax_s.get_ylim() == (-1.0, 1.0)
+        assert 'below the solver rtol' in ax_s.texts[0].get_text()
+        ax_g, ax_k = _joint_axes(fig, 'j')
+        assert ax_g.get_title().endswith('ideal model') and 'ideal model' in ax_g.texts[0].get_text()
+    finally:
+        plt.close(fig)
+    sig.scene_yaml = None                      # no scene recorded: the rounding floor applies
+    assert plots.scene_settings(sig) == (None, {})
+    fig = plots.nonuniformity_figure(sig, t >= 0.25)
+    try:
+        assert np.ptp(fig.axes[0].get_lines()[0].get_ydata()) > 0.0 and not fig.axes[0].texts
+    finally:
+        plt.close(fig)

@@ -1,10 +1,14 @@
 """PNG figures of an analysed bag and of the work-precision benchmark (matplotlib, Agg backend).
 
-Analysis figures (:func:`write_analysis_plots`): ``speeds_torques.png`` (speed and torque of
-every shaft over time, the skipped start transient shaded), ``nonuniformity.png`` (speed
-deviation over shaft angle, joint geometric and kinematic nonuniformity over input angle),
-``harmonics.png`` (torque harmonic amplitudes per order, and the torque resampled over one
-revolution with its truncated Fourier series, seed 004 eqs. 4.1-4.3).
+Analysis figures (:func:`write_analysis_plots`), one row per speed level (:func:`speed_levels`):
+``speeds_torques.png`` (speed and torque of every shaft over time, the skipped start transient
+shaded), ``nonuniformity.png`` (speed deviation over the shaft's own angle relative to its
+revolution mean, joint geometric and kinematic nonuniformity over input angle, seed 002, all
+folded to one revolution: mean line and min-max band; peak-to-peak below a stated floor drawn
+flat and called "uniform"), ``harmonics.png`` (torque harmonic amplitudes per order, and the
+torque over one revolution with its truncated Fourier series, seed 004 eqs. 4.1-4.3).
+Each figure function returns the matplotlib Figure so tests can inspect it; docs/analysis.md
+describes what each panel shows.
 Benchmark figures: :func:`work_precision_plot` (log-log error vs cost, one line per solver).
 """
 from __future__ import annotations

@@ -14,6 +14,7 @@ Benchmark figures: :func:`work_precision_plot` (log-log error vs cost, one line 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -106,9 +107,12 @@ def _level_title(mean_speeds: np.ndarray, level: list[int]) -> str:
 
 
 def _steady_means(sig: BagSignals, mask: np.ndarray) -> np.ndarray:
+    """Mean speed of every shaft over ``mask`` (all samples if empty), NaN samples ignored [rad/s]."""
     if not np.any(mask):
         mask = np.ones(sig.t.size, dtype=bool)
-    return np.mean(sig.velocity[mask], axis=0)
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)   # all-NaN column -> NaN, read as at rest
+        return np.nanmean(sig.velocity[mask], axis=0)
 
 
 def fold_over_angle(phi: np.ndarray, y: np.ndarray, n_bins: int
@@ -396,7 +400,7 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
             if dev.size < 2:
                 h, = ax.plot([0.0, 360.0], [0.0, 0.0], label=labels[j], **series_style(j))
                 handles.append(h)
-                names.append(f'{labels[j]} (less than one revolution)')
+                names.append(f'{labels[j]} (no full revolution in one direction)')
                 continue
             p2ps.append(_peak_to_peak(dev))
             h, same = _draw_folded(ax, phi, dev, scale=100.0, n_bins=72, style=series_style(j),

@@ -311,3 +311,25 @@ def test_speed_ripple_below_solver_rtol_is_uniform_and_ideal_joint_named() -> No
         assert np.ptp(fig.axes[0].get_lines()[0].get_ydata()) > 0.0 and not fig.axes[0].texts
     finally:
         plt.close(fig)
+
+
+def test_standing_reversing_and_nan_shafts_still_plot_with_complete_legends(tmp_path: Path) -> None:
+    # a shaft at rest, one reversing mid-window (no revolution in one direction), one with a
+    # NaN sample: every figure is written and every shaft is in a legend exactly once
+    t = np.arange(0.0, 1.0, 1e-3)
+    w_rev = 20.0 * np.cos(math.pi * t)
+    pos = np.column_stack([0 * t, 20.0 / math.pi * np.sin(math.pi * t), 50.0 * t])
+    vel = np.column_stack([0 * t, w_rev, 50.0 + 0 * t])
+    vel[500, 2] = np.nan
+    sig = BagSignals(path=Path('edge/bag'), joint_names=['rest', 'reverse', 'nan'], t=t,
+                     position=pos, velocity=vel, effort=np.column_stack([0 * t, np.sin(pos[:, 1]), 0 * t]))
+    report = analyze_signals(sig, skip_fraction=0.25)
+    paths = plots.write_analysis_plots(sig, report, tmp_path)
+    assert {p.name for p in paths} >= {'speeds_torques.png', 'nonuniformity.png'}
+    for fig in (plots.speeds_torques_figure(sig, report['window']['start_s']),
+                plots.nonuniformity_figure(sig, t >= report['window']['start_s'])):
+        try:
+            labels = [lb for ax in fig.axes for lb in _legend_labels(ax)]
+            assert sorted(_name(lb) for lb in labels) == ['nan', 'rest', 'reverse']
+        finally:
+            plt.close(fig)

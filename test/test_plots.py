@@ -96,6 +96,12 @@ def test_speed_levels_split_at_gears_and_signs() -> None:
     assert plots.speed_levels([]) == []
 
 
+def test_amplitude_groups_keep_every_curve_above_a_tenth_of_its_axis() -> None:
+    # cage 0.17 with 0.02-0.03 shafts (ratio < 10) on one axis, 0.002 next, flat ones with it
+    assert plots.amplitude_groups([0.002, 0.17, 0.03, 0.0, 0.02, 1e-12]) == [[1, 2, 4], [0, 3, 5]]
+    assert plots.amplitude_groups([0.0, 0.0]) == [[0, 1]] and plots.amplitude_groups([]) == []
+
+
 def test_shaft_labels_unique_for_duplicate_names() -> None:
     labels = plots.shaft_labels(['a', 'b', 'a'])
     assert labels == ['a [column 0]', 'b', 'a [column 2]'] and len(set(labels)) == 3
@@ -333,3 +339,24 @@ def test_standing_reversing_and_nan_shafts_still_plot_with_complete_legends(tmp_
             assert sorted(_name(lb) for lb in labels) == ['nan', 'rest', 'reverse']
         finally:
             plt.close(fig)
+
+
+def test_small_deviation_gets_its_own_axis_at_the_same_speed() -> None:
+    # two shafts at 100 rad/s, 2nd-order ripple 1e-3 and 1e-5 (100x apart > AMPLITUDE_RATIO):
+    # two speed-deviation axes, each curve filling its own
+    t = np.arange(0.0, 1.0, 1e-3)
+    cols = [(100.0 * t + a / 2 * np.sin(200.0 * t), 100.0 * (1 + a * np.cos(200.0 * t))) for a in (1e-3, 1e-5)]
+    sig = BagSignals(path=Path('two/bag'), joint_names=['big', 'small'], t=t,
+                     position=np.column_stack([c[0] for c in cols]),
+                     velocity=np.column_stack([c[1] for c in cols]), effort=np.ones((t.size, 2)))
+    fig = plots.nonuniformity_figure(sig, t >= 0.25)
+    try:
+        assert len(fig.axes) == 2 and '(1 of 2' in fig.axes[0].get_title()
+        for ax, name, amp in zip(fig.axes, ('big', 'small'), (1e-3, 1e-5)):
+            (line,) = ax.get_lines()
+            assert line.get_label() == name
+            # folded mean of 100 a cos(2 phi) [%]: 5 deg grid from 1.1 deg samples, error
+            # < 1e-3 relative; bound 2 %
+            assert 0.5 * np.ptp(line.get_ydata()) == pytest.approx(100 * amp, rel=0.02)
+    finally:
+        plt.close(fig)

@@ -261,8 +261,23 @@ def scene_settings(sig: BagSignals) -> tuple[float | None, dict[str, str]]:
     return rtol, chosen
 
 
+def signals_from_trace(trace: Any, *, scene_yaml: str | None = None, label: str = 'simulate') -> BagSignals:
+    """:class:`BagSignals` of an offline run (``cvj_ros.physics.simulate.Trace``: t s, position
+    rad, velocity rad/s, effort N m per shaft, engine and load torque N m on the engine and
+    load shafts, same sign conventions as the bag's wrenches), so ``analyze_signals`` and the
+    figures work on it as on a recorded bag. ``label`` names the figures (a path-like name)."""
+    t = np.asarray(trace.t, dtype=float)
+    return BagSignals(path=Path(label), joint_names=list(trace.names), t=t,
+                      position=np.asarray(trace.position, dtype=float),
+                      velocity=np.asarray(trace.velocity, dtype=float),
+                      effort=np.asarray(trace.effort, dtype=float),
+                      engine_t=t, engine_torque=np.asarray(trace.engine_torque, dtype=float),
+                      load_t=t, load_torque=np.asarray(trace.load_torque, dtype=float),
+                      scene_yaml=scene_yaml)
+
+
 def _bag_label(sig: BagSignals) -> str:
-    p = sig.path if sig.path.is_dir() else sig.path.parent
+    p = sig.path if sig.path.is_dir() or not sig.path.exists() else sig.path.parent   # .mcap file: its dir
     return f'{p.parent.name}/{p.name}' if p.name == 'bag' else p.name
 
 

@@ -360,3 +360,17 @@ def test_small_deviation_gets_its_own_axis_at_the_same_speed() -> None:
             assert 0.5 * np.ptp(line.get_ydata()) == pytest.approx(100 * amp, rel=0.02)
     finally:
         plt.close(fig)
+
+
+def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # `cvj-sim simulate --plots`: the analysis figures of an offline trace (no bag, no ROS)
+    import json
+
+    from cvj_ros.cli import main
+    out = tmp_path / 'png'
+    assert main(['simulate', 'kavz685_lever', '--duration', '0.6', '--backend', 'python',
+                 '--json', '--plots', str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert sorted(Path(p).name for p in summary['plots']) == \
+        ['harmonics.png', 'nonuniformity.png', 'speeds_torques.png']
+    assert all((out / n).read_bytes()[:4] == b'\x89PNG' for n in ('speeds_torques.png', 'nonuniformity.png'))

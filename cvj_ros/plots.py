@@ -353,6 +353,8 @@ def speeds_torques_figure(sig: BagSignals, t0: float) -> Any:
         ax_t.set_title(f'torque, {title}')
         ax_w.set_ylabel('speed  [rad/s]')
         ax_t.set_ylabel('torque  [N m]')
+        for ax in (ax_w, ax_t):        # read 99.98 rad/s, not 'offset +1e2' and -0.02
+            ax.ticklabel_format(axis='y', useOffset=False)
         _legend(ax_t, handles, names)
     for ax in axes[-1]:
         ax.set_xlabel('simulated time  [s]')

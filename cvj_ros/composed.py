@@ -442,6 +442,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             comp.spin_until_done(coupling, stop=lambda: bool(stop_signal), on_tick=on_tick)
         progress.close()
         mark('coupling_exited')
+        if comp.recorder is not None:   # later /clock beyond our last state: another run's
+            comp.recorder.loop_ended = True
         if error is None:
             error = comp.failed()
         if stop_signal or error is not None or coupling is None:

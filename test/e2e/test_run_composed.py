@@ -14,7 +14,6 @@ processes (test_run.py, _check_bag_layout); composed mode drains it in-process.
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -66,24 +65,27 @@ def _cli(args: list[str], **kw) -> subprocess.CompletedProcess:
 def raw_messages(bag_path: Path) -> dict[str, list[tuple[int, bytes]]]:
     """Every message of a bag as (record stamp ns, canonical CDR bytes) per topic.
 
-    Canonical = decoded and encoded again (rosbags), the run token taken off header.frame_id: the same message gives the same bytes,
+    Canonical = decoded and encoded again (rosbags): the same message gives the same bytes,
     every field bit for bit, while the trailing alignment padding that DDS may append to a
     sample (3 zero bytes after the /driveline/scene string between processes, none inside
-    one) does not count."""
-    from rosbags.rosbag2 import Reader
+    one) does not count. Each run's random token is the one intended difference (frame_id
+    '<frame>@<token>', ``run_token`` in the scene; cvj_ros.nodes.run_token): taken out
+    before comparing, so a tagged and an untagged run compare too."""
+    import re
 
-    from cvj_ros.nodes.run_token import TOKEN_SEPARATOR, frame_token
+    from rosbags.rosbag2 import Reader
     store = bag.typestore()
     out: dict[str, list[tuple[int, bytes]]] = {}
     with Reader(bag_path) as reader:
         for conn, stamp, data in reader.messages():
             msg = store.deserialize_cdr(bytes(data), conn.msgtype)
-            header = getattr(msg, 'header', None)
-            if header is not None and frame_token(header.frame_id) is not None:
-                # each run has its own token (cvj_ros.nodes.run_token): compare without it
-                header.frame_id = header.frame_id.rsplit(TOKEN_SEPARATOR, 1)[0]
-            if conn.topic == bag.SCENE_TOPIC:   # the scene YAML names the run's token
-                msg.data = re.sub(r'run_token: \S*', 'run_token: <token>', msg.data)
+            if hasattr(msg, 'header'):
+                frame = msg.header.frame_id
+                msg.header.frame_id = frame.rpartition('@')[0] if '@' in frame else frame
+                if conn.topic == '/driveline/joint_states':   # 'driveline@<token>' or '' untagged
+                    msg.header.frame_id = ''
+            if conn.topic == '/driveline/scene':
+                msg.data = re.sub(r'(?m)^run_token: .*$', 'run_token: RUNTOKEN', msg.data)
             out.setdefault(conn.topic, []).append(
                 (int(stamp), bytes(store.serialize_cdr(msg, conn.msgtype))))
     for msgs in out.values():

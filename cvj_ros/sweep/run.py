@@ -337,11 +337,21 @@ class SweepReport:
     complete: bool
     out_dir: str
     first_bad: str | None = None
+    first_wall: float = 0.0       # s from the run start to the first finished chunk
+    first_count: int = 0          # variants in that chunk
 
     @property
     def rate(self) -> float:
-        """Variants simulated per wall second of the run phase (0 if none ran)."""
+        """Variants simulated per wall second of the run phase, start-up of the workers and
+        kernel load included (0 if none ran)."""
         return self.ran / self.run_wall if self.run_wall > 0 and self.ran else 0.0
+
+    @property
+    def steady_rate(self) -> float:
+        """Variants per wall second after the first finished chunk (workers started, kernel
+        loaded); the plain rate when only one chunk ran."""
+        rest, wall = self.ran - self.first_count, self.run_wall - self.first_wall
+        return rest / wall if rest > 0 and wall > 0 else self.rate
 
 
 def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
@@ -412,6 +422,7 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
     work = chunks(todo, chunk_size(len(todo), executor.workers))
     t_run = time.perf_counter()
     ran = 0
+    first_wall, first_count = 0.0, 0
     complete = False
     stop_error: str | None = None
     try:
@@ -423,6 +434,8 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
                 done[o.index] = (o.row, o.wall)
                 if o.row.get('status') != 'ok' and first_bad is None:
                     first_bad = f'{label(o.index)}: {o.row.get("error", "")}'
+            if not ran:
+                first_wall, first_count = time.perf_counter() - t_run, len(outcomes)
             ran += len(outcomes)
             if progress is not None:
                 progress(len(done))
@@ -457,4 +470,5 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
     return SweepReport(total=len(sweep), counts=counts, ran=ran, skipped=skipped,
                        run_wall=run_wall, total_wall=time.perf_counter() - t_start,
                        executor=executor.name, workers=executor.workers, complete=complete,
-                       out_dir=str(out_dir), first_bad=first_bad)
+                       out_dir=str(out_dir), first_bad=first_bad, first_wall=first_wall,
+                       first_count=first_count)

@@ -22,7 +22,7 @@ from cvj_ros.physics.metrics import steady_mask
 from cvj_ros.physics.scene import find_scene, parse_scene
 from cvj_ros.physics.simulate import Simulation
 from cvj_ros.sweep.results import ROWS, read_results
-from cvj_ros.sweep.run import RunOptions, SerialExecutor, execute, metrics_row
+from cvj_ros.sweep.run import RunOptions, SerialExecutor, execute, metrics_row, order_amplitudes
 from cvj_ros.sweep.spec import build_sweep
 
 REPO = Path(__file__).resolve().parents[2]
@@ -82,6 +82,9 @@ def test_rows_equal_a_direct_simulation(tmp_path: Path) -> None:
         sim = Simulation(parse_scene(d))
         sim.run(sampling='dense')
         expected = metrics_row(sim.summary())
+        expected.update(order_amplitudes(sim.last_trace, 4, None))
+        assert set(expected) | {'variant', 'status', 'error', LEVER_SETS[0].split('=')[0],
+                                LEVER_SETS[1].split('=')[0]} == set(row)
         for key, value in expected.items():
             assert (float(row[key]) if isinstance(value, float) else type(value)(row[key])) == value, key
 

@@ -263,6 +263,9 @@ class DaskExecutor:
         if isinstance(cluster, str):
             try:
                 self.client = Client(cluster, timeout=10)
+            except ValueError as exc:       # malformed address ('host' without a port, ...)
+                raise SweepErrorLazy(f'--cluster {cluster}: not a scheduler address, e.g. '
+                                     f'tcp://host:8786 ({" ".join(str(exc).split())[:200]})') from None
             except (OSError, TimeoutError) as exc:
                 raise SweepErrorLazy(f'--cluster {cluster}: cannot connect to the Dask scheduler '
                                      f'({" ".join(str(exc).split())[:200]})') from None

@@ -119,6 +119,9 @@ def test_bad_variant_skipped_or_stopping(tmp_path: Path, capsys: pytest.CaptureF
     (['--set', 'engine.m2=1,2'], 'cvj-sim: error: --set engine.m2: engine.m2: unknown key'),
     (['--set', 'engine.m1=1', '--samples', '-3'], 'cvj-sim: error: --samples: must be an integer'),
     (['--set', 'engine.m1=1', '--workers', '0'], 'cvj-sim: error: --workers: must be >= 1, got 0'),
+    (['--set', 'engine.m1=1', '--cluster', 'nonsense'],
+     'cvj-sim: error: --cluster nonsense: not a scheduler address, e.g. tcp://host:8786'),
+    (['--set', 'engine.m1=1', '--orders', '-1'], 'cvj-sim: error: --orders: must be in 0..64'),
 ])
 def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                  args: list[str], line: str) -> None:

@@ -29,7 +29,7 @@ command skips finished variants (Ctrl-C keeps them). docs/sweeps.md has the deta
 examples:
   cvj-sim sweep kavz685_lever --set 'driveline[coupling].params.alpha_deg=5:25:5' \\
       --set 'driveline[bushings].stiffness=400:1200:5' --out runs/sweep_lever
-  cvj-sim sweep fwd_halfshaft --set 'initial.speed_rad_s=20:120:11' --out runs/speed
+  cvj-sim sweep fwd_halfshaft --set 'initial.speed_rpm=500:3000:11' --out runs/speed
   cvj-sim sweep kavz685_lever --set 'driveline[bushings].stiffness=300:3000:log' \\
       --samples 200 --seed 1 --out runs/random --workers 2
   cvj-sim sweep kavz685_lever --set 'engine.m1=500,623,700' --out runs/m1 --cluster tcp://10.0.0.5:8786
@@ -117,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     if args.workers is not None and args.cluster:
         raise SweepError('--workers: not with --cluster (the cluster has its own workers)')
+    from pathlib import Path
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise SweepError(f'--out {args.out}: exists and is not a directory')
     from cvj_ros.commands.simulate import parse_fidelity
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)
@@ -130,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'
         if executor.workers > 1 else 'this process')
-    print(f'cvj-sim sweep: {len(sweep)} variants of {base.get("name")} on {where}', file=sys.stderr)
+    print(f'cvj-sim sweep: {len(sweep)} variant{"s" if len(sweep) != 1 else ""} of '
+          f'{base.get("name")} on {where}', file=sys.stderr)
     progress = SweepProgress(len(sweep), label='cvj-sim sweep', unit='variants')
     first = True
 

@@ -71,6 +71,9 @@ def test_paths(lever: dict) -> None:
     (['driveline[bushings].stiffness=1', 'driveline[1].stiffness=2'],
      'driveline[1].stiffness is already set by --set driveline[bushings].stiffness'),
     ([], 'give at least one'),
+    (['initial.speed_rpm=300:600:4'], '--set initial.speed_rpm: every value tried (300.0, 600.0) makes '
+     'the scene invalid: initial.speed_rpm: give either speed_rad_s or speed_rpm, not both'),
+    (['driveline[coupling].params.alpha_deg=95,120'], 'every value tried (95, 120)'),
 ])
 def test_spec_errors_name_the_set_and_field(lever: dict, sets: list[str], needle: str) -> None:
     with pytest.raises(SweepError) as exc:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cvj_ros.errors import CvjError, SceneError
+from cvj_ros.sweep.spec import SweepError
 
 # solver counters copied into every row (Simulation.summary()['solver'])
 SOLVER_COUNTERS = ('naccept', 'nreject', 'nfev', 'njev', 'nlu')
@@ -258,16 +259,16 @@ class DaskExecutor:
         try:
             from distributed import Client
         except ImportError:     # pragma: no cover  (pinned in requirements.txt)
-            raise SweepErrorLazy('--cluster: dask distributed is not installed '
+            raise SweepError('--cluster: dask distributed is not installed '
                                  '(pip install distributed)') from None
         if isinstance(cluster, str):
             try:
                 self.client = Client(cluster, timeout=10)
             except ValueError as exc:       # malformed address ('host' without a port, ...)
-                raise SweepErrorLazy(f'--cluster {cluster}: not a scheduler address, e.g. '
+                raise SweepError(f'--cluster {cluster}: not a scheduler address, e.g. '
                                      f'tcp://host:8786 ({" ".join(str(exc).split())[:200]})') from None
             except (OSError, TimeoutError) as exc:
-                raise SweepErrorLazy(f'--cluster {cluster}: cannot connect to the Dask scheduler '
+                raise SweepError(f'--cluster {cluster}: cannot connect to the Dask scheduler '
                                      f'({" ".join(str(exc).split())[:200]})') from None
             self.own_client = True
         else:
@@ -295,11 +296,6 @@ class DaskExecutor:
             self.client.close()
 
 
-def SweepErrorLazy(message: str) -> CvjError:   # noqa: N802  (an error factory)
-    from cvj_ros.sweep.spec import SweepError
-    return SweepError(message)
-
-
 def make_executor(workers: int | None = None, cluster: str | Any | None = None) -> Any:
     """The executor for ``--workers`` / ``--cluster`` (cluster wins; workers default: all
     cores this process may use)."""
@@ -307,7 +303,7 @@ def make_executor(workers: int | None = None, cluster: str | Any | None = None) 
         return DaskExecutor(cluster)
     n = workers if workers is not None else default_workers()
     if n < 1:
-        raise SceneError('--workers', f'must be >= 1, got {n}')
+        raise SweepError(f'--workers: must be >= 1, got {n}')
     return SerialExecutor() if n == 1 else ProcessExecutor(n)
 
 
@@ -372,7 +368,6 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
     re-raises. ``started``: wall clock (time.perf_counter) of the command start, for the
     total wall time (default: now)."""
     from cvj_ros.sweep.results import ResultStore, scene_digest, versions
-    from cvj_ros.sweep.spec import SweepError
     t_start = time.perf_counter() if started is None else started
     if on_error not in ('skip', 'stop'):
         raise SweepError(f'--on-error: must be skip or stop, got {on_error!r}')

@@ -122,6 +122,8 @@ def test_bad_variant_skipped_or_stopping(tmp_path: Path, capsys: pytest.CaptureF
     (['--set', 'engine.m1=1', '--cluster', 'nonsense'],
      'cvj-sim: error: --cluster nonsense: not a scheduler address, e.g. tcp://host:8786'),
     (['--set', 'engine.m1=1', '--orders', '-1'], 'cvj-sim: error: --orders: must be in 0..64'),
+    (['--set', 'engine.m1=1', '--orders-shaft', 'crank'],
+     'cvj-sim: error: --orders-shaft crank: no such shaft in kavz685_lever; shafts: drive_shaft, '),
 ])
 def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                  args: list[str], line: str) -> None:

@@ -103,3 +103,27 @@ def test_random_sampling_is_seeded_and_in_range(lever: dict) -> None:
 def test_too_many_variants(lever: dict) -> None:
     with pytest.raises(SweepError, match='more than'):
         build_sweep(lever, ['initial.speed_rad_s=1:2:5000', 'engine.m1=1:2:5000'])
+
+
+def test_readme_and_docs_examples_build() -> None:
+    """The sweep commands shown in README.md, docs/sweeps.md and `cvj-sim sweep --help` parse
+    and expand (no run)."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from cvj_ros.cli import build_parser
+    from cvj_ros.commands.sweep import DESCRIPTION
+    root = Path(__file__).resolve().parents[2]
+    seen = 0
+    for text in ((root / 'README.md').read_text(), (root / 'docs/sweeps.md').read_text(), DESCRIPTION):
+        text = text.replace('\\\n', ' ')
+        for line in re.findall(r'^\s*(cvj-sim sweep [^\n]+)$', text, flags=re.M):
+            args = build_parser().parse_args(shlex.split(line)[1:])
+            if args.replot:
+                continue
+            base = load_scene_data(find_scene(args.scene))
+            sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
+            assert len(sweep) >= 2, line
+            seen += 1
+    assert seen >= 6

@@ -234,9 +234,14 @@ class ProcessExecutor:
 
     def map(self, job: Job, work: list[list[tuple[int, Sequence[Any]]]]) -> Iterator[list[Outcome]]:
         import concurrent.futures as cf
+        from concurrent.futures.process import BrokenProcessPool
         self.futures = [self.pool.submit(run_chunk, job, c) for c in work]
-        for fut in cf.as_completed(self.futures):
-            yield fut.result()
+        try:
+            for fut in cf.as_completed(self.futures):
+                yield fut.result()
+        except BrokenProcessPool:
+            raise SweepError('--workers: a worker process died (killed, or out of memory); the '
+                             'finished variants are kept: rerun the same command to resume') from None
 
     def cancel(self) -> None:
         for f in self.futures:

@@ -5,7 +5,7 @@ steady state. A window of slices k0..last (to the end of the record) is *steady*
 slice in it agrees with the last slice:
 
 * **mean speed drift**: ``|mean_k - mean_last| / |mean over the window|`` of the reference
-  speed (rad/s; relative, -) is at most ``drift_tol`` (default :data:`DRIFT_TOL`);
+  speed (rad/s; relative, -; slice means Hann-weighted, see :func:`_hann_mean`) is at most ``drift_tol`` (default :data:`DRIFT_TOL`);
 * **amplitude change**: ``|A_k - A_last| / max(A_k, A_last, floor)`` of every amplitude
   signal (the reference speed and each torque; ``A = (max - min)/2`` over the slice, seed
   004 section 3.3.2) is at most ``amplitude_tol`` (default :data:`AMPLITUDE_TOL`). ``floor``
@@ -57,6 +57,9 @@ class SteadyWindow:
     slice (-) and
     ``amplitude_signal`` the signal it came from. ``slice_s``: slice length (s);
     ``slices``: slices in the window. ``reference``: name of the reference speed.
+    ``source``: 'criterion' (found by :func:`find_steady_window`) or 'skip' (the user set
+    the start, :func:`skip_window`; ``steady`` is then the criterion's verdict on that
+    window, evaluated the same way, for information).
     """
 
     start_s: float
@@ -72,6 +75,7 @@ class SteadyWindow:
     amplitude_tol: float = AMPLITUDE_TOL
     min_slices: int = MIN_SLICES
     signals: list[str] = field(default_factory=list)
+    source: str = 'criterion'
 
     def mask(self, t: ArrayLike) -> NDArray[np.bool_]:
         """Samples of ``t`` (s) inside the window (at least the last two)."""
@@ -90,8 +94,12 @@ class SteadyWindow:
 
     def describe(self) -> str:
         """One line for reports: the window, the verdict and the measured drift and change."""
-        verdict = 'steady' if self.steady else (
-            f'NOT STEADY (criterion never met; last {FALLBACK_FRACTION:.0%} of the record used)')
+        if self.source == 'skip':
+            verdict = ('start set by the user, steady by the criterion' if self.steady else
+                       'start set by the user, NOT STEADY by the criterion')
+        else:
+            verdict = 'steady' if self.steady else (
+                f'NOT STEADY (criterion never met; last {FALLBACK_FRACTION:.0%} of the record used)')
         return (f'{self.start_s:.4g}..{self.end_s:.4g} s, {verdict}: drift {self.drift:.2e} '
                 f'(<= {self.drift_tol:g}), amplitude change {self.amplitude_change:.2e} '
                 f'(<= {self.amplitude_tol:g}, {self.amplitude_signal or "-"}), '
@@ -102,6 +110,17 @@ class SteadyWindow:
         d = asdict(self)
         d['criterion'] = self.criterion()
         return d
+
+
+def _hann_mean(x: FloatArray) -> float:
+    """Hann-weighted mean of a slice (weights sin^2(pi (i + 1/2)/n), symmetric): exact for a
+    linear trend (its value at the slice's centre), while a partial period of an oscillation
+    of amplitude a and angular frequency w leaks only ~a/(w L)^3 into it instead of the plain
+    mean's ~a/(w L) (the Hann window's sidelobes fall as 1/f^3), so a slice of a few periods
+    does not fake a drift."""
+    n = x.size
+    wts = np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 2
+    return float(np.dot(wts, x) / np.sum(wts))
 
 
 def _slice_edges(t: FloatArray, n_slices: int | None, slice_s: float | None) -> FloatArray:
@@ -166,7 +185,7 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
 
     if not usable:
         return fallback(math.nan, math.nan, '')
-    means = np.array([np.mean(w[a:b]) for a, b in zip(lo, hi)])
+    means = np.array([_hann_mean(w[a:b]) for a, b in zip(lo, hi)])
     # per slice k: relative amplitude difference from the last slice, worst signal
     change = np.zeros(n)
     worst = [''] * n
@@ -200,17 +219,52 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
                         n - best, reference, drift_tol, amplitude_tol, min_slices, list(amps))
 
 
+def skip_window(t: ArrayLike, reference_speed: ArrayLike, skip_s: float, *,
+                amplitude_signals: Mapping[str, ArrayLike] | None = None,
+                reference: str = 'reference speed', **options: Any) -> SteadyWindow:
+    """The window [t0 + ``skip_s``, end] set by the user (``--skip``/``--transient``, s),
+    with the criterion's drift, amplitude change and verdict evaluated on it (its slices are
+    the criterion's slices from the window's start on; all of them must agree with the last).
+
+    Raises:
+        ValueError: ``skip_s`` negative or not finite, or the inputs as :func:`find_steady_window`.
+    """
+    if not (math.isfinite(skip_s) and skip_s >= 0.0):
+        raise ValueError(f'skip_s: must be a finite number >= 0, got {skip_s}')
+    tt = np.asarray(t, dtype=float)
+    w = np.asarray(reference_speed, dtype=float)
+    if tt.ndim != 1 or tt.size < 2:
+        raise ValueError(f't: need at least 2 samples, got {tt.size}')
+    m = tt >= tt[0] + skip_s - 1e-12 * max(1.0, abs(float(tt[-1])))
+    if np.count_nonzero(m) < 2:
+        m[-2:] = True
+    sub = {k: np.asarray(v, dtype=float)[m] for k, v in (amplitude_signals or {}).items()}
+    # judge the user's window as one tail: every one of its slices must agree with the last
+    # (min_slices = all slices: the criterion's stats then cover the whole window)
+    n = _slice_edges(tt[m], options.get('n_slices'), options.get('slice_s')).size - 1
+    opts = dict(options, min_slices=max(2, n))
+    inner = find_steady_window(tt[m], w[m], amplitude_signals=sub, reference=reference, **opts)
+    return SteadyWindow(float(tt[m][0]), float(tt[-1]), inner.steady, inner.drift,
+                        inner.amplitude_change, inner.amplitude_signal, inner.slice_s, n, reference,
+                        inner.drift_tol, inner.amplitude_tol, inner.min_slices, inner.signals, 'skip')
+
+
 def joint_state_window(t: ArrayLike, names: Sequence[str], velocity: ArrayLike,
-                       effort: ArrayLike, **options: Any) -> SteadyWindow:
+                       effort: ArrayLike, *, skip_s: float | None = None,
+                       **options: Any) -> SteadyWindow:
     """The steady window of a JointState record (``/driveline/joint_states`` or an offline
     trace): reference speed = the first shaft (the engine end of the driveline), amplitude
     signals = that speed and every shaft's torque (``effort``, N m). The one choice of
     signals used by ``simulate``, ``run`` and ``analyze``, so one record gives one window.
+    ``skip_s`` (s): the user's start instead of the criterion's (:func:`skip_window`).
     ``options`` as :func:`find_steady_window`."""
     vel = np.asarray(velocity, dtype=float)
     eff = np.asarray(effort, dtype=float)
     if not names:
         raise ValueError('names: no shafts')
     torques = {f'{name} torque': eff[:, i] for i, name in enumerate(names)}
+    if skip_s is not None:
+        return skip_window(t, vel[:, 0], skip_s, amplitude_signals=torques,
+                           reference=f'{names[0]} speed', **options)
     return find_steady_window(t, vel[:, 0], amplitude_signals=torques,
                               reference=f'{names[0]} speed', **options)

@@ -146,3 +146,43 @@ def test_slice_seconds_and_bad_input() -> None:
         find_steady_window(T, T, amplitude_signals={'torque': T[:5]})
     short = find_steady_window(T[:4], np.ones(4))      # fewer than 2 samples per slice
     assert not short.steady and math.isnan(short.drift)
+
+
+def test_user_skip_window_reports_the_criterion_on_it() -> None:
+    """--skip 5 on the decaying oscillation above (a_s 1, a_d 10, tau 1 s): 5..10 s in 10
+    slices of 0.5 s; half ranges as in the closed form above: the first 1 + 10 e^-5 ~ 1.067,
+    the last (9.5 s) ~ 1.0008: change 0.061 > 0.05 -> not steady; --skip 6: ~0.024, steady."""
+    x = _envelope(T, 1.0, 10.0, 1.0) * np.sin(2 * math.pi * F_OSC * T)
+    names, vel, eff = ['crank'], np.full((T.size, 1), 150.0), x[:, None]
+    late = joint_state_window(T, names, vel, eff, skip_s=6.0)
+    early = joint_state_window(T, names, vel, eff, skip_s=5.0)
+    assert late.source == early.source == 'skip'
+    assert late.start_s == pytest.approx(6.0) and early.start_s == pytest.approx(5.0)
+    assert late.steady and not early.steady
+    period = 1.0 / F_OSC
+    half = [0.5 * (_envelope(t0 + period / 4, 1.0, 10.0, 1.0) + _envelope(t0 + 3 * period / 4, 1.0, 10.0, 1.0))
+            for t0 in (5.0, 9.5)]
+    assert early.amplitude_change == pytest.approx((half[0] - half[1]) / half[0], rel=1e-6)
+    assert 'start set by the user, NOT STEADY' in early.describe()
+    with pytest.raises(ValueError, match='skip_s'):
+        joint_state_window(T, names, vel, eff, skip_s=-1.0)
+
+
+def test_partial_periods_in_a_slice_do_not_fake_a_drift() -> None:
+    """Speed 20 + 3 cos(40 t) over 8 s: 0.8 s slices hold nu = 40 x 0.8 / 2 pi = 5.09
+    periods. A plain slice mean is off by up to a |sin(pi nu)/(pi nu)| = 3 x 0.018 rad/s,
+    so two slices differ by up to 5.4e-3 of the mean (above DRIFT_TOL 2e-3); the
+    Hann-weighted mean is off by a |sin(pi nu)/(pi nu (nu^2 - 1))| (the continuous Hann
+    window's transform), 24.9x less: drift <= 2 x 3 x 7.2e-4 / 20 = 2.2e-4, 9x under
+    DRIFT_TOL: steady from the start."""
+    t = np.arange(8001) * 1e-3
+    a, om, length = 3.0, 40.0, 0.8
+    w = 20.0 + a * np.cos(om * t)
+    nu = om * length / (2 * math.pi)
+    plain_bound = a * abs(math.sin(math.pi * nu) / (math.pi * nu))
+    hann_bound = plain_bound / (nu ** 2 - 1.0)
+    plain = [np.mean(w[(t >= k * length - 1e-12) & (t < (k + 1) * length - 1e-12)]) for k in range(10)]
+    assert (max(plain) - min(plain)) / 20.0 > steady.DRIFT_TOL      # the plain mean would fail
+    win = find_steady_window(t, w)
+    assert win.steady and win.start_s == 0.0
+    assert win.drift <= 2 * hann_bound / 20.0 * 1.05 < steady.DRIFT_TOL / 8   # 5 %: discrete vs continuous window

@@ -204,7 +204,8 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
     }
     for j, name in enumerate(sig.joint_names):
         phi, w, tq = sig.position[mask, j], sig.velocity[mask, j], sig.effort[mask, j]
-        acc = signal.time_derivative(t, w)
+        # derivative over the whole record, then windowed: the same numbers as the run report
+        acc = signal.time_derivative(sig.t, sig.velocity[:, j])[mask]
         entry: dict[str, Any] = {
             'mean_speed_rad_s': _f(np.mean(w)),
             'speed_nonuniformity': _f(signal.speed_nonuniformity(w)),

@@ -7,8 +7,10 @@
 
 All are taken over the *steady window* of :mod:`cvj_ros.physics.steady` (the one
 definition shared by ``simulate``, ``run`` and ``analyze``): found by its criterion
-(``transient=None``), or starting ``transient`` s after the first sample. Acceleration is the numerical time derivative of the sampled speed
-(``numpy.gradient``, second order), so sample finely enough for it.
+(``transient=None``), or starting ``transient`` s after the first sample. Acceleration
+is the numerical time derivative of the sampled speed over the whole record, then
+windowed (:func:`cvj_ros.physics.signal.time_derivative`, second order, as ``analyze``),
+so sample finely enough for it.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cvj_ros.physics.signal import time_derivative
 from cvj_ros.physics.steady import SteadyWindow, joint_state_window
 
 FloatArray = NDArray[np.float64]
@@ -66,7 +69,7 @@ def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: A
         if tt.size <= 2:
             acc = np.zeros_like(w)
         else:
-            acc = np.gradient(w, tt) if increasing else np.full_like(w, np.nan)
+            acc = time_derivative(tt, w) if increasing else np.full_like(w, np.nan)
         out[name] = {'mean_speed': float(np.mean(w[mask])),
                      'delta': nonuniformity(w[mask]),
                      'speed_amplitude': amplitude(w[mask]),

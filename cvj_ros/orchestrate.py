@@ -74,6 +74,9 @@ class RunOptions:
             answers on their topic instead (see :data:`EXTERNAL_PEERS`).
         external_timeout: s to wait for the outside peers to publish their topic.
         nonfinite_torque: the coupling node's NaN/inf torque policy, ``'stop'`` or ``'hold'``.
+        catch_up: free-run catch-up policy ``'skip'`` or ``'burst'`` (cvj_ros.nodes.freerun).
+        burst_max: free-run burst bound (ticks back to back per wake-up, >= 1).
+        rt_priority: free-run: SCHED_FIFO priority of the coupling loop thread (0 = off).
     """
     scene: str
     out: Path
@@ -92,6 +95,11 @@ class RunOptions:
     external: tuple[str, ...] = ()
     external_timeout: float = 30.0
     nonfinite_torque: str = 'stop'
+    catch_up: str = 'skip'
+    burst_max: int = 10
+    rt_priority: int = 0
+    composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
+    executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
 
 
 @dataclass
@@ -141,6 +149,12 @@ def prepare(options: RunOptions) -> _Prepared:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
     if options.scheme not in SCHEMES:
         raise CvjError(f'--scheme: must be one of {", ".join(SCHEMES)}, got {options.scheme!r}')
+    if options.catch_up not in ('skip', 'burst'):
+        raise CvjError(f'--catch-up: must be skip or burst, got {options.catch_up!r}')
+    if not 1 <= options.burst_max <= 10**6:
+        raise CvjError(f'--burst-max: must be an integer in 1..1000000, got {options.burst_max}')
+    if not 0 <= options.rt_priority <= 99:
+        raise CvjError(f'--rt-priority: must be an integer in 0..99, got {options.rt_priority}')
     if options.storage not in bagmod.STORAGES:
         raise CvjError(f'--storage: must be one of {", ".join(bagmod.STORAGES)}, got {options.storage!r}')
     duration = scene.duration if options.duration is None else float(options.duration)
@@ -219,16 +233,22 @@ def node_command(name: str) -> list[str]:
     return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
 
 
-def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -> dict[str, Any]:
-    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS)."""
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None,
+                    run_token: str = '') -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS);
+    ``run_token``: the run's identity (cvj_ros.nodes.run_token), '' = none."""
     o = prep.options
     params: dict[str, Any] = {'scene': str(prep.scene_path)}
+    if run_token:
+        params['run_token'] = run_token
     if prep.seed is not None:
         params['seed'] = int(prep.seed)
     if name == 'coupling_node':
         params.update(mode=o.mode, coupling_scheme=o.scheme, exchange_step=float(prep.exchange_step),
                       duration=float(prep.duration), peer_timeout=float(o.peer_timeout),
                       nonfinite_torque=o.nonfinite_torque,
+                      **({'catch_up': o.catch_up, 'burst_max': int(o.burst_max),
+                          'realtime_priority': int(o.rt_priority)} if o.mode == 'free-run' else {}),
                       # engine, load, the recorder (and monitor) see /driveline/joint_states before step 0
                       min_subscribers=3 + ('monitor_node' in prep.nodes))
     if load_override is not None and name in ('coupling_node', 'load_node'):
@@ -264,14 +284,14 @@ class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
     def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
-                 hold: Sequence[str] = ()) -> None:
+                 hold: Sequence[str] = (), run_token: str = '') -> None:
         import rclpy
         from rclpy.signals import SignalHandlerOptions
         self.ctx = rclpy.context.Context()
         rclpy.init(context=self.ctx, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
-        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
+        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics, run_token=run_token)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
@@ -451,6 +471,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     Raises:
         CvjError: bad scene or option, before any process starts.
     """
+    if options.composed:   # one process, one executor: cvj_ros.composed
+        from cvj_ros.composed import run_composed
+        return run_composed(options, stream=stream)
     stream = sys.stdout if stream is None else stream
     prep = prepare(options)
     env, domain = _domain_env()
@@ -487,6 +510,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
     writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    # run identity: every node and the recorder drop messages tagged with another token
+    from cvj_ros.nodes.run_token import new_run_token
+    run_token = new_run_token()
+    writer.set_custom_data('cvj_ros.run_token', run_token)
     for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
                        ('cvj_ros.coupling_scheme', options.scheme),
                        ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
@@ -507,7 +534,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         # lockstep: nothing of ours flows on the loop topics before our coupling node starts
         recorder = _Recorder(writer, prep.coupling_topics, domain,
                              hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
-                             if options.mode == 'lockstep' else ())
+                             if options.mode == 'lockstep' else (), run_token=run_token)
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
@@ -526,7 +553,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 if error is not None or stop_signal:
                     break
                 recorder.recorder.hold = frozenset()
-            params = node_parameters(prep, name, load_override=load_override)
+            params = node_parameters(prep, name, load_override=load_override, run_token=run_token)
             fh = open(logs / f'{name}.log', 'wb')
             log_files.append(fh)
             procs[name] = subprocess.Popen(
@@ -551,6 +578,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             time.sleep(0.02)
         progress.close()
         mark('coupling_exited')
+        if recorder is not None:
+            recorder.recorder.loop_ended = True   # later /clock beyond our last state: not ours
         if stop_signal or error is not None:
             stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
@@ -582,8 +611,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 _stop_processes(procs, list(procs), options.grace)
         finally:
             rec_state = None
+            foreign_dropped: dict[str, int] = {}
             if recorder is not None:
                 rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
+                foreign_dropped = dict(recorder.recorder.foreign)
                 recorder.close()
             writer.close()
             for fh in log_files:
@@ -613,6 +644,17 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
         counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
         stopped_by=stopped_by, phases=phases, external=list(options.external))
+    return finish_result(result, options, prep, stream=stream, run_token=run_token,
+                         foreign_dropped=foreign_dropped)
+
+
+def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, stream: TextIO,
+                  run_token: str, foreign_dropped: dict[str, int],
+                  settings: dict[str, Any] | None = None) -> RunResult:
+    """The tail of every run (separate processes or composed): metrics read back from the bag,
+    loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
+    report.json and the printed report."""
+    loop_wall = result.loop_wall_time
     try:
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:
@@ -623,13 +665,28 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         counters = {}
     if counters:
         result.metrics['loop_counters'] = counters
+    # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
+    result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
+    if options.mode == 'free-run':
+        try:
+            timing = free_run_timing(result.bag)
+        except CvjError:
+            timing = {}
+        if timing:
+            result.metrics['free_run'] = timing
+            # skipped ticks advance simulated time without a joint state: the simulated
+            # span is ticks handled x h, not (joint states - 1) x h
+            if timing.get('ticks_handled'):
+                result.sim_duration = timing['ticks_handled'] * prep.exchange_step
+                if loop_wall:
+                    result.real_time_factor = result.sim_duration / loop_wall
     try:
         result.metrics['monitor'] = monitor_statuses(result.bag)
     except CvjError:
         pass
     result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
                        'mode': options.mode, 'scheme': options.scheme,
-                       'storage': options.storage}
+                       'storage': options.storage, **(settings or {})}
     fid = _recorded_fidelity(result.bag)
     if fid:
         result.settings['fidelity'] = fid
@@ -640,7 +697,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         result.exit_code = 1
         result.error = (f'monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN '
                         f'statuses (--fail-on {options.fail_on}); worst: {mon.get("worst")}')
-    (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
+    (result.out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
 
@@ -706,6 +763,8 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
 
 
 LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
+IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
 
 
 def loop_counters(bag: Path) -> dict[str, int]:
@@ -717,7 +776,32 @@ def loop_counters(bag: Path) -> dict[str, int]:
     for statuses in reversed(diags.statuses):
         for st in statuses:
             if st['name'] == 'coupling_node: loop':
-                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
+                        if k in st['values']}
+    return {}
+
+
+FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'overruns',
+                 'lateness_us_p50', 'lateness_us_p99', 'lateness_us_max', 'lateness_us_mean',
+                 'drift_s', 'drift_max_s', 'realtime_priority')
+
+
+def free_run_timing(bag: Path) -> dict[str, Any]:
+    """Free-run deadline figures of the coupling node's last recorded loop diagnostics:
+    catch-up policy, ticks run/skipped, overruns (ticks late by >= one exchange step),
+    lateness p50/p99/max/mean (us), drift (s; wall time since start - simulated time at the
+    last publication, and its largest magnitude); empty when not recorded."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop' and 'overruns' in st['values']:
+                vals = st['values']
+                return {k: (vals[k] if k == 'catch_up' else
+                            int(float(vals[k])) if k.startswith(('ticks', 'overruns', 'realtime'))
+                            else float(vals[k]))
+                        for k in FREE_RUN_KEYS if k in vals}
     return {}
 
 
@@ -770,11 +854,25 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
-    counters = r.metrics.get('loop_counters', {})
+    identity = r.metrics.get('run_identity', {})
+    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
+    dropped = sum(identity.get('foreign_dropped', {}).values())
+    if foreign or dropped:
+        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
+          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
           + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'
              if counters.get('held_torques') else ''))
+    fr = r.metrics.get('free_run', {})
+    if fr:
+        rt = f', SCHED_FIFO {fr["realtime_priority"]}' if fr.get('realtime_priority') else ''
+        p(f'  free-run (catch-up {fr.get("catch_up")}{rt}): {fr.get("ticks_run", 0)} ticks run, '
+          f'{fr.get("ticks_skipped", 0)} skipped, {fr.get("overruns", 0)} overruns (late by >= 1 step); '
+          f'lateness p50 {fr.get("lateness_us_p50", 0):.0f} us, p99 {fr.get("lateness_us_p99", 0):.0f} us, '
+          f'max {fr.get("lateness_us_max", 0):.0f} us; drift {1e3 * fr.get("drift_s", 0):.3f} ms '
+          f'(max {1e3 * fr.get("drift_max_s", 0):.3f} ms)')
     mon = r.metrics.get('monitor', {})
     if mon.get('warn') or mon.get('error'):
         p(f'  monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN statuses; '

@@ -18,6 +18,7 @@ exit status: 0 finished, 1 runtime error (e.g. a peer stopped answering),
 
 examples:
   cvj-sim run kavz685_lever --out runs/kavz --duration 2
+  cvj-sim run kavz685_lever --out runs/kavz --composed   # all nodes in one process
   cvj-sim run fwd_halfshaft --out runs/fwd --scheme linear_implicit --storage sqlite3
   cvj-sim run fwd_halfshaft --out runs/replay_load --load-from-bag runs/fwd/bag
   cvj-sim run fwd_halfshaft --out runs/stack --external load   # + your stack answering /load/wrench
@@ -51,10 +52,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--nonfinite-torque', choices=('stop', 'hold'), default='stop',
                         help='a NaN/inf torque answer stops the run (default) or the last finite '
                              'torque is held, counted with a WARN')
+    parser.add_argument('--catch-up', choices=('skip', 'burst'), default='skip',
+                        help='free-run: ticks missed (late by a whole step) are dropped and simulated '
+                             'time jumps to wall time (skip, default), or run back to back up to '
+                             '--burst-max per wake-up, then dropped (burst)')
+    parser.add_argument('--burst-max', type=int, default=10, metavar='N',
+                        help='free-run, --catch-up burst: most ticks run back to back (default 10)')
+    parser.add_argument('--rt-priority', type=int, default=0, metavar='P',
+                        help='free-run: run the coupling loop thread under SCHED_FIFO priority P '
+                             '(1..99; needs CAP_SYS_NICE, else a warning); 0 = normal (default)')
     parser.add_argument('--fail-on', choices=('error', 'warn', 'never'), default='never',
                         help='exit 1 when the monitor recorded an ERROR status, any WARN or ERROR, '
                              'or never (default: the report always lists them; the nonuniformity '
                              'thresholds also fire in start-up transients of sound scenes)')
+    parser.add_argument('--composed', action='store_true',
+                        help='host every node and the recorder in this one process on one '
+                             'EventsExecutor (same nodes, topics and bag; faster, see docs/ros.md)')
+    parser.add_argument('--executor', choices=('events', 'single'), default='events',
+                        help='--composed: rclpy executor (default events = EventsExecutor)')
     parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
@@ -66,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout,
         external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
         external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
-        fail_on=args.fail_on))
+        fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
+        rt_priority=args.rt_priority, composed=args.composed, executor=args.executor))
     if result.error:
         import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)

@@ -31,17 +31,37 @@ only wrong stamps from a topic ends after ``WRONG_STAMP_STALL_S`` (1 s, or peer_
 shorter) with that line instead of "is load_node running?". A NaN/inf torque is never
 integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1; with
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
-counted as ``held_torques`` (diagnostics level WARN, first one logged). A second publisher on /driveline/joint_states, /engine/wrench or
-/load/wrench (another run on the same ROS domain) stops the loop with an ERROR naming the
-domain (checked before step 0 and on every watchdog tick), since its answers would carry
-the same stamps and mix into this loop. Before step 0 the node waits (bounded by ``start_timeout``) until
+counted as ``held_torques`` (diagnostics level WARN, first one logged).
+
+Run identity (``run_token``, cvj_ros.nodes.run_token): with a token the joint states go
+out with frame_id ``driveline@<token>`` (reaction wrenches ``<joint>_housing@<token>``,
+diagnostics ``coupling_node@<token>``, ``run_token`` in /driveline/scene); an answer whose
+frame_id ends in another run's token is ignored and counted (``foreign_answers``, first
+one in one WARN line), one without ``@`` is accepted (``untokened_answers``: an outside
+node that echoes only the stamp). A second publisher on /driveline/joint_states,
+/engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
+ERROR naming the domain before step 0 (counts cannot tell our peers from the other
+run's), and after step 0 only without a token or once an untagged answer came (those
+could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost. After t_N = duration it publishes the final joint
 state and exits 0.
 
-Free-run: a wall timer at ``exchange_step`` advances one step per tick with the latest
-torques held (zero-order hold at the coupling level); /clock carries the simulated time.
-A non-finite torque is rejected (ERROR diagnostic) and the previous value is kept.
+Free-run: exchange steps on wall time - tick j is due at w0 + j h (w0 = wall time of the
+initial state, CLOCK_MONOTONIC) and integrates to t_j = j h with the latest torques held
+(zero-order hold at the coupling level); /clock carries the simulated time. The node
+re-arms a steady-clock timer for the next due time after each wake-up (an rclpy periodic
+timer re-arms from its call time, so its phase slips: measured here 970-990 of 1000
+ticks of 2 ms in 2 s). Missed ticks follow ``catch_up`` (``skip``: drop them, one step
+jumps to wall time; ``burst``: run them back to back, at most ``burst_max`` per wake-up,
+then skip); every tick's lateness (start - due time) goes into p50/p99/max, ticks late by
+>= h are counted as ``overruns``, and the drift (wall time since w0 - simulated time at
+publication) is reported; all in the loop diagnostics (level WARN once a tick overran).
+``realtime_priority`` > 0 puts the threads of this process under SCHED_FIFO (opt-in;
+measured p99 lateness here at h = 2 ms under a load average of 9-10: 0.2 ms instead of
+12-34 ms, docs/ros.md).
+See :mod:`cvj_ros.nodes.freerun`. A non-finite torque is rejected (ERROR diagnostic) and
+the previous value is kept.
 
 Effort in a joint state at t_k uses the torques most recently received (zero before the
 first answer).
@@ -65,15 +85,18 @@ from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError
 from cvj_ros.physics.joints.wrench import wrench_from_reactions
+from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
-                                  decode_wrench_stamp_torque_z, diag_array, diag_status, load_scene_param,
+                                  decode_wrench_header_torque_z, diag_array, diag_status, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
                                JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
                                coupling_wrench_topic)
+from cvj_ros.nodes.run_token import (JOINT_STATES_FRAME, frame_token_bytes, run_token_param,
+                                     tag_frame, validated_run_token)
 
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
@@ -114,6 +137,16 @@ PARAMS = (
     ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
               '(stop) or is replaced by the last finite torque of that topic, counted as '
               'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
+    run_token_param(),
+    ParamSpec('catch_up', 'skip', 'free-run: missed ticks are dropped, one step jumping to wall '
+              'time (skip), or run back to back up to burst_max per wake-up, then dropped (burst)',
+              choices=CATCH_UP_POLICIES),
+    ParamSpec('burst_max', 10, 'free-run, catch_up=burst: most ticks run back to back in one '
+              'wake-up', lo=1, hi=10**6),
+    ParamSpec('realtime_priority', 0, 'free-run: SCHED_FIFO priority of the threads of this '
+              'process (1..99; '
+              'needs CAP_SYS_NICE, else a WARN and normal scheduling); 0 = normal scheduling',
+              lo=0, hi=99),
 )
 
 
@@ -125,6 +158,11 @@ class CouplingNode(CvjNode):
         p = self.params = declare_parameters(self, PARAMS)
         scene = self.scene = load_scene_param(p['scene'])
         self.seed = scene_seed(scene, p['seed'])
+        # run identity (cvj_ros.nodes.run_token): frame_id '<frame>@<token>' on what we publish
+        self.run_token = validated_run_token(p)
+        self._token_b = self.run_token.encode()
+        self.js_frame = tag_frame(JOINT_STATES_FRAME, self.run_token) if self.run_token else ''
+        self.diag_frame = tag_frame('coupling_node', self.run_token)
         self.mode = p['mode']
         self.scheme = p['coupling_scheme']
         h = p['exchange_step'] or scene.exchange_step
@@ -166,17 +204,19 @@ class CouplingNode(CvjNode):
         self._js_msg = JointState()
         self._js_msg.name = self.names
         self._js_msg.header.stamp = self._stamp
+        self._js_msg.header.frame_id = self.js_frame
         self._clock_msg = Clock(clock=self._stamp)
         self._reaction_msgs: dict[str, WrenchStamped] = {}
         for j in self.reaction_joints:
             w = WrenchStamped()
             w.header.stamp = self._stamp
-            w.header.frame_id = f'{j}_housing'
+            w.header.frame_id = tag_frame(f'{j}_housing', self.run_token)
             self._reaction_msgs[j] = w
         # pre-serialised publication (bytes): skips rclpy's field-by-field conversion
-        self._js_cdr = JointStateEncoder(self.names)
+        self._js_cdr = JointStateEncoder(self.names, self.js_frame)
         self._clock_cdr = ClockEncoder()
-        self._reaction_cdr = {j: WrenchStampedEncoder(f'{j}_housing') for j in self.reaction_joints}
+        self._reaction_cdr = {j: WrenchStampedEncoder(tag_frame(f'{j}_housing', self.run_token))
+                              for j in self.reaction_joints}
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
         # intermediate members (cage, spider, earring) to fill in the joint states
@@ -194,6 +234,10 @@ class CouplingNode(CvjNode):
         self.waiting = False
         self.started = False
         self.ignored_stamps = 0
+        # answers tagged with another run's token (ignored; WARN once) and answers without
+        # a token (accepted: an outside node echoing only the stamp; INFO once)
+        self.foreign_answers = 0
+        self.untokened_answers = 0
         self.rejected_torques = 0
         self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
         self._last_finite = {ENGINE_WRENCH_TOPIC: 0.0, LOAD_WRENCH_TOPIC: 0.0}   # N m
@@ -219,6 +263,9 @@ class CouplingNode(CvjNode):
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._watchdog = None
         self._free_timer = None
+        self.scheduler: FreeRunScheduler | None = None   # free-run only
+        self.realtime_priority = 0                       # SCHED_FIFO priority in force (free-run)
+        self._diag_k = 0                                 # k of the last periodic diagnostics
         self.get_logger().info(
             f'scene {scene.name!r}: {len(self.names)} shafts, {self.driveline.n_dof} DOF, '
             f'{self.n_steps} steps of {self.h_ns / NS_PER_S:g} s, mode {self.mode}, '
@@ -282,6 +329,7 @@ class CouplingNode(CvjNode):
                        'backend': getattr(self.stepper, 'backend', 'python'),
                        'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
+            'run_token': self.run_token,
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))
 
@@ -308,6 +356,12 @@ class CouplingNode(CvjNode):
         """
         if self.mode != 'lockstep':
             return None
+        if self.run_token and self.started and not self.untokened_answers:
+            # every answer so far carried our token: another run's messages are told apart
+            # and dropped (foreign_answers), so its publishers are no reason to stop. Before
+            # step 0 they still are: publisher / subscriber counts (missing_peers) cannot
+            # tell our peers from the other run's.
+            return None
         extra = [f'{topic} has {n} publishers'
                  for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
                                   (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
@@ -317,7 +371,10 @@ class CouplingNode(CvjNode):
             return None
         return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
-                f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
+                f'and its messages would mix into this loop'
+                + (f' ({self.untokened_answers} answers carried no run token in header.frame_id)'
+                   if self.run_token and self.started else '')
+                + '; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:
         if self.started or self.exit_code is not None:
@@ -343,7 +400,46 @@ class CouplingNode(CvjNode):
             self._watchdog = self.create_timer(period, self._check_peers)
             self._begin_wait()
         else:
-            self._free_timer = self.create_timer(self.h_ns / NS_PER_S, self._free_tick)
+            self.scheduler = FreeRunScheduler(self.h_ns, self.n_steps, catch_up=self.params['catch_up'],
+                                              burst_max=self.params['burst_max'])
+            self.realtime_priority = self._set_realtime_priority(self.params['realtime_priority'])
+            self.scheduler.start(time.monotonic_ns())    # the initial state just went out
+            from rclpy.clock import Clock as RosClock, ClockType
+            # CLOCK_MONOTONIC, the scheduler's clock; one-shot use: re-armed in _free_tick
+            self._free_timer = self.create_timer(self.h_ns / NS_PER_S, self._free_tick,
+                                                 clock=RosClock(clock_type=ClockType.STEADY_TIME))
+
+    def _set_realtime_priority(self, priority: int) -> int:
+        """Free-run: put every thread of this process under SCHED_FIFO ``priority`` - the loop
+        thread, the executor's timer thread that wakes it and the DDS threads that carry its
+        publications (setting only the calling thread left p99 lateness at 34 ms at h = 2 ms
+        under a load average of 9; all threads: 0.2 ms). Returns the priority in force
+        (0 = normal scheduling; a refusal is one WARN line and changes nothing)."""
+        if priority <= 0:
+            return 0
+        try:
+            tids = sorted(int(t) for t in os.listdir('/proc/self/task'))
+        except OSError:
+            tids = [0]
+        done: list[int] = []
+        try:
+            for tid in tids:
+                try:
+                    os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+                except ProcessLookupError:      # the thread ended meanwhile
+                    continue
+                done.append(tid)
+        except (OSError, AttributeError) as exc:
+            for tid in done:                    # all or nothing
+                try:
+                    os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                except OSError:
+                    pass
+            self.get_logger().warning(
+                f'realtime_priority={priority}: SCHED_FIFO refused ({exc}); running with normal '
+                f'scheduling (needs CAP_SYS_NICE, e.g. root or setcap)')
+            return 0
+        return priority
 
     # --- lockstep ---------------------------------------------------------------------------
 
@@ -436,10 +532,41 @@ class CouplingNode(CvjNode):
         return False
 
     def _on_engine(self, data: bytes) -> None:
-        self._on_wrench(*decode_wrench_stamp_torque_z(data), ENGINE_WRENCH_TOPIC, engine=True)
+        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
+            self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
-        self._on_wrench(*decode_wrench_stamp_torque_z(data), LOAD_WRENCH_TOPIC, engine=False)
+        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
+            self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _answer_is_ours(self, frame: bytes, stamp_ns: int, topic: str) -> bool:
+        """Run-token filter of one answer (``frame`` = its header.frame_id bytes): False, and
+        counted in ``foreign_answers`` (first one logged as WARN), when it carries another
+        run's token; True for our token and for an untagged frame_id (counted in
+        ``untokened_answers``, first one logged: accepted as an outside node that echoes
+        only the stamp; while another run shares the domain it stops the loop, see
+        :meth:`foreign_publishers`)."""
+        token = frame_token_bytes(frame)
+        if token == self._token_b:
+            return True
+        if token is None:
+            self.untokened_answers += 1
+            if self.untokened_answers == 1:
+                self.get_logger().info(
+                    f'{topic}: answer frame_id {frame.decode(errors="replace")!r} carries no run token; '
+                    f'accepted (echo the joint-state header.frame_id "{self.js_frame}" to tell this '
+                    f'run apart from another on the same ROS domain)')
+            return True
+        self.foreign_answers += 1
+        if self.foreign_answers == 1:
+            line = (f'{topic}: ignoring answers of another run on this ROS domain (frame_id '
+                    f'{frame.decode(errors="replace")!r} at t={stamp_ns / NS_PER_S:.9g} s, this run is '
+                    f'{self.run_token!r}); counted as foreign_answers')
+            self.get_logger().warning(line)
+            self.publish_diagnostics(WARN, line)
+        return False
 
     def _on_wrench(self, stamp_ns: int, value: float, topic: str, *, engine: bool) -> None:
         """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
@@ -485,9 +612,10 @@ class CouplingNode(CvjNode):
 
     # --- stepping ---------------------------------------------------------------------------
 
-    def _step(self) -> None:
-        """Integrate t_k -> t_{k+1} with the current torques and publish the new state."""
-        t_next_ns = self.t_ns + self.h_ns
+    def _step(self, ticks: int = 1) -> None:
+        """Integrate t_k -> t_{k+ticks} with the current torques and publish the new state
+        (ticks > 1: free-run skipping missed ticks)."""
+        t_next_ns = self.t_ns + ticks * self.h_ns
         c0 = time.perf_counter()
         try:
             x = self.stepper.advance(t_next_ns / NS_PER_S, self.T_engine, self.T_load)
@@ -496,10 +624,12 @@ class CouplingNode(CvjNode):
             return
         self.integration_total += time.perf_counter() - c0
         self.x = np.asarray(x, dtype=float)
-        self.k += 1
+        self.k += ticks
         self.t_ns = t_next_ns
         self._publish_state()
-        if self.k % self.params['diagnostics_every'] == 0:
+        every = self.params['diagnostics_every']
+        if self.k // every != self._diag_k // every:
+            self._diag_k = self.k
             self.publish_diagnostics(self._level(), 'running')
         if self.k >= self.n_steps:
             self.waiting = False
@@ -512,15 +642,35 @@ class CouplingNode(CvjNode):
                 f'integration {st["integration_us_mean"]:.0f} us, overhead {st["overhead_us_mean"]:.0f} us, '
                 f'wait {st["lockstep_wait_us_mean"]:.0f} us, state {st["state_us_mean"]:.0f} us, '
                 f'process CPU {st["process_cpu_us_mean"]:.0f} us')
+            if self.scheduler is not None:
+                self.get_logger().info(
+                    f'free-run (catch_up {st["catch_up"]}): {st["ticks_run"]} ticks run, '
+                    f'{st["ticks_skipped"]} skipped, {st["overruns"]} overruns (late by >= h); '
+                    f'lateness p50 {st["lateness_us_p50"]:.0f} us, p99 {st["lateness_us_p99"]:.0f} us, '
+                    f'max {st["lateness_us_max"]:.0f} us; drift {st["drift_s"] * 1e3:.3f} ms '
+                    f'(max {st["drift_max_s"] * 1e3:.3f} ms)')
             self.finish()
 
     def _free_tick(self) -> None:
-        if self.exit_code is not None:
+        """Free-run wake-up: run every due tick (catch-up policy of the scheduler), then
+        re-arm the timer for the next due time (a wake-up before it runs nothing)."""
+        sched = self.scheduler
+        if self.exit_code is not None or sched is None:
             return
+        run_wakeup(sched, time.monotonic_ns, self._run_free_step)
+        if self.exit_code is not None or sched.finished() or self._free_timer is None:
+            return
+        delay_ns = sched.due_ns(sched.done + 1) - time.monotonic_ns()
+        self._free_timer.timer_period_ns = max(delay_ns, 1_000)
+        self._free_timer.reset()
+
+    def _run_free_step(self, step: Step) -> bool:
+        """One free-run exchange step of ``step.ticks`` exchange steps; False when the run ended."""
         now = time.perf_counter()
-        self._step()
+        self._step(step.ticks)
         self.exchange_total += time.perf_counter() - now
         self.exchanges += 1
+        return self.exit_code is None
 
     def _publish_clock(self, t_ns: int) -> None:
         """Publish /clock = ``t_ns`` (once per time: :meth:`_publish_state` skips it then)."""
@@ -560,6 +710,8 @@ class CouplingNode(CvjNode):
             msg.effort = eff.tolist()
             self.js_pub.publish(msg)
         self._wait_start = time.perf_counter()   # the lockstep wait starts here
+        if self.scheduler is not None:
+            self.scheduler.published(time.monotonic_ns())   # free-run drift at publication
         self.state_total += self._wait_start - c0
         self.joint_states_published += 1
         if self.reaction_pubs:
@@ -582,8 +734,9 @@ class CouplingNode(CvjNode):
     # --- diagnostics ------------------------------------------------------------------------
 
     def _level(self) -> bytes:
-        """WARN once a stamp was ignored or a torque held, else OK."""
-        return WARN if self.ignored_stamps or self.held_torques else OK
+        """WARN once a stamp was ignored, a torque held or a free-run tick overran, else OK."""
+        overran = self.scheduler is not None and self.scheduler.overruns > 0
+        return WARN if self.ignored_stamps or self.held_torques or overran else OK
 
     def real_time_factor(self) -> float:
         """Simulated seconds per wall second since step 0."""
@@ -606,7 +759,11 @@ class CouplingNode(CvjNode):
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
             'held_torques': self.held_torques,
+            'foreign_answers': self.foreign_answers, 'untokened_answers': self.untokened_answers,
         }
+        if self.scheduler is not None:
+            stats.update(self.scheduler.stats())
+            stats['realtime_priority'] = self.realtime_priority
         if getattr(self.driveline, 'track_energy', False):
             try:
                 stats['energy_residual'] = float(self.driveline.energy_residual(self.x, self.energy0))
@@ -616,7 +773,9 @@ class CouplingNode(CvjNode):
 
     def publish_diagnostics(self, level: bytes, message: str) -> None:
         status = diag_status('coupling_node: loop', level, message, self.loop_stats())
-        self.diag_pub.publish(diag_array(self.t_ns, [status]))
+        msg = diag_array(self.t_ns, [status])
+        msg.header.frame_id = self.diag_frame
+        self.diag_pub.publish(msg)
 
 
 def main(args: Sequence[str] | None = None) -> None:

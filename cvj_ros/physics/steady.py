@@ -9,10 +9,11 @@ slice in it agrees with the last slice:
 * **amplitude change**: ``|A_k - A_last| / max(A_k, A_last, floor)`` of every amplitude
   signal (the reference speed and each torque; ``A = (max - min)/2`` over the slice, seed
   004 section 3.3.2) is at most ``amplitude_tol`` (default :data:`AMPLITUDE_TOL`). ``floor``
-  = a fraction of the signal's peak magnitude over the record (:data:`SPEED_FLOOR` for the
-  speed, :data:`TORQUE_FLOOR` for torques), so amplitudes that small count as zero, not as
-  noise: an ideal joint's speed ripple at rounding level (1e-13 of the mean), or a road
-  load's torque ripple of 1e-4 of its mean, whose relative change is meaningless.
+  = :data:`SPEED_FLOOR` x the speed's peak magnitude over the record, or
+  :data:`TORQUE_FLOOR` x the largest peak magnitude of all the torques (the record's torque
+  scale), so amplitudes that small count as zero, not as noise: an ideal joint's speed
+  ripple at rounding level (1e-13 of the mean), a road load's torque ripple of 1e-4 of its
+  mean, or a free end's torque of 1e-16 N m, whose relative change is meaningless.
 
 Comparing with the last slice, not only neighbours, also catches a slow drift or decay
 that changes little per slice but much over the window. The window is the longest such
@@ -43,7 +44,7 @@ MIN_SLICES = 3              # a window holds >= 3 slices
 DRIFT_TOL = 2.0e-3          # slice mean speeds within 0.2 % of the last slice's
 AMPLITUDE_TOL = 0.05        # slice amplitudes within 5 % of the last slice's
 SPEED_FLOOR = 1.0e-6        # speed amplitudes below 1e-6 x peak |speed| count as 0 (rounding)
-TORQUE_FLOOR = 1.0e-3       # torque amplitudes below 0.1 % of peak |torque| count as 0
+TORQUE_FLOOR = 1.0e-3       # torque amplitudes below 0.1 % of the largest peak |torque| count as 0
 FALLBACK_FRACTION = 0.5     # never steady: report on the last half, flagged not steady
 
 
@@ -148,8 +149,8 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
     """The steady window of a record (module docstring): ``t`` (s, increasing),
     ``reference_speed`` (rad/s; its mean drift and amplitude are checked),
     ``amplitude_signals`` (name -> series on ``t``, e.g. shaft torques in N m; their
-    amplitude change is checked too, with floor ``torque_floor``; the speed's floor is
-    ``speed_floor``, both relative to the signal's peak magnitude).
+    amplitude change is checked too, with floor ``torque_floor`` x the largest peak of them
+    all; the speed's floor is ``speed_floor`` x its own peak).
 
     Raises:
         ValueError: fewer than 2 samples, mismatched lengths or bad options.
@@ -168,6 +169,8 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
         if arr.shape != tt.shape:
             raise ValueError(f'{name}: {arr.size} samples for {tt.size} times')
         amps.setdefault(name, (arr, torque_floor))
+    torque_scale = max((float(np.max(np.abs(x))) for k, (x, _) in amps.items() if k != reference),
+                       default=0.0)
     edges = _slice_edges(tt, n_slices, slice_s)
     n = edges.size - 1
     # slice k = [edges[k], edges[k+1]) (last one closed); index ranges by searchsorted
@@ -190,7 +193,8 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
     change = np.zeros(n)
     worst = [''] * n
     for name, (x, rel_floor) in amps.items():
-        floor = max(rel_floor * float(np.max(np.abs(x))), 1e-300)
+        scale = float(np.max(np.abs(x))) if name == reference else torque_scale
+        floor = max(rel_floor * scale, 1e-300)
         a = np.array([0.5 * (np.max(x[i:j]) - np.min(x[i:j])) for i, j in zip(lo, hi)])
         rel = np.abs(a - a[-1]) / np.maximum(np.maximum(a, a[-1]), floor)
         for k in np.flatnonzero(rel > change):

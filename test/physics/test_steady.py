@@ -111,12 +111,14 @@ def test_pure_decay_is_never_steady() -> None:
 
 def test_rounding_level_ripple_counts_as_zero() -> None:
     """Random speed ripple of 1e-13 x mean (an ideal joint) and torque ripple of 1e-5 x its
-    mean (a road load) change by ~100 % between slices but sit below the floors
-    (SPEED_FLOOR 1e-6, TORQUE_FLOOR 1e-3 of the peak): steady, change <= 1e-13/1e-6."""
+    mean (a road load), and a free end's torque of 1e-16 N m, change by ~100 % between
+    slices but sit below the floors (SPEED_FLOOR 1e-6 of the speed's peak, TORQUE_FLOOR 1e-3
+    of the largest torque peak): steady."""
     rng = np.random.default_rng(3)
     w = 40.0 * (1.0 + 1e-13 * rng.standard_normal(T.size))
     tq = 236.0 * (1.0 + 1e-5 * rng.standard_normal(T.size))
-    win = find_steady_window(T, w, amplitude_signals={'wheel torque': tq})
+    free_end = 1e-16 * rng.standard_normal(T.size)     # a shaft with no load: rounding only
+    win = find_steady_window(T, w, amplitude_signals={'wheel torque': tq, 'free end torque': free_end})
     assert win.steady and win.start_s == 0.0
     assert win.amplitude_change < 0.05
 

@@ -159,6 +159,14 @@ class ComposedDriveline:
             kwargs['cli_args'] = list(cli_args)
         node = cls(**kwargs)
         self.nodes[name] = node
+        if self.recorder is not None:
+            # record the node's contract topics from its first message: subscribed before the
+            # executor runs the node (the recorder's graph scan every 0.2 s would miss the
+            # first reaction wrenches of /coupling/<joint>/wrench)
+            from cvj_ros.bag import topic_type
+            for pub in node.publishers:
+                if topic_type(pub.topic_name) is not None:
+                    self.recorder.subscribe(pub.topic_name)
         node.done.add_done_callback(lambda _f: self.wake())   # finished or failed: stop spinning
         self.executor.add_node(node)
         return node

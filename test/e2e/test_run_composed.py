@@ -174,9 +174,12 @@ def test_driveline_composed_console_script(runs, work: Path) -> None:
     """The console script for a ROS install: global -p parameters reach every hosted node,
     --record writes the bag from inside the process; the same loop messages."""
     bag_dir = work / 'script_bag'
+    # a run token given as a parameter reaches every node: the frames then carry a token as in
+    # the cvj-sim runs (an untokened coupling node leaves the joint-state frame_id empty)
+    token = bag.bag_info(runs['separate'][1]).custom_data['cvj_ros.run_token']
     r = subprocess.run([*COMPOSED, '--record', str(bag_dir), '--ros-args',
                         '-p', f'scene:={work / "scene.yaml"}', '-p', f'duration:={DURATION}',
-                        '-p', 'min_subscribers:=4'],
+                        '-p', 'min_subscribers:=4', '-p', f'run_token:={token}'],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     a, b = raw_messages(runs['separate'][1]), raw_messages(bag_dir)

@@ -30,7 +30,6 @@ threads every link would also wait for the GIL (switch interval 5 ms).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import signal
@@ -38,7 +37,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -367,20 +365,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
 
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
-    writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
-    # run identity: every node and the recorder drop messages tagged with another token
-    from cvj_ros.nodes.run_token import new_run_token
-    run_token = new_run_token()
-    writer.set_custom_data('cvj_ros.run_token', run_token)
+    writer, run_token = orch.open_run_bag(options, prep, out, extra=(('cvj_ros.process', 'composed'),))
     foreign_dropped: dict[str, int] = {}
-    for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
-                       ('cvj_ros.coupling_scheme', options.scheme),
-                       ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
-                       ('cvj_ros.duration', repr(prep.duration)),
-                       ('cvj_ros.exchange_step', repr(prep.exchange_step)),
-                       ('cvj_ros.external', ','.join(options.external)),
-                       ('cvj_ros.process', 'composed')):
-        writer.set_custom_data(key, value)
     steps = int(round(prep.duration / prep.exchange_step))
     error: str | None = None
     stopped_by: str | None = None
@@ -499,20 +485,9 @@ def _finish(orch: Any, options: Any, prep: Any, out: Path, domain: int, *, code:
             wall: float, steps: int, stream: TextIO, executor: str, run_token: str,
             foreign_dropped: dict[str, int]) -> Any:
     """RunResult, metrics, report.json and the printed report (as the tail of orchestrate.run)."""
-    from cvj_ros import bag as bagmod
-    js = bagmod.JOINT_STATES_TOPIC
-    loop_wall = wall_per_step = None
-    if rec_state and js in rec_state[0] and counts.get(js, 0) > 1:
-        loop_wall = rec_state[1][js] - rec_state[0][js]
-        wall_per_step = loop_wall / (counts[js] - 1)
-    sim_done = (counts.get(js, 1) - 1) * prep.exchange_step if counts.get(js) else 0.0
-    result = orch.RunResult(
-        exit_code=code, out=out, bag=out / 'bag', scene_path=str(prep.scene_path), domain_id=domain,
-        sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
-        wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step,
-        real_time_factor=sim_done / loop_wall if loop_wall else None,
-        counts=counts, node_exit_codes=exit_codes, error=error, stopped_by=stopped_by,
-        phases=phases, external=list(options.external))
+    result = orch.result_from_recording(
+        options, prep, out, domain, code=code, error=error, stopped_by=stopped_by, counts=counts,
+        rec_state=rec_state, exit_codes=exit_codes, phases=phases, wall=wall, steps=steps)
     return orch.finish_result(result, options, prep, stream=stream, run_token=run_token,
                               foreign_dropped=foreign_dropped,
                               settings={'process': 'composed', 'executor': executor})

@@ -1,0 +1,116 @@
+"""How a node process starts and stops: its command line and ROS parameters, the parent-death
+signal, the stop order (SIGINT, SIGTERM, SIGKILL) and the error line read from its log."""
+from __future__ import annotations
+
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from cvj_ros.orchestrate.options import _Prepared
+
+
+def node_command(name: str) -> list[str]:
+    """How to start node ``name``: the console script next to this Python, else on PATH,
+    else ``python -c 'from cvj_ros.nodes.<name> import main; main()'``. Every node flushes
+    its publishers before it exits (cvj_ros.nodes.common.flush_publishers)."""
+    exe = Path(sys.executable).with_name(name)
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which(name)
+    if found:
+        return [found]
+    return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
+
+
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None,
+                    run_token: str = '') -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS);
+    ``run_token``: the run's identity (cvj_ros.nodes.run_token), '' = none."""
+    o = prep.options
+    params: dict[str, Any] = {'scene': str(prep.scene_path)}
+    if run_token:
+        params['run_token'] = run_token
+    if prep.seed is not None:
+        params['seed'] = int(prep.seed)
+    if name == 'coupling_node':
+        params.update(mode=o.mode, coupling_scheme=o.scheme, exchange_step=float(prep.exchange_step),
+                      duration=float(prep.duration), peer_timeout=float(o.peer_timeout),
+                      nonfinite_torque=o.nonfinite_torque,
+                      **({'catch_up': o.catch_up, 'burst_max': int(o.burst_max),
+                          'realtime_priority': int(o.rt_priority)} if o.mode == 'free-run' else {}),
+                      # engine, load, the recorder (and monitor) see /driveline/joint_states before step 0
+                      min_subscribers=3 + ('monitor_node' in prep.nodes))
+    if load_override is not None and name in ('coupling_node', 'load_node'):
+        params['load_override'] = str(load_override)
+    return params
+
+
+def _ros_args(params: dict[str, Any]) -> list[str]:
+    args = ['--ros-args']
+    for k, v in params.items():
+        if isinstance(v, bool):
+            v = str(v).lower()
+        elif isinstance(v, float):
+            v = repr(v)
+        args += ['-p', f'{k}:={v}']
+    return args
+
+
+try:  # loaded in the parent: the child between fork and exec must not import anything
+    import ctypes
+    _LIBC: Any = ctypes.CDLL('libc.so.6', use_errno=True)
+except OSError:  # not glibc Linux
+    _LIBC = None
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM if cvj-sim dies (Linux PR_SET_PDEATHSIG = 1), so no node is orphaned."""
+    if _LIBC is not None:
+        _LIBC.prctl(1, int(signal.SIGTERM))
+
+
+def _stop_processes(procs: dict[str, subprocess.Popen[bytes]], names: Sequence[str], grace: float) -> None:
+    """SIGINT ``names``; after ``grace`` s SIGTERM the survivors; after another ``grace`` SIGKILL."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        alive = [n for n in names if procs[n].poll() is None]
+        if not alive:
+            return
+        for n in alive:
+            try:
+                procs[n].send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline and any(procs[n].poll() is None for n in alive):
+            time.sleep(0.02)
+    for n in names:
+        procs[n].wait()
+
+
+_LOG_LEVEL = re.compile(r'\[(ERROR|FATAL)\]')
+
+
+def error_line(log_path: Path) -> str | None:
+    """The last ERROR/FATAL line (rclpy logging) or ``<prog>: error:`` line of a node log."""
+    try:
+        lines = log_path.read_text(errors='replace').splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        if _LOG_LEVEL.search(line) or ': error:' in line:
+            return line.strip()
+    rest = [line.strip() for line in lines if line.strip()]
+    return rest[-1] if rest else None  # e.g. the last line of a traceback
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f'signal {signum}'

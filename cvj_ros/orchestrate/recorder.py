@@ -1,0 +1,163 @@
+"""The run's bag (:func:`open_run_bag`), the in-process recorder and the start-up handshake: which peers must be up before the
+coupling node starts, and when another run on the domain refuses this one."""
+from __future__ import annotations
+
+import os
+import subprocess
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from cvj_ros import bag as bagmod
+from cvj_ros.orchestrate.options import EXTERNAL_PEERS  # noqa: F401  (re-exported)
+from cvj_ros.orchestrate.processes import error_line
+
+
+class _Recorder:
+    """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
+
+    def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
+                 hold: Sequence[str] = (), run_token: str = '') -> None:
+        import rclpy
+        from rclpy.signals import SignalHandlerOptions
+        self.ctx = rclpy.context.Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
+        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics, run_token=run_token)
+        self.recorder.hold = frozenset(hold)     # before the first message can arrive
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        # BagRecorder.spin takes every queued sample per wake. Executors were measured too slow
+        # or lossy here: SingleThreadedExecutor fell ~0.7 s behind a 200-step run, and
+        # rclpy.experimental.EventsExecutor left samples unread (24 of 101 joint states).
+        self.recorder.spin(self._stop)
+
+    def publisher_count(self, topic: str) -> int:
+        """Publishers matched by the recorder's subscription of ``topic``."""
+        sub = self.recorder._subs.get(topic)
+        return 0 if sub is None else sub.get_publisher_count()
+
+    def drain(self, *, expected: dict[str, int], idle: float, bound: float) -> None:
+        """Wait until ``expected`` counts are reached, or no message for ``idle`` s; at most ``bound`` s."""
+        deadline = time.monotonic() + bound
+        start = time.monotonic()
+        while time.monotonic() < deadline:
+            counts = self.recorder.counts
+            if expected and all(counts.get(t, 0) >= n for t, n in expected.items()):
+                return
+            last = max(self.recorder.last_message_wall, start)
+            if time.monotonic() - last > idle:
+                return
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        import rclpy
+        self._stop.set()
+        self.thread.join(2.0)
+        try:
+            self.recorder.destroy()
+            self.node.destroy_node()
+        finally:
+            if self.ctx.ok():
+                rclpy.shutdown(context=self.ctx)
+
+
+PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
+# How long "our peers are up, nobody else is" must hold before a lockstep loop starts (s).
+# The recorder's participant exists from before the peers were started (>= ~1 s of process
+# start), so another run's endpoints have usually been discovered already; this covers a
+# slow discovery under load at the cost of 0.3 s per run.
+DISCOVERY_SETTLE_S = 0.3
+LOOP_TOPICS = (bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, bagmod.SCENE_TOPIC,
+               '/engine/wrench', '/load/wrench')
+# --external NAME: (the node it replaces, what the outside node must publish)
+
+
+def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> str:
+    """The one line printed while a run waits for outside peers: which topic, what to publish."""
+    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
+    return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
+            f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
+            f'every message with a geometry_msgs/WrenchStamped whose header (stamp, frame_id) '
+            f'echoes the joint state\'s (docs/ros.md, "Outside nodes")')
+
+
+def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
+                    stop_signal: list[int], timeout: float, *, lockstep: bool = True,
+                    domain: int | None = None, external: Sequence[str] = (),
+                    external_timeout: float = 30.0) -> str | None:
+    """Wait until the recorder matched engine/load publishers; an error line if a peer died or
+    ``timeout`` (s; ``external_timeout`` for outside peers) passed, else None."""
+    t0 = time.monotonic()
+    deadline = t0 + timeout
+    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    settled_since: float | None = None
+    dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
+    while not stop_signal:
+        # another run on this domain: stop before our coupling node publishes a single state
+        # into the other run's bag (its own watchdog can take 0.25 s and more under load).
+        # Our coupling node is not started yet, so any joint-state publisher is another run's;
+        # engine/load counts alone cannot tell: the other run's peers, discovered before ours
+        # start, made a count of 1 look like "our peer is up" (measured: the second run then
+        # started and mixed into the first one's bag).
+        n_js = recorder.publisher_count(bagmod.JOINT_STATES_TOPIC)
+        extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
+            [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+             if (n := recorder.publisher_count(topic)) > 1]
+        if extra and lockstep:
+            return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
+                    f'{dom} before the loop started: another run or '
+                    'node shares this domain; give each run its own ROS_DOMAIN_ID')
+        missing = [n for n, topic in PEER_TOPICS.items() if recorder.publisher_count(topic) < 1]
+        if not missing:
+            # hold the all-clear for DISCOVERY_SETTLE_S: endpoints of another run on the
+            # domain may still be arriving
+            now = time.monotonic()
+            settled_since = now if settled_since is None else settled_since
+            if not lockstep or now - settled_since >= DISCOVERY_SETTLE_S:
+                return None
+            time.sleep(0.02)
+            continue
+        settled_since = None
+        for name in missing:
+            rc = procs[name].poll() if name in procs else None
+            if rc is not None:
+                return f'{name}: ' + (error_line(logs / f'{name}.log') or f'exited with status {rc}')
+        now = time.monotonic()
+        for name in missing:
+            if name in outside and now > t0 + external_timeout:
+                return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
+                        f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s; '
+                        f'start it on that domain (e.g. ROS_DOMAIN_ID={domain} python3 '
+                        f'examples/vehicle_stack.py --ros-args -p use_sim_time:=true)')
+        if now > deadline and any(name not in outside for name in missing):
+            name = next(n for n in missing if n not in outside)
+            return f'{name}: {PEER_TOPICS[name]} not connected within {timeout:g} s'
+        time.sleep(0.02)
+    return None
+
+
+def open_run_bag(options: Any, prep: Any, out: Path, *,
+                 extra: Sequence[tuple[str, str]] = ()) -> tuple[bagmod.BagWriter, str]:
+    """The run's bag writer at ``out/bag`` with the run's metadata (scene, mode, scheme, seed,
+    duration, exchange step, outside nodes, ``extra`` pairs) and a new run token
+    (cvj_ros.nodes.run_token: every node and the recorder drop messages tagged with
+    another); returns (writer, token)."""
+    from cvj_ros.nodes.run_token import new_run_token
+    writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    run_token = new_run_token()
+    writer.set_custom_data('cvj_ros.run_token', run_token)
+    for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
+                       ('cvj_ros.coupling_scheme', options.scheme),
+                       ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
+                       ('cvj_ros.duration', repr(prep.duration)),
+                       ('cvj_ros.exchange_step', repr(prep.exchange_step)),
+                       ('cvj_ros.external', ','.join(options.external)), *extra):
+        writer.set_custom_data(key, value)
+    return writer, run_token

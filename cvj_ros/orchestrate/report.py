@@ -1,0 +1,276 @@
+"""What a run reports: metrics read back from the bag, loop and identity counters, free-run
+timing, monitor statuses, --fail-on, report.json and the printed report (shared by the
+separate-process and the composed run)."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from cvj_ros import bag as bagmod
+from cvj_ros.errors import CvjError
+from cvj_ros.orchestrate.options import RunOptions, RunResult, _Prepared
+
+
+def result_from_recording(options: RunOptions, prep: _Prepared, out: Path, domain: int, *,
+                          code: int, error: str | None, stopped_by: str | None,
+                          counts: dict[str, int], rec_state: Any,
+                          exit_codes: dict[str, int | None], phases: dict[str, float],
+                          wall: float, steps: int) -> RunResult:
+    """The RunResult of a finished run from the recorder's counts and first/last wall times
+    per topic (``rec_state``): simulated span = (joint states - 1) x h, loop wall = first to
+    last joint state, real-time factor = their ratio."""
+    js = bagmod.JOINT_STATES_TOPIC
+    loop_wall = wall_per_step = None
+    if rec_state and js in rec_state[0] and counts.get(js, 0) > 1:
+        loop_wall = rec_state[1][js] - rec_state[0][js]
+        wall_per_step = loop_wall / (counts[js] - 1)
+    sim_done = (counts.get(js, 1) - 1) * prep.exchange_step if counts.get(js) else 0.0
+    return RunResult(
+        exit_code=code, out=out, bag=out / 'bag', scene_path=str(prep.scene_path), domain_id=domain,
+        sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
+        wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step,
+        real_time_factor=sim_done / loop_wall if loop_wall else None,
+        counts=counts, node_exit_codes=exit_codes, error=error, stopped_by=stopped_by,
+        phases=phases, external=list(options.external))
+
+
+def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, stream: TextIO,
+                  run_token: str, foreign_dropped: dict[str, int],
+                  settings: dict[str, Any] | None = None) -> RunResult:
+    """The tail of every run (separate processes or composed): metrics read back from the bag,
+    loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
+    report.json and the printed report."""
+    loop_wall = result.loop_wall_time
+    try:
+        result.metrics = bag_metrics(result.bag)
+    except CvjError as exc:
+        result.metrics = {'error': str(exc)}
+    try:
+        counters = loop_counters(result.bag)
+    except CvjError:
+        counters = {}
+    if counters:
+        result.metrics['loop_counters'] = counters
+    # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
+    result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
+    if options.mode == 'free-run':
+        try:
+            timing = free_run_timing(result.bag)
+        except CvjError:
+            timing = {}
+        if timing:
+            result.metrics['free_run'] = timing
+            # skipped ticks advance simulated time without a joint state: the simulated
+            # span is ticks handled x h, not (joint states - 1) x h
+            if timing.get('ticks_handled'):
+                result.sim_duration = timing['ticks_handled'] * prep.exchange_step
+                if loop_wall:
+                    result.real_time_factor = result.sim_duration / loop_wall
+    try:
+        result.metrics['monitor'] = monitor_statuses(result.bag)
+    except CvjError:
+        pass
+    result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
+                       'mode': options.mode, 'scheme': options.scheme,
+                       'storage': options.storage, **(settings or {})}
+    fid = _recorded_fidelity(result.bag)
+    if fid:
+        result.settings['fidelity'] = fid
+    mon = result.metrics.get('monitor', {})
+    if result.exit_code == 0 and (
+            (options.fail_on == 'error' and mon.get('error')) or
+            (options.fail_on == 'warn' and (mon.get('error') or mon.get('warn')))):
+        result.exit_code = 1
+        result.error = (f'monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN '
+                        f'statuses (--fail-on {options.fail_on}); worst: {mon.get("worst")}')
+    (result.out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
+    print_report(result, stream)
+    return result
+
+
+def _recorded_fidelity(bag: Path) -> str | None:
+    """'joint=level ...' from the recorded /driveline/scene message, if any."""
+    try:
+        from cvj_ros.analysis import _scene_summary
+        msgs = bagmod.read_bag(bag, [bagmod.SCENE_TOPIC]).get(bagmod.SCENE_TOPIC)
+        text = msgs.data[0] if msgs is not None and getattr(msgs, 'data', None) else None
+    except (CvjError, AttributeError, IndexError):
+        return None
+    return _scene_summary(text).get('fidelity') if text else None
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
+    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.steady`, the
+    definition ``simulate`` and ``analyze`` share: found by its criterion, or starting
+    ``transient`` s after the first sample when given).
+
+    ``window_s``: [start, end] (s); ``window``: the window's evidence
+    (:meth:`SteadyWindow.to_dict`) and ``window_text`` its one-line description;
+    ``shafts``: per JointState name ``mean_speed`` (rad/s), ``delta`` = speed nonuniformity
+    (w_max - w_min)/w_mean (-, seed 004), ``speed_amplitude`` (rad/s),
+    ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
+    (max - min)/2 (N m, seed 004 section 3.3.2) of the shaft torque; ``wrenches``: per
+    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m) over the
+    same time window.
+    """
+    from cvj_ros.physics import metrics
+    data = bagmod.read_bag(bag, None)
+    out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
+    js = data.get(bagmod.JOINT_STATES_TOPIC)
+    if js is None or js.t.size < 3:
+        return out
+    win = metrics.steady_window(js.t, js.names, js.velocity, js.effort, transient=transient)
+    mask = win.mask(js.t)
+    out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
+    out['window'] = win.to_dict()
+    out['window_text'] = win.describe()
+    out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, window=win)
+    for topic, series in data.items():
+        if isinstance(series, bagmod.WrenchSeries) and series.t.size >= 3:
+            m = (series.t >= out['window_s'][0]) & (series.t <= out['window_s'][1])
+            if np.count_nonzero(m) < 2:
+                continue
+            tz = series.torque_z[m]
+            out['wrenches'][topic] = {'mean_torque': float(np.mean(tz)),
+                                      'torque_amplitude': metrics.amplitude(tz)}
+    return out
+
+
+LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
+IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
+
+
+def loop_counters(bag: Path) -> dict[str, int]:
+    """The coupling node's last recorded counters (``/diagnostics`` status ``coupling_node:
+    loop``): ignored stamps, rejected and held (``nonfinite_torque=hold``) torques."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop':
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
+                        if k in st['values']}
+    return {}
+
+
+FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'overruns',
+                 'lateness_us_p50', 'lateness_us_p99', 'lateness_us_max', 'lateness_us_mean',
+                 'drift_s', 'drift_max_s', 'realtime_priority')
+
+
+def free_run_timing(bag: Path) -> dict[str, Any]:
+    """Free-run deadline figures of the coupling node's last recorded loop diagnostics:
+    catch-up policy, ticks run/skipped, overruns (ticks late by >= one exchange step),
+    lateness p50/p99/max/mean (us), drift (s; wall time since start - simulated time at the
+    last publication, and its largest magnitude); empty when not recorded."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop' and 'overruns' in st['values']:
+                vals = st['values']
+                return {k: (vals[k] if k == 'catch_up' else
+                            int(float(vals[k])) if k.startswith(('ticks', 'overruns', 'realtime'))
+                            else float(vals[k]))
+                        for k in FREE_RUN_KEYS if k in vals}
+    return {}
+
+
+def monitor_statuses(bag: Path) -> dict[str, Any]:
+    """WARN and ERROR statuses recorded on /diagnostics (every node but the coupling loop's
+    counters, reported on their own): counts, the first of each level and the first of the
+    worst level seen, each as 't = T s NAME: MESSAGE'."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    out: dict[str, Any] = {'warn': 0, 'error': 0}
+    if diags is None:
+        return out
+    for t, statuses in zip(diags.t, diags.statuses):
+        for st in statuses:
+            level = int(st['level'])
+            if st['name'] == 'coupling_node: loop' or level not in (1, 2):
+                continue
+            key = 'warn' if level == 1 else 'error'
+            out[key] += 1
+            out.setdefault(f'first_{key}', f't = {float(t):.6g} s {st["name"]}: '
+                                           f'{st["message"] or st["values"]}')
+    worst = 'error' if out['error'] else ('warn' if out['warn'] else None)
+    if worst:
+        out['worst'] = f'{worst.upper()} ' + out[f'first_{worst}']
+    return out
+
+
+def print_report(r: RunResult, stream: TextIO) -> None:
+    """The short human report of a run."""
+    p = lambda s='': print(s, file=stream)  # noqa: E731
+    status = 'finished' if r.exit_code == 0 else (f'stopped by {r.stopped_by}' if r.stopped_by else 'FAILED')
+    p(f'cvj-sim run: {status}  scene={r.scene_path}  domain={r.domain_id}'
+      + (f'  external={",".join(r.external)}' if r.external else ''))
+    if r.error:
+        p(f'  error: {r.error}')
+    p(f'  simulated {r.sim_duration:.6g} s in {max(0, r.counts.get(bagmod.JOINT_STATES_TOPIC, 0) - 1)} exchange steps '
+      f'of {r.exchange_step:.6g} s (expected {r.steps_expected})')
+    rtf = f'{r.real_time_factor:.3g}' if r.real_time_factor else 'n/a'
+    per = f'{r.wall_per_step * 1e6:.0f} us' if r.wall_per_step else 'n/a'
+    loop = f'{r.loop_wall_time:.3f} s' if r.loop_wall_time is not None else 'n/a'
+    p(f'  wall time {r.wall_time:.2f} s (loop {loop}), real-time factor {rtf}, wall per exchange step {per}')
+    shafts = r.metrics.get('shafts', {})
+    if shafts:
+        p(f'  steady window {r.metrics.get("window_text", "")}:')
+        if 'window' in r.metrics:
+            p(f'    ({r.metrics["window"]["criterion"]})')
+        p(f'    {"shaft":24s} {"mean speed rad/s":>16s} {"nonuniformity":>14s} {"torque ampl N m":>16s}')
+        for name, m in shafts.items():
+            p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["delta"]:14.3e} {m["torque_amplitude"]:16.4f}')
+    for topic, m in r.metrics.get('wrenches', {}).items():
+        p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
+    if 'error' in r.metrics:
+        p(f'  metrics: {r.metrics["error"]}')
+    identity = r.metrics.get('run_identity', {})
+    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
+    dropped = sum(identity.get('foreign_dropped', {}).values())
+    if foreign or dropped:
+        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
+          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
+    if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
+        p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
+          + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'
+             if counters.get('held_torques') else ''))
+    fr = r.metrics.get('free_run', {})
+    if fr:
+        rt = f', SCHED_FIFO {fr["realtime_priority"]}' if fr.get('realtime_priority') else ''
+        p(f'  free-run (catch-up {fr.get("catch_up")}{rt}): {fr.get("ticks_run", 0)} ticks run, '
+          f'{fr.get("ticks_skipped", 0)} skipped, {fr.get("overruns", 0)} overruns (late by >= 1 step); '
+          f'lateness p50 {fr.get("lateness_us_p50", 0):.0f} us, p99 {fr.get("lateness_us_p99", 0):.0f} us, '
+          f'max {fr.get("lateness_us_max", 0):.0f} us; drift {1e3 * fr.get("drift_s", 0):.3f} ms '
+          f'(max {1e3 * fr.get("drift_max_s", 0):.3f} ms)')
+    mon = r.metrics.get('monitor', {})
+    if mon.get('warn') or mon.get('error'):
+        p(f'  monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN statuses; '
+          f'worst: {mon.get("worst")}')
+        for key in ('first_error', 'first_warn'):
+            if key in mon:
+                p(f'    first {key[6:].upper()}: {mon[key]}')
+    if r.settings:
+        p('  settings: ' + ', '.join(f'{k} {v}' for k, v in r.settings.items()))
+    p('  messages: ' + ', '.join(f'{t} {n}' for t, n in sorted(r.counts.items())))
+    p(f'  bag: {r.bag}')

@@ -8,8 +8,12 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 export OPENBLAS_NUM_THREADS ?= 1
 
 DEMO_SCENE    ?= config/scenes/fwd_halfshaft.yaml
-DEMO_DURATION ?= 3.0
+DEMO_DURATION ?= 4.0
 DEMO_OUT      ?= runs/demo
+# composed mode (every node and the recorder in one process on one EventsExecutor: the same
+# nodes, topics and bag, the fastest mode that keeps separate nodes); DEMO_MODE= for one
+# process per node
+DEMO_MODE     ?= --composed
 
 .PHONY: all setup kernel demo test test-fast test-stress bench clean
 
@@ -31,7 +35,7 @@ kernel: $(STAMP)
 	$(PY) -m cvj_ros.physics.kernel.warmup
 
 demo: kernel
-	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) --overwrite
+	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) $(DEMO_MODE) --overwrite
 
 test: kernel
 	$(PY) -m pytest

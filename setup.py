@@ -34,6 +34,7 @@ setup(
     entry_points={
         'console_scripts': [
             'cvj-sim = cvj_ros.cli:main',
+            'driveline_composed = cvj_ros.composed:main',
         ] + [f'{n} = cvj_ros.nodes.{n}:main' for n in NODES],
     },
 )

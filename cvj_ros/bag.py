@@ -56,6 +56,13 @@ TOPIC_TYPES: dict[str, str] = {
 PATTERN_TYPES: dict[str, str] = {
     '/coupling/*/wrench': 'geometry_msgs/msg/WrenchStamped',
 }
+# Types that start with a std_msgs/Header: their frame_id carries the run token
+# (cvj_ros.nodes.run_token) that BagRecorder.run_token checks.
+HEADER_TYPES = frozenset({
+    'sensor_msgs/msg/JointState',
+    'geometry_msgs/msg/WrenchStamped',
+    'diagnostic_msgs/msg/DiagnosticArray',
+})
 # Types whose first field is a builtin_interfaces/Time used as record timestamp.
 STAMPED_TYPES = frozenset({
     'rosgraph_msgs/msg/Clock',
@@ -182,7 +189,11 @@ class BagWriter:
                     if self._error is None:
                         writer.write(connections[args[0]], args[1], args[2])
                         flusher.wrote(args[1])
-                if op in ('write', 'idle') and self._error is None:
+                elif op == 'batch' and self._error is None:
+                    for topic, stamp, data in args[0]:
+                        writer.write(connections[topic], stamp, data)
+                        flusher.wrote(stamp)
+                if op in ('write', 'batch', 'idle') and self._error is None:
                     flusher.maybe_flush(time.monotonic())
                 elif op == 'topic':
                     connections[args[0]] = writer.add_connection(args[0], args[1], typestore=typestore())
@@ -222,6 +233,20 @@ class BagWriter:
                 raise BagError(f'{topic}: topic not registered')
             self.counts[topic] += 1
             self._queue.put(('write', topic, int(timestamp_ns), bytes(data)))
+
+    def write_batch(self, items: Sequence[tuple[str, int, bytes]]) -> None:
+        """Append ``(topic, record time ns, raw CDR)`` messages in one hand-off to the writer
+        thread: one wake-up (and GIL hand-off) per batch instead of per message
+        (:class:`cvj_ros.composed.BatchingWriter`, where the recorder shares its thread with
+        the nodes)."""
+        with self._lock:
+            if self.closed or not items:
+                return
+            for topic, _stamp, _data in items:
+                if topic not in self.counts:
+                    raise BagError(f'{topic}: topic not registered')
+                self.counts[topic] += 1
+            self._queue.put(('batch', list(items)))
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store ``key: value`` in metadata.yaml ``custom_data`` (rosbag2 format version 9)."""
@@ -609,10 +634,24 @@ class BagRecorder:
         topics: extra topics to subscribe to at once, e.g. the scene's
             ``/coupling/<joint>/wrench`` (contract types).
         discover_period: seconds between graph scans for new pattern topics (0 = off).
+        run_token: this run's token (cvj_ros.nodes.run_token); '' records everything.
+
+    Run identity (``run_token`` set): a message whose ``header.frame_id`` carries another
+    run's token (``<frame>@<other>``) and a /driveline/scene whose ``run_token`` differs
+    are dropped and counted in :attr:`foreign` (per topic); untagged messages (outside
+    nodes, /engine/throttle) are recorded. /clock has no header: a /clock sample is
+    recorded only while exactly one /clock publisher is matched (with two runs on the
+    domain neither bag gets the other's /clock; both lose /clock while both publish it,
+    counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
+    s0, s1) are in, /clock samples are kept back and then written only if they lie in
+    [s0, s1 + 2 (s1 - s0)] (a /clock of another run that was the only one matched before
+    this run's coupling node came up); once the owner set :attr:`loop_ended`, not beyond
+    one exchange step after the run's own latest joint state (the other run's /clock
+    while this run's coupling node is already gone).
     """
 
     def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
-                 discover_period: float = 0.2) -> None:
+                 discover_period: float = 0.2, run_token: str = '') -> None:
         self.node = node
         self.writer = writer
         self.clock_ns = 0
@@ -628,6 +667,14 @@ class BagRecorder:
         # the domain, so a refused run's bag never holds the other run's messages
         self.hold: frozenset[str] = frozenset()
         self.held = 0
+        self.run_token = run_token
+        self.foreign: dict[str, int] = {}     # dropped messages of another run, per topic
+        self._own_js_ns: list[int] = []       # the first two and the latest own joint-state stamps
+        # set by the owner once the run's coupling node exited: /clock samples beyond one
+        # exchange step after the latest own joint state are then another run's
+        self.loop_ended = False
+        # /clock samples (value ns, CDR) received before the run's own first two joint states
+        self._pending_clock: list[tuple[int, bytes]] = []
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
         self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None
@@ -657,10 +704,22 @@ class BagRecorder:
 
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
                     is_clock: bool) -> None:
-        import time
         if topic in self.hold:
             self.held += 1
             return
+        if self.run_token:
+            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock)
+            if verdict is None:            # a /clock sample kept until it can be attributed
+                return
+            if not verdict:
+                self.foreign[topic] = self.foreign.get(topic, 0) + 1
+                return
+        self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock)
+        if self.run_token and topic == JOINT_STATES_TOPIC and self._pending_clock:
+            self._flush_pending_clock()
+
+    def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
+        import time
         if topic not in self.writer.counts:  # bag connections only for topics with messages
             self.writer.add_topic(topic, msgtype)
         if stamped:
@@ -679,6 +738,62 @@ class BagRecorder:
         self.last_message_wall = now
         self.first_wall.setdefault(topic, now)
         self.last_wall[topic] = now
+
+    def _flush_pending_clock(self) -> None:
+        """Write the /clock samples kept before the run's own first two joint states (s0, s1):
+        after s0 those equal to s0; after s1 those in [s0, s1 + 2 (s1 - s0)] (/clock t_(k+1)
+        goes out after the state t_k, which may be taken after it), the rest are
+        another run's (counted)."""
+        own = self._own_js_ns
+        if len(own) == 1:
+            keep = [(v, d) for v, d in self._pending_clock if v == own[0]]
+            self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
+        else:
+            hi = own[1] + 2 * (own[1] - own[0])
+            keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
+            n_foreign = len(self._pending_clock) - len(keep)
+            if n_foreign:
+                self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + n_foreign
+            self._pending_clock = []
+        for _v, data in sorted(keep, key=lambda vd: vd[0]):
+            self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
+
+    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool | None:
+        """Run-token check of one message (class docstring); notes own joint-state stamps.
+        None: a /clock sample kept in ``_pending_clock`` until the run's own first joint
+        states tell whose it is."""
+        from cvj_ros.nodes.run_token import cdr_is_foreign
+        if msgtype in HEADER_TYPES:
+            if cdr_is_foreign(data, self.run_token):
+                return False
+            if topic == JOINT_STATES_TOPIC:
+                stamp = cdr_stamp_ns(data)
+                own = self._own_js_ns
+                if len(own) < 3:
+                    own.append(stamp)
+                else:
+                    own[2] = stamp
+            return True
+        if is_clock:
+            sub = self._subs.get(topic)
+            if sub is not None and sub.get_publisher_count() > 1:
+                return False
+            own = self._own_js_ns
+            if len(own) < 2:
+                self._pending_clock.append((cdr_stamp_ns(data), bytes(data)))
+                return None
+            if self.loop_ended:
+                step = own[1] - own[0]
+                return cdr_stamp_ns(data) <= own[-1] + step
+            return True
+        if topic == SCENE_TOPIC:
+            try:
+                text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
+                scene = yaml.safe_load(text)
+            except Exception:  # noqa: BLE001 (not ours to judge: record it)
+                return True
+            return not (isinstance(scene, dict) and scene.get('run_token', self.run_token) != self.run_token)
+        return True
 
     def spin(self, stop: threading.Event, *, poll: float = 0.05, discover_period: float = 0.2) -> None:
         """Record until ``stop`` is set, without an executor: wait on all subscriptions and
@@ -700,7 +815,9 @@ class BagRecorder:
                 self.discover()
                 next_discovery = now + discover_period
             with self._lock:
-                subs = list(self._subs.items())
+                # /clock last in each wake: joint states queued before it are taken first, so
+                # the run-token check rarely has to keep a /clock sample back (_is_ours)
+                subs = sorted(self._subs.items(), key=lambda item: item[0] == CLOCK_TOPIC)
             if wait_set is None or len(subs) != len(entries):
                 entries = [(topic, sub, self._types[topic] in STAMPED_TYPES, topic == CLOCK_TOPIC,
                             self._types[topic]) for topic, sub in subs]

@@ -98,6 +98,8 @@ class RunOptions:
     catch_up: str = 'skip'
     burst_max: int = 10
     rt_priority: int = 0
+    composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
+    executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
 
 
 @dataclass
@@ -231,10 +233,14 @@ def node_command(name: str) -> list[str]:
     return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
 
 
-def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -> dict[str, Any]:
-    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS)."""
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None,
+                    run_token: str = '') -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS);
+    ``run_token``: the run's identity (cvj_ros.nodes.run_token), '' = none."""
     o = prep.options
     params: dict[str, Any] = {'scene': str(prep.scene_path)}
+    if run_token:
+        params['run_token'] = run_token
     if prep.seed is not None:
         params['seed'] = int(prep.seed)
     if name == 'coupling_node':
@@ -278,14 +284,14 @@ class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
     def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
-                 hold: Sequence[str] = ()) -> None:
+                 hold: Sequence[str] = (), run_token: str = '') -> None:
         import rclpy
         from rclpy.signals import SignalHandlerOptions
         self.ctx = rclpy.context.Context()
         rclpy.init(context=self.ctx, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
-        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics)
+        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics, run_token=run_token)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
@@ -465,6 +471,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     Raises:
         CvjError: bad scene or option, before any process starts.
     """
+    if options.composed:   # one process, one executor: cvj_ros.composed
+        from cvj_ros.composed import run_composed
+        return run_composed(options, stream=stream)
     stream = sys.stdout if stream is None else stream
     prep = prepare(options)
     env, domain = _domain_env()
@@ -501,6 +510,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
     writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    # run identity: every node and the recorder drop messages tagged with another token
+    from cvj_ros.nodes.run_token import new_run_token
+    run_token = new_run_token()
+    writer.set_custom_data('cvj_ros.run_token', run_token)
     for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
                        ('cvj_ros.coupling_scheme', options.scheme),
                        ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
@@ -521,7 +534,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         # lockstep: nothing of ours flows on the loop topics before our coupling node starts
         recorder = _Recorder(writer, prep.coupling_topics, domain,
                              hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
-                             if options.mode == 'lockstep' else ())
+                             if options.mode == 'lockstep' else (), run_token=run_token)
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
@@ -540,7 +553,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 if error is not None or stop_signal:
                     break
                 recorder.recorder.hold = frozenset()
-            params = node_parameters(prep, name, load_override=load_override)
+            params = node_parameters(prep, name, load_override=load_override, run_token=run_token)
             fh = open(logs / f'{name}.log', 'wb')
             log_files.append(fh)
             procs[name] = subprocess.Popen(
@@ -565,6 +578,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             time.sleep(0.02)
         progress.close()
         mark('coupling_exited')
+        if recorder is not None:
+            recorder.recorder.loop_ended = True   # later /clock beyond our last state: not ours
         if stop_signal or error is not None:
             stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
@@ -596,8 +611,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 _stop_processes(procs, list(procs), options.grace)
         finally:
             rec_state = None
+            foreign_dropped: dict[str, int] = {}
             if recorder is not None:
                 rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
+                foreign_dropped = dict(recorder.recorder.foreign)
                 recorder.close()
             writer.close()
             for fh in log_files:
@@ -627,6 +644,17 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step, real_time_factor=rtf,
         counts=counts, node_exit_codes={n: p.returncode for n, p in procs.items()}, error=error,
         stopped_by=stopped_by, phases=phases, external=list(options.external))
+    return finish_result(result, options, prep, stream=stream, run_token=run_token,
+                         foreign_dropped=foreign_dropped)
+
+
+def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, stream: TextIO,
+                  run_token: str, foreign_dropped: dict[str, int],
+                  settings: dict[str, Any] | None = None) -> RunResult:
+    """The tail of every run (separate processes or composed): metrics read back from the bag,
+    loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
+    report.json and the printed report."""
+    loop_wall = result.loop_wall_time
     try:
         result.metrics = bag_metrics(result.bag)
     except CvjError as exc:
@@ -637,6 +665,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         counters = {}
     if counters:
         result.metrics['loop_counters'] = counters
+    # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
+    result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
     if options.mode == 'free-run':
         try:
             timing = free_run_timing(result.bag)
@@ -656,7 +686,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         pass
     result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
                        'mode': options.mode, 'scheme': options.scheme,
-                       'storage': options.storage}
+                       'storage': options.storage, **(settings or {})}
     fid = _recorded_fidelity(result.bag)
     if fid:
         result.settings['fidelity'] = fid
@@ -667,7 +697,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         result.exit_code = 1
         result.error = (f'monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN '
                         f'statuses (--fail-on {options.fail_on}); worst: {mon.get("worst")}')
-    (out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
+    (result.out / 'report.json').write_text(json.dumps(_jsonable(asdict(result)), indent=2))
     print_report(result, stream)
     return result
 
@@ -696,33 +726,45 @@ def _jsonable(value: Any) -> Any:
 
 
 def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
-    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.metrics`: the
-    first half of the run is skipped as start transient unless ``transient`` (s) is given).
+    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.steady`, the
+    definition ``simulate`` and ``analyze`` share: found by its criterion, or starting
+    ``transient`` s after the first sample when given).
 
+    ``window_s``: [start, end] (s); ``window``: the window's evidence
+    (:meth:`SteadyWindow.to_dict`) and ``window_text`` its one-line description;
     ``shafts``: per JointState name ``mean_speed`` (rad/s), ``delta`` = speed nonuniformity
     (w_max - w_min)/w_mean (-, seed 004), ``speed_amplitude`` (rad/s),
     ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
     (max - min)/2 (N m, seed 004 section 3.3.2) of the shaft torque; ``wrenches``: per
-    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m).
+    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m) over the
+    same time window.
     """
     from cvj_ros.physics import metrics
     data = bagmod.read_bag(bag, None)
     out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
     js = data.get(bagmod.JOINT_STATES_TOPIC)
-    if js is not None and js.t.size >= 3:
-        mask = metrics.steady_mask(js.t, transient=transient)
-        out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
-        out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, transient=transient)
+    if js is None or js.t.size < 3:
+        return out
+    win = metrics.steady_window(js.t, js.names, js.velocity, js.effort, transient=transient)
+    mask = win.mask(js.t)
+    out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
+    out['window'] = win.to_dict()
+    out['window_text'] = win.describe()
+    out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, window=win)
     for topic, series in data.items():
         if isinstance(series, bagmod.WrenchSeries) and series.t.size >= 3:
-            mask = metrics.steady_mask(series.t, transient=transient)
-            tz = series.torque_z[mask]
+            m = (series.t >= out['window_s'][0]) & (series.t <= out['window_s'][1])
+            if np.count_nonzero(m) < 2:
+                continue
+            tz = series.torque_z[m]
             out['wrenches'][topic] = {'mean_torque': float(np.mean(tz)),
                                       'torque_amplitude': metrics.amplitude(tz)}
     return out
 
 
 LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
+# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
+IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
 
 
 def loop_counters(bag: Path) -> dict[str, int]:
@@ -734,7 +776,8 @@ def loop_counters(bag: Path) -> dict[str, int]:
     for statuses in reversed(diags.statuses):
         for st in statuses:
             if st['name'] == 'coupling_node: loop':
-                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS if k in st['values']}
+                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
+                        if k in st['values']}
     return {}
 
 
@@ -801,8 +844,9 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     p(f'  wall time {r.wall_time:.2f} s (loop {loop}), real-time factor {rtf}, wall per exchange step {per}')
     shafts = r.metrics.get('shafts', {})
     if shafts:
-        w0, w1 = r.metrics.get('window_s', [0, 0])
-        p(f'  steady window {w0:.4g}..{w1:.4g} s:')
+        p(f'  steady window {r.metrics.get("window_text", "")}:')
+        if 'window' in r.metrics:
+            p(f'    ({r.metrics["window"]["criterion"]})')
         p(f'    {"shaft":24s} {"mean speed rad/s":>16s} {"nonuniformity":>14s} {"torque ampl N m":>16s}')
         for name, m in shafts.items():
             p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["delta"]:14.3e} {m["torque_amplitude"]:16.4f}')
@@ -810,7 +854,13 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'    {topic:24s} mean torque {m["mean_torque"]:.4f} N m, amplitude {m["torque_amplitude"]:.4f} N m')
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
-    counters = r.metrics.get('loop_counters', {})
+    identity = r.metrics.get('run_identity', {})
+    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
+    dropped = sum(identity.get('foreign_dropped', {}).values())
+    if foreign or dropped:
+        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
+          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())
           + (' (non-finite answers replaced by the last finite torque, --nonfinite-torque hold)'

@@ -18,6 +18,7 @@ exit status: 0 finished, 1 runtime error (e.g. a peer stopped answering),
 
 examples:
   cvj-sim run kavz685_lever --out runs/kavz --duration 2
+  cvj-sim run kavz685_lever --out runs/kavz --composed   # all nodes in one process
   cvj-sim run fwd_halfshaft --out runs/fwd --scheme linear_implicit --storage sqlite3
   cvj-sim run fwd_halfshaft --out runs/replay_load --load-from-bag runs/fwd/bag
   cvj-sim run fwd_halfshaft --out runs/stack --external load   # + your stack answering /load/wrench
@@ -64,6 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='exit 1 when the monitor recorded an ERROR status, any WARN or ERROR, '
                              'or never (default: the report always lists them; the nonuniformity '
                              'thresholds also fire in start-up transients of sound scenes)')
+    parser.add_argument('--composed', action='store_true',
+                        help='host every node and the recorder in this one process on one '
+                             'EventsExecutor (same nodes, topics and bag; faster, see docs/ros.md)')
+    parser.add_argument('--executor', choices=('events', 'single'), default='events',
+                        help='--composed: rclpy executor (default events = EventsExecutor)')
     parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
@@ -76,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
         external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
         fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
-        rt_priority=args.rt_priority))
+        rt_priority=args.rt_priority, composed=args.composed, executor=args.executor))
     if result.error:
         import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)

@@ -80,15 +80,15 @@ class ClockEncoder:
 
 
 class JointStateEncoder:
-    """CDR of sensor_msgs/JointState with fixed ``names`` (frame_id '') and position (rad),
-    velocity (rad/s), effort (N m) arrays of len(names) float64 values each:
+    """CDR of sensor_msgs/JointState with fixed ``names`` and ``frame_id`` (default '') and
+    position (rad), velocity (rad/s), effort (N m) arrays of len(names) float64 values each:
     ``encode(sec, nanosec, position, velocity, effort)`` (numpy float64 arrays)."""
 
-    def __init__(self, names: Sequence[str]) -> None:
+    def __init__(self, names: Sequence[str], frame_id: str = '') -> None:
         from sensor_msgs.msg import JointState
         self.n = n = len(names)
         parts: list[bytes] = []
-        text, off = _cdr_string('', _STAMP.size)                  # header.frame_id
+        text, off = _cdr_string(frame_id, _STAMP.size)            # header.frame_id
         parts.append(text)
         pad, off = _align(off, 4)
         parts.append(pad + struct.pack('<I', n))                  # name sequence
@@ -107,6 +107,7 @@ class JointStateEncoder:
         self._head = b''.join(parts) + self._gaps[0]
         probe = JointState()
         probe.header.stamp.sec, probe.header.stamp.nanosec = 5, 6
+        probe.header.frame_id = frame_id
         probe.name = list(names)
         values = np.arange(3 * n, dtype=float).reshape(3, n) + 0.25
         probe.position, probe.velocity, probe.effort = (v.tolist() for v in values)
@@ -139,6 +140,22 @@ def decode_wrench_stamp_torque_z(data: bytes) -> tuple[int, float]:
     from rclpy.serialization import deserialize_message
     msg = deserialize_message(data, WrenchStamped)
     return stamp_to_ns(msg.header.stamp), float(msg.wrench.torque.z)
+
+
+def decode_wrench_header_torque_z(data: bytes) -> tuple[int, bytes, float]:
+    """(stamp in integer ns, header.frame_id as UTF-8 bytes, torque.z in N m) of a serialised
+    geometry_msgs/WrenchStamped; same layout and fallback as :func:`decode_wrench_stamp_torque_z`."""
+    if len(data) >= 16 and data[1] == 1:
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        n = _LE_UINT32.unpack_from(data, 12)[0]
+        off = 12 + n            # payload offset after frame_id
+        off += (-off) % 8
+        return (sec * NS_PER_S + nanosec, bytes(data[16:16 + max(n - 1, 0)]),
+                _LE_DOUBLE.unpack_from(data, 4 + off + 40)[0])
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message
+    msg = deserialize_message(data, WrenchStamped)
+    return stamp_to_ns(msg.header.stamp), msg.header.frame_id.encode(), float(msg.wrench.torque.z)
 
 
 # --- node base and main loop ----------------------------------------------------------------

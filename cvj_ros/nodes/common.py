@@ -49,6 +49,7 @@ from cvj_ros.nodes.cdr import (  # noqa: F401
     _align,
     _cdr_string,
     _self_check,
+    decode_wrench_header_torque_z,
     decode_wrench_stamp_torque_z)
 from cvj_ros.nodes.executor import (  # noqa: F401
     CvjNode,

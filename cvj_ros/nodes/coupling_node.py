@@ -31,10 +31,18 @@ only wrong stamps from a topic ends after ``WRONG_STAMP_STALL_S`` (1 s, or peer_
 shorter) with that line instead of "is load_node running?". A NaN/inf torque is never
 integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1; with
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
-counted as ``held_torques`` (diagnostics level WARN, first one logged). A second publisher on /driveline/joint_states, /engine/wrench or
-/load/wrench (another run on the same ROS domain) stops the loop with an ERROR naming the
-domain (checked before step 0 and on every watchdog tick), since its answers would carry
-the same stamps and mix into this loop. Before step 0 the node waits (bounded by ``start_timeout``) until
+counted as ``held_torques`` (diagnostics level WARN, first one logged).
+
+Run identity (``run_token``, cvj_ros.nodes.run_token): with a token the joint states go
+out with frame_id ``driveline@<token>`` (reaction wrenches ``<joint>_housing@<token>``,
+diagnostics ``coupling_node@<token>``, ``run_token`` in /driveline/scene); an answer whose
+frame_id ends in another run's token is ignored and counted (``foreign_answers``, first
+one in one WARN line), one without ``@`` is accepted (``untokened_answers``: an outside
+node that echoes only the stamp). A second publisher on /driveline/joint_states,
+/engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
+ERROR naming the domain before step 0 (counts cannot tell our peers from the other
+run's), and after step 0 only without a token or once an untagged answer came (those
+could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost. After t_N = duration it publishes the final joint
 state and exits 0.
@@ -81,12 +89,14 @@ from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
-                                  decode_wrench_stamp_torque_z, diag_array, diag_status, load_scene_param,
+                                  decode_wrench_header_torque_z, diag_array, diag_status, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
                                JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
                                coupling_wrench_topic)
+from cvj_ros.nodes.run_token import (JOINT_STATES_FRAME, frame_token_bytes, run_token_param,
+                                     tag_frame, validated_run_token)
 
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
@@ -127,6 +137,7 @@ PARAMS = (
     ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
               '(stop) or is replaced by the last finite torque of that topic, counted as '
               'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
+    run_token_param(),
     ParamSpec('catch_up', 'skip', 'free-run: missed ticks are dropped, one step jumping to wall '
               'time (skip), or run back to back up to burst_max per wake-up, then dropped (burst)',
               choices=CATCH_UP_POLICIES),
@@ -147,6 +158,11 @@ class CouplingNode(CvjNode):
         p = self.params = declare_parameters(self, PARAMS)
         scene = self.scene = load_scene_param(p['scene'])
         self.seed = scene_seed(scene, p['seed'])
+        # run identity (cvj_ros.nodes.run_token): frame_id '<frame>@<token>' on what we publish
+        self.run_token = validated_run_token(p)
+        self._token_b = self.run_token.encode()
+        self.js_frame = tag_frame(JOINT_STATES_FRAME, self.run_token) if self.run_token else ''
+        self.diag_frame = tag_frame('coupling_node', self.run_token)
         self.mode = p['mode']
         self.scheme = p['coupling_scheme']
         h = p['exchange_step'] or scene.exchange_step
@@ -188,17 +204,19 @@ class CouplingNode(CvjNode):
         self._js_msg = JointState()
         self._js_msg.name = self.names
         self._js_msg.header.stamp = self._stamp
+        self._js_msg.header.frame_id = self.js_frame
         self._clock_msg = Clock(clock=self._stamp)
         self._reaction_msgs: dict[str, WrenchStamped] = {}
         for j in self.reaction_joints:
             w = WrenchStamped()
             w.header.stamp = self._stamp
-            w.header.frame_id = f'{j}_housing'
+            w.header.frame_id = tag_frame(f'{j}_housing', self.run_token)
             self._reaction_msgs[j] = w
         # pre-serialised publication (bytes): skips rclpy's field-by-field conversion
-        self._js_cdr = JointStateEncoder(self.names)
+        self._js_cdr = JointStateEncoder(self.names, self.js_frame)
         self._clock_cdr = ClockEncoder()
-        self._reaction_cdr = {j: WrenchStampedEncoder(f'{j}_housing') for j in self.reaction_joints}
+        self._reaction_cdr = {j: WrenchStampedEncoder(tag_frame(f'{j}_housing', self.run_token))
+                              for j in self.reaction_joints}
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
         # intermediate members (cage, spider, earring) to fill in the joint states
@@ -216,6 +234,10 @@ class CouplingNode(CvjNode):
         self.waiting = False
         self.started = False
         self.ignored_stamps = 0
+        # answers tagged with another run's token (ignored; WARN once) and answers without
+        # a token (accepted: an outside node echoing only the stamp; INFO once)
+        self.foreign_answers = 0
+        self.untokened_answers = 0
         self.rejected_torques = 0
         self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
         self._last_finite = {ENGINE_WRENCH_TOPIC: 0.0, LOAD_WRENCH_TOPIC: 0.0}   # N m
@@ -307,6 +329,7 @@ class CouplingNode(CvjNode):
                        'backend': getattr(self.stepper, 'backend', 'python'),
                        'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
+            'run_token': self.run_token,
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))
 
@@ -333,6 +356,12 @@ class CouplingNode(CvjNode):
         """
         if self.mode != 'lockstep':
             return None
+        if self.run_token and self.started and not self.untokened_answers:
+            # every answer so far carried our token: another run's messages are told apart
+            # and dropped (foreign_answers), so its publishers are no reason to stop. Before
+            # step 0 they still are: publisher / subscriber counts (missing_peers) cannot
+            # tell our peers from the other run's.
+            return None
         extra = [f'{topic} has {n} publishers'
                  for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
                                   (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
@@ -342,7 +371,10 @@ class CouplingNode(CvjNode):
             return None
         return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
-                f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
+                f'and its messages would mix into this loop'
+                + (f' ({self.untokened_answers} answers carried no run token in header.frame_id)'
+                   if self.run_token and self.started else '')
+                + '; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:
         if self.started or self.exit_code is not None:
@@ -500,10 +532,41 @@ class CouplingNode(CvjNode):
         return False
 
     def _on_engine(self, data: bytes) -> None:
-        self._on_wrench(*decode_wrench_stamp_torque_z(data), ENGINE_WRENCH_TOPIC, engine=True)
+        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
+            self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
-        self._on_wrench(*decode_wrench_stamp_torque_z(data), LOAD_WRENCH_TOPIC, engine=False)
+        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
+            self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _answer_is_ours(self, frame: bytes, stamp_ns: int, topic: str) -> bool:
+        """Run-token filter of one answer (``frame`` = its header.frame_id bytes): False, and
+        counted in ``foreign_answers`` (first one logged as WARN), when it carries another
+        run's token; True for our token and for an untagged frame_id (counted in
+        ``untokened_answers``, first one logged: accepted as an outside node that echoes
+        only the stamp; while another run shares the domain it stops the loop, see
+        :meth:`foreign_publishers`)."""
+        token = frame_token_bytes(frame)
+        if token == self._token_b:
+            return True
+        if token is None:
+            self.untokened_answers += 1
+            if self.untokened_answers == 1:
+                self.get_logger().info(
+                    f'{topic}: answer frame_id {frame.decode(errors="replace")!r} carries no run token; '
+                    f'accepted (echo the joint-state header.frame_id "{self.js_frame}" to tell this '
+                    f'run apart from another on the same ROS domain)')
+            return True
+        self.foreign_answers += 1
+        if self.foreign_answers == 1:
+            line = (f'{topic}: ignoring answers of another run on this ROS domain (frame_id '
+                    f'{frame.decode(errors="replace")!r} at t={stamp_ns / NS_PER_S:.9g} s, this run is '
+                    f'{self.run_token!r}); counted as foreign_answers')
+            self.get_logger().warning(line)
+            self.publish_diagnostics(WARN, line)
+        return False
 
     def _on_wrench(self, stamp_ns: int, value: float, topic: str, *, engine: bool) -> None:
         """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
@@ -696,6 +759,7 @@ class CouplingNode(CvjNode):
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
             'held_torques': self.held_torques,
+            'foreign_answers': self.foreign_answers, 'untokened_answers': self.untokened_answers,
         }
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())
@@ -709,7 +773,9 @@ class CouplingNode(CvjNode):
 
     def publish_diagnostics(self, level: bytes, message: str) -> None:
         status = diag_status('coupling_node: loop', level, message, self.loop_stats())
-        self.diag_pub.publish(diag_array(self.t_ns, [status]))
+        msg = diag_array(self.t_ns, [status])
+        msg.header.frame_id = self.diag_frame
+        self.diag_pub.publish(msg)
 
 
 def main(args: Sequence[str] | None = None) -> None:

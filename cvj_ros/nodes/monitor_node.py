@@ -36,6 +36,7 @@ from cvj_ros.nodes.common import (ERROR, OK, WARN, CvjNode, ParamSpec, declare_p
                                   scene_dict, stamp_to_ns)
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
+from cvj_ros.nodes.run_token import is_foreign, run_token_param, tag_frame, validated_run_token
 from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
                                              DEFAULT_NONUNIFORMITY_WARN,
                                              RECOMMENDED_MAX_ANGLE_DEG, RollingWindow, amplitude,
@@ -66,6 +67,7 @@ PARAMS = (
               '(free-run: 1.0); 0 = off', lo=0.0, hi=1e6, read_only=False),
     ParamSpec('angle_error_margin_deg', 5.0, 'ERROR when a joint angle exceeds its recommended '
               'limit by more than this [deg]', lo=0.0, hi=90.0, read_only=False),
+    run_token_param(),
 )
 
 
@@ -75,6 +77,11 @@ class MonitorNode(CvjNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('monitor_node', **kwargs)
         self.params = declare_parameters(self, PARAMS)
+        # run identity: joint states, torques, loop diagnostics and scenes of another run on
+        # this domain are ignored and counted (cvj_ros.nodes.run_token)
+        self.run_token = validated_run_token(self.params)
+        self.foreign_messages = 0
+        self._diag_frame = tag_frame('monitor_node', self.run_token)
         self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
         if self.params['scene']:
             self._use_scene(scene_dict(load_scene_param(self.params['scene'])))
@@ -92,9 +99,11 @@ class MonitorNode(CvjNode):
         self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
         self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states, DATA_QOS)
         self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                 lambda m: self._on_torque(m, self.engine_torque), DATA_QOS)
+                                 lambda m: self._foreign(m.header.frame_id)
+                                 or self._on_torque(m, self.engine_torque), DATA_QOS)
         self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
-                                 lambda m: self._on_torque(m, self.load_torque), DATA_QOS)
+                                 lambda m: self._foreign(m.header.frame_id)
+                                 or self._on_torque(m, self.load_torque), DATA_QOS)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, DATA_QOS)
         self.create_subscription(String, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
 
@@ -119,6 +128,13 @@ class MonitorNode(CvjNode):
                 limits[str(el['name'])] = (angle, float(limit))
         self.joint_limits = limits
 
+    def _foreign(self, frame_id: str) -> bool:
+        """True (and counted) when ``frame_id`` carries another run's token."""
+        if is_foreign(frame_id, self.run_token):
+            self.foreign_messages += 1
+            return True
+        return False
+
     def _on_scene(self, msg: String) -> None:
         if self.params['scene']:
             return
@@ -127,10 +143,16 @@ class MonitorNode(CvjNode):
         except yaml.YAMLError:
             self.get_logger().error('/driveline/scene: not valid YAML; joint angles not monitored')
             return
+        if (self.run_token and isinstance(data, dict)
+                and data.get('run_token', self.run_token) != self.run_token):
+            self.foreign_messages += 1       # another run's scene
+            return
         if isinstance(data, dict) and isinstance(data.get('scene'), dict):
             self._use_scene(data['scene'])
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if self.run_token and self._foreign(msg.header.frame_id):
+            return
         names = list(msg.name)
         if names != self.names or self.speeds is None:
             self.names = names
@@ -154,6 +176,8 @@ class MonitorNode(CvjNode):
         window.push(stamp_to_ns(msg.header.stamp) / 1e9, [msg.wrench.torque.z])
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        if self._foreign(msg.header.frame_id):
+            return
         for st in msg.status:
             if not st.name.startswith('coupling_node'):
                 continue
@@ -223,7 +247,9 @@ class MonitorNode(CvjNode):
     def publish(self) -> None:
         self.last_statuses = self.compute()
         if self.last_statuses:
-            self.diag_pub.publish(diag_array(self.last_ns, self.last_statuses))
+            msg = diag_array(self.last_ns, self.last_statuses)
+            msg.header.frame_id = self._diag_frame
+            self.diag_pub.publish(msg)
             self.published += 1
 
 

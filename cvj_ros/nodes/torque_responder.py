@@ -16,6 +16,7 @@ from cvj_ros.nodes.executor import CvjNode
 from cvj_ros.nodes.diagnostics import ERROR, WARN, diag_array, diag_status
 from cvj_ros.nodes.parameters import NS_PER_S, ParameterError
 from cvj_ros.nodes.cdr import WrenchStampedEncoder
+from cvj_ros.nodes.run_token import frame_token, is_foreign, tag_frame
 
 class TorqueResponder(CvjNode):
     """Answers every /driveline/joint_states sample with a WrenchStamped from a torque source.
@@ -23,12 +24,19 @@ class TorqueResponder(CvjNode):
     ``torque.z`` = ``source.torque(t, omega, phi)`` (N m) at the speed omega (rad/s) and
     unwrapped angle phi (rad) of shaft ``shaft`` in the joint-state message, t (s) = its
     stamp; the answer's stamp echoes the joint-state stamp exactly and its frame_id is the
-    shaft name. A non-finite input or torque is never published: an ERROR diagnostic
-    names it (the coupling node then times out with a clear error).
+    shaft name, tagged with the joint state's run token when it has one
+    (``<shaft>@<token>``, cvj_ros.nodes.run_token). With a ``run_token`` of its own the
+    node answers only joint states of that run (others are counted in ``foreign_states``).
+    A non-finite input or torque is never published: an ERROR diagnostic names it (the
+    coupling node then times out with a clear error).
     """
 
-    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str) -> None:
-        """Create the publishers and the joint-state subscription (call once, after validation)."""
+    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str,
+                        run_token: str = '') -> None:
+        """Create the publishers and the joint-state subscription (call once, after validation).
+
+        ``run_token``: answer only joint states whose frame_id carries this token or none
+        ('' = answer all)."""
         from geometry_msgs.msg import WrenchStamped
         from sensor_msgs.msg import JointState
 
@@ -37,6 +45,9 @@ class TorqueResponder(CvjNode):
         self.source = source
         self.shaft = shaft
         self.answered = 0
+        self.run_token = run_token
+        self.foreign_states = 0          # joint states of another run (not answered)
+        self._diag_frame = tag_frame(self.get_name(), run_token)
         self._names: list[str] | None = None
         self._index = -1
         self.last_stamp_ns = 0
@@ -48,6 +59,9 @@ class TorqueResponder(CvjNode):
         self._answer.header.frame_id = shaft
         self._answer_torque = self._answer.wrench.torque
         self._answer_cdr = WrenchStampedEncoder(shaft)
+        self._js_frame = ''                      # frame_id of the last joint state answered
+        self._answer_frame = shaft
+        self._encoders = {shaft: self._answer_cdr}
         self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states,
                                                DATA_QOS)
 
@@ -63,10 +77,32 @@ class TorqueResponder(CvjNode):
             self.get_logger().error(message)
         elif level == WARN:
             self.get_logger().warning(message)
-        self.diag_pub.publish(diag_array(self.last_stamp_ns, [
-            diag_status(f'{self.get_name()}', level, message, values)]))
+        msg = diag_array(self.last_stamp_ns, [diag_status(f'{self.get_name()}', level, message, values)])
+        msg.header.frame_id = self._diag_frame
+        self.diag_pub.publish(msg)
+
+    def _retag(self, js_frame: str) -> None:
+        """Answer frame_id for joint states with frame_id ``js_frame``: the shaft name, tagged
+        with their run token if they carry one."""
+        token = frame_token(js_frame)
+        self._js_frame = js_frame
+        self._answer_frame = tag_frame(self.shaft, token) if token else self.shaft
+        if self._answer_frame not in self._encoders:   # one per run seen (untagged node)
+            self._encoders[self._answer_frame] = WrenchStampedEncoder(self._answer_frame)
+        self._answer_cdr = self._encoders[self._answer_frame]
+        self._answer.header.frame_id = self._answer_frame
 
     def _on_joint_states(self, msg: Any) -> None:
+        frame = msg.header.frame_id
+        if frame != self._js_frame:
+            if is_foreign(frame, self.run_token):
+                self.foreign_states += 1
+                if self.foreign_states == 1:
+                    self.get_logger().warning(
+                        f'/driveline/joint_states: ignoring states of another run on this ROS '
+                        f'domain (frame_id {frame!r}, this run is {self.run_token!r}); not answered')
+                return
+            self._retag(frame)
         stamp = msg.header.stamp
         self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
         names = msg.name

@@ -154,9 +154,22 @@ class RandomLoad(Load):
         b, i = divmod(k, self.BLOCK)
         return float(self._block(b)[i])
 
+    def unit_knots(self, k0: int, n: int) -> np.ndarray:
+        """Normalised knots u_k / A (-) for k = k0 .. k0 + n - 1, the same values as
+        :meth:`knot`, copied block by block (the kernel packs a horizon of them per run)."""
+        out = np.empty(max(int(n), 0))
+        k, j = int(k0), 0
+        while j < out.size:
+            b, i = divmod(k, self.BLOCK)
+            take = min(self.BLOCK - i, out.size - j)
+            out[j:j + take] = self._block(b)[i:i + take]
+            k += take
+            j += take
+        return out
+
     def knots(self, k0: int, n: int) -> np.ndarray:
         """Knot torques M_m + A u_k (N m) for k = k0 .. k0 + n - 1."""
-        return self.mean + self.amplitude * np.array([self.knot(k) for k in range(k0, k0 + n)])
+        return self.mean + self.amplitude * self.unit_knots(k0, n)
 
     def random_part(self, t: float) -> float:
         """delta(t) in N m (see class docstring)."""

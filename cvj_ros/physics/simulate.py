@@ -20,6 +20,7 @@ max energy scale (cvj_ros.physics.driveline.Driveline.energy_residual).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -157,6 +158,8 @@ class Simulation:
         self.backend = backend
         self.backend_note: str | None = None
         self.compile_seconds: float | None = None
+        self._packed: dict[float, Any] = {}
+        self._shaft_table: NDArray[np.int64] | None = None
         if backend == 'kernel':
             reason = kernel_gap(dl, engine, load, float(scene.duration))
             if reason is not None:
@@ -164,9 +167,17 @@ class Simulation:
                 self.backend_note = f'compiled kernel: {reason}; running the Python reference'
 
     def _model(self, horizon: float):
+        """The scene as kernel data for runs up to ``horizon`` (s). Packed once per horizon
+        and kept (packing is model building, like the fidelity choice: ~0.3 ms for
+        kavz685_lever's 0.5 s of random-load knots); each run gets fresh copies of the
+        arrays, so a run never sees another run's input block."""
         from cvj_ros.physics.kernel.layout import build_model
-        return build_model(self.driveline, engine=self.engine, load=self.load,
-                           horizon=max(horizon, float(self.scene.duration)))
+        h = max(horizon, float(self.scene.duration))
+        cached = self._packed.get(h)
+        if cached is None:
+            cached = build_model(self.driveline, engine=self.engine, load=self.load, horizon=h)
+            self._packed = {h: cached}
+        return dataclasses.replace(cached, ip=cached.ip.copy(), fp=cached.fp.copy())
 
     def _kernel_outputs(self, times: FloatArray, X: FloatArray, e0: float, pos: FloatArray,
                         vel: FloatArray, eff: FloatArray, te: FloatArray, tl: FloatArray,
@@ -174,7 +185,9 @@ class Simulation:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
         from cvj_ros.physics.kernel.outputs_nb import sample_outputs, shaft_table
-        bad = sample_outputs(times, X, self.model.ip, self.model.fp, shaft_table(self.driveline),
+        if self._shaft_table is None:
+            self._shaft_table = shaft_table(self.driveline)
+        bad = sample_outputs(times, X, self.model.ip, self.model.fp, self._shaft_table,
                              float(e0), pos, vel, eff, te, tl, res)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
@@ -261,7 +274,11 @@ class Simulation:
         if self.backend == 'kernel':
             X = np.empty((times.size, x0.size))
             X[0] = x0
-            if sampling == 'land':
+            if sampling == 'land' and progress is None:
+                c0 = clock()
+                stepper.land(times, X)
+                integ += clock() - c0
+            elif sampling == 'land':
                 for k in range(1, times.size):
                     c0 = clock()
                     X[k] = stepper.advance_to(float(times[k]))
@@ -313,14 +330,17 @@ class Simulation:
         return trace
 
     def summary(self, *, transient: float | None = None) -> dict[str, Any]:
-        """Summary of the last run (runs the scene first if needed): per-shaft metrics
+        """Summary of the last run (runs the scene first if needed): the steady window
+        (cvj_ros.physics.steady; ``transient`` s sets its start), per-shaft metrics over it
         (cvj_ros.physics.metrics), energy residual, solver stats, wall time per simulated
         second, fidelity report."""
-        from cvj_ros.physics.metrics import summarize
+        from cvj_ros.physics.metrics import steady_window, summarize
         tr = self.last_trace or self.run()
         sim_time = float(tr.t[-1] - tr.t[0]) or 1.0
+        window = steady_window(tr.t, tr.names, tr.velocity, tr.effort, transient=transient)
         return {'scene': self.scene.name, 'duration': float(tr.t[-1]),
-                'shafts': summarize(tr, transient=transient),
+                'window': window.to_dict(), 'window_text': window.describe(),
+                'shafts': summarize(tr, window=window),
                 'energy_residual': tr.max_energy_residual,
                 'solver': dict(tr.solver), 'wall_time': tr.wall_time,
                 'wall_per_sim_second': tr.wall_time / sim_time,

@@ -350,3 +350,14 @@ def test_time_series_bad_files(tmp_path, content, name, field) -> None:
     assert info.value.field == field
     with pytest.raises(SceneError, match=r'^load\.t: give either file'):
         load_from_spec({'model': 'time_series', 'file': 'x.csv', 't': [0, 1]}, seed=0)
+
+
+def test_random_unit_knots_equal_knot_by_knot_across_blocks() -> None:
+    """unit_knots (the kernel's packing) copies block slices; it must give knot(k) exactly,
+    also for negative k and ranges spanning several 256-knot blocks."""
+    from cvj_ros.physics.load import RandomLoad
+    load = RandomLoad(seed=7, stream=1)
+    for k0, n in ((-2, 5), (-300, 700), (250, 10), (0, 0), (511, 1)):
+        expect = np.array([load.knot(k) for k in range(k0, k0 + n)])
+        np.testing.assert_array_equal(load.unit_knots(k0, n), expect)
+        np.testing.assert_array_equal(load.knots(k0, n), load.mean + load.amplitude * expect)

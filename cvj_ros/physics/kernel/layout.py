@@ -196,7 +196,7 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
         k0 = -2
         nk = int(math.floor(horizon / load.dt)) + 4 - k0
         fp.extend([load.mean, load.amplitude, load.dt, float(k0), float(nk)])
-        fp.extend(load.knot(k) for k in range(k0, k0 + nk))
+        fp.extend(load.unit_knots(k0, nk).tolist())
         return LOAD_RANDOM, off
     raise NotImplementedError(f'compiled kernel: load model {type(load).__name__} '
                               'is not covered yet')

@@ -28,6 +28,11 @@ from . import steppers_nb
 from . import steppers_nb as nb   # layout constants (FS_*, C_*, ST_*)
 
 _COPIES: dict = {}
+# Compiled entry point per stepper function, shared by every KernelStepper of the process:
+# the constructor normalises every argument's type (float64/int64 contiguous arrays, float
+# scalars, bools), so one function has one signature; resolving it per stepper cost ~130 us
+# (typeof of ~20 arguments), more than a 0.5 s kavz685_lever run's whole integration.
+_ENTRY_POINTS: dict = {}
 
 
 def steppers_for(rhs, jac=None):
@@ -81,7 +86,6 @@ class KernelStepper(_StepperBase):
         if method in ('rk4', 'ros2') and self.h is None:
             raise SolverOptionError('h', f'required for the fixed-step method {method!r}')
         self._rhs = rhs
-        self._entries: dict = {}
         self.compile_seconds = 0.0   # wall spent compiling (cache misses), s
         self.cache_path: str | None = None
         self.ip = np.ascontiguousarray(ip, dtype=np.int64)
@@ -139,7 +143,7 @@ class KernelStepper(_StepperBase):
         whose arguments include a numba dispatcher (rhs, jac) costs ~7 us in
         typeof() per call (measured: 10.7 us per call via the dispatcher, 0.7 us
         via the entry point), which would dominate a 1 kHz exchange loop."""
-        entry = self._entries.get(fn)
+        entry = _ENTRY_POINTS.get(fn)
         if entry is not None:
             return entry(*args)
         misses = sum(fn.stats.cache_misses.values()) if hasattr(fn, 'stats') else 0
@@ -150,9 +154,9 @@ class KernelStepper(_StepperBase):
             self.cache_path = fn.stats.cache_path
         from numba import typeof
         try:
-            self._entries[fn] = fn.overloads[tuple(typeof(a) for a in args)].entry_point
+            _ENTRY_POINTS[fn] = fn.overloads[tuple(typeof(a) for a in args)].entry_point
         except (KeyError, AttributeError, ValueError):
-            self._entries[fn] = fn
+            _ENTRY_POINTS[fn] = fn
         return result
 
     # -- protocol attributes backed by the kernel arrays
@@ -201,6 +205,32 @@ class KernelStepper(_StepperBase):
             st = self._call(self._nb.rk4_advance, *a, self._K, self._work)
         self._check(st)
         return self.y
+
+    def land(self, times: np.ndarray, X: np.ndarray) -> None:
+        """advance_to(times[k]) for k = 1 .. m-1 in one compiled call, X[k] = y there
+        (X[0] is left to the caller). times: increasing, finite, times[1] >= t (s).
+        Same steps and bytes as the advance_to loop; raises SolverError like it."""
+        times = np.ascontiguousarray(times, dtype=float)
+        if times.ndim != 1 or X.shape != (times.size, self.n):
+            raise SolverOptionError('times', 'must be 1-d with one row of X per time')
+        if times.size < 2:
+            return
+        if not np.all(np.isfinite(times)) or np.any(np.diff(times[1:]) < 0) or times[1] < self.t:
+            raise SolverOptionError('times', f'must be finite, non-decreasing and >= t={self.t!r}')
+        a = (times, X, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+        if self.method == 'dopri5':
+            st, _ = self._call(self._nb.dopri5_land, *a, self.rtol, self._atol, self.max_step,
+                               self._K, self._work)
+        elif self.method == 'dop853':
+            st, _ = self._call(self._nb.dop853_land, *a, self.rtol, self._atol, self.max_step,
+                               *self._d8, self._K, self._work)
+        elif self.method == 'ros2':
+            st, _ = self._call(self._nb.ros2_land, *a, *self._ros_args())
+        elif self.method in _ROSENBROCK:
+            st, _ = self._call(self._nb.ros_land, *a, *self._rodas_args())
+        else:
+            st, _ = self._call(self._nb.rk4_land, *a, self._K, self._work)
+        self._check(st)
 
     def step(self, t_bound: float = math.inf) -> float:
         """One natural step never past t_bound (s); returns the new t."""

@@ -976,3 +976,77 @@ def dop853_dense(t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
             acc += K[22 - q, i]
             acc *= x if q % 2 == 0 else 1.0 - x
         out[i] = acc + y_old[i]
+
+
+# -- 'land' sampling: advance_to every sample time in one call (Simulation.run without a
+# progress callback). One Python round trip per sample cost ~15-20 us of dispatch and state
+# sync (measured: 10 samples of a 0.5 s kavz685_lever run at tol 1e-3 = ~30 % of the run).
+
+@njit(cache=True)
+def _store_row(X, k, y):
+    for i in range(y.size):
+        X[k, i] = y[i]
+
+
+@njit(cache=True)
+def dopri5_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
+    """dopri5_advance to each times[k], k >= 1, row k of X = y there.
+    Returns (ST_*, k of the failing sample, or times.size)."""
+    for k in range(1, times.size):
+        st = dopri5_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
+        if st != ST_OK:
+            return st, k
+        _store_row(X, k, y)
+    return ST_OK, times.size
+
+
+@njit(cache=True)
+def dop853_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
+                E3, K, work):
+    """dop853_advance to each times[k], k >= 1 (see dopri5_land)."""
+    for k in range(1, times.size):
+        st = dop853_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A,
+                            B, E5, E3, K, work)
+        if st != ST_OK:
+            return st, k
+        _store_row(X, k, y)
+    return ST_OK, times.size
+
+
+@njit(cache=True)
+def rk4_land(times, X, y, y_old, ip, fp, fs, cnt, K, work):
+    """rk4_advance to each times[k], k >= 1 (see dopri5_land)."""
+    for k in range(1, times.size):
+        st = rk4_advance(times[k], y, y_old, ip, fp, fs, cnt, K, work)
+        if st != ST_OK:
+            return st, k
+        _store_row(X, k, y)
+    return ST_OK, times.size
+
+
+@njit(cache=True)
+def ros2_land(times, X, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+              J, LU, piv, ft, K, work):
+    """ros2_advance to each times[k], k >= 1 (see dopri5_land)."""
+    for k in range(1, times.size):
+        st = ros2_advance(times[k], y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
+                          J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st, k
+        _store_row(X, k, y)
+    return ST_OK, times.size
+
+
+@njit(cache=True)
+def ros_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
+             constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
+             K, work):
+    """ros_advance (RODAS5P, rodas4) to each times[k], k >= 1 (see dopri5_land)."""
+    for k in range(1, times.size):
+        st = ros_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                         autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order,
+                         fac_max, J, LU, piv, ft, K, work)
+        if st != ST_OK:
+            return st, k
+        _store_row(X, k, y)
+    return ST_OK, times.size

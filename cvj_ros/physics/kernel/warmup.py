@@ -30,7 +30,7 @@ def tiny_model():
 
 
 def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
-    """Compile or load each method's entry points (advance, step, dense, sample); returns
+    """Compile or load each method's entry points (advance, step, dense, sample, land); returns
     the total wall time (s)."""
     import numpy as np
 
@@ -49,6 +49,7 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
         st.step(2e-3)
         st.dense(0.5 * (st.t_old + st.t))
         st.sample(np.array([st.t, st.t + 1e-3]))
+        st.land(np.array([st.t, st.t + 1e-3, st.t + 2e-3]), np.empty((3, model.x0.size)))
         dt = time.perf_counter() - t0
         total += dt
         how = f'compiled in {st.compile_seconds:.1f} s' if st.compile_seconds else 'loaded'

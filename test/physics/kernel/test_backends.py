@@ -188,3 +188,38 @@ def test_offline_trace_bytes_do_not_depend_on_openblas_kernel(tmp_path: Path) ->
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout.strip().splitlines()[-1] == first, core
     assert math.isfinite(float(here.read_text().splitlines()[-1].split(',')[1]))
+
+
+@pytest.mark.parametrize('method', ['dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4'])
+def test_land_in_one_call_gives_the_bytes_of_the_advance_to_loop(method: str) -> None:
+    """KernelStepper.land (Simulation's sampling without a progress callback) runs the same
+    compiled advance per sample as advance_to, so states and counters are identical."""
+    from cvj_ros.physics.kernel import rhs_nb
+    from cvj_ros.physics.kernel.stepper import KernelStepper
+    sim = Simulation(load_scene(shipped_scenes()['kavz685_lever']))
+    model = sim._model(0.2)
+    times = np.linspace(0.0, 0.2, 9)
+    kw = dict(rtol=1e-6, atol=1e-9, h=1e-4 if method in ('rk4', 'ros2') else None,
+              jac=rhs_nb.jac)
+    a = KernelStepper(method, rhs_nb.rhs, model.ip, model.fp.copy(), 0.0, model.x0, **kw)
+    b = KernelStepper(method, rhs_nb.rhs, model.ip, model.fp.copy(), 0.0, model.x0, **kw)
+    X = np.empty((times.size, model.x0.size))
+    a.land(times, X)
+    for k in range(1, times.size):
+        np.testing.assert_array_equal(X[k], b.advance_to(float(times[k])))
+    assert (a.nfev, a.naccept, a.nreject, a.t) == (b.nfev, b.naccept, b.nreject, b.t)
+
+
+def test_simulation_reruns_and_progress_path_give_identical_traces() -> None:
+    """The packed model is kept per horizon and copied per run; a rerun and the
+    per-sample path (taken when a progress callback is given) give the same bytes."""
+    sim = Simulation(load_scene(shipped_scenes()['kavz685_lever']), rtol=1e-7, atol=1e-9)
+    seen: list[float] = []
+    first = sim.run(0.3, sample_dt=0.01)
+    second = sim.run(0.3, sample_dt=0.01)
+    third = sim.run(0.3, sample_dt=0.01, progress=seen.append)
+    for tr in (second, third):
+        np.testing.assert_array_equal(tr.velocity, first.velocity)
+        np.testing.assert_array_equal(tr.position, first.position)
+        assert tr.solver['nfev'] == first.solver['nfev']
+    assert len(seen) == first.t.size - 1

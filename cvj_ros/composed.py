@@ -1,0 +1,606 @@
+"""Composed mode: engine, load, monitor and coupling nodes plus the bag recorder in ONE process.
+
+ROS 2's answer to process hops is composition: the nodes stay separate nodes (own name,
+own parameters, own publishers and subscriptions on the same topics) but share one process
+and one executor. rclcpp has a component container; rclpy has none, so this module is its
+equivalent for the cvj_ros nodes:
+
+* :class:`ComposedDriveline` creates the node classes of ``cvj_ros.nodes`` (EngineNode,
+  LoadNode, MonitorNode, CouplingNode, and a ``cvj_recorder`` node with a
+  :class:`cvj_ros.bag.BagRecorder`) on one rclpy Context and spins them on one
+  ``rclpy.experimental.EventsExecutor`` (falls back to the SingleThreadedExecutor, with the
+  reason stated, when the EventsExecutor cannot be created). Every message still goes
+  through DDS (Fast DDS delivers inside the process without a socket), so the topics and the
+  bag are the same as with one process per node, message for message
+  (test/e2e/test_run_composed.py).
+* :func:`run_composed` is ``cvj-sim run SCENE --composed``: the same validation, bag,
+  report and exit statuses as :func:`cvj_ros.orchestrate.run`, with the nodes inside the
+  ``cvj-sim`` process instead of child processes.
+* :func:`main` is the ``driveline_composed`` console script for a ROS install
+  (``ros2 run cvj_ros driveline_composed --ros-args -p scene:=kavz685_lever``): ``-p``
+  parameters go to every hosted node (each takes the ones it declares), ``--without NODE``
+  leaves a node out so it can run alone (``ros2 run cvj_ros load_node ...``) or be replaced
+  by an outside node, ``--record DIR`` writes a bag from inside the process.
+
+Why one executor and not one thread per node: the lockstep exchange is a chain of callbacks
+(coupling publishes the state -> engine and load answer -> coupling integrates and publishes
+the next state). On one executor each link is a queue hand-off in the same thread; with
+threads every link would also wait for the GIL (switch interval 5 ms).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, TextIO
+
+from cvj_ros.errors import CvjError
+
+PROG = 'driveline_composed'
+# Creation order: the recorder first (subscribed before anything publishes), the coupling node
+# last (it makes the peers talk), as in cvj_ros.orchestrate.NODE_ORDER.
+HOSTED_NODES = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')
+EXECUTORS = ('events', 'single')
+
+
+def node_class(name: str) -> type:
+    """The rclpy Node class of hosted node ``name`` (imported on demand)."""
+    if name == 'engine_node':
+        from cvj_ros.nodes.engine_node import EngineNode
+        return EngineNode
+    if name == 'load_node':
+        from cvj_ros.nodes.load_node import LoadNode
+        return LoadNode
+    if name == 'monitor_node':
+        from cvj_ros.nodes.monitor_node import MonitorNode
+        return MonitorNode
+    if name == 'coupling_node':
+        from cvj_ros.nodes.coupling_node import CouplingNode
+        return CouplingNode
+    raise CvjError(f'node: must be one of {", ".join(HOSTED_NODES)}, got {name!r}')
+
+
+def make_composed_executor(kind: str, context: Any) -> tuple[Any, str, str | None]:
+    """``(executor, kind used, fallback reason or None)``.
+
+    ``'events'``: ``rclpy.experimental.EventsExecutor`` (measured in-process round trip 19 us
+    against ~150 us with the SingleThreadedExecutor, docs/benchmark.md); if it cannot be
+    created (an rclpy without it), the SingleThreadedExecutor and the reason.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+            return EventsExecutor(context=context), 'events', None
+        except Exception as exc:  # noqa: BLE001 (ImportError, or a failing C extension)
+            return (SingleThreadedExecutor(context=context), 'single',
+                    f'EventsExecutor unavailable ({type(exc).__name__}: {exc}); '
+                    'using the SingleThreadedExecutor')
+    if kind != 'single':
+        raise CvjError(f'--executor: must be one of {", ".join(EXECUTORS)}, got {kind!r}')
+    return SingleThreadedExecutor(context=context), 'single', None
+
+
+class BatchingWriter:
+    """Front of a :class:`cvj_ros.bag.BagWriter` for a recorder that shares its thread with
+    the nodes: messages are collected and handed to the writer thread ``batch`` at a time
+    (:meth:`cvj_ros.bag.BagWriter.write_batch`) or when :meth:`flush` is called (every spin
+    tick, <= 0.25 s). Why: one queue hand-off per message woke the writer thread ~6 times per
+    exchange, and each wake-up made the executor thread wait for the GIL (measured on this
+    2-core machine under load: the recorder callbacks took 1.3-2.5 ms per exchange, most
+    of the exchange). ``counts`` include the collected messages, so progress and the drain
+    see every message at once.
+    """
+
+    def __init__(self, writer: Any, *, batch: int = 1024) -> None:
+        self.writer = writer
+        self.batch = batch
+        self.counts: dict[str, int] = {}
+        self._items: list[tuple[str, int, bytes]] = []
+
+    def add_topic(self, topic: str, msgtype: str | None = None) -> None:
+        self.writer.add_topic(topic, msgtype)
+        self.counts.setdefault(topic, 0)
+
+    def write(self, topic: str, timestamp_ns: int, data: Any) -> None:
+        """Collect one raw CDR message (record time ns); hand over when ``batch`` are collected."""
+        self._items.append((topic, int(timestamp_ns), bytes(data)))
+        self.counts[topic] += 1
+        if len(self._items) >= self.batch:
+            self.flush()
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        self.writer.set_custom_data(key, value)
+
+    def flush(self) -> None:
+        """Hand everything collected to the writer thread."""
+        if self._items:
+            items, self._items = self._items, []
+            self.writer.write_batch(items)
+
+
+class ComposedDriveline:
+    """Hosts cvj_ros nodes (and optionally the recorder) on one context and one executor.
+
+    Args:
+        context: an initialised rclpy Context (the caller shuts it down).
+        executor: ``'events'`` (default) or ``'single'``.
+    """
+
+    def __init__(self, context: Any, *, executor: str = 'events') -> None:
+        import rclpy
+        self.context = context
+        self.executor, self.executor_kind, self.executor_note = make_composed_executor(executor, context)
+        self.nodes: dict[str, Any] = {}
+        self.recorder: Any = None
+        self.batching: BatchingWriter | None = None
+        self._recorder_node: Any = None
+        self._wake: Any = None
+        # the container's own node (as rclcpp's component manager has one): its timers end
+        # the timed spins, see _spin
+        self._container = rclpy.create_node(PROG, context=context)
+        self.executor.add_node(self._container)
+
+    def add_node(self, name: str, *, cli_args: Sequence[str] | None = None) -> Any:
+        """Create hosted node ``name`` with its own ``--ros-args`` (``cli_args``, e.g. ``-p
+        scene:=...``) and add it to the executor. Raises CvjError (ParameterError) for a bad
+        parameter, naming it, as the node's own process would."""
+        cls = node_class(name)
+        kwargs: dict[str, Any] = {'context': self.context}
+        if cli_args:
+            kwargs['cli_args'] = list(cli_args)
+        node = cls(**kwargs)
+        self.nodes[name] = node
+        if self.recorder is not None:
+            # record the node's contract topics from its first message: subscribed before the
+            # executor runs the node (the recorder's graph scan every 0.2 s would miss the
+            # first reaction wrenches of /coupling/<joint>/wrench)
+            from cvj_ros.bag import topic_type
+            for pub in node.publishers:
+                if topic_type(pub.topic_name) is not None:
+                    self.recorder.subscribe(pub.topic_name)
+        node.done.add_done_callback(lambda _f: self.wake())   # finished or failed: stop spinning
+        self.executor.add_node(node)
+        return node
+
+    def add_recorder(self, writer: Any, topics: Sequence[str] = (), *,
+                     hold: Sequence[str] = (), run_token: str = '') -> Any:
+        """A ``cvj_recorder`` node with a :class:`cvj_ros.bag.BagRecorder` writing to ``writer``
+        (subscribes to every contract topic plus ``topics``); its callbacks run on the shared
+        executor. ``hold``: topics dropped (counted) until :attr:`recorder.hold` is cleared."""
+        import rclpy
+
+        from cvj_ros import bag as bagmod
+        self._recorder_node = rclpy.create_node('cvj_recorder', context=self.context)
+        self.batching = BatchingWriter(writer)
+        self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
+                                           run_token=run_token)
+        self.recorder.hold = frozenset(hold)
+        self.executor.add_node(self._recorder_node)
+        return self.recorder
+
+    def publisher_count(self, topic: str) -> int:
+        """Publishers matched by the recorder's subscription of ``topic`` (0 without recorder)."""
+        sub = None if self.recorder is None else self.recorder._subs.get(topic)
+        return 0 if sub is None else sub.get_publisher_count()
+
+    def wake(self) -> None:
+        """End the current spin (safe from a signal handler and from callbacks)."""
+        wake = self._wake
+        if wake is not None and not wake.done():
+            wake.set_result(True)
+
+    def _spin(self, seconds: float) -> None:
+        """Run callbacks for ``seconds`` (wall s) or until :meth:`wake`.
+
+        The end is a timer on the container node, not the executor's timeout: measured here,
+        ``EventsExecutor.spin_until_future_complete(timeout_sec=...)`` does not return while
+        events keep arriving (a lockstep loop never pauses), so a timeout alone would never
+        give control back for Ctrl-C or progress until the run ends."""
+        from rclpy.task import Future
+        self._wake = Future()
+        timer = self._container.create_timer(max(seconds, 1e-4), self.wake)
+        try:
+            self.executor.spin_until_future_complete(self._wake, timeout_sec=max(seconds, 1e-4) + 1.0)
+        finally:
+            self._container.destroy_timer(timer)
+            self._wake = None
+            self.flush()
+
+    def spin_for(self, seconds: float) -> None:
+        """Run callbacks for ``seconds`` (wall s), or until :meth:`wake` / a hosted node ends."""
+        self._spin(seconds)
+
+    def flush(self) -> None:
+        """Hand the recorder's collected messages to the bag writer thread."""
+        if self.batching is not None:
+            self.batching.flush()
+
+    def spin_until_done(self, node: Any, *, stop: Callable[[], bool] = lambda: False,
+                        on_tick: Callable[[], None] | None = None, tick: float = 0.25) -> None:
+        """Spin until ``node.exit_code`` is set, any hosted node failed, ``stop()`` (call
+        :meth:`wake` with it from the signal handler) or the context shut down; ``on_tick``
+        runs every ``tick`` s (progress)."""
+        while node.exit_code is None and self.context.ok() and not stop() and self.failed() is None:
+            self._spin(tick)
+            if on_tick is not None:
+                on_tick()
+
+    def failed(self) -> str | None:
+        """``'<node>: <error>'`` of the first hosted node that ended with an error, else None."""
+        for name, node in self.nodes.items():
+            if node.exit_code not in (None, 0):
+                return f'{name}: {node.error_message or f"exit status {node.exit_code}"}'
+        return None
+
+    def destroy(self) -> None:
+        """Remove every node and the recorder's subscriptions; shut the executor down."""
+        try:
+            self.executor.shutdown()
+        except Exception:  # noqa: BLE001 (context already shut down)
+            pass
+        for node in reversed(list(self.nodes.values())):
+            node.destroy_node()
+        self.nodes.clear()
+        self._container.destroy_node()
+        if self.recorder is not None:
+            self.recorder.destroy()
+            self.flush()
+        if self._recorder_node is not None:
+            self._recorder_node.destroy_node()
+            self._recorder_node = None
+
+
+# --- cvj-sim run --composed ------------------------------------------------------------------
+
+def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeout: float,
+                    lockstep: bool, domain: int, external: Sequence[str],
+                    external_timeout: float) -> str | None:
+    """Spin until the recorder sees one engine and one load publisher (ours or the outside
+    node's) and, in lockstep, no other run's publishers for DISCOVERY_SETTLE_S; an error line
+    otherwise (same rules and wording as cvj_ros.orchestrate._wait_for_peers)."""
+    from cvj_ros import bag as bagmod
+    from cvj_ros.orchestrate import DISCOVERY_SETTLE_S, EXTERNAL_PEERS, PEER_TOPICS
+    t0 = time.monotonic()
+    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    settled_since: float | None = None
+    while not stop():
+        comp.spin_for(0.02)
+        n_js = comp.publisher_count(bagmod.JOINT_STATES_TOPIC)
+        extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
+            [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+             if (n := comp.publisher_count(topic)) > 1]
+        if extra and lockstep:
+            return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
+                    f'{domain} before the loop started: another run or node shares this domain; '
+                    'give each run its own ROS_DOMAIN_ID')
+        missing = [n for n, topic in PEER_TOPICS.items() if comp.publisher_count(topic) < 1]
+        now = time.monotonic()
+        if not missing:
+            settled_since = now if settled_since is None else settled_since
+            if not lockstep or now - settled_since >= DISCOVERY_SETTLE_S:
+                return None
+            continue
+        settled_since = None
+        for name in missing:
+            if name in outside and now > t0 + external_timeout:
+                return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
+                        f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s')
+        if now > t0 + timeout and any(n not in outside for n in missing):
+            name = next(n for n in missing if n not in outside)
+            return f'{name}: {PEER_TOPICS[name]} not connected within {timeout:g} s'
+    return None
+
+
+def _drain(comp: ComposedDriveline, *, expected: dict[str, int], idle: float, bound: float) -> None:
+    """Spin until the recorder has ``expected`` counts, or no message for ``idle`` s; <= ``bound`` s."""
+    start = time.monotonic()
+    deadline = start + bound
+    rec = comp.recorder
+    while time.monotonic() < deadline:
+        counts = rec.counts
+        if expected and all(counts.get(t, 0) >= n for t, n in expected.items()):
+            return
+        if time.monotonic() - max(rec.last_message_wall, start) > idle:
+            return
+        comp.spin_for(0.02)
+
+
+def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
+    """``cvj-sim run --composed``: the run of :func:`cvj_ros.orchestrate.run` with every node
+    and the recorder inside this process on one executor; returns the RunResult (also in
+    ``OUT/report.json``, with ``settings.process = composed`` and the executor used).
+
+    The DDS settings of the node processes (:func:`cvj_ros.nodes.qos.dds_environment`:
+    synchronous publication, the 20 ms heartbeat profile, localhost discovery) and
+    ``ROS_LOG_DIR=OUT/logs/ros`` (the nodes' log files; nothing on the console) are put
+    into this process's environment for the run and restored after it.
+    """
+    from cvj_ros import bag as bagmod
+    from cvj_ros import orchestrate as orch
+    stream = sys.stdout if stream is None else stream
+    prep = orch.prepare(options)
+    env, domain = orch._domain_env()
+    out = Path(options.out)
+    for entry in orch.RUN_ENTRIES:   # --overwrite removes the previous run's files, nothing else
+        path = out / entry
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+    logs = out / 'logs'
+    logs.mkdir(parents=True, exist_ok=True)
+    env['ROS_LOG_DIR'] = str(logs / 'ros')
+    from cvj_ros.nodes.qos import dds_environment
+    dds_environment(env, profile_dir=str(out))
+    load_override = None
+    if prep.load_series is not None:
+        import numpy as np
+        load_override = out / 'load_override.npz'
+        np.savez(load_override, t=prep.load_series[0], torque=prep.load_series[1])
+
+    saved_env = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    stop_signal: list[int] = []
+    previous: dict[int, Any] = {}
+    comp: ComposedDriveline | None = None
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop_signal.append(signum)
+        if comp is not None:
+            comp.wake()
+    in_main = threading.current_thread() is threading.main_thread()
+    if in_main:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+
+    wall0 = time.monotonic()
+    phases: dict[str, float] = {}
+
+    def mark(name: str) -> None:
+        phases[name] = round(time.monotonic() - wall0, 4)
+    writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
+    # run identity: every node and the recorder drop messages tagged with another token
+    from cvj_ros.nodes.run_token import new_run_token
+    run_token = new_run_token()
+    writer.set_custom_data('cvj_ros.run_token', run_token)
+    foreign_dropped: dict[str, int] = {}
+    for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
+                       ('cvj_ros.coupling_scheme', options.scheme),
+                       ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
+                       ('cvj_ros.duration', repr(prep.duration)),
+                       ('cvj_ros.exchange_step', repr(prep.exchange_step)),
+                       ('cvj_ros.external', ','.join(options.external)),
+                       ('cvj_ros.process', 'composed')):
+        writer.set_custom_data(key, value)
+    steps = int(round(prep.duration / prep.exchange_step))
+    error: str | None = None
+    stopped_by: str | None = None
+    ctx = None
+    exit_codes: dict[str, int | None] = {}
+    rec_state = None
+    from cvj_ros.progress import Progress
+    progress = Progress(prep.duration, label='cvj-sim run')
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    try:
+        ctx = Context()
+        # console logs off (they would interleave with the report); the log files stay in
+        # ROS_LOG_DIR; rcl logging is set up once per process, so this holds for the first run
+        rclpy.init(args=['--ros-args', '--disable-stdout-logs'], context=ctx, domain_id=domain,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        comp = ComposedDriveline(ctx, executor=options.executor)
+        comp.add_recorder(writer, prep.coupling_topics,
+                          hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
+                          if options.mode == 'lockstep' else (), run_token=run_token)
+        for name in prep.nodes:
+            if stop_signal or error is not None:
+                break
+            if name == 'coupling_node':
+                if options.external:
+                    progress.clear()
+                    print(orch.external_wait_line(options.external, domain, options.external_timeout),
+                          file=stream, flush=True)
+                error = _wait_for_peers(comp, lambda: bool(stop_signal), timeout=options.start_timeout,
+                                        lockstep=options.mode == 'lockstep', domain=domain,
+                                        external=options.external,
+                                        external_timeout=options.external_timeout)
+                mark('peers_connected')
+                if error is not None or stop_signal:
+                    break
+                comp.recorder.hold = frozenset()
+            params = orch.node_parameters(prep, name, load_override=load_override,
+                                          run_token=run_token)
+            try:
+                comp.add_node(name, cli_args=orch._ros_args(params))
+            except CvjError as exc:   # bad parameter: the line the node's own process prints
+                error = f'{name}: error: {exc}'
+        coupling = comp.nodes.get('coupling_node')
+        js = bagmod.JOINT_STATES_TOPIC
+
+        def on_tick() -> None:
+            states = comp.recorder.counts.get(js, 0)
+            if 'loop_started' not in phases and states:
+                mark('loop_started')
+                print(f'cvj-sim run: loop running in one process (domain {domain}, '
+                      f'{comp.executor_kind} executor), recording to {out / "bag"}',
+                      file=stream, flush=True)
+            if states:
+                progress.update((states - 1) * prep.exchange_step)
+        if comp.executor_note:
+            print(f'cvj-sim run: {comp.executor_note}', file=stream, flush=True)
+        if coupling is not None and error is None:
+            comp.spin_until_done(coupling, stop=lambda: bool(stop_signal), on_tick=on_tick)
+        progress.close()
+        mark('coupling_exited')
+        if comp.recorder is not None:   # later /clock beyond our last state: another run's
+            comp.recorder.loop_ended = True
+        if error is None:
+            error = comp.failed()
+        if stop_signal or error is not None or coupling is None:
+            if stop_signal:
+                stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
+                    stop_signal[0], str(stop_signal[0]))
+            _drain(comp, expected={}, idle=0.3, bound=2.0)
+        else:
+            lockstep_ok = coupling.exit_code == 0 and options.mode == 'lockstep'
+            # lockstep: N+1 states and clocks, and the peers' answers to the final state
+            _drain(comp, expected={t: steps + 1 for t in (bagmod.CLOCK_TOPIC, js,
+                                                          *orch.PEER_TOPICS.values())}
+                   if lockstep_ok else {}, idle=2.0 if lockstep_ok else 0.5, bound=5.0)
+        mark('drained')
+    finally:
+        progress.close()
+        try:
+            if comp is not None:
+                exit_codes = {n: node.exit_code for n, node in comp.nodes.items()}
+                if comp.recorder is not None:
+                    rec_state = (dict(comp.recorder.first_wall), dict(comp.recorder.last_wall))
+                    foreign_dropped = dict(comp.recorder.foreign)
+                comp.destroy()
+        finally:
+            if ctx is not None and ctx.ok():
+                rclpy.shutdown(context=ctx)
+            writer.close()
+            for k, v in saved_env.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+            if in_main:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
+    mark('bag_closed')
+    if stop_signal:
+        code = 130 if stop_signal[0] == signal.SIGINT else 128 + int(stop_signal[0])
+    elif error is not None:
+        code = 1
+    else:
+        code = 0
+    return _finish(orch, options, prep, out, domain, code=code, error=error, stopped_by=stopped_by,
+                   counts=dict(writer.counts), rec_state=rec_state, exit_codes=exit_codes,
+                   phases=phases, wall=time.monotonic() - wall0, steps=steps, stream=stream,
+                   executor=comp.executor_kind if comp is not None else options.executor,
+                   run_token=run_token, foreign_dropped=foreign_dropped)
+
+
+def _finish(orch: Any, options: Any, prep: Any, out: Path, domain: int, *, code: int,
+            error: str | None, stopped_by: str | None, counts: dict[str, int],
+            rec_state: Any, exit_codes: dict[str, int | None], phases: dict[str, float],
+            wall: float, steps: int, stream: TextIO, executor: str, run_token: str,
+            foreign_dropped: dict[str, int]) -> Any:
+    """RunResult, metrics, report.json and the printed report (as the tail of orchestrate.run)."""
+    from cvj_ros import bag as bagmod
+    js = bagmod.JOINT_STATES_TOPIC
+    loop_wall = wall_per_step = None
+    if rec_state and js in rec_state[0] and counts.get(js, 0) > 1:
+        loop_wall = rec_state[1][js] - rec_state[0][js]
+        wall_per_step = loop_wall / (counts[js] - 1)
+    sim_done = (counts.get(js, 1) - 1) * prep.exchange_step if counts.get(js) else 0.0
+    result = orch.RunResult(
+        exit_code=code, out=out, bag=out / 'bag', scene_path=str(prep.scene_path), domain_id=domain,
+        sim_duration=sim_done, exchange_step=prep.exchange_step, steps_expected=steps,
+        wall_time=wall, loop_wall_time=loop_wall, wall_per_step=wall_per_step,
+        real_time_factor=sim_done / loop_wall if loop_wall else None,
+        counts=counts, node_exit_codes=exit_codes, error=error, stopped_by=stopped_by,
+        phases=phases, external=list(options.external))
+    return orch.finish_result(result, options, prep, stream=stream, run_token=run_token,
+                              foreign_dropped=foreign_dropped,
+                              settings={'process': 'composed', 'executor': executor})
+
+
+# --- driveline_composed console script -------------------------------------------------------
+
+def _parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description='Host engine_node, load_node, monitor_node and coupling_node in one '
+        'process on one executor (composed mode). ROS parameters after --ros-args (-p NAME:=VALUE '
+        'or --params-file) go to every hosted node; each node takes the parameters it declares.',
+        epilog='example: driveline_composed --ros-args -p scene:=kavz685_lever -p exchange_step:=0.001')
+    parser.add_argument('--without', action='append', default=[], choices=HOSTED_NODES,
+                        metavar='NODE', help='leave NODE out (it runs alone or an outside node '
+                        'answers instead); repeatable')
+    parser.add_argument('--record', type=Path, default=None, metavar='DIR',
+                        help='also record a bag to DIR (must not exist) from inside the process')
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    parser.add_argument('--executor', choices=EXECUTORS, default='events',
+                        help='events (default; falls back to single if unavailable) or single')
+    return parser.parse_args(list(argv))
+
+
+def _main(args: Sequence[str] | None) -> int:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import remove_ros_args
+
+    from cvj_ros.nodes.parameters import EXIT_OK, EXIT_PARAMETER
+    argv = list(sys.argv if args is None else [PROG, *args])
+    opts = _parse_args(remove_ros_args(argv)[1:])
+    if opts.record is not None and opts.record.exists():
+        raise CvjError(f'--record: {opts.record} exists')
+    ctx = Context()
+    rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    stop: list[int] = []
+    comp = ComposedDriveline(ctx, executor=opts.executor)
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop.append(signum)
+        comp.wake()
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    writer = None
+    try:
+        if comp.executor_note:
+            print(f'{PROG}: {comp.executor_note}', file=sys.stderr)
+        if opts.record is not None:
+            from cvj_ros import bag as bagmod
+            writer = bagmod.BagWriter(opts.record, storage=opts.storage)
+            comp.add_recorder(writer)
+        for name in HOSTED_NODES:
+            if name in opts.without:
+                continue
+            try:
+                comp.add_node(name)
+            except CvjError as exc:
+                print(f'{PROG}: error: {name}: {exc}', file=sys.stderr)
+                return EXIT_PARAMETER
+        done = comp.nodes.get('coupling_node')
+        if done is None:   # no loop owner here: serve until Ctrl-C or a node fails
+            while ctx.ok() and not stop and comp.failed() is None:
+                comp.spin_for(0.25)
+        else:
+            comp.spin_until_done(done, stop=lambda: bool(stop))
+            if comp.recorder is not None:
+                _drain(comp, expected={}, idle=0.5, bound=5.0)
+        failed = comp.failed()
+        if failed is not None and not stop:
+            return next(n.exit_code for n in comp.nodes.values() if n.exit_code not in (None, 0))
+        return EXIT_OK
+    finally:
+        comp.destroy()
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+        if writer is not None:
+            writer.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    """Console script ``driveline_composed`` (exit 0 finished or stopped by Ctrl-C/SIGTERM,
+    1 runtime error, 2 bad parameter: one line on stderr, no traceback)."""
+    from cvj_ros.guard import guarded
+    sys.exit(int(guarded(PROG, lambda: _main(args))))
+
+
+if __name__ == '__main__':
+    main()

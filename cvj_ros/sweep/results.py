@@ -1,0 +1,184 @@
+"""Sweep output directory: finished rows, results.csv, timing.csv, sweep.json.
+
+Files in ``--out DIR``:
+
+* ``rows.jsonl`` - one JSON line per finished variant, appended as chunks finish (the
+  record that makes Ctrl-C keep finished work and a rerun skip it). JSON writes floats
+  with ``repr``, which round-trips exactly;
+* ``results.csv`` - the table: ``variant``, one column per ``--set`` (the path as given),
+  ``status`` (ok | invalid | failed), the metrics (energy residual, solver counters,
+  backend, ``SHAFT.METRIC`` per shaft) and ``error`` last. Rows in variant order, floats
+  written with ``repr`` (shortest text that reads back to the same double), so the file
+  is the same bytes whichever executor, worker count or resume history produced it;
+* ``timing.csv`` - ``variant,wall_s``: wall time of each variant (varies run to run,
+  hence not in results.csv);
+* ``sweep.json`` - the definition (scene, its data and SHA-256, the --set specs, samples,
+  seed, run options), software versions and one entry per invocation (executor, workers,
+  variants run, wall time, rate).
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import platform
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+FORMAT = 'cvj_ros.sweep/1'
+RESULTS = 'results.csv'
+TIMING = 'timing.csv'
+ROWS = 'rows.jsonl'
+MANIFEST = 'sweep.json'
+
+
+def fmt(value: Any) -> str:
+    """CSV text of a cell: floats by ``repr`` (exact round trip; 'nan', 'inf'), ints by
+    ``str``, None as empty."""
+    if value is None:
+        return ''
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def scene_digest(data: Mapping[str, Any]) -> str:
+    """SHA-256 of the scene dict in canonical JSON (sorted keys): names the base scene."""
+    text = json.dumps(data, sort_keys=True, separators=(',', ':'), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def versions() -> dict[str, str]:
+    """Versions of what computed the rows (python, cvj_ros and the numeric stack)."""
+    from importlib import metadata
+
+    import cvj_ros
+    out = {'python': platform.python_version(), 'cvj_ros': cvj_ros.__version__,
+           'platform': platform.platform()}
+    for pkg in ('numpy', 'scipy', 'numba', 'llvmlite', 'dask', 'distributed'):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+class ResultStore:
+    """The files of one sweep directory (created on first write)."""
+
+    def __init__(self, out_dir: str | os.PathLike[str]) -> None:
+        self.dir = Path(out_dir)
+
+    def path(self, name: str) -> Path:
+        return self.dir / name
+
+    # --- manifest ---
+    def read_manifest(self) -> dict[str, Any] | None:
+        p = self.path(MANIFEST)
+        if not p.is_file():
+            return None
+        try:
+            data = json.loads(p.read_text())
+        except (OSError, ValueError):
+            return None
+        return data if isinstance(data, dict) else None
+
+    def write_manifest(self, manifest: Mapping[str, Any]) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        tmp = self.path(MANIFEST + '.tmp')
+        tmp.write_text(json.dumps(manifest, indent=1, default=str) + '\n')
+        tmp.replace(self.path(MANIFEST))
+
+    def clear(self) -> None:
+        """Remove this sweep's files (``--fresh``); other files in the directory stay."""
+        for name in (ROWS, RESULTS, TIMING, MANIFEST):
+            self.path(name).unlink(missing_ok=True)
+        plots = self.dir / 'plots'
+        if plots.is_dir():
+            for f in plots.glob('*.png'):
+                f.unlink()
+
+    # --- finished rows ---
+    def load_done(self) -> dict[int, tuple[dict[str, Any], float]]:
+        """Finished variants: index -> (row, wall s). A line cut short by a kill is skipped
+        (its variant runs again)."""
+        p = self.path(ROWS)
+        done: dict[int, tuple[dict[str, Any], float]] = {}
+        if not p.is_file():
+            return done
+        with p.open() as f:
+            for line in f:
+                try:
+                    rec = json.loads(line)
+                    done[int(rec['variant'])] = (dict(rec['row']), float(rec['wall_s']))
+                except (ValueError, KeyError, TypeError):
+                    continue
+        return done
+
+    def append(self, outcomes: Iterable[Any]) -> None:
+        """Append finished variants (objects with index, row, wall) to rows.jsonl, flushed."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        text = ''.join(json.dumps({'variant': o.index, 'row': o.row, 'wall_s': o.wall}) + '\n'
+                       for o in outcomes)
+        with self.path(ROWS).open('a') as f:
+            f.write(text)
+            f.flush()
+
+    # --- tables ---
+    def write_tables(self, axis_columns: Sequence[str], variants: Sequence[Sequence[Any]],
+                     done: Mapping[int, tuple[Mapping[str, Any], float]]) -> int:
+        """Write results.csv and timing.csv from the finished rows (variant order); returns
+        the number of rows written."""
+        order = sorted(i for i in done if 0 <= i < len(variants))
+        metric_cols: dict[str, None] = {}
+        for i in order:
+            for k in done[i][0]:
+                if k not in ('status', 'error'):
+                    metric_cols.setdefault(k, None)
+        header = ['variant', *axis_columns, 'status', *metric_cols, 'error']
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator='\n')
+        w.writerow(header)
+        for i in order:
+            row = done[i][0]
+            w.writerow([str(i), *(fmt(v) for v in variants[i]), row.get('status', ''),
+                        *(fmt(row.get(c)) for c in metric_cols), row.get('error', '')])
+        self.dir.mkdir(parents=True, exist_ok=True)
+        _atomic_write(self.path(RESULTS), buf.getvalue())
+        _atomic_write(self.path(TIMING), 'variant,wall_s\n' + ''.join(
+            f'{i},{done[i][1]!r}\n' for i in order))
+        return len(order)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + '.tmp')
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def read_results(path: str | os.PathLike[str]) -> tuple[list[str], list[dict[str, str]]]:
+    """(header, rows as dicts of text) of a results.csv."""
+    with open(path, newline='') as f:
+        r = csv.DictReader(f)
+        rows = list(r)
+        return list(r.fieldnames or []), rows
+
+
+def as_float(text: str) -> float:
+    """A cell as float (NaN for empty or non-numeric)."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def command_line() -> str:
+    """The command that made this sweep (for sweep.json)."""
+    return ' '.join(sys.argv)

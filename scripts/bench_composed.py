@@ -1,0 +1,197 @@
+"""Real-time factor of `cvj-sim run` composed vs separate processes, and the overhead per
+exchange against the round trip of the same topology (issue 10; results in docs/nodes.md).
+
+For each scene and mode, ``--runs`` runs of ``cvj-sim run SCENE --duration D
+--exchange-step H [--composed]`` (each in a fresh process, as a user starts it); from each
+run's report.json and the coupling node's last loop diagnostics:
+
+* real-time factor (simulated s / loop wall s) and wall per exchange (us);
+* integration (us per exchange, the stepper's ``advance``) and the overhead per exchange =
+  wall per exchange - integration: the messaging, peers' answers and recording;
+* ratio = overhead / round trip of the same topology: composed <-> in-process 2-peer round
+  trip (:func:`round_trip_in_process`: one pinging node and two answering nodes on one
+  EventsExecutor, spun like the coupling loop), separate <-> inter-process 2-peer round trip
+  (:func:`cvj_ros.nodes.roundtrip.measure_round_trip_ipc`, echoes=2).
+
+The machine's load average is printed before and after: on a shared 2-core machine the
+numbers move by 2-4x with the load of other processes; compare runs taken together.
+
+Usage: ``python scripts/bench_composed.py [--scenes kavz685_lever fwd_halfshaft]
+[--duration 5] [--exchange-step 0.001] [--runs 3] [--json OUT.json]``
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def round_trip_in_process(n: int = 2000, peers: int = 2, *, warmup: int = 100,
+                          timeout: float = 60.0) -> dict[str, float]:
+    """In-process round trip with ``peers`` answering nodes on one EventsExecutor (us).
+
+    The ping node publishes a Float64; each peer node answers on its own topic; the round
+    trip (time.perf_counter) ends when all ``peers`` answers are in, and the next ping goes
+    out from that callback, like the lockstep coupling node. The executor spins on a Future
+    completed after the last round trip (no Python loop per event)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+    from rclpy.task import Future
+    from std_msgs.msg import Float64
+
+    from cvj_ros.nodes.qos import DATA_QOS
+    ctx = Context()
+    rclpy.init(context=ctx)
+    suffix = f'{os.getpid()}_{time.monotonic_ns()}'
+    try:
+        ping = rclpy.create_node('bench_ping', context=ctx)
+        ping_pub = ping.create_publisher(Float64, f'/bench/ping_{suffix}', DATA_QOS)
+        nodes = [ping]
+        for i in range(peers):
+            peer = rclpy.create_node(f'bench_peer{i}', context=ctx)
+            pub = peer.create_publisher(Float64, f'/bench/pong{i}_{suffix}', DATA_QOS)
+            peer.create_subscription(Float64, f'/bench/ping_{suffix}',
+                                     lambda m, _p=pub: _p.publish(m), DATA_QOS)
+            nodes.append(peer)
+        total = n + warmup
+        samples = np.empty(total)
+        state = {'i': 0, 'got': 0, 't0': 0.0}
+        msg = Float64()
+        done = Future()
+
+        def on_pong(_m: Float64) -> None:
+            state['got'] += 1
+            if state['got'] < peers:
+                return
+            state['got'] = 0
+            samples[state['i']] = time.perf_counter() - state['t0']
+            state['i'] += 1
+            if state['i'] < total:
+                state['t0'] = time.perf_counter()
+                ping_pub.publish(msg)
+            else:
+                done.set_result(True)
+        subs = [ping.create_subscription(Float64, f'/bench/pong{i}_{suffix}', on_pong, DATA_QOS)
+                for i in range(peers)]
+        ex = EventsExecutor(context=ctx)
+        for node in nodes:
+            ex.add_node(node)
+        deadline = time.monotonic() + timeout
+        while ping_pub.get_subscription_count() < peers or any(s.get_publisher_count() < 1 for s in subs):
+            ex.spin_once(timeout_sec=0.01)
+            if time.monotonic() > deadline:
+                raise RuntimeError('round trip: topics never matched')
+        state['t0'] = time.perf_counter()
+        ping_pub.publish(msg)
+        ex.spin_until_future_complete(done, timeout_sec=timeout)
+        if not done.done():
+            raise RuntimeError(f'round trip: only {state["i"]} of {total} in {timeout} s')
+        ex.shutdown()
+        for node in nodes:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    us = samples[warmup:] * 1e6
+    return {'us_mean': float(us.mean()), 'us_p50': float(np.median(us)), 'peers': peers, 'n': n}
+
+
+def loop_status(bag_path: Path) -> dict[str, float]:
+    """The coupling node's last 'coupling_node: loop' diagnostic values (floats)."""
+    from cvj_ros import bag
+    diags = bag.read_bag(bag_path, ['/diagnostics'])['/diagnostics']
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop':
+                return {k: float(v) for k, v in st['values'].items()}
+    return {}
+
+
+def _children_cpu_s() -> float:
+    """User + system CPU s of every finished, waited-for descendant (cvj-sim and its nodes)."""
+    import resource
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def run_once(scene: str, composed: bool, duration: float, h: float) -> dict[str, Any]:
+    """One `cvj-sim run` in a fresh process: report figures, coupling loop statistics and
+    ``cpu_s``, the CPU time of cvj-sim and all its node processes (start-up included)."""
+    cvj_sim = str(Path(sys.executable).with_name('cvj-sim'))
+    cpu0 = _children_cpu_s()
+    with tempfile.TemporaryDirectory(prefix='cvj_bench_') as tmp:
+        out = Path(tmp) / 'run'
+        cmd = [cvj_sim, 'run', scene, '--out', str(out), '--duration', str(duration),
+               '--exchange-step', str(h)] + (['--composed'] if composed else [])
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        cpu_s = _children_cpu_s() - cpu0
+        if r.returncode != 0:
+            raise RuntimeError(f'{" ".join(cmd)}: exit {r.returncode}\n{r.stdout}{r.stderr}')
+        rep = json.loads((out / 'report.json').read_text())
+        st = loop_status(out / 'bag')
+    wall_us = rep['wall_per_step'] * 1e6
+    return {'rtf': rep['real_time_factor'], 'wall_us': wall_us,
+            'integration_us': st.get('integration_us_mean', float('nan')),
+            'overhead_us': wall_us - st.get('integration_us_mean', float('nan')),
+            'cpu_us': st.get('process_cpu_us_mean', float('nan')), 'cpu_s': cpu_s,
+            'steps': rep['counts'].get('/driveline/joint_states', 1) - 1}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--scenes', nargs='+', default=['kavz685_lever', 'fwd_halfshaft'])
+    ap.add_argument('--duration', type=float, default=5.0)
+    ap.add_argument('--exchange-step', type=float, default=1e-3)
+    ap.add_argument('--runs', type=int, default=3)
+    ap.add_argument('--json', type=Path, default=None)
+    a = ap.parse_args()
+    from cvj_ros.nodes.qos import dds_environment
+    dds_environment(os.environ)     # the node processes' DDS settings, also for the round trips
+    from cvj_ros.nodes.roundtrip import measure_round_trip_ipc
+    load0 = os.getloadavg()
+    print(f'load average before: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f} ({os.cpu_count()} cores)')
+    rt_in = round_trip_in_process(peers=2)
+    rt_ipc = measure_round_trip_ipc(n=2000, echoes=2)
+    print(f'round trip, 2 peers: in-process {rt_in["us_mean"]:.0f} us (p50 {rt_in["us_p50"]:.0f}), '
+          f'inter-process {rt_ipc["us_mean"]:.0f} us (p50 {rt_ipc["us_p50"]:.0f})')
+    results: dict[str, Any] = {'round_trip_in_process_2': rt_in, 'round_trip_ipc_2': rt_ipc, 'runs': {}}
+    for scene in a.scenes:
+        for composed in (True, False):
+            mode = 'composed' if composed else 'separate'
+            rt = rt_in if composed else rt_ipc
+            rows = []
+            # start-up CPU (imports, kernel load, discovery) of a run of 50 exchanges, taken
+            # off every run: total CPU per exchange = (cpu_s - base cpu_s) / (steps - base steps)
+            base = run_once(scene, composed, 50 * a.exchange_step, a.exchange_step)
+            for i in range(a.runs):
+                row = run_once(scene, composed, a.duration, a.exchange_step)
+                row['ratio'] = row['overhead_us'] / rt['us_mean']
+                row['total_cpu_us'] = (row['cpu_s'] - base['cpu_s']) / (row['steps'] - base['steps']) * 1e6
+                rows.append(row)
+                print(f'{scene:14s} {mode:8s} run {i + 1}: real-time factor {row["rtf"]:.3g}, '
+                      f'{row["wall_us"]:.0f} us/exchange (integration {row["integration_us"]:.0f}, '
+                      f'overhead {row["overhead_us"]:.0f} = {row["ratio"]:.2f}x the {mode} 2-peer '
+                      f'round trip {rt["us_mean"]:.0f} us; CPU per exchange: coupling process '
+                      f'{row["cpu_us"]:.0f} us, all processes {row["total_cpu_us"]:.0f} us)',
+                      flush=True)
+            med = statistics.median(r['rtf'] for r in rows)
+            print(f'{scene:14s} {mode:8s} median real-time factor {med:.3g}', flush=True)
+            results['runs'][f'{scene}/{mode}'] = rows
+    load1 = os.getloadavg()
+    print(f'load average after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}')
+    results['loadavg'] = [load0, load1]
+    if a.json is not None:
+        a.json.write_text(json.dumps(results, indent=2))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,139 @@
+"""Where the microseconds of one lockstep exchange go in composed mode (docs/nodes.md).
+
+Runs ``cvj-sim run SCENE --composed`` in this process (a warm-up run first, so imports and
+the compiled kernel are loaded) with wall-clock timers (time.perf_counter) around every
+callback of the hosted nodes, and prints the mean time per exchange step of each:
+
+* coupling: integrate (``CoupledStepper.advance``), publish state (/clock, joint states,
+  reaction wrenches: ``_publish_state``), take answers (the two wrench callbacks minus the
+  step they trigger);
+* engine / load answer (deserialised JointState in, torque, CDR WrenchStamped out);
+* monitor (joint states, both wrenches, /diagnostics, deserialised);
+* recorder callbacks (``BagRecorder._on_message``, incl. the hand-off to the writer queue)
+  and the writer thread's ``rosbags`` write (runs on its own thread, competing for the GIL);
+* the rest = exchange wall time minus the callbacks: executor dispatch, DDS delivery,
+  Python-object conversion of deserialised messages, GIL hand-offs, other processes.
+
+Usage: ``python scripts/profile_composed.py [SCENE] [--duration S] [--exchange-step S]
+[--runs N] [--separate]`` (``--separate`` times the one-process-per-node mode instead:
+only the exchange wall time and the coupling node's own split are available then).
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import io
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Callable
+
+TIMES: dict[str, list[float]] = defaultdict(lambda: [0, 0.0])
+CLOCK = time.perf_counter     # --clock cpu: time.thread_time (CPU of the calling thread)
+
+
+def timed(key: str | Callable[[Any], str], fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` wrapped to add its wall time (s) and a call to ``TIMES[key]``."""
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        t0 = CLOCK()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            slot = TIMES[key(args[0]) if callable(key) else key]
+            slot[0] += 1
+            slot[1] += CLOCK() - t0
+    return wrapper
+
+
+def instrument() -> None:
+    """Wrap the callbacks (before any node exists: subscriptions bind the wrapped methods)."""
+    from rosbags.rosbag2 import Writer
+
+    from cvj_ros import bag
+    from cvj_ros.nodes.coupling_node import CouplingNode
+    from cvj_ros.nodes.monitor_node import MonitorNode
+    from cvj_ros.nodes.torque_responder import TorqueResponder
+    from cvj_ros.physics.cosim import CoupledStepper
+    CoupledStepper.advance = timed('coupling integrate', CoupledStepper.advance)
+    CouplingNode._publish_state = timed('coupling publish state', CouplingNode._publish_state)
+    CouplingNode._step = timed('coupling step (integrate + publish)', CouplingNode._step)
+    CouplingNode._on_engine = timed('coupling wrench callbacks (incl. step)', CouplingNode._on_engine)
+    CouplingNode._on_load = timed('coupling wrench callbacks (incl. step)', CouplingNode._on_load)
+    TorqueResponder._on_joint_states = timed(lambda self: f'{self.get_name()} answer',
+                                             TorqueResponder._on_joint_states)
+    MonitorNode._on_joint_states = timed('monitor', MonitorNode._on_joint_states)
+    MonitorNode._on_torque = staticmethod(timed('monitor', MonitorNode._on_torque))
+    MonitorNode._on_diagnostics = timed('monitor', MonitorNode._on_diagnostics)
+    bag.BagRecorder._on_message = timed('recorder callbacks', bag.BagRecorder._on_message)
+    Writer.write = timed('writer thread (rosbags write)', Writer.write)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('scene', nargs='?', default='kavz685_lever')
+    ap.add_argument('--duration', type=float, default=5.0)
+    ap.add_argument('--exchange-step', type=float, default=1e-3)
+    ap.add_argument('--runs', type=int, default=1)
+    ap.add_argument('--separate', action='store_true')
+    ap.add_argument('--clock', choices=('wall', 'cpu'), default='wall',
+                    help='wall: time.perf_counter; cpu: time.thread_time (less disturbed by other '
+                         'processes; the rest is then process CPU - callbacks)')
+    ap.add_argument('--without', action='append', default=[], choices=('monitor_node',),
+                    help='leave the monitor out (its share of the exchange = the difference)')
+    a = ap.parse_args()
+    if a.without:
+        import cvj_ros.orchestrate as orch
+        orch.NODE_ORDER = tuple(n for n in orch.NODE_ORDER if n not in a.without)
+    global CLOCK
+    CLOCK = time.thread_time if a.clock == 'cpu' else time.perf_counter
+    from cvj_ros.orchestrate import RunOptions, run
+    out = Path(tempfile.mkdtemp(prefix='cvj_profile_'))
+    opts = dict(scene=a.scene, out=out, exchange_step=a.exchange_step, overwrite=True,
+                composed=not a.separate)
+    run(RunOptions(duration=0.2, **opts), stream=io.StringIO())     # warm-up: imports, kernel
+    if not a.separate:
+        instrument()
+    for i in range(a.runs):
+        TIMES.clear()
+        r = run(RunOptions(duration=a.duration, **opts), stream=io.StringIO())
+        steps = max(1, r.counts.get('/driveline/joint_states', 1) - 1)
+        per = r.wall_per_step * 1e6
+        print(f'{a.scene} {"separate" if a.separate else "composed"} run {i + 1}: {steps} exchanges, '
+              f'real-time factor {r.real_time_factor:.3g}, {per:.0f} us per exchange (exit {r.exit_code})')
+        if a.separate:
+            continue
+        us = {k: v[1] / steps * 1e6 for k, v in TIMES.items()}
+        if a.clock == 'cpu':   # the coupling node's process CPU per exchange (diagnostics)
+            from cvj_ros.orchestrate import loop_counters  # noqa: F401 (bag helpers loaded)
+            from cvj_ros import bag as bagmod
+            diags = bagmod.read_bag(r.bag, ['/diagnostics'])['/diagnostics']
+            per = next(float(st['values']['process_cpu_us_mean']) for sts in reversed(diags.statuses)
+                       for st in sts if st['name'] == 'coupling_node: loop')
+            print(f'  process CPU per exchange {per:.0f} us (all threads)')
+        exclusive = {
+            'coupling integrate': us.get('coupling integrate', 0.0),
+            'coupling publish state': us.get('coupling publish state', 0.0),
+            'coupling take answers': us.get('coupling wrench callbacks (incl. step)', 0.0)
+            - us.get('coupling step (integrate + publish)', 0.0),
+            'engine answer': us.get('engine_node answer', 0.0),
+            'load answer': us.get('load_node answer', 0.0),
+            'monitor': us.get('monitor', 0.0),
+            'recorder callbacks': us.get('recorder callbacks', 0.0),
+        }
+        step_rest = us.get('coupling step (integrate + publish)', 0.0) - exclusive['coupling integrate'] \
+            - exclusive['coupling publish state']
+        exclusive['coupling step bookkeeping'] = step_rest
+        in_callbacks = sum(exclusive.values())
+        for k, v in exclusive.items():
+            print(f'  {k:34s} {v:8.1f} us')
+        rest = 'executor, DDS, writer thread (rest)' if a.clock == 'cpu' else 'executor, DDS, GIL, other (rest)'
+        print(f'  {rest:34s} {per - in_callbacks:8.1f} us')
+        print(f'  {"writer thread (parallel, GIL)":34s} {us.get("writer thread (rosbags write)", 0.0):8.1f} us')
+    sys.stdout.flush()
+
+
+if __name__ == '__main__':
+    main()

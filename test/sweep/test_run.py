@@ -1,0 +1,237 @@
+"""Sweep execution: metrics against a closed form, rows equal to a direct Simulation, bad
+variants (skip / stop), one-line CLI errors, bytes equal across worker counts, resume, and
+Ctrl-C keeping finished variants."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cvj_ros.cli import main
+from cvj_ros.commands.sweep import load_scene_data
+from cvj_ros.physics.joints.hooke import hooke_ratio
+from cvj_ros.physics.scene import find_scene, parse_scene
+from cvj_ros.physics.simulate import Simulation
+from cvj_ros.sweep.results import ROWS, read_results
+from cvj_ros.sweep.run import RunOptions, SerialExecutor, execute, metrics_row, order_amplitudes
+from cvj_ros.sweep.spec import build_sweep
+
+REPO = Path(__file__).resolve().parents[2]
+# kavz685_lever shortened to 0.5 s: the sweep machinery, not the physics, is under test
+LEVER_SETS = ['duration=0.5', 'driveline[coupling].params.alpha_deg=10:30:3',
+              'driveline[bushings].stiffness=500,900']
+
+
+def sweep_cli(*args: str) -> int:
+    return main(['sweep', *args, '--no-plots'])
+
+
+def test_hooke_sweep_against_closed_form(tmp_path: Path) -> None:
+    """Rigid Hooke joint driven at constant speed (input inertia 1e9 kg m^2, engine torque
+    m1 - k1 w = 0 at w0): the output speed ratio is cos b / (1 - sin^2 b cos^2 phi)
+    (hooke.py, seed 002 eq. 10), between cos b and 1/cos b. w0 puts 20 samples of 1 ms on
+    every quarter turn, so the samples hit both extremes and delta = (1/cos b - cos b) /
+    mean over the same samples. dop853 at rtol 1e-10: measured deviation 1.2e-11 at
+    b = 10..40 deg; the bound 1e-8 leaves a margin of 800."""
+    w0 = math.pi / 2 / (20 * 1e-3)
+    base = {'name': 'hooke_cf', 'duration': 1.6, 'exchange_step': 1e-3,
+            'solver': {'method': 'dop853', 'rtol': 1e-10, 'atol': 1e-12},
+            'engine': {'model': 'linear', 'm1': w0, 'k1': 1.0},
+            'load': {'model': 'constant', 'torque': 0.0}, 'initial': {'speed_rad_s': w0},
+            'driveline': [{'type': 'inertia', 'name': 'big', 'J': 1e9},
+                          {'type': 'joint', 'name': 'h', 'kind': 'hooke',
+                           'params': {'beta_deg': 10.0}},
+                          {'type': 'inertia', 'name': 'out', 'J': 0.01}]}
+    sweep = build_sweep(base, ['driveline[h].params.beta_deg=10:40:4'])
+    report = execute(sweep, RunOptions(), tmp_path, executor=SerialExecutor())
+    assert report.counts['ok'] == 4 and report.complete
+    header, rows = read_results(tmp_path / 'results.csv')
+    assert header[:3] == ['variant', 'driveline[h].params.beta_deg', 'status']
+    t = np.arange(1601) * 1e-3
+    # steady window (physics/steady.py): each 0.16 s slice holds 4 whole periods (pi/w0 =
+    # 0.04 s) of the 2nd-order ratio, so every slice agrees with the last: the whole record
+    window = t
+    for row in rows:
+        b = math.radians(float(row['driveline[h].params.beta_deg']))
+        mean_ratio = float(np.mean(hooke_ratio(w0 * window, b)))
+        assert float(row['out.delta']) == pytest.approx((1 / math.cos(b) - math.cos(b)) / mean_ratio,
+                                                        rel=1e-8)
+        assert float(row['out.mean_speed']) == pytest.approx(w0 * mean_ratio, rel=1e-8)
+        assert float(row['big.delta']) < 1e-10    # the input turns uniformly
+
+
+def test_rows_equal_a_direct_simulation(tmp_path: Path) -> None:
+    """Each row is what Simulation(...).summary() gives for that variant (dense sampling),
+    and the CSV text reads back to the same doubles (repr)."""
+    assert sweep_cli('kavz685_lever', '--set', LEVER_SETS[0], '--set', LEVER_SETS[1],
+                     '--out', str(tmp_path), '--workers', '1') == 0
+    _, rows = read_results(tmp_path / 'results.csv')
+    assert len(rows) == 3
+    base = load_scene_data(find_scene('kavz685_lever'))
+    for row, alpha in zip(rows, (10.0, 20.0, 30.0)):
+        d = json.loads(json.dumps(base))
+        d['duration'] = 0.5
+        d['driveline'][2]['params']['alpha_deg'] = alpha
+        sim = Simulation(parse_scene(d))
+        sim.run(sampling='dense')
+        expected = metrics_row(sim.summary())
+        expected.update(order_amplitudes(sim.last_trace, 4, None))
+        assert set(expected) | {'variant', 'status', 'error', LEVER_SETS[0].split('=')[0],
+                                LEVER_SETS[1].split('=')[0]} == set(row)
+        for key, value in expected.items():
+            assert (float(row[key]) if isinstance(value, float) else type(value)(row[key])) == value, key
+
+
+def test_bad_variant_skipped_or_stopping(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ['kavz685_lever', '--set', 'duration=0.2', '--set',
+            'driveline[coupling].params.alpha_deg=20,95', '--workers', '1']
+    assert sweep_cli(*args, '--out', str(tmp_path / 'skip')) == 0
+    out = capsys.readouterr().out
+    assert '1 ok, 1 invalid' in out
+    assert ('first bad variant: variant 1 (driveline[coupling].params.alpha_deg=95): '
+            'driveline[2].params.alpha_deg: must be < 90 deg, got 95 deg') in out
+    _, rows = read_results(tmp_path / 'skip' / 'results.csv')
+    assert [r['status'] for r in rows] == ['ok', 'invalid']
+    assert rows[1]['error'].startswith('driveline[2].params.alpha_deg: must be < 90 deg')
+    assert rows[1]['drive_shaft.delta'] == ''
+    assert sweep_cli(*args, '--out', str(tmp_path / 'stop'), '--on-error', 'stop') == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ('cvj-sim: error: variant 1 (driveline[coupling].params.alpha_deg=95): '
+                       'driveline[2].params.alpha_deg: must be < 90 deg, got 95 deg '
+                       '(--on-error stop: nothing was run)')
+    assert not (tmp_path / 'stop' / ROWS).exists()
+
+
+@pytest.mark.parametrize('args, line', [
+    (['--set', 'driveline[shaft].J=1'],
+     "cvj-sim: error: --set driveline[shaft].J: driveline has no element named 'shaft' "
+     "(drive_shaft, bushings, coupling, driven_shaft)"),
+    (['--set', 'driveline[coupling].params.alpha_deg=5:25'],
+     'cvj-sim: error: --set driveline[coupling].params.alpha_deg: a range lo:hi needs --samples N '
+     '(random sampling); for a grid give start:stop:n'),
+    (['--set', 'engine.m2=1,2'], 'cvj-sim: error: --set engine.m2: engine.m2: unknown key'),
+    (['--set', 'engine.m1=1', '--samples', '-3'], 'cvj-sim: error: --samples: must be an integer'),
+    (['--set', 'engine.m1=1', '--workers', '0'], 'cvj-sim: error: --workers: must be >= 1, got 0'),
+    (['--set', 'engine.m1=1', '--cluster', 'nonsense'],
+     'cvj-sim: error: --cluster nonsense: not a scheduler address, e.g. tcp://host:8786'),
+    (['--set', 'engine.m1=1', '--orders', '-1'], 'cvj-sim: error: --orders: must be in 0..64'),
+    (['--set', 'engine.m1=1', '--orders-shaft', 'crank'],
+     'cvj-sim: error: --orders-shaft crank: no such shaft in kavz685_lever; shafts: drive_shaft, '),
+])
+def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                 args: list[str], line: str) -> None:
+    assert sweep_cli('kavz685_lever', *args, '--out', str(tmp_path)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(line), err
+    assert 'Traceback' not in err[0]
+
+
+def test_different_sweep_in_out_dir_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert sweep_cli('kavz685_lever', '--set', 'duration=0.1', '--out', str(tmp_path), '--workers', '1') == 0
+    assert sweep_cli('kavz685_lever', '--set', 'duration=0.2', '--out', str(tmp_path), '--workers', '1') == 2
+    assert 'holds a different sweep' in capsys.readouterr().err
+    assert sweep_cli('kavz685_lever', '--set', 'duration=0.2', '--out', str(tmp_path), '--workers', '1',
+                     '--fresh') == 0
+
+
+@pytest.fixture(scope='module')
+def serial_reference(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    out = tmp_path_factory.mktemp('serial')
+    args = [x for s in LEVER_SETS for x in ('--set', s)]
+    assert sweep_cli('kavz685_lever', *args, '--out', str(out), '--workers', '1') == 0
+    return (out / 'results.csv').read_bytes()
+
+
+def test_same_bytes_with_two_workers_and_after_resume(tmp_path: Path, serial_reference: bytes,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    args = ['kavz685_lever', *[x for s in LEVER_SETS for x in ('--set', s)], '--out', str(tmp_path)]
+    assert sweep_cli(*args, '--workers', '2') == 0
+    assert (tmp_path / 'results.csv').read_bytes() == serial_reference
+    timing = (tmp_path / 'timing.csv').read_text().splitlines()
+    assert timing[0] == 'variant,wall_s' and len(timing) == 7
+    # an interrupted sweep: keep 2 of 6 finished rows and a line cut short by a kill
+    lines = (tmp_path / ROWS).read_text().splitlines(keepends=True)
+    (tmp_path / ROWS).write_text(''.join(lines[:2]) + lines[2][:25])
+    capsys.readouterr()
+    assert sweep_cli(*args, '--workers', '1') == 0
+    out = capsys.readouterr().out
+    assert '6 ok, 0 invalid, 0 failed; 2 already done (resumed)' in out
+    assert 'ran 4 in' in out
+    assert (tmp_path / 'results.csv').read_bytes() == serial_reference
+    manifest = json.loads((tmp_path / 'sweep.json').read_text())
+    assert [r['variants_run'] for r in manifest['runs']] == [6, 4] and manifest['complete']
+    assert manifest['definition']['sets'] == LEVER_SETS
+    assert manifest['versions']['numba'] and manifest['definition']['scene']['sha256']
+
+
+@pytest.mark.slow   # 24 s wall at load average 11 on 2 cores (2.3 s CPU): two CLI start-ups
+def test_ctrl_c_keeps_finished_variants_and_rerun_completes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """SIGINT to `cvj-sim sweep --workers 2` once the first rows are on disk: exit 130, one
+    line, the finished rows in results.csv; the same command again runs only the rest. The
+    Python backend (~0.3-1 s a variant here) keeps the sweep running when SIGINT comes."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    args = ['sweep', 'kavz685_lever', '--set', 'duration=0.2', '--set',
+            'driveline[bushings].stiffness=400:1200:8', '--backend', 'python',
+            '--out', str(tmp_path), '--no-plots']
+    proc = subprocess.Popen([sys.executable, '-m', 'cvj_ros.cli', *args, '--workers', '2'], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rows = tmp_path / ROWS
+    deadline = time.monotonic() + 90.0        # start-up: ~2-10 s on a shared machine
+    while time.monotonic() < deadline and proc.poll() is None:
+        if rows.is_file() and rows.stat().st_size > 0:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert 'Traceback' not in err
+    assert 'cvj-sim sweep: interrupted;' in err and 'rerun the same command to resume' in err
+    _, partial = read_results(tmp_path / 'results.csv')
+    assert 0 < len(partial) < 8
+    assert main([*args, '--workers', '1']) == 0
+    assert f'8 ok, 0 invalid, 0 failed; {len(partial)} already done (resumed)' in capsys.readouterr().out
+    _, full = read_results(tmp_path / 'results.csv')
+    assert [int(r['variant']) for r in full] == list(range(8))
+    by_variant = {r['variant']: r for r in full}
+    assert all(by_variant[r['variant']] == r for r in partial)
+
+
+def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> None:
+    """SIGKILL to a pool worker once rows are on disk: one error line (exit 2) and the
+    finished rows kept in results.csv (resume itself: the tests above)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    args = ['sweep', 'kavz685_lever', '--set', 'duration=0.2', '--set',
+            'driveline[bushings].stiffness=400:1200:16', '--backend', 'python',
+            '--out', str(tmp_path), '--no-plots', '--workers', '2']
+    proc = subprocess.Popen([sys.executable, '-m', 'cvj_ros.cli', *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rows = tmp_path / ROWS
+    deadline = time.monotonic() + 90.0
+    while time.monotonic() < deadline and proc.poll() is None:
+        if rows.is_file() and rows.stat().st_size > 0:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, proc.communicate()
+    # the pool workers: grandchildren of the sweep via the fork server
+    out = subprocess.run(['ps', '-eo', 'pid,ppid,args'], capture_output=True, text=True).stdout
+    table = [line.split(None, 2) for line in out.splitlines()[1:]]
+    server = [int(p) for p, pp, a in table if int(pp) == proc.pid and 'forkserver' in a]
+    workers = [int(p) for p, pp, _ in table if server and int(pp) == server[0]]
+    assert workers, out
+    os.kill(workers[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith('cvj-sim: error: --workers: a worker process died')
+    assert 'Traceback' not in err
+    _, partial = read_results(tmp_path / 'results.csv')
+    assert 0 < len(partial) < 16

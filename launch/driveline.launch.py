@@ -11,6 +11,8 @@ peers are NOT started; an outside node must answer, see docs/ros.md), ``record``
 false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after the run
 goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false),
 ``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy),
+``catch_up`` (skip | burst) and ``realtime_priority`` (0..99) for free-run (docs/ros.md
+"Free-run"),
 ``run_token`` (auto | none | 8 hex characters: the run identity given to every node and
 the recorder, docs/ros.md "Run identity"; auto draws one per launch).
 
@@ -39,6 +41,10 @@ ARGUMENTS: dict[str, tuple[str, str]] = {
     'monitor': ('true', 'start monitor_node: true | false'),
     'nonfinite_torque': ('stop', 'a NaN/inf torque answer stops the run (stop) or the last finite '
                                  'torque is held and counted (hold)'),
+    'catch_up': ('skip', 'free-run: missed ticks are dropped, simulated time jumping to wall time '
+                         '(skip) or run back to back, at most burst_max (10) per wake-up (burst)'),
+    'realtime_priority': ('0', 'free-run: SCHED_FIFO priority 1..99 of the coupling process '
+                               '(needs CAP_SYS_NICE); 0 = normal scheduling'),
     'run_token': ('auto', 'run identity in header.frame_id: auto (random per launch) | none | '
                           '8 lowercase hex characters'),
 }
@@ -51,6 +57,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     'storage': ('mcap', 'sqlite3'),
     'monitor': ('true', 'false'),
     'nonfinite_torque': ('stop', 'hold'),
+    'catch_up': ('skip', 'burst'),
 }
 
 NODE_EXECUTABLES = ('engine_node', 'coupling_node', 'load_node', 'monitor_node')
@@ -93,6 +100,12 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
         seed = int(args['seed'])
     except ValueError as exc:
         raise ValueError(f'duration/seed: not a number ({exc})') from None
+    try:
+        rt_priority = int(args['realtime_priority'])
+    except ValueError:
+        rt_priority = -1
+    if not 0 <= rt_priority <= 99:
+        raise ValueError(f'realtime_priority: must be an integer in 0..99, got {args["realtime_priority"]!r}')
     external = args['external']
     started = ['coupling_node']
     if external not in ('engine', 'both'):
@@ -111,7 +124,9 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
     params: dict[str, dict[str, Any]] = {
         'coupling_node': dict(common, mode=args['mode'], coupling_scheme=args['coupling_scheme'],
                               duration=duration, min_subscribers=min_subs,
-                              nonfinite_torque=args['nonfinite_torque']),
+                              nonfinite_torque=args['nonfinite_torque'],
+                              **({'catch_up': args['catch_up'], 'realtime_priority': rt_priority}
+                                 if args['mode'] == 'free-run' else {})),
         'engine_node': dict(common),
         'load_node': dict(common),
         'monitor_node': {'scene': args['scene'], **({'run_token': token} if token else {})},

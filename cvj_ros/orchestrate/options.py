@@ -54,7 +54,7 @@ class RunOptions:
         nonfinite_torque: the coupling node's NaN/inf torque policy, ``'stop'`` or ``'hold'``.
         catch_up: free-run catch-up policy ``'skip'`` or ``'burst'`` (cvj_ros.nodes.freerun).
         burst_max: free-run burst bound (ticks back to back per wake-up, >= 1).
-        rt_priority: free-run: SCHED_FIFO priority of the coupling loop thread (0 = off).
+        rt_priority: free-run: SCHED_FIFO priority of the coupling process's threads (0 = off).
     """
     scene: str
     out: Path

@@ -44,7 +44,8 @@ def test_parameters_match_the_nodes_declared_parameters(external: str, record: s
     pytest.importorskip('rclpy')
     mod = _launch_module()
     args = {'external': external, 'record': record, 'duration': '5.0', 'seed': '7',
-            'mode': 'free-run', 'coupling_scheme': 'linear_implicit', 'nonfinite_torque': 'hold'}
+            'mode': 'free-run', 'coupling_scheme': 'linear_implicit', 'nonfinite_torque': 'hold',
+            'catch_up': 'burst', 'realtime_priority': '10'}
     params = mod.node_parameters(args)
     assert 'coupling_node' in params
     assert ('load_node' in params) == (external in ('none', 'engine'))
@@ -58,6 +59,7 @@ def test_parameters_match_the_nodes_declared_parameters(external: str, record: s
     assert cp['mode'] == 'free-run' and cp['coupling_scheme'] == 'linear_implicit'
     assert cp['duration'] == 5.0 and cp['seed'] == 7
     assert cp['nonfinite_torque'] == 'hold'
+    assert cp['catch_up'] == 'burst' and cp['realtime_priority'] == 10
     # engine + load (ours or outside) + monitor + recorder see the first joint state
     assert cp['min_subscribers'] == 3 + (record == 'true')
 
@@ -69,6 +71,7 @@ def test_choices_match_the_nodes_choices() -> None:
     assert set(mod.CHOICES['mode']) == set(coupling['mode'].choices)
     assert set(mod.CHOICES['coupling_scheme']) == set(coupling['coupling_scheme'].choices)
     assert set(mod.CHOICES['nonfinite_torque']) == set(coupling['nonfinite_torque'].choices)
+    assert set(mod.CHOICES['catch_up']) == set(coupling['catch_up'].choices)
 
 
 def test_bad_argument_names_the_argument() -> None:
@@ -77,6 +80,10 @@ def test_bad_argument_names_the_argument() -> None:
         mod.node_parameters({'external': 'wheel'})
     with pytest.raises(ValueError, match='duration'):
         mod.node_parameters({'duration': 'fast'})
+    with pytest.raises(ValueError, match='^realtime_priority: must be an integer in 0..99'):
+        mod.node_parameters({'mode': 'free-run', 'realtime_priority': '100'})
+    with pytest.raises(ValueError, match='^catch_up: must be one of'):
+        mod.node_parameters({'catch_up': 'drop'})
 
 
 def test_recorder_command_is_cvj_sim_record() -> None:

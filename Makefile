@@ -8,7 +8,7 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 export OPENBLAS_NUM_THREADS ?= 1
 
 DEMO_SCENE    ?= config/scenes/fwd_halfshaft.yaml
-DEMO_DURATION ?= 3.0
+DEMO_DURATION ?= 4.0
 DEMO_OUT      ?= runs/demo
 # composed mode (every node and the recorder in one process on one EventsExecutor: the same
 # nodes, topics and bag, the fastest mode that keeps separate nodes); DEMO_MODE= for one

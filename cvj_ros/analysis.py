@@ -7,10 +7,11 @@ the shaft angle (seed 004 eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<j
 the geometric and kinematic nonuniformity (seed 002 eqs. 20-23); engine and load torque;
 energy residual and wait times found on ``/diagnostics``; and lockstep statistics.
 
-Steady window: the start transient is skipped, by default the first quarter of the record
-(``skip_fraction``), or the first ``skip_s`` seconds when given. Every figure except the
-lockstep statistics is computed on the steady window. The signal processing itself lives in
-:mod:`cvj_ros.physics.signal` (no ROS).
+Steady window: :mod:`cvj_ros.physics.steady`, the one definition shared with ``cvj-sim
+simulate`` and ``run`` (same bag -> same window -> same numbers): the slices of the record
+that agree with its last slice in mean speed and amplitudes, or from ``skip_s`` seconds on
+when given. Every figure except the lockstep statistics is computed on the steady window.
+The signal processing itself lives in :mod:`cvj_ros.physics.signal` (no ROS).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cvj_ros.errors import BagError
-from cvj_ros.physics import signal
+from cvj_ros.physics import signal, steady
 
 FloatArray = NDArray[np.float64]
 
@@ -178,26 +179,33 @@ def _diagnostic_figures(diags: list[tuple[float, str, int, str, dict[str, str]]]
     return {'levels': levels, 'figures': figures, 'errors': messages}
 
 
-def analyze_signals(sig: BagSignals, *, skip_s: float | None = None, skip_fraction: float = 0.25,
+def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
                     n_harmonics: int = 6, samples_per_rev: int = 72) -> dict[str, Any]:
     """Analysis report (JSON-ready dict) of the signals of a bag; see the module docstring.
 
     Units: speeds rad/s, accelerations rad/s^2, torques N m, angles rad, times s.
     """
+    if sig.t.size < 2:
+        raise BagError(f'{JOINT_STATES}: need at least 2 messages, got {sig.t.size}')
     try:
-        mask = signal.steady_mask(sig.t, skip_s=skip_s, skip_fraction=skip_fraction)
+        win = steady.joint_state_window(sig.t, sig.joint_names, sig.velocity, sig.effort, skip_s=skip_s)
     except ValueError as exc:
         raise BagError(f'{exc}') from None
+    mask = win.mask(sig.t)
     t = sig.t[mask]
     report: dict[str, Any] = {
         'bag': str(sig.path),
         'window': {'start_s': _f(t[0]), 'end_s': _f(t[-1]), 'samples': int(t.size),
-                   'skipped_s': _f(t[0] - sig.t[0])},
+                   'skipped_s': _f(t[0] - sig.t[0]), 'steady': win.steady, 'source': win.source,
+                   'drift': _f(win.drift), 'amplitude_change': _f(win.amplitude_change),
+                   'amplitude_signal': win.amplitude_signal, 'slice_s': _f(win.slice_s),
+                   'slices': win.slices, 'criterion': win.criterion(), 'text': win.describe()},
         'topics': dict(sig.message_counts), 'shafts': {}, 'joints': {},
     }
     for j, name in enumerate(sig.joint_names):
         phi, w, tq = sig.position[mask, j], sig.velocity[mask, j], sig.effort[mask, j]
-        acc = signal.time_derivative(t, w)
+        # derivative over the whole record, then windowed: the same numbers as the run report
+        acc = signal.time_derivative(sig.t, sig.velocity[:, j])[mask]
         entry: dict[str, Any] = {
             'mean_speed_rad_s': _f(np.mean(w)),
             'speed_nonuniformity': _f(signal.speed_nonuniformity(w)),
@@ -288,7 +296,8 @@ def format_report(report: dict[str, Any]) -> str:
     w = report['window']
     lines = [f"bag: {report['bag']}",
              f"steady window: {_fmt(w['start_s'])} .. {_fmt(w['end_s'])} s "
-             f"({w['samples']} samples, start transient {_fmt(w['skipped_s'])} s skipped)", '',
+             f"({w['samples']} samples, start transient {_fmt(w['skipped_s'])} s skipped)",
+             f"  {w.get('text', '')}", f"  ({w.get('criterion', '')})", '',
              f"{'shaft':<22}{'mean w rad/s':>13}{'delta':>10}{'A_w rad/s':>11}"
              f"{'A_acc rad/s2':>13}{'mean T N m':>12}{'A_T N m':>10}"]
     for name, s in report['shafts'].items():

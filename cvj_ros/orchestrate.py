@@ -726,27 +726,37 @@ def _jsonable(value: Any) -> Any:
 
 
 def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
-    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.metrics`: the
-    first half of the run is skipped as start transient unless ``transient`` (s) is given).
+    """Key metrics of a run bag over its steady window (:mod:`cvj_ros.physics.steady`, the
+    definition ``simulate`` and ``analyze`` share: found by its criterion, or starting
+    ``transient`` s after the first sample when given).
 
+    ``window_s``: [start, end] (s); ``window``: the window's evidence
+    (:meth:`SteadyWindow.to_dict`) and ``window_text`` its one-line description;
     ``shafts``: per JointState name ``mean_speed`` (rad/s), ``delta`` = speed nonuniformity
     (w_max - w_min)/w_mean (-, seed 004), ``speed_amplitude`` (rad/s),
     ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
     (max - min)/2 (N m, seed 004 section 3.3.2) of the shaft torque; ``wrenches``: per
-    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m).
+    WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m) over the
+    same time window.
     """
     from cvj_ros.physics import metrics
     data = bagmod.read_bag(bag, None)
     out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
     js = data.get(bagmod.JOINT_STATES_TOPIC)
-    if js is not None and js.t.size >= 3:
-        mask = metrics.steady_mask(js.t, transient=transient)
-        out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
-        out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, transient=transient)
+    if js is None or js.t.size < 3:
+        return out
+    win = metrics.steady_window(js.t, js.names, js.velocity, js.effort, transient=transient)
+    mask = win.mask(js.t)
+    out['window_s'] = [float(js.t[mask][0]), float(js.t[mask][-1])]
+    out['window'] = win.to_dict()
+    out['window_text'] = win.describe()
+    out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, window=win)
     for topic, series in data.items():
         if isinstance(series, bagmod.WrenchSeries) and series.t.size >= 3:
-            mask = metrics.steady_mask(series.t, transient=transient)
-            tz = series.torque_z[mask]
+            m = (series.t >= out['window_s'][0]) & (series.t <= out['window_s'][1])
+            if np.count_nonzero(m) < 2:
+                continue
+            tz = series.torque_z[m]
             out['wrenches'][topic] = {'mean_torque': float(np.mean(tz)),
                                       'torque_amplitude': metrics.amplitude(tz)}
     return out
@@ -834,8 +844,9 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     p(f'  wall time {r.wall_time:.2f} s (loop {loop}), real-time factor {rtf}, wall per exchange step {per}')
     shafts = r.metrics.get('shafts', {})
     if shafts:
-        w0, w1 = r.metrics.get('window_s', [0, 0])
-        p(f'  steady window {w0:.4g}..{w1:.4g} s:')
+        p(f'  steady window {r.metrics.get("window_text", "")}:')
+        if 'window' in r.metrics:
+            p(f'    ({r.metrics["window"]["criterion"]})')
         p(f'    {"shaft":24s} {"mean speed rad/s":>16s} {"nonuniformity":>14s} {"torque ampl N m":>16s}')
         for name, m in shafts.items():
             p(f'    {name:24s} {m["mean_speed"]:16.4f} {m["delta"]:14.3e} {m["torque_amplitude"]:16.4f}')

@@ -238,7 +238,7 @@ def test_run_report_metrics_from_bag_match_closed_form(tmp_path: Path) -> None:
     Header = ts.types['std_msgs/msg/Header']
     JS = ts.types['sensor_msgs/msg/JointState']
     W, e, f, T0, A = 40.0, 0.01, 25.0, 100.0, 7.5
-    n = 2001  # 2 s at 1 ms: the steady window (second half) holds 25 whole periods
+    n = 2001  # 2 s at 1 ms: every 0.2 s slice holds 5 whole periods: steady from the start
     with bag.BagWriter(tmp_path / 'b') as w:
         w.add_topic('/driveline/joint_states')
         w.add_topic('/load/wrench')
@@ -257,4 +257,5 @@ def test_run_report_metrics_from_bag_match_closed_form(tmp_path: Path) -> None:
     assert wheel['torque_amplitude'] == pytest.approx(A, rel=1e-3)
     assert wheel['acceleration_amplitude'] == pytest.approx(W * e * 2 * np.pi * f, rel=1e-2)
     assert m['wrenches']['/load/wrench']['torque_amplitude'] == pytest.approx(A, rel=1e-3)
-    assert m['window_s'] == pytest.approx([1.0, 2.0])
+    assert m['window_s'] == pytest.approx([0.0, 2.0])
+    assert m['window']['steady'] is True and m['window']['source'] == 'criterion'

@@ -17,7 +17,9 @@ delta = (w_max - w_min)/w_mean, amplitudes (max - min)/2 of speed, acceleration 
 torque (seed 004 ch. 4), torque harmonics over shaft angle (seed 004 eqs. 4.1-4.3).
 Per joint (<joint>_input/<joint>_output): geometric and kinematic nonuniformity
 (seed 002). Engine/load torque, energy residual and wait times from /diagnostics,
-lockstep statistics. The start transient is skipped (default: first 25 %% of the record).
+lockstep statistics. All over the steady window (the slices that agree with the last slice
+in mean speed and amplitudes, the same criterion as `cvj-sim run` and `simulate`; its
+verdict is printed), or from --skip seconds on.
 """
 
 
@@ -26,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', action='store_true', help='print the report as JSON')
     parser.add_argument('--plots', metavar='DIR', help='write PNG figures to DIR')
     parser.add_argument('--skip', type=float, default=None, metavar='SECONDS',
-                        help='start transient to skip, s (default: 25%% of the record)')
+                        help='start the window SECONDS after the first sample (default: the steady-window '
+                             'criterion, docs/scenes.md)')
     parser.add_argument('--harmonics', type=int, default=6, metavar='N',
                         help='number of torque harmonics (default 6)')
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import Any
 
 from cvj_ros.errors import SceneError
 
@@ -11,8 +12,9 @@ NAME = 'simulate'
 HELP = 'run a scene offline (engine and load in the loop, no ROS) and print a summary'
 DESCRIPTION = """Integrate a scene offline with one persistent solver (engine and load inside the
 right-hand side) and print: mean speed, nonuniformity delta and torque amplitude per shaft
-over the steady window (second half of the run unless --transient), the energy-balance
-residual, solver counters, wall time per simulated second and the fidelity report.
+over the steady window (docs/scenes.md "Steady window": the slices of the run that agree
+with its last slice in mean speed and amplitudes; --transient sets the start instead;
+the window and the criterion's verdict are printed), the energy-balance residual, solver counters, wall time per simulated second and the fidelity report.
 On a terminal, stderr shows a progress line (simulated time, real-time factor, ETA) at
 most once a second; nothing when stderr is not a terminal.
 
@@ -21,6 +23,8 @@ examples:
   cvj-sim simulate fwd_halfshaft --duration 1 --fidelity tripod=exact rzeppa=exact
   cvj-sim simulate stiff --method rosenbrock --rtol 1e-8 --json
   cvj-sim simulate my_scene.yaml --csv run.csv
+  cvj-sim simulate kavz685_lever --plots runs/kavz_offline/plots
+  cvj-sim simulate fwd_halfshaft --bag runs/offline/bag   # then: cvj-sim analyze runs/offline/bag
 """
 
 
@@ -37,6 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='sample from the dense output (free steps) instead of landing on samples')
     parser.add_argument('--transient', type=float, help='seconds skipped before the metrics window')
     parser.add_argument('--csv', metavar='FILE', help='write the sampled trace as CSV')
+    parser.add_argument('--plots', metavar='DIR',
+                        help='write the PNG figures of `cvj-sim analyze --plots` for this run '
+                             '(speeds_torques, nonuniformity, harmonics) to DIR')
+    parser.add_argument('--bag', metavar='DIR',
+                        help='write the sampled trace as a rosbag2 bag (joint states, engine and load '
+                             'wrench, scene) that `cvj-sim analyze` reads')
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing --bag directory')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     parser.add_argument('--backend', choices=('kernel', 'python'), default='kernel',
                         help='kernel: compiled (default; an element it does not cover falls back '
@@ -65,6 +76,9 @@ def format_summary(summary: dict) -> str:
     fallback = sol.get('backend_fallback')
     lines.append(f"backend {sol.get('backend', 'python')}" + (f" ({fallback})" if fallback else ''))
     lines.append(f"energy balance residual {summary['energy_residual']:.3e} (relative)")
+    if 'window_text' in summary:
+        lines.append(f"steady window {summary['window_text']}")
+        lines.append(f"  ({summary['window']['criterion']})")
     lines.append(f"{'shaft':<24}{'mean rad/s':>12}{'delta':>11}{'A_speed':>11}{'A_accel':>11}"
                  f"{'mean N m':>11}{'A_torque':>11}")
     for name, m in summary['shafts'].items():
@@ -106,9 +120,40 @@ def run(args: argparse.Namespace) -> int:
     summary = sim.summary(transient=args.transient)
     if args.csv:
         trace.to_csv(args.csv)
+    if args.plots:
+        summary['plots'] = [str(p) for p in _write_plots(sim, trace, args)]
+    if args.bag:
+        from cvj_ros.trace_bag import scene_message, write_trace_bag
+        text = scene_message(scene, sim.fidelity_report.to_dict(), solver=summary['solver'],
+                             duration=float(trace.t[-1]), names=list(trace.names),
+                             sample_dt=float(trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 0.0)
+        counts = write_trace_bag(trace, args.bag, scene_yaml=text, overwrite=args.overwrite)
+        print(f'cvj-sim simulate: wrote {counts.get("/driveline/joint_states", 0)} samples to bag '
+              f'{args.bag}', file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
         summary['fidelity_text'] = str(sim.fidelity_report)
         print(format_summary(summary))
     return 0
+
+
+def _write_plots(sim: Any, trace: Any, args: argparse.Namespace) -> list[Any]:
+    """The analysis figures of an offline trace (same window rule as ``cvj-sim analyze``:
+    ``--transient`` seconds skipped, else its default); stderr names each file."""
+    import sys
+
+    import yaml
+
+    from cvj_ros.analysis import analyze_signals
+    from cvj_ros.plots import signals_from_trace, write_analysis_plots
+    scene = sim.scene.to_dict()
+    scene['solver'] = {**scene.get('solver', {}), 'method': sim.method, 'rtol': sim.rtol, 'atol': sim.atol}
+    scene['fidelity'] = sim.fidelity_report.to_dict()
+    sig = signals_from_trace(trace, scene_yaml=yaml.safe_dump(scene, sort_keys=False),
+                             label=f'simulate {sim.scene.name}')
+    report = analyze_signals(sig, skip_s=args.transient)
+    paths = write_analysis_plots(sig, report, args.plots)
+    for p in paths:
+        print(f'cvj-sim simulate: wrote {p}', file=sys.stderr)
+    return paths

@@ -64,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='shaft whose torque --orders analyses (default: the first, the '
                              'torque the engine shaft passes on)')
     parser.add_argument('--transient', type=float,
-                        help='seconds skipped before the metrics window (default: first half)')
+                        help='seconds skipped before the metrics window (default: the steady-window '
+                             'criterion, docs/scenes.md)')
     parser.add_argument('--fidelity', nargs='+', default=[], metavar='NAME=LEVEL',
                         help='force fidelity: joint=ideal|closed|exact, spring=elastic|rigid')
     parser.add_argument('--backend', choices=('kernel', 'python'), default='kernel',

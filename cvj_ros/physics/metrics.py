@@ -5,10 +5,12 @@
 * amplitude A = (max - min) / 2 of speed, acceleration and torque (seed 004 section
   3.3.2 compares these amplitudes of drive and driven shafts, figs. 3.11-3.18).
 
-All are taken over a *steady window*: the start transient is skipped. By default the
-first half of the trace is skipped (``transient=None``); give ``transient`` (s) to
-choose. Acceleration is the numerical time derivative of the sampled speed
-(``numpy.gradient``, second order), so sample finely enough for it.
+All are taken over the *steady window* of :mod:`cvj_ros.physics.steady` (the one
+definition shared by ``simulate``, ``run`` and ``analyze``): found by its criterion
+(``transient=None``), or starting ``transient`` s after the first sample. Acceleration
+is the numerical time derivative of the sampled speed over the whole record, then
+windowed (:func:`cvj_ros.physics.signal.time_derivative`, second order, as ``analyze``),
+so sample finely enough for it.
 """
 from __future__ import annotations
 
@@ -17,19 +19,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cvj_ros.physics.signal import time_derivative
+from cvj_ros.physics.steady import SteadyWindow, joint_state_window
+
 FloatArray = NDArray[np.float64]
 
 
-def steady_mask(t: ArrayLike, *, transient: float | None = None) -> NDArray[np.bool_]:
-    """Boolean mask of samples with t >= t0 + transient (default half the span)."""
-    tt = np.asarray(t, dtype=float)
-    if tt.size == 0:
-        return np.zeros(0, dtype=bool)
-    skip = 0.5 * (tt[-1] - tt[0]) if transient is None else float(transient)
-    mask = tt >= tt[0] + skip
-    if mask.sum() < 2:
-        mask[-2:] = True
-    return mask
+def steady_window(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: ArrayLike, *,
+                  transient: float | None = None) -> SteadyWindow:
+    """The steady window of a JointState record (:func:`cvj_ros.physics.steady.joint_state_window`);
+    ``transient`` (s) sets its start instead of the criterion."""
+    return joint_state_window(t, names, velocity, effort, skip_s=transient)
 
 
 def nonuniformity(omega: ArrayLike) -> float:
@@ -47,15 +47,21 @@ def amplitude(x: ArrayLike) -> float:
 
 
 def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: ArrayLike, *,
-                  transient: float | None = None) -> dict[str, dict[str, float]]:
-    """Per shaft over the steady window: mean_speed (rad/s), delta (-), speed_amplitude
+                  transient: float | None = None,
+                  window: SteadyWindow | None = None) -> dict[str, dict[str, float]]:
+    """Per shaft over the steady window (``window``, else :func:`steady_window` with
+    ``transient``): mean_speed (rad/s), delta (-), speed_amplitude
     (rad/s), acceleration_amplitude (rad/s^2), mean_torque and torque_amplitude (N m).
     acceleration_amplitude is NaN when the stamps are not strictly increasing (e.g. a bag
     that recorded a second run on the same domain): no derivative over a zero time step."""
     tt = np.asarray(t, dtype=float)
     vel = np.asarray(velocity, dtype=float)
     eff = np.asarray(effort, dtype=float)
-    mask = steady_mask(tt, transient=transient)
+    if tt.size < 2:
+        mask = np.ones(tt.shape, dtype=bool)
+    else:
+        win = window or steady_window(tt, names, vel, eff, transient=transient)
+        mask = win.mask(tt)
     increasing = bool(np.all(np.diff(tt) > 0.0))
     out: dict[str, dict[str, float]] = {}
     for i, name in enumerate(names):
@@ -63,7 +69,7 @@ def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: A
         if tt.size <= 2:
             acc = np.zeros_like(w)
         else:
-            acc = np.gradient(w, tt) if increasing else np.full_like(w, np.nan)
+            acc = time_derivative(tt, w) if increasing else np.full_like(w, np.nan)
         out[name] = {'mean_speed': float(np.mean(w[mask])),
                      'delta': nonuniformity(w[mask]),
                      'speed_amplitude': amplitude(w[mask]),
@@ -73,6 +79,8 @@ def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: A
     return out
 
 
-def summarize(trace: Any, *, transient: float | None = None) -> dict[str, dict[str, float]]:
+def summarize(trace: Any, *, transient: float | None = None,
+              window: SteadyWindow | None = None) -> dict[str, dict[str, float]]:
     """:func:`shaft_metrics` of a :class:`cvj_ros.physics.simulate.Trace`."""
-    return shaft_metrics(trace.t, trace.names, trace.velocity, trace.effort, transient=transient)
+    return shaft_metrics(trace.t, trace.names, trace.velocity, trace.effort, transient=transient,
+                         window=window)

@@ -48,28 +48,6 @@ def speed_nonuniformity(omega: ArrayLike) -> float:
     return float((np.max(w) - np.min(w)) / abs(mean))
 
 
-def steady_mask(t: ArrayLike, *, skip_s: float | None = None, skip_fraction: float = 0.25) -> NDArray[np.bool_]:
-    """Boolean mask of the steady window: drop the start transient.
-
-    The first ``skip_s`` seconds are dropped when given, else the first ``skip_fraction`` of
-    the recorded duration (default a quarter). ``t`` in s. At least two samples stay.
-    """
-    tt = np.asarray(t, dtype=float)
-    if tt.size == 0:
-        return np.zeros(0, dtype=bool)
-    if skip_s is None:
-        if not 0.0 <= skip_fraction < 1.0:
-            raise ValueError(f'skip_fraction: must be in [0, 1), got {skip_fraction}')
-        skip_s = skip_fraction * (tt[-1] - tt[0])
-    elif skip_s < 0.0 or not math.isfinite(skip_s):
-        raise ValueError(f'skip_s: must be a finite number >= 0, got {skip_s}')
-    mask = tt >= tt[0] + skip_s
-    if np.count_nonzero(mask) < 2:
-        mask = np.zeros_like(mask)
-        mask[-2:] = True
-    return mask
-
-
 def time_derivative(t: ArrayLike, values: ArrayLike) -> FloatArray:
     """Second-order central difference d(values)/dt on a possibly non-uniform grid (unit/s)."""
     tt = np.asarray(t, dtype=float)

@@ -330,14 +330,17 @@ class Simulation:
         return trace
 
     def summary(self, *, transient: float | None = None) -> dict[str, Any]:
-        """Summary of the last run (runs the scene first if needed): per-shaft metrics
+        """Summary of the last run (runs the scene first if needed): the steady window
+        (cvj_ros.physics.steady; ``transient`` s sets its start), per-shaft metrics over it
         (cvj_ros.physics.metrics), energy residual, solver stats, wall time per simulated
         second, fidelity report."""
-        from cvj_ros.physics.metrics import summarize
+        from cvj_ros.physics.metrics import steady_window, summarize
         tr = self.last_trace or self.run()
         sim_time = float(tr.t[-1] - tr.t[0]) or 1.0
+        window = steady_window(tr.t, tr.names, tr.velocity, tr.effort, transient=transient)
         return {'scene': self.scene.name, 'duration': float(tr.t[-1]),
-                'shafts': summarize(tr, transient=transient),
+                'window': window.to_dict(), 'window_text': window.describe(),
+                'shafts': summarize(tr, window=window),
                 'energy_residual': tr.max_energy_residual,
                 'solver': dict(tr.solver), 'wall_time': tr.wall_time,
                 'wall_per_sim_second': tr.wall_time / sim_time,

@@ -49,7 +49,7 @@ class RunOptions:
 
     sample_dt: sample period in s for the metrics (None: the scene's ``sample_step`` or
     ``exchange_step``, exactly as ``cvj-sim simulate``); transient: s skipped before the
-    steady window (None: the first half); fidelity: forced levels per element name;
+    steady window (None: the criterion of cvj_ros.physics.steady); fidelity: forced levels per element name;
     backend: 'kernel' or 'python'; sampling: 'dense' (default: the controller chooses its
     steps and samples come from the method's dense output - measured on kavz685_lever at
     alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', 1.4x less CPU) or
@@ -118,15 +118,17 @@ def metrics_row(summary: Mapping[str, Any]) -> dict[str, Any]:
 def order_amplitudes(trace: Any, orders: int, transient: float | None,
                      shaft: str | None = None) -> dict[str, float]:
     """Amplitudes (N m) of engine orders 1..``orders`` of the torque of ``shaft`` (default
-    the first shaft: the torque the engine shaft passes on) over the first shaft's angle, in the steady window of :func:`cvj_ros.physics.metrics.steady_mask`
+    the first shaft: the torque the engine shaft passes on) over the first shaft's angle, in
+    the steady window of the summary's metrics (:func:`cvj_ros.physics.metrics.steady_window`)
     (:func:`cvj_ros.physics.signal.harmonics_over_angle`, seed 004 eqs. 4.1-4.3, 72 points
     per revolution). NaN when the window holds less than one whole revolution or the
     angle is not monotonic (the engine stopped or reversed)."""
-    from cvj_ros.physics.metrics import steady_mask
+    from cvj_ros.physics.metrics import steady_window
     from cvj_ros.physics.signal import harmonics_over_angle
     shaft = shaft or trace.names[0]
     col = trace.column(shaft)
-    mask = steady_mask(trace.t, transient=transient)
+    mask = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                         transient=transient).mask(trace.t)
     try:
         h = harmonics_over_angle(trace.position[mask, 0], trace.effort[mask, col],
                                  n_harmonics=orders, samples_per_rev=max(72, 2 * orders + 2))

@@ -154,6 +154,27 @@ def test_run_writes_documented_bag_and_report(run_a) -> None:
           f"(loop {report['loop_wall_time']:.3f} s for {N} steps)")
 
 
+def test_run_report_and_analyze_agree_on_the_bag(run_a) -> None:
+    """One window definition (cvj_ros.physics.steady): the run's report (report.json and
+    its printed window line with the criterion) and `analyze` of the same bag give the same
+    window and the same numbers (same arrays, same functions: rel 1e-12)."""
+    from cvj_ros import analysis
+    r, bag_path = run_a
+    assert r.returncode == 0, r.stdout + r.stderr
+    metrics = yaml.safe_load((bag_path.parent / 'report.json').read_text())['metrics']
+    rep = analysis.analyze_bag(bag_path)
+    assert 'steady window ' + metrics['window_text'] in r.stdout, r.stdout
+    assert metrics['window']['criterion'] in r.stdout
+    assert rep['window']['text'] == metrics['window_text']
+    assert [rep['window']['start_s'], rep['window']['end_s']] == metrics['window_s']
+    for name, m in metrics['shafts'].items():
+        a = rep['shafts'][name]
+        for key_run, key_an in (('mean_speed', 'mean_speed_rad_s'), ('delta', 'speed_nonuniformity'),
+                                ('acceleration_amplitude', 'acceleration_amplitude_rad_s2'),
+                                ('torque_amplitude', 'torque_amplitude_Nm')):
+            assert a[key_an] == pytest.approx(m[key_run], rel=1e-12, abs=1e-12), (name, key_run)
+
+
 def _offline_coupled(scene, h: float) -> np.ndarray:
     """Velocities at t_k of the offline exchange loop (what the nodes compute, without ROS)."""
     from cvj_ros.physics.cosim import CoupledStepper

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from cvj_ros.physics.metrics import amplitude, nonuniformity, shaft_metrics, steady_mask
+from cvj_ros.physics.metrics import amplitude, nonuniformity, shaft_metrics, steady_window
 
 
 def test_nonuniformity_and_amplitudes_of_sinusoid() -> None:
@@ -24,10 +24,15 @@ def test_nonuniformity_and_amplitudes_of_sinusoid() -> None:
 
 
 def test_steady_window_skips_transient() -> None:
+    """A step from 0 to 10 rad/s at 0.5 s: 10 slices of 0.1 s; slices 5..9 agree with the
+    last, slice 4 (mean 0) does not -> window 0.5..1 s (51 samples), delta 0 there;
+    ``transient`` 0.9 s sets the start instead (11 samples)."""
     t = np.linspace(0.0, 1.0, 101)
-    assert steady_mask(t).sum() == 51
-    assert steady_mask(t, transient=0.9).sum() == 11
-    w = np.where(t < 0.5, 0.0, 10.0)        # run-up then constant
+    w = np.where(t < 0.5 - 1e-9, 0.0, 10.0)        # run-up then constant
+    names, vel = ['s'], w[:, None]
+    win = steady_window(t, names, vel, vel)
+    assert win.steady and win.start_s == pytest.approx(0.5) and win.mask(t).sum() == 51
+    assert steady_window(t, names, vel, vel, transient=0.9).mask(t).sum() == 11
     assert shaft_metrics(t, ['s'], w[:, None], w[:, None])['s']['delta'] == 0.0
 
 

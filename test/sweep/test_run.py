@@ -83,11 +83,14 @@ def test_rows_equal_a_direct_simulation(tmp_path: Path) -> None:
         sim = Simulation(parse_scene(d))
         sim.run(sampling='dense')
         expected = metrics_row(sim.summary())
-        expected.update(order_amplitudes(sim.last_trace, 4, None))
+        expected.update(order_amplitudes(sim.last_trace, 4, None))    # finds the window anew
         assert set(expected) | {'variant', 'status', 'error', LEVER_SETS[0].split('=')[0],
                                 LEVER_SETS[1].split('=')[0]} == set(row)
         for key, value in expected.items():
-            assert (float(row[key]) if isinstance(value, float) else type(value)(row[key])) == value, key
+            text = row[key]
+            got = (text == 'true') if isinstance(value, bool) else \
+                float(text) if isinstance(value, float) else type(value)(text)
+            assert got == value, key
 
 
 def test_bad_variant_skipped_or_stopping(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

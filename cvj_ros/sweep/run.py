@@ -52,7 +52,7 @@ class RunOptions:
     steady window (None: the criterion of cvj_ros.physics.steady); fidelity: forced levels per element name;
     backend: 'kernel' or 'python'; sampling: 'dense' (default: the controller chooses its
     steps and samples come from the method's dense output - measured on kavz685_lever at
-    alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', 1.4x less CPU) or
+    alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', ~1.3x less CPU) or
     'land' (steps land on every sample, exactly ``cvj-sim simulate``'s default); orders:
     engine orders 1..orders of a shaft's torque kept per variant (0: none), columns
     ``SHAFT.torque_order<k>`` (N m), see :func:`order_amplitudes`.

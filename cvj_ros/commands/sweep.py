@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--sampling', choices=('dense', 'land'), default='dense',
                         help='dense (default): samples from the solver\'s dense output, steps '
                              'free; land: steps land on every sample (cvj-sim simulate\'s '
-                             'default; ~1.4x the CPU, metrics within 2e-3 relative here)')
+                             'default; ~1.3x the CPU, metrics within 2e-3 relative here)')
     parser.add_argument('--orders', type=int, default=4,
                         help="engine orders of a shaft's torque kept per variant (columns "
                              'SHAFT.torque_order<k>, N m; 0: none; default 4)')

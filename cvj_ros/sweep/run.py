@@ -52,7 +52,7 @@ class RunOptions:
     steady window (None: the criterion of cvj_ros.physics.steady); fidelity: forced levels per element name;
     backend: 'kernel' or 'python'; sampling: 'dense' (default: the controller chooses its
     steps and samples come from the method's dense output - measured on kavz685_lever at
-    alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', 1.4x less CPU) or
+    alpha 15 and 30 deg: every metric within 1.9e-3 relative of 'land', ~1.3x less CPU) or
     'land' (steps land on every sample, exactly ``cvj-sim simulate``'s default); orders:
     engine orders 1..orders of a shaft's torque kept per variant (0: none), columns
     ``SHAFT.torque_order<k>`` (N m), see :func:`order_amplitudes`.
@@ -102,10 +102,16 @@ def validate(scene_data: Mapping[str, Any]) -> str | None:
 
 
 def metrics_row(summary: Mapping[str, Any]) -> dict[str, Any]:
-    """Flatten a Simulation summary into result columns (energy residual, solver counters,
-    backend, then ``SHAFT.METRIC`` per shaft in driveline order)."""
+    """Flatten a Simulation summary into result columns (whether the run reached a steady
+    window and where it starts, energy residual, solver counters, backend, then
+    ``SHAFT.METRIC`` per shaft in driveline order)."""
     sol = summary['solver']
-    row: dict[str, Any] = {'energy_residual': float(summary['energy_residual'])}
+    win = summary.get('window') or {}
+    row: dict[str, Any] = {}
+    if win:     # the steady window the metrics cover (cvj_ros.physics.steady)
+        row['steady'] = bool(win['steady'])
+        row['window_start_s'] = float(win['start_s'])
+    row['energy_residual'] = float(summary['energy_residual'])
     for c in SOLVER_COUNTERS:
         row[c] = int(sol.get(c, 0))
     row['backend'] = str(sol.get('backend', 'python'))
@@ -116,7 +122,7 @@ def metrics_row(summary: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def order_amplitudes(trace: Any, orders: int, transient: float | None,
-                     shaft: str | None = None) -> dict[str, float]:
+                     shaft: str | None = None, window: Any = None) -> dict[str, float]:
     """Amplitudes (N m) of engine orders 1..``orders`` of the torque of ``shaft`` (default
     the first shaft: the torque the engine shaft passes on) over the first shaft's angle, in
     the steady window of the summary's metrics (:func:`cvj_ros.physics.metrics.steady_window`)
@@ -127,8 +133,10 @@ def order_amplitudes(trace: Any, orders: int, transient: float | None,
     from cvj_ros.physics.signal import harmonics_over_angle
     shaft = shaft or trace.names[0]
     col = trace.column(shaft)
-    mask = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
-                         transient=transient).mask(trace.t)
+    if window is None:
+        window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                               transient=transient)
+    mask = window.mask(trace.t)
     try:
         h = harmonics_over_angle(trace.position[mask, 0], trace.effort[mask, col],
                                  n_harmonics=orders, samples_per_rev=max(72, 2 * orders + 2))
@@ -151,11 +159,14 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     try:
         sim = Simulation(scene, fidelity=dict(options.fidelity) or None, backend=options.backend)
         sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-        row = {'status': 'ok', **metrics_row(sim.summary(transient=options.transient))}
+        summary = sim.summary(transient=options.transient)
+        row = {'status': 'ok', **metrics_row(summary)}
         if options.orders > 0:
-            try:
+            from cvj_ros.physics.steady import SteadyWindow
+            fields = {k: v for k, v in summary['window'].items() if k != 'criterion'}
+            try:      # over the summary's own window (finding it again costs ~4 ms)
                 row.update(order_amplitudes(sim.last_trace, options.orders, options.transient,
-                                            options.orders_shaft))
+                                            options.orders_shaft, SteadyWindow(**fields)))
             except KeyError:
                 raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
                                  f'{", ".join(sim.last_trace.names)}') from None

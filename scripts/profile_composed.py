@@ -65,7 +65,7 @@ def instrument() -> None:
     TorqueResponder._on_joint_states = timed(lambda self: f'{self.get_name()} answer',
                                              TorqueResponder._on_joint_states)
     MonitorNode._on_joint_states = timed('monitor', MonitorNode._on_joint_states)
-    MonitorNode._on_torque = staticmethod(timed('monitor', MonitorNode._on_torque))
+    MonitorNode._on_torque_raw = timed('monitor', MonitorNode._on_torque_raw)
     MonitorNode._on_diagnostics = timed('monitor', MonitorNode._on_diagnostics)
     bag.BagRecorder._on_message = timed('recorder callbacks', bag.BagRecorder._on_message)
     Writer.write = timed('writer thread (rosbags write)', Writer.write)

@@ -159,3 +159,85 @@ def decode_wrench_header_torque_z(data: bytes) -> tuple[int, bytes, float]:
 
 
 # --- node base and main loop ----------------------------------------------------------------
+
+
+# --- JointState decoder (raw subscriptions) -------------------------------------------------
+
+class _Stamp:
+    __slots__ = ('sec', 'nanosec')
+
+    def __init__(self, sec: int, nanosec: int) -> None:
+        self.sec, self.nanosec = sec, nanosec
+
+
+class _Header:
+    __slots__ = ('stamp', 'frame_id')
+
+    def __init__(self, stamp: _Stamp, frame_id: str) -> None:
+        self.stamp, self.frame_id = stamp, frame_id
+
+
+class JointStateView:
+    """The fields of a serialised sensor_msgs/JointState that the nodes read, as plain Python:
+    ``header.stamp.sec`` / ``.nanosec``, ``header.frame_id`` (str), ``name`` (list of str),
+    ``position``, ``velocity``, ``effort`` (tuples of float, rad, rad/s, N m)."""
+    __slots__ = ('header', 'name', 'position', 'velocity', 'effort')
+
+    def __init__(self, header: _Header, name: list[str], position: tuple[float, ...],
+                 velocity: tuple[float, ...], effort: tuple[float, ...]) -> None:
+        self.header, self.name = header, name
+        self.position, self.velocity, self.effort = position, velocity, effort
+
+
+class JointStateDecoder:
+    """Reads a serialised JointState without rclpy's Python message (measured here, 5 shafts,
+    load average ~10: rclpy's deserialisation to a Python JointState 99 us per sample, this
+    22 us). Little-endian CDR
+    (encapsulation 00 01): stamp at payload offset 0, frame_id string at 8, then the
+    sequences name (strings), position, velocity, effort (float64, 8-aligned), alignment
+    relative to the payload (byte 4). The name list of the previous message is reused when
+    its bytes are the same (the loop sends the same names every step). Other encodings go
+    through rclpy.serialization.deserialize_message."""
+
+    def __init__(self) -> None:
+        self._names_raw = b''
+        self._names: list[str] = []
+
+    def decode(self, data: bytes) -> Any:
+        """A :class:`JointStateView` (or, for a non-little-endian sample, the rclpy message)."""
+        if len(data) < 16 or data[1] != 1:
+            from rclpy.serialization import deserialize_message
+            from sensor_msgs.msg import JointState
+            return deserialize_message(bytes(data), JointState)
+        u32 = _LE_UINT32.unpack_from
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        n = u32(data, 12)[0]
+        frame = bytes(data[16:16 + max(n - 1, 0)]).decode('utf-8', errors='replace')
+        off = 12 + n                                  # payload offset after frame_id
+        off += (-off) % 4
+        count = u32(data, 4 + off)[0]
+        start = off
+        off += 4
+        for _ in range(count):
+            off += (-off) % 4
+            off += 4 + u32(data, 4 + off)[0]
+        raw_names = bytes(data[4 + start:4 + off])
+        if raw_names != self._names_raw:
+            names = []
+            o = start + 4
+            for _ in range(count):
+                o += (-o) % 4
+                m = u32(data, 4 + o)[0]
+                names.append(bytes(data[4 + o + 4:4 + o + 4 + max(m - 1, 0)]).decode('utf-8', errors='replace'))
+                o += 4 + m
+            self._names_raw, self._names = raw_names, names
+        arrays = []
+        for _ in range(3):
+            off += (-off) % 4
+            k = u32(data, 4 + off)[0]
+            off += 4
+            if k:
+                off += (-off) % 8
+            arrays.append(struct.unpack_from(f'<{k}d', data, 4 + off))
+            off += 8 * k
+        return JointStateView(_Header(_Stamp(sec, nanosec), frame), self._names, *arrays)

@@ -62,8 +62,13 @@ class TorqueResponder(CvjNode):
         self._js_frame = ''                      # frame_id of the last joint state answered
         self._answer_frame = shaft
         self._encoders = {shaft: self._answer_cdr}
-        self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joint_states,
-                                               DATA_QOS)
+        # raw CDR read by JointStateDecoder: rclpy's Python JointState per sample cost ~4x more
+        # (docs/nodes.md, composed mode); _on_joint_states takes either form
+        from cvj_ros.nodes.cdr import JointStateDecoder
+        decode = JointStateDecoder().decode
+        self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC,
+                                               lambda data: self._on_joint_states(decode(data)),
+                                               DATA_QOS, raw=True)
 
     def _shaft_index(self, names: Sequence[str]) -> int:
         if self._names is None or list(names) != self._names:
@@ -93,6 +98,7 @@ class TorqueResponder(CvjNode):
         self._answer.header.frame_id = self._answer_frame
 
     def _on_joint_states(self, msg: Any) -> None:
+        """Answer one joint state (a JointState or a :class:`~cvj_ros.nodes.cdr.JointStateView`)."""
         frame = msg.header.frame_id
         if frame != self._js_frame:
             if is_foreign(frame, self.run_token):
@@ -127,7 +133,7 @@ class TorqueResponder(CvjNode):
                                                             0.0, 0.0, 0.0, 0.0, 0.0, torque))
         else:
             out = self._answer
-            out.header.stamp = stamp
+            out.header.stamp.sec, out.header.stamp.nanosec = stamp.sec, stamp.nanosec
             self._answer_torque.z = torque
             self.wrench_pub.publish(out)
         self.answered += 1

@@ -1,0 +1,92 @@
+"""monitor_node reads /engine/wrench and /load/wrench as raw CDR (no Python message per
+sample): the torque window statistics against a closed form, another run's answers dropped."""
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+
+from cvj_ros.nodes.common import make_executor, ns_to_stamp  # noqa: E402
+from cvj_ros.nodes.monitor_node import MonitorNode  # noqa: E402
+from cvj_ros.nodes.qos import DATA_QOS  # noqa: E402
+
+pytestmark = pytest.mark.ros
+OURS, OTHER = '0123abcd', 'ffff0000'
+
+
+def test_torque_windows_from_raw_answers(ctx):
+    node = MonitorNode(context=ctx, parameter_overrides=[
+        Parameter('publish_every', value=1000), Parameter('window', value=0.4),
+        Parameter('run_token', value=OURS)])
+    peer = rclpy.create_node('peer', context=ctx)
+    js_pub = peer.create_publisher(JointState, '/driveline/joint_states', DATA_QOS)
+    eng_pub = peer.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+    load_pub = peer.create_publisher(WrenchStamped, '/load/wrench', DATA_QOS)
+    got: list[DiagnosticArray] = []
+    peer.create_subscription(DiagnosticArray, '/diagnostics', got.append, DATA_QOS)
+    ex = make_executor('events', ctx)
+    ex.add_node(peer)
+    ex.add_node(node)
+
+    def spin_until(cond, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline
+            ex.spin_once(timeout_sec=0.02)
+
+    def wrench(pub, k: int, torque: float, token: str) -> None:
+        msg = WrenchStamped()
+        msg.header.stamp = ns_to_stamp(k * 1_000_000)
+        msg.header.frame_id = f'shaft@{token}'
+        msg.wrench.torque.z = torque
+        msg.wrench.force.x = 1e9      # must not be read as torque.z
+        pub.publish(msg)
+
+    try:
+        spin_until(lambda: min(p.get_subscription_count() for p in (js_pub, eng_pub, load_pub)) >= 1
+                   and node.diag_pub.get_subscription_count() >= 1)
+        # 1 s at 1 ms: engine 100 + 7 sin(2 pi 5 t), load 80 + 3 cos(2 pi 5 t); another run's
+        # answers (1e6 N m) between ours must be dropped (any one of them would move the mean
+        # by 2.5e3 N m).
+        for k in range(1000):
+            t = k * 1e-3
+            wrench(eng_pub, k, 100 + 7 * math.sin(2 * math.pi * 5 * t), OURS)
+            wrench(load_pub, k, 80 + 3 * math.cos(2 * math.pi * 5 * t), OURS)
+            wrench(eng_pub, k, 1e6, OTHER)
+            if k % 100 == 0:   # keep the queues short (depth 1000)
+                spin_until(lambda: node.load_torque.window(1e9)[1].shape[0] >= k + 1)
+        spin_until(lambda: node.load_torque.window(1e9)[1].shape[0] >= 1000
+                   and node.engine_torque.window(1e9)[1].shape[0] >= 1000)
+        js = JointState()
+        js.header.stamp = ns_to_stamp(999_000_000)
+        js.header.frame_id = f'driveline@{OURS}'
+        js.name, js.position, js.velocity, js.effort = ['a'], [0.0], [40.0], [0.0]
+        for _ in range(1000):   # publish_every = 1000 joint states -> one /diagnostics
+            js_pub.publish(js)
+        spin_until(lambda: any(st.name == 'monitor: torques' for m in got for st in m.status))
+        st = next(st for m in got for st in m.status if st.name == 'monitor: torques')
+        vals = {kv.key: float(kv.value) for kv in st.values}
+        assert st.level == DiagnosticStatus.OK
+        # the window = the samples k = 599..999 (t_end - 0.4 s .. t_end, both ends): mean and
+        # (max - min)/2 of the closed-form signal there; the values travel as 6-significant-digit
+        # strings (diag_status), hence rel 1e-5
+        ks = range(599, 1000)
+        eng = [100 + 7 * math.sin(2 * math.pi * 5 * k * 1e-3) for k in ks]
+        load = [80 + 3 * math.cos(2 * math.pi * 5 * k * 1e-3) for k in ks]
+        assert vals['engine_torque_mean_nm'] == pytest.approx(sum(eng) / len(eng), rel=1e-5)
+        assert vals['engine_torque_amplitude_nm'] == pytest.approx((max(eng) - min(eng)) / 2, rel=1e-5)
+        assert vals['load_torque_mean_nm'] == pytest.approx(sum(load) / len(load), rel=1e-5)
+        assert vals['load_torque_amplitude_nm'] == pytest.approx((max(load) - min(load)) / 2, rel=1e-5)
+        assert vals['engine_torque_amplitude_nm'] == pytest.approx(7.0, rel=1e-5)   # peaks sampled
+        assert node.foreign_messages == 1000
+    finally:
+        ex.shutdown()
+        peer.destroy_node()
+        node.destroy_node()

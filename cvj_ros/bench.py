@@ -786,3 +786,55 @@ def check_config(cfg: BenchConfig) -> None:
         raise SceneError('--repeats', f'must be >= 1, got {cfg.repeats}')
     if cfg.horizon is not None and not (math.isfinite(cfg.horizon) and cfg.horizon > 0):
         raise SceneError('--horizon', f'must be > 0, got {cfg.horizon}')
+
+
+def sweep_rates(variants: int = 400, workers: Sequence[int] = (1, 2), *,
+                scene: str = 'kavz685_lever', out_dir: str | Path | None = None) -> list[dict[str, Any]]:
+    """Sweep throughput (`cvj-sim bench --sweep N`): ``variants`` variants of ``scene`` (its
+    own duration; hinge angle x bushing stiffness for kavz685_lever, else initial speed),
+    once per worker count. Per row: workers, steady variants/s (after the first finished
+    chunk: workers started, kernel loaded), that start-up (s), wall s of the whole sweep, and
+    the scaling efficiency rate_n / (n rate_1). On a shared machine the figures move
+    with the other load: the line names the load average."""
+    import tempfile
+
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene
+    from cvj_ros.sweep.run import RunOptions, execute, make_executor
+    from cvj_ros.sweep.spec import build_sweep
+    path = find_scene(scene)
+    base = load_scene_data(path)
+    if scene == 'kavz685_lever':
+        n_a = max(1, variants // 10)
+        sets = [f'driveline[coupling].params.alpha_deg=0:30:{n_a}',
+                f'driveline[bushings].stiffness=300:3000:{max(1, variants // n_a)}:log']
+    else:
+        sets = [f'initial.speed_rad_s=10:100:{variants}']
+    sweep = build_sweep(base, sets)
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in workers:
+            t0 = time.perf_counter()
+            rep = execute(sweep, RunOptions(), Path(out_dir or tmp) / f'w{n}',
+                          executor=make_executor(n), fresh=True, scene_source=str(path), started=t0)
+            rows.append({'scene': scene, 'variants': rep.total, 'workers': n, 'rate': rep.steady_rate,
+                         'startup_s': rep.first_wall, 'run_wall_s': rep.run_wall,
+                         'total_wall_s': rep.total_wall})
+    for r in rows:
+        r['efficiency'] = r['rate'] / (r['workers'] * rows[0]['rate']) if rows[0]['rate'] else math.nan
+    return rows
+
+
+def format_sweep_rates(rows: Sequence[dict[str, Any]]) -> str:
+    """One line per worker count, plus the 10 000-variant extrapolation of the fastest."""
+    lines = [f"sweep {r['scene']}: {r['variants']} variants, {r['workers']} worker"
+             f"{'s' if r['workers'] > 1 else ''}: {r['rate']:.1f} variants/s after "
+             f"{r['startup_s']:.1f} s start-up ({r['total_wall_s']:.1f} s wall), scaling efficiency "
+             f"{100 * r['efficiency']:.0f} %" for r in rows]
+    best = max(rows, key=lambda r: r['rate'])
+    if best['rate'] > 0:
+        lines.append(f"sweep: 10 000 variants would take ~{best['startup_s'] + 10_000 / best['rate']:.0f} s with "
+                     f"{best['workers']} worker{'s' if best['workers'] > 1 else ''} "
+                     f"(target <= 60 s); {os.cpu_count()} cores, load average "
+                     f"{os.getloadavg()[0]:.1f} at the end")
+    return '\n'.join(lines)

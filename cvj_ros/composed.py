@@ -159,6 +159,14 @@ class ComposedDriveline:
             kwargs['cli_args'] = list(cli_args)
         node = cls(**kwargs)
         self.nodes[name] = node
+        if self.recorder is not None:
+            # record the node's contract topics from its first message: subscribed before the
+            # executor runs the node (the recorder's graph scan every 0.2 s would miss the
+            # first reaction wrenches of /coupling/<joint>/wrench)
+            from cvj_ros.bag import topic_type
+            for pub in node.publishers:
+                if topic_type(pub.topic_name) is not None:
+                    self.recorder.subscribe(pub.topic_name)
         node.done.add_done_callback(lambda _f: self.wake())   # finished or failed: stop spinning
         self.executor.add_node(node)
         return node
@@ -434,6 +442,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             comp.spin_until_done(coupling, stop=lambda: bool(stop_signal), on_tick=on_tick)
         progress.close()
         mark('coupling_exited')
+        if comp.recorder is not None:   # later /clock beyond our last state: another run's
+            comp.recorder.loop_ended = True
         if error is None:
             error = comp.failed()
         if stop_signal or error is not None or coupling is None:

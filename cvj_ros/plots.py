@@ -1,15 +1,20 @@
 """PNG figures of an analysed bag and of the work-precision benchmark (matplotlib, Agg backend).
 
-Analysis figures (:func:`write_analysis_plots`): ``speeds_torques.png`` (speed and torque of
-every shaft over time, the skipped start transient shaded), ``nonuniformity.png`` (speed
-deviation over shaft angle, joint geometric and kinematic nonuniformity over input angle),
-``harmonics.png`` (torque harmonic amplitudes per order, and the torque resampled over one
-revolution with its truncated Fourier series, seed 004 eqs. 4.1-4.3).
+Analysis figures (:func:`write_analysis_plots`), one row per speed level (:func:`speed_levels`):
+``speeds_torques.png`` (speed and torque of every shaft over time, the skipped start transient
+shaded), ``nonuniformity.png`` (speed deviation over the shaft's own angle relative to its
+revolution mean, joint geometric and kinematic nonuniformity over input angle, seed 002, all
+folded to one revolution: mean line and min-max band; peak-to-peak below a stated floor drawn
+flat and called "uniform"), ``harmonics.png`` (torque harmonic amplitudes per order, and the
+torque over one revolution with its truncated Fourier series, seed 004 eqs. 4.1-4.3).
+Each figure function returns the matplotlib Figure so tests can inspect it; docs/analysis.md
+describes what each panel shows.
 Benchmark figures: :func:`work_precision_plot` (log-log error vs cost, one line per solver).
 """
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,12 +32,256 @@ _STYLE = {'figure.dpi': 110, 'axes.grid': True, 'grid.alpha': 0.3, 'axes.titlesi
           'axes.labelsize': 10, 'legend.fontsize': 8, 'font.size': 9}
 
 
-def _wrapped(phi: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Angle mod 360 deg with NaN inserted at each wrap so lines do not jump across."""
-    deg = np.degrees(np.mod(phi, 2 * math.pi))
-    order_breaks = np.nonzero(np.abs(np.diff(deg)) > 180.0)[0] + 1
-    return (np.insert(deg, order_breaks, np.nan), np.insert(y.astype(float), order_breaks, np.nan))
+# -- series styles, labels and speed levels --------------------------------------------------
 
+_COLORS = tuple(plt.get_cmap('tab10').colors)
+_LINESTYLES = ('-', '--', '-.', ':')
+_HATCHES = ('', '////', '....', 'xxxx')
+#: peak-to-peak below which a deviation is drawn flat and called "uniform". Rounding noise of
+#: the recorded angles is eps * |phi| ~ 2.2e-16 * 1e3 rad = 2e-13 rad for a 1000 rad unwrapped
+#: angle (the shipped scenes reach ~700 rad), of a speed ratio ~1e-16 relative (seen: 1.1e-11
+#: mrad and 2.2e-16 on the gear of fwd_halfshaft): 1e-9 is >= 5000x above both and 1e5x below
+#: the smallest physical nonuniformity plotted (tripod 15 deg, r/l 0.11: ~2.5e-4 rad).
+UNIFORM_FLOOR = 1e-9
+#: two shafts share a speed level (one axis) when their mean speeds differ by less than this
+#: factor: a gear or final drive (ratios ~3-6 in the shipped scenes) starts a new level.
+LEVEL_RATIO = 1.5
+
+
+def series_style(i: int) -> dict[str, Any]:
+    """Line style of series ``i``: ten colours x four line styles, unique for 40 series (then the
+    width grows so pairs stay distinct up to 160)."""
+    return {'color': _COLORS[i % 10], 'ls': _LINESTYLES[(i // 10) % 4], 'lw': 1.2 + 0.7 * (i // 40)}
+
+
+def bar_style(i: int) -> dict[str, Any]:
+    """Bar style of series ``i``: ten colours x four hatches (unique for 40 series)."""
+    return {'color': _COLORS[i % 10], 'hatch': _HATCHES[(i // 10) % 4], 'edgecolor': 'white',
+            'linewidth': 0.0}
+
+
+def shaft_labels(names: Sequence[str]) -> list[str]:
+    """Legend labels of the joint-state columns: the name, with ``[column k]`` appended to
+    every column whose name occurs more than once (so no two legend entries read the same)."""
+    return [f'{n} [column {k}]' if names.count(n) > 1 else n for k, n in enumerate(names)]
+
+
+def speed_levels(mean_speeds: Sequence[float], *, ratio: float = LEVEL_RATIO,
+                 rest_fraction: float = 1e-6) -> list[list[int]]:
+    """Group shaft indices by speed level, fastest level first.
+
+    Shafts whose |mean speed| is below ``rest_fraction`` x the largest form one "at rest" level
+    (last); the others are split by sign, sorted by |mean speed|, and a new level starts where
+    the next |mean speed| exceeds the previous one by more than ``ratio``. Each level is one
+    axis of the figures, so ~42 rad/s shafts are not squashed under ~230 rad/s ones.
+    """
+    w = np.asarray(mean_speeds, dtype=float)
+    w = np.where(np.isfinite(w), w, 0.0)
+    scale = float(np.max(np.abs(w))) if w.size else 0.0
+    at_rest = [i for i in range(w.size) if abs(w[i]) <= rest_fraction * scale]
+    levels: list[list[int]] = []
+    for sign in (1.0, -1.0):
+        idx = sorted((i for i in range(w.size) if i not in at_rest and np.sign(w[i]) == sign),
+                     key=lambda i: abs(w[i]))
+        group: list[int] = []
+        for i in idx:
+            if group and abs(w[i]) > ratio * abs(w[group[-1]]):
+                levels.append(group)
+                group = []
+            group.append(i)
+        if group:
+            levels.append(group)
+    levels.sort(key=lambda g: -max(abs(w[i]) for i in g))
+    if at_rest:
+        levels.append(at_rest)
+    return [sorted(g) for g in levels]
+
+
+#: within a speed level, a shaft whose speed deviation (peak-to-peak) is more than this factor
+#: smaller than the largest of its axis gets the next axis: drawn together it would fill less
+#: than a tenth of the height (fwd_halfshaft, exact Rzeppa: cage 17 % vs 0.2-3 % for the rest).
+AMPLITUDE_RATIO = 10.0
+
+
+def amplitude_groups(peak_to_peak: Sequence[float], *, ratio: float = AMPLITUDE_RATIO,
+                     floor: float = UNIFORM_FLOOR) -> list[list[int]]:
+    """Split indices into groups drawn on one axis each, largest deviations first: a group
+    holds every value >= its largest / ``ratio``; values below ``floor`` (drawn flat) join
+    the last group."""
+    v = [float(x) if math.isfinite(x) else 0.0 for x in peak_to_peak]
+    groups: list[list[int]] = []
+    flat = [i for i in range(len(v)) if v[i] < floor]
+    for i in sorted((i for i in range(len(v)) if v[i] >= floor), key=lambda i: -v[i]):
+        if groups and v[i] * ratio >= v[groups[-1][0]]:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    if flat:
+        if groups:
+            groups[-1] += flat
+        else:
+            groups.append(flat)
+    return [sorted(g) for g in groups]
+
+
+def _level_title(mean_speeds: np.ndarray, level: list[int]) -> str:
+    w = mean_speeds[level]
+    if np.all(np.abs(w) <= 1e-6 * max(1e-300, float(np.max(np.abs(mean_speeds))))):
+        return 'at rest'
+    lo, hi = float(np.min(w)), float(np.max(w))
+    return f'mean speed {lo:.3g} rad/s' if math.isclose(lo, hi, rel_tol=5e-3) else \
+        f'mean speeds {lo:.3g} to {hi:.3g} rad/s'
+
+
+def _steady_means(sig: BagSignals, mask: np.ndarray) -> np.ndarray:
+    """Mean speed of every shaft over ``mask`` (all samples if empty), NaN samples ignored [rad/s]."""
+    if not np.any(mask):
+        mask = np.ones(sig.t.size, dtype=bool)
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)   # all-NaN column -> NaN, read as at rest
+        return np.nanmean(sig.velocity[mask], axis=0)
+
+
+def fold_over_angle(phi: np.ndarray, y: np.ndarray, n_bins: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Fold ``y`` over the angle ``phi`` (rad, unwrapped) into ``n_bins`` bins of one revolution.
+
+    Where ``phi`` is monotonic the signal is first interpolated linearly onto a uniform grid of
+    ``n_bins`` points per revolution (so a coarse sampling, e.g. 13 deg per sample of a
+    230 rad/s shaft at 1 kHz, does not leave empty bins); otherwise the samples are binned as
+    they are. Returns (bin centres in deg, mean, min, max per bin, revolutions covered); empty
+    bins are NaN.
+    """
+    phi = np.asarray(phi, dtype=float)
+    y = np.asarray(y, dtype=float)
+    ok = np.isfinite(phi) & np.isfinite(y)
+    phi, y = phi[ok], y[ok]
+    step = 2 * math.pi / n_bins
+    revs = float(abs(phi[-1] - phi[0]) / (2 * math.pi)) if phi.size else 0.0
+    dphi = np.diff(phi)
+    if phi.size >= 2 and (np.all(dphi > 0) or np.all(dphi < 0)):
+        if dphi[0] < 0:
+            phi, y = phi[::-1], y[::-1]
+        k0, k1 = math.ceil(phi[0] / step), math.floor(phi[-1] / step)
+        grid = np.arange(k0, k1 + 1) * step
+        if grid.size >= 2:
+            y = np.interp(grid, phi, y)
+            phi = grid
+    idx = np.mod(np.floor(np.mod(phi, 2 * math.pi) / step + 0.5).astype(np.int64), n_bins) \
+        if phi.size else np.zeros(0, dtype=np.int64)
+    count = np.bincount(idx, minlength=n_bins).astype(float)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        mean = np.bincount(idx, weights=y, minlength=n_bins) / count
+    lo = np.full(n_bins, np.inf)
+    hi = np.full(n_bins, -np.inf)
+    np.minimum.at(lo, idx, y)
+    np.maximum.at(hi, idx, y)
+    empty = count == 0
+    mean[empty] = lo[empty] = hi[empty] = np.nan
+    centres = np.degrees(np.arange(n_bins) * step)
+    # close the curve at 360 deg
+    return (np.append(centres, 360.0), np.append(mean, mean[0]), np.append(lo, lo[0]),
+            np.append(hi, hi[0]), revs)
+
+
+#: a curve within this fraction of its axis' data span of an earlier curve is drawn over it
+#: (below one pixel of a ~400 px axis): its legend entry says "= <earlier>" instead.
+COINCIDENT = 2e-3
+
+
+def _coincident(earlier: list[tuple[str, np.ndarray]], y: np.ndarray, span: float) -> str | None:
+    """Label of the first earlier curve that ``y`` covers (max |difference| <= COINCIDENT x
+    ``span``, NaN where both are NaN), else None."""
+    for label, e in earlier:
+        if e.shape == y.shape and np.array_equal(np.isnan(e), np.isnan(y)):
+            d = np.abs(e - y)
+            if not d.size or float(np.nanmax(d, initial=0.0)) <= COINCIDENT * max(span, 1e-300):
+                return label
+    return None
+
+
+def _span(arrays: Sequence[np.ndarray]) -> float:
+    vals = [a[np.isfinite(a)] for a in arrays]
+    vals = [v for v in vals if v.size]
+    return float(max(np.max(v) for v in vals) - min(np.min(v) for v in vals)) if vals else 0.0
+
+
+def revolution_mean_speed(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Mean speed over the revolution centred on each sample, 2 pi / (t(phi + pi) - t(phi - pi))
+    [rad/s] (signed); NaN within half a revolution of the ends or where ``phi`` is not strictly
+    monotonic (then there is no "revolution" to average over)."""
+    t = np.asarray(t, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    out = np.full(phi.shape, np.nan)
+    d = np.diff(phi)
+    if phi.size < 3 or not (np.all(d > 0) or np.all(d < 0)):
+        return out
+    sgn = 1.0 if d[0] > 0 else -1.0
+    u = sgn * phi
+    ok = (u - math.pi >= u[0]) & (u + math.pi <= u[-1])
+    t_hi = np.interp(u[ok] + math.pi, u, t)
+    t_lo = np.interp(u[ok] - math.pi, u, t)
+    out[ok] = sgn * 2 * math.pi / (t_hi - t_lo)
+    return out
+
+
+def _peak_to_peak(y: np.ndarray) -> float:
+    y = np.asarray(y, dtype=float)
+    y = y[np.isfinite(y)]
+    return float(np.max(y) - np.min(y)) if y.size else 0.0
+
+
+def _legend(ax: Any, handles: list[Any], labels: list[str], *, outside: bool = True) -> None:
+    from matplotlib.legend_handler import HandlerTuple
+    kw: dict[str, Any] = {'loc': 'upper left', 'bbox_to_anchor': (1.01, 1.0)} if outside else {'loc': 'best'}
+    ax.legend(handles, labels, framealpha=0.85, handler_map={tuple: HandlerTuple(ndivide=1)},
+              ncol=1 if len(labels) <= 14 else 2, borderaxespad=0.0 if outside else 0.5, **kw)
+
+
+def scene_settings(sig: BagSignals) -> tuple[float | None, dict[str, str]]:
+    """(solver rtol, {joint or spring name: chosen fidelity}) from the scene YAML recorded in
+    the bag (``/driveline/scene``); (None, {}) when absent or unreadable."""
+    if not sig.scene_yaml:
+        return None, {}
+    import yaml
+    try:
+        data = yaml.safe_load(sig.scene_yaml)
+    except yaml.YAMLError:
+        return None, {}
+    if not isinstance(data, dict):
+        return None, {}
+    solver = data.get('solver')
+    rtol = solver.get('rtol') if isinstance(solver, dict) else None
+    rtol = float(rtol) if isinstance(rtol, (int, float)) and math.isfinite(rtol) and rtol > 0 else None
+    fid = data.get('fidelity')
+    chosen: dict[str, str] = {}
+    if isinstance(fid, dict) and isinstance(fid.get('choices'), list):
+        chosen = {str(c['name']): str(c['chosen']) for c in fid['choices']
+                  if isinstance(c, dict) and 'name' in c and 'chosen' in c}
+    return rtol, chosen
+
+
+def signals_from_trace(trace: Any, *, scene_yaml: str | None = None, label: str = 'simulate') -> BagSignals:
+    """:class:`BagSignals` of an offline run (``cvj_ros.physics.simulate.Trace``: t s, position
+    rad, velocity rad/s, effort N m per shaft, engine and load torque N m on the engine and
+    load shafts, same sign conventions as the bag's wrenches), so ``analyze_signals`` and the
+    figures work on it as on a recorded bag. ``label`` names the figures (a path-like name)."""
+    t = np.asarray(trace.t, dtype=float)
+    return BagSignals(path=Path(label), joint_names=list(trace.names), t=t,
+                      position=np.asarray(trace.position, dtype=float),
+                      velocity=np.asarray(trace.velocity, dtype=float),
+                      effort=np.asarray(trace.effort, dtype=float),
+                      engine_t=t, engine_torque=np.asarray(trace.engine_torque, dtype=float),
+                      load_t=t, load_torque=np.asarray(trace.load_torque, dtype=float),
+                      scene_yaml=scene_yaml)
+
+
+def _bag_label(sig: BagSignals) -> str:
+    p = sig.path if sig.path.is_dir() or not sig.path.exists() else sig.path.parent   # .mcap file: its dir
+    return f'{p.parent.name}/{p.name}' if p.name == 'bag' else p.name
+
+
+# -- figures ----------------------------------------------------------------------------------
 
 def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str | Path) -> list[Path]:
     """Write the analysis PNGs of a bag to ``out_dir`` (created); returns the file paths."""
@@ -42,129 +291,298 @@ def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str |
     mask = sig.t >= t0
     paths = []
     with plt.rc_context(_STYLE):
-        paths.append(_plot_time(sig, t0, out / 'speeds_torques.png'))
-        paths.append(_plot_nonuniformity(sig, mask, out / 'nonuniformity.png'))
-        p = _plot_harmonics(sig, report, mask, out / 'harmonics.png')
-        if p is not None:
-            paths.append(p)
+        figures = [('speeds_torques.png', speeds_torques_figure(sig, t0)),
+                   ('nonuniformity.png', nonuniformity_figure(sig, mask)),
+                   ('harmonics.png', harmonics_figure(sig, report, mask))]
+        for name, fig in figures:
+            if fig is None:
+                continue
+            fig.savefig(out / name)
+            plt.close(fig)
+            paths.append(out / name)
     return paths
 
 
-def _bag_label(sig: BagSignals) -> str:
-    p = sig.path if sig.path.is_dir() else sig.path.parent
-    return f'{p.parent.name}/{p.name}' if p.name == 'bag' else p.name
+def speeds_torques_figure(sig: BagSignals, t0: float) -> Any:
+    """Speed (left) and torque (right) over simulated time, one row per speed level
+    (:func:`speed_levels` of the means from ``t0`` on); engine and load wrench torques in the
+    row of the shaft they act on. A shaft whose curve covers an earlier one of its row is
+    labelled ``= <earlier>``. Returns the matplotlib Figure (caller saves and closes)."""
+    means = _steady_means(sig, sig.t >= t0)
+    levels = speed_levels(means)
+    labels = shaft_labels(sig.joint_names)
+    eng, load = engine_shaft(sig), load_shaft(sig)
+    fig, axes = plt.subplots(len(levels), 2, figsize=(13, 2.5 * len(levels) + 1.1), sharex=True,
+                             squeeze=False, layout='constrained')
+    for row, level in enumerate(levels):
+        ax_w, ax_t = axes[row]
+        handles, names = [], []
+        span_w = _span([sig.velocity[:, j] for j in level])
+        span_t = _span([sig.effort[:, j] for j in level])
+        seen_w: list[tuple[str, np.ndarray]] = []
+        seen_t: list[tuple[str, np.ndarray]] = []
+        for j in level:
+            st = series_style(j)
+            w, tq = sig.velocity[:, j], sig.effort[:, j]
+            line, = ax_w.plot(sig.t, w, label=labels[j], **st)
+            ax_t.plot(sig.t, tq, label=labels[j], **st)
+            same_w, same_t = _coincident(seen_w, w, span_w), _coincident(seen_t, tq, span_t)
+            seen_w.append((labels[j], w))
+            seen_t.append((labels[j], tq))
+            note = (f' (= {same_w})' if same_w == same_t else
+                    ' (' + ', '.join(f'{q} = {o}' for q, o in (('speed', same_w), ('torque', same_t)) if o)
+                    + ')') if (same_w or same_t) else ''
+            handles.append(line)
+            names.append(labels[j] + note)
+        cols = [sig.joint_names[j] for j in level]
+        if sig.engine_t.size and eng in cols:
+            h, = ax_t.plot(sig.engine_t, sig.engine_torque, color='k', ls=(0, (5, 2)), lw=0.8, alpha=0.6,
+                           label=f'engine torque on {eng}')
+            handles.append(h)
+            names.append(h.get_label())
+        if sig.load_t.size and load in cols:
+            h, = ax_t.plot(sig.load_t, sig.load_torque, color='0.4', ls=(0, (1, 1.5)), lw=1.2,
+                           label=f'load torque on {load} (resisting)')
+            handles.append(h)
+            names.append(h.get_label())
+        for ax in (ax_w, ax_t):
+            if t0 > sig.t[0]:
+                ax.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0)
+        title = _level_title(means, level)
+        ax_w.set_title(f'speed, {title}')
+        ax_t.set_title(f'torque, {title}')
+        ax_w.set_ylabel('speed  [rad/s]')
+        ax_t.set_ylabel('torque  [N m]')
+        for ax in (ax_w, ax_t):        # read 99.98 rad/s, not 'offset +1e2' and -0.02
+            ax.ticklabel_format(axis='y', useOffset=False)
+        _legend(ax_t, handles, names)
+    for ax in axes[-1]:
+        ax.set_xlabel('simulated time  [s]')
+    skipped = f'; grey: skipped start transient t < {t0:.3g} s' if t0 > sig.t[0] else ''
+    fig.suptitle(f'Shaft speeds and torques by speed level - {_bag_label(sig)}{skipped}', fontsize=11)
+    return fig
 
 
-def _plot_time(sig: BagSignals, t0: float, path: Path) -> Path:
-    fig, (ax_w, ax_t) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
-    for j, name in enumerate(sig.joint_names):
-        ax_w.plot(sig.t, sig.velocity[:, j], lw=1.1, label=name)
-        ax_t.plot(sig.t, sig.effort[:, j], lw=1.1, label=f'{name} (shaft)')
-    if sig.engine_t.size:
-        ax_t.plot(sig.engine_t, sig.engine_torque, 'k--', lw=0.9, label=f'engine on {engine_shaft(sig)}')
-    if sig.load_t.size:
-        ax_t.plot(sig.load_t, sig.load_torque, color='0.45', ls=':', lw=1.1,
-                  label=f'load on {load_shaft(sig)} (resisting)')
-    for ax in (ax_w, ax_t):
-        if t0 > sig.t[0]:
-            ax.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0, label='skipped transient')
-        ax.legend(loc='best', ncol=2, framealpha=0.85)
-    ax_w.set_ylabel('speed  [rad/s]')
-    ax_w.set_title(f'Shaft speeds and torques - {_bag_label(sig)}')
-    ax_t.set_ylabel('torque  [N m]')
-    ax_t.set_xlabel('simulated time  [s]')
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+def _draw_folded(ax: Any, phi: np.ndarray, y: np.ndarray, *, scale: float, n_bins: int,
+                 style: dict[str, Any], seen: list[tuple[str, np.ndarray]], span: float,
+                 name: str, floor: float = UNIFORM_FLOOR) -> tuple[Any, str | None]:
+    """Fold ``y`` over ``phi`` and draw the mean line and the min-max band (``scale`` converts
+    to display units; a peak-to-peak below ``floor`` draws flat at 0). When the
+    folded curve covers one in ``seen`` (within COINCIDENT x ``span``, display units) no band
+    is drawn. Returns (legend handle, label of the covered curve or None); appends to seen."""
+    if _peak_to_peak(y) < floor:
+        x = np.array([0.0, 360.0])
+        mean = lo = hi = np.zeros(2)
+    else:
+        x, mean, lo, hi, _ = fold_over_angle(phi, y, n_bins)
+        mean, lo, hi = scale * mean, scale * lo, scale * hi
+    key = np.concatenate([mean, lo, hi]) if x.size > 2 else np.zeros(6)
+    same = _coincident(seen, key, span)
+    seen.append((name, key))
+    line, = ax.plot(x, mean, label=name, **style)
+    if same or x.size <= 2:
+        return line, same
+    band = ax.fill_between(x, lo, hi, color=style['color'], alpha=0.13, lw=0)
+    return (line, band), same
 
 
-def _plot_nonuniformity(sig: BagSignals, mask: np.ndarray, path: Path) -> Path:
+def _folded_span(pairs: Sequence[tuple[np.ndarray, np.ndarray]], scale: float, n_bins: int,
+                 floor: float = UNIFORM_FLOOR) -> float:
+    """Display-unit span of the min-max bands of (phi, y) pairs folded over one revolution."""
+    arrs = []
+    for phi, y in pairs:
+        if y.size and _peak_to_peak(y) >= floor:
+            _, _, lo, hi, _ = fold_over_angle(phi, y, n_bins)
+            arrs += [scale * lo, scale * hi]
+    return _span(arrs)
+
+
+def _uniform_axis(ax: Any, p2p: float, unit: str, floor: float = UNIFORM_FLOOR, why: str = '') -> None:
+    """Y-limits and note of an axis whose every series is uniform (not stretched noise)."""
+    ax.set_ylim(-1.0, 1.0)
+    u = f' {unit}' if unit else ''
+    ax.text(0.5, 0.72, f'uniform{why}\npeak-to-peak {p2p:.2g}{u} < {floor:g}{u}',
+            transform=ax.transAxes, ha='center', va='center', fontsize=10,
+            bbox={'boxstyle': 'round', 'fc': 'white', 'ec': '0.6', 'alpha': 0.9})
+
+
+def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
+    """Speed deviation of every shaft over its own angle (one row per speed level), then one
+    row per joint: geometric (mrad) and kinematic nonuniformity over the joint's input angle
+    (seed 002). The speed deviation is w / w_rev - 1 with w_rev the mean speed over the
+    revolution centred on the sample (:func:`revolution_mean_speed`), so a slow drift of the
+    window does not smear it. Curves are folded over one revolution: line = mean over the
+    revolutions of the steady window, band = min-max. A deviation whose peak-to-peak is below
+    :data:`UNIFORM_FLOOR` (speeds: below the solver's rtol recorded in the scene, if larger:
+    the integrator does not resolve relative speed changes below it) is drawn flat and the
+    axis says "uniform". Joint titles name the fidelity the scene ran (an ``ideal`` joint is
+    uniform by construction, not by physics)."""
+    rtol, fidelity = scene_settings(sig)
+    speed_floor = max(UNIFORM_FLOOR, rtol or 0.0)
+    speed_why = ' (below the solver rtol)' if speed_floor > UNIFORM_FLOOR else ''
+    means = _steady_means(sig, mask)
+    labels = shaft_labels(sig.joint_names)
     pairs = joint_pairs(sig.joint_names)
-    n_rows = 3 if pairs else 1
-    fig, axes = plt.subplots(n_rows, 1, figsize=(9, 2.9 * n_rows + 0.6), squeeze=False)
-    ax = axes[0, 0]
-    for j, name in enumerate(sig.joint_names):
-        w = sig.velocity[mask, j]
-        mean = float(np.mean(w))
-        if mean == 0.0:
-            continue
-        x, y = _wrapped(sig.position[mask, j], w / mean - 1.0)
-        ax.plot(x, 100.0 * y, lw=0.9, label=f'{name} (delta = {signal.speed_nonuniformity(w):.3g})')
-    ax.set_ylabel(r'$\omega/\bar\omega - 1$  [%]')
-    ax.set_title('Speed deviation over shaft angle (steady window)')
-    ax.set_xlabel('own shaft angle mod 360  [deg]')
-    ax.legend(loc='best', ncol=2, framealpha=0.85)
-    if pairs:
-        ax_g, ax_k = axes[1, 0], axes[2, 0]
-        for joint, n_in, n_out in pairs:
-            i, o = sig.column(n_in), sig.column(n_out)
-            nu = signal.joint_nonuniformity(sig.position[mask, i], sig.position[mask, o],
-                                            sig.velocity[mask, i], sig.velocity[mask, o])
-            r = nu.nominal_ratio
-            dev = sig.position[mask, o] - r * sig.position[mask, i]
-            dev = dev - (2 * math.pi * round(float(np.mean(dev)) / (2 * math.pi)) if r == 1.0 else float(np.mean(dev)))
-            x, y = _wrapped(sig.position[mask, i], dev)
-            label = joint if r == 1.0 else f'{joint} (ratio {r:.4g})'
-            ax_g.plot(x, 1e3 * y, lw=1.0, label=label)
-            wi, wo = sig.velocity[mask, i], sig.velocity[mask, o]
-            ok = np.abs(wi) > 1e-6
-            x, y = _wrapped(sig.position[mask, i][ok], wo[ok] / (r * wi[ok]) - 1.0)
-            ax_k.plot(x, y, lw=1.0, label=label)
+    t = sig.t[mask]
+    data: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    speed_rows: list[tuple[list[int], list[int], int]] = []    # (level, shafts of the row, parts)
+    for level in speed_levels(means):
+        for j in level:
+            phi, w = sig.position[mask, j], sig.velocity[mask, j]
+            w_rev = revolution_mean_speed(t, phi)
+            ok = np.isfinite(w_rev) & (w_rev != 0.0)
+            data[j] = (phi[ok], w[ok] / w_rev[ok] - 1.0)
+        parts = amplitude_groups([_peak_to_peak(data[j][1]) for j in level], floor=speed_floor)
+        speed_rows += [(level, [level[i] for i in part], len(parts)) for part in parts]
+    n_rows = len(speed_rows) + len(pairs)
+    fig = plt.figure(figsize=(13, 2.7 * n_rows + 0.9), layout='constrained')
+    gs = fig.add_gridspec(n_rows, 2)
+    for row, (level, shafts, parts) in enumerate(speed_rows):
+        ax = fig.add_subplot(gs[row, :])
+        span = _folded_span([data[j] for j in shafts], 100.0, 72, speed_floor)
+        handles, names, seen, p2ps = [], [], [], []
+        for j in shafts:
+            w = sig.velocity[mask, j]
+            phi, dev = data[j]
+            if dev.size < 2:
+                h, = ax.plot([0.0, 360.0], [0.0, 0.0], label=labels[j], **series_style(j))
+                handles.append(h)
+                names.append(f'{labels[j]} (no full revolution in one direction)')
+                continue
+            p2ps.append(_peak_to_peak(dev))
+            h, same = _draw_folded(ax, phi, dev, scale=100.0, n_bins=72, style=series_style(j),
+                                   seen=seen, span=span, name=labels[j], floor=speed_floor)
+            delta = signal.speed_nonuniformity(w)
+            handles.append(h)
+            names.append(f'{labels[j]} (delta = {delta:.3g})' + (f' = {same}' if same else ''))
+        if p2ps and max(p2ps) < speed_floor:
+            _uniform_axis(ax, max(p2ps), '', speed_floor, speed_why)
+        ax.set_ylabel(r'$\omega/\bar\omega_{rev} - 1$  [%]')
+        ax.set_xlabel('own shaft angle mod 360  [deg]')
+        part = '' if parts == 1 else \
+            f' ({row - next(r for r, sr in enumerate(speed_rows) if sr[0] is level) + 1} of {parts}, ' \
+            f'by size of the deviation)'
+        ax.set_title(f'Speed deviation over own shaft angle, {_level_title(means, level)}{part}')
+        _legend(ax, handles, names)
+    for k, (joint, n_in, n_out) in enumerate(pairs):
+        ax_g = fig.add_subplot(gs[len(speed_rows) + k, 0])
+        ax_k = fig.add_subplot(gs[len(speed_rows) + k, 1])
+        i, o = sig.column(n_in), sig.column(n_out)
+        phi_i, phi_o = sig.position[mask, i], sig.position[mask, o]
+        wi, wo = sig.velocity[mask, i], sig.velocity[mask, o]
+        nu = signal.joint_nonuniformity(phi_i, phi_o, wi, wo)
+        r = nu.nominal_ratio
+        dev = phi_o - r * phi_i
+        dev = dev - (2 * math.pi * round(float(np.mean(dev)) / (2 * math.pi)) if r == 1.0 else float(np.mean(dev)))
+        ok = np.abs(wi) > 1e-6
+        kin = wo[ok] / (r * wi[ok]) - 1.0
+        name = joint if r == 1.0 else f'{joint} (ratio {r:.4g})'
+        st = series_style(len(sig.joint_names) + k)
+        for ax, phi, y, scale, unit, shown in ((ax_g, phi_i, dev, 1e3, 'rad', 'mrad'),
+                                               (ax_k, phi_i[ok], kin, 1.0, '', '')):
+            p2p = _peak_to_peak(y)
+            h, _ = _draw_folded(ax, phi, y, scale=scale, n_bins=360, style=st, seen=[], span=0.0, name=name)
+            uni = p2p < UNIFORM_FLOOR
+            lab = f'{name}: uniform' if uni else f'{name}: peak-to-peak {scale * p2p:.3g} {shown}'.rstrip()
+            if uni:
+                _uniform_axis(ax, p2p, unit, why=' (ideal model: output = ratio x input)'
+                              if fidelity.get(joint) == 'ideal' else '')
+            ax.legend([h], [lab], loc='best', framealpha=0.85)
         ax_g.set_ylabel(r'$\varphi_{out}-i\,\varphi_{in}$  [mrad]')
-        ax_g.set_title('Geometric nonuniformity of the joints (seed 002)')
+        model = f', {fidelity[joint]} model' if joint in fidelity else ''
+        ax_g.set_title(f'{joint}: geometric nonuniformity (seed 002){model}')
         ax_k.set_ylabel(r'$\omega_{out}/(i\,\omega_{in}) - 1$  [-]')
-        ax_k.set_title('Kinematic nonuniformity of the joints (seed 002)')
+        ax_k.set_title(f'{joint}: kinematic nonuniformity (seed 002){model}')
         for a in (ax_g, ax_k):
             a.set_xlabel('joint input angle mod 360  [deg]')
-            a.legend(loc='best', framealpha=0.85)
-    for a in axes[:, 0]:
+    for a in fig.axes:
         a.set_xlim(0, 360)
         a.set_xticks(range(0, 361, 45))
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    fig.suptitle(f'Nonuniformity over shaft angle (steady window) - {_bag_label(sig)}\n'
+                 r'speed: $\bar\omega_{rev}$ = mean speed over the surrounding revolution, '
+                 'delta = (max - min)/mean over the window; '
+                 'all panels: line = mean over the revolutions, band = min-max', fontsize=10.5)
+    return fig
 
 
-def _plot_harmonics(sig: BagSignals, report: dict[str, Any], mask: np.ndarray, path: Path) -> Path | None:
-    series = [(n, s['torque_harmonics']) for n, s in report['shafts'].items()]
-    series += [(f'{k} wrench', report[k]['torque_harmonics']) for k in ('engine', 'load') if k in report]
-    series = [(n, h) for n, h in series if _oscillates(h)]   # flat torques say nothing here
+def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) -> Any | None:
+    """Torque harmonic amplitudes per order of every torque that oscillates (bars, top), then
+    one row per speed level: the truncated Fourier series over one revolution (line) and the
+    recorded torque folded over the shaft angle (band: min-max over revolutions), seed 004
+    eqs. 4.1-4.3. None when no torque oscillates."""
+    labels = dict(zip(sig.joint_names, shaft_labels(sig.joint_names)))
+    series: list[tuple[str, str, dict[str, Any], int]] = []   # (label, shaft, harmonics, style index)
+    for j, (n, s) in enumerate(report['shafts'].items()):
+        series.append((labels.get(n, n), n, s['torque_harmonics'], j))
+    for k, key in enumerate(('engine', 'load')):
+        if key in report:
+            series.append((f'{key} wrench on {report[key]["shaft"]}', report[key]['shaft'],
+                           report[key]['torque_harmonics'], len(report['shafts']) + k))
+    series = [s for s in series if _oscillates(s[2])]   # flat torques say nothing here
     if not series:
         return None
-    fig, (ax_b, ax_c) = plt.subplots(2, 1, figsize=(9, 7))
+    means = _steady_means(sig, mask)
+    levels = [lv for lv in speed_levels(means)
+              if any(sig.joint_names[j] in {s[1] for s in series} for j in lv)]
+    fig = plt.figure(figsize=(13, 3.6 + 2.7 * len(levels) + 0.6), layout='constrained')
+    gs = fig.add_gridspec(1 + len(levels), 1, height_ratios=[1.35] + [1.0] * len(levels))
+    ax_b = fig.add_subplot(gs[0])
     n = len(series)
     width = 0.8 / n
-    for i, (name, h) in enumerate(series):
+    for i, (name, _, h, style_index) in enumerate(series):
         orders = np.asarray(h['orders'], dtype=float)
         amps = np.asarray([a if a is not None else np.nan for a in h['amplitude']])
-        ax_b.bar(orders - 0.4 + width * (i + 0.5), amps, width=width, label=f"{name} (mean {h['mean']:.4g} N m)")
+        ax_b.bar(orders - 0.4 + width * (i + 0.5), amps, width=width,
+                 label=f"{name} (mean {h['mean']:.4g} N m)", **bar_style(style_index))
     ax_b.set_xlabel('harmonic order k  [per shaft revolution]')
     ax_b.set_ylabel(r'amplitude $A_k$  [N m]')
     ax_b.set_title(r'Torque harmonics over shaft angle, $T=\bar T+\sum A_k\cos(k\varphi+p_k)$ (seed 004 eqs. 4.1-4.3)')
-    ax_b.set_xticks(np.asarray(series[0][1]['orders']))
-    ax_b.legend(loc='best', framealpha=0.85)
-    # One revolution: the resampled torque (all revolutions folded) and the truncated series.
-    phi1 = np.linspace(0.0, 2 * math.pi, 361)
-    for name, h in series[:4]:
-        series_val = h['mean'] + sum(a * np.cos(k * phi1 + p) for k, a, p in
-                                     zip(h['orders'], h['amplitude'], h['phase_rad']) if a is not None)
-        line, = ax_c.plot(np.degrees(phi1), series_val, lw=1.6, label=f'{name}: series, {len(h["orders"])} harmonics')
-        if name in sig.joint_names:
-            j = sig.column(name)
-            x, y = _wrapped(sig.position[mask, j], sig.effort[mask, j])
-            ax_c.plot(x, y, color=line.get_color(), lw=0.5, alpha=0.35)
-    ax_c.set_xlim(0, 360)
-    ax_c.set_xticks(range(0, 361, 45))
-    ax_c.set_xlabel('shaft angle mod 360  [deg]')
-    ax_c.set_ylabel('torque  [N m]')
-    ax_c.set_title('Torque over one revolution: recorded (thin, all revolutions) and Fourier series (thick)')
-    ax_c.legend(loc='best', framealpha=0.85)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    ax_b.set_xticks(np.asarray(series[0][2]['orders']))
+    _legend(ax_b, *ax_b.get_legend_handles_labels())
+    phi1 = np.linspace(0.0, 2 * math.pi, 73)
+    t_first = sig.t[mask][0] if np.any(mask) else -np.inf
+    for row, level in enumerate(levels):
+        ax = fig.add_subplot(gs[1 + row])
+        shafts = {sig.joint_names[j] for j in level}
+        rows = []
+        for name, shaft, h, style_index in series:
+            if shaft not in shafts:
+                continue
+            j = sig.column(shaft)
+            if name.endswith(f'wrench on {shaft}'):
+                src_t, src_tq = (sig.engine_t, sig.engine_torque) if name.startswith('engine') \
+                    else (sig.load_t, sig.load_torque)
+                m = src_t >= t_first
+                phi, tq = np.interp(src_t[m], sig.t, sig.position[:, j]), src_tq[m]
+            else:
+                phi, tq = sig.position[mask, j], sig.effort[mask, j]
+            fourier = h['mean'] + sum(a * np.cos(k * phi1 + p) for k, a, p in
+                                      zip(h['orders'], h['amplitude'], h['phase_rad']) if a is not None)
+            x, _, lo, hi, _ = fold_over_angle(phi, tq, 72)
+            rows.append((name, h, style_index, fourier, x, lo, hi))
+        span = _span([a for r in rows for a in (r[5], r[6])])
+        handles, names, seen = [], [], []
+        for name, h, style_index, fourier, x, lo, hi in rows:
+            st = series_style(style_index)
+            line, = ax.plot(np.degrees(phi1), fourier, label=name, **{**st, 'lw': st['lw'] + 0.6})
+            key = np.concatenate([fourier, lo, hi])
+            same = _coincident(seen, key, span)
+            seen.append((name, key))
+            if same:
+                handles.append(line)
+            else:
+                band = ax.fill_between(x, lo, hi, color=st['color'], alpha=0.13, lw=0)
+                handles.append((line, band))
+            names.append(f'{name}: {len(h["orders"])} harmonics, {h.get("revolutions", "?")} rev'
+                         + (f' (= {same})' if same else ''))
+        ax.set_xlim(0, 360)
+        ax.set_xticks(range(0, 361, 45))
+        ax.set_xlabel('shaft angle mod 360  [deg]')
+        ax.set_ylabel('torque  [N m]')
+        ax.set_title(f'Torque over one revolution, {_level_title(means, level)} '
+                     f'(line: Fourier series, band: recorded min-max over the revolutions)')
+        _legend(ax, handles, names)
+    return fig
 
 
 def _oscillates(h: dict[str, Any]) -> bool:

@@ -10,7 +10,9 @@ the scene's), ``seed`` (-1 = the scene's), ``external`` (none | load | engine | 
 peers are NOT started; an outside node must answer, see docs/ros.md), ``record`` (true |
 false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after the run
 goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false),
-``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy).
+``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy),
+``run_token`` (auto | none | 8 hex characters: the run identity given to every node and
+the recorder, docs/ros.md "Run identity"; auto draws one per launch).
 
 The mapping from launch arguments to node parameters is plain Python
 (:func:`node_parameters`), importable without ``launch`` so the test suite checks it
@@ -37,6 +39,8 @@ ARGUMENTS: dict[str, tuple[str, str]] = {
     'monitor': ('true', 'start monitor_node: true | false'),
     'nonfinite_torque': ('stop', 'a NaN/inf torque answer stops the run (stop) or the last finite '
                                  'torque is held and counted (hold)'),
+    'run_token': ('auto', 'run identity in header.frame_id: auto (random per launch) | none | '
+                          '8 lowercase hex characters'),
 }
 
 CHOICES: dict[str, tuple[str, ...]] = {
@@ -55,6 +59,26 @@ RECORDER_EXECUTABLE = 'cvj-sim'
 
 def _flag(value: str) -> bool:
     return value.strip().lower() == 'true'
+
+
+def resolve_run_token(value: str) -> str:
+    """The run token for launch argument ``run_token``: 'auto' draws one (8 hex characters
+    with at least one of a-d/f, never numeric under --ros-args; cvj_ros.nodes.run_token),
+    'none' gives '' (nodes tag nothing), else the value itself if it is 8 lowercase hex
+    characters (ValueError naming the argument otherwise)."""
+    import re
+    import secrets
+    value = value.strip()
+    if value == 'auto':
+        while True:
+            token = secrets.token_hex(4)
+            if re.search('[a-df]', token):
+                return token
+    if value == 'none':
+        return ''
+    if not re.fullmatch('[0-9a-f]{8}', value):
+        raise ValueError(f'run_token: must be auto, none or 8 lowercase hex characters, got {value!r}')
+    return value
 
 
 def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
@@ -77,7 +101,10 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
         started.append('load_node')
     if _flag(args['monitor']):
         started.append('monitor_node')
-    common = {'scene': args['scene'], 'seed': seed}
+    token = resolve_run_token(args['run_token'])
+    common: dict[str, Any] = {'scene': args['scene'], 'seed': seed}
+    if token:
+        common['run_token'] = token
     # subscribers of /driveline/joint_states before step 0: engine + load (ours or outside),
     # monitor, recorder: no message is lost to a late match
     min_subs = 2 + _flag(args['monitor']) + _flag(args['record'])
@@ -87,7 +114,7 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
                               nonfinite_torque=args['nonfinite_torque']),
         'engine_node': dict(common),
         'load_node': dict(common),
-        'monitor_node': {'scene': args['scene']},
+        'monitor_node': {'scene': args['scene'], **({'run_token': token} if token else {})},
     }
     return {name: params[name] for name in NODE_EXECUTABLES if name in started}
 
@@ -97,7 +124,9 @@ def recorder_arguments(arguments: dict[str, str]) -> list[str] | None:
     args = {k: str(arguments.get(k, default)) for k, (default, _d) in ARGUMENTS.items()}
     if not _flag(args['record']):
         return None
-    return ['record', args['out'], '--storage', args['storage'], '--overwrite', '--until-idle', '2.0']
+    token = resolve_run_token(args['run_token'])
+    return (['record', args['out'], '--storage', args['storage'], '--overwrite', '--until-idle', '2.0']
+            + (['--run-token', token] if token else []))
 
 
 def generate_launch_description() -> Any:
@@ -107,6 +136,7 @@ def generate_launch_description() -> Any:
 
     def setup(context: Any) -> list[Any]:
         values = {k: context.launch_configurations.get(k, d) for k, (d, _x) in ARGUMENTS.items()}
+        values['run_token'] = resolve_run_token(values['run_token']) or 'none'  # one token for all
         actions: list[Any] = []
         rec = recorder_arguments(values)
         if rec is not None:  # first, so it matches every topic before step 0

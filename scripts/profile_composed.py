@@ -81,7 +81,12 @@ def main() -> None:
     ap.add_argument('--clock', choices=('wall', 'cpu'), default='wall',
                     help='wall: time.perf_counter; cpu: time.thread_time (less disturbed by other '
                          'processes; the rest is then process CPU - callbacks)')
+    ap.add_argument('--without', action='append', default=[], choices=('monitor_node',),
+                    help='leave the monitor out (its share of the exchange = the difference)')
     a = ap.parse_args()
+    if a.without:
+        import cvj_ros.orchestrate as orch
+        orch.NODE_ORDER = tuple(n for n in orch.NODE_ORDER if n not in a.without)
     global CLOCK
     CLOCK = time.thread_time if a.clock == 'cpu' else time.perf_counter
     from cvj_ros.orchestrate import RunOptions, run

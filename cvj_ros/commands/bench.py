@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
     parser.add_argument('--real-lockstep', action='store_true', help='also time a real `cvj-sim run` lockstep run')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
+    parser.add_argument('--sweep', type=int, metavar='N',
+                        help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '
+                             'all workers, scaling efficiency (docs/sweeps.md)')
 
 
 def config_from_args(args: argparse.Namespace) -> object:
@@ -73,6 +76,14 @@ def config_from_args(args: argparse.Namespace) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.sweep is not None:
+        from cvj_ros.bench import format_sweep_rates, sweep_rates
+        from cvj_ros.sweep.run import default_workers
+        if not 1 <= args.sweep <= 1_000_000:
+            raise SceneError('--sweep', f'must be in 1..1000000 variants, got {args.sweep}')
+        n = default_workers()
+        print(format_sweep_rates(sweep_rates(args.sweep, (1, n) if n > 1 else (1,))))
+        return 0
     from cvj_ros.bench import resolve_scene, run_bench
     cfg = config_from_args(args)
     for s in cfg.scenes:           # fail fast on a bad scene name, before any timing

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import Any
 
 from cvj_ros.errors import SceneError
 
@@ -22,6 +23,7 @@ examples:
   cvj-sim simulate fwd_halfshaft --duration 1 --fidelity tripod=exact rzeppa=exact
   cvj-sim simulate stiff --method rosenbrock --rtol 1e-8 --json
   cvj-sim simulate my_scene.yaml --csv run.csv
+  cvj-sim simulate kavz685_lever --plots runs/kavz_offline/plots
   cvj-sim simulate fwd_halfshaft --bag runs/offline/bag   # then: cvj-sim analyze runs/offline/bag
 """
 
@@ -39,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='sample from the dense output (free steps) instead of landing on samples')
     parser.add_argument('--transient', type=float, help='seconds skipped before the metrics window')
     parser.add_argument('--csv', metavar='FILE', help='write the sampled trace as CSV')
+    parser.add_argument('--plots', metavar='DIR',
+                        help='write the PNG figures of `cvj-sim analyze --plots` for this run '
+                             '(speeds_torques, nonuniformity, harmonics) to DIR')
     parser.add_argument('--bag', metavar='DIR',
                         help='write the sampled trace as a rosbag2 bag (joint states, engine and load '
                              'wrench, scene) that `cvj-sim analyze` reads')
@@ -115,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
     summary = sim.summary(transient=args.transient)
     if args.csv:
         trace.to_csv(args.csv)
+    if args.plots:
+        summary['plots'] = [str(p) for p in _write_plots(sim, trace, args)]
     if args.bag:
         from cvj_ros.trace_bag import scene_message, write_trace_bag
         text = scene_message(scene, sim.fidelity_report.to_dict(), solver=summary['solver'],
@@ -129,3 +136,24 @@ def run(args: argparse.Namespace) -> int:
         summary['fidelity_text'] = str(sim.fidelity_report)
         print(format_summary(summary))
     return 0
+
+
+def _write_plots(sim: Any, trace: Any, args: argparse.Namespace) -> list[Any]:
+    """The analysis figures of an offline trace (same window rule as ``cvj-sim analyze``:
+    ``--transient`` seconds skipped, else its default); stderr names each file."""
+    import sys
+
+    import yaml
+
+    from cvj_ros.analysis import analyze_signals
+    from cvj_ros.plots import signals_from_trace, write_analysis_plots
+    scene = sim.scene.to_dict()
+    scene['solver'] = {**scene.get('solver', {}), 'method': sim.method, 'rtol': sim.rtol, 'atol': sim.atol}
+    scene['fidelity'] = sim.fidelity_report.to_dict()
+    sig = signals_from_trace(trace, scene_yaml=yaml.safe_dump(scene, sort_keys=False),
+                             label=f'simulate {sim.scene.name}')
+    report = analyze_signals(sig, skip_s=args.transient)
+    paths = write_analysis_plots(sig, report, args.plots)
+    for p in paths:
+        print(f'cvj-sim simulate: wrote {p}', file=sys.stderr)
+    return paths

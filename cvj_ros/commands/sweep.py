@@ -29,7 +29,7 @@ command skips finished variants (Ctrl-C keeps them). docs/sweeps.md has the deta
 examples:
   cvj-sim sweep kavz685_lever --set 'driveline[coupling].params.alpha_deg=5:25:5' \\
       --set 'driveline[bushings].stiffness=400:1200:5' --out runs/sweep_lever
-  cvj-sim sweep fwd_halfshaft --set 'initial.speed_rad_s=20:120:11' --out runs/speed
+  cvj-sim sweep fwd_halfshaft --set 'initial.speed_rpm=500:3000:11' --out runs/speed
   cvj-sim sweep kavz685_lever --set 'driveline[bushings].stiffness=300:3000:log' \\
       --samples 200 --seed 1 --out runs/random --workers 2
   cvj-sim sweep kavz685_lever --set 'engine.m1=500,623,700' --out runs/m1 --cluster tcp://10.0.0.5:8786
@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--sampling', choices=('dense', 'land'), default='dense',
                         help='dense (default): samples from the solver\'s dense output, steps '
                              'free; land: steps land on every sample (cvj-sim simulate\'s '
-                             'default; 2-6x slower, metrics within 2e-3 relative here)')
+                             'default; ~1.4x the CPU, metrics within 2e-3 relative here)')
     parser.add_argument('--orders', type=int, default=4,
                         help="engine orders of a shaft's torque kept per variant (columns "
                              'SHAFT.torque_order<k>, N m; 0: none; default 4)')
@@ -118,11 +118,21 @@ def run(args: argparse.Namespace) -> int:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     if args.workers is not None and args.cluster:
         raise SweepError('--workers: not with --cluster (the cluster has its own workers)')
+    from pathlib import Path
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise SweepError(f'--out {args.out}: exists and is not a directory')
     from cvj_ros.commands.simulate import parse_fidelity
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)
     base = load_scene_data(path)
     sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
+    if args.orders_shaft is not None:
+        from cvj_ros.physics.driveline import Driveline
+        from cvj_ros.physics.scene import parse_scene
+        shafts = Driveline.from_scene(parse_scene(base)).shaft_names
+        if args.orders_shaft not in shafts:
+            raise SweepError(f'--orders-shaft {args.orders_shaft}: no such shaft in '
+                             f'{base.get("name")}; shafts: {", ".join(shafts)}')
     options = RunOptions(sample_dt=args.sample_dt, transient=args.transient,
                          fidelity=parse_fidelity(args.fidelity), backend=args.backend,
                          sampling=args.sampling, orders=args.orders,
@@ -131,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'
         if executor.workers > 1 else 'this process')
-    print(f'cvj-sim sweep: {len(sweep)} variants of {base.get("name")} on {where}', file=sys.stderr)
+    print(f'cvj-sim sweep: {len(sweep)} variant{"s" if len(sweep) != 1 else ""} of '
+          f'{base.get("name")} on {where}', file=sys.stderr)
     progress = SweepProgress(len(sweep), label='cvj-sim sweep', unit='variants')
     first = True
 

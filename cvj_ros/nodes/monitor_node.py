@@ -44,6 +44,14 @@ from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
 
 LEVELS = (OK, WARN, ERROR)
 
+# Joint members that are not shafts: their angle follows the joint's kinematics (a Rzeppa
+# cage turns about the bisector-plane axis with a Hooke-like law, 1/cos a - cos a = 0.173 at
+# a = 23.5 deg), but they carry no drive torque to a machine; seed 004's nonuniformity
+# recommendations (sec. 4) concern drive and driven shafts. Their nonuniformity is reported
+# at level OK; a non-finite speed stays an ERROR. Intermediate shafts of a cardan chain and
+# a double cardan's centre yoke are shafts and keep the limits.
+INTERNAL_MEMBERS = {'rzeppa': 'cage', 'tripod': 'spider', 'lever_hinge': 'earring'}
+
 PARAMS = (
     ParamSpec('scene', '', 'scene name or YAML path; empty = take it from /driveline/scene'),
     ParamSpec('window', 1.0, 'rolling window length [s] of simulated time', lo=0.0, hi=1e6,
@@ -83,6 +91,7 @@ class MonitorNode(CvjNode):
         self.foreign_messages = 0
         self._diag_frame = tag_frame('monitor_node', self.run_token)
         self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
+        self.internal_members: set[str] = set()   # shafts of INTERNAL_MEMBERS: no limit
         if self.params['scene']:
             self._use_scene(scene_dict(load_scene_param(self.params['scene'])))
         self.names: list[str] = []
@@ -110,11 +119,15 @@ class MonitorNode(CvjNode):
     # --- inputs -----------------------------------------------------------------------------
 
     def _use_scene(self, scene: dict[str, Any]) -> None:
-        """Collect joint bend angles and their recommended limits from a scene dict."""
+        """Collect joint bend angles and their recommended limits from a scene dict, and the
+        joints' internal members (INTERNAL_MEMBERS)."""
         limits: dict[str, tuple[float, float]] = {}
+        members: set[str] = set()
         for el in scene.get('driveline', []) or []:
             if not isinstance(el, dict) or el.get('type') != 'joint':
                 continue
+            if el.get('kind') in INTERNAL_MEMBERS and 'name' in el:
+                members.add(f"{el['name']}_{INTERNAL_MEMBERS[el['kind']]}")
             params = el.get('params', {}) or {}
             angle = None
             for key in ('beta_deg', 'beta2_deg', 'delta_deg', 'alpha_deg', 'beta1_deg'):
@@ -127,6 +140,7 @@ class MonitorNode(CvjNode):
             if angle is not None and limit is not None:
                 limits[str(el['name'])] = (angle, float(limit))
         self.joint_limits = limits
+        self.internal_members = members
 
     def _foreign(self, frame_id: str) -> bool:
         """True (and counted) when ``frame_id`` carries another run's token."""
@@ -205,6 +219,9 @@ class MonitorNode(CvjNode):
                     d, p['nonuniformity_warn'], p['nonuniformity_error'])
                 msg = ('standstill' if math.isnan(d) and lv == 0
                        else f'nonuniformity {d:.4g}')
+                if name in self.internal_members and math.isfinite(d):
+                    lv = 0   # the thresholds are for shafts (seed 004 sec. 4), not a cage
+                    msg += ' (internal member: no limit)'
                 out.append(diag_status(f'monitor: {name}', LEVELS[lv], msg, {
                     'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,
                     'speed_amplitude_rad_s': float(w_amp[i]),

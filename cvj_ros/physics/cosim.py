@@ -43,6 +43,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from cvj_ros.errors import LockstepError
+from cvj_ros.physics.fixed_order import dot
 from cvj_ros.physics.solvers import SolverOptionError, Stepper, make_stepper
 
 __all__ = ['SCHEMES', 'DrivelineLike', 'CoupledStepper']
@@ -292,10 +293,10 @@ class CoupledStepper:
         w = np.array([s[idx_w] for s in self._history])
         T = np.array([s[idx_T] for s in self._history])
         dw = w - w.mean()
-        var = float(dw @ dw)
+        var = dot(dw, dw)   # fixed order: BLAS ddot's order follows the CPU kernel
         if var <= (1e-6 * max(1.0, float(np.max(np.abs(w))))) ** 2 * len(w):
             return previous
-        K = float(dw @ (T - T.mean())) / var
+        K = dot(dw, T - T.mean()) / var
         K = sign * min(max(sign * K, 0.0), self.slope_max)
         return K
 

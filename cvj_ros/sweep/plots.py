@@ -292,11 +292,10 @@ def _resonance_plot(rows, header, varied, axes, scene, random, plots: Path) -> P
         return float(w.max() - w.min()) / max(abs(float(np.mean(w))), 1e-300) if w.size > 1 else 0.0
 
     if random:
-        sel, note, driver = rows, f'{len(rows)} random samples', None
+        sel, note = rows, f'{len(rows)} random samples'
     else:
         best = max(varied, key=lambda a: span(_held(rows, varied, axes, (a,))[0]))
         sel, note = _held(rows, varied, axes, (best,))
-        driver = best
         note = (f'speed varied by {best}' + note).strip()
     if span(sel) < 0.1:
         return None
@@ -320,7 +319,6 @@ def _resonance_plot(rows, header, varied, axes, scene, random, plots: Path) -> P
     ax.legend(loc='best', ncol=2, title='engine order')
     ax.set_title(f'{scene}: {shaft} torque per engine order over speed' +
                  (f'\n{note.lstrip("; ")}' if note else ''))
-    del driver
     fig.tight_layout()
     path = plots / 'resonance.png'
     fig.savefig(path)

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 
 def warm() -> None:
-    """Run a 10 ms two-inertia scene with the methods scenes use most (dopri5, dop853)."""
+    """Run a 10 ms two-inertia scene with the default method (dopri5, both samplings); other
+    methods load in a worker on first use."""
     from cvj_ros.physics.scene import parse_scene
     from cvj_ros.physics.simulate import Simulation
-    for method in ('dopri5', 'dop853'):
+    for method in ('dopri5',):
         scene = parse_scene({
             'name': 'preload', 'duration': 0.01, 'exchange_step': 0.001,
             'solver': {'method': method},

@@ -251,18 +251,29 @@ def apply_keys(base: Mapping[str, Any], keys: Sequence[Sequence[str | int]],
 
 # --- a whole sweep -----------------------------------------------------------------------
 
-def _probe(base: Mapping[str, Any], axis: Axis, value: Value) -> None:
-    """Reject a field the scene format does not have (unknown key/parameter at the axis's
-    own path): that is a spec error, not a bad variant."""
+def _probe(base: Mapping[str, Any], axis: Axis) -> None:
+    """Reject an axis no variant could use: a field the scene format does not have (unknown
+    key or parameter at the axis's own path), or one whose extreme values (first and last,
+    or lo and hi) both make the scene invalid on their own (e.g. ``initial.speed_rad_s`` in a
+    scene that gives ``speed_rpm``). Other errors belong to single variants."""
     from cvj_ros.physics.scene import parse_scene
-    try:
-        parse_scene(apply(base, [axis], [value]))
-    except SceneError as exc:
-        msg = str(exc)[len(exc.field) + 2:]
-        if exc.field == axis.field and msg.startswith('unknown'):
-            raise SweepError(f'--set {axis.path}: {axis.field}: {msg}') from None
-    except CvjError:
-        pass            # other errors belong to the variant
+    tried = list(dict.fromkeys(axis.values[:1] + axis.values[-1:])) if axis.values else \
+        list(axis.range or ())
+    errors: list[str] = []
+    for value in tried:
+        try:
+            parse_scene(apply(base, [axis], [value]))
+        except SceneError as exc:
+            msg = str(exc)[len(exc.field) + 2:]
+            if exc.field == axis.field and msg.startswith('unknown'):
+                raise SweepError(f'--set {axis.path}: {axis.field}: {msg}') from None
+            errors.append(' '.join(str(exc).split()))
+        except CvjError as exc:
+            errors.append(' '.join(str(exc).split()))
+    if errors and len(errors) == len(tried):
+        shown = ', '.join(str(v) for v in tried)
+        raise SweepError(f'--set {axis.path}: every value tried ({shown}) makes the scene '
+                         f'invalid: {errors[0]}')
 
 
 def build_sweep(base: Mapping[str, Any], sets: Sequence[str], *, samples: int | None = None,
@@ -289,7 +300,7 @@ def build_sweep(base: Mapping[str, Any], sets: Sequence[str], *, samples: int | 
         seen[canon] = path
         values, rng, log = parse_spec(spec, where, random=samples is not None)
         axis = Axis(text=text, path=path, field=canon, keys=keys, values=values, range=rng, log=log)
-        _probe(base, axis, values[0] if values else rng[0])   # type: ignore[index]
+        _probe(base, axis)
         axes.append(axis)
     if samples is None:
         count = math.prod(len(a.values) for a in axes)

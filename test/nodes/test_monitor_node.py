@@ -69,10 +69,11 @@ def test_nonuniformity_levels_joint_angle_and_loop(ctx):
             s = math.sin(2 * math.pi * 5 * t)
             msg = JointState()
             msg.header.stamp = ns_to_stamp(k * 1_000_000)
-            msg.name = ['smooth', 'rough', 'still']
-            msg.position = [0.0, 0.0, 0.0]
-            msg.velocity = [40 * (1 + eps['smooth'] * s), 40 * (1 + eps['rough'] * s), 0.0]
-            msg.effort = [100 + 7 * s, 0.0, 0.0]
+            msg.name = ['smooth', 'rough', 'still', 'rz_cage']
+            msg.position = [0.0, 0.0, 0.0, 0.0]
+            msg.velocity = [40 * (1 + eps['smooth'] * s), 40 * (1 + eps['rough'] * s), 0.0,
+                            40 * (1 + eps['rough'] * s)]
+            msg.effort = [100 + 7 * s, 0.0, 0.0, 0.0]
             js_pub.publish(msg)
         spin_until(lambda: len(got) >= 2)
         last = {st.name: st for st in got[-1].status}
@@ -86,6 +87,10 @@ def test_nonuniformity_levels_joint_angle_and_loop(ctx):
         assert last['monitor: smooth'].level == DiagnosticStatus.OK       # 0.06 < 0.11
         assert last['monitor: rough'].level == DiagnosticStatus.ERROR     # 0.2 >= 0.15
         assert last['monitor: still'].level == DiagnosticStatus.OK and last['monitor: still'].message == 'standstill'
+        # the Rzeppa's cage is a joint member, not a shaft: reported, no threshold
+        cage = last['monitor: rz_cage']
+        assert values(cage)['nonuniformity'] == pytest.approx(0.2, rel=1e-4)
+        assert cage.level == DiagnosticStatus.OK and 'internal member' in cage.message
         assert last['monitor: joint tri'].level == DiagnosticStatus.WARN  # 28 > 25 deg (seed 000)
         assert last['monitor: joint rz'].level == DiagnosticStatus.ERROR  # 21 > 15 + 5 deg (scene limit)
         loop = last['monitor: loop']

@@ -354,3 +354,36 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
     finally:
         writer.close()
         node.destroy_node()
+
+
+# --- launch file and `cvj-sim record --run-token` ------------------------------------------------
+
+def _launch_module():
+    import importlib.util
+    path = Path(__file__).resolve().parents[2] / 'launch' / 'driveline.launch.py'
+    spec = importlib.util.spec_from_file_location('driveline_launch_token', path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_launch_gives_one_token_to_every_node_and_the_recorder() -> None:
+    mod = _launch_module()
+    params = mod.node_parameters({'run_token': OURS})
+    assert {p['run_token'] for p in params.values()} == {OURS} and len(params) == 4
+    assert mod.recorder_arguments({'run_token': OURS})[-2:] == ['--run-token', OURS]
+    auto = mod.node_parameters({})                       # default 'auto': one token per call
+    tokens = {p['run_token'] for p in auto.values()}
+    assert len(tokens) == 1 and rt.TOKEN_RE.match(tokens.pop())
+    assert all('run_token' not in p for p in mod.node_parameters({'run_token': 'none'}).values())
+    assert '--run-token' not in mod.recorder_arguments({'run_token': 'none'})
+    with pytest.raises(ValueError, match='^run_token: must be auto, none or 8'):
+        mod.node_parameters({'run_token': 'XYZ'})
+
+
+def test_record_rejects_a_bad_run_token(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from cvj_ros.cli import main
+    assert main(['record', str(tmp_path / 'rec'), '--run-token', 'XYZ', '--duration', '0.1']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('cvj-sim: error: --run-token: must be empty or 8 lowercase hex') and err.count('\n') == 1
+    assert not (tmp_path / 'rec' / 'bag').exists()

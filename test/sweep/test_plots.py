@@ -88,3 +88,19 @@ def test_order_amplitudes_of_a_known_signal() -> None:
     assert amps['a.torque_order1'] < 1e-3 and amps['a.torque_order3'] < 1e-3
     assert amps['a.torque_order2'] == pytest.approx(3.0, rel=6e-3)
     assert amps['a.torque_order4'] == pytest.approx(0.5, rel=2.5e-2)
+
+
+def test_sweep_progress_line_has_rate_and_eta() -> None:
+    """Rate counts only the variants run in this invocation (resumed ones excluded)."""
+    import io
+
+    from cvj_ros.commands.sweep import SweepProgress
+    now = [0.0]
+    stream = io.StringIO()
+    p = SweepProgress(1000, label='cvj-sim sweep', unit='variants', stream=stream,
+                      clock=lambda: now[0], enabled=True)
+    p.start = 200.0                # 200 variants done by an earlier run
+    p.update(200)
+    now[0] = 10.0
+    p.update(700)                  # 500 new in 10 s: 50 variants/s, 300 left: 6 s
+    assert stream.getvalue() == '\rcvj-sim sweep: 700/1000 variants (70%), 50 variants/s, ETA 6 s'

@@ -21,7 +21,7 @@ from cvj_ros.physics.joints.hooke import hooke_ratio
 from cvj_ros.physics.scene import find_scene, parse_scene
 from cvj_ros.physics.simulate import Simulation
 from cvj_ros.sweep.results import ROWS, read_results
-from cvj_ros.sweep.run import RunOptions, SerialExecutor, execute, metrics_row
+from cvj_ros.sweep.run import RunOptions, SerialExecutor, execute, metrics_row, order_amplitudes
 from cvj_ros.sweep.spec import build_sweep
 
 REPO = Path(__file__).resolve().parents[2]
@@ -83,6 +83,9 @@ def test_rows_equal_a_direct_simulation(tmp_path: Path) -> None:
         sim = Simulation(parse_scene(d))
         sim.run(sampling='dense')
         expected = metrics_row(sim.summary())
+        expected.update(order_amplitudes(sim.last_trace, 4, None))
+        assert set(expected) | {'variant', 'status', 'error', LEVER_SETS[0].split('=')[0],
+                                LEVER_SETS[1].split('=')[0]} == set(row)
         for key, value in expected.items():
             assert (float(row[key]) if isinstance(value, float) else type(value)(row[key])) == value, key
 
@@ -117,6 +120,11 @@ def test_bad_variant_skipped_or_stopping(tmp_path: Path, capsys: pytest.CaptureF
     (['--set', 'engine.m2=1,2'], 'cvj-sim: error: --set engine.m2: engine.m2: unknown key'),
     (['--set', 'engine.m1=1', '--samples', '-3'], 'cvj-sim: error: --samples: must be an integer'),
     (['--set', 'engine.m1=1', '--workers', '0'], 'cvj-sim: error: --workers: must be >= 1, got 0'),
+    (['--set', 'engine.m1=1', '--cluster', 'nonsense'],
+     'cvj-sim: error: --cluster nonsense: not a scheduler address, e.g. tcp://host:8786'),
+    (['--set', 'engine.m1=1', '--orders', '-1'], 'cvj-sim: error: --orders: must be in 0..64'),
+    (['--set', 'engine.m1=1', '--orders-shaft', 'crank'],
+     'cvj-sim: error: --orders-shaft crank: no such shaft in kavz685_lever; shafts: drive_shaft, '),
 ])
 def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                  args: list[str], line: str) -> None:
@@ -196,3 +204,34 @@ def test_ctrl_c_keeps_finished_variants_and_rerun_completes(
     assert [int(r['variant']) for r in full] == list(range(8))
     by_variant = {r['variant']: r for r in full}
     assert all(by_variant[r['variant']] == r for r in partial)
+
+
+def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> None:
+    """SIGKILL to a pool worker once rows are on disk: one error line (exit 2) and the
+    finished rows kept in results.csv (resume itself: the tests above)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    args = ['sweep', 'kavz685_lever', '--set', 'duration=0.2', '--set',
+            'driveline[bushings].stiffness=400:1200:16', '--backend', 'python',
+            '--out', str(tmp_path), '--no-plots', '--workers', '2']
+    proc = subprocess.Popen([sys.executable, '-m', 'cvj_ros.cli', *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rows = tmp_path / ROWS
+    deadline = time.monotonic() + 90.0
+    while time.monotonic() < deadline and proc.poll() is None:
+        if rows.is_file() and rows.stat().st_size > 0:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, proc.communicate()
+    # the pool workers: grandchildren of the sweep via the fork server
+    out = subprocess.run(['ps', '-eo', 'pid,ppid,args'], capture_output=True, text=True).stdout
+    table = [line.split(None, 2) for line in out.splitlines()[1:]]
+    server = [int(p) for p, pp, a in table if int(pp) == proc.pid and 'forkserver' in a]
+    workers = [int(p) for p, pp, _ in table if server and int(pp) == server[0]]
+    assert workers, out
+    os.kill(workers[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith('cvj-sim: error: --workers: a worker process died')
+    assert 'Traceback' not in err
+    _, partial = read_results(tmp_path / 'results.csv')
+    assert 0 < len(partial) < 16

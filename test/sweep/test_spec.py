@@ -71,6 +71,9 @@ def test_paths(lever: dict) -> None:
     (['driveline[bushings].stiffness=1', 'driveline[1].stiffness=2'],
      'driveline[1].stiffness is already set by --set driveline[bushings].stiffness'),
     ([], 'give at least one'),
+    (['initial.speed_rpm=300:600:4'], '--set initial.speed_rpm: every value tried (300.0, 600.0) makes '
+     'the scene invalid: initial.speed_rpm: give either speed_rad_s or speed_rpm, not both'),
+    (['driveline[coupling].params.alpha_deg=95,120'], 'every value tried (95, 120)'),
 ])
 def test_spec_errors_name_the_set_and_field(lever: dict, sets: list[str], needle: str) -> None:
     with pytest.raises(SweepError) as exc:
@@ -100,3 +103,27 @@ def test_random_sampling_is_seeded_and_in_range(lever: dict) -> None:
 def test_too_many_variants(lever: dict) -> None:
     with pytest.raises(SweepError, match='more than'):
         build_sweep(lever, ['initial.speed_rad_s=1:2:5000', 'engine.m1=1:2:5000'])
+
+
+def test_readme_and_docs_examples_build() -> None:
+    """The sweep commands shown in README.md, docs/sweeps.md and `cvj-sim sweep --help` parse
+    and expand (no run)."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from cvj_ros.cli import build_parser
+    from cvj_ros.commands.sweep import DESCRIPTION
+    root = Path(__file__).resolve().parents[2]
+    seen = 0
+    for text in ((root / 'README.md').read_text(), (root / 'docs/sweeps.md').read_text(), DESCRIPTION):
+        text = text.replace('\\\n', ' ')
+        for line in re.findall(r'^\s*(cvj-sim sweep [^\n]+)$', text, flags=re.M):
+            args = build_parser().parse_args(shlex.split(line)[1:])
+            if args.replot:
+                continue
+            base = load_scene_data(find_scene(args.scene))
+            sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
+            assert len(sweep) >= 2, line
+            seen += 1
+    assert seen >= 6

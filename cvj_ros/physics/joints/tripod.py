@@ -68,6 +68,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cvj_ros.errors import GeometryError, SolverError
+from cvj_ros.physics.fixed_order import dot, matvec, solve, solve_batched
 from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, check_finite,
                                          check_range, register)
 
@@ -359,7 +360,7 @@ class Tripod:
             err = float(np.max(np.abs(res)))
             if err <= target:
                 return q, jac
-            q += np.linalg.solve(jac, -res.T[..., None])[..., 0].T
+            q += solve_batched(jac, -res.T).T
         if err <= NEWTON_TOL * self.r:
             return q, None
         raise SolverError(f'tripod: Newton did not converge (max residual {err / self.r:.3g} r)')
@@ -372,10 +373,12 @@ class Tripod:
         if self._orbit_spec is not None and self._sine_coeffs is not None:
             # Fourier tables: start within ~1e-15 of the solution
             k = np.arange(len(self._orbit_spec[0]))
-            e = np.exp(3j * np.multiply.outer(red, k))
+            x = 3.0 * np.multiply.outer(red, k)
             w = np.where(k == 0, 1.0, 2.0)
-            for i in range(2):
-                q[i] = (e @ (w * self._orbit_spec[i])).real
+            cx, sx = np.cos(x), np.sin(x)
+            for i in range(2):   # Re(sum_k w_k c_k e^{i x_k}), real arithmetic, fixed order
+                c = w * self._orbit_spec[i]
+                q[i] = matvec(cx, c.real) - matvec(sx, c.imag)
             q[2] = ph1 + self._series(red)[0]
             return q
         for i in range(3):
@@ -426,10 +429,10 @@ class Tripod:
             _, jac = self._residual_and_jacobian(q, ph1)
         g = self._geometry_jets(*[[q[i], zero] for i in range(3)], [ph1, one])
         r1 = np.array([g['res'][i][1] for i in range(3)])
-        q1 = np.linalg.solve(jac, -r1.T[..., None])[..., 0].T
+        q1 = solve_batched(jac, -r1.T).T
         g = self._geometry_jets(*[[q[i], q1[i], zero] for i in range(3)], [ph1, one, zero])
         r2 = np.array([g['res'][i][2] for i in range(3)])
-        q2 = np.linalg.solve(jac, -r2.T[..., None])[..., 0].T
+        q2 = solve_batched(jac, -r2.T).T
         g = self._geometry_jets(*[[q[i], q1[i], q2[i]] for i in range(3)], [ph1, one, zero])
         su, sv = q[0], q[1]
         # spin of the spider about its own axis per unit phi_in: (de0/dphi) . (n x e0)
@@ -537,7 +540,8 @@ class Tripod:
         k = np.arange(1, len(self._sine_coeffs) + 1)
         x = 3.0 * np.multiply.outer(np.asarray(phi), k)
         b = self._sine_coeffs
-        return (np.sin(x) @ b, np.cos(x) @ (3.0 * k * b), -(np.sin(x) @ (9.0 * k * k * b)))
+        sx, cx = np.sin(x), np.cos(x)
+        return (matvec(sx, b), matvec(cx, 3.0 * k * b), -matvec(sx, 9.0 * k * k * b))
 
     # --- reactions ---------------------------------------------------------------------
 
@@ -599,7 +603,7 @@ class Tripod:
             c, s = math.cos(phi + j * TWO_PI_3), math.sin(phi + j * TWO_PI_3)
             rollers[j] = (self.r * c, self.r * s, -self.r * tb * c)
             acc[j] = omega * omega * self.r * tb * c
-        arms = rollers / np.linalg.norm(rollers, axis=1)[:, None]
+        arms = rollers / np.sqrt(rollers[:, 0] ** 2 + rollers[:, 1] ** 2 + rollers[:, 2] ** 2)[:, None]
         return self._solve_reactions(self.l * n, n, arms, rollers, acc, torque, self.roller_mass)
 
     @staticmethod
@@ -626,13 +630,13 @@ class Tripod:
         rhs[6] = -torque
         if spider is not None:
             rhs[7:10] = np.cross(spider - P, inertia)
-        x = np.linalg.solve(A, rhs)
+        x = solve(A, rhs)
         F = x[:9].reshape(3, 3)
         on_rollers = F.sum(axis=0)              # the housing carries -on_rollers (x, y)
         total = on_rollers + inertia            # bearing force at P on the output shaft
         moment = np.cross(rollers, F).sum(axis=0)
         out = {
-            'axial_force': float(total @ n),
+            'axial_force': dot(total, n),
             'output_force_x': float(total[0]), 'output_force_y': float(total[1]),
             'output_force_z': float(total[2]),
             'input_force_x': float(-on_rollers[0]), 'input_force_y': float(-on_rollers[1]),

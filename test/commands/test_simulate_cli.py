@@ -59,3 +59,20 @@ def test_user_errors_one_line_exit_2(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert err.startswith('cvj-sim: error: driveline[1].params.beta_deg:') and 'Traceback' not in err
     assert main(['simulate', 'stiff', '--duration', '-1']) == 2
+
+
+def test_simulate_bag_is_read_by_analyze_with_the_same_window(tmp_path, capsys) -> None:
+    """--bag writes the trace; analyze prints the same window line; an existing bag
+    without --overwrite is one error line, exit 2."""
+    bag = tmp_path / 'bag'
+    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag)]) == 0
+    cap = capsys.readouterr()
+    window = next(line for line in cap.out.splitlines() if line.startswith('steady window '))
+    assert 'wrote 301 samples to bag' in cap.err
+    assert main(['analyze', str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert '  ' + window[len('steady window '):] in out.splitlines()
+    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('cvj-sim: error: ') and 'Traceback' not in err and err.count('\n') == 1
+    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag), '--overwrite']) == 0

@@ -80,7 +80,7 @@ def test_order_amplitudes_of_a_known_signal() -> None:
     phi = 40.0 * t
     torque = 100.0 + 3.0 * np.cos(2 * phi) + 0.5 * np.sin(4 * phi)
     trace = SimpleNamespace(t=t, names=['a', 'b'], position=np.stack([phi, phi], 1),
-                            velocity=np.full((t.size, 2), 40.0),
+                            velocity=np.full((t.size, 2), 40.0),   # the steady window needs speeds
                             effort=np.stack([torque, np.zeros_like(t)], 1),
                             column=lambda n: ['a', 'b'].index(n))
     amps = order_amplitudes(trace, 4, None)

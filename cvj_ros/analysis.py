@@ -180,13 +180,20 @@ def _diagnostic_figures(diags: list[tuple[float, str, int, str, dict[str, str]]]
 
 
 def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
-                    n_harmonics: int = 6, samples_per_rev: int = 72) -> dict[str, Any]:
+                    skip_fraction: float | None = None, n_harmonics: int = 6, samples_per_rev: int = 72) -> dict[str, Any]:
     """Analysis report (JSON-ready dict) of the signals of a bag; see the module docstring.
 
+    Window: the steady-window criterion (:mod:`cvj_ros.physics.steady`), or from ``skip_s``
+    seconds (or ``skip_fraction`` of the record) after the first sample when given; the
+    criterion's verdict on a user-set window is reported too.
     Units: speeds rad/s, accelerations rad/s^2, torques N m, angles rad, times s.
     """
     if sig.t.size < 2:
         raise BagError(f'{JOINT_STATES}: need at least 2 messages, got {sig.t.size}')
+    if skip_s is None and skip_fraction is not None:   # a user-set start as a fraction of the record
+        if not (math.isfinite(skip_fraction) and 0.0 <= skip_fraction < 1.0):
+            raise BagError(f'skip_fraction: must be in [0, 1), got {skip_fraction}')
+        skip_s = skip_fraction * float(sig.t[-1] - sig.t[0])
     try:
         win = steady.joint_state_window(sig.t, sig.joint_names, sig.velocity, sig.effort, skip_s=skip_s)
     except ValueError as exc:

@@ -213,23 +213,27 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> No
     """SIGKILL to a pool worker once rows are on disk: one error line (exit 2) and the
     finished rows kept in results.csv (resume itself: the tests above)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
+    # 256 variants (chunks of 8 with 2 workers): work is left when the first rows land, also
+    # on a loaded machine (CI once found the pool already gone with 16 one-variant chunks)
     args = ['sweep', 'kavz685_lever', '--set', 'duration=0.2', '--set',
-            'driveline[bushings].stiffness=400:1200:16', '--backend', 'python',
+            'driveline[bushings].stiffness=400:1200:256', '--backend', 'python',
             '--out', str(tmp_path), '--no-plots', '--workers', '2']
     proc = subprocess.Popen([sys.executable, '-m', 'cvj_ros.cli', *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rows = tmp_path / ROWS
     deadline = time.monotonic() + 90.0
-    while time.monotonic() < deadline and proc.poll() is None:
-        if rows.is_file() and rows.stat().st_size > 0:
-            break
-        time.sleep(0.02)
+    workers: list[int] = []
+    out = ''
+    while time.monotonic() < deadline and proc.poll() is None and not workers:
+        time.sleep(0.05)
+        if not (rows.is_file() and rows.stat().st_size > 0):
+            continue
+        # the pool workers: grandchildren of the sweep via the fork server
+        out = subprocess.run(['ps', '-eo', 'pid,ppid,args'], capture_output=True, text=True).stdout
+        table = [line.split(None, 2) for line in out.splitlines()[1:]]
+        server = [int(p) for p, pp, a in table if int(pp) == proc.pid and 'forkserver' in a]
+        workers = [int(p) for p, pp, _ in table if server and int(pp) == server[0]]
     assert proc.poll() is None, proc.communicate()
-    # the pool workers: grandchildren of the sweep via the fork server
-    out = subprocess.run(['ps', '-eo', 'pid,ppid,args'], capture_output=True, text=True).stdout
-    table = [line.split(None, 2) for line in out.splitlines()[1:]]
-    server = [int(p) for p, pp, a in table if int(pp) == proc.pid and 'forkserver' in a]
-    workers = [int(p) for p, pp, _ in table if server and int(pp) == server[0]]
     assert workers, out
     os.kill(workers[0], signal.SIGKILL)
     _, err = proc.communicate(timeout=60)
@@ -237,4 +241,4 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> No
     assert err.strip().splitlines()[-1].startswith('cvj-sim: error: --workers: a worker process died')
     assert 'Traceback' not in err
     _, partial = read_results(tmp_path / 'results.csv')
-    assert 0 < len(partial) < 16
+    assert 0 < len(partial) < 256

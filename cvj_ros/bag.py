@@ -645,9 +645,14 @@ class BagRecorder:
     counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
     s0, s1) are in, /clock samples are kept back and then written only if they lie in
     [s0, s1 + 2 (s1 - s0)] (a /clock of another run that was the only one matched before
-    this run's coupling node came up); once the owner set :attr:`loop_ended`, not beyond
-    one exchange step after the run's own latest joint state (the other run's /clock
-    while this run's coupling node is already gone).
+    this run's coupling node came up). After that a /clock sample is written only if it is
+    newer than the last one written (the run's own /clock is strictly increasing, so a
+    repeat is another run's: Fast DDS may deliver a new publisher's first samples before
+    the match count says two) and at most one exchange step after the run's own latest
+    joint state (own /clock t_k goes out just before the state t_k); a sample further ahead
+    is kept back until the run's joint states catch up and, once the owner set
+    :attr:`loop_ended`, dropped (the other run's /clock while this run's coupling node is
+    already gone).
     """
 
     def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
@@ -670,14 +675,30 @@ class BagRecorder:
         self.run_token = run_token
         self.foreign: dict[str, int] = {}     # dropped messages of another run, per topic
         self._own_js_ns: list[int] = []       # the first two and the latest own joint-state stamps
-        # set by the owner once the run's coupling node exited: /clock samples beyond one
-        # exchange step after the latest own joint state are then another run's
-        self.loop_ended = False
+        self._loop_ended = False
         # /clock samples (value ns, CDR) received before the run's own first two joint states
         self._pending_clock: list[tuple[int, bytes]] = []
+        self._clock_started = False            # the start-up rule of the pending /clock done
+        self._clock_written: int | None = None  # value (ns) of the last /clock written
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
         self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None
+
+    @property
+    def loop_ended(self) -> bool:
+        """Set by the owner once the run's coupling node exited: /clock samples beyond one
+        exchange step after the latest own joint state (also those kept back) are then
+        another run's (counted in :attr:`foreign`)."""
+        return self._loop_ended
+
+    @loop_ended.setter
+    def loop_ended(self, value: bool) -> None:
+        # no lock: _on_message runs unlocked on the recorder thread; at worst a sample kept
+        # back at this instant is dropped uncounted (it is ahead of the run's states anyway)
+        self._loop_ended = bool(value)
+        if value and self._clock_started and self._pending_clock:
+            pending, self._pending_clock = self._pending_clock, []
+            self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + len(pending)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -715,7 +736,8 @@ class BagRecorder:
                 self.foreign[topic] = self.foreign.get(topic, 0) + 1
                 return
         self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock)
-        if self.run_token and topic == JOINT_STATES_TOPIC and self._pending_clock:
+        if self.run_token and topic == JOINT_STATES_TOPIC and (
+                self._pending_clock or (len(self._own_js_ns) >= 2 and not self._clock_started)):
             self._flush_pending_clock()
 
     def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
@@ -730,6 +752,7 @@ class BagRecorder:
             stamp = self.clock_ns
         if is_clock:
             self.clock_ns = max(self.clock_ns, stamp)
+            self._clock_written = stamp
         if topic == SCENE_TOPIC and self.scene_text is None:
             self.scene_text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
             self.writer.set_custom_data('cvj_ros.scene', self.scene_text)
@@ -740,22 +763,32 @@ class BagRecorder:
         self.last_wall[topic] = now
 
     def _flush_pending_clock(self) -> None:
-        """Write the /clock samples kept before the run's own first two joint states (s0, s1):
-        after s0 those equal to s0; after s1 those in [s0, s1 + 2 (s1 - s0)] (/clock t_(k+1)
-        goes out after the state t_k, which may be taken after it), the rest are
-        another run's (counted)."""
+        """Write the /clock samples kept back. Before the run's own first two joint states
+        (s0, s1): after s0 those equal to s0; after s1 those in [s0, s1 + 2 (s1 - s0)]
+        (/clock t_(k+1) goes out after the state t_k, which may be taken after it) or up to
+        one step after the latest own joint state; those before s0 are another run's
+        (counted). Later (samples kept back because they were ahead of the run's joint
+        states): those now at most one step after the latest own joint state. Samples
+        further ahead stay kept back; one not newer than the last written is another run's."""
         own = self._own_js_ns
         if len(own) == 1:
             keep = [(v, d) for v, d in self._pending_clock if v == own[0]]
             self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
         else:
-            hi = own[1] + 2 * (own[1] - own[0])
+            step = own[1] - own[0]
+            hi = own[-1] + step
+            if not self._clock_started:
+                self._clock_started = True
+                hi = max(hi, own[1] + 2 * step)
             keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
-            n_foreign = len(self._pending_clock) - len(keep)
+            n_foreign = sum(1 for v, _d in self._pending_clock if v < own[0])
             if n_foreign:
                 self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + n_foreign
-            self._pending_clock = []
-        for _v, data in sorted(keep, key=lambda vd: vd[0]):
+            self._pending_clock = [(v, d) for v, d in self._pending_clock if v > hi]
+        for v, data in sorted(keep, key=lambda vd: vd[0]):
+            if self._clock_written is not None and v <= self._clock_written:
+                self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + 1
+                continue
             self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
 
     def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool | None:
@@ -779,13 +812,18 @@ class BagRecorder:
             if sub is not None and sub.get_publisher_count() > 1:
                 return False
             own = self._own_js_ns
-            if len(own) < 2:
-                self._pending_clock.append((cdr_stamp_ns(data), bytes(data)))
+            value = cdr_stamp_ns(data)
+            if len(own) < 2 or not self._clock_started:
+                self._pending_clock.append((value, bytes(data)))
                 return None
-            if self.loop_ended:
-                step = own[1] - own[0]
-                return cdr_stamp_ns(data) <= own[-1] + step
-            return True
+            if self._clock_written is not None and value <= self._clock_written:
+                return False              # a repeat or an older value: another run's
+            if value <= own[-1] + (own[1] - own[0]):
+                return True
+            if self._loop_ended:
+                return False
+            self._pending_clock.append((value, bytes(data)))   # ahead of own states: kept back
+            return None
         if topic == SCENE_TOPIC:
             try:
                 text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data

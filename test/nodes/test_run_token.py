@@ -356,6 +356,48 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
         node.destroy_node()
 
 
+def test_recorder_clock_repeats_dropped_and_early_clock_kept_back(ctx, tmp_path: Path) -> None:
+    """/clock of another run with the SAME values while the match count still says one
+    publisher (CI: Fast DDS delivered an intruder's /clock before counting its match; 23
+    repeated values were written): a value not newer than the last written is dropped and
+    counted. A run's own /clock ahead of its joint states by more than one step (the
+    recorder took the /clock queue before the state queue) is kept back, not dropped, and
+    written once the state arrives: the bag's /clock is exactly 0, h, 2h, ... ."""
+    node = rclpy.create_node('rec_clock_test', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    try:
+        rec = bag.BagRecorder(node, writer, discover_period=0.0, run_token=OURS)
+
+        def feed(topic: str, msg) -> None:
+            msgtype = bag.topic_type(topic)
+            rec._on_message(topic, msgtype, serialize_message(msg),
+                            stamped=msgtype in bag.STAMPED_TYPES, is_clock=topic == bag.CLOCK_TOPIC)
+
+        def clock(k: int) -> Clock:
+            return Clock(clock=Time(sec=0, nanosec=k * 1_000_000))
+
+        for k in range(3):
+            feed('/clock', clock(k))
+            feed('/driveline/joint_states', _js(f'driveline@{OURS}', k))
+            feed('/clock', clock(k))                 # the intruder's copy: a repeat
+        # the recorder is behind on joint states: /clock 3, 4, 5 come first
+        for k in (3, 4, 5):
+            feed('/clock', clock(k))
+        for k in (3, 4, 5):
+            feed('/driveline/joint_states', _js(f'driveline@{OURS}', k))
+            feed('/clock', clock(k))                 # repeats again
+        rec.loop_ended = True
+        assert rec.counts['/clock'] == 6 and rec.counts['/driveline/joint_states'] == 6
+        assert rec.foreign == {'/clock': 6}
+        rec.destroy()
+        writer.close()
+        values = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock'].value
+        assert [round(v * 1e9) for v in values] == [k * 1_000_000 for k in range(6)]
+    finally:
+        writer.close()
+        node.destroy_node()
+
+
 # --- launch file and `cvj-sim record --run-token` ------------------------------------------------
 
 def _launch_module():

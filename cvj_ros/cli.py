@@ -5,6 +5,10 @@ Subcommands live in :mod:`cvj_ros.commands` (one module each). A user error
 to stderr and exits with status 2; anything unexpected prints one line naming the file or
 bag being read and exits 1 (:mod:`cvj_ros.guard`); the traceback only with ``--debug``
 (before the subcommand) or ``CVJ_DEBUG=1``.
+
+Only the subcommand named on the command line is imported (all of them for ``--help``
+or a name that is not a subcommand), so ``cvj-sim simulate`` does not pay for the
+imports of the others (docs/solvers.md "Start-up").
 """
 from __future__ import annotations
 
@@ -16,7 +20,20 @@ from collections.abc import Sequence
 from cvj_ros.commands import COMMANDS
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_named(argv: Sequence[str]) -> str | None:
+    """The subcommand that ``argv`` (without the program name) names, if it names one:
+    its first token that is not ``--debug``; None for ``-h``/``--help``, an unknown name
+    or no name at all."""
+    for token in argv:
+        if token == '--debug':
+            continue
+        return token if token in COMMANDS else None
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``cvj-sim`` parser with every subcommand, or with the subcommand ``only``
+    alone (its module is then the only one imported)."""
     parser = argparse.ArgumentParser(
         prog='cvj-sim',
         description='cvj_ros virtual driveline: kinematics, offline simulation, ROS runs, '
@@ -25,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='print the traceback of an error (also: CVJ_DEBUG=1)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     sub.required = True
-    for name in COMMANDS:
+    for name in (only,) if only is not None else COMMANDS:
         try:
             mod = importlib.import_module(f'cvj_ros.commands.{name}')
         except ModuleNotFoundError as exc:
@@ -41,7 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from cvj_ros.guard import guarded, reading
-    parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    parser = build_parser(command_named(argv))
     args = parser.parse_args(argv)
     # what the user handed in, for the error line of an unexpected exception
     label = getattr(args, 'scene', None) or getattr(args, 'bag', None) or args.command

@@ -110,8 +110,11 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(scene.duration if args.duration is None else args.duration,
                         label='cvj-sim simulate')
     try:
+        # no callback when no line can show: the kernel then lands on all samples in one
+        # compiled call instead of one call per sample (same bytes, test_backends.py)
         trace = sim.run(args.duration, sample_dt=args.sample_dt,
-                        sampling='dense' if args.dense else 'land', progress=progress.update)
+                        sampling='dense' if args.dense else 'land',
+                        progress=progress.update if progress.enabled else None)
     finally:
         progress.close()
     if sim.compile_seconds:

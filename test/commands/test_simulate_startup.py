@@ -10,7 +10,9 @@ slow is asserted absent instead, in a fresh interpreter after a warm-up run:
   first import is ``numba.np.arraymath``'s module, absent when the cached entry points
   were loaded by ``kernel.load_cached``;
 * compiled entry points of other methods: exactly the chosen method's stepper and the
-  sample outputs are loaded.
+  sample outputs are loaded;
+* for rosenbrock and dop853 too: their coefficients come from physics/tableaux.py, not
+  from solvers.py / scipy.integrate.
 The numbers are in docs/solvers.md "Start-up".
 """
 from __future__ import annotations
@@ -53,7 +55,9 @@ def _probe(tmp_path: Path, args: list[str]) -> dict:
 
 
 @pytest.mark.parametrize('method, stepper', [('dopri5', 'steppers_nb.dopri5_land'),
-                                             ('rk4', 'steppers_nb.rk4_land')])
+                                             ('rk4', 'steppers_nb.rk4_land'),
+                                             ('rosenbrock', 'steppers_nb.ros_land'),
+                                             ('dop853', 'steppers_nb.dop853_land')])
 def test_warm_simulate_imports_and_loads_only_what_it_needs(tmp_path: Path, capsys,
                                                             method: str, stepper: str) -> None:
     args = ['simulate', 'kavz685_lever', '--duration', '0.05', '--method', method]

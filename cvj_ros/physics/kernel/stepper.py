@@ -103,25 +103,20 @@ class KernelStepper(_StepperBase):
         self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
         if method == 'dop853':
-            from scipy.integrate import DOP853 as D8
-            self._d8 = (np.array(D8.C, dtype=float),
-                        np.array(D8.A, dtype=float),
-                        np.array(D8.B, dtype=float),
-                        np.array(D8.E5, dtype=float),
-                        np.array(D8.E3, dtype=float))
-            self._d8_dense = (np.array(D8.D, dtype=float),
-                              np.array(D8.A_EXTRA, dtype=float),
-                              np.array(D8.C_EXTRA, dtype=float))
+            from ..tableaux import dop853_coefficients   # scipy's, without scipy.integrate
+            step_coef, dense_coef = dop853_coefficients()
+            self._d8 = tuple(np.array(c, dtype=float) for c in step_coef)    # C, A, B, E5, E3
+            self._d8_dense = tuple(np.array(c, dtype=float) for c in dense_coef)  # D, A_EXTRA, C_EXTRA
             stages = 22   # K rows: 13 stages + FSAL, 3 dense stages, 7 dense coefficients
         if method in ('rosenbrock', 'rodas4'):
-            from .. import solvers
-            cls = solvers.METHODS[method]
-            tab = cls._tableau()
+            from ..tableaux import RODAS_FAC_MAX, ROSENBROCK_TABLEAUX   # no scipy
+            tableau, order = ROSENBROCK_TABLEAUX[method]
+            tab = tableau()
             self._tab = (float(tab['gamma']), np.ascontiguousarray(tab['A']),
                          np.ascontiguousarray(tab['C']), np.ascontiguousarray(tab['M']),
                          np.ascontiguousarray(tab['E']), np.ascontiguousarray(tab['alpha']),
-                         np.ascontiguousarray(tab['gamma_sum']), int(cls.order),
-                         float(cls.fac_max))
+                         np.ascontiguousarray(tab['gamma_sum']), int(order),
+                         float(RODAS_FAC_MAX))
             self._H = np.ascontiguousarray(tab['H']) if 'H' in tab else None
             stages = len(tab['M']) + 1   # K rows: f, stages, f at the last step start
         if method in _ROSENBROCK:
@@ -324,5 +319,5 @@ class KernelStepper(_StepperBase):
 def super_sample(stepper: KernelStepper, t_eval: np.ndarray) -> np.ndarray:
     """Sampling by natural steps + dense output from Python (methods without a
     compiled sampled loop yet: ros2); same contract as solvers.sample_dense."""
-    from ..solvers import sample_dense
+    from ..stepper_base import sample_dense
     return sample_dense(stepper, t_eval)

@@ -8,13 +8,17 @@ bag being read and exits 1 (:mod:`cvj_ros.guard`); the traceback only with ``--d
 
 Only the subcommand named on the command line is imported (all of them for ``--help``
 or a name that is not a subcommand), so ``cvj-sim simulate`` does not pay for the
-imports of the others (docs/solvers.md "Start-up").
+imports of the others (docs/solvers.md "Start-up"). Run as the program (``argv`` None:
+the console script, ``python -m cvj_ros.cli``), a subcommand that sets
+``EXIT_WITHOUT_TEARDOWN = True`` ends the process with :func:`exit_without_teardown`.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import threading
 from collections.abc import Sequence
 
 from cvj_ros.commands import COMMANDS
@@ -52,12 +56,35 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, 'DESCRIPTION', mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run,
+                       _exit_without_teardown=getattr(mod, 'EXIT_WITHOUT_TEARDOWN', False))
     return parser
+
+
+def exit_without_teardown(status: int) -> None:
+    """End the process now with ``status``, as ``sys.exit(status)`` would but without the
+    interpreter's teardown: atexit handlers run and stdout/stderr are flushed, then
+    ``os._exit``. The teardown frees numba's and LLVM's object graphs one by one: measured
+    0.15-0.2 s CPU of a ~1 s warm ``cvj-sim simulate``. Only for a command whose files are
+    all closed when it returns, and only with no other thread alive (else it returns and the
+    caller exits normally). A stdout closed early (``| head``) gives 141 like the guard."""
+    if threading.active_count() > 1:
+        return
+    import atexit
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except BrokenPipeError:
+            status = 141   # guard.EXIT_BROKEN_PIPE: reader gone, nothing to say
+        except (OSError, ValueError):
+            pass
+    os._exit(status)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from cvj_ros.guard import guarded, reading
+    as_program = argv is None
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(command_named(argv))
@@ -66,10 +93,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     label = getattr(args, 'scene', None) or getattr(args, 'bag', None) or args.command
     try:
         with reading(str(label)):
-            return int(guarded('cvj-sim', args._run, args, debug=args.debug) or 0)
+            status = int(guarded('cvj-sim', args._run, args, debug=args.debug) or 0)
     except KeyboardInterrupt:
         print('cvj-sim: interrupted', file=sys.stderr)
         return 130
+    if as_program and args._exit_without_teardown:
+        exit_without_teardown(status)
+    return status
 
 
 if __name__ == '__main__':

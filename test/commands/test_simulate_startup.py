@@ -101,3 +101,24 @@ def test_help_and_unknown_command_still_list_every_subcommand(capsys) -> None:
         main(['simulat'])
     assert exc.value.code == 2
     assert 'simulate' in capsys.readouterr().err   # argparse's "invalid choice" lists them
+
+
+def test_program_run_ends_without_teardown_but_with_all_output(tmp_path: Path, capsys) -> None:
+    """As a program, `cvj-sim simulate` leaves through cli.exit_without_teardown: the JSON
+    summary on stdout (block-buffered into a pipe) and the CSV must still be complete and
+    equal to the in-process run's; a user error keeps exit status 2."""
+    here = tmp_path / 'here.csv'
+    assert main(['simulate', 'kavz685_lever', '--duration', '0.05', '--json',
+                 '--csv', str(here)]) == 0
+    want = json.loads(capsys.readouterr().out)
+    there = tmp_path / 'there.csv'
+    proc = subprocess.run([sys.executable, '-m', 'cvj_ros.cli', 'simulate', 'kavz685_lever',
+                           '--duration', '0.05', '--json', '--csv', str(there)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    assert got['shafts'] == want['shafts'] and got['solver']['nfev'] == want['solver']['nfev']
+    assert there.read_bytes() == here.read_bytes()
+    bad = subprocess.run([sys.executable, '-m', 'cvj_ros.cli', 'simulate', 'no_such_scene'],
+                         capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 2 and bad.stderr.startswith('cvj-sim: error: scene:')

@@ -184,11 +184,14 @@ class Simulation:
                         res: FloatArray) -> None:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
+        from cvj_ros.physics.kernel import load_cached
         from cvj_ros.physics.kernel.outputs_nb import sample_outputs, shaft_table
         if self._shaft_table is None:
             self._shaft_table = shaft_table(self.driveline)
-        bad = sample_outputs(times, X, self.model.ip, self.model.fp, self._shaft_table,
-                             float(e0), pos, vel, eff, te, tl, res)
+        args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
+                float(e0), pos, vel, eff, te, tl, res)
+        load_cached(sample_outputs, args)   # else the call below loads (or compiles) it
+        bad = sample_outputs(*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
 

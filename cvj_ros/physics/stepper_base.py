@@ -1,7 +1,8 @@
 """Light base of the persistent steppers: the Stepper protocol, argument checks and
 counters shared by the Python steppers (solvers.py) and the compiled ones
 (kernel/stepper.py). Split from solvers.py so that the compiled path does not import
-scipy (~0.7 s of start-up); solvers.py re-exports every name.
+scipy (~0.7 s of start-up); solvers.py re-exports every name (``sample_dense`` too,
+which moved here so that the compiled steppers' dense sampling needs no scipy either).
 """
 from __future__ import annotations
 
@@ -139,3 +140,28 @@ class _StepperBase:
         return {'method': self.method, 't': self.t, 'h': self.h, 'nfev': self.nfev,
                 'njev': self.njev, 'nlu': self.nlu, 'naccept': self.naccept,
                 'nreject': self.nreject}
+
+
+def sample_dense(stepper: Stepper, t_eval) -> np.ndarray:
+    """States at the increasing times ``t_eval`` (s), shape (len(t_eval), n).
+
+    The stepper takes its natural steps (``step``) up to the last time and each
+    sample comes from the dense output of the step that contains it, so dense
+    sampling does not shorten the steps (``advance_to`` per sample would: one
+    step per sample when samples are closer than the natural step). Times may
+    start inside the last accepted step (>= ``stepper.t_old``), so the function
+    can be called sample by sample: ``x_k = sample_dense(st, [t_k])[0]``. The
+    stepper ends at or after the last time, not exactly on it: use
+    ``advance_to`` where the state must sit on a time (input changes).
+    """
+    times = np.asarray(t_eval, dtype=float).reshape(-1)
+    if times.size and (np.any(np.diff(times) < 0) or times[0] < stepper.t_old
+                       or not np.all(np.isfinite(times))):
+        raise SolverOptionError('t_eval', f'must be finite, increasing and >= the start of the '
+                                f'last step t_old={stepper.t_old!r}')
+    out = np.empty((times.size, stepper.y.size))
+    for i, t in enumerate(times):
+        while stepper.t < t:
+            stepper.step()
+        out[i] = stepper.y if t == stepper.t else stepper.dense(t)
+    return out

@@ -11,12 +11,20 @@ functions of other modules (the steppers inline rhs_nb, which inlines the joint 
 formulas) would stay stale after an edit of those modules. :func:`drop_stale_cache` keeps
 a digest of every physics source beside the cache and deletes the package's cache files
 when it changes (hashing ~40 files costs ~2 ms per process).
+
+:func:`load_cached` loads a cached entry point without numba's full target
+initialisation (docs/solvers.md "Start-up"): numba's own cache load first runs
+``CPUContext.refresh()``, which imports and registers every numba implementation module
+(and, through ``numba.np.arraymath``'s BLAS probe, ``scipy.linalg``): measured ~0.55 s
+of a ~1.7 s warm ``cvj-sim simulate``, for code that is already compiled.
 """
 from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 PHYSICS_DIR = Path(__file__).resolve().parents[1]
 STAMP_NAME = 'cvj_kernel_sources.sha256'
@@ -90,6 +98,44 @@ def drop_stale_cache(cache_dir: str | None = None, physics_dir: Path = PHYSICS_D
         return bool(files)
     except OSError:
         return False
+
+
+def load_cached(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any] | None:
+    """Entry point of ``dispatcher`` (a numba ``@njit(cache=True)`` function) for the
+    types of ``args``, loaded from the disk cache; None when it cannot be loaded this
+    way (no cache entry, caching off, a numba without these internals, any error): the
+    caller then calls the dispatcher as usual, which compiles or loads it numba's way.
+
+    Same steps as numba 0.68's ``Dispatcher.compile`` on a cache hit (the overload is
+    registered with the dispatcher, so later calls through it dispatch to it directly)
+    except ``CPUContext.refresh()``: the typing and lowering registries serve compilation
+    only. What a cached library needs at run time is installed all the same: the C helper
+    and exception symbols by the target context's construction, the NRT symbols by
+    ``rtsys.initialize`` (called here, as ``refresh`` would), anything else by numba's own
+    ``reload_init`` hooks stored in the cache entry. A later cache miss compiles through
+    numba's normal path, which refreshes first. ``CVJ_KERNEL_LOAD=numba`` disables this
+    (numba's own load everywhere, e.g. to compare bytes)."""
+    if os.environ.get('CVJ_KERNEL_LOAD', '').strip().lower() == 'numba':
+        return None
+    try:
+        from numba.core.compiler_lock import global_compiler_lock
+        from numba.core.runtime import rtsys
+        sig = tuple(dispatcher.typeof_pyval(a) for a in args)
+        with global_compiler_lock:
+            existing = dispatcher.overloads.get(sig)
+            if existing is not None:
+                return existing.entry_point
+            ctx = dispatcher.targetctx
+            rtsys.initialize(ctx)
+            cres = dispatcher._cache._load_overload(sig, ctx)   # load_overload minus refresh
+            if cres is None or cres.objectmode:
+                return None
+            dispatcher._cache_hits[sig] += 1
+            ctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
+            dispatcher.add_overload(cres)
+            return cres.entry_point
+    except Exception:   # noqa: BLE001 - numba's normal path decides (and reports) instead
+        return None
 
 
 configure_cache()

@@ -172,16 +172,21 @@ print(hashlib.sha256(open(csv, 'rb').read()).hexdigest())
 def test_offline_trace_bytes_do_not_depend_on_openblas_kernel(tmp_path: Path) -> None:
     """Issue 9 item 4: the integration path has no BLAS, so `cvj-sim simulate` writes the
     same bytes in-process and in fresh interpreters under every OPENBLAS_CORETYPE (each
-    inherits this process's environment but that one variable)."""
+    inherits this process's environment but that one variable). The last run loads the
+    cached kernel numba's own way (``CVJ_KERNEL_LOAD=numba``, full target initialisation)
+    instead of ``kernel.load_cached``: same machine code, so the same bytes."""
     from cvj_ros.cli import main
     here = tmp_path / 'here.csv'
     assert main(['simulate', 'kavz685_lever', '--duration', '0.3', '--csv', str(here)]) == 0
     import hashlib
     first = hashlib.sha256(here.read_bytes()).hexdigest()
-    for core in ('Haswell', 'SkylakeX', 'Sandybridge', None):
+    for core in ('Haswell', 'SkylakeX', 'Sandybridge', None, 'numba-load'):
         env = dict(os.environ)
         env.pop('OPENBLAS_CORETYPE', None)
-        if core is not None:
+        env.pop('CVJ_KERNEL_LOAD', None)
+        if core == 'numba-load':
+            env['CVJ_KERNEL_LOAD'] = 'numba'
+        elif core is not None:
             env['OPENBLAS_CORETYPE'] = core
         proc = subprocess.run([sys.executable, '-c', DIGEST, str(tmp_path / f'{core}.csv')],
                               capture_output=True, text=True, timeout=300, env=env)

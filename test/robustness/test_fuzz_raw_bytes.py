@@ -11,7 +11,7 @@ real entry point ``cvj_ros.cli.main(['simulate', FILE, ...])`` in this process.
 Oracle: exit 0 with a JSON summary on stdout, or exit 2 with exactly one stderr line
 ``cvj-sim: error: ...`` - never the guard's "unexpected" line (exit 1), never a traceback.
 
-Bags (:data:`N_BAG_CASES`): a small mcap and a small sqlite3 bag (synthetic lockstep
+Bags (:data:`N_BAG_CASES_CI` in `make test`, all :data:`N_BAG_CASES` with `-m slow`): a small mcap and a small sqlite3 bag (synthetic lockstep
 signals, test_analysis.py), mutated by: truncation anywhere (a run killed mid-write),
 bit flips, a range overwritten with random bytes or zeros, garbage appended, metadata.yaml
 deleted, truncated, bit-flipped, replaced by random bytes, or with one field changed to a
@@ -37,7 +37,8 @@ from cvj_ros.errors import CvjError
 from cvj_ros.physics.scene import shipped_scenes
 
 N_SCENE_CASES = 600
-N_BAG_CASES = 240
+N_BAG_CASES = 240          # the whole seeded set: the slow test (pytest -m slow this file)
+N_BAG_CASES_CI = 120      # cases 0..119 in `make test` (~0.2-0.4 s each: keeps the suite near 10 min)
 
 SMALL_SCENE = b'''name: fuzz_small
 duration: 0.01
@@ -219,11 +220,22 @@ def mutate_bag(rng: random.Random, d: Path) -> str:
 
 def test_fuzz_bag_bytes_through_analyze_replay_and_reindex(base_bags: dict[str, Path], tmp_path: Path,
                                                           ctx) -> None:
+    fuzz_bags(base_bags, tmp_path, ctx, N_BAG_CASES_CI)
+
+
+@pytest.mark.slow
+def test_fuzz_bag_bytes_all_cases(base_bags: dict[str, Path], tmp_path: Path, ctx) -> None:
+    fuzz_bags(base_bags, tmp_path, ctx, N_BAG_CASES)
+
+
+def fuzz_bags(base_bags: dict[str, Path], tmp_path: Path, ctx, n_cases: int) -> None:
+    """Cases 0..n_cases-1 (case k uses random.Random(k)): the first cases are the same
+    in both tests."""
     from rclpy.parameter import Parameter
 
     from cvj_ros.nodes.replay_node import ReplayNode
     outcomes: dict[str, list[int]] = {}
-    for case in range(N_BAG_CASES):
+    for case in range(n_cases):
         rng = random.Random(case)
         storage = rng.choice(sorted(base_bags))
         d = tmp_path / f'bag_{case}'
@@ -250,7 +262,7 @@ def test_fuzz_bag_bytes_through_analyze_replay_and_reindex(base_bags: dict[str, 
         stats[2] += code_r == 0
         stats[3] += 1
         shutil.rmtree(d)
-    print(f'\nbag fuzz: {N_BAG_CASES} cases; per storage [analyze ok, replay read ok, reindex ok, cases]: '
+    print(f'\nbag fuzz: {n_cases} cases; per storage [analyze ok, replay read ok, reindex ok, cases]: '
           f'{outcomes}')
     total_reindexed = sum(v[2] for v in outcomes.values())
-    assert total_reindexed > N_BAG_CASES // 4      # reindex really recovers damaged bags
+    assert total_reindexed > n_cases // 4      # reindex really recovers damaged bags

@@ -189,13 +189,17 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
     if not usable:
         return fallback(math.nan, math.nan, '')
     means = np.array([_hann_mean(w[a:b]) for a, b in zip(lo, hi)])
-    # per slice k: relative amplitude difference from the last slice, worst signal
+    # per slice k: relative amplitude difference from the last slice, worst signal.
+    # Slice extrema of all signals at once: the slices tile [lo[0], end) (hi[k] = lo[k+1]),
+    # so reduceat at lo gives each slice's max / min (exact, as np.max of the slice)
+    stacked = np.stack([x for x, _ in amps.values()], axis=1)
+    spans = np.maximum.reduceat(stacked, lo, axis=0) - np.minimum.reduceat(stacked, lo, axis=0)
     change = np.zeros(n)
     worst = [''] * n
-    for name, (x, rel_floor) in amps.items():
+    for col, (name, (x, rel_floor)) in enumerate(amps.items()):
         scale = float(np.max(np.abs(x))) if name == reference else torque_scale
         floor = max(rel_floor * scale, 1e-300)
-        a = np.array([0.5 * (np.max(x[i:j]) - np.min(x[i:j])) for i, j in zip(lo, hi)])
+        a = 0.5 * spans[:, col]
         rel = np.abs(a - a[-1]) / np.maximum(np.maximum(a, a[-1]), floor)
         for k in np.flatnonzero(rel > change):
             change[k], worst[k] = rel[k], name

@@ -149,6 +149,7 @@ def order_amplitudes(trace: Any, orders: int, transient: float | None,
 def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dict[str, Any], float]:
     """Simulate one variant: (row, wall s). row['status'] is 'ok', 'invalid' (scene error,
     row['error'] names the field) or 'failed' (the run raised; row['error'] says what)."""
+    from cvj_ros.physics.metrics import steady_window, summarize
     from cvj_ros.physics.scene import parse_scene
     from cvj_ros.physics.simulate import Simulation
     t0 = time.perf_counter()
@@ -158,18 +159,22 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
         return {'status': 'invalid', 'error': ' '.join(str(exc).split())}, time.perf_counter() - t0
     try:
         sim = Simulation(scene, fidelity=dict(options.fidelity) or None, backend=options.backend)
-        sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-        summary = sim.summary(transient=options.transient)
+        trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
+        window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                               transient=options.transient)
+        # the parts of Simulation.summary() a row needs, from the same functions (its
+        # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
+        summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
+                   'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
+                   'shafts': summarize(trace, window=window)}
         row = {'status': 'ok', **metrics_row(summary)}
         if options.orders > 0:
-            from cvj_ros.physics.steady import SteadyWindow
-            fields = {k: v for k, v in summary['window'].items() if k != 'criterion'}
-            try:      # over the summary's own window (finding it again costs ~4 ms)
-                row.update(order_amplitudes(sim.last_trace, options.orders, options.transient,
-                                            options.orders_shaft, SteadyWindow(**fields)))
+            try:      # over the metrics' own window
+                row.update(order_amplitudes(trace, options.orders, options.transient,
+                                            options.orders_shaft, window))
             except KeyError:
                 raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
-                                 f'{", ".join(sim.last_trace.names)}') from None
+                                 f'{", ".join(trace.names)}') from None
         row['error'] = ''
     except CvjError as exc:
         row = {'status': 'failed', 'error': ' '.join(str(exc).split())}

@@ -185,12 +185,25 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
 
 
 def run_chunk(job: Job, chunk: Sequence[tuple[int, Sequence[Any]]]) -> list[Outcome]:
-    """Run consecutive variants ``[(index, values), ...]`` of ``job`` (the worker task)."""
+    """Run consecutive variants ``[(index, values), ...]`` of ``job`` (the worker task).
+
+    The cyclic garbage collector is paused for the chunk: a variant leaves no reference
+    cycles (measured: gc.collect() finds 0 unreachable objects after 64 kavz685_lever
+    variants, peak memory +0.25 MB), so its scans of the many short-lived arrays were pure
+    cost (~3 % of a variant's CPU). Reference counting frees everything as before."""
+    import gc
+
     from cvj_ros.sweep.spec import apply_keys
     out = []
-    for index, values in chunk:
-        row, wall = run_variant(apply_keys(job.base, job.keys, values), job.options)
-        out.append(Outcome(index, row, wall))
+    paused = gc.isenabled()
+    gc.disable()
+    try:
+        for index, values in chunk:
+            row, wall = run_variant(apply_keys(job.base, job.keys, values), job.options)
+            out.append(Outcome(index, row, wall))
+    finally:
+        if paused:
+            gc.enable()
     return out
 
 

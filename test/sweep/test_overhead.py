@@ -159,3 +159,26 @@ def test_random_load_blocks_cached_read_only_and_equal() -> None:
     b = RandomLoad(seed=685).unit_knots(-300, 900)
     assert np.array_equal(a, b)
     assert not np.array_equal(a, RandomLoad(seed=686).unit_knots(-300, 900))
+
+
+def test_run_chunk_restores_the_garbage_collector() -> None:
+    """run_chunk pauses the cyclic collector only for its chunk (also on error) and leaves a
+    collector the caller disabled disabled; a variant leaves no reference cycles."""
+    import gc
+    base = load_scene_data(find_scene('kavz685_lever'))
+    sweep = build_sweep(base, ['duration=0.05', 'driveline[coupling].params.alpha_deg=5,95'])
+    job = Job(base=sweep.base, keys=tuple(a.keys for a in sweep.axes), options=RunOptions())
+    assert gc.isenabled()
+    gc.collect()
+    out = run_chunk(job, list(enumerate(sweep.variants)))
+    assert gc.isenabled() and [o.row['status'] for o in out] == ['ok', 'invalid']
+    assert gc.collect() == 0            # nothing the paused collector should have freed
+    gc.disable()
+    try:
+        run_chunk(job, [(0, sweep.variants[0])])
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    with pytest.raises(TypeError):
+        run_chunk(job, [(0, None)])     # broken chunk: the collector still comes back
+    assert gc.isenabled()

@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cvj_ros.physics.signal import time_derivative
 from cvj_ros.physics.steady import SteadyWindow, joint_state_window
 
 FloatArray = NDArray[np.float64]

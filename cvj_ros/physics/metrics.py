@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cvj_ros.physics.signal import time_derivative
 from cvj_ros.physics.steady import SteadyWindow, joint_state_window
 
 FloatArray = NDArray[np.float64]
@@ -63,19 +62,33 @@ def shaft_metrics(t: ArrayLike, names: list[str], velocity: ArrayLike, effort: A
         win = window or steady_window(tt, names, vel, eff, transient=transient)
         mask = win.mask(tt)
     increasing = bool(np.all(np.diff(tt) > 0.0))
+    n_sh = len(names)
+    if tt.size <= 2:
+        acc = np.zeros((tt.size, n_sh))
+    elif increasing:
+        # all shafts at once: np.gradient along axis 0 does per element the arithmetic of
+        # time_derivative on each column, so the same numbers
+        acc = np.gradient(vel[:, :n_sh], tt, axis=0, edge_order=2)
+    else:
+        acc = np.full((tt.size, n_sh), np.nan)
+    # windowed rows, one contiguous row per shaft: means see the same contiguous series as
+    # np.mean(vel[mask, i]) (same summation order, same bits); max and min are exact anyway
+    w_rows = np.ascontiguousarray(vel[mask, :n_sh].T)
+    e_rows = np.ascontiguousarray(eff[mask, :n_sh].T)
+    acc_w = acc[mask]
+    w_max, w_min = w_rows.max(axis=1), w_rows.min(axis=1)
+    a_span = acc_w.max(axis=0) - acc_w.min(axis=0)
+    e_span = e_rows.max(axis=1) - e_rows.min(axis=1)
     out: dict[str, dict[str, float]] = {}
     for i, name in enumerate(names):
-        w = vel[:, i]
-        if tt.size <= 2:
-            acc = np.zeros_like(w)
-        else:
-            acc = time_derivative(tt, w) if increasing else np.full_like(w, np.nan)
-        out[name] = {'mean_speed': float(np.mean(w[mask])),
-                     'delta': nonuniformity(w[mask]),
-                     'speed_amplitude': amplitude(w[mask]),
-                     'acceleration_amplitude': amplitude(acc[mask]),
-                     'mean_torque': float(np.mean(eff[mask, i])),
-                     'torque_amplitude': amplitude(eff[mask, i])}
+        mean = float(np.mean(w_rows[i]))
+        span = float(w_max[i] - w_min[i])
+        out[name] = {'mean_speed': mean,
+                     'delta': span / abs(mean) if mean != 0.0 else float('inf'),  # nonuniformity()
+                     'speed_amplitude': 0.5 * span,                               # amplitude()
+                     'acceleration_amplitude': 0.5 * float(a_span[i]),
+                     'mean_torque': float(np.mean(e_rows[i])),
+                     'torque_amplitude': 0.5 * float(e_span[i])}
     return out
 
 

@@ -161,8 +161,15 @@ class Simulation:
         self._packed: dict[float, Any] = {}
         self._shaft_table: NDArray[np.int64] | None = None
         if backend == 'kernel':
-            reason = kernel_gap(dl, engine, load, float(scene.duration))
-            if reason is not None:
+            # packing the scene is also the test whether the kernel covers it (kernel_gap);
+            # the packed model is kept for a run over the scene's duration (_model)
+            from cvj_ros.physics.kernel.layout import build_model
+            horizon = float(scene.duration)
+            try:
+                self._packed = {horizon: build_model(dl, engine=engine, load=load,
+                                                     horizon=horizon)}
+            except NotImplementedError as exc:
+                reason = str(exc).removeprefix('compiled kernel: ')
                 self.backend = 'python'
                 self.backend_note = f'compiled kernel: {reason}; running the Python reference'
 

@@ -30,6 +30,7 @@ Pure numpy, no ROS. Units: times s, speeds rad/s, torques N m.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping, Sequence
@@ -119,9 +120,27 @@ def _hann_mean(x: FloatArray) -> float:
     of amplitude a and angular frequency w leaks only ~a/(w L)^3 into it instead of the plain
     mean's ~a/(w L) (the Hann window's sidelobes fall as 1/f^3), so a slice of a few periods
     does not fake a drift."""
-    n = x.size
+    wts, total = _hann_weights(x.size)
+    return float(np.dot(wts, x) / total)
+
+
+@functools.lru_cache(maxsize=64)
+def _hann_weights(n: int) -> tuple[FloatArray, np.float64]:
+    """Hann weights of :func:`_hann_mean` for a slice of n samples and their sum (cached:
+    a record's slices have one or two lengths; the array is read-only)."""
     wts = np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 2
-    return float(np.dot(wts, x) / np.sum(wts))
+    wts.flags.writeable = False
+    return wts, np.sum(wts)
+
+
+def slice_spans(signals: FloatArray, starts: NDArray[np.intp]) -> FloatArray:
+    """max - min of every column of ``signals`` (samples, signals) over the consecutive
+    slices ``signals[starts[k]:starts[k+1]]`` (the last to the end); ``starts`` strictly
+    increasing. One ``reduceat`` per extremum instead of two reductions per slice and
+    signal; max and min are exact, so the spans are the same numbers as per-slice
+    ``np.max(x) - np.min(x)`` (NaN propagates the same way)."""
+    return (np.maximum.reduceat(signals, starts, axis=0)
+            - np.minimum.reduceat(signals, starts, axis=0))
 
 
 def _slice_edges(t: FloatArray, n_slices: int | None, slice_s: float | None) -> FloatArray:
@@ -189,13 +208,16 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
     if not usable:
         return fallback(math.nan, math.nan, '')
     means = np.array([_hann_mean(w[a:b]) for a, b in zip(lo, hi)])
-    # per slice k: relative amplitude difference from the last slice, worst signal
+    # per slice k: relative amplitude difference from the last slice, worst signal.
+    # Slice extrema of all signals at once: the slices tile [lo[0], end) (hi[k] = lo[k+1]),
+    # so reduceat at lo gives each slice's max / min (exact, as np.max of the slice)
+    spans = slice_spans(np.stack([x for x, _ in amps.values()], axis=1), lo)
     change = np.zeros(n)
     worst = [''] * n
-    for name, (x, rel_floor) in amps.items():
+    for col, (name, (x, rel_floor)) in enumerate(amps.items()):
         scale = float(np.max(np.abs(x))) if name == reference else torque_scale
         floor = max(rel_floor * scale, 1e-300)
-        a = np.array([0.5 * (np.max(x[i:j]) - np.min(x[i:j])) for i, j in zip(lo, hi)])
+        a = 0.5 * spans[:, col]
         rel = np.abs(a - a[-1]) / np.maximum(np.maximum(a, a[-1]), floor)
         for k in np.flatnonzero(rel > change):
             change[k], worst[k] = rel[k], name

@@ -193,6 +193,13 @@ class LeverHinge:
         out = c2 + _inverse_dev(c2, ca2)
         return JointEval(out, g1 * h1, g2 * h1 * h1 + g1 * h2, c)
 
+    def mid_angle(self, phi_in: ArrayLike) -> FloatArray:
+        """phi_mid (rad) alone: the same numbers as ``evaluate(phi_in).phi_mid`` (the same
+        expression on the same array), without phi_out, ratio and slope; used by
+        :meth:`cvj_ros.physics.driveline.Driveline.fill_mid` on every sample of a run."""
+        phi = as_angle_array(phi_in)
+        return phi + _hooke_dev(phi, self._ca)
+
     def _closed(self, phi: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         ca, sa2, ta, tw, da = self._ca, self._sa2, self._ta, self.twist, self.delta_alpha
         s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)

@@ -307,13 +307,16 @@ def fill_mid_one(pos, vel, mtab, mfp):
 def wrenches_one(pos, vel, eff, rtab, rfp, out):
     """Reaction wrenches (housing frame, reactions_nb.joint_wrench) of the joints of
     ``rtab`` (rows: input column, reaction code, rfp offset) from the joint state
-    pos/vel/eff: out[i, 0:6] = force xyz (N), torque xyz (N m). Returns a bitmask-free
-    count of rows the compiled models could not answer (their out rows are NaN)."""
+    pos/vel/eff: out[i, 0:6] = force xyz (N), torque xyz (N m). Returns the number of rows
+    the compiled models did not answer (their out rows are NaN; the caller asks the Python
+    model): a non-finite input (which the Python model rejects with its own error) or a
+    Newton that did not converge."""
     failed = 0
     w = np.empty(6)
     for i in range(rtab.shape[0]):
         c = rtab[i, 0]
-        if joint_wrench(rtab[i, 1], pos[c], vel[c], eff[c], rfp, rtab[i, 2], w) != 0:
+        if not (np.isfinite(pos[c]) and np.isfinite(vel[c]) and np.isfinite(eff[c])) or \
+                joint_wrench(rtab[i, 1], pos[c], vel[c], eff[c], rfp, rtab[i, 2], w) != 0:
             failed += 1
             for k in range(6):
                 out[i, k] = np.nan

@@ -127,3 +127,19 @@ def test_python_fallback_when_not_compiled():
     assert list(got) == joints
     for j in joints:
         assert _rel(got[j], want[j]) <= REL
+
+
+def test_non_finite_input_goes_to_the_python_model():
+    """A non-finite joint state is not answered by the compiled reactions: the Python model
+    gets it and raises its own error, as the Python path does."""
+    from cvj_ros.errors import CvjError
+    dl = Driveline.from_scene(load_scene(find_scene('kavz685_lever')))
+    comp = KernelStateOutputs(dl, ['coupling'])
+    x = np.array(dl.x0, dtype=float)
+    pos, vel, eff = comp.joint_states(x, 100.0, 50.0)
+    eff = eff.copy()
+    eff[dl.shaft_names.index('coupling_input')] = math.nan
+    with pytest.raises(CvjError):               # what the Python path raises
+        dl.joint_models['coupling'].reactions(float(pos[1]), float(vel[1]), math.nan)
+    with pytest.raises(CvjError):
+        comp.wrenches(x, 100.0, 50.0, (pos, vel, eff))

@@ -356,6 +356,37 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
         node.destroy_node()
 
 
+def test_recorder_keeps_a_whole_pending_clock_chain(ctx, tmp_path: Path) -> None:
+    """When a whole short run's /clock came in before its first two joint states (a loop
+    faster than the recorder's wake-ups, or a joint state repaired late), the samples that
+    continue the chain s0, s0 + step, ... are ours and kept; another run's /clock kept back
+    (50 ms, not connected to the chain) and a duplicate value are still dropped."""
+    node = rclpy.create_node('rec_chain_test', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    try:
+        rec = bag.BagRecorder(node, writer, discover_period=0.0, run_token=OURS)
+
+        def feed(topic: str, msg) -> None:
+            msgtype = bag.topic_type(topic)
+            rec._on_message(topic, msgtype, serialize_message(msg),
+                            stamped=msgtype in bag.STAMPED_TYPES, is_clock=topic == bag.CLOCK_TOPIC)
+
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=50_000_000)))     # another run's
+        for k in range(21):                                             # the whole run: 0..20 ms
+            feed('/clock', Clock(clock=Time(sec=0, nanosec=k * 1_000_000)))
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=7_000_000)))      # duplicate value
+        for k in range(21):
+            feed('/driveline/joint_states', _js(f'driveline@{OURS}', k))
+        assert rec.counts['/clock'] == 21 and rec.foreign == {'/clock': 2}
+        rec.destroy()
+        writer.close()
+        clock = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock']
+        assert [round(v * 1e9) for v in clock.value] == [k * 1_000_000 for k in range(21)]
+    finally:
+        writer.close()
+        node.destroy_node()
+
+
 # --- launch file and `cvj-sim record --run-token` ------------------------------------------------
 
 def _launch_module():

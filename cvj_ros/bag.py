@@ -643,16 +643,16 @@ class BagRecorder:
     recorded only while exactly one /clock publisher is matched (with two runs on the
     domain neither bag gets the other's /clock; both lose /clock while both publish it,
     counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
-    s0, s1) are in, /clock samples are kept back and then written only if they lie in
-    [s0, s1 + 2 (s1 - s0)] (a /clock of another run that was the only one matched before
-    this run's coupling node came up). After that a /clock sample is written only if it is
-    newer than the last one written (the run's own /clock is strictly increasing, so a
-    repeat is another run's: Fast DDS may deliver a new publisher's first samples before
-    the match count says two) and at most one exchange step after the run's own latest
-    joint state (own /clock t_k goes out just before the state t_k); a sample further ahead
-    is kept back until the run's joint states catch up and, once the owner set
-    :attr:`loop_ended`, dropped (the other run's /clock while this run's coupling node is
-    already gone).
+    s0, s1) are in, /clock samples are kept back; those before s0 are another run's (one
+    that was the only one matched before this run's coupling node came up). A /clock
+    sample is written only if it is newer than the last one written (the run's own /clock
+    is strictly increasing, so a repeat is another run's: Fast DDS may deliver a new
+    publisher's first samples before the match count says two) and at most one exchange
+    step after the run's own latest joint state taken (own /clock t_k goes out just before
+    the state t_k), after :attr:`loop_ended` at most that state; a sample further ahead is
+    kept back until the run's joint states catch up (a loop faster than the recorder's
+    wake-ups can leave a whole short run's /clock kept back before its first two states:
+    it is written as they come in). What is still kept back at the end is another run's.
     """
 
     def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
@@ -673,7 +673,7 @@ class BagRecorder:
         self.hold: frozenset[str] = frozenset()
         self.held = 0
         self.run_token = run_token
-        self.foreign: dict[str, int] = {}     # dropped messages of another run, per topic
+        self._foreign: dict[str, int] = {}    # dropped messages of another run, per topic
         self._own_js_ns: list[int] = []       # the first two and the latest own joint-state stamps
         self._loop_ended = False
         # /clock samples (value ns, CDR) received before the run's own first two joint states
@@ -686,19 +686,25 @@ class BagRecorder:
 
     @property
     def loop_ended(self) -> bool:
-        """Set by the owner once the run's coupling node exited: /clock samples beyond one
-        exchange step after the latest own joint state (also those kept back) are then
-        another run's (counted in :attr:`foreign`)."""
+        """Set by the owner once the run's coupling node exited. The run's own /clock never
+        exceeds its last joint state (/clock t_k goes out before the state t_k), so from then
+        on a /clock sample is written only up to the latest own state the recorder has taken
+        (it may still be catching up on states in flight); what is still kept back then is
+        another run's and counted in :attr:`foreign`."""
         return self._loop_ended
 
     @loop_ended.setter
     def loop_ended(self, value: bool) -> None:
-        # no lock: _on_message runs unlocked on the recorder thread; at worst a sample kept
-        # back at this instant is dropped uncounted (it is ahead of the run's states anyway)
         self._loop_ended = bool(value)
-        if value and self._clock_started and self._pending_clock:
-            pending, self._pending_clock = self._pending_clock, []
-            self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + len(pending)
+
+    @property
+    def foreign(self) -> dict[str, int]:
+        """Dropped messages of another run, per topic (a copy); once :attr:`loop_ended`,
+        /clock samples still kept back count too."""
+        out = dict(self._foreign)
+        if self._loop_ended and self._pending_clock:
+            out[CLOCK_TOPIC] = out.get(CLOCK_TOPIC, 0) + len(self._pending_clock)
+        return out
 
     @property
     def counts(self) -> dict[str, int]:
@@ -733,7 +739,7 @@ class BagRecorder:
             if verdict is None:            # a /clock sample kept until it can be attributed
                 return
             if not verdict:
-                self.foreign[topic] = self.foreign.get(topic, 0) + 1
+                self._foreign[topic] = self._foreign.get(topic, 0) + 1
                 return
         self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock)
         if self.run_token and topic == JOINT_STATES_TOPIC and (
@@ -776,18 +782,18 @@ class BagRecorder:
             self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
         else:
             step = own[1] - own[0]
-            hi = own[-1] + step
+            hi = own[-1] + (0 if self._loop_ended else step)
             if not self._clock_started:
                 self._clock_started = True
                 hi = max(hi, own[1] + 2 * step)
             keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
             n_foreign = sum(1 for v, _d in self._pending_clock if v < own[0])
             if n_foreign:
-                self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + n_foreign
+                self._foreign[CLOCK_TOPIC] = self._foreign.get(CLOCK_TOPIC, 0) + n_foreign
             self._pending_clock = [(v, d) for v, d in self._pending_clock if v > hi]
         for v, data in sorted(keep, key=lambda vd: vd[0]):
             if self._clock_written is not None and v <= self._clock_written:
-                self.foreign[CLOCK_TOPIC] = self.foreign.get(CLOCK_TOPIC, 0) + 1
+                self._foreign[CLOCK_TOPIC] = self._foreign.get(CLOCK_TOPIC, 0) + 1
                 continue
             self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
 
@@ -818,10 +824,8 @@ class BagRecorder:
                 return None
             if self._clock_written is not None and value <= self._clock_written:
                 return False              # a repeat or an older value: another run's
-            if value <= own[-1] + (own[1] - own[0]):
+            if value <= own[-1] + (0 if self._loop_ended else own[1] - own[0]):
                 return True
-            if self._loop_ended:
-                return False
             self._pending_clock.append((value, bytes(data)))   # ahead of own states: kept back
             return None
         if topic == SCENE_TOPIC:

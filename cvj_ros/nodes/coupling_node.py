@@ -15,7 +15,9 @@ for them; an outside node under ``use_sim_time`` then sees ``now() == t_k`` in i
 callback as far as its executor takes the clock first), then the reaction wrenches
 (computed while the peers answer). The loop's messages are published
 as pre-serialised CDR bytes (:class:`~cvj_ros.nodes.common.JointStateEncoder` etc.), which
-skips rclpy's Python-to-C conversion; the bytes decode to the same messages.
+skips rclpy's Python-to-C conversion; the bytes decode to the same messages. The joint state
+and the reaction wrenches come from :mod:`cvj_ros.physics.state_outputs`: compiled when the
+stepper runs the kernel (a few us per exchange), else the Python reference.
 
 Lockstep (default, deterministic; DESIGN.md section 3). Simulated time is integer
 nanoseconds t_k = k * h_ns. At step k the node publishes /clock and joint states
@@ -84,7 +86,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError
-from cvj_ros.physics.joints.wrench import wrench_from_reactions
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
@@ -191,7 +192,6 @@ class CouplingNode(CvjNode):
         self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
         self.reaction_pubs = {j: self.create_publisher(WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
                               for j in self.reaction_joints}
-        self._joint_kind = {name: m.kind for name, m in self.driveline.joint_models.items()}
         # raw: the callbacks get the serialised answer and read stamp and torque.z directly
         self.engine_sub = self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
                                                    self._on_engine, DATA_QOS, raw=True)
@@ -219,10 +219,12 @@ class CouplingNode(CvjNode):
                               for j in self.reaction_joints}
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
-        # intermediate members (cage, spider, earring) to fill in the joint states
-        self._has_mid = any(getattr(sh, 'role', None) == 'mid'
-                            for sh in getattr(self.driveline, 'shafts', ())) or \
-            not hasattr(self.driveline, 'shafts')
+        # per-exchange joint state (intermediate members filled) and reaction wrenches:
+        # compiled when the stepper runs the kernel (issue 10), else the Python reference
+        from cvj_ros.physics.state_outputs import make_state_outputs
+        self.outputs = make_state_outputs(
+            self.driveline, self.reaction_joints,
+            compiled=getattr(self.stepper, 'backend', 'python') == 'kernel')
 
         # loop state
         self.k = 0
@@ -698,9 +700,7 @@ class CouplingNode(CvjNode):
         # in its joint-state callback. In lockstep it went out already before the
         # integration (_on_wrench); else here, ahead of the joint-state evaluation.
         self._publish_clock(self.t_ns)
-        pos, vel, eff = self.driveline.joint_states_fast(x, t_engine, t_load)
-        if self._has_mid:
-            self.driveline.fill_mid(pos[None, :], vel[None, :])
+        pos, vel, eff = self.outputs.joint_states(x, t_engine, t_load)
         if raw:
             self.js_pub.publish(self._js_cdr.encode(sec, nanosec, pos, vel, eff))
         else:
@@ -715,13 +715,14 @@ class CouplingNode(CvjNode):
         self.state_total += self._wait_start - c0
         self.joint_states_published += 1
         if self.reaction_pubs:
-            # computed while engine_node and load_node answer (tripod reactions: ~200 us)
-            reactions = self.driveline.reactions(x, t_engine, t_load)
+            # computed while engine_node and load_node answer (fwd_halfshaft's exact tripod:
+            # ~11 us compiled, ~9-12 ms in Python since its Newton runs without BLAS)
+            wrenches = self.outputs.wrenches(x, t_engine, t_load, (pos, vel, eff))
             for joint, pub in self.reaction_pubs.items():
-                values = reactions.get(joint)
-                if not values:
+                w = wrenches.get(joint)
+                if w is None:
                     continue
-                force, torque = wrench_from_reactions(self._joint_kind[joint], values)
+                force, torque = w
                 if raw:
                     pub.publish(self._reaction_cdr[joint].encode(sec, nanosec, *force, *torque))
                     continue

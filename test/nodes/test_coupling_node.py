@@ -274,7 +274,8 @@ def test_published_state_equals_public_driveline_api_and_reused_messages_do_not_
 
     node = CouplingNode(context=ctx, parameter_overrides=[Parameter('scene', value='kavz685_lever')])
     try:
-        assert node._has_mid and node.reaction_pubs   # lever: earring shaft + reaction wrench
+        assert 'coupling_earring' in node.names and node.reaction_pubs   # earring shaft + wrench
+        assert node.outputs.backend == 'kernel'      # compiled outputs against the Python API
         assert node.raw_publication                   # the CDR encoders passed their self-check
         node.raw_publication = raw
         sent: list[tuple[str, bytes]] = []

@@ -52,3 +52,18 @@ def test_decoder_nonfinite_and_name_change() -> None:
     assert math.isnan(v.velocity[0]) and v.velocity[1] == math.inf
     v2 = dec.decode(serialize_message(_msg('d', ['a', 'c'])))
     assert v2.name == ['a', 'c']
+
+
+def test_one_decoder_across_changing_frames_and_names() -> None:
+    """The fast path (frame_id and name bytes compared with the previous sample's) switches
+    correctly between frames of other lengths (other name offsets), name lists that extend
+    one another, and back."""
+    seq = CASES + [_msg('d', ['a', 'b']), _msg('d', ['a', 'b', 'c']), _msg('longer_frame', ['a', 'b']),
+                   _msg('d', ['a', 'b'])] + CASES[::-1]
+    dec = JointStateDecoder()
+    for msg in seq + seq:
+        v = dec.decode(serialize_message(msg))
+        assert v.header.frame_id == msg.header.frame_id
+        assert v.name == list(msg.name)
+        for field in ('position', 'velocity', 'effort'):
+            assert list(getattr(v, field)) == list(getattr(msg, field)), field

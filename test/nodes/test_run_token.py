@@ -303,8 +303,8 @@ def test_monitor_ignores_another_runs_messages(ctx, tmp_path: Path) -> None:
 def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
     """BagRecorder with a token, fed serialised messages directly (no DDS traffic): another
     run's joint states, answers, reaction wrenches, diagnostics and scene are dropped and
-    counted; untagged ones are kept; after loop_ended a /clock beyond one step after the
-    latest own state is dropped; a /clock before the run's first two states is kept back
+    counted; untagged ones are kept; after loop_ended a /clock beyond the latest own state
+    is kept back and counted as another run's; a /clock before the run's first two states is kept back
     and written only if it lies within them."""
     node = rclpy.create_node('rec_token_test', context=ctx)
     writer = bag.BagWriter(tmp_path / 'b')
@@ -340,17 +340,20 @@ def test_recorder_drops_another_runs_messages(ctx, tmp_path: Path) -> None:
         feed('/diagnostics', diag_other)
         feed('/diagnostics', diag_ours)
         rec.loop_ended = True
-        feed('/clock', Clock(clock=Time(sec=0, nanosec=3_000_000)))   # latest own 2 ms + 1 ms: kept
-        feed('/clock', Clock(clock=Time(sec=0, nanosec=9_000_000)))   # beyond: another run's
-        assert rec.counts == {'/driveline/scene': 1, '/clock': 4, '/driveline/joint_states': 3,
+        # after the loop ended, own /clock never passes the last own state (2 ms): 3 ms and
+        # 9 ms stay kept back (a state still in flight could claim them) and count as
+        # another run's, like the 50 ms one
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=3_000_000)))
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=9_000_000)))
+        assert rec.counts == {'/driveline/scene': 1, '/clock': 3, '/driveline/joint_states': 3,
                               '/load/wrench': 3, '/engine/wrench': 3, '/diagnostics': 1}
         assert rec.foreign == {'/driveline/scene': 1, '/driveline/joint_states': 3, '/load/wrench': 3,
-                               '/coupling/cardan/wrench': 3, '/diagnostics': 1, '/clock': 2}
+                               '/coupling/cardan/wrench': 3, '/diagnostics': 1, '/clock': 3}
         assert yaml.safe_load(rec.scene_text)['run_token'] == OURS
         rec.destroy()
         writer.close()
         clock = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock']
-        assert [round(v * 1e9) for v in clock.value] == [0, 1_000_000, 2_000_000, 3_000_000]
+        assert [round(v * 1e9) for v in clock.value] == [0, 1_000_000, 2_000_000]
     finally:
         writer.close()
         node.destroy_node()
@@ -393,6 +396,38 @@ def test_recorder_clock_repeats_dropped_and_early_clock_kept_back(ctx, tmp_path:
         writer.close()
         values = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock'].value
         assert [round(v * 1e9) for v in values] == [k * 1_000_000 for k in range(6)]
+    finally:
+        writer.close()
+        node.destroy_node()
+
+
+def test_recorder_keeps_a_whole_pending_clock_chain(ctx, tmp_path: Path) -> None:
+    """When a whole short run's /clock came in before its first two joint states (a loop
+    faster than the recorder's wake-ups, or a joint state repaired late), the samples that
+    continue the chain s0, s0 + step, ... are ours and kept; another run's /clock kept back
+    (50 ms, not connected to the chain) and a duplicate value are still dropped."""
+    node = rclpy.create_node('rec_chain_test', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    try:
+        rec = bag.BagRecorder(node, writer, discover_period=0.0, run_token=OURS)
+
+        def feed(topic: str, msg) -> None:
+            msgtype = bag.topic_type(topic)
+            rec._on_message(topic, msgtype, serialize_message(msg),
+                            stamped=msgtype in bag.STAMPED_TYPES, is_clock=topic == bag.CLOCK_TOPIC)
+
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=50_000_000)))     # another run's
+        for k in range(21):                                             # the whole run: 0..20 ms
+            feed('/clock', Clock(clock=Time(sec=0, nanosec=k * 1_000_000)))
+        feed('/clock', Clock(clock=Time(sec=0, nanosec=7_000_000)))      # duplicate value
+        for k in range(21):
+            feed('/driveline/joint_states', _js(f'driveline@{OURS}', k))
+        rec.loop_ended = True                        # the 50 ms sample is still kept back: counted
+        assert rec.counts['/clock'] == 21 and rec.foreign == {'/clock': 2}
+        rec.destroy()
+        writer.close()
+        clock = bag.read_bag(tmp_path / 'b', ['/clock'])['/clock']
+        assert [round(v * 1e9) for v in clock.value] == [k * 1_000_000 for k in range(21)]
     finally:
         writer.close()
         node.destroy_node()

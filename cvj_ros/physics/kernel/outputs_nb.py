@@ -14,13 +14,16 @@ with the spring's deflection e (driveline.SpringLaw.evaluate's potential), resid
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 from numba import njit
 
 from cvj_ros.physics.kernel.joints_nb import joint_eval
-from cvj_ros.physics.kernel.layout import (H_ENERGY, H_NDOF, H_SEC, H_SPRING_F, OP_INERTIA,
+from cvj_ros.physics.kernel.reactions_nb import joint_wrench
+from cvj_ros.physics.kernel.layout import (H_ENERGY, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
+                                          OP_INERTIA, OP_JOINT_IDENTITY, OP_LEVER_EXACT,
                                           SPRING_STRIDE)
 from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs, section,
                                           spring_deflection, spring_eval)
@@ -53,6 +56,178 @@ def shaft_table(driveline: Any) -> np.ndarray:
     return np.asarray(rows, dtype=np.int64).reshape(-1, 3)
 
 
+def _mid_op(model: Any, mfp: list[float]) -> tuple[int, int]:
+    """(op code, mfp offset) whose joint_eval phi_out is ``model.evaluate(phi).phi_mid``;
+    NotImplementedError when the member has no compiled form (it stays on the Python path)."""
+    from cvj_ros.physics.kernel.layout import _joint_op
+    kind, fid = model.kind, getattr(model, 'fidelity', None)
+    if kind == 'lever_hinge':       # earring c = tan^-1(tan(phi) / cos a): the exact law's
+        off = len(mfp)              # first stage (twist 0, output stage cos = 1 -> identity)
+        mfp.extend([model._ca, model._sa2, 0.0, 1.0, 0.0])
+        return OP_LEVER_EXACT, off
+    if kind in ('rzeppa', 'double_cardan') and fid == 'ideal':
+        return OP_JOINT_IDENTITY, 0
+    if kind == 'rzeppa':            # cage: tan(phi3) = cos(alpha) tan(phi1)
+        mfp.append(float(model._cage_c))
+        return OP_HOOKE, len(mfp) - 1
+    if kind == 'double_cardan':     # intermediate shaft: the first Hooke stage
+        mfp.append(float(model._c1))
+        return OP_HOOKE, len(mfp) - 1
+    if kind == 'tripod':            # the spider turns with the output shaft
+        return _joint_op(kind, model, mfp)
+    if kind == 'chain':             # after the first stage, or the single stage's member
+        first = model.joints[0]
+        if len(model.joints) == 1:
+            return _mid_op(first, mfp)
+        return _joint_op(kind, first, mfp)
+    raise NotImplementedError(f'compiled outputs: intermediate member of {kind!r}')
+
+
+def mid_table(driveline: Any) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
+    """Intermediate members for :func:`fill_mid_one`: (rows (n, 4) int64 = mid column,
+    input column, op code, mfp offset; mfp float64; [(mid column, input column)] left to
+    the Python ``Driveline.fill_mid`` formula)."""
+    mfp: list[float] = [0.0]
+    rows: list[tuple[int, int, int, int]] = []
+    python: list[tuple[int, int]] = []
+    for i_mid, i_in in driveline._mid_index:
+        model = driveline.shafts[i_mid].joint
+        try:
+            code, off = _mid_op(model, mfp)
+        except NotImplementedError:
+            python.append((i_mid, i_in))
+            continue
+        rows.append((i_mid, i_in, code, off))
+    return (np.asarray(rows, dtype=np.int64).reshape(-1, 4), np.asarray(mfp, dtype=np.float64),
+            python)
+
+
+def _reaction_code(model: Any, rfp: list[float]) -> tuple[int, int]:
+    """(reaction code, rfp offset) of reactions_nb.joint_wrench for one joint model;
+    NotImplementedError when it has no compiled form."""
+    from cvj_ros.physics.kernel import reactions_nb as R
+    from cvj_ros.physics.kernel.layout import _joint_op
+    kind, fid = model.kind, getattr(model, 'fidelity', None)
+    if kind == 'ideal_cv' or (kind in ('rzeppa', 'double_cardan', 'lever_hinge')
+                              and fid == 'ideal'):
+        return R.R_TORQUE_IDENTITY, 0
+    if kind == 'gear':
+        rfp.append(float(model.gear_ratio))
+        return R.R_TORQUE_GEAR, len(rfp) - 1
+    if kind in ('rzeppa', 'double_cardan', 'lever_hinge'):   # torque_out = T_in / ratio
+        off = len(rfp)
+        rfp.extend([0.0, 0.0])
+        code, op_off = _joint_op(kind, model, rfp)
+        rfp[off], rfp[off + 1] = float(code), float(op_off)
+        return R.R_TORQUE_RATIO, off
+    if kind == 'hooke':
+        if fid == 'ideal':
+            return R.R_HOOKE_IDEAL, 0
+        off = len(rfp)
+        rfp.extend([float(model._c), math.sin(model.beta)])
+        return R.R_HOOKE_EXACT, off
+    if kind == 'tripod' and fid in ('ideal', 'closed'):
+        off = len(rfp)
+        rfp.extend([model.r, model.l, math.sin(model.beta), math.cos(model.beta),
+                    model.roller_mass])
+        return R.R_TRIPOD_SMALL, off
+    if kind == 'tripod' and fid == 'exact' and model._orbit_spec is not None:
+        off = len(rfp)
+        spec = model._orbit_spec
+        nor = len(spec[0])
+        block = [model.r, model.l, *(float(v) for v in model._n0), *(float(v) for v in model._u0),
+                 model.roller_mass, model.spider_mass, float(nor), float(len(model._sine_coeffs))]
+        for i in range(2):
+            block.extend(float(v) for v in np.real(spec[i]))
+            block.extend(float(v) for v in np.imag(spec[i]))
+        block.extend(float(v) for v in model._sine_coeffs)
+        assert len(block) == R.TE_DATA + 4 * nor + len(model._sine_coeffs)
+        rfp.extend(block)
+        return R.R_TRIPOD_EXACT, off
+    raise NotImplementedError(f'compiled outputs: reactions of {kind!r} ({fid})')
+
+
+def reaction_table(driveline: Any, joints: list[str]
+                   ) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Reaction wrenches for :func:`wrenches_one`, one row per name in ``joints`` (rows
+    (n, 3) int64 = input column, reaction code, rfp offset; rfp float64; indices of the
+    ``joints`` left to the Python model's ``reactions``, their rows code -1)."""
+    rfp: list[float] = [0.0]
+    rows: list[tuple[int, int, int]] = []
+    python: list[int] = []
+    names = driveline.shaft_names
+    for k, name in enumerate(joints):
+        col = names.index(f'{name}_input')
+        try:
+            code, off = _reaction_code(driveline.joint_models[name], rfp)
+        except NotImplementedError:
+            python.append(k)
+            code, off = -1, 0
+        rows.append((col, code, off))
+    return (np.asarray(rows, dtype=np.int64).reshape(-1, 3), np.asarray(rfp, dtype=np.float64),
+            python)
+
+
+@njit(cache=True)
+def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
+    """One state y at time t: shaft angle, speed and torque before/after every kernel op
+    into st_phi/st_om/st_tq[g, position] (the walk of ``Driveline._walk``). Returns (engine
+    torque N m, kinetic energy J, elastic energy J, last shaft angle rad, its ratio a)."""
+    n = ip[H_NDOF]
+    sec = ip[H_SEC]
+    ops = sec + n + 1
+    sp0 = ip[H_SPRING_F]
+    rhs(t, y, ip, fp, dy)
+    tk_e = engine_torque(t, y, ip, fp)[0]
+    phi_l, a_l = 0.0, 1.0
+    kin = 0.0
+    el = 0.0
+    carry = tk_e
+    for g in range(n):
+        q, v, acc = y[g], y[n + g], dy[n + g]
+        phi, a, b = q, 1.0, 0.0
+        torque = carry
+        p = 0
+        st_phi[g, 0], st_om[g, 0], st_tq[g, 0] = phi, v, torque
+        for kk in range(ip[sec + g], ip[sec + g + 1]):
+            code = ip[ops + 2 * kk]
+            off = ip[ops + 2 * kk + 1]
+            if code == OP_INERTIA:
+                torque -= fp[off] * (a * acc + b * v * v)
+            else:
+                po, r, s = joint_eval(code, phi, fp, off)
+                b = s * a * a + r * b
+                a = r * a
+                phi = po
+                torque = torque / r
+            p += 1
+            st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
+        m = section(g, q, ip, fp)[3]
+        kin += 0.5 * m * v * v
+        if g < n - 1:       # the spring to the right carries the next section's torque
+            off = sp0 + SPRING_STRIDE * g
+            th = phi - y[g + 1]
+            thd = a * v - y[n + g + 1]
+            carry = spring_eval(th, thd, fp, off)[0]
+            e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
+            el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
+        else:
+            phi_l, a_l = phi, a
+    return tk_e, kin, el, phi_l, a_l
+
+
+@njit(cache=True)
+def _walk_buffers(ip, ns):
+    """Scratch arrays of :func:`_walk_sample`: dy (ns,), and (n, max positions) for the
+    per-op angle, speed and torque."""
+    n = ip[H_NDOF]
+    sec = ip[H_SEC]
+    max_pos = 1
+    for g in range(n):
+        max_pos = max(max_pos, ip[sec + g + 1] - ip[sec + g] + 1)
+    return np.empty(ns), np.empty((n, max_pos)), np.empty((n, max_pos)), np.empty((n, max_pos))
+
+
 @njit(cache=True)
 def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     """For every sample k (time T[k], state X[k]): shaft positions, speeds and torques
@@ -60,59 +235,15 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     relative energy residual (res[k]; NaN without work integrals). Returns the index of the
     first non-finite state, or -1."""
     n = ip[H_NDOF]
-    sec = ip[H_SEC]
-    ops = sec + n + 1
-    sp0 = ip[H_SPRING_F]
     ns = X.shape[1]
-    dy = np.empty(ns)
-    max_pos = 1
-    for g in range(n):
-        max_pos = max(max_pos, ip[sec + g + 1] - ip[sec + g] + 1)
-    st_phi = np.empty((n, max_pos))
-    st_om = np.empty((n, max_pos))
-    st_tq = np.empty((n, max_pos))
+    dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
     for k in range(T.shape[0]):
         y = X[k]
         for i in range(ns):
             if not np.isfinite(y[i]):
                 return k
         t = T[k]
-        rhs(t, y, ip, fp, dy)
-        tk_e = engine_torque(t, y, ip, fp)[0]
-        phi_l, a_l = 0.0, 1.0
-        kin = 0.0
-        el = 0.0
-        carry = tk_e
-        for g in range(n):
-            q, v, acc = y[g], y[n + g], dy[n + g]
-            phi, a, b = q, 1.0, 0.0
-            torque = carry
-            p = 0
-            st_phi[g, 0], st_om[g, 0], st_tq[g, 0] = phi, v, torque
-            for kk in range(ip[sec + g], ip[sec + g + 1]):
-                code = ip[ops + 2 * kk]
-                off = ip[ops + 2 * kk + 1]
-                if code == OP_INERTIA:
-                    torque -= fp[off] * (a * acc + b * v * v)
-                else:
-                    po, r, s = joint_eval(code, phi, fp, off)
-                    b = s * a * a + r * b
-                    a = r * a
-                    phi = po
-                    torque = torque / r
-                p += 1
-                st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
-            m = section(g, q, ip, fp)[3]
-            kin += 0.5 * m * v * v
-            if g < n - 1:       # the spring to the right carries the next section's torque
-                off = sp0 + SPRING_STRIDE * g
-                th = phi - y[g + 1]
-                thd = a * v - y[n + g + 1]
-                carry = spring_eval(th, thd, fp, off)[0]
-                e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
-                el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
-            else:
-                phi_l, a_l = phi, a
+        tk_e, kin, el, phi_l, a_l = _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq)
         te[k] = tk_e
         tl[k] = load_torque(t, y, ip, fp, phi_l, a_l)[0]
         for i in range(tab.shape[0]):
@@ -128,6 +259,71 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
         else:
             res[k] = np.nan
     return -1
+
+
+@njit(cache=True)
+def joint_state_one(y, ip, fp, tab, mtab, mfp, pos, vel, eff):
+    """Issue 10, the coupling node's per-exchange joint state: shaft positions (rad),
+    speeds (rad/s) and torques (N m) of one state y into pos/vel/eff (rows of ``tab``), with
+    the torques of the model's input block (``layout.set_torque_inputs``, t = 0), and the
+    intermediate members of ``mtab`` filled as ``Driveline.fill_mid`` does. Returns False
+    (outputs untouched) when y is not finite."""
+    ns = y.shape[0]
+    for i in range(ns):
+        if not np.isfinite(y[i]):
+            return False
+    dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
+    _walk_sample(0.0, y, ip, fp, dy, st_phi, st_om, st_tq)
+    for i in range(tab.shape[0]):
+        g, p = tab[i, 0], tab[i, 1]
+        pos[i] = st_phi[g, p]
+        vel[i] = st_om[g, p]
+        eff[i] = 0.0 if tab[i, 2] == 1 else st_tq[g, p]
+    fill_mid_one(pos, vel, mtab, mfp)
+    return True
+
+
+@njit(cache=True)
+def fill_mid_one(pos, vel, mtab, mfp):
+    """``Driveline.fill_mid`` for one sample: per row (mid column, input column, op code,
+    mfp offset) the member angle phi_mid = joint_eval(op, phi_in)[0] and its speed by the
+    same Richardson-extrapolated central difference (h = 1e-3 rad) times omega_in."""
+    h = 1e-3
+    for i in range(mtab.shape[0]):
+        i_mid, i_in, code, off = mtab[i, 0], mtab[i, 1], mtab[i, 2], mtab[i, 3]
+        phi = pos[i_in]
+        m0 = joint_eval(code, phi, mfp, off)[0]
+        mp = joint_eval(code, phi + h, mfp, off)[0]
+        mm = joint_eval(code, phi - h, mfp, off)[0]
+        mp2 = joint_eval(code, phi + h / 2, mfp, off)[0]
+        mm2 = joint_eval(code, phi - h / 2, mfp, off)[0]
+        d_h = (mp - mm) / (2 * h)
+        d_h2 = (mp2 - mm2) / h
+        pos[i_mid] = m0
+        vel[i_mid] = (4.0 * d_h2 - d_h) / 3.0 * vel[i_in]
+
+
+@njit(cache=True)
+def wrenches_one(pos, vel, eff, rtab, rfp, out):
+    """Reaction wrenches (housing frame, reactions_nb.joint_wrench) of the joints of
+    ``rtab`` (rows: input column, reaction code, rfp offset) from the joint state
+    pos/vel/eff: out[i, 0:6] = force xyz (N), torque xyz (N m). Returns the number of rows
+    the compiled models did not answer (their out rows are NaN; the caller asks the Python
+    model): a non-finite input (which the Python model rejects with its own error) or a
+    Newton that did not converge."""
+    failed = 0
+    w = np.empty(6)
+    for i in range(rtab.shape[0]):
+        c = rtab[i, 0]
+        if not (np.isfinite(pos[c]) and np.isfinite(vel[c]) and np.isfinite(eff[c])) or \
+                joint_wrench(rtab[i, 1], pos[c], vel[c], eff[c], rfp, rtab[i, 2], w) != 0:
+            failed += 1
+            for k in range(6):
+                out[i, k] = np.nan
+            continue
+        for k in range(6):
+            out[i, k] = w[k]
+    return failed
 
 
 @njit(cache=True)

@@ -57,8 +57,29 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
     return total
 
 
+def warm_outputs(*, out=sys.stdout) -> float:
+    """Compile or load the coupling node's per-exchange outputs (kernel/outputs_nb.py
+    joint_state_one, wrenches_one with every joint's reactions); returns the wall time (s)."""
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.scene import parse_scene
+    from cvj_ros.physics.state_outputs import KernelStateOutputs
+    t0 = time.perf_counter()
+    scene = parse_scene({
+        'name': 'warmup_outputs', 'duration': 0.01, 'exchange_step': 0.001,
+        'driveline': [{'type': 'inertia', 'name': 'a', 'J': 0.1},
+                      {'type': 'joint', 'name': 'g', 'kind': 'gear', 'params': {'gear_ratio': 2.0}},
+                      {'type': 'inertia', 'name': 'b', 'J': 0.2}],
+        'engine': {'model': 'linear', 'm1': 10.0, 'k1': 0.1},
+        'load': {'model': 'constant', 'torque': 5.0}})
+    KernelStateOutputs(Driveline.from_scene(scene), ['g'])
+    dt = time.perf_counter() - t0
+    print(f'kernel outputs: {dt:.2f} s', file=out)
+    return dt
+
+
 def main() -> int:
     total = warm()
+    total += warm_outputs()
     print(f'kernel ready: {total:.1f} s', file=sys.stdout)
     return 0
 

@@ -1,0 +1,188 @@
+"""Per-exchange outputs of one driveline state (issue 10): the joint state (every named
+shaft's angle rad, speed rad/s, torque N m, intermediate members filled) and the reaction
+wrench of every joint that has one (housing frame, ``cvj_ros/physics/joints/wrench.py``).
+
+Two implementations of one interface, chosen by :func:`make_state_outputs`:
+
+* :class:`PythonStateOutputs`: ``Driveline.joint_states_fast`` + ``fill_mid``,
+  ``Driveline.reactions`` + ``wrench_from_reactions`` - the readable reference (oracle).
+* :class:`KernelStateOutputs`: the same walk, member angles and reactions compiled
+  (``kernel/outputs_nb.py`` ``joint_state_one``, ``wrenches_one``; exact tripod reactions
+  in ``kernel/reactions_nb.py``), one call each. A member or joint without a compiled form
+  stays on the Python formula (the rest is compiled); a compiled tripod Newton that fails
+  hands that sample to the Python model, which raises its own SolverError.
+
+Measured per call (this machine, load average 2.8, one run): kavz685_lever joint state
+77 -> 3.5 us, reaction wrench 17 -> 1.7 us; fwd_halfshaft joint state 309 -> 7.7 us (of it
+fill_mid ~140 us), reaction wrenches 12.6 ms -> 11 us (the Python exact tripod solves its
+Newton and the 10 x 10 balance through fixed_order's numpy elimination).
+test/physics/kernel/test_state_outputs.py holds the compiled values to the Python ones
+(bit-identical on this machine).
+"""
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cvj_ros.physics.joints.wrench import wrench_from_reactions
+
+FloatArray = NDArray[np.float64]
+Vector3 = tuple[float, float, float]
+Wrench = tuple[Vector3, Vector3]
+
+
+class StateOutputs(Protocol):
+    """What the coupling node needs per exchange."""
+
+    backend: str
+    joints: list[str]
+
+    def joint_states(self, x: FloatArray, T_engine: float, T_load: float
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(position rad, velocity rad/s, effort N m) per ``driveline.shaft_names``."""
+        ...
+
+    def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
+                 joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
+        """Reaction wrench (force N, torque N m, housing frame) per joint of ``joints``
+        that has one; ``joint_state`` is :meth:`joint_states` of the same arguments."""
+        ...
+
+
+class PythonStateOutputs:
+    """The Python reference (see module docstring); ``joints`` = reaction joints."""
+
+    backend = 'python'
+
+    def __init__(self, driveline: Any, joints: list[str]) -> None:
+        self.driveline = driveline
+        self.joints = list(joints)
+        self._kind = {j: driveline.joint_models[j].kind for j in self.joints}
+        self._has_mid = bool(driveline._mid_index)
+
+    def joint_states(self, x: FloatArray, T_engine: float, T_load: float
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        pos, vel, eff = self.driveline.joint_states_fast(x, T_engine, T_load)
+        if self._has_mid:
+            self.driveline.fill_mid(pos[None, :], vel[None, :])
+        return pos, vel, eff
+
+    def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
+                 joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
+        reactions = self.driveline.reactions(x, T_engine, T_load)
+        out: dict[str, Wrench] = {}
+        for j in self.joints:
+            values = reactions.get(j)
+            if values:
+                out[j] = wrench_from_reactions(self._kind[j], values)
+        return out
+
+
+class KernelStateOutputs:
+    """Compiled outputs (see module docstring). Building it compiles or loads the numba
+    functions (seconds when cold; ``python -m cvj_ros.physics.kernel.warmup`` fills the cache)
+    and evaluates once, so a node pays that before its loop starts."""
+
+    backend = 'kernel'
+
+    def __init__(self, driveline: Any, joints: list[str]) -> None:
+        from cvj_ros.physics.kernel import outputs_nb as O
+        from cvj_ros.physics.kernel.layout import build_model
+        self._O = O
+        self.driveline = driveline
+        self.joints = list(joints)
+        self.model = build_model(driveline)     # torques from the input block
+        ip, fp = self.model.ip, self.model.fp
+        from cvj_ros.physics.kernel.layout import H_INPUT_F, IN_TE, IN_TL
+        self._i_te = int(ip[H_INPUT_F]) + IN_TE
+        self._i_tl = int(ip[H_INPUT_F]) + IN_TL
+        self._tab = O.shaft_table(driveline)
+        self._mtab, self._mfp, self._mid_python = O.mid_table(driveline)
+        self._rtab, self._rfp, self._react_python = O.reaction_table(driveline, self.joints)
+        self._kind = {j: driveline.joint_models[j].kind for j in self.joints}
+        n = len(driveline.shaft_names)
+        self._n = n
+        self._wrench = np.empty((len(self.joints), 6))
+        # compiled rows only (python rows are answered by the model's reactions())
+        self._rtab_c = self._rtab[self._rtab[:, 1] >= 0] if len(self._rtab) else self._rtab
+        self._row_joint = [self.joints[k] for k in range(len(self.joints))
+                           if k not in self._react_python]
+        self._ws = np.empty((len(self._rtab_c), 6))
+        # compile / load now, not in the first exchange
+        x0 = np.array(driveline.x0, dtype=np.float64)
+        pos, vel, eff = self.joint_states(x0, 0.0, 0.0)
+        self.wrenches(x0, 0.0, 0.0, (pos, vel, eff))
+
+    def joint_states(self, x: FloatArray, T_engine: float, T_load: float
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        fp = self.model.fp
+        fp[self._i_te] = T_engine
+        fp[self._i_tl] = T_load
+        pos = np.empty(self._n)
+        vel = np.empty(self._n)
+        eff = np.empty(self._n)
+        y = np.asarray(x, dtype=np.float64)
+        if not self._O.joint_state_one(y, self.model.ip, fp, self._tab, self._mtab, self._mfp,
+                                       pos, vel, eff):
+            # non-finite state: the Python path gives the same NaN/inf propagation
+            return PythonStateOutputs(self.driveline, self.joints).joint_states(x, T_engine, T_load)
+        if self._mid_python:
+            self._fill_mid_python(pos, vel)
+        return pos, vel, eff
+
+    def _fill_mid_python(self, pos: FloatArray, vel: FloatArray) -> None:
+        """Driveline.fill_mid's formula for the members without a compiled form."""
+        dl = self.driveline
+        saved = dl._mid_index
+        try:
+            dl._mid_index = self._mid_python
+            dl.fill_mid(pos[None, :], vel[None, :])
+        finally:
+            dl._mid_index = saved
+
+    def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
+                 joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
+        pos, vel, eff = joint_state
+        out: dict[str, Wrench] = {}
+        failed = 0
+        if len(self._rtab_c):
+            failed = self._O.wrenches_one(pos, vel, eff, self._rtab_c, self._rfp, self._ws)
+        for row, j in enumerate(self._row_joint):
+            w = self._ws[row].tolist()
+            if failed and w[5] != w[5]:
+                # compiled Newton did not converge: the Python model answers (or raises)
+                w = self._python_wrench(j, pos, vel, eff)
+                if w is None:
+                    continue
+                out[j] = w
+                continue
+            out[j] = ((w[0], w[1], w[2]), (w[3], w[4], w[5]))
+        for k in self._react_python:
+            j = self.joints[k]
+            w = self._python_wrench(j, pos, vel, eff)
+            if w is not None:
+                out[j] = w
+        if len(out) > 1 and self._react_python:
+            out = {j: out[j] for j in self.joints if j in out}     # the joints' order
+        return out
+
+    def _python_wrench(self, joint: str, pos: FloatArray, vel: FloatArray,
+                       eff: FloatArray) -> Wrench | None:
+        """The model's reactions() at the joint's input shaft (what Driveline._walk passes)."""
+        col = self.driveline.shaft_names.index(f'{joint}_input')
+        values = self.driveline.joint_models[joint].reactions(float(pos[col]), float(vel[col]),
+                                                              float(eff[col]))
+        return wrench_from_reactions(self._kind[joint], values) if values else None
+
+
+def make_state_outputs(driveline: Any, joints: list[str], *, compiled: bool) -> StateOutputs:
+    """:class:`KernelStateOutputs` when ``compiled`` (the stepper runs the kernel) and the
+    driveline packs into kernel data, else :class:`PythonStateOutputs`."""
+    if compiled:
+        try:
+            return KernelStateOutputs(driveline, joints)
+        except NotImplementedError:
+            pass
+    return PythonStateOutputs(driveline, joints)

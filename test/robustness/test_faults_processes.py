@@ -30,6 +30,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -118,8 +119,15 @@ class SimClock:
         from cvj_ros.nodes.qos import ENGINE_THROTTLE_TOPIC
         self._float64 = Float64
         self.throttle_pub = self.node.create_publisher(Float64, ENGINE_THROTTLE_TOPIC, DATA_QOS)
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.throttle_errors: list[str] = []
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, DATA_QOS)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
+
+    def _on_diagnostics(self, msg) -> None:
+        self.throttle_errors += [s.message for s in msg.status
+                                 if s.message.startswith('/engine/throttle:') and s.level == b'\x02']
 
     def _on_clock(self, msg) -> None:
         self.t = msg.clock.sec + 1e-9 * msg.clock.nanosec
@@ -142,6 +150,20 @@ class SimClock:
         while self.throttle_pub.get_subscription_count() < 1:
             assert time.monotonic() < deadline, 'engine_node never subscribed to /engine/throttle'
             self.executor.spin_once(timeout_sec=0.05)
+
+    def send_bad_throttle_until_rejected(self, values: Sequence[float], timeout: float) -> None:
+        """Publish ``values`` on /engine/throttle every 50 ms of wall time until the engine's
+        ERROR diagnostic for one of them comes back (bounded). A volatile topic drops what is
+        published before both ends matched, and the compiled loop now passes the 25 ms of
+        simulated time between two fixed sends in ~10 ms of wall time (CI lost both sends)."""
+        deadline = time.monotonic() + timeout
+        while not self.throttle_errors:
+            assert time.monotonic() < deadline, 'engine_node never rejected a bad /engine/throttle'
+            for bad in values:
+                self.send_throttle(bad)
+            end = time.monotonic() + 0.05
+            while time.monotonic() < end and not self.throttle_errors:
+                self.executor.spin_once(timeout_sec=0.01)
 
     def send_throttle(self, value: float) -> None:
         """Publish a pedal position on /engine/throttle (as a vehicle stack would)."""
@@ -177,12 +199,8 @@ def test_late_engine_recovers_and_frozen_load_stops_with_clear_error(tmp_path: P
             try:
                 clock.wait_until(0.05, 60.0)                       # loop is stepping
                 clock.wait_for_engine(30.0)
-                # bad pedal inputs, sent twice: the writer side matching a moment before the
-                # reader side would otherwise still lose a single burst
-                for t_send in (0.05, 0.075):
-                    clock.wait_until(t_send, 60.0)
-                    for bad in (math.nan, math.inf, -math.inf, 1.5):
-                        clock.send_throttle(bad)
+                # bad pedal inputs, resent until the engine's ERROR for them is seen
+                clock.send_bad_throttle_until_rejected((math.nan, math.inf, -math.inf, 1.5), 30.0)
                 events['t_engine_freeze'] = clock.wait_until(0.1, 60.0)
                 freeze(procs['engine_node'], 0.5, 'engine')   # late, within peer_timeout
                 events['t_after_engine'] = clock.wait_until(events['t_engine_freeze'] + 0.1, 30.0)

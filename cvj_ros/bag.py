@@ -899,17 +899,18 @@ class BagRecorder:
 
 
 def recorder_qos(*, latched: bool = False) -> Any:
-    """QoS matching the publishers: ``cvj_ros.nodes.qos`` DATA_QOS / LATCHED_QOS
-    (reliable, keep_last 1000; latched: reliable, transient_local, depth 1)."""
+    """QoS matching the publishers: ``cvj_ros.nodes.qos`` RECORDER_QOS / LATCHED_QOS
+    (reliable, keep_last 10000: a lagging recorder keeps 10 s of a 1 ms loop; latched:
+    reliable, transient_local, depth 1)."""
     try:
         from cvj_ros.nodes import qos as node_qos
-        return node_qos.LATCHED_QOS if latched else node_qos.DATA_QOS
+        return node_qos.LATCHED_QOS if latched else node_qos.RECORDER_QOS
     except (ImportError, AttributeError):
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         if latched:
             return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        return QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+        return QoSProfile(depth=10000, history=HistoryPolicy.KEEP_LAST,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)

@@ -259,3 +259,16 @@ def test_run_report_metrics_from_bag_match_closed_form(tmp_path: Path) -> None:
     assert m['wrenches']['/load/wrench']['torque_amplitude'] == pytest.approx(A, rel=1e-3)
     assert m['window_s'] == pytest.approx([0.0, 2.0])
     assert m['window']['steady'] is True and m['window']['source'] == 'criterion'
+
+
+def test_recorder_keeps_ten_seconds_of_a_1ms_loop_when_it_lags() -> None:
+    """The loop does not wait for the recorder: its readers keep the newest ``depth``
+    samples. Depth 10000 = 10 s at h = 1 ms (a starved recorder once lost the first 100 of
+    1108 states at depth 1000); reliability and durability as the publishers'."""
+    pytest.importorskip('rclpy')
+    from cvj_ros.nodes import qos
+    q = bag.recorder_qos()
+    assert q.depth >= 10_000
+    assert (q.reliability, q.durability, q.history) == (
+        qos.DATA_QOS.reliability, qos.DATA_QOS.durability, qos.DATA_QOS.history)
+    assert bag.recorder_qos(latched=True) is qos.LATCHED_QOS

@@ -4,6 +4,13 @@
   /load/wrench, /coupling/<joint>/wrench, /diagnostics, /engine/throttle):
   reliable, volatile, keep_last depth 1000, so a lockstep run loses no sample even
   when a subscriber lags by many exchange steps.
+* :data:`RECORDER_QOS` - the recorder's subscriptions to data topics: as DATA_QOS with
+  depth 10000 (10 s of a 1 ms loop). The loop does not wait for the recorder: a reader
+  that does not take its samples keeps only the newest ``depth`` of them. With the compiled
+  loop at ~1 ms per exchange, a recorder thread starved for ~1.1 s (2 CPU burners, GIL
+  shared with the test's threads) lost the first 100 of 1108 joint states at depth 1000;
+  10000 costs ~2.4 MiB more RSS for 6 topics with 3000 queued 13-shaft states each
+  (measured 66.5 vs 68.9 MiB).
 * :data:`LATCHED_QOS` - /driveline/scene: reliable, transient_local, depth 1, so a
   late subscriber (recorder, monitor) still receives the one scene message.
 """
@@ -18,6 +25,15 @@ DATA_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
     history=HistoryPolicy.KEEP_LAST,
     depth=DATA_DEPTH,
+)
+
+RECORDER_DEPTH = 10000
+
+RECORDER_QOS = QoSProfile(
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=RECORDER_DEPTH,
 )
 
 LATCHED_QOS = QoSProfile(

@@ -35,7 +35,7 @@ cage, spider, yoke, earring) and ``<joint>_output``.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -421,14 +421,16 @@ class Driveline:
         pos, vel, eff, _react = self._walk(x, T_engine, T_load, reactions=False)
         return pos, vel, eff
 
-    def fill_mid(self, position: FloatArray, velocity: FloatArray) -> None:
+    def fill_mid(self, position: FloatArray, velocity: FloatArray, *,
+                 members: Sequence[tuple[int, int]] | None = None) -> None:
         """In place: intermediate-member columns of (samples, shafts) arrays from their
         joint's input column, vectorised (phi_mid, and dphi_mid/dphi_in * omega_in by a
         Richardson-extrapolated central difference, h = 1e-3 rad: truncation O(h^4) ~ 1e-13,
         round-off ~ 1e-16 |phi| / h, i.e. 4e-7 relative after 1e5 revolutions, where
-        h = 1e-6 gave 6e-5)."""
+        h = 1e-6 gave 6e-5). ``members``: (mid column, input column) pairs to fill
+        (default all; the compiled outputs pass those they have no form for)."""
         h = 1e-3
-        for i_mid, i_in in self._mid_index:
+        for i_mid, i_in in (self._mid_index if members is None else members):
             model = self.shafts[i_mid].joint
             phi = position[:, i_in]
             m = phi.size

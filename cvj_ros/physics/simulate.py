@@ -193,9 +193,11 @@ class Simulation:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
         from cvj_ros.physics.kernel import load_cached
-        from cvj_ros.physics.kernel.outputs_nb import sample_outputs, shaft_table
+        from cvj_ros.physics.kernel.outputs_nb import (fill_mid_samples, mid_table,
+                                                       sample_outputs, shaft_table)
         if self._shaft_table is None:
             self._shaft_table = shaft_table(self.driveline)
+            self._mid_table = mid_table(self.driveline)
         args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
                 float(e0), pos, vel, eff, te, tl, res)
         if sample_outputs not in _LOADED:   # typing the 12 arguments in Python: ~250 us
@@ -204,6 +206,15 @@ class Simulation:
         bad = sample_outputs(*args)   # the dispatcher's own C-level typing: a few us
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
+        mtab, mfp, python_members = self._mid_table
+        if mtab.shape[0]:
+            margs = (pos, vel, mtab, mfp)
+            if fill_mid_samples not in _LOADED:
+                load_cached(fill_mid_samples, margs)
+                _LOADED.add(fill_mid_samples)
+            fill_mid_samples(*margs)
+        if python_members:
+            self.driveline.fill_mid(pos, vel, members=python_members)
 
     def make_stepper(self, x0: FloatArray, horizon: float, **kwargs: Any) -> Any:
         """A persistent stepper of this scene's closed loop from t = 0 (backend-dependent);
@@ -326,7 +337,8 @@ class Simulation:
                     record(k, np.asarray(x, dtype=float))
                     k += 1
             x = stepper.y
-        dl.fill_mid(pos, vel)
+        if self.backend != 'kernel':   # the kernel's outputs filled them (compiled)
+            dl.fill_mid(pos, vel)
         self.compile_seconds = getattr(stepper, 'compile_seconds', None)
         self.cache_path = getattr(stepper, 'cache_path', None)
         wall = time.perf_counter() - wall0

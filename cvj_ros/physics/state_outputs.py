@@ -134,13 +134,7 @@ class KernelStateOutputs:
 
     def _fill_mid_python(self, pos: FloatArray, vel: FloatArray) -> None:
         """Driveline.fill_mid's formula for the members without a compiled form."""
-        dl = self.driveline
-        saved = dl._mid_index
-        try:
-            dl._mid_index = self._mid_python
-            dl.fill_mid(pos[None, :], vel[None, :])
-        finally:
-            dl._mid_index = saved
+        self.driveline.fill_mid(pos[None, :], vel[None, :], members=self._mid_python)
 
     def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
                  joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:

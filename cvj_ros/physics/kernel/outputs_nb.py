@@ -284,6 +284,14 @@ def joint_state_one(y, ip, fp, tab, mtab, mfp, pos, vel, eff):
 
 
 @njit(cache=True)
+def fill_mid_samples(pos, vel, mtab, mfp):
+    """:func:`fill_mid_one` for every row k of (samples, shafts) arrays pos/vel: the
+    compiled ``Driveline.fill_mid`` of an offline trace."""
+    for k in range(pos.shape[0]):
+        fill_mid_one(pos[k], vel[k], mtab, mfp)
+
+
+@njit(cache=True)
 def fill_mid_one(pos, vel, mtab, mfp):
     """``Driveline.fill_mid`` for one sample: per row (mid column, input column, op code,
     mfp offset) the member angle phi_mid = joint_eval(op, phi_in)[0] and its speed by the

@@ -58,8 +58,9 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
 
 
 def warm_outputs(*, out=sys.stdout) -> float:
-    """Compile or load the coupling node's per-exchange outputs (kernel/outputs_nb.py
-    joint_state_one, wrenches_one with every joint's reactions); returns the wall time (s)."""
+    """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
+    joint_state_one and wrenches_one with every joint's reactions, and the offline trace's
+    sample_outputs and fill_mid_samples; returns the wall time (s)."""
     from cvj_ros.physics.driveline import Driveline
     from cvj_ros.physics.scene import parse_scene
     from cvj_ros.physics.state_outputs import KernelStateOutputs
@@ -72,6 +73,13 @@ def warm_outputs(*, out=sys.stdout) -> float:
         'engine': {'model': 'linear', 'm1': 10.0, 'k1': 0.1},
         'load': {'model': 'constant', 'torque': 5.0}})
     KernelStateOutputs(Driveline.from_scene(scene), ['g'])
+    import numpy as np
+
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    from cvj_ros.physics.simulate import Simulation
+    Simulation(scene, method='dopri5').run(0.002, sample_dt=0.001)   # sample_outputs
+    fill_mid_samples(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((0, 4), np.int64),
+                     np.zeros(1))   # the offline trace's intermediate members
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

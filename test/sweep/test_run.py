@@ -209,6 +209,22 @@ def test_ctrl_c_keeps_finished_variants_and_rerun_completes(
     assert all(by_variant[r['variant']] == r for r in partial)
 
 
+def _process_table() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, full command line) of every process, from /proc."""
+    table: dict[int, tuple[int, str]] = {}
+    for d in Path('/proc').iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / 'stat').read_text()
+            cmd = (d / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+        except OSError:   # exited meanwhile
+            continue
+        ppid = int(stat.rsplit(')', 1)[1].split()[1])   # after "(comm)": state, ppid
+        table[int(d.name)] = (ppid, cmd)
+    return table
+
+
 def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> None:
     """SIGKILL to a pool worker once rows are on disk: one error line (exit 2) and the
     finished rows kept in results.csv (resume itself: the tests above)."""
@@ -228,11 +244,12 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> No
         time.sleep(0.05)
         if not (rows.is_file() and rows.stat().st_size > 0):
             continue
-        # the pool workers: grandchildren of the sweep via the fork server
-        out = subprocess.run(['ps', '-eo', 'pid,ppid,args'], capture_output=True, text=True).stdout
-        table = [line.split(None, 2) for line in out.splitlines()[1:]]
-        server = [int(p) for p, pp, a in table if int(pp) == proc.pid and 'forkserver' in a]
-        workers = [int(p) for p, pp, _ in table if server and int(pp) == server[0]]
+        # the pool workers: children of the sweep's fork server, read from /proc (`ps` cuts
+        # its args column at $COLUMNS: with a longer checkout path CI never saw 'forkserver')
+        table = _process_table()
+        server = [p for p, (pp, cmd) in table.items() if pp == proc.pid and 'forkserver' in cmd]
+        workers = [p for p, (pp, _) in table.items() if server and pp == server[0]]
+        out = repr(table)
     assert proc.poll() is None, proc.communicate()
     assert workers, out
     os.kill(workers[0], signal.SIGKILL)

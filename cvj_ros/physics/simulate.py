@@ -36,7 +36,6 @@ from cvj_ros.physics.scene import Scene
 
 FloatArray = NDArray[np.float64]
 BACKENDS = ('kernel', 'python')
-_LOADED: set[Any] = set()   # compiled functions whose disk-cache load was attempted
 
 
 def kernel_gap(driveline: Driveline, engine: Any, load: Any, horizon: float) -> str | None:
@@ -161,6 +160,7 @@ class Simulation:
         self.compile_seconds: float | None = None
         self._packed: dict[float, Any] = {}
         self._shaft_table: NDArray[np.int64] | None = None
+        self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         if backend == 'kernel':
             # packing the scene is also the test whether the kernel covers it (kernel_gap);
             # the packed model is kept for a run over the scene's duration (_model)
@@ -192,7 +192,7 @@ class Simulation:
                         res: FloatArray) -> None:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
-        from cvj_ros.physics.kernel import load_cached
+        from cvj_ros.physics.kernel import load_cached_once
         from cvj_ros.physics.kernel.outputs_nb import (fill_mid_samples, mid_table,
                                                        sample_outputs, shaft_table)
         if self._shaft_table is None:
@@ -200,19 +200,14 @@ class Simulation:
             self._mid_table = mid_table(self.driveline)
         args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
                 float(e0), pos, vel, eff, te, tl, res)
-        if sample_outputs not in _LOADED:   # typing the 12 arguments in Python: ~250 us
-            load_cached(sample_outputs, args)   # else the call below loads (or compiles) it
-            _LOADED.add(sample_outputs)
-        bad = sample_outputs(*args)   # the dispatcher's own C-level typing: a few us
+        load_cached_once(sample_outputs, args)
+        bad = sample_outputs(*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
-            margs = (pos, vel, mtab, mfp)
-            if fill_mid_samples not in _LOADED:
-                load_cached(fill_mid_samples, margs)
-                _LOADED.add(fill_mid_samples)
-            fill_mid_samples(*margs)
+            load_cached_once(fill_mid_samples, (pos, vel, mtab, mfp))
+            fill_mid_samples(pos, vel, mtab, mfp)
         if python_members:
             self.driveline.fill_mid(pos, vel, members=python_members)
 

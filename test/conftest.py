@@ -63,6 +63,30 @@ def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
     return domain
 
 
+def _read_process_table() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, full command line) of every process, from /proc (not `ps`,
+    which cuts its args column at $COLUMNS)."""
+    from pathlib import Path
+    table: dict[int, tuple[int, str]] = {}
+    for d in Path('/proc').iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / 'stat').read_text()
+            cmd = (d / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+        except OSError:   # exited meanwhile
+            continue
+        ppid = int(stat.rsplit(')', 1)[1].split()[1])   # after "(comm)": state, ppid
+        table[int(d.name)] = (ppid, cmd)
+    return table
+
+
+@pytest.fixture
+def process_table():
+    """A function returning pid -> (parent pid, full command line) of every process now."""
+    return _read_process_table
+
+
 @pytest.fixture
 def ctx():
     """A fresh rclpy Context per test (initialised, shut down afterwards). rclpy is imported

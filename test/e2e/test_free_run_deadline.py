@@ -37,6 +37,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -133,21 +134,15 @@ class ThrottleAndClock:
         self.node.destroy_node()
 
 
-def child_pid(parent: int, name: str, timeout: float) -> int:
-    """Pid of the child process of ``parent`` whose command line contains ``name``."""
+def child_pid(process_table: Callable[[], dict[int, tuple[int, str]]], parent: int, name: str,
+              timeout: float) -> int:
+    """Pid of the child process of ``parent`` whose command line contains ``name``
+    (``process_table``: the conftest fixture)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        for d in Path('/proc').iterdir():
-            if not d.name.isdigit():
-                continue
-            try:
-                stat = (d / 'stat').read_text()
-                cmd = (d / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
-            except OSError:
-                continue
-            ppid = int(stat.rsplit(')', 1)[1].split()[1])
+        for pid, (ppid, cmd) in process_table().items():
             if ppid == parent and name in cmd:
-                return int(d.name)
+                return pid
         time.sleep(0.05)
     raise AssertionError(f'no child {name!r} of pid {parent} within {timeout} s')
 
@@ -163,7 +158,8 @@ def _stop(p: subprocess.Popen | None) -> None:
 
 
 @pytest.mark.parametrize('catch_up', ['skip', 'burst'])
-def test_free_run_counts_every_late_tick_and_tracks_wall_time(tmp_path: Path, catch_up: str) -> None:
+def test_free_run_counts_every_late_tick_and_tracks_wall_time(tmp_path: Path, catch_up: str,
+                                                              process_table) -> None:
     scene = tmp_path / 'scene.yaml'
     scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
     out = tmp_path / 'run'
@@ -179,7 +175,7 @@ def test_free_run_counts_every_late_tick_and_tracks_wall_time(tmp_path: Path, ca
                                 stdout=open(tmp_path / 'load.log', 'wb'), stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, env=dict(os.environ), start_new_session=True)
         driver = ThrottleAndClock()
-        coupling = child_pid(run.pid, 'coupling_node', 60.0)
+        coupling = child_pid(process_table, run.pid, 'coupling_node', 60.0)
         driver.wait_until(FREEZE_AT, 120.0)
         # the freeze is at least [after SIGSTOP, before SIGCONT] and at most [before SIGSTOP,
         # after SIGCONT]: this process may itself be descheduled around its kill() calls

@@ -209,23 +209,7 @@ def test_ctrl_c_keeps_finished_variants_and_rerun_completes(
     assert all(by_variant[r['variant']] == r for r in partial)
 
 
-def _process_table() -> dict[int, tuple[int, str]]:
-    """pid -> (parent pid, full command line) of every process, from /proc."""
-    table: dict[int, tuple[int, str]] = {}
-    for d in Path('/proc').iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / 'stat').read_text()
-            cmd = (d / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
-        except OSError:   # exited meanwhile
-            continue
-        ppid = int(stat.rsplit(')', 1)[1].split()[1])   # after "(comm)": state, ppid
-        table[int(d.name)] = (ppid, cmd)
-    return table
-
-
-def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> None:
+def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path, process_table) -> None:
     """SIGKILL to a pool worker once rows are on disk: one error line (exit 2) and the
     finished rows kept in results.csv (resume itself: the tests above)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
@@ -246,7 +230,7 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path) -> No
             continue
         # the pool workers: children of the sweep's fork server, read from /proc (`ps` cuts
         # its args column at $COLUMNS: with a longer checkout path CI never saw 'forkserver')
-        table = _process_table()
+        table = process_table()
         server = [p for p, (pp, cmd) in table.items() if pp == proc.pid and 'forkserver' in cmd]
         workers = [p for p, (pp, _) in table.items() if server and pp == server[0]]
         out = repr(table)

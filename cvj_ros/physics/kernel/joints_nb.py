@@ -48,6 +48,14 @@ tripod_series_nb = njit(cache=True)(tripod_series_scalar)
 
 
 @njit(cache=True)
+def tripod_series_at(phi, fp, off):
+    """tripod_series_scalar with its nc coefficients at fp[off + 1:]; the slice lives here, not
+    in joint_eval, so joint_eval stays small enough to inline."""
+    nc = int(fp[off])
+    return tripod_series_nb(phi, fp[off + 1:off + 1 + nc])
+
+
+@njit(cache=True)
 def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
@@ -55,8 +63,7 @@ def joint_eval(code, phi, fp, off):
     if code == OP_DOUBLE_CARDAN:
         return double_cardan_nb(phi, fp[off], fp[off + 1], fp[off + 2])
     if code == OP_TRIPOD_SERIES:
-        nc = int(fp[off])
-        return tripod_series_nb(phi, fp[off + 1:off + 1 + nc])
+        return tripod_series_at(phi, fp, off)
     if code == OP_TRIPOD_CLOSED:
         return tripod_closed_nb(phi, fp[off])
     if code == OP_LEVER_EXACT:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from cvj_ros.physics.kernel.borrow_nb import borrowed_all
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
@@ -234,6 +235,8 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     (pos/vel/eff[k], per row of ``tab``), engine and load torque (te/tl[k], N m) and the
     relative energy residual (res[k]; NaN without work integrals). Returns the index of the
     first non-finite state, or -1."""
+    T, X, ip, fp, tab, pos, vel, eff, te, tl, res = borrowed_all((
+        T, X, ip, fp, tab, pos, vel, eff, te, tl, res))
     n = ip[H_NDOF]
     ns = X.shape[1]
     dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
@@ -338,7 +341,12 @@ def wrenches_one(pos, vel, eff, rtab, rfp, out):
 def time_rhs_calls(n, t, y, ip, fp):
     """Call the compiled rhs n times (the benchmark's ns-per-call figure); returns a checksum
     so the calls cannot be optimised away."""
-    dy = np.empty(y.shape[0])
+    return _time_rhs_loop(n, t, y, ip, fp, np.empty(y.shape[0]))
+
+
+@njit(cache=True)
+def _time_rhs_loop(n, t, y, ip, fp, dy):
+    y, ip, fp, dy = borrowed_all((y, ip, fp, dy))
     acc = 0.0
     for k in range(n):
         rhs(t + k * 1e-9, y, ip, fp, dy)

@@ -54,6 +54,21 @@ from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, ENGINE_MAP, LOAD_BRAKE
 
 
 @njit(cache=True)
+def map_engine_at(omega, phi, fp, foff):
+    """engine.map_engine_eval with its parameters read from fp[foff:]. Kept out of
+    engine_eval: the array slices here would make every engine_eval call pay for them."""
+    # fp: x, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm, cutoff_band,
+    # stall_rpm, ripple_amplitude, ripple_order, ripple_phase, n, w[n], T[n], d[n]
+    n = int(fp[foff + 14])
+    o = foff + 15
+    return map_engine_nb(omega, phi, fp[foff], fp[o:o + n], fp[o + n:o + 2 * n],
+                         fp[o + 2 * n:o + 3 * n], fp[foff + 1], fp[foff + 2], fp[foff + 3],
+                         fp[foff + 4], fp[foff + 5], fp[foff + 6], fp[foff + 7],
+                         fp[foff + 8], fp[foff + 9], fp[foff + 10], fp[foff + 11],
+                         fp[foff + 12], fp[foff + 13])
+
+
+@njit(cache=True)
 def engine_eval(t, omega, phi, ip, fp, ioff, foff):
     """Engine torque and slopes; ip[ioff] is the model code (rhs passes layout.H_ENGINE),
     fp[foff:] its parameters."""
@@ -61,15 +76,7 @@ def engine_eval(t, omega, phi, ip, fp, ioff, foff):
     if code == ENGINE_LINEAR:
         return fp[foff] * fp[foff + 1] - fp[foff + 2] * omega, -fp[foff + 2], 0.0
     if code == ENGINE_MAP:
-        # fp: x, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm, cutoff_band,
-        # stall_rpm, ripple_amplitude, ripple_order, ripple_phase, n, w[n], T[n], d[n]
-        n = int(fp[foff + 14])
-        o = foff + 15
-        return map_engine_nb(omega, phi, fp[foff], fp[o:o + n], fp[o + n:o + 2 * n],
-                             fp[o + 2 * n:o + 3 * n], fp[foff + 1], fp[foff + 2], fp[foff + 3],
-                             fp[foff + 4], fp[foff + 5], fp[foff + 6], fp[foff + 7],
-                             fp[foff + 8], fp[foff + 9], fp[foff + 10], fp[foff + 11],
-                             fp[foff + 12], fp[foff + 13])
+        return map_engine_at(omega, phi, fp, foff)
     return 0.0, 0.0, 0.0
 
 

@@ -43,6 +43,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .borrow_nb import borrowed_all
 from .rhs_nb import jac as JAC
 from .rhs_nb import rhs as RHS
 
@@ -282,6 +283,7 @@ def _dopri5_fsal(K, cnt):
 def dopri5_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """Integrate to exactly t_end (s); keeps h across calls. Returns ST_*.
     After return K holds the last step's stages (dense output valid)."""
+    y, y_old, ip, fp, fs, cnt, K, work = borrowed_all((y, y_old, ip, fp, fs, cnt, K, work))
     while fs[FS_T] < t_end:
         _dopri5_fsal(K, cnt)
         st = dopri5_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
@@ -293,6 +295,7 @@ def dopri5_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, wo
 @njit(cache=True)
 def dopri5_step_once(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """One natural step never past t_bound (Stepper.step); returns ST_*."""
+    y, y_old, ip, fp, fs, cnt, K, work = borrowed_all((y, y_old, ip, fp, fs, cnt, K, work))
     if fs[FS_T] < t_bound:
         _dopri5_fsal(K, cnt)
         return dopri5_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
@@ -327,6 +330,8 @@ def dopri5_sample(t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, wo
     """Compiled sampled loop: natural steps to t_eval[-1], each output time
     (ascending, >= fs[FS_T]) filled into Y[k] by dense output (exact end point
     at the step end). Returns (status, number of rows written)."""
+    (t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y) = borrowed_all((
+        t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y))
     m = t_eval.shape[0]
     k = 0
     n = y.shape[0]
@@ -399,6 +404,7 @@ def _rk4_take(dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
 def rk4_advance(t_end, y, y_old, ip, fp, fs, cnt, K, work):
     """Integrate to exactly t_end with ceil((t_end - t)/h) equal substeps <= h
     (h = fs[FS_H]), as solvers._FixedStepper.advance_to. Returns ST_*."""
+    y, y_old, ip, fp, fs, cnt, K, work = borrowed_all((y, y_old, ip, fp, fs, cnt, K, work))
     t0 = fs[FS_T]
     span = t_end - t0
     if span <= 0.0:
@@ -416,6 +422,7 @@ def rk4_advance(t_end, y, y_old, ip, fp, fs, cnt, K, work):
 @njit(cache=True)
 def rk4_step_once(t_bound, y, y_old, ip, fp, fs, cnt, K, work):
     """One step of h shortened to end on t_bound (Stepper.step); returns ST_*."""
+    y, y_old, ip, fp, fs, cnt, K, work = borrowed_all((y, y_old, ip, fp, fs, cnt, K, work))
     t = fs[FS_T]
     if t >= t_bound:
         return ST_OK
@@ -430,6 +437,7 @@ def hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
     """Cubic Hermite y(t) inside the last fixed step (3rd order), from f at the
     step start (K[frow]) and f at the step end (computed once into K[0], reused by
     the next step as its first stage: cnt[C_HAVEF] = 1)."""
+    y, y_old, ip, fp, fs, cnt, K, out = borrowed_all((y, y_old, ip, fp, fs, cnt, K, out))
     n = y.shape[0]
     h = fs[FS_HLAST]
     if h == 0.0 or t == fs[FS_T]:
@@ -455,6 +463,8 @@ def hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
 def rk4_sample(t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
     """Compiled sampled loop for rk4: steps of h to t_eval[-1], Hermite dense
     output at each output time. Returns (status, rows written)."""
+    (t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y) = borrowed_all((
+        t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y))
     m = t_eval.shape[0]
     n = y.shape[0]
     k = 0
@@ -661,6 +671,8 @@ def _ros2_take(dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
 def ros2_advance(t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                  J, LU, piv, ft, K, work):
     """ROS2 to exactly t_end with ceil(span/h) equal substeps <= h. Returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work))
     t0 = fs[FS_T]
     span = t_end - t0
     if span <= 0.0:
@@ -680,6 +692,8 @@ def ros2_advance(t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
 def ros2_step_once(t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                    J, LU, piv, ft, K, work):
     """One ROS2 step of h shortened to end on t_bound; returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work))
     t = fs[FS_T]
     if t >= t_bound:
         return ST_OK
@@ -702,6 +716,8 @@ def ros_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomou
     """One accepted adaptive Rosenbrock step (solvers.RosenbrockStepper with
     _AdaptiveStepper._step_once): the Jacobian is kept across rejected attempts,
     the LU is refactored when h changes. Returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J, LU, piv, ft, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J, LU, piv, ft, K, work))
     n = y.shape[0]
     st_n = M.shape[0]
     expo = 1.0 / (order + 1) - 0.75 * BETA
@@ -781,6 +797,8 @@ def ros_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomo
                 constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
                 K, work):
     """Adaptive Rosenbrock to exactly t_end; returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J, LU, piv, ft, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J, LU, piv, ft, K, work))
     while fs[FS_T] < t_end:
         st = ros_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
                       autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max,
@@ -834,6 +852,8 @@ def _proposal_nobeta(h, err, fac_min, fac_max, expo):
 def dop853_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
                 K, work):
     """One accepted DOP853 step (solvers.Dop853Stepper + _step_once). Returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work))
     n = y.shape[0]
     ns = B.shape[0]   # 12
     expo = 1.0 / (D8_ORDER + 1)
@@ -932,6 +952,8 @@ def dop853_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, 
 def dop853_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
                    E3, K, work):
     """DOP853 to exactly t_end; returns ST_*."""
+    (y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work))
     while fs[FS_T] < t_end:
         st = dop853_step(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B,
                          E5, E3, K, work)
@@ -944,6 +966,8 @@ def dop853_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A,
 def dop853_dense(t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
     """7th-order dense output of DOP853 inside the last accepted step; the three
     extra stages (3 fev) and the coefficients F are computed once per step."""
+    (y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out) = borrowed_all((
+        y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out))
     n = y.shape[0]
     h = fs[FS_HLAST]
     t_old = fs[FS_TOLD]
@@ -992,6 +1016,8 @@ def _store_row(X, k, y):
 def dopri5_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """dopri5_advance to each times[k], k >= 1, row k of X = y there.
     Returns (ST_*, k of the failing sample, or times.size)."""
+    (times, X, y, y_old, ip, fp, fs, cnt, K, work) = borrowed_all((
+        times, X, y, y_old, ip, fp, fs, cnt, K, work))
     for k in range(1, times.size):
         st = dopri5_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work)
         if st != ST_OK:
@@ -1004,6 +1030,8 @@ def dopri5_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, wo
 def dop853_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
                 E3, K, work):
     """dop853_advance to each times[k], k >= 1 (see dopri5_land)."""
+    (times, X, y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work) = borrowed_all((
+        times, X, y, y_old, ip, fp, fs, cnt, C, A, B, E5, E3, K, work))
     for k in range(1, times.size):
         st = dop853_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A,
                             B, E5, E3, K, work)
@@ -1016,6 +1044,8 @@ def dop853_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A,
 @njit(cache=True)
 def rk4_land(times, X, y, y_old, ip, fp, fs, cnt, K, work):
     """rk4_advance to each times[k], k >= 1 (see dopri5_land)."""
+    (times, X, y, y_old, ip, fp, fs, cnt, K, work) = borrowed_all((
+        times, X, y, y_old, ip, fp, fs, cnt, K, work))
     for k in range(1, times.size):
         st = rk4_advance(times[k], y, y_old, ip, fp, fs, cnt, K, work)
         if st != ST_OK:
@@ -1028,6 +1058,8 @@ def rk4_land(times, X, y, y_old, ip, fp, fs, cnt, K, work):
 def ros2_land(times, X, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
               J, LU, piv, ft, K, work):
     """ros2_advance to each times[k], k >= 1 (see dopri5_land)."""
+    (times, X, y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work) = borrowed_all((
+        times, X, y, y_old, ip, fp, fs, cnt, J, LU, piv, ft, K, work))
     for k in range(1, times.size):
         st = ros2_advance(times[k], y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                           J, LU, piv, ft, K, work)
@@ -1042,6 +1074,9 @@ def ros_land(times, X, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomo
              constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
              K, work):
     """ros_advance (RODAS5P, rodas4) to each times[k], k >= 1 (see dopri5_land)."""
+    (times, X, y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J, LU, piv, ft, K,
+     work) = borrowed_all((times, X, y, y_old, ip, fp, fs, cnt, A, C, M, E, alpha, gsum, J,
+                           LU, piv, ft, K, work))
     for k in range(1, times.size):
         st = ros_advance(times[k], y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
                          autonomous, constant_jac, gamma, A, C, M, E, alpha, gsum, order,

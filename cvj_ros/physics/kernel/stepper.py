@@ -17,6 +17,7 @@ SolverOptionError('method', ...).
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -69,6 +70,30 @@ KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
 _ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4')
 
 
+@functools.lru_cache(maxsize=None)
+def _dop853_args() -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """((C, A, B, E5, E3), (D, A_EXTRA, C_EXTRA)) as float arrays, built once per process
+    (the steppers only read them; rebuilding them cost ~20-60 us per stepper)."""
+    from ..tableaux import dop853_coefficients   # scipy's, without scipy.integrate
+    step_coef, dense_coef = dop853_coefficients()
+    return (tuple(np.array(c, dtype=float) for c in step_coef),
+            tuple(np.array(c, dtype=float) for c in dense_coef))
+
+
+@functools.lru_cache(maxsize=None)
+def _rosenbrock_args(method: str) -> tuple[tuple, np.ndarray | None]:
+    """(gamma, A, C, M, E, alpha, gamma_sum, order, fac_max) and the dense matrix H (or
+    None) of a Rosenbrock method, built once per process (read-only use)."""
+    from ..tableaux import RODAS_FAC_MAX, ROSENBROCK_TABLEAUX   # no scipy
+    tableau, order = ROSENBROCK_TABLEAUX[method]
+    tab = tableau()
+    args = (float(tab['gamma']), np.ascontiguousarray(tab['A']),
+            np.ascontiguousarray(tab['C']), np.ascontiguousarray(tab['M']),
+            np.ascontiguousarray(tab['E']), np.ascontiguousarray(tab['alpha']),
+            np.ascontiguousarray(tab['gamma_sum']), int(order), float(RODAS_FAC_MAX))
+    return args, (np.ascontiguousarray(tab['H']) if 'H' in tab else None)
+
+
 class KernelStepper(_StepperBase):
     """Stepper protocol over a compiled rhs. Argument checks are those of the
     Python steppers (``_StepperBase``); counters and t/h live in the arrays of
@@ -103,22 +128,11 @@ class KernelStepper(_StepperBase):
         self._constant_jac = bool(constant_jac)
         stages = 6 if method == 'dopri5' else 4
         if method == 'dop853':
-            from ..tableaux import dop853_coefficients   # scipy's, without scipy.integrate
-            step_coef, dense_coef = dop853_coefficients()
-            self._d8 = tuple(np.array(c, dtype=float) for c in step_coef)    # C, A, B, E5, E3
-            self._d8_dense = tuple(np.array(c, dtype=float) for c in dense_coef)  # D, A_EXTRA, C_EXTRA
+            self._d8, self._d8_dense = _dop853_args()
             stages = 22   # K rows: 13 stages + FSAL, 3 dense stages, 7 dense coefficients
         if method in ('rosenbrock', 'rodas4'):
-            from ..tableaux import RODAS_FAC_MAX, ROSENBROCK_TABLEAUX   # no scipy
-            tableau, order = ROSENBROCK_TABLEAUX[method]
-            tab = tableau()
-            self._tab = (float(tab['gamma']), np.ascontiguousarray(tab['A']),
-                         np.ascontiguousarray(tab['C']), np.ascontiguousarray(tab['M']),
-                         np.ascontiguousarray(tab['E']), np.ascontiguousarray(tab['alpha']),
-                         np.ascontiguousarray(tab['gamma_sum']), int(order),
-                         float(RODAS_FAC_MAX))
-            self._H = np.ascontiguousarray(tab['H']) if 'H' in tab else None
-            stages = len(tab['M']) + 1   # K rows: f, stages, f at the last step start
+            self._tab, self._H = _rosenbrock_args(method)
+            stages = len(self._tab[3]) + 1   # K rows: f, stages (M), f at the last step start
         if method in _ROSENBROCK:
             self._J = np.zeros((self.n, self.n))
             self._LU = np.zeros((self.n, self.n))

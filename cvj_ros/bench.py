@@ -40,7 +40,7 @@ import platform
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -104,6 +104,7 @@ class SceneProblem:
     levels: dict[str, str] = field(default_factory=dict)      # fidelity mode -> 'name=level ...'
     aliases: dict[str, str] = field(default_factory=dict)     # mode -> earlier mode, same levels
     rhs_cost: dict[str, Any] = field(default_factory=dict)    # see rhs_cost()
+    has_breakpoints: bool = False   # the load has breakpoints: adaptive runs also step across
 
 
 class _BudgetExceeded(Exception):
@@ -188,7 +189,8 @@ def prepare(scene: Any, cfg: BenchConfig, *, reference_tol: float) -> SceneProbl
     wall = time.perf_counter() - t0
     speed, angle = _output(tr)
     return SceneProblem(scene=scene, horizon=horizon, t_eval=tr.t.copy(), ref_speed=speed,
-                        ref_angle=angle, ref_wall=wall)
+                        ref_angle=angle, ref_wall=wall,
+                        has_breakpoints=bool(sim.breakpoints(horizon).size))
 
 
 def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int,
@@ -210,15 +212,16 @@ def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int,
 
 
 def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
-                fidelity: str, cfg: BenchConfig) -> dict[str, Any]:
+                fidelity: str, cfg: BenchConfig, breakpoints: bool = True) -> dict[str, Any]:
     """Time one project configuration: ``Simulation.run`` (the project's own path: persistent
-    stepper landing on every sample, joint states and energy residual per sample). Building
-    the Simulation (fidelity choice, joint set-up) is not timed, for project and baseline alike."""
+    stepper landing on every sample and, with ``breakpoints``, on every load breakpoint; joint
+    states and energy residual per sample). Building the Simulation (fidelity choice, joint
+    set-up) is not timed, for project and baseline alike."""
     from cvj_ros.physics.simulate import Simulation
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
-                           'fidelity': fidelity, 'tol': tol, 'h': h,
-                           'label': f'{solver} {fidelity}'}
+                           'fidelity': fidelity, 'tol': tol, 'h': h, 'breakpoints': breakpoints,
+                           'label': f'{solver} {fidelity}' + ('' if breakpoints else ' across-breaks')}
     tol_ = tol if tol is not None else 1e-6
     try:
         sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
@@ -229,7 +232,7 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
 
     def once() -> tuple[Any, int, int]:
         sim.fun = _counted(plain_fun, cfg.max_rhs_evals)
-        tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples)
+        tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples, breakpoints=breakpoints)
         nfev = int(tr.solver.get('nfev', sim.fun.count[0]))
         if nfev > cfg.max_rhs_evals:    # the compiled path is not stopped midway: checked after
             raise _BudgetExceeded
@@ -542,18 +545,36 @@ def machine_description() -> dict[str, str]:
 
 CSV_FIELDS = ('scene', 'family', 'solver', 'fidelity', 'tol', 'h', 'label', 'ok', 'wall_s',
               'wall_spread', 'repeats', 'wall_per_sim_s', 'nfev', 'njev', 'err_speed_rel', 'err_angle_rad',
-              'levels', 'note')
+              'levels', 'breakpoints', 'note')
 LOCKSTEP_FIELDS = ('scene', 'scheme', 'exchange_step', 'ok', 'err_speed_rel', 'rtf', 'us_per_exchange', 'note')
 
 
 def planned_runs(cfg: BenchConfig) -> int:
     """Upper bound of the solver runs :func:`run_bench` makes (fidelity modes that turn out
     to be the same model as an earlier one are skipped, so fewer may be made)."""
-    per_fidelity = sum(len(cfg.rk4_steps) if s in ('rk4', 'ros2') else len(cfg.tolerances)
-                       for s in cfg.solvers)
+    fixed = sum(len(cfg.rk4_steps) for s in cfg.solvers if s in ('rk4', 'ros2'))
+    adaptive = sum(len(cfg.tolerances) for s in cfg.solvers if s not in ('rk4', 'ros2'))
     families = 2 if cfg.compiled_baselines else 1
-    return len(cfg.scenes) * (len(cfg.fidelities) * per_fidelity
-                              + families * len(cfg.baselines) * len(cfg.tolerances))
+    total = 0
+    for scene in cfg.scenes:
+        # adaptive runs of a scene whose load has breakpoints run twice (landing / across)
+        twice = 2 if _may_have_breakpoints(scene) else 1
+        total += (len(cfg.fidelities) * (fixed + twice * adaptive)
+                  + families * len(cfg.baselines) * len(cfg.tolerances))
+    return total
+
+
+def _may_have_breakpoints(scene: Any) -> bool:
+    """Whether the scene's load spec names a model with breakpoints (random, time series,
+    brake steps; a list is a sum), read from the spec without building the scene."""
+    try:
+        from cvj_ros.physics.scene import find_scene, load_scene
+        sc = scene if hasattr(scene, 'load') else load_scene(find_scene(scene))
+        specs = sc.load if isinstance(sc.load, list) else [sc.load]
+        return any(str(sp.get('model', '')) in ('random', 'time_series', 'brake_steps')
+                   for sp in specs if isinstance(sp, Mapping))
+    except Exception:    # an unreadable scene fails later, with its own message
+        return True
 
 
 def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print,
@@ -598,9 +619,12 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                 grid = [(None, h) for h in cfg.rk4_steps] if solver in ('rk4', 'ros2') else \
                        [(tol, None) for tol in cfg.tolerances]
                 for tol, h in grid:
-                    rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid, cfg=cfg))
-                    if progress is not None:
-                        progress(len(rows))
+                    for breaks in ((True, False) if tol is not None and prob.has_breakpoints
+                                   else (True,)):
+                        rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid,
+                                                cfg=cfg, breakpoints=breaks))
+                        if progress is not None:
+                            progress(len(rows))
         for compiled in ((False, True) if cfg.compiled_baselines else (False,)):
             for method in cfg.baselines:
                 for tol in cfg.tolerances:
@@ -649,7 +673,10 @@ def _config_label(r: dict[str, Any] | None) -> str:
     if r is None:
         return '-'
     knob = f'h={_g(r["h"])}' if r.get('h') else f'tol={_g(r["tol"], ".0e")}'
-    return f'{r["solver"]} {r["fidelity"]} {knob}' if r['family'] == 'project' else f'{r["solver"]} {knob}'
+    if r['family'] != 'project':
+        return f'{r["solver"]} {knob}'
+    across = '' if r.get('breakpoints', True) in (True, 'True', '') else ' across-breaks'
+    return f'{r["solver"]} {r["fidelity"]} {knob}{across}'
 
 
 def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],

@@ -49,8 +49,21 @@ class Load:
         """dT/domega (N m s/rad); 0 unless the model depends on speed."""
         return 0.0
 
+    def breakpoints(self, t0: float, t1: float) -> np.ndarray:
+        """Times in the open interval (t0, t1) (s, ascending) where the torque is not smooth
+        in t: a knot, kink, jump or ramp end. An integrator that stops there keeps its order
+        (a step across one loses it and the step controller pays in rejected steps). Empty
+        for a model smooth in t (the default)."""
+        return np.empty(0)
+
     def describe(self) -> str:  # pragma: no cover
         raise NotImplementedError
+
+
+def _inside(times: ArrayLike, t0: float, t1: float) -> np.ndarray:
+    """The times strictly inside (t0, t1), ascending and unique (s)."""
+    a = np.unique(np.asarray(times, dtype=float))
+    return a[(a > t0) & (a < t1)]
 
 
 # --- constant ------------------------------------------------------------------------------
@@ -195,6 +208,13 @@ class RandomLoad(Load):
         val = ((2 * t3 - 3 * t2 + 1) * u0 + (t3 - 2 * t2 + tau) * m0 + (-2 * t3 + 3 * t2) * u1
                + (t3 - t2) * m1)
         return self.amplitude * val
+
+    def breakpoints(self, t0: float, t1: float) -> np.ndarray:
+        """The knots t_k = k dt in (t0, t1): the PCHIP interpolant is C1 there, its second
+        derivative jumps."""
+        k_lo = math.floor(t0 / self.dt)
+        k_hi = math.ceil(t1 / self.dt)
+        return _inside(np.arange(k_lo, k_hi + 1) * self.dt, t0, t1)
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
         """M_m + delta(t) (N m)."""
@@ -456,6 +476,12 @@ class BrakeStepsLoad(Load):
         self.base = float(base)
         self.speed_scale = float(speed_scale)
 
+    def breakpoints(self, t0: float, t1: float) -> np.ndarray:
+        """Each step's start and ramp end (t_on, t_on + ramp): the smoothstep is C1 there
+        (a jump without a ramp)."""
+        ends = [t + self.ramp for t in self.times] if self.ramp > 0.0 else []
+        return _inside(self.times + ends, t0, t1)
+
     def level(self, t: float) -> float:
         """Brake level L(t) (N m)."""
         total = 0.0
@@ -618,6 +644,10 @@ class TimeSeriesLoad(Load):
         check_array(f'{field}.torque', tq, min_len=2)
         return cls.from_arrays(t, tq, outside=outside, field=field, label=os.path.basename(path))
 
+    def breakpoints(self, t0: float, t1: float) -> np.ndarray:
+        """The sample times: linear interpolation has a kink at each."""
+        return _inside(self.t, t0, t1)
+
     def torque(self, t: float, omega: float = 0.0, phi: float = 0.0) -> float:
         ts, vs = self.t, self.values
         if t <= ts[0] or t >= ts[-1]:
@@ -683,6 +713,10 @@ class SumLoad(Load):
 
     def slope(self, t: float, omega: float, phi: float = 0.0) -> float:
         return sum(c.slope(t, omega, phi) for c in self.components)
+
+    def breakpoints(self, t0: float, t1: float) -> np.ndarray:
+        return _inside(np.concatenate([np.empty(0)] + [c.breakpoints(t0, t1)
+                                                       for c in self.components]), t0, t1)
 
     def describe(self) -> str:
         return ' + '.join(c.describe() for c in self.components)

@@ -73,8 +73,8 @@ class _StepperBase:
         y = np.array(y0, dtype=float).reshape(-1)
         if y.size == 0:
             raise SolverOptionError('y0', 'must have at least one state')
-        bad = np.flatnonzero(~np.isfinite(y))
-        if bad.size:
+        if not np.isfinite(y).all():
+            bad = np.flatnonzero(~np.isfinite(y))
             raise SolverOptionError(f'y0[{bad[0]}]', f'must be finite, got {y[bad[0]]}')
         self.y = y
         self.n = y.size
@@ -84,10 +84,14 @@ class _StepperBase:
             raise SolverOptionError('rtol', f'must be a positive number, got {rtol!r}') from None
         if not (math.isfinite(rtol) and rtol > 0):
             raise SolverOptionError('rtol', f'must be a positive number, got {rtol!r}')
-        atol_arr = np.asarray(atol, dtype=float)
-        if atol_arr.ndim > 1 or (atol_arr.ndim == 1 and atol_arr.size != self.n) \
-                or not np.all(np.isfinite(atol_arr)) or np.any(atol_arr < 0):
-            raise SolverOptionError('atol', f'must be >= 0 (scalar or one per state), got {atol!r}')
+        if isinstance(atol, float) and math.isfinite(atol) and atol >= 0:
+            atol_arr = np.asarray(atol)      # the common case, without array reductions
+        else:
+            atol_arr = np.asarray(atol, dtype=float)
+            if atol_arr.ndim > 1 or (atol_arr.ndim == 1 and atol_arr.size != self.n) \
+                    or not np.all(np.isfinite(atol_arr)) or np.any(atol_arr < 0):
+                raise SolverOptionError('atol', f'must be >= 0 (scalar or one per state), '
+                                                f'got {atol!r}')
         if rtol < 100 * _EPS:
             raise SolverOptionError('rtol', f'must be >= {100 * _EPS:.3g}, got {rtol!r}')
         self.rtol = float(rtol)

@@ -143,7 +143,8 @@ class KernelStepper(_StepperBase):
         self._fs[nb.FS_T] = self.t
         self._fs[nb.FS_TOLD] = self.t
         self._fs[nb.FS_H] = 0.0 if self.h is None else self.h
-        self._atol = np.broadcast_to(np.asarray(self.atol, dtype=float), (self.n,)).copy()
+        self._atol = (np.full(self.n, self.atol) if isinstance(self.atol, float)
+                      else np.array(self.atol, dtype=float))
         self._dense_out = np.empty(self.n)
 
     def _call(self, fn, *args):
@@ -228,7 +229,7 @@ class KernelStepper(_StepperBase):
             raise SolverOptionError('times', 'must be 1-d with one row of X per time')
         if times.size < 2:
             return
-        if not np.all(np.isfinite(times)) or np.any(np.diff(times[1:]) < 0) or times[1] < self.t:
+        if not np.isfinite(times).all() or (times[2:] < times[1:-1]).any() or times[1] < self.t:
             raise SolverOptionError('times', f'must be finite, non-decreasing and >= t={self.t!r}')
         a = (times, X, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':

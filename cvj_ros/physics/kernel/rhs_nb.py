@@ -169,13 +169,19 @@ def jac(t, y, ip, fp, J):
     for i in range(ns):
         for j in range(ns):
             J[i, j] = 0.0
-    phis = np.empty(n)
-    aa = np.empty(n)
-    bb = np.empty(n)
-    mm = np.empty(n)
-    cc = np.empty(n)
-    mps = np.empty(n)
-    cps = np.empty(n)
+    # one allocation for all per-section scratch (each np.empty/np.zeros is an NRT
+    # allocation with atomic counters; ten of them were half of a small jac)
+    buf = np.zeros(10 * n + n * n2)
+    phis = buf[0:n]
+    aa = buf[n:2 * n]
+    bb = buf[2 * n:3 * n]
+    mm = buf[3 * n:4 * n]
+    cc = buf[4 * n:5 * n]
+    mps = buf[5 * n:6 * n]
+    cps = buf[6 * n:7 * n]
+    qf = buf[7 * n:8 * n]
+    dpd = buf[8 * n:10 * n]
+    dq = buf[10 * n:].reshape((n, n2))
     for g in range(n):
         q = y[g]
         phi, a, b, m, c, mp, hj = section(g, q, ip, fp)
@@ -191,9 +197,6 @@ def jac(t, y, ip, fp, J):
         cc[g] = c
         mps[g] = mp
         cps[g] = cp
-    qf = np.zeros(n)
-    dq = np.zeros((n, n2))
-    dpd = np.zeros(n2)
     al = aa[n - 1]
     bl = bb[n - 1]
     vl = y[n2 - 1]

@@ -616,8 +616,12 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             rs = sorted(rs, key=lambda r: -(r.get('tol') or r.get('h') or 0.0))
             base = rs[0].get('family') == 'baseline'
             fid = rs[0].get('fidelity', 'exact')
+            # a project run that stepped across the load's breakpoints: dotted, hollow markers
+            across = not base and rs[0].get('breakpoints', True) in (False, 'False')
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls='--' if base else '-', marker='s' if base else markers.get(fid, 'o'),
+                      ls='--' if base else (':' if across else '-'),
+                      marker='s' if base else markers.get(fid, 'o'),
+                      mfc='none' if across else None,
                       ms=5 if fid != 'auto' or base else 9, lw=1.3 if base else 1.6,
                       color=colors[rs[0]['solver']], alpha=0.95 if fid in ('exact', 'auto') or base else 0.6,
                       label=f'solve_ivp {rs[0]["solver"]} (baseline)' if base else label)
@@ -626,8 +630,9 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         ax.set_xlabel('max relative error of output speed  [-]' if error_key == 'err_speed_rel'
                       else error_key)
         ax.set_ylabel('wall time per simulated second  [s/s]')
-        ax.set_title(f'Work-precision: {scene}  (lower-left is better; markers: o exact, * auto, '
-                     f'v ideal, D closed)', fontsize=10)
+        ax.set_title(f'Work-precision: {scene}\n(lower-left is better; markers: o exact, * auto, '
+                     f'v ideal, D closed; dotted, hollow: stepping across load breakpoints)',
+                     fontsize=9)
         ax.grid(True, which='both', alpha=0.25)
         ax.legend(loc='best', fontsize=7, framealpha=0.85, ncol=1 if len(groups) < 9 else 2)
         fig.tight_layout()

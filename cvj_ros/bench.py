@@ -6,7 +6,8 @@ rk4 over fixed steps) and each joint fidelity (ideal / closed / exact forced on 
 with springs elastic, and 'auto' = the fidelity chooser's pick from the scene's accuracy
 target), it measures
 
-* wall seconds per simulated second (min of ``repeats`` runs; spread (max - min)/min),
+* wall seconds per simulated second (min of ``repeats`` runs, spread over ``passes`` passes
+  of each scene's configurations; spread (max - min)/min),
 * right-hand-side evaluations (and Jacobian evaluations),
 * max relative error of the output (load) shaft speed, max |error| of its angle (rad),
 
@@ -72,6 +73,7 @@ class BenchConfig:
     samples: int = 20                    # sample points on the horizon (error grid)
     repeats: int = 5                     # at most; stop repeating once a config used repeat_budget_s
     repeat_budget_s: float = 3.0
+    passes: int = 2                      # the repeats of a scene's configs, spread over this many passes
     max_rhs_evals: int = 1_000_000
     exchange_steps: Sequence[float] = (1e-4, 2.5e-4, 1e-3, 2e-3, 5e-3, 1e-2)   # divide the horizon
     schemes: Sequence[str] = COUPLING_SCHEMES
@@ -208,7 +210,46 @@ def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int,
             break
     w = min(walls)
     return {'result': result, 'wall_s': w, 'wall_spread': (max(walls) - w) / w if w > 0 else 0.0,
-            'repeats': len(walls), 'nfev': nfev, 'njev': njev}
+            'repeats': len(walls), 'nfev': nfev, 'njev': njev, 'walls': walls}
+
+
+def _first_pass_repeats(cfg: BenchConfig) -> int:
+    """Repeats in a configuration's first pass: ``cfg.repeats`` split over ``cfg.passes``."""
+    return max(1, math.ceil(cfg.repeats / max(1, cfg.passes)))
+
+
+def retime_passes(rows: list[dict[str, Any]], cfg: BenchConfig, *,
+                  horizon: float) -> None:
+    """Time every configuration of ``rows`` (one scene's, ok, with a kept ``_once``) again
+    in ``cfg.passes - 1`` more passes over all of them, up to ``cfg.repeats`` runs each in
+    all; wall_s = the min, wall_spread over all runs. A configuration is thus timed at
+    moments spread over the scene's whole run rather than within one second: this machine's
+    speed drifts by up to 1.5x over minutes (docs/benchmark.md), and the ratios compare
+    configurations timed at different moments. A failure in a later pass keeps the first
+    pass's figures (the same run just succeeded)."""
+    first = _first_pass_repeats(cfg)
+    left = cfg.repeats - first
+    for p in range(cfg.passes - 1):
+        n = math.ceil(left / (cfg.passes - 1 - p)) if left > 0 else 0
+        left -= n
+        if n <= 0:
+            break
+        for r in rows:
+            once = r.get('_once')
+            if not r.get('ok') or once is None:
+                continue
+            try:
+                extra = _time_runs(once, n, cfg.repeat_budget_s)
+            except (_BudgetExceeded, CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError):
+                continue
+            walls = r['_walls'] + extra['walls']
+            w = min(walls)
+            r.update(_walls=walls, wall_s=w, repeats=len(walls),
+                     wall_spread=(max(walls) - w) / w if w > 0 else 0.0,
+                     wall_per_sim_s=w / horizon)
+    for r in rows:
+        r.pop('_once', None)
+        r.pop('_walls', None)
 
 
 def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
@@ -321,19 +362,21 @@ def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfi
 def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
             cfg: BenchConfig, *, output: Callable[[Any], tuple[np.ndarray, np.ndarray]] = None) -> dict[str, Any]:
     try:
-        timed = _time_runs(once, cfg.repeats, cfg.repeat_budget_s)
+        timed = _time_runs(once, _first_pass_repeats(cfg), cfg.repeat_budget_s)
     except _BudgetExceeded:
         return {**row, 'ok': False, 'note': f'more than {cfg.max_rhs_evals} rhs evaluations'}
     except (CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError) as exc:
         return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
     res = timed.pop('result')
+    walls = timed.pop('walls')
     speed, angle = (output or _output)(res)
     if not (np.all(np.isfinite(speed)) and np.all(np.isfinite(angle))):
         return {**row, 'ok': False, 'note': 'non-finite output'}
     e_speed, e_angle = _errors(prob, speed, angle)
     return {**row, **timed, 'ok': True, 'note': '',
             'wall_per_sim_s': timed['wall_s'] / prob.horizon,
-            'err_speed_rel': e_speed, 'err_angle_rad': e_angle}
+            'err_speed_rel': e_speed, 'err_angle_rad': e_angle,
+            '_once': once, '_walls': walls}   # for retime_passes, dropped there
 
 
 # ---------------------------------------------------------------------------- Pareto
@@ -631,6 +674,7 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg, compiled=compiled))
                     if progress is not None:
                         progress(len(rows))
+        retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
         try:
             prob.rhs_cost = rhs_cost(scene)
         except (CvjError, NotImplementedError) as exc:
@@ -707,7 +751,7 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
           ('PARTIAL REPORT (run still going or interrupted): ' if partial else '')
           + f'Run: {time.strftime("%Y-%m-%d %H:%M:%S")}, total {duration:.1f} s wall; '
           f'horizon {cfg.horizon if cfg.horizon else "scene duration"} s, {cfg.samples} samples, '
-          f'{cfg.repeats} repeat(s) (min taken), reference dop853 rtol = atol = {ref_tol:g}, exact fidelity.', '',
+          f'{cfg.repeats} repeat(s) over {cfg.passes} pass(es) of each scene (min taken), reference dop853 rtol = atol = {ref_tol:g}, exact fidelity.', '',
           '## Machine', '']
     md += [f'- {k}: {v}' for k, v in machine_description().items()]
     for name, prob in problems.items():
@@ -811,6 +855,8 @@ def check_config(cfg: BenchConfig) -> None:
             raise SceneError('--fidelities', f'unknown fidelity {f!r}; one of {", ".join(FIDELITY_MODES)}')
     if cfg.repeats < 1:
         raise SceneError('--repeats', f'must be >= 1, got {cfg.repeats}')
+    if cfg.passes < 1:
+        raise SceneError('--passes', f'must be >= 1, got {cfg.passes}')
     if cfg.horizon is not None and not (math.isfinite(cfg.horizon) and cfg.horizon > 0):
         raise SceneError('--horizon', f'must be > 0, got {cfg.horizon}')
 

@@ -168,3 +168,41 @@ def test_budget_exceeded_is_recorded_not_fatal(tmp_path: Path) -> None:
     assert not by[('baseline', 'RK45')]['ok']
     assert by[('project', 'rosenbrock')]['ok'] and by[('project', 'rosenbrock')]['err_speed_rel'] < 1e-2
     assert 'runs failed or exceeded the budget' in (tmp_path / 'bench.md').read_text()
+
+
+def test_repeats_are_spread_over_passes_and_rows_keep_no_private_keys(
+        result: tuple[dict, Path]) -> None:
+    """repeats=2 over the default 2 passes: every ok row was timed once per pass (2 runs),
+    and the closures kept for the second pass are gone from the rows (and the CSV)."""
+    res, out = result
+    ok = [r for r in res['rows'] if r['ok']]
+    assert ok and all(r['repeats'] == 2 for r in ok)
+    assert not any(k.startswith('_') for r in res['rows'] for k in r)
+    with open(out / 'bench.csv', newline='') as f:
+        assert not any(k.startswith('_') for k in next(csv.DictReader(f)))
+
+
+def test_retime_passes_takes_the_min_over_all_passes() -> None:
+    """Unit: a configuration slow in its first pass and fast in the second reports the fast
+    time; one that fails in a later pass keeps its first-pass figures."""
+    cfg = bench.BenchConfig(repeats=5, passes=3)
+    assert bench._first_pass_repeats(cfg) == 2
+    calls = {'a': 0, 'b': 0}
+
+    def fast_later() -> tuple[None, int, int]:
+        calls['a'] += 1
+        return None, 1, 0
+
+    def fails_later() -> tuple[None, int, int]:
+        calls['b'] += 1
+        raise ArithmeticError('boom')
+
+    rows = [{'ok': True, '_once': fast_later, '_walls': [0.5, 0.4], 'wall_s': 0.4},
+            {'ok': True, '_once': fails_later, '_walls': [0.3], 'wall_s': 0.3, 'repeats': 1},
+            {'ok': False, 'note': 'failed'}]
+    bench.retime_passes(rows, cfg, horizon=2.0)
+    assert calls['a'] == 3                      # 5 repeats: 2 in the first pass, 2 + 1 later
+    assert rows[0]['repeats'] == 5 and rows[0]['wall_s'] < 0.4
+    assert rows[0]['wall_per_sim_s'] == rows[0]['wall_s'] / 2.0
+    assert rows[1]['wall_s'] == 0.3 and rows[1]['repeats'] == 1
+    assert all('_once' not in r and '_walls' not in r for r in rows)

@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--horizon', type=float, metavar='SECONDS', help='simulated time per run, s')
     parser.add_argument('--samples', type=int, metavar='N', help='error sample points per run')
     parser.add_argument('--repeats', type=int, metavar='N', help='timing repeats (min is reported)')
+    parser.add_argument('--passes', type=int, metavar='N',
+                        help="spread each configuration's repeats over N passes of its scene [2]")
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
     parser.add_argument('--real-lockstep', action='store_true', help='also time a real `cvj-sim run` lockstep run')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
@@ -59,7 +61,7 @@ def config_from_args(args: argparse.Namespace) -> object:
         'scenes': args.scenes, 'solvers': args.solvers, 'fidelities': args.fidelities,
         'baselines': args.baselines, 'tolerances': args.tolerances, 'rk4_steps': args.rk4_steps,
         'exchange_steps': args.exchange_steps, 'horizon': args.horizon, 'samples': args.samples,
-        'repeats': args.repeats}.items() if v is not None}
+        'repeats': args.repeats, 'passes': args.passes}.items() if v is not None}
     if args.samples is not None and args.samples < 2:
         raise SceneError('--samples', f'must be >= 2, got {args.samples}')
     if args.horizon is not None and not (math.isfinite(args.horizon) and args.horizon > 0):

@@ -4,8 +4,9 @@ numba hands an array to a function it does not inline together with its NRT memi
 the callee increments and decrements that reference count around its body: two ``lock``
 instructions per array argument per call. The integration loops reach the rhs, the
 sections and the engine/load models through such calls, with up to 20 arrays each; on
-this machine (2-core AMD EPYC) perf put 20-30 % of a right-hand side on the instructions
-right after ``lock incq``/``lock decq``.
+this machine (2-core AMD EPYC) perf put 40 % of a loop over ``section`` on the instructions
+right after ``lock incq``/``lock decq``, and borrowing took 27-31 % off ``section`` and the
+rhs (docs/solvers.md "Borrowed arrays").
 
 ``borrowed(a)`` is a view of array ``a`` (same data, shape and strides) whose meminfo and
 parent are NULL, for which numba's incref/decref are a null test; ``borrowed_all(tup)``

@@ -608,14 +608,16 @@ def planned_runs(cfg: BenchConfig) -> int:
 
 
 def _may_have_breakpoints(scene: Any) -> bool:
-    """Whether the scene's load spec names a model with breakpoints (random, time series,
-    brake steps; a list is a sum), read from the spec without building the scene."""
+    """Whether the scene's load spec names a model that lists breakpoints (its class
+    overrides ``Load.breakpoints``; a list is a sum), read from the spec without building
+    the loads."""
     try:
+        from cvj_ros.physics.load import LOAD_MODELS, Load
         from cvj_ros.physics.scene import find_scene, load_scene
         sc = scene if hasattr(scene, 'load') else load_scene(find_scene(scene))
         specs = sc.load if isinstance(sc.load, list) else [sc.load]
-        return any(str(sp.get('model', '')) in ('random', 'time_series', 'brake_steps')
-                   for sp in specs if isinstance(sp, Mapping))
+        return any(LOAD_MODELS[sp['model']].breakpoints is not Load.breakpoints
+                   for sp in specs if isinstance(sp, Mapping) and sp.get('model') in LOAD_MODELS)
     except Exception:    # an unreadable scene fails later, with its own message
         return True
 

@@ -149,6 +149,9 @@ def test_cli_bad_scene_and_option(capsys: pytest.CaptureFixture[str]) -> None:
     assert len(err) == 1 and err[0].startswith('cvj-sim: error: scene: ')
     assert main(['bench', '--tolerances', '2', '--no-ros']) == 2
     assert capsys.readouterr().err.startswith('cvj-sim: error: --tolerances:')
+    assert main(['bench', '--passes', '0', '--no-ros']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['cvj-sim: error: --passes: must be >= 1, got 0']
 
 
 def test_budget_exceeded_is_recorded_not_fatal(tmp_path: Path) -> None:

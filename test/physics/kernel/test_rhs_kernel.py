@@ -9,6 +9,7 @@ O(h^2 |f'''|) plus rounding O(eps |f| / h) ~ 1e-9 relative to the largest entry,
 from __future__ import annotations
 
 import math
+import zlib
 
 import numpy as np
 import pytest
@@ -178,17 +179,23 @@ def _check(dl, engine, load, rng, sources_in_kernel=True):
         J = np.empty((model.n_state, model.n_state))
         jac(t, x, model.ip, model.fp, J)
         _close(J, jref)
-        # jac against central differences of the kernel rhs
-        Jfd = np.empty_like(J)
-        yp, ym, fp_, fm = x.copy(), x.copy(), np.empty_like(dy), np.empty_like(dy)
-        for j in range(model.n_state):
-            h = 1e-6 * max(1.0, abs(x[j]))
-            yp[:], ym[:] = x, x
-            yp[j] += h
-            ym[j] -= h
-            rhs(t, yp, model.ip, model.fp, fp_)
-            rhs(t, ym, model.ip, model.fp, fm)
-            Jfd[:, j] = (fp_ - fm) / (2.0 * h)
+        # jac against central differences of the kernel rhs, Richardson-extrapolated from
+        # steps h and h/2: the plain h = 1e-6 difference has an O(h^2) truncation that
+        # reached 1.5e-6 of the scale at 2 of 23000 random states (two_hookes_ideal_cv_gear,
+        # q near -2.8 rad), while the extrapolation agreed with jac to 3e-10 there
+        def central(h_rel: float) -> np.ndarray:
+            d = np.empty_like(J)
+            yp, ym, fp_, fm = x.copy(), x.copy(), np.empty_like(dy), np.empty_like(dy)
+            for j in range(model.n_state):
+                h = h_rel * max(1.0, abs(x[j]))
+                yp[:], ym[:] = x, x
+                yp[j] += h
+                ym[j] -= h
+                rhs(t, yp, model.ip, model.fp, fp_)
+                rhs(t, ym, model.ip, model.fp, fm)
+                d[:, j] = (fp_ - fm) / (2.0 * h)
+            return d
+        Jfd = (4.0 * central(5e-7) - central(1e-6)) / 3.0
         _close(J, Jfd, rel=1e-6)
 
 
@@ -200,7 +207,8 @@ def test_kernel_matches_oracle_on_covered_elements(case, load_name, energy):
     dl = Driveline.from_scene(sc, track_energy=energy)
     engine = engine_from_spec(sc.engine)
     load = load_from_spec(sc.load, seed=sc.seed, field='load')
-    rng = np.random.default_rng(abs(hash((case, load_name, energy))) % 2**32)
+    # crc32, not hash(): str hashes change per process (PYTHONHASHSEED), the states must not
+    rng = np.random.default_rng(zlib.crc32(repr((case, load_name, energy)).encode()))
     _check(dl, engine, load, rng, sources_in_kernel=True)
     _check(dl, engine, load, rng, sources_in_kernel=False)
 

@@ -131,9 +131,15 @@ class ComposedDriveline:
     Args:
         context: an initialised rclpy Context (the caller shuts it down).
         executor: ``'events'`` (default) or ``'single'``.
+        hosted: the node names that will be added (:data:`HOSTED_NODES` or fewer): with
+            ``intra_process`` their loop topics go through an
+            :class:`cvj_ros.nodes.intra.IntraProcessBus` between the hosted nodes and the
+            recorder (DDS still carries them to outside subscribers).
+        intra_process: False = every message through DDS, also inside the process.
     """
 
-    def __init__(self, context: Any, *, executor: str = 'events') -> None:
+    def __init__(self, context: Any, *, executor: str = 'events',
+                 hosted: Sequence[str] = (), intra_process: bool = True) -> None:
         import rclpy
         self.context = context
         self.executor, self.executor_kind, self.executor_note = make_composed_executor(executor, context)
@@ -146,6 +152,12 @@ class ComposedDriveline:
         # the timed spins, see _spin
         self._container = rclpy.create_node(PROG, context=context)
         self.executor.add_node(self._container)
+        self.bus: Any = None
+        if intra_process and hosted:
+            from cvj_ros.nodes import intra
+            topics, wrenches = intra.carried_topics(hosted)
+            self.bus = intra.IntraProcessBus(self._container, topics, coupling_wrenches=wrenches)
+            intra.attach(context, self.bus)
 
     def add_node(self, name: str, *, cli_args: Sequence[str] | None = None) -> Any:
         """Create hosted node ``name`` with its own ``--ros-args`` (``cli_args``, e.g. ``-p
@@ -157,6 +169,8 @@ class ComposedDriveline:
             kwargs['cli_args'] = list(cli_args)
         node = cls(**kwargs)
         self.nodes[name] = node
+        if self.bus is not None:
+            self.bus.register(node)
         if self.recorder is not None:
             # record the node's contract topics from its first message: subscribed before the
             # executor runs the node (the recorder's graph scan every 0.2 s would miss the
@@ -178,6 +192,8 @@ class ComposedDriveline:
 
         from cvj_ros import bag as bagmod
         self._recorder_node = rclpy.create_node('cvj_recorder', context=self.context)
+        if self.bus is not None:
+            self.bus.register(self._recorder_node)
         self.batching = BatchingWriter(writer)
         self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
                                            run_token=run_token)
@@ -186,7 +202,8 @@ class ComposedDriveline:
         return self.recorder
 
     def publisher_count(self, topic: str) -> int:
-        """Publishers matched by the recorder's subscription of ``topic`` (0 without recorder)."""
+        """Publishers matched by the recorder's subscription of ``topic`` (0 without
+        recorder); for a topic of the in-process bus, the publishers in the ROS graph."""
         sub = None if self.recorder is None else self.recorder._subs.get(topic)
         return 0 if sub is None else sub.get_publisher_count()
 
@@ -245,6 +262,10 @@ class ComposedDriveline:
             self.executor.shutdown()
         except Exception:  # noqa: BLE001 (context already shut down)
             pass
+        if self.bus is not None:
+            from cvj_ros.nodes import intra
+            intra.detach(self.context)
+            self.bus.destroy()
         for node in reversed(list(self.nodes.values())):
             node.destroy_node()
         self.nodes.clear()
@@ -384,7 +405,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         # ROS_LOG_DIR; rcl logging is set up once per process, so this holds for the first run
         rclpy.init(args=['--ros-args', '--disable-stdout-logs'], context=ctx, domain_id=domain,
                    signal_handler_options=SignalHandlerOptions.NO)
-        comp = ComposedDriveline(ctx, executor=options.executor)
+        comp = ComposedDriveline(ctx, executor=options.executor, hosted=prep.nodes,
+                                 intra_process=getattr(options, 'intra_process', True))
         comp.add_recorder(writer, prep.coupling_topics,
                           hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
                           if options.mode == 'lockstep' else (), run_token=run_token)
@@ -509,6 +531,9 @@ def _parse_args(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
     parser.add_argument('--executor', choices=EXECUTORS, default='events',
                         help='events (default; falls back to single if unavailable) or single')
+    parser.add_argument('--no-intra-process', dest='intra_process', action='store_false',
+                        help='hand the loop topics to the hosted nodes through DDS too, instead '
+                             'of in-process (slower; for comparison)')
     return parser.parse_args(list(argv))
 
 
@@ -526,7 +551,9 @@ def _main(args: Sequence[str] | None) -> int:
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     stop: list[int] = []
-    comp = ComposedDriveline(ctx, executor=opts.executor)
+    comp = ComposedDriveline(ctx, executor=opts.executor,
+                             hosted=[n for n in HOSTED_NODES if n not in opts.without],
+                             intra_process=opts.intra_process)
 
     def on_signal(signum: int, _frame: Any) -> None:
         stop.append(signum)

@@ -17,7 +17,9 @@ The machine's load average is printed before and after: on a shared 2-core machi
 numbers move by 2-4x with the load of other processes; compare runs taken together.
 
 Usage: ``python scripts/bench_composed.py [--scenes kavz685_lever fwd_halfshaft]
-[--duration 5] [--exchange-step 0.001] [--runs 3] [--json OUT.json]``
+[--duration 5] [--exchange-step 0.001] [--runs 3] [--modes composed composed-dds separate]
+[--json OUT.json]`` (``composed-dds``: composed with ``--no-intra-process``, every message
+through DDS as before the in-process bus).
 """
 from __future__ import annotations
 
@@ -123,7 +125,12 @@ def _children_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def run_once(scene: str, composed: bool, duration: float, h: float) -> dict[str, Any]:
+MODE_ARGS = {'composed': ['--composed'],
+             'composed-dds': ['--composed', '--no-intra-process'],   # every message through DDS
+             'separate': []}
+
+
+def run_once(scene: str, composed: bool | str, duration: float, h: float) -> dict[str, Any]:
     """One `cvj-sim run` in a fresh process: report figures, coupling loop statistics and
     ``cpu_s``, the CPU time of cvj-sim and all its node processes (start-up included)."""
     cvj_sim = str(Path(sys.executable).with_name('cvj-sim'))
@@ -131,7 +138,8 @@ def run_once(scene: str, composed: bool, duration: float, h: float) -> dict[str,
     with tempfile.TemporaryDirectory(prefix='cvj_bench_') as tmp:
         out = Path(tmp) / 'run'
         cmd = [cvj_sim, 'run', scene, '--out', str(out), '--duration', str(duration),
-               '--exchange-step', str(h)] + (['--composed'] if composed else [])
+               '--exchange-step', str(h)] + (MODE_ARGS[composed] if isinstance(composed, str)
+                                             else ['--composed'] if composed else [])
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         cpu_s = _children_cpu_s() - cpu0
         if r.returncode != 0:
@@ -153,6 +161,8 @@ def main() -> None:
     ap.add_argument('--exchange-step', type=float, default=1e-3)
     ap.add_argument('--runs', type=int, default=3)
     ap.add_argument('--json', type=Path, default=None)
+    ap.add_argument('--modes', nargs='+', choices=sorted(MODE_ARGS), default=['composed', 'separate'],
+                    help='composed (in-process bus), composed-dds (--no-intra-process), separate')
     a = ap.parse_args()
     from cvj_ros.nodes.qos import dds_environment
     dds_environment(os.environ)     # the node processes' DDS settings, also for the round trips
@@ -165,9 +175,9 @@ def main() -> None:
           f'inter-process {rt_ipc["us_mean"]:.0f} us (p50 {rt_ipc["us_p50"]:.0f})')
     results: dict[str, Any] = {'round_trip_in_process_2': rt_in, 'round_trip_ipc_2': rt_ipc, 'runs': {}}
     for scene in a.scenes:
-        for composed in (True, False):
-            mode = 'composed' if composed else 'separate'
-            rt = rt_in if composed else rt_ipc
+        for mode in a.modes:
+            composed = mode
+            rt = rt_in if mode != 'separate' else rt_ipc
             rows = []
             # start-up CPU (imports, kernel load, discovery) of a run of 50 exchanges, taken
             # off every run: total CPU per exchange = (cpu_s - base cpu_s) / (steps - base steps)
@@ -177,14 +187,14 @@ def main() -> None:
                 row['ratio'] = row['overhead_us'] / rt['us_mean']
                 row['total_cpu_us'] = (row['cpu_s'] - base['cpu_s']) / (row['steps'] - base['steps']) * 1e6
                 rows.append(row)
-                print(f'{scene:14s} {mode:8s} run {i + 1}: real-time factor {row["rtf"]:.3g}, '
+                print(f'{scene:14s} {mode:12s} run {i + 1}: real-time factor {row["rtf"]:.3g}, '
                       f'{row["wall_us"]:.0f} us/exchange (integration {row["integration_us"]:.0f}, '
                       f'overhead {row["overhead_us"]:.0f} = {row["ratio"]:.2f}x the {mode} 2-peer '
                       f'round trip {rt["us_mean"]:.0f} us; CPU per exchange: coupling process '
                       f'{row["cpu_us"]:.0f} us, all processes {row["total_cpu_us"]:.0f} us)',
                       flush=True)
             med = statistics.median(r['rtf'] for r in rows)
-            print(f'{scene:14s} {mode:8s} median real-time factor {med:.3g}', flush=True)
+            print(f'{scene:14s} {mode:12s} median real-time factor {med:.3g}', flush=True)
             results['runs'][f'{scene}/{mode}'] = rows
     load1 = os.getloadavg()
     print(f'load average after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}')

@@ -272,3 +272,34 @@ def test_recorder_keeps_ten_seconds_of_a_1ms_loop_when_it_lags() -> None:
     assert (q.reliability, q.durability, q.history) == (
         qos.DATA_QOS.reliability, qos.DATA_QOS.durability, qos.DATA_QOS.history)
     assert bag.recorder_qos(latched=True) is qos.LATCHED_QOS
+
+
+def test_fast_mcap_writes_are_rosbags_bytes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """BagWriter writes mcap message records itself (bag._mcap_batch_writer, one struct.pack
+    per message): the file must be the one rosbags' own Writer.write gives in the same
+    writer (same flushes), byte for byte, across chunk boundaries and with single and
+    batched writes mixed."""
+    msgs: list[tuple[str, int, bytes]] = []
+    for k in range(6000):        # 6 s of record time, > 1 MiB: chunks closed by size and by flush
+        t = 0.001 * k
+        msgs.append(('/driveline/joint_states', round(t * 1e9), _joint_state(t, k)))
+        msgs.append(('/load/wrench', round(t * 1e9), _wrench(t, 100.0 + k)))
+
+    # chunks closed by record time only (the wall-time flush would make the two files differ)
+    monkeypatch.setattr(bag, 'FLUSH_WALL_S', 1e9)
+
+    def write(path: Path) -> bytes:
+        with bag.BagWriter(path, storage='mcap') as w:
+            w.add_topic('/driveline/joint_states')
+            w.add_topic('/load/wrench')
+            for topic, ts, data in msgs[:1001]:
+                w.write(topic, ts, data)
+            for i in range(1001, len(msgs), 777):
+                w.write_batch(msgs[i:i + 777])
+        assert bag.bag_info(path).counts == {'/driveline/joint_states': 6000, '/load/wrench': 6000}
+        return (path / f'{path.name}.mcap').read_bytes()
+    ours = write(tmp_path / 'ours' / 'bag')   # same name: the file name is in the mcap metadata
+    monkeypatch.setattr(bag, '_mcap_batch_writer', lambda writer: None)   # rosbags' Writer.write
+    ref = write(tmp_path / 'ref' / 'bag')
+    assert len(ours) > 2**20
+    assert ours == ref

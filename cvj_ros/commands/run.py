@@ -70,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'EventsExecutor (same nodes, topics and bag; faster, see docs/ros.md)')
     parser.add_argument('--executor', choices=('events', 'single'), default='events',
                         help='--composed: rclpy executor (default events = EventsExecutor)')
+    parser.add_argument('--no-intra-process', dest='intra_process', action='store_false',
+                        help='--composed: hand the loop topics to the hosted nodes through DDS '
+                             'too, instead of in-process (slower; for comparison)')
     parser.add_argument('--overwrite', action='store_true', help='replace a previous run in OUT (only the files a run writes)')
 
 
@@ -82,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
         external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
         fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
-        rt_priority=args.rt_priority, composed=args.composed, executor=args.executor))
+        rt_priority=args.rt_priority, composed=args.composed, executor=args.executor,
+        intra_process=args.intra_process))
     if result.error:
         import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)

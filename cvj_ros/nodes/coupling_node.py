@@ -86,6 +86,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError
+from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
@@ -186,17 +187,18 @@ class CouplingNode(CvjNode):
                                 if hasattr(m, 'reactions')]
 
         # publishers
-        self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, DATA_QOS)
-        self.js_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, DATA_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
-        self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
-        self.reaction_pubs = {j: self.create_publisher(WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
+        # loop topics: through the in-process bus in composed mode (cvj_ros.nodes.intra)
+        self.clock_pub = loop_publisher(self, Clock, CLOCK_TOPIC, DATA_QOS)
+        self.js_pub = loop_publisher(self, JointState, JOINT_STATES_TOPIC, DATA_QOS)
+        self.diag_pub = loop_publisher(self, DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        self.scene_pub = loop_publisher(self, String, SCENE_TOPIC, LATCHED_QOS)
+        self.reaction_pubs = {j: loop_publisher(self, WrenchStamped, coupling_wrench_topic(j), DATA_QOS)
                               for j in self.reaction_joints}
         # raw: the callbacks get the serialised answer and read stamp and torque.z directly
-        self.engine_sub = self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                                   self._on_engine, DATA_QOS, raw=True)
-        self.load_sub = self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
-                                                 self._on_load, DATA_QOS, raw=True)
+        self.engine_sub = loop_subscription(self, WrenchStamped, ENGINE_WRENCH_TOPIC,
+                                            self._on_engine, DATA_QOS)
+        self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
+                                          self._on_load, DATA_QOS)
         # Reused message objects: one builtin_interfaces/Time shared by every header and
         # /clock, updated in place each step (publish() serialises synchronously, so reuse is
         # safe); WrenchStamped construction alone measured 27 us per message here.
@@ -347,6 +349,9 @@ class CouplingNode(CvjNode):
         for topic, sub in ((ENGINE_WRENCH_TOPIC, self.engine_sub), (LOAD_WRENCH_TOPIC, self.load_sub)):
             if sub.get_publisher_count() < 1:
                 missing.append(f'{topic} (no publisher)')
+        bus = bus_for(self.context)
+        if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
+            missing += bus.dds_unmatched()
         return missing
 
     def foreign_publishers(self) -> str | None:

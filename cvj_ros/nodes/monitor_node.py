@@ -106,23 +106,27 @@ class MonitorNode(CvjNode):
         self.last_ns = 0
         self.published = 0
         self.last_statuses: list[DiagnosticStatus] = []
-        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        from cvj_ros.nodes.intra import loop_publisher, loop_subscription
+        self.diag_pub = loop_publisher(self, DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
         # joint states as raw CDR too, read by JointStateDecoder (rclpy's Python JointState
         # per sample cost ~4x more; issue 10)
         decode = JointStateDecoder().decode
-        self.create_subscription(JointState, JOINT_STATES_TOPIC,
-                                 lambda data: self._on_joint_states(decode(data)), DATA_QOS, raw=True)
+        # (from the in-process bus in composed mode: cvj_ros.nodes.intra)
+        self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
+                                        lambda data: self._on_joint_states(decode(data)), DATA_QOS)
         # the answers as raw CDR: stamp, frame_id and torque.z read in place
         # (decode_wrench_header_torque_z) instead of rclpy building a Python WrenchStamped per
         # sample (measured 75-145 us each, two per exchange; docs/nodes.md, composed mode)
-        self.create_subscription(WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                 lambda data: self._on_torque_raw(data, self.engine_torque),
-                                 DATA_QOS, raw=True)
-        self.create_subscription(WrenchStamped, LOAD_WRENCH_TOPIC,
-                                 lambda data: self._on_torque_raw(data, self.load_torque),
-                                 DATA_QOS, raw=True)
-        self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, DATA_QOS)
-        self.create_subscription(String, SCENE_TOPIC, self._on_scene, LATCHED_QOS)
+        self.engine_sub = loop_subscription(self, WrenchStamped, ENGINE_WRENCH_TOPIC,
+                                            lambda data: self._on_torque_raw(data, self.engine_torque),
+                                            DATA_QOS)
+        self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
+                                          lambda data: self._on_torque_raw(data, self.load_torque),
+                                          DATA_QOS)
+        self.diag_sub = loop_subscription(self, DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                          self._on_diagnostics, DATA_QOS, raw=False)
+        self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene, LATCHED_QOS,
+                                           raw=False)
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -176,17 +180,18 @@ class MonitorNode(CvjNode):
         """One joint state (a JointState or a :class:`~cvj_ros.nodes.cdr.JointStateView`)."""
         if self.run_token and self._foreign(msg.header.frame_id):
             return
-        names = list(msg.name)
-        if names != self.names or self.speeds is None:
+        names = msg.name     # a decoder's cached list: identical object while names repeat
+        if names is not self.names:
+            if names != self.names or self.speeds is None:
+                cap = self.params['capacity']
+                self.speeds = RollingWindow(cap, max(len(names), 1))
+                self.efforts = RollingWindow(cap, max(len(names), 1))
             self.names = names
-            cap = self.params['capacity']
-            self.speeds = RollingWindow(cap, max(len(names), 1))
-            self.efforts = RollingWindow(cap, max(len(names), 1))
-        t = stamp_to_ns(msg.header.stamp) / 1e9
         self.last_ns = stamp_to_ns(msg.header.stamp)
+        t = self.last_ns / 1e9
         n = len(names)
-        vel = list(msg.velocity) if len(msg.velocity) == n else [math.nan] * n
-        eff = list(msg.effort) if len(msg.effort) == n else [math.nan] * n
+        vel = msg.velocity if len(msg.velocity) == n else [math.nan] * n
+        eff = msg.effort if len(msg.effort) == n else [math.nan] * n
         self.speeds.push(t, vel)
         assert self.efforts is not None
         self.efforts.push(t, eff)

@@ -52,8 +52,9 @@ class TorqueResponder(CvjNode):
         self._index = -1
         self.last_stamp_ns = 0
         self._wrench_topic = wrench_topic
-        self.wrench_pub = self.create_publisher(WrenchStamped, wrench_topic, DATA_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
+        from cvj_ros.nodes.intra import loop_publisher, loop_subscription
+        self.wrench_pub = loop_publisher(self, WrenchStamped, wrench_topic, DATA_QOS)
+        self.diag_pub = loop_publisher(self, DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
         # one answer message, reused (publish() serialises it before returning)
         self._answer = WrenchStamped()
         self._answer.header.frame_id = shaft
@@ -66,9 +67,8 @@ class TorqueResponder(CvjNode):
         # (docs/nodes.md, composed mode); _on_joint_states takes either form
         from cvj_ros.nodes.cdr import JointStateDecoder
         decode = JointStateDecoder().decode
-        self.js_sub = self.create_subscription(JointState, JOINT_STATES_TOPIC,
-                                               lambda data: self._on_joint_states(decode(data)),
-                                               DATA_QOS, raw=True)
+        self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
+                                        lambda data: self._on_joint_states(decode(data)), DATA_QOS)
 
     def _shaft_index(self, names: Sequence[str]) -> int:
         if self._names is None or list(names) != self._names:

@@ -78,6 +78,7 @@ class RunOptions:
     rt_priority: int = 0
     composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
     executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
+    intra_process: bool = True   # composed mode: loop topics through the in-process bus (nodes/intra.py)
 
 
 @dataclass

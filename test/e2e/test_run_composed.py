@@ -1,4 +1,5 @@
-"""Composed mode (cvj_ros.composed): one process, one executor, the same nodes, topics and bag.
+"""Composed mode (cvj_ros.composed): one process, one executor, the same nodes, topics and bag
+(with the in-process bus of cvj_ros.nodes.intra, the default, and without it).
 
 Lockstep physics is deterministic (integer-ns stamps, the same compiled kernel, torques
 exchanged as CDR doubles), so a scene run with one process per node and the same scene run
@@ -125,7 +126,8 @@ def work(tmp_path_factory) -> Path:
 @pytest.fixture(scope='module')
 def runs(work: Path) -> dict[str, tuple[subprocess.CompletedProcess, Path]]:
     out = {}
-    for mode, extra in (('separate', []), ('composed', ['--composed'])):
+    for mode, extra in (('separate', []), ('composed', ['--composed']),
+                        ('composed_dds', ['--composed', '--no-intra-process'])):
         r = _cli(['run', str(work / 'scene.yaml'), '--out', str(work / mode), '--duration', str(DURATION),
                   *extra])
         out[mode] = (r, work / mode / 'bag')
@@ -151,6 +153,15 @@ def test_separate_and_composed_bags_are_identical(runs) -> None:
     # composed mode waits for the answers to t_N in-process: nothing lost
     counts = bag.bag_info(runs['composed'][1]).counts
     assert all(counts[t] == N + 1 for t in PEER_TOPICS), counts
+
+
+def test_composed_without_the_in_process_bus_gives_the_same_bag(runs) -> None:
+    """--no-intra-process: every message through DDS inside the process too (how composed
+    mode ran before cvj_ros.nodes.intra); the same bag either way."""
+    r, bag_path = runs['composed_dds']
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert_same_bag(runs['separate'][1], bag_path)
+    assert_same_bag(runs['composed'][1], bag_path)
 
 
 def test_load_node_alone_against_composed_rest(runs, work: Path) -> None:

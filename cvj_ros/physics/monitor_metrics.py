@@ -67,12 +67,22 @@ class RollingWindow:
         return self._t[order], self._rows[order]
 
     def window(self, span: float) -> tuple[FloatArray, FloatArray]:
-        """Samples with t >= t_last - span (s), in time order."""
-        t, rows = self.samples()
-        if t.size == 0:
-            return t, rows
-        keep = t >= t[-1] - span
-        return t[keep], rows[keep]
+        """Samples with t >= t_last - span (s), in time order (t_last = the newest sample's).
+
+        Selects on the stored times and copies only the selected rows (a full buffer of
+        20000 x 13 was copied per call before: 0.6 ms, four calls per monitor publication)."""
+        n = self._count
+        if n == 0:
+            return self._t[:0].copy(), self._rows[:0].copy()
+        nxt = self._next
+        t_last = self._t[nxt - 1]               # index -1 wraps to the end: the newest sample
+        if n < self.capacity:
+            idx = np.flatnonzero(self._t[:n] >= t_last - span)
+        else:
+            idx = np.flatnonzero(self._t >= t_last - span)
+            split = np.searchsorted(idx, nxt)    # storage order -> time order (oldest at nxt)
+            idx = np.concatenate((idx[split:], idx[:split]))
+        return self._t[idx], self._rows[idx]
 
 
 def speed_nonuniformity(omega: FloatArray, *, min_speed: float = 1e-3) -> FloatArray:

@@ -56,6 +56,25 @@ def test_rolling_window_keeps_last_samples_in_order_and_time_span():
         RollingWindow(0, 1)
 
 
+def test_rolling_window_selection_equals_the_definition_on_every_fill_state():
+    """window(span) = the samples (in time order) with t >= t_newest - span, whatever the
+    buffer's fill and wrap state, also for times that are not increasing."""
+    rng = np.random.default_rng(7)
+    for capacity in (1, 2, 7, 50):
+        win = RollingWindow(capacity, 3)
+        for k in range(3 * capacity + 5):
+            t = 0.01 * k if k % 11 else 0.01 * k - 0.05 * rng.random()   # some going back
+            win.push(t, rng.normal(size=3))
+            t_all, rows_all = win.samples()
+            for span in (0.0, 0.015, 0.1, 1e9):
+                keep = t_all >= t_all[-1] - span
+                t_w, rows_w = win.window(span)
+                np.testing.assert_array_equal(t_w, t_all[keep])
+                np.testing.assert_array_equal(rows_w, rows_all[keep])
+    empty = RollingWindow(4, 2).window(1.0)
+    assert empty[0].shape == (0,) and empty[1].shape == (0, 2)
+
+
 def test_levels():
     assert level(0.05, 0.11, 0.15) == 0
     assert level(0.12, 0.11, 0.15) == 1

@@ -28,6 +28,7 @@ import fnmatch
 import shutil
 import struct
 import threading
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,6 +90,8 @@ FLUSH_WALL_S = 0.5
 SQLITE_MIN_COMMIT_S = 0.05
 
 _TYPESTORE = None
+_monotonic = time.monotonic
+_LE_STAMP = struct.Struct('<iI')
 
 
 def typestore() -> Any:
@@ -730,6 +733,10 @@ class BagRecorder:
         self.last_wall: dict[str, float] = {}
         self._subs: dict[str, Any] = {}
         self._bus_subs: list[Any] = []          # composed mode: bus legs of mixed topics
+        self._local: list[tuple[str, bytes, float]] = []   # composed: collected loop messages
+        # composed mode: every hosted publisher carries this run's token (set by the container),
+        # so the collected loop messages need no run-token check
+        self.trust_local = False
         self._types: dict[str, str] = {}
         self._lock = threading.Lock()
         # topics whose messages are dropped (counted in ``held``) until the run's own loop
@@ -760,12 +767,14 @@ class BagRecorder:
 
     @loop_ended.setter
     def loop_ended(self, value: bool) -> None:
+        self.take_local()
         self._loop_ended = bool(value)
 
     @property
     def foreign(self) -> dict[str, int]:
         """Dropped messages of another run, per topic (a copy); once :attr:`loop_ended`,
         /clock samples still kept back count too."""
+        self.take_local()
         out = dict(self._foreign)
         if self._loop_ended and self._pending_clock:
             out[CLOCK_TOPIC] = out.get(CLOCK_TOPIC, 0) + len(self._pending_clock)
@@ -774,6 +783,7 @@ class BagRecorder:
     @property
     def counts(self) -> dict[str, int]:
         """Messages written per topic."""
+        self.take_local()
         return dict(self.writer.counts)
 
     def subscribe(self, topic: str, msgtype: str | None = None) -> None:
@@ -800,7 +810,10 @@ class BagRecorder:
                     self._on_message(_topic, _type, data, stamped=stamped, is_clock=is_clock,
                                      own_clock=is_clock)
                 if bus.carries(topic):
-                    self._subs[topic] = bus.subscribe(topic, local, node=self.node)
+                    # collected at publish time, handled in bulk (take_local) after each drain
+                    self._subs[topic] = bus.tap(topic, self._collect, node=self.node)
+                    if self.take_local not in bus.after_drain:
+                        bus.after_drain.append(self.take_local)
                 else:
                     hosted, outside = bus.subscribe_mixed(self.node, _msg_class(msgtype), topic,
                                                           local, qos)
@@ -813,8 +826,70 @@ class BagRecorder:
             self._subs[topic] = self.node.create_subscription(
                 _msg_class(msgtype), topic, callback, qos, raw=True)
 
+    def _collect(self, topic: str, data: bytes) -> None:
+        """A hosted publication of a loop topic (composed mode, the in-process bus's tap):
+        kept with its wall time until :meth:`take_local`."""
+        self._local.append((topic, data, _monotonic()))
+
+    def take_local(self) -> None:
+        """Handle the collected hosted publications in publication order, as
+        :meth:`_on_message` would have one by one (the bus calls this after each drain, the
+        composed container at every flush; also before any DDS message, so the record time
+        of an untimed message still follows the latest /clock)."""
+        pending = self._local
+        if not pending:
+            return
+        self._local = []
+        if self.trust_local and hasattr(self.writer, 'write_many'):
+            self._take_trusted(pending)
+            return
+        types = self._types
+        for topic, data, wall in pending:
+            msgtype = types[topic]
+            is_clock = topic == CLOCK_TOPIC
+            self._on_message(topic, msgtype, data, stamped=msgtype in STAMPED_TYPES,
+                             is_clock=is_clock, own_clock=is_clock, wall=wall)
+
+    def _take_trusted(self, pending: list[tuple[str, bytes, float]]) -> None:
+        """:meth:`take_local` when every hosted publisher is this run's (:attr:`trust_local`):
+        the loop topics are stamped, so each message needs only its record stamp (the
+        header or /clock time) and the hold check - what :meth:`_write` does for them, in one
+        loop and one hand-over to the writer (measured in a composed run: 7.4 -> ~1 us per
+        message)."""
+        hold, writer = self.hold, self.writer
+        first, last = self.first_wall, self.last_wall
+        unpack = _LE_STAMP.unpack_from
+        out = []
+        clock_ns = None
+        for topic, data, wall in pending:
+            if topic in hold:
+                self.held += 1
+                continue
+            if data[1] != 1:       # not little-endian CDR: the general path
+                self._write(topic, self._types[topic], data, stamped=True,
+                            is_clock=topic == CLOCK_TOPIC, wall=wall)
+                continue
+            sec, nanosec = unpack(data, 4)
+            stamp = sec * 1_000_000_000 + nanosec
+            if topic == CLOCK_TOPIC:
+                clock_ns = stamp if clock_ns is None else max(clock_ns, stamp)
+                self._clock_written = stamp
+            if topic not in writer.counts:
+                writer.add_topic(topic, self._types[topic])
+            out.append((topic, stamp, data))
+            if topic not in first:
+                first[topic] = wall
+            last[topic] = wall
+        if out:
+            writer.write_many(out)
+            self.last_message_wall = pending[-1][2]
+        if clock_ns is not None:
+            self.clock_ns = max(self.clock_ns, clock_ns)
+
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
-                    is_clock: bool, own_clock: bool = False) -> None:
+                    is_clock: bool, own_clock: bool = False, wall: float | None = None) -> None:
+        if wall is None and self._local:
+            self.take_local()          # hosted loop messages first: they were published before
         if topic in self.hold:
             self.held += 1
             return
@@ -825,13 +900,13 @@ class BagRecorder:
             if not verdict:
                 self._foreign[topic] = self._foreign.get(topic, 0) + 1
                 return
-        self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock)
+        self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock, wall=wall)
         if self.run_token and topic == JOINT_STATES_TOPIC and (
                 self._pending_clock or (len(self._own_js_ns) >= 2 and not self._clock_started)):
             self._flush_pending_clock()
 
-    def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool) -> None:
-        import time
+    def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool,
+               wall: float | None = None) -> None:
         if topic not in self.writer.counts:  # bag connections only for topics with messages
             self.writer.add_topic(topic, msgtype)
         if stamped:
@@ -847,7 +922,7 @@ class BagRecorder:
             self.scene_text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
             self.writer.set_custom_data('cvj_ros.scene', self.scene_text)
         self.writer.write(topic, stamp, data)
-        now = time.monotonic()
+        now = _monotonic() if wall is None else wall
         self.last_message_wall = now
         self.first_wall.setdefault(topic, now)
         self.last_wall[topic] = now
@@ -973,6 +1048,7 @@ class BagRecorder:
 
     def destroy(self) -> None:
         """Remove the subscriptions and timer (the caller closes the writer)."""
+        self.take_local()
         with self._lock:
             for sub in self._subs.values():
                 if hasattr(sub, 'bus'):     # an in-process bus subscription (composed mode)

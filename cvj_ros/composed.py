@@ -108,6 +108,15 @@ class BatchingWriter:
         self.writer.add_topic(topic, msgtype)
         self.counts.setdefault(topic, 0)
 
+    def write_many(self, items: list[tuple[str, int, bytes]]) -> None:
+        """Collect ``(topic, record time ns, bytes)`` messages of registered topics."""
+        self._items.extend(items)
+        counts = self.counts
+        for topic, _ts, _data in items:
+            counts[topic] += 1
+        if len(self._items) >= self.batch:
+            self.flush()
+
     def write(self, topic: str, timestamp_ns: int, data: Any) -> None:
         """Collect one raw CDR message (record time ns); hand over when ``batch`` are collected."""
         self._items.append((topic, int(timestamp_ns), bytes(data)))
@@ -179,6 +188,7 @@ class ComposedDriveline:
             for pub in node.publishers:
                 if topic_type(pub.topic_name) is not None:
                     self.recorder.subscribe(pub.topic_name)
+        self._trust_hosted()
         node.done.add_done_callback(lambda _f: self.wake())   # finished or failed: stop spinning
         self.executor.add_node(node)
         return node
@@ -198,8 +208,18 @@ class ComposedDriveline:
         self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
                                            run_token=run_token)
         self.recorder.hold = frozenset(hold)
+        self._trust_hosted()
         self.executor.add_node(self._recorder_node)
         return self.recorder
+
+    def _trust_hosted(self) -> None:
+        """The recorder takes the hosted loop messages without a run-token check when every
+        hosted node that publishes them has the recorder's token (or the recorder has none):
+        they are this run's by construction."""
+        if self.recorder is not None:
+            token = self.recorder.run_token
+            self.recorder.trust_local = self.bus is not None and (not token or all(
+                getattr(node, 'run_token', token) == token for node in self.nodes.values()))
 
     def publisher_count(self, topic: str) -> int:
         """Publishers matched by the recorder's subscription of ``topic`` (0 without
@@ -235,7 +255,9 @@ class ComposedDriveline:
         self._spin(seconds)
 
     def flush(self) -> None:
-        """Hand the recorder's collected messages to the bag writer thread."""
+        """Handle the recorder's collected loop messages and hand them to the bag writer thread."""
+        if self.recorder is not None:
+            self.recorder.take_local()
         if self.batching is not None:
             self.batching.flush()
 
@@ -472,6 +494,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             if comp is not None:
                 exit_codes = {n: node.exit_code for n, node in comp.nodes.items()}
                 if comp.recorder is not None:
+                    comp.flush()
                     rec_state = (dict(comp.recorder.first_wall), dict(comp.recorder.last_wall))
                     foreign_dropped = dict(comp.recorder.foreign)
                 comp.destroy()

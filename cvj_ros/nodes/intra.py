@@ -99,6 +99,18 @@ class IntraSubscription:
         self.bus.unsubscribe(self)
 
 
+class IntraTap(IntraSubscription):
+    """Handle of :meth:`IntraProcessBus.tap` (publisher count and destroy as a subscription)."""
+
+    def __init__(self, bus: 'IntraProcessBus', node: Any, topic: str,
+                 fn: Callable[[str, bytes], None]) -> None:
+        super().__init__(bus, node, topic, lambda _data: None)
+        self.fn = fn
+
+    def destroy(self) -> None:
+        self.bus.untap(self)
+
+
 class IntraPublisher:
     """Publisher of a carried topic: the hosted subscribers get the CDR bytes through the
     bus; DDS gets the message while an outside subscriber is matched.
@@ -167,6 +179,10 @@ class IntraProcessBus:
         self.budget_s = budget_s
         self._subs: dict[str, list[IntraSubscription]] = {}
         self._callbacks: dict[str, tuple[Callable[[bytes], None], ...]] = {}
+        # taps: called at publish time with (topic, data) - for a consumer that only collects
+        # (the recorder); they must not publish or call back into a node
+        self._taps: dict[str, list[Callable[[str, bytes], None]]] = {}
+        self.after_drain: list[Callable[[], None]] = []     # run at the end of every drain
         self._queue: deque[tuple[Callable[[bytes], None], bytes]] = deque()
         self._draining = False
         self._armed = False
@@ -247,6 +263,18 @@ class IntraProcessBus:
         self._callbacks[topic] = tuple(s.callback for s in self._subs[topic])
         return sub
 
+    def tap(self, topic: str, fn: Callable[[str, bytes], None], *, node: Any) -> 'IntraTap':
+        """Call ``fn(topic, data)`` inside every publish of ``topic`` (no queue: for a consumer
+        that only collects, such as the recorder, which then handles its collection in bulk
+        from :attr:`after_drain`; ordered as published)."""
+        self._taps.setdefault(topic, []).append(fn)
+        return IntraTap(self, node, topic, fn)
+
+    def untap(self, tap: 'IntraTap') -> None:
+        fns = self._taps.get(tap.topic_name, [])
+        if tap.fn in fns:
+            fns.remove(tap.fn)
+
     def unsubscribe(self, sub: IntraSubscription) -> None:
         subs = self._subs.get(sub.topic_name, [])
         if sub in subs:
@@ -254,7 +282,7 @@ class IntraProcessBus:
             self._callbacks[sub.topic_name] = tuple(s.callback for s in subs)
 
     def subscriber_count(self, topic: str) -> int:
-        return len(self._callbacks.get(topic, ()))
+        return len(self._callbacks.get(topic, ())) + len(self._taps.get(topic, ()))
 
     def wrap(self, publisher: Any) -> IntraPublisher:
         return IntraPublisher(self, publisher)
@@ -266,6 +294,10 @@ class IntraProcessBus:
 
     def deliver(self, topic: str, data: bytes) -> None:
         """Queue ``data`` for every hosted subscriber of ``topic``; they run from the drain."""
+        taps = self._taps.get(topic)
+        if taps:
+            for fn in taps:
+                fn(topic, data)
         callbacks = self._callbacks.get(topic)
         if not callbacks:
             return
@@ -306,12 +338,16 @@ class IntraProcessBus:
             if queue and not self._armed:
                 self._armed = True
                 self._timer.reset()
+        for hook in self.after_drain:
+            hook()
         return ran
 
     def destroy(self) -> None:
         """Drop every subscription and queued delivery; remove the timer."""
         self._subs.clear()
         self._callbacks.clear()
+        self._taps.clear()
+        self.after_drain.clear()
         self._queue.clear()
         try:
             self.node.destroy_timer(self._timer)

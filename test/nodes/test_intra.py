@@ -218,3 +218,42 @@ def test_mixed_topic_hosted_once_outside_from_dds(ctx, bus) -> None:
         hosted.destroy_node()
         outside.destroy_node()
         rclpy.shutdown(context=other)
+
+
+@pytest.mark.parametrize('trust', [True, False])
+def test_recorder_taps_the_bus_and_writes_what_it_would_per_message(ctx, bus, tmp_path, trust) -> None:
+    """The recorder collects hosted loop messages at publish time (a tap, no queue) and writes
+    them in bulk after each drain: the same bag records (stamp = header stamp, publication
+    order) with and without the run-token check of each message (``trust_local``), the
+    counts current when read, walls per topic set."""
+    from cvj_ros import bag as bagmod
+    from cvj_ros.composed import BatchingWriter
+    node = rclpy.create_node('cvj_recorder', context=ctx)
+    pub_node = rclpy.create_node('engine_like', context=ctx)
+    ex = EventsExecutor(context=ctx)
+    for n in (bus.node, node, pub_node):
+        ex.add_node(n)
+    writer = bagmod.BagWriter(tmp_path / 'bag')
+    try:
+        rec = bagmod.BagRecorder(node, BatchingWriter(writer), run_token='0123abcd', discover_period=0)
+        rec.trust_local = trust
+        assert isinstance(rec._subs[ENGINE_WRENCH_TOPIC], intra.IntraTap)
+        assert rec.take_local in bus.after_drain
+        pub = intra.loop_publisher(pub_node, WrenchStamped, ENGINE_WRENCH_TOPIC, DATA_QOS)
+        assert pub.get_subscription_count() == 1            # the tap counts as a subscriber
+        enc = WrenchStampedEncoder('crank@0123abcd')
+        sent = [enc.encode(0, 1_000_000 * k, 0.0, 0.0, 0.0, 0.0, 0.0, float(k)) for k in range(300)]
+        for data in sent:
+            pub.publish(data)
+        assert len(rec._local) == 300                      # collected, not yet written
+        assert rec.counts[ENGINE_WRENCH_TOPIC] == 300       # reading the counts takes them
+        assert rec._local == [] and ENGINE_WRENCH_TOPIC in rec.first_wall
+        rec.destroy()
+        rec.writer.flush()
+    finally:
+        writer.close()
+        ex.shutdown()
+        node.destroy_node()
+        pub_node.destroy_node()
+    back = [(topic, stamp, bytes(data)) for topic, _type, stamp, data in bagmod.read_raw(tmp_path / 'bag')]
+    assert back == [(ENGINE_WRENCH_TOPIC, 1_000_000 * k, sent[k]) for k in range(300)]

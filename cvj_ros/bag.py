@@ -752,6 +752,7 @@ class BagRecorder:
         self._pending_clock: list[tuple[int, bytes]] = []
         self._clock_started = False            # the start-up rule of the pending /clock done
         self._clock_written: int | None = None  # value (ns) of the last /clock written
+        typestore()   # built now (~0.2 s), not inside the loop at the first /driveline/scene
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
         self._timer = node.create_timer(discover_period, self.discover) if discover_period > 0 else None

@@ -206,17 +206,54 @@ class MonitorNode(CvjNode):
         return self._load_torque
 
     def take_samples(self) -> None:
-        """Read the collected joint states and answers into the windows (in arrival order)."""
+        """Read the collected joint states and answers into the windows (in arrival order;
+        one :meth:`RollingWindow.push_many` per window and run of equal shaft names)."""
         if self._js_batch:
             batch, self._js_batch = self._js_batch, []
             decode = self._decode
+            ts: list[float] = []
+            vel: list[Any] = []
+            eff: list[Any] = []
             for data in batch:
-                self._on_joint_states(decode(data), publish=False)
+                msg = decode(data)
+                names = msg.name
+                if names is not self.names and (names != self.names or self.speeds is None):
+                    self._push_js(ts, vel, eff)          # the samples before the change
+                    ts, vel, eff = [], [], []
+                    self._on_joint_states(msg, publish=False)   # new windows, this sample
+                    continue
+                if self.run_token and self._foreign(msg.header.frame_id):
+                    continue
+                self.names = names
+                n = len(names)
+                stamp = msg.header.stamp
+                self.last_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+                ts.append(self.last_ns / 1e9)
+                vel.append(msg.velocity if len(msg.velocity) == n else [math.nan] * n)
+                eff.append(msg.effort if len(msg.effort) == n else [math.nan] * n)
+            self._push_js(ts, vel, eff)
         if self._torque_batch:
             batch = list(self._torque_batch)
             self._torque_batch.clear()
+            rows: dict[int, tuple[RollingWindow, list[float], list[float]]] = {}
             for data, window in batch:
-                self._on_torque_raw(data, window)
+                stamp_ns, frame, torque_z = decode_wrench_header_torque_z(data)
+                if self._foreign(frame.decode('utf-8', errors='replace')):
+                    continue
+                entry = rows.get(id(window))
+                if entry is None:
+                    entry = rows[id(window)] = (window, [], [])
+                entry[1].append(stamp_ns / 1e9)
+                entry[2].append(torque_z)
+            for window, t, z in rows.values():
+                window.push_many(t, z)
+
+    def _push_js(self, ts: list[float], vel: list[Any], eff: list[Any]) -> None:
+        if ts:
+            assert self.speeds is not None and self.efforts is not None
+            self.speeds.push_many(ts, vel)
+            self.efforts.push_many(ts, eff)
+            self.samples += len(ts)
 
     def _on_joint_states(self, msg: Any, *, publish: bool = True) -> None:
         """One joint state (a JointState or a :class:`~cvj_ros.nodes.cdr.JointStateView`)."""

@@ -59,6 +59,28 @@ class RollingWindow:
         self._next = (self._next + 1) % self.capacity
         self._count = min(self._count + 1, self.capacity)
 
+    def push_many(self, t: Sequence[float] | FloatArray, rows: Sequence[Sequence[float]] | FloatArray) -> None:
+        """Append samples in order (t (m,) in s; rows (m, width)): the same buffer as m
+        calls of :meth:`push`, in at most two slice assignments."""
+        t = np.asarray(t, dtype=float)
+        rows = np.asarray(rows, dtype=float).reshape(t.size, self.width)
+        m = t.size
+        if m == 0:
+            return
+        if m > self.capacity:                     # only the last `capacity` survive
+            skip = m - self.capacity
+            self._next = (self._next + skip) % self.capacity
+            self._count = min(self._count + skip, self.capacity)
+            t, rows, m = t[skip:], rows[skip:], self.capacity
+        first = min(m, self.capacity - self._next)
+        self._t[self._next:self._next + first] = t[:first]
+        self._rows[self._next:self._next + first] = rows[:first]
+        if first < m:
+            self._t[:m - first] = t[first:]
+            self._rows[:m - first] = rows[first:]
+        self._next = (self._next + m) % self.capacity
+        self._count = min(self._count + m, self.capacity)
+
     def samples(self) -> tuple[FloatArray, FloatArray]:
         """All stored samples in time order: (t (n,), rows (n, width))."""
         if self._count < self.capacity:

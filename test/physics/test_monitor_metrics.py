@@ -75,6 +75,24 @@ def test_rolling_window_selection_equals_the_definition_on_every_fill_state():
     assert empty[0].shape == (0,) and empty[1].shape == (0, 2)
 
 
+def test_push_many_equals_pushes_one_by_one():
+    rng = np.random.default_rng(3)
+    for capacity in (1, 3, 10):
+        one, many = RollingWindow(capacity, 2), RollingWindow(capacity, 2)
+        k = 0
+        for m in (0, 1, 2, 5, 11, 3, 25, 1):
+            t = 0.01 * np.arange(k, k + m)
+            rows = rng.normal(size=(m, 2))
+            for i in range(m):
+                one.push(t[i], rows[i])
+            many.push_many(t, rows)
+            k += m
+            assert len(one) == len(many)
+            for a, b in zip(one.samples(), many.samples()):
+                np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(one._t, many._t)
+
+
 def test_levels():
     assert level(0.05, 0.11, 0.15) == 0
     assert level(0.12, 0.11, 0.15) == 1

@@ -81,6 +81,11 @@ PARAMS = (
 )
 
 
+#: samples collected before they are read into the windows anyway (bounds the memory with a
+#: large publish_every: the windows are fixed-size ring buffers, the collection is not)
+MAX_COLLECTED = 1000
+
+
 class MonitorNode(CvjNode):
     """Rolling-window run monitor (see module docstring). Parameters: :data:`PARAMS`."""
 
@@ -123,12 +128,11 @@ class MonitorNode(CvjNode):
         # the answers as raw CDR: stamp, frame_id and torque.z read in place
         # (decode_wrench_header_torque_z) instead of rclpy building a Python WrenchStamped per
         # sample (measured 75-145 us each, two per exchange; docs/nodes.md, composed mode)
-        batch = self._torque_batch
         self.engine_sub = loop_subscription(self, WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                            lambda data: batch.append((data, self._engine_torque)),
+                                            lambda data: self._collect_torque(data, self._engine_torque),
                                             DATA_QOS)
         self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
-                                          lambda data: batch.append((data, self._load_torque)),
+                                          lambda data: self._collect_torque(data, self._load_torque),
                                           DATA_QOS)
         self.diag_sub = loop_subscription(self, DiagnosticArray, DIAGNOSTICS_TOPIC,
                                           self._on_diagnostics, DATA_QOS, raw=False)
@@ -189,9 +193,19 @@ class MonitorNode(CvjNode):
         if self.run_token and cdr_is_foreign(data, self.run_token):
             self.foreign_messages += 1
             return
-        self._js_batch.append(data)
-        if (self.samples + len(self._js_batch)) % self.params['publish_every'] == 0:
+        batch = self._js_batch
+        batch.append(data)
+        if (self.samples + len(batch)) % self.params['publish_every'] == 0:
             self.publish()
+        elif len(batch) >= MAX_COLLECTED:
+            self.take_samples()
+
+    def _collect_torque(self, data: bytes, window: RollingWindow) -> None:
+        """A serialised answer, kept for :meth:`take_samples`."""
+        batch = self._torque_batch
+        batch.append((data, window))
+        if len(batch) >= 2 * MAX_COLLECTED:
+            self.take_samples()
 
     @property
     def engine_torque(self) -> RollingWindow:

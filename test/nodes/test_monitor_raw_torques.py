@@ -90,3 +90,28 @@ def test_torque_windows_from_raw_answers(ctx):
         ex.shutdown()
         peer.destroy_node()
         node.destroy_node()
+
+
+def test_collected_samples_stay_bounded_with_a_large_publish_every(ctx):
+    """The monitor collects samples and reads them into its (fixed-size) windows when it
+    publishes; with publish_every far above the run length the collection is read every
+    MAX_COLLECTED samples instead of growing with the run."""
+    from cvj_ros.nodes import monitor_node as mn
+    from cvj_ros.nodes.cdr import JointStateEncoder, WrenchStampedEncoder
+    node = MonitorNode(context=ctx, parameter_overrides=[
+        Parameter('publish_every', value=10**9), Parameter('capacity', value=500)])
+    try:
+        js = JointStateEncoder(['a', 'b'])
+        we = WrenchStampedEncoder('shaft')
+        for k in range(2500):
+            sec, ns = divmod(k * 1_000_000, 10**9)
+            node._on_joint_states_raw(js.encode(sec, ns, [0.0, 1.0], [40.0, 41.0], [1.0, 2.0]))
+            node._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 5.0), node._engine_torque)
+            assert len(node._js_batch) < mn.MAX_COLLECTED
+            assert len(node._torque_batch) < 2 * mn.MAX_COLLECTED
+        assert node.samples + len(node._js_batch) == 2500 and node.published == 0
+        t, z = node.engine_torque.window(1e9)           # reading takes the rest
+        assert t.size == 500 and t[-1] == pytest.approx(2.499) and (z == 5.0).all()
+        assert node.samples == 2500 and node._js_batch == []
+    finally:
+        node.destroy_node()

@@ -35,6 +35,7 @@ import math
 import sys
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -116,8 +117,8 @@ def main(args: list[str] | None = None) -> int:
     try:
         while rclpy.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.1)
-    except KeyboardInterrupt:
-        pass
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass   # Ctrl-C / SIGTERM: rclpy's handler may shut the context down mid-spin
     finally:
         answered = node.answers
         node.destroy_node()

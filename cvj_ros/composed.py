@@ -278,8 +278,22 @@ class ComposedDriveline:
                 return f'{name}: {node.error_message or f"exit status {node.exit_code}"}'
         return None
 
+    def settle(self) -> None:
+        """Run what the in-process bus still holds (the nodes are alive: e.g. the coupling
+        node's final diagnostics, queued for the recorder behind the last answers), then
+        :meth:`flush`. Without it a drain cut by its budget when the loop ended left those
+        deliveries to be dropped by :meth:`destroy` (a bag one /diagnostics short, once in
+        a CI run)."""
+        if self.bus is not None:
+            self.bus.drain(1.0)
+        self.flush()
+
     def destroy(self) -> None:
         """Remove every node and the recorder's subscriptions; shut the executor down."""
+        try:
+            self.settle()
+        except Exception:  # noqa: BLE001 (a node failing now: its own error line is out already)
+            pass
         try:
             self.executor.shutdown()
         except Exception:  # noqa: BLE001 (context already shut down)
@@ -494,7 +508,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             if comp is not None:
                 exit_codes = {n: node.exit_code for n, node in comp.nodes.items()}
                 if comp.recorder is not None:
-                    comp.flush()
+                    comp.settle()
                     rec_state = (dict(comp.recorder.first_wall), dict(comp.recorder.last_wall))
                     foreign_dropped = dict(comp.recorder.foreign)
                 comp.destroy()

@@ -88,10 +88,11 @@ from std_msgs.msg import String
 from cvj_ros.errors import CvjError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
+from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
-                                  decode_wrench_header_torque_z, diag_array, diag_status, load_scene_param,
+                                  decode_wrench_header_torque_z, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
@@ -778,10 +779,8 @@ class CouplingNode(CvjNode):
         return stats
 
     def publish_diagnostics(self, level: bytes, message: str) -> None:
-        status = diag_status('coupling_node: loop', level, message, self.loop_stats())
-        msg = diag_array(self.t_ns, [status])
-        msg.header.frame_id = self.diag_frame
-        self.diag_pub.publish(msg)
+        publish_statuses(self.diag_pub, self.t_ns, self.diag_frame,
+                         [plain_status('coupling_node: loop', level, message, self.loop_stats())])
 
 
 def main(args: Sequence[str] | None = None) -> None:

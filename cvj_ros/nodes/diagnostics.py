@@ -3,9 +3,10 @@
 Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
 """
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -37,6 +38,50 @@ def diag_status(name: str, level: bytes, message: str, values: Mapping[str, Any]
         kv.append(KeyValue(key=str(k), value=f'{v:.6g}' if isinstance(v, float) else str(v)))
     return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
                             values=kv)
+
+
+class Status(NamedTuple):
+    """One diagnostic status as plain values (what :func:`publish_statuses` encodes
+    without building rclpy messages): level (DiagnosticStatus level, bytes of 1), name,
+    message, hardware_id, values ((key, value) str pairs)."""
+    level: bytes
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...]
+
+
+def plain_status(name: str, level: bytes, message: str, values: Mapping[str, Any] | None = None,
+                 *, hardware_id: str = 'cvj_ros') -> Status:
+    """:func:`diag_status` as a :class:`Status` (the same value formatting)."""
+    return Status(level, name, message, hardware_id,
+                  tuple((str(k), f'{v:.6g}' if isinstance(v, float) else str(v))
+                        for k, v in (values or {}).items()))
+
+
+def status_message(status: Status) -> DiagnosticStatus:
+    """The rclpy DiagnosticStatus of a :class:`Status`."""
+    return DiagnosticStatus(level=status.level, name=status.name, message=status.message,
+                            hardware_id=status.hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in status.values])
+
+
+@functools.lru_cache(maxsize=1)
+def _array_encoder() -> Any:
+    from cvj_ros.nodes.cdr import DiagnosticArrayEncoder
+    return DiagnosticArrayEncoder()
+
+
+def publish_statuses(publisher: Any, stamp_ns: int, frame_id: str, statuses: Sequence[Status]) -> None:
+    """Publish one DiagnosticArray of ``statuses`` at ``stamp_ns`` (integer ns) as CDR
+    bytes (cvj_ros.nodes.cdr.DiagnosticArrayEncoder; rclpy messages if its self-check failed)."""
+    encoder = _array_encoder()
+    if encoder.ok:
+        publisher.publish(encoder.encode(stamp_ns, frame_id, statuses))
+        return
+    msg = diag_array(stamp_ns, [status_message(st) for st in statuses])
+    msg.header.frame_id = frame_id
+    publisher.publish(msg)
 
 
 def diag_array(stamp_ns: int, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:

@@ -26,23 +26,26 @@ from collections.abc import Sequence
 from typing import Any
 
 import yaml
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.nodes.common import (ERROR, OK, WARN, CvjNode, ParamSpec, declare_parameters,
-                                  diag_array, diag_status, load_scene_param, run_node,
-                                  scene_dict, stamp_to_ns)
+                                  load_scene_param, run_node, scene_dict, stamp_to_ns)
+from cvj_ros.nodes.diagnostics import Status, plain_status, publish_statuses
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
-from cvj_ros.nodes.cdr import JointStateDecoder, decode_wrench_header_torque_z
+from cvj_ros.nodes.cdr import (JointStateDecoder, decode_wrench_header_torque_z,
+                               decode_diagnostic_array, read_joint_state_block,
+                               read_wrench_torque_z_block)
 from cvj_ros.nodes.run_token import (cdr_is_foreign, is_foreign, run_token_param, tag_frame,
                                      validated_run_token)
 from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
                                              DEFAULT_NONUNIFORMITY_WARN,
-                                             RECOMMENDED_MAX_ANGLE_DEG, RollingWindow, amplitude,
-                                             angle_level, level, speed_nonuniformity)
+                                             RECOMMENDED_MAX_ANGLE_DEG, RollingWindow,
+                                             angle_level, column_stats, level,
+                                             nonuniformity_from_stats)
 
 LEVELS = (OK, WARN, ERROR)
 
@@ -111,12 +114,13 @@ class MonitorNode(CvjNode):
         self.samples = 0
         self.last_ns = 0
         self.published = 0
-        self.last_statuses: list[DiagnosticStatus] = []
+        self.last_statuses: list[Status] = []
         from cvj_ros.nodes.intra import loop_publisher, loop_subscription
         self.diag_pub = loop_publisher(self, DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
         # joint states as raw CDR too, read by JointStateDecoder (rclpy's Python JointState
         # per sample cost ~4x more; issue 10)
-        self._decode = JointStateDecoder().decode
+        self._js_decoder = JointStateDecoder()
+        self._decode = self._js_decoder.decode
         # Samples are collected as they come and read in bulk when the statuses are computed
         # (every publish_every joint states): the per-sample callback only checks the run
         # token and appends (composed mode, in-process bus: ~45 -> ~10 us per exchange).
@@ -220,50 +224,93 @@ class MonitorNode(CvjNode):
         return self._load_torque
 
     def take_samples(self) -> None:
-        """Read the collected joint states and answers into the windows (in arrival order;
-        one :meth:`RollingWindow.push_many` per window and run of equal shaft names)."""
+        """Read the collected joint states and answers into the windows (in arrival order).
+
+        A batch of one layout (the coupling node's samples) is read at once
+        (:func:`~cvj_ros.nodes.cdr.read_joint_state_block`, one ``push_many`` per window);
+        anything else (names changing, short arrays, other encodings) sample by sample."""
         if self._js_batch:
             batch, self._js_batch = self._js_batch, []
-            decode = self._decode
-            ts: list[float] = []
-            vel: list[Any] = []
-            eff: list[Any] = []
-            for data in batch:
-                msg = decode(data)
-                names = msg.name
-                if names is not self.names and (names != self.names or self.speeds is None):
-                    self._push_js(ts, vel, eff)          # the samples before the change
-                    ts, vel, eff = [], [], []
-                    self._on_joint_states(msg, publish=False)   # new windows, this sample
-                    continue
-                if self.run_token and self._foreign(msg.header.frame_id):
-                    continue
-                self.names = names
-                n = len(names)
-                stamp = msg.header.stamp
-                self.last_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-                ts.append(self.last_ns / 1e9)
-                vel.append(msg.velocity if len(msg.velocity) == n else [math.nan] * n)
-                eff.append(msg.effort if len(msg.effort) == n else [math.nan] * n)
-            self._push_js(ts, vel, eff)
+            block = read_joint_state_block(batch, self._js_decoder)
+            if block is None or not self._use_names(block.name):
+                self._take_js_one_by_one(batch)
+            elif self.run_token and self._foreign(block.frame_id):
+                self.foreign_messages += len(batch) - 1
+            else:
+                t = block.stamp_ns / 1e9
+                self.last_ns = int(block.stamp_ns[-1])
+                self._push_js(t, block.velocity, block.effort)
         if self._torque_batch:
             batch = list(self._torque_batch)
             self._torque_batch.clear()
-            rows: dict[int, tuple[RollingWindow, list[float], list[float]]] = {}
+            groups: dict[int, tuple[RollingWindow, list[bytes]]] = {}
             for data, window in batch:
-                stamp_ns, frame, torque_z = decode_wrench_header_torque_z(data)
-                if self._foreign(frame.decode('utf-8', errors='replace')):
-                    continue
-                entry = rows.get(id(window))
-                if entry is None:
-                    entry = rows[id(window)] = (window, [], [])
-                entry[1].append(stamp_ns / 1e9)
-                entry[2].append(torque_z)
-            for window, t, z in rows.values():
-                window.push_many(t, z)
+                groups.setdefault(id(window), (window, []))[1].append(data)
+            for window, samples in groups.values():
+                self._take_torques(window, samples)
 
-    def _push_js(self, ts: list[float], vel: list[Any], eff: list[Any]) -> None:
-        if ts:
+    def _take_torques(self, window: RollingWindow, samples: list[bytes]) -> None:
+        block = read_wrench_torque_z_block(samples)
+        if block is not None:
+            stamp_ns, frame, torque_z = block
+            if self._foreign(frame.decode('utf-8', errors='replace')):
+                self.foreign_messages += len(samples) - 1
+                return
+            window.push_many(stamp_ns / 1e9, torque_z)
+            return
+        t: list[float] = []
+        z: list[float] = []
+        for data in samples:
+            stamp_ns, frame_b, torque_z = decode_wrench_header_torque_z(data)
+            if self._foreign(frame_b.decode('utf-8', errors='replace')):
+                continue
+            t.append(stamp_ns / 1e9)
+            z.append(torque_z)
+        window.push_many(t, z)
+
+    def _take_js_one_by_one(self, batch: list[bytes]) -> None:
+        decode = self._decode
+        ts: list[float] = []
+        vel: list[Any] = []
+        eff: list[Any] = []
+        for data in batch:
+            msg = decode(data)
+            if msg.name is not self.names and ts:
+                self._push_js(ts, vel, eff)          # the samples before a change of names
+                ts, vel, eff = [], [], []
+            row = self._read_joint_state(msg)
+            if row is not None:
+                ts.append(row[0])
+                vel.append(row[1])
+                eff.append(row[2])
+        self._push_js(ts, vel, eff)
+
+    def _use_names(self, names: list[str]) -> bool:
+        """Windows for shafts ``names`` (new ones when the names change); True."""
+        if names is not self.names:
+            if names != self.names or self.speeds is None:
+                cap = self.params['capacity']
+                self.speeds = RollingWindow(cap, max(len(names), 1))
+                self.efforts = RollingWindow(cap, max(len(names), 1))
+            self.names = names
+        return True
+
+    def _read_joint_state(self, msg: Any) -> tuple[float, Any, Any] | None:
+        """(t in s, velocity row, effort row) of one joint state for the windows (NaN rows
+        for arrays shorter than the names), or None for another run's (counted); the
+        windows follow its names."""
+        if self.run_token and self._foreign(msg.header.frame_id):
+            return None
+        names = msg.name     # a decoder's cached list: identical object while names repeat
+        self._use_names(names)
+        self.last_ns = stamp_to_ns(msg.header.stamp)
+        n = len(names)
+        vel = msg.velocity if len(msg.velocity) == n else [math.nan] * n
+        eff = msg.effort if len(msg.effort) == n else [math.nan] * n
+        return self.last_ns / 1e9, vel, eff
+
+    def _push_js(self, ts: Any, vel: Any, eff: Any) -> None:
+        if len(ts):
             assert self.speeds is not None and self.efforts is not None
             self.speeds.push_many(ts, vel)
             self.efforts.push_many(ts, eff)
@@ -271,24 +318,11 @@ class MonitorNode(CvjNode):
 
     def _on_joint_states(self, msg: Any, *, publish: bool = True) -> None:
         """One joint state (a JointState or a :class:`~cvj_ros.nodes.cdr.JointStateView`)."""
-        if self.run_token and self._foreign(msg.header.frame_id):
+        self.take_samples()                      # keep arrival order with collected samples
+        row = self._read_joint_state(msg)
+        if row is None:
             return
-        names = msg.name     # a decoder's cached list: identical object while names repeat
-        if names is not self.names:
-            if names != self.names or self.speeds is None:
-                cap = self.params['capacity']
-                self.speeds = RollingWindow(cap, max(len(names), 1))
-                self.efforts = RollingWindow(cap, max(len(names), 1))
-            self.names = names
-        self.last_ns = stamp_to_ns(msg.header.stamp)
-        t = self.last_ns / 1e9
-        n = len(names)
-        vel = msg.velocity if len(msg.velocity) == n else [math.nan] * n
-        eff = msg.effort if len(msg.effort) == n else [math.nan] * n
-        self.speeds.push(t, vel)
-        assert self.efforts is not None
-        self.efforts.push(t, eff)
-        self.samples += 1
+        self._push_js((row[0],), (row[1],), (row[2],))
         if publish and self.samples % self.params['publish_every'] == 0:
             self.publish()
 
@@ -309,34 +343,41 @@ class MonitorNode(CvjNode):
             return
         if b'coupling_node' not in data:
             return
-        from rclpy.serialization import deserialize_message
-        self._on_diagnostics(deserialize_message(data, DiagnosticArray))
+        _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+        self._take_loop_status(frame, [(name, values) for _l, name, _m, _h, values in statuses])
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        if self._foreign(msg.header.frame_id):
+        self._take_loop_status(msg.header.frame_id, [(st.name, [(kv.key, kv.value) for kv in st.values])
+                                                     for st in msg.status])
+
+    def _take_loop_status(self, frame_id: str, statuses: list[tuple[str, list[tuple[str, str]]]]) -> None:
+        """Keep the float values of the coupling node's statuses (name, key/values) of one
+        /diagnostics message with header.frame_id ``frame_id`` (another run's: counted)."""
+        if self._foreign(frame_id):
             return
-        for st in msg.status:
-            if not st.name.startswith('coupling_node'):
+        for name, values in statuses:
+            if not name.startswith('coupling_node'):
                 continue
-            for kv in st.values:
+            for key, value in values:
                 try:
-                    self.loop_values[kv.key] = float(kv.value)
+                    self.loop_values[key] = float(value)
                 except ValueError:
                     pass
 
     # --- output -----------------------------------------------------------------------------
 
-    def compute(self) -> list[DiagnosticStatus]:
+    def compute(self) -> list[Status]:
         """The statuses of one /diagnostics message from the current windows."""
         self.take_samples()
         p = self.params
-        out: list[DiagnosticStatus] = []
+        out: list[Status] = []
         if self.speeds is not None and self.efforts is not None and len(self.speeds):
             _t, w = self.speeds.window(p['window'])
             _t, e = self.efforts.window(p['window'])
-            delta = speed_nonuniformity(w, min_speed=max(p['min_speed'], 1e-12))
-            w_amp, e_amp = amplitude(w), amplitude(e)
-            w_mean = w.mean(axis=0)
+            w_mean, w_lo, w_hi = column_stats(w)
+            _e_mean, e_lo, e_hi = column_stats(e)
+            delta = nonuniformity_from_stats(w_mean, w_lo, w_hi, min_speed=max(p['min_speed'], 1e-12))
+            w_amp, e_amp = 0.5 * (w_hi - w_lo), 0.5 * (e_hi - e_lo)
             for i, name in enumerate(self.names):
                 d = float(delta[i])
                 lv = 0 if math.isnan(d) and math.isfinite(w_mean[i]) else level(
@@ -346,7 +387,7 @@ class MonitorNode(CvjNode):
                 if name in self.internal_members and math.isfinite(d):
                     lv = 0   # the thresholds are for shafts (seed 004 sec. 4), not a cage
                     msg += ' (internal member: no limit)'
-                out.append(diag_status(f'monitor: {name}', LEVELS[lv], msg, {
+                out.append(plain_status(f'monitor: {name}', LEVELS[lv], msg, {
                     'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,
                     'speed_amplitude_rad_s': float(w_amp[i]),
                     'torque_amplitude_nm': float(e_amp[i]), 'samples': int(w.shape[0])}))
@@ -354,15 +395,16 @@ class MonitorNode(CvjNode):
         for label, win in (('engine', self.engine_torque), ('load', self.load_torque)):
             _t, x = win.window(p['window'])
             if x.shape[0]:
-                values[f'{label}_torque_mean_nm'] = float(x.mean())
-                values[f'{label}_torque_amplitude_nm'] = float(amplitude(x)[0])
+                mean, lo, hi = column_stats(x)
+                values[f'{label}_torque_mean_nm'] = float(mean[0])
+                values[f'{label}_torque_amplitude_nm'] = float(0.5 * (hi[0] - lo[0]))
         if values:
             ok = all(math.isfinite(v) for v in values.values())
-            out.append(diag_status('monitor: torques', OK if ok else ERROR,
+            out.append(plain_status('monitor: torques', OK if ok else ERROR,
                                    'ok' if ok else 'non-finite torque', values))
         for joint, (angle, limit) in self.joint_limits.items():
             lv = angle_level(angle, limit, error_margin_deg=p['angle_error_margin_deg'])
-            out.append(diag_status(f'monitor: joint {joint}', LEVELS[lv],
+            out.append(plain_status(f'monitor: joint {joint}', LEVELS[lv],
                                    f'angle {angle:.3g} deg, recommended <= {limit:.3g} deg',
                                    {'angle_deg': angle, 'limit_deg': limit}))
         if self.loop_values:
@@ -381,16 +423,14 @@ class MonitorNode(CvjNode):
             keys = ('energy_residual', 'real_time_factor', 'lockstep_wait_us_mean',
                     'overhead_us_mean', 'integration_us_mean', 'steps', 'ignored_stamps',
                     'rejected_torques', 'held_torques')
-            out.append(diag_status('monitor: loop', LEVELS[lv], '; '.join(lv_msgs) or 'ok',
+            out.append(plain_status('monitor: loop', LEVELS[lv], '; '.join(lv_msgs) or 'ok',
                                    {k: self.loop_values[k] for k in keys if k in self.loop_values}))
         return out
 
     def publish(self) -> None:
         self.last_statuses = self.compute()
         if self.last_statuses:
-            msg = diag_array(self.last_ns, self.last_statuses)
-            msg.header.frame_id = self._diag_frame
-            self.diag_pub.publish(msg)
+            publish_statuses(self.diag_pub, self.last_ns, self._diag_frame, self.last_statuses)
             self.published += 1
 
 

@@ -4,16 +4,14 @@ Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these
 """
 
 import math
-import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 
 
 from cvj_ros.nodes.executor import CvjNode
-from cvj_ros.nodes.diagnostics import ERROR, WARN, diag_array, diag_status
+from cvj_ros.nodes.diagnostics import ERROR, WARN, plain_status, publish_statuses
 from cvj_ros.nodes.parameters import NS_PER_S, ParameterError
 from cvj_ros.nodes.cdr import WrenchStampedEncoder
 from cvj_ros.nodes.run_token import frame_token, is_foreign, tag_frame
@@ -65,10 +63,11 @@ class TorqueResponder(CvjNode):
         self._encoders = {shaft: self._answer_cdr}
         # raw CDR read by JointStateDecoder: rclpy's Python JointState per sample cost ~4x more
         # (docs/nodes.md, composed mode); _on_joint_states takes either form
-        from cvj_ros.nodes.cdr import JointStateDecoder
-        decode = JointStateDecoder().decode
+        from cvj_ros.nodes.cdr import JointStateDecoder, ShaftReader
+        self._decode = JointStateDecoder().decode
+        self._read_shaft = ShaftReader(shaft).read
         self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
-                                        lambda data: self._on_joint_states(decode(data)), DATA_QOS)
+                                        self._on_joint_states_raw, DATA_QOS)
 
     def _shaft_index(self, names: Sequence[str]) -> int:
         if self._names is None or list(names) != self._names:
@@ -82,9 +81,8 @@ class TorqueResponder(CvjNode):
             self.get_logger().error(message)
         elif level == WARN:
             self.get_logger().warning(message)
-        msg = diag_array(self.last_stamp_ns, [diag_status(f'{self.get_name()}', level, message, values)])
-        msg.header.frame_id = self._diag_frame
-        self.diag_pub.publish(msg)
+        publish_statuses(self.diag_pub, self.last_stamp_ns, self._diag_frame,
+                         [plain_status(self.get_name(), level, message, values)])
 
     def _retag(self, js_frame: str) -> None:
         """Answer frame_id for joint states with frame_id ``js_frame``: the shaft name, tagged
@@ -97,27 +95,52 @@ class TorqueResponder(CvjNode):
         self._answer_cdr = self._encoders[self._answer_frame]
         self._answer.header.frame_id = self._answer_frame
 
+    def _on_joint_states_raw(self, data: bytes) -> None:
+        """A serialised joint state: the shaft's angle and speed read in place
+        (:class:`~cvj_ros.nodes.cdr.ShaftReader`: the loop's samples keep one layout), else
+        decoded whole (:meth:`_on_joint_states` names what is missing)."""
+        got = self._read_shaft(data)
+        if got is None:
+            self._on_joint_states(self._decode(data))
+            return
+        sec, nanosec, frame, phi, omega = got
+        self._answer_state(sec, nanosec, frame, phi, omega)
+
     def _on_joint_states(self, msg: Any) -> None:
         """Answer one joint state (a JointState or a :class:`~cvj_ros.nodes.cdr.JointStateView`)."""
-        frame = msg.header.frame_id
-        if frame != self._js_frame:
-            if is_foreign(frame, self.run_token):
-                self.foreign_states += 1
-                if self.foreign_states == 1:
-                    self.get_logger().warning(
-                        f'/driveline/joint_states: ignoring states of another run on this ROS '
-                        f'domain (frame_id {frame!r}, this run is {self.run_token!r}); not answered')
-                return
-            self._retag(frame)
         stamp = msg.header.stamp
-        self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
         names = msg.name
         i = self._index if names == self._names else self._shaft_index(names)
         if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
-            self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
-                               f'and velocity (names: {", ".join(msg.name)}); not answered')
+            if self._accept_frame(msg.header.frame_id):
+                self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
+                self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
+                                   f'and velocity (names: {", ".join(msg.name)}); not answered')
             return
-        omega, phi = float(msg.velocity[i]), float(msg.position[i])
+        self._answer_state(stamp.sec, stamp.nanosec, msg.header.frame_id,
+                           float(msg.position[i]), float(msg.velocity[i]))
+
+    def _accept_frame(self, frame: str) -> bool:
+        """False (counted, first one logged) for a joint state of another run; else the
+        answer's frame_id follows ``frame`` (its run token)."""
+        if frame == self._js_frame:
+            return True
+        if is_foreign(frame, self.run_token):
+            self.foreign_states += 1
+            if self.foreign_states == 1:
+                self.get_logger().warning(
+                    f'/driveline/joint_states: ignoring states of another run on this ROS '
+                    f'domain (frame_id {frame!r}, this run is {self.run_token!r}); not answered')
+            return False
+        self._retag(frame)
+        return True
+
+    def _answer_state(self, sec: int, nanosec: int, frame: str, phi: float, omega: float) -> None:
+        """Answer the state of the shaft at stamp (sec, nanosec): angle ``phi`` (rad), speed
+        ``omega`` (rad/s), from a joint state with header.frame_id ``frame``."""
+        if frame != self._js_frame and not self._accept_frame(frame):
+            return
+        self.last_stamp_ns = sec * NS_PER_S + nanosec
         if not (math.isfinite(omega) and math.isfinite(phi)):
             self.report(ERROR, f'/driveline/joint_states: {self.shaft} position/velocity not finite '
                                f'({phi}, {omega}); not answered')
@@ -129,11 +152,11 @@ class TorqueResponder(CvjNode):
                                f't={t} s, omega={omega} rad/s; not published')
             return
         if self._answer_cdr.ok:
-            self.wrench_pub.publish(self._answer_cdr.encode(stamp.sec, stamp.nanosec,
+            self.wrench_pub.publish(self._answer_cdr.encode(sec, nanosec,
                                                             0.0, 0.0, 0.0, 0.0, 0.0, torque))
         else:
             out = self._answer
-            out.header.stamp.sec, out.header.stamp.nanosec = stamp.sec, stamp.nanosec
+            out.header.stamp.sec, out.header.stamp.nanosec = sec, nanosec
             self._answer_torque.z = torque
             self.wrench_pub.publish(out)
         self.answered += 1

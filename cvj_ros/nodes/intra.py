@@ -80,31 +80,52 @@ def is_coupling_wrench(topic: str) -> bool:
     return topic.startswith('/coupling/') and topic.endswith('/wrench') and topic.count('/') == 3
 
 
-class IntraSubscription:
-    """A hosted subscriber of a carried topic (no DDS subscription): ``callback(bytes)``."""
+class _Route:
+    """What a publication of one topic reaches in this process: the taps (called with
+    ``(topic, data)`` at publish time) and the subscriber callbacks (queued). One object per
+    topic, changed in place, so a publisher holds its topic's route."""
+    __slots__ = ('taps', 'callbacks')
 
-    def __init__(self, bus: 'IntraProcessBus', node: Any, topic: str,
-                 callback: Callable[[bytes], None]) -> None:
+    def __init__(self) -> None:
+        self.taps: list[Callable[[str, bytes], None]] = []
+        self.callbacks: list[Callable[[bytes], None]] = []
+
+
+class _BusEndpoint:
+    """A hosted reader of a carried topic, as rclpy would count it: the topic's publishers
+    in the ROS graph (the hosted one included); ``destroy`` leaves the bus."""
+
+    def __init__(self, bus: 'IntraProcessBus', node: Any, topic: str) -> None:
         self.bus = bus
         self.node = node
         self.topic_name = topic
-        self.callback = callback
 
     def get_publisher_count(self) -> int:
-        """Publishers of the topic in the ROS graph (the hosted one included), as a DDS
-        subscription would count its matched publishers."""
         return self.node.count_publishers(self.topic_name)
+
+    def destroy(self) -> None:
+        raise NotImplementedError
+
+
+class IntraSubscription(_BusEndpoint):
+    """A hosted subscriber of a carried topic (no DDS subscription): ``callback(bytes)``,
+    run from the bus's drain."""
+
+    def __init__(self, bus: 'IntraProcessBus', node: Any, topic: str,
+                 callback: Callable[[bytes], None]) -> None:
+        super().__init__(bus, node, topic)
+        self.callback = callback
 
     def destroy(self) -> None:
         self.bus.unsubscribe(self)
 
 
-class IntraTap(IntraSubscription):
-    """Handle of :meth:`IntraProcessBus.tap` (publisher count and destroy as a subscription)."""
+class IntraTap(_BusEndpoint):
+    """Handle of :meth:`IntraProcessBus.tap`: ``fn(topic, data)`` inside every publish."""
 
     def __init__(self, bus: 'IntraProcessBus', node: Any, topic: str,
                  fn: Callable[[str, bytes], None]) -> None:
-        super().__init__(bus, node, topic, lambda _data: None)
+        super().__init__(bus, node, topic)
         self.fn = fn
 
     def destroy(self) -> None:
@@ -112,8 +133,10 @@ class IntraTap(IntraSubscription):
 
 
 class IntraPublisher:
-    """Publisher of a carried topic: the hosted subscribers get the CDR bytes through the
-    bus; DDS gets the message while an outside subscriber is matched.
+    """Publisher of a carried (or mixed) topic: the hosted subscribers get the CDR bytes
+    through the bus; DDS gets the message while an outside subscriber is matched (a mixed
+    topic's always: /diagnostics and the latched /driveline/scene reach outside readers and
+    late joiners).
 
     ``publish`` takes the pre-serialised CDR bytes the cvj_ros encoders make, or a message
     object (serialised once with ``rclpy.serialization``)."""
@@ -123,6 +146,7 @@ class IntraPublisher:
         self.publisher = publisher
         self.topic_name = publisher.topic_name
         self.mixed = bus.is_mixed(self.topic_name)
+        self._route = bus.route(self.topic_name)
         self._outside = 0
         self._checked = -1.0
         self.published = 0
@@ -134,25 +158,23 @@ class IntraPublisher:
         return self._outside + self.bus.subscriber_count(self.topic_name)
 
     def publish(self, msg: Any) -> None:
-        if isinstance(msg, bytes):
+        if msg.__class__ is bytes:
             data = msg
         else:
             from rclpy.serialization import serialize_message
             data = serialize_message(msg)
-        if self.mixed:     # low rate; latched /driveline/scene must reach DDS late joiners
+        if self.mixed:
             self.bus.note_hosted(data)
             self.publisher.publish(data)
-            self.published += 1
-            self.bus.deliver(self.topic_name, data)
-            return
-        now = time.monotonic()
-        if now - self._checked > OUTSIDE_REFRESH_S:
-            self._outside = self.publisher.get_subscription_count()
-            self._checked = now
-        if self._outside:
-            self.publisher.publish(data)
+        else:
+            now = time.monotonic()
+            if now - self._checked > OUTSIDE_REFRESH_S:
+                self._outside = self.publisher.get_subscription_count()
+                self._checked = now
+            if self._outside:
+                self.publisher.publish(data)
         self.published += 1
-        self.bus.deliver(self.topic_name, data)
+        self.bus.deliver_route(self.topic_name, self._route, data)
 
     def wait_for_all_acked(self, timeout: Any) -> bool:
         return self.publisher.wait_for_all_acked(timeout)
@@ -178,10 +200,10 @@ class IntraProcessBus:
         self.coupling_wrenches = coupling_wrenches
         self.budget_s = budget_s
         self._subs: dict[str, list[IntraSubscription]] = {}
-        self._callbacks: dict[str, tuple[Callable[[bytes], None], ...]] = {}
-        # taps: called at publish time with (topic, data) - for a consumer that only collects
-        # (the recorder); they must not publish or call back into a node
-        self._taps: dict[str, list[Callable[[str, bytes], None]]] = {}
+        # per topic: the taps (called at publish time with (topic, data) - for a consumer that
+        # only collects, the recorder; they must not publish or call back into a node) and
+        # the subscriber callbacks (queued)
+        self._routes: dict[str, _Route] = {}
         self.after_drain: list[Callable[[], None]] = []     # run at the end of every drain
         self._queue: deque[tuple[Callable[[bytes], None], bytes]] = deque()
         self._draining = False
@@ -257,32 +279,40 @@ class IntraProcessBus:
         return (self.subscribe(topic, callback, node=node),
                 node.create_subscription(msg_type, topic, outside, qos, raw=True))
 
+    def route(self, topic: str) -> _Route:
+        """The (live) route of ``topic``."""
+        route = self._routes.get(topic)
+        if route is None:
+            route = self._routes[topic] = _Route()
+        return route
+
     def subscribe(self, topic: str, callback: Callable[[bytes], None], *, node: Any) -> IntraSubscription:
         sub = IntraSubscription(self, node, topic, callback)
         self._subs.setdefault(topic, []).append(sub)
-        self._callbacks[topic] = tuple(s.callback for s in self._subs[topic])
+        self.route(topic).callbacks.append(callback)
         return sub
 
-    def tap(self, topic: str, fn: Callable[[str, bytes], None], *, node: Any) -> 'IntraTap':
+    def tap(self, topic: str, fn: Callable[[str, bytes], None], *, node: Any) -> IntraTap:
         """Call ``fn(topic, data)`` inside every publish of ``topic`` (no queue: for a consumer
         that only collects, such as the recorder, which then handles its collection in bulk
         from :attr:`after_drain`; ordered as published)."""
-        self._taps.setdefault(topic, []).append(fn)
+        self.route(topic).taps.append(fn)
         return IntraTap(self, node, topic, fn)
 
-    def untap(self, tap: 'IntraTap') -> None:
-        fns = self._taps.get(tap.topic_name, [])
-        if tap.fn in fns:
-            fns.remove(tap.fn)
+    def untap(self, tap: IntraTap) -> None:
+        taps = self.route(tap.topic_name).taps
+        if tap.fn in taps:
+            taps.remove(tap.fn)
 
     def unsubscribe(self, sub: IntraSubscription) -> None:
         subs = self._subs.get(sub.topic_name, [])
         if sub in subs:
             subs.remove(sub)
-            self._callbacks[sub.topic_name] = tuple(s.callback for s in subs)
+            self.route(sub.topic_name).callbacks[:] = [s.callback for s in subs]
 
     def subscriber_count(self, topic: str) -> int:
-        return len(self._callbacks.get(topic, ())) + len(self._taps.get(topic, ()))
+        route = self._routes.get(topic)
+        return 0 if route is None else len(route.callbacks) + len(route.taps)
 
     def wrap(self, publisher: Any) -> IntraPublisher:
         return IntraPublisher(self, publisher)
@@ -294,16 +324,21 @@ class IntraProcessBus:
 
     def deliver(self, topic: str, data: bytes) -> None:
         """Queue ``data`` for every hosted subscriber of ``topic``; they run from the drain."""
-        taps = self._taps.get(topic)
-        if taps:
-            for fn in taps:
-                fn(topic, data)
-        callbacks = self._callbacks.get(topic)
+        route = self._routes.get(topic)
+        if route is not None:
+            self.deliver_route(topic, route, data)
+
+    def deliver_route(self, topic: str, route: _Route, data: bytes) -> None:
+        """:meth:`deliver` with the topic's route at hand (what a publisher holds)."""
+        for fn in route.taps:
+            fn(topic, data)
+        callbacks = route.callbacks
         if not callbacks:
             return
-        queue = self._queue
-        for cb in callbacks:
-            queue.append((cb, data))
+        if len(callbacks) == 1:
+            self._queue.append((callbacks[0], data))
+        else:
+            self._queue.extend([(cb, data) for cb in callbacks])
         if not self._draining and not self._armed:
             self._armed = True
             self._timer.reset()
@@ -345,8 +380,9 @@ class IntraProcessBus:
     def destroy(self) -> None:
         """Drop every subscription and queued delivery; remove the timer."""
         self._subs.clear()
-        self._callbacks.clear()
-        self._taps.clear()
+        for route in self._routes.values():     # publishers hold the routes: empty them
+            route.taps.clear()
+            route.callbacks.clear()
         self.after_drain.clear()
         self._queue.clear()
         try:

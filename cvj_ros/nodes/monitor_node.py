@@ -44,7 +44,7 @@ from cvj_ros.nodes.run_token import (cdr_is_foreign, is_foreign, run_token_param
 from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
                                              DEFAULT_NONUNIFORMITY_WARN,
                                              RECOMMENDED_MAX_ANGLE_DEG, RollingWindow,
-                                             angle_level, column_stats, level,
+                                             angle_level, level,
                                              nonuniformity_from_stats)
 
 LEVELS = (OK, WARN, ERROR)
@@ -231,7 +231,7 @@ class MonitorNode(CvjNode):
         anything else (names changing, short arrays, other encodings) sample by sample."""
         if self._js_batch:
             batch, self._js_batch = self._js_batch, []
-            block = read_joint_state_block(batch, self._js_decoder)
+            block = read_joint_state_block(batch, self._js_decoder, position=False)
             if block is None or not self._use_names(block.name):
                 self._take_js_one_by_one(batch)
             elif self.run_token and self._foreign(block.frame_id):
@@ -372,10 +372,8 @@ class MonitorNode(CvjNode):
         p = self.params
         out: list[Status] = []
         if self.speeds is not None and self.efforts is not None and len(self.speeds):
-            _t, w = self.speeds.window(p['window'])
-            _t, e = self.efforts.window(p['window'])
-            w_mean, w_lo, w_hi = column_stats(w)
-            _e_mean, e_lo, e_hi = column_stats(e)
+            n_w, w_mean, w_lo, w_hi = self.speeds.stats(p['window'])
+            _n, _e_mean, e_lo, e_hi = self.efforts.stats(p['window'])
             delta = nonuniformity_from_stats(w_mean, w_lo, w_hi, min_speed=max(p['min_speed'], 1e-12))
             w_amp, e_amp = 0.5 * (w_hi - w_lo), 0.5 * (e_hi - e_lo)
             for i, name in enumerate(self.names):
@@ -390,12 +388,11 @@ class MonitorNode(CvjNode):
                 out.append(plain_status(f'monitor: {name}', LEVELS[lv], msg, {
                     'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,
                     'speed_amplitude_rad_s': float(w_amp[i]),
-                    'torque_amplitude_nm': float(e_amp[i]), 'samples': int(w.shape[0])}))
+                    'torque_amplitude_nm': float(e_amp[i]), 'samples': int(n_w)}))
         values: dict[str, float] = {}
         for label, win in (('engine', self.engine_torque), ('load', self.load_torque)):
-            _t, x = win.window(p['window'])
-            if x.shape[0]:
-                mean, lo, hi = column_stats(x)
+            n, mean, lo, hi = win.stats(p['window'])
+            if n:
                 values[f'{label}_torque_mean_nm'] = float(mean[0])
                 values[f'{label}_torque_amplitude_nm'] = float(0.5 * (hi[0] - lo[0]))
         if values:

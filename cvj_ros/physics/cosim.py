@@ -147,7 +147,12 @@ class CoupledStepper:
         self.backend = 'python' if self.model is None else 'kernel'
         if self.model is not None:
             from cvj_ros.physics.kernel import rhs_nb
+            from cvj_ros.physics.kernel.layout import H_INPUT_F, IN_TE, IN_TK, IN_TL
             from cvj_ros.physics.kernel.stepper import KernelStepper
+            # zoh input block: the rates and slopes stay 0 (set_torque_inputs' layout)
+            self._inputs = self.model.fp
+            o = int(self.model.ip[H_INPUT_F])
+            self._in_tk, self._in_te, self._in_tl = o + IN_TK, o + IN_TE, o + IN_TL
             kw = dict(rtol=rtol, atol=atol, h=h, max_step=max_step, jac=rhs_nb.jac,
                       autonomous=autonomous, constant_jac=constant_jac)
             self.stepper = KernelStepper(method, rhs_nb.rhs, self.model.ip, self.model.fp, t0,
@@ -186,7 +191,14 @@ class CoupledStepper:
             return None
 
     def _set_kernel_inputs(self) -> None:
-        """Write this step's torque law into the kernel's input block."""
+        """Write this step's torque law into the kernel's input block (the layout of
+        :func:`cvj_ros.physics.kernel.layout.set_torque_inputs`, written in place: this runs
+        once per exchange in the lockstep loop)."""
+        if self.scheme == 'zoh' and not self.extrapolate_residual:
+            self._inputs[self._in_tk] = self._tk
+            self._inputs[self._in_te] = self._Te
+            self._inputs[self._in_tl] = self._Tl
+            return
         from cvj_ros.physics.kernel.layout import set_torque_inputs
         ramp = self.scheme == 'extrapolate' or self.extrapolate_residual
         slope = self.scheme == 'linear_implicit'
@@ -314,11 +326,14 @@ class CoupledStepper:
         Raises:
             LockstepError: non-finite torque or slope, or t_next <= t.
         """
-        for name, value in (('T_engine', T_engine), ('T_load', T_load),
-                            ('slope_engine', slope_engine), ('slope_load', slope_load)):
-            if not math.isfinite(value):
-                raise LockstepError(f'{name}: non-finite value {value} at t={self.t:.9g} s, '
-                                    f'not integrated')
+        isfinite = math.isfinite
+        if not (isfinite(T_engine) and isfinite(T_load) and isfinite(slope_engine)
+                and isfinite(slope_load)):
+            for name, value in (('T_engine', T_engine), ('T_load', T_load),
+                                ('slope_engine', slope_engine), ('slope_load', slope_load)):
+                if not isfinite(value):
+                    raise LockstepError(f'{name}: non-finite value {value} at t={self.t:.9g} s, '
+                                        f'not integrated')
         t_k = self.stepper.t
         if not (t_next > t_k):
             raise LockstepError(f't_next: must be > t={t_k!r}, got {t_next!r}')

@@ -61,25 +61,27 @@ class RollingWindow:
 
     def push_many(self, t: Sequence[float] | FloatArray, rows: Sequence[Sequence[float]] | FloatArray) -> None:
         """Append samples in order (t (m,) in s; rows (m, width)): the same buffer as m
-        calls of :meth:`push`, in at most two slice assignments."""
-        t = np.asarray(t, dtype=float)
-        rows = np.asarray(rows, dtype=float).reshape(t.size, self.width)
+        calls of :meth:`push`, in one compiled call (cvj_ros.physics.kernel.window_nb)."""
+        from cvj_ros.physics.kernel.window_nb import ring_push
+        t = np.ascontiguousarray(t, dtype=float).reshape(-1)
         m = t.size
         if m == 0:
             return
-        if m > self.capacity:                     # only the last `capacity` survive
-            skip = m - self.capacity
-            self._next = (self._next + skip) % self.capacity
-            self._count = min(self._count + skip, self.capacity)
-            t, rows, m = t[skip:], rows[skip:], self.capacity
-        first = min(m, self.capacity - self._next)
-        self._t[self._next:self._next + first] = t[:first]
-        self._rows[self._next:self._next + first] = rows[:first]
-        if first < m:
-            self._t[:m - first] = t[first:]
-            self._rows[:m - first] = rows[first:]
-        self._next = (self._next + m) % self.capacity
+        rows = np.ascontiguousarray(rows, dtype=float).reshape(m, self.width)
+        self._next = ring_push(self._t, self._rows, self._next, t, rows)
         self._count = min(self._count + m, self.capacity)
+
+    def stats(self, span: float) -> tuple[int, FloatArray, FloatArray, FloatArray]:
+        """(n, mean, min, max) per column of :meth:`window` ``(span)``'s rows, computed on
+        the buffer in place by the compiled ``ring_window_stats``
+        (cvj_ros.physics.kernel.window_nb); NaN columns and an empty window as
+        :func:`column_stats`."""
+        from cvj_ros.physics.kernel.window_nb import ring_window_stats
+        mean = np.empty(self.width)
+        lo = np.empty(self.width)
+        hi = np.empty(self.width)
+        n = ring_window_stats(self._t, self._rows, self._count, self._next, float(span), mean, lo, hi)
+        return n, mean, lo, hi
 
     def samples(self) -> tuple[FloatArray, FloatArray]:
         """All stored samples in time order: (t (n,), rows (n, width))."""

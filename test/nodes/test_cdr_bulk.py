@@ -131,3 +131,18 @@ def test_diagnostic_array_decoder_reads_rclpy_bytes() -> None:
     assert stamp_ns == 17 * 1_000_000_000 + 999_999_999
     assert frame == msg.header.frame_id
     assert statuses == _plain(msg)
+
+
+def test_blocks_ignore_alignment_padding() -> None:
+    """rclpy leaves CDR alignment padding uninitialised: samples that differ only there are
+    one layout (frame 'abc' + NUL ends at payload 8 + 4 + 4 = 16... padding after it)."""
+    js = [bytearray(_js(k, frame='d')) for k in range(5)]      # 'd' + NUL: 2 padding bytes
+    for k, data in enumerate(js):
+        data[4 + 8 + 4 + 2] = k                                   # first padding byte
+    block = read_joint_state_block([bytes(d) for d in js], JointStateDecoder())
+    assert block is not None and block.frame_id == 'd'
+    ws = [bytearray(_wrench(k, 'ab')) for k in range(5)]       # payload 8+4+3 = 15 -> pad to 16
+    for k, data in enumerate(ws):
+        data[4 + 15] = 100 + k
+    got = read_wrench_torque_z_block([bytes(d) for d in ws])
+    assert got is not None and got[1] == b'ab'

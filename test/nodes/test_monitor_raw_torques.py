@@ -129,8 +129,8 @@ def test_bulk_reading_gives_the_statuses_of_reading_one_by_one(ctx, monkeypatch)
     from cvj_ros.nodes.diagnostics import Status
     blocks: list[int] = []
 
-    def counted(batch, decoder):
-        block = read(batch, decoder)
+    def counted(batch, decoder, **kw):
+        block = read(batch, decoder, **kw)
         blocks.append(0 if block is None else len(batch))
         return block
     read = mn.read_joint_state_block

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from cvj_ros.physics.monitor_metrics import (RollingWindow, amplitude, angle_level, level,
-                                             speed_nonuniformity)
+from cvj_ros.physics.monitor_metrics import (RollingWindow, amplitude, angle_level, column_stats,
+                                             level, speed_nonuniformity)
 
 
 def test_nonuniformity_of_sinusoidal_speed_closed_form():
@@ -102,3 +102,31 @@ def test_levels():
     assert angle_level(20.0, 25.0) == 0
     assert angle_level(27.0, 25.0) == 1
     assert angle_level(31.0, 25.0) == 2
+
+
+@pytest.mark.parametrize('capacity, pushes, span', [(50, 30, 0.01), (50, 130, 0.02), (50, 130, 1e9),
+                                                    (7, 7, 0.0), (64, 1000, 0.0355)])
+def test_stats_are_the_window_column_stats(capacity: int, pushes: int, span: float) -> None:
+    """RollingWindow.stats (compiled, on the ring buffer in place) against column_stats of
+    RollingWindow.window (numpy): same n, min and max exactly, mean to rounding; with a
+    wrapped buffer, NaN in one column, and stamps out of order."""
+    rng = np.random.default_rng(capacity + pushes)
+    w = RollingWindow(capacity, 3)
+    for k in range(pushes):
+        t = k * 1e-3 if k % 17 else max(0.0, (k - 5) * 1e-3)      # a late stamp now and then
+        row = rng.normal(size=3)
+        if k == pushes - 3:
+            row[2] = np.nan
+        w.push(t, row)
+    t, rows = w.window(span)
+    n, mean, lo, hi = w.stats(span)
+    assert n == t.size
+    want_mean, want_lo, want_hi = column_stats(rows)
+    np.testing.assert_array_equal(lo, want_lo)
+    np.testing.assert_array_equal(hi, want_hi)
+    np.testing.assert_allclose(mean, want_mean, rtol=1e-13, atol=1e-15)   # NaN where NaN
+
+
+def test_stats_of_an_empty_window_are_nan() -> None:
+    n, mean, lo, hi = RollingWindow(5, 2).stats(1.0)
+    assert n == 0 and np.isnan(mean).all() and np.isnan(lo).all() and np.isnan(hi).all()

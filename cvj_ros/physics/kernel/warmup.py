@@ -59,8 +59,9 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
 
 def warm_outputs(*, out=sys.stdout) -> float:
     """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
-    joint_state_one and wrenches_one with every joint's reactions, and the offline trace's
-    sample_outputs and fill_mid_samples; returns the wall time (s)."""
+    joint_state_one and wrenches_one with every joint's reactions, the offline trace's
+    sample_outputs and fill_mid_samples, and the monitor's window statistics; returns the
+    wall time (s)."""
     from cvj_ros.physics.driveline import Driveline
     from cvj_ros.physics.scene import parse_scene
     from cvj_ros.physics.state_outputs import KernelStateOutputs
@@ -80,6 +81,13 @@ def warm_outputs(*, out=sys.stdout) -> float:
     Simulation(scene, method='dopri5').run(0.002, sample_dt=0.001)   # sample_outputs
     fill_mid_samples(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((0, 4), np.int64),
                      np.zeros(1))   # the offline trace's intermediate members
+    from cvj_ros.physics.monitor_metrics import RollingWindow
+    win = RollingWindow(2, 1)         # the monitor's windows and bulk reading (kernel/window_nb.py)
+    win.push_many([0.0], [[1.0]])
+    win.stats(1.0)
+    from cvj_ros.physics.kernel.window_nb import cdr_rows
+    cdr_rows(np.zeros((1, 24), np.uint8), np.zeros((1, 2), np.int64), np.array([16], np.int64), 1,
+             np.empty(1, np.int64), np.empty((1, 1, 1)))
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -382,6 +382,9 @@ def read_wrench_torque_z_block(batch: Sequence[bytes]) -> tuple[Any, bytes, Any]
 
 # --- diagnostic_msgs/DiagnosticArray -----------------------------------------------------------
 
+_PADS = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
+
+
 class DiagnosticArrayEncoder:
     """CDR of diagnostic_msgs/DiagnosticArray from plain values:
     ``encode(stamp_ns, frame_id, statuses)`` with statuses as (level (bytes of 1),
@@ -405,38 +408,37 @@ class DiagnosticArrayEncoder:
 
     @staticmethod
     def encode(stamp_ns: int, frame_id: str, statuses: Sequence[tuple[Any, ...]]) -> bytes:
-        out = bytearray(_CDR_HEADER)
         sec, nanosec = divmod(stamp_ns, NS_PER_S)
-        out += _STAMP.pack(sec, nanosec)
-        pack_u32 = _LE_UINT32.pack
-
-        def string(text: str) -> None:
-            pad = -(len(out) - 4) % 4
-            if pad:
-                out.extend(bytes(pad))
-            raw = text.encode('utf-8')
-            out.extend(pack_u32(len(raw) + 1))
-            out.extend(raw)
-            out.append(0)
-
-        def count(k: int) -> None:
-            pad = -(len(out) - 4) % 4
-            if pad:
-                out.extend(bytes(pad))
-            out.extend(pack_u32(k))
-
-        string(frame_id)
-        count(len(statuses))
+        pack = _LE_UINT32.pack
+        pad_bytes = _PADS
+        parts = [_CDR_HEADER, _STAMP.pack(sec, nanosec)]
+        append = parts.append
+        pos = 8                                    # payload offset
+        raw = frame_id.encode('utf-8')
+        append(pack(len(raw) + 1))
+        append(raw + b'\x00')
+        pos += 5 + len(raw)
+        pad = -pos & 3
+        append(pad_bytes[pad] + pack(len(statuses)))
+        pos += pad + 4
         for level, name, message, hardware_id, values in statuses:
-            out.extend(level)
-            string(name)
-            string(message)
-            string(hardware_id)
-            count(len(values))
-            for key, value in values:
-                string(key)
-                string(value)
-        return bytes(out)
+            append(level)
+            pos += 1
+            for text in (name, message, hardware_id):
+                raw = text.encode('utf-8')
+                pad = -pos & 3
+                append(pad_bytes[pad] + pack(len(raw) + 1) + raw + b'\x00')
+                pos += pad + 5 + len(raw)
+            pad = -pos & 3
+            append(pad_bytes[pad] + pack(len(values)))
+            pos += pad + 4
+            for pair in values:
+                for text in pair:
+                    raw = text.encode('utf-8')
+                    pad = -pos & 3
+                    append(pad_bytes[pad] + pack(len(raw) + 1) + raw + b'\x00')
+                    pos += pad + 5 + len(raw)
+        return b''.join(parts)
 
 
 class ShaftReader:

@@ -110,8 +110,16 @@ class KernelStateOutputs:
         self._row_joint = [self.joints[k] for k in range(len(self.joints))
                            if k not in self._react_python]
         self._ws = np.empty((len(self._rtab_c), 6))
-        # compile / load now, not in the first exchange
+        # compile / load now, not in the first exchange; then call the entry points (same
+        # argument types every exchange: no dispatch)
+        from cvj_ros.physics.kernel import entry_point
         x0 = np.array(driveline.x0, dtype=np.float64)
+        pos, vel, eff = np.empty(n), np.empty(n), np.empty(n)
+        self._joint_state_one = entry_point(
+            O.joint_state_one, (x0, self.model.ip, self.model.fp, self._tab, self._mtab, self._mfp,
+                                pos, vel, eff))
+        self._wrenches_one = entry_point(O.wrenches_one, (pos, vel, eff, self._rtab_c, self._rfp, self._ws)) \
+            if len(self._rtab_c) else O.wrenches_one
         pos, vel, eff = self.joint_states(x0, 0.0, 0.0)
         self.wrenches(x0, 0.0, 0.0, (pos, vel, eff))
 
@@ -123,9 +131,9 @@ class KernelStateOutputs:
         pos = np.empty(self._n)
         vel = np.empty(self._n)
         eff = np.empty(self._n)
-        y = np.asarray(x, dtype=np.float64)
-        if not self._O.joint_state_one(y, self.model.ip, fp, self._tab, self._mtab, self._mfp,
-                                       pos, vel, eff):
+        y = np.ascontiguousarray(x, dtype=np.float64)    # the entry point's C layout
+        if not self._joint_state_one(y, self.model.ip, fp, self._tab, self._mtab, self._mfp,
+                                     pos, vel, eff):
             # non-finite state: the Python path gives the same NaN/inf propagation
             return PythonStateOutputs(self.driveline, self.joints).joint_states(x, T_engine, T_load)
         if self._mid_python:
@@ -139,10 +147,12 @@ class KernelStateOutputs:
     def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
                  joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
         pos, vel, eff = joint_state
+        asc = np.ascontiguousarray      # the entry point's C-layout float64 arrays
+        pos, vel, eff = asc(pos, dtype=np.float64), asc(vel, dtype=np.float64), asc(eff, dtype=np.float64)
         out: dict[str, Wrench] = {}
         failed = 0
         if len(self._rtab_c):
-            failed = self._O.wrenches_one(pos, vel, eff, self._rtab_c, self._rfp, self._ws)
+            failed = self._wrenches_one(pos, vel, eff, self._rtab_c, self._rfp, self._ws)
         for row, j in enumerate(self._row_joint):
             w = self._ws[row].tolist()
             if failed and w[5] != w[5]:

@@ -483,6 +483,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         if comp.executor_note:
             print(f'cvj-sim run: {comp.executor_note}', file=stream, flush=True)
         if coupling is not None and error is None:
+            from cvj_ros.nodes.executor import freeze_heap
+            freeze_heap()
             comp.spin_until_done(coupling, stop=lambda: bool(stop_signal), on_tick=on_tick)
         progress.close()
         mark('coupling_exited')
@@ -617,6 +619,8 @@ def _main(args: Sequence[str] | None) -> int:
             while ctx.ok() and not stop and comp.failed() is None:
                 comp.spin_for(0.25)
         else:
+            from cvj_ros.nodes.executor import freeze_heap
+            freeze_heap()
             comp.spin_until_done(done, stop=lambda: bool(stop))
             if comp.recorder is not None:
                 _drain(comp, expected={}, idle=0.5, bound=5.0)

@@ -86,8 +86,9 @@ def warm_outputs(*, out=sys.stdout) -> float:
     win.push_many([0.0], [[1.0]])
     win.stats(1.0)
     from cvj_ros.physics.kernel.window_nb import cdr_rows
-    cdr_rows(np.zeros((1, 24), np.uint8), np.zeros((1, 2), np.int64), np.array([16], np.int64), 1,
-             np.empty(1, np.int64), np.empty((1, 1, 1)))
+    # read-only bytes, as np.frombuffer gives them (another numba type than a writable array)
+    cdr_rows(np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
+             np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -523,8 +523,14 @@ def overhead_ratios(real: dict[str, Any], rt: dict[str, Any]) -> dict[str, float
     return out
 
 
-def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0) -> dict[str, Any]:
-    """Loop figures of a real ROS lockstep run (`cvj-sim run`, one process per node).
+#: the round trip of the same topology per loop mode (overhead ratio, issue 10)
+MODE_ROUND_TRIP = {'separate': 'events_ipc2', 'composed': 'events'}
+
+
+def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0,
+                      composed: bool = False) -> dict[str, Any]:
+    """Loop figures of a real ROS lockstep run (`cvj-sim run`: one process per node, or
+    ``composed``: every node and the recorder in one process, ``--composed``).
 
     Reads the coupling node's last loop diagnostics from the bag: per exchange wall time,
     lockstep wait, integration time and overhead = exchange wall - integration (us), and the
@@ -536,6 +542,8 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [str(exe), 'run', scene_name, '--duration', str(duration), '--out', str(Path(tmp) / 'run')]
+        if composed:
+            cmd.append('--composed')
         t0 = time.perf_counter()
         try:
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
@@ -552,7 +560,7 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
     loop = [v for _t, name, _lv, _msg, v in sig.diagnostics
             if name.startswith('coupling') and 'overhead_us_mean' in v]
     out: dict[str, Any] = {'scene': scene_name, 'exchanges': int(max(1, sig.t.size - 1)),
-                           'process_wall_s': wall}
+                           'process_wall_s': wall, 'mode': 'composed' if composed else 'separate'}
     if loop:
         for key in ('exchange_wall_us_mean', 'lockstep_wait_us_mean', 'integration_us_mean',
                     'overhead_us_mean', 'state_us_mean', 'real_time_factor'):
@@ -642,7 +650,8 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     lock_spec: str | None = lock_names[0] if lock_names else None   # what `cvj-sim run` is given
     if cfg.lockstep_scenes is None and cfg.scenes and isinstance(cfg.scenes[0], (str, os.PathLike)):
         lock_spec = str(cfg.scenes[0])
-    real = real_lockstep_run(lock_spec, duration=1.0) if cfg.real_lockstep and lock_spec else None
+    real = ({mode: real_lockstep_run(lock_spec, duration=5.0, composed=mode == 'composed')
+             for mode in ('separate', 'composed')} if cfg.real_lockstep and lock_spec else None)
     for i, spec in enumerate(cfg.scenes):
         scene = resolve_scene(spec)
         if cfg.lockstep_scenes is None and i == 0:
@@ -818,24 +827,24 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md.append(f'- rclpy round trip, {label}: '
                   + (f'{v["us_mean"]:.0f} us mean, {v.get("us_p50", math.nan):.0f} us median, '
                      f'{v.get("us_p95", math.nan):.0f} us p95' if isinstance(v, dict) and 'us_mean' in v else str(v)))
-    if real:
-        if 'overhead_us_mean' in real:
-            ratios = overhead_ratios(real, rt)
-            md.append(f'- real lockstep run ({real["scene"]}, {real["exchanges"]} exchanges, `cvj-sim run`): '
-                      f'{real.get("exchange_wall_us_mean", math.nan):.0f} us per exchange, of which integration '
-                      f'{real.get("integration_us_mean", math.nan):.0f} us, lockstep wait '
-                      f'{real.get("lockstep_wait_us_mean", math.nan):.0f} us, joint-state evaluation + publication '
-                      f'{real.get("state_us_mean", math.nan):.0f} us; overhead (exchange - integration) '
-                      f'{real["overhead_us_mean"]:.0f} us; real-time factor {real.get("real_time_factor", math.nan):.3g}.')
-            if ratios:
-                md += ['', '| reference round trip (mean) | overhead / round trip | target <= 1.5x |',
-                       '| --- | --- | --- |']
-                md += [f'| {ROUND_TRIP_LABELS.get(k, k)}: {rt[k]["us_mean"]:.0f} us | {r:.2f}x | '
-                       f'{"met" if r <= 1.5 else "missed"} |' for k, r in ratios.items()]
-            else:
-                md.append('- overhead ratio: n/a (no round trip measured)')
-        else:
-            md.append(f'- real lockstep run: {real.get("note", real)}')
+    for mode, run in (real or {}).items():
+        if 'overhead_us_mean' not in run:
+            md.append(f'- real lockstep run, {mode}: {run.get("note", run)}')
+            continue
+        how = ('`cvj-sim run --composed`, one process' if mode == 'composed'
+               else '`cvj-sim run`, one process per node')
+        md.append(f'- real lockstep run, {mode} ({run["scene"]}, {run["exchanges"]} exchanges, {how}): '
+                  f'{run.get("exchange_wall_us_mean", math.nan):.0f} us per exchange, of which integration '
+                  f'{run.get("integration_us_mean", math.nan):.0f} us, lockstep wait '
+                  f'{run.get("lockstep_wait_us_mean", math.nan):.0f} us, joint-state evaluation + publication '
+                  f'{run.get("state_us_mean", math.nan):.0f} us; overhead (exchange - integration) '
+                  f'{run["overhead_us_mean"]:.0f} us; real-time factor {run.get("real_time_factor", math.nan):.3g} '
+                  f'(target {">= 10" if mode == "composed" else ">= 2"}).')
+        key = MODE_ROUND_TRIP[mode]
+        ratio = overhead_ratios(run, {key: rt[key]} if key in rt else {}).get(key)
+        md.append(f'  overhead / {ROUND_TRIP_LABELS.get(key, key)} round trip: '
+                  + (f'{ratio:.2f}x ({rt[key]["us_mean"]:.0f} us; aim <= 1.5x)' if ratio is not None
+                     else 'n/a (round trip not measured)'))
     if studies:
         md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
     p = out / 'bench.md'

@@ -209,3 +209,32 @@ def test_retime_passes_takes_the_min_over_all_passes() -> None:
     assert rows[0]['wall_per_sim_s'] == rows[0]['wall_s'] / 2.0
     assert rows[1]['wall_s'] == 0.3 and rows[1]['repeats'] == 1
     assert all('_once' not in r and '_walls' not in r for r in rows)
+
+
+def test_real_lockstep_reports_both_modes_against_their_targets(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """--real-lockstep times `cvj-sim run` one process per node and --composed (issue 10);
+    bench.md gives each with its target and the overhead against the round trip of the same
+    topology (ROS runs replaced by fixed figures here: the real ones are e2e tests' job)."""
+    calls = []
+
+    def fake_run(scene_name: str, *, duration: float, composed: bool = False, timeout: float = 300.0):
+        calls.append((scene_name, duration, composed))
+        wall = 100.0 if composed else 600.0
+        return {'scene': scene_name, 'exchanges': 5000, 'mode': 'composed' if composed else 'separate',
+                'exchange_wall_us_mean': wall, 'integration_us_mean': 10.0, 'overhead_us_mean': wall - 10.0,
+                'lockstep_wait_us_mean': wall / 2, 'state_us_mean': 5.0, 'real_time_factor': 1e3 / wall}
+    monkeypatch.setattr(bench, 'real_lockstep_run', fake_run)
+    monkeypatch.setattr(bench, 'measure_rclpy_round_trip', lambda n: {
+        'events': {'us_mean': 60.0}, 'events_ipc2': {'us_mean': 400.0}})
+    cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5',), tolerances=(1e-4,),
+                            fidelities=('exact',), baselines=('RK45',), repeats=1, passes=1,
+                            horizon=0.05, samples=20, exchange_steps=(1e-3,), real_lockstep=True)
+    res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
+    assert [c[2] for c in calls] == [False, True] and all(c[1] == 5.0 for c in calls)
+    assert set(res['real_lockstep']) == {'separate', 'composed'}
+    md = (tmp_path / 'bench.md').read_text()
+    assert 'real lockstep run, separate' in md and 'real-time factor 1.67 (target >= 2)' in md
+    assert 'real lockstep run, composed' in md and 'real-time factor 10 (target >= 10)' in md
+    assert '1.50x (60 us; aim <= 1.5x)' in md          # (100 - 10) / 60: composed vs in-process
+    assert '1.48x (400 us; aim <= 1.5x)' in md         # (600 - 10) / 400: separate vs inter-process

@@ -26,6 +26,8 @@ class CvjNode(Node):
         self.error_message: str | None = None
         # completed when exit_code is set: lets executors spin without polling
         self.done = Future()
+        from cvj_ros.nodes.diagnostics import diagnostic_array_encoder
+        diagnostic_array_encoder()       # /diagnostics as CDR: built now, not inside the loop
 
     def fail(self, message: str, *, code: int = EXIT_RUNTIME) -> None:
         """Log one ERROR line and ask the main loop to exit with ``code``."""

@@ -12,6 +12,7 @@ processes are cvj-sim's own (started and stopped by it). Timing on a shared mach
 noisy: repeat and quote the load average.
 
     python scripts/free_run_rate.py --steps 0.01 0.005 0.002 0.001 --duration 10 --out /tmp/frr
+        [--composed] [--scene config/scenes/kavz685_lever.yaml]
 """
 from __future__ import annotations
 
@@ -36,6 +37,8 @@ def main() -> int:
     ap.add_argument('--catch-up', choices=('skip', 'burst'), default='skip')
     ap.add_argument('--rt-priority', type=int, default=0,
                     help="the coupling loop thread's SCHED_FIFO priority (cvj-sim run --rt-priority)")
+    ap.add_argument('--composed', action='store_true',
+                    help='every node and the recorder in one process (cvj-sim run --composed)')
     ap.add_argument('--out', type=Path, required=True, help='directory for the runs')
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -55,7 +58,8 @@ def main() -> int:
         out = args.out / f'h{h:g}'
         proc = subprocess.run([cvj_sim, 'run', scene, '--out', str(out), '--overwrite', '--mode',
                                'free-run', '--exchange-step', str(h), '--duration', str(args.duration),
-                               '--catch-up', args.catch_up, '--rt-priority', str(args.rt_priority)],
+                               '--catch-up', args.catch_up, '--rt-priority', str(args.rt_priority)]
+                              + (['--composed'] if args.composed else []),
                               capture_output=True, text=True)
         try:
             report = json.loads((out / 'report.json').read_text())

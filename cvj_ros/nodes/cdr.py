@@ -317,6 +317,34 @@ def _joint_state_arrays(data: bytes) -> tuple[list[tuple[int, int]], list[int]] 
     return (fixed, starts) if 4 + off == len(data) else None
 
 
+def _same_size_le(batch: Sequence[bytes]) -> int:
+    """The common length of little-endian CDR samples, or 0 (empty, short, other encoding,
+    lengths differ): a block needs one layout."""
+    if not batch:
+        return 0
+    first = batch[0]
+    size = len(first)
+    if size < 16 or first[1] != 1 or any(len(d) != size for d in batch):
+        return 0
+    return size
+
+
+def _read_rows(batch: Sequence[bytes], size: int, fixed: Any, starts: Sequence[int],
+               n: int) -> tuple[Any, Any] | None:
+    """(stamp_ns (m,), values (len(starts), m, n)) of one-layout samples through the compiled
+    :func:`cvj_ros.physics.kernel.window_nb.cdr_rows`, or None when the ``fixed`` byte ranges
+    differ between samples."""
+    from cvj_ros.physics.kernel.window_nb import cdr_rows
+    m = len(batch)
+    buf = np.frombuffer(b''.join(batch), dtype=np.uint8).reshape(m, size)
+    stamp_ns = np.empty(m, dtype=np.int64)
+    values = np.empty((len(starts), m, n))
+    if not cdr_rows(buf, np.asarray(fixed, dtype=np.int64), np.array(starts, dtype=np.int64), n,
+                    stamp_ns, values):
+        return None
+    return stamp_ns, values
+
+
 def read_joint_state_block(batch: Sequence[bytes], decoder: 'JointStateDecoder', *,
                            position: bool = True) -> JointStateBlock | None:
     """The samples of ``batch`` as one :class:`JointStateBlock`, when they are little-endian
@@ -329,27 +357,16 @@ def read_joint_state_block(batch: Sequence[bytes], decoder: 'JointStateDecoder',
     float64 values and the alignment padding must equal the first sample's). One call instead of ~15 numpy calls:
     inside a running composed loop each numpy call cost 40-60 us (a cold cache after the
     loop's callbacks), 100 samples took ~0.9 ms that way."""
-    from cvj_ros.physics.kernel.window_nb import cdr_rows
-    m = len(batch)
-    if m == 0:
-        return None
-    first = batch[0]
-    size = len(first)
-    if size < 16 or first[1] != 1 or any(len(d) != size for d in batch):
-        return None
-    layout = _joint_state_arrays(first)
+    size = _same_size_le(batch)
+    layout = _joint_state_arrays(batch[0]) if size else None
     if layout is None:
         return None
-    fixed_ranges, starts = layout
-    view = decoder.decode(first)
-    n = len(view.name)
-    fixed = np.array(fixed_ranges, dtype=np.int64)
-    read = starts if position else starts[1:]
-    buf = np.frombuffer(b''.join(batch), dtype=np.uint8).reshape(m, size)
-    stamp_ns = np.empty(m, dtype=np.int64)
-    values = np.empty((len(read), m, n))
-    if not cdr_rows(buf, fixed, np.array(read, dtype=np.int64), n, stamp_ns, values):
+    fixed, starts = layout
+    view = decoder.decode(batch[0])
+    got = _read_rows(batch, size, fixed, starts if position else starts[1:], len(view.name))
+    if got is None:
         return None
+    stamp_ns, values = got
     pos, vel, eff = (values[0], values[1], values[2]) if position else (None, values[0], values[1])
     return JointStateBlock(stamp_ns, view.header.frame_id, view.name, pos, vel, eff)
 
@@ -358,25 +375,19 @@ def read_wrench_torque_z_block(batch: Sequence[bytes]) -> tuple[Any, bytes, Any]
     """(stamp_ns (m,) int64, frame_id bytes, torque.z (m,) N m) of little-endian
     WrenchStamped samples with one frame_id (the layout :func:`decode_wrench_header_torque_z`
     reads), else None. Read like :func:`read_joint_state_block`."""
-    from cvj_ros.physics.kernel.window_nb import cdr_rows
-    m = len(batch)
-    if m == 0:
+    size = _same_size_le(batch)
+    if not size:
         return None
     first = batch[0]
-    size = len(first)
-    if size < 16 or first[1] != 1 or any(len(d) != size for d in batch):
-        return None
     n = _LE_UINT32.unpack_from(first, 12)[0]
     off = 12 + n
     off += (-off) % 8
     if 4 + off + 48 != size:
         return None
-    buf = np.frombuffer(b''.join(batch), dtype=np.uint8).reshape(m, size)
-    stamp_ns = np.empty(m, dtype=np.int64)
-    values = np.empty((1, m, 1))
-    if not cdr_rows(buf, np.array([(12, 16 + n)], dtype=np.int64),     # frame_id, not padding
-                    np.array([4 + off + 40], dtype=np.int64), 1, stamp_ns, values):
+    got = _read_rows(batch, size, [(12, 16 + n)], [4 + off + 40], 1)   # frame_id, not padding
+    if got is None:
         return None
+    stamp_ns, values = got
     return stamp_ns, bytes(first[16:16 + max(n - 1, 0)]), values[0, :, 0]
 
 

@@ -249,11 +249,12 @@ class MonitorNode(CvjNode):
         if self._js_batch:
             batch, self._js_batch = self._js_batch, []
             block = read_joint_state_block(batch, self._js_decoder, position=False)
-            if block is None or not self._use_names(block.name):
+            if block is None:
                 self._take_js_one_by_one(batch)
             elif self.run_token and self._foreign(block.frame_id):
                 self.foreign_messages += len(batch) - 1
             else:
+                self._use_names(block.name)
                 t = block.stamp_ns / 1e9
                 self.last_ns = int(block.stamp_ns[-1])
                 self._push_js(t, block.velocity, block.effort)
@@ -302,15 +303,14 @@ class MonitorNode(CvjNode):
                 eff.append(row[2])
         self._push_js(ts, vel, eff)
 
-    def _use_names(self, names: list[str]) -> bool:
-        """Windows for shafts ``names`` (new ones when the names change); True."""
+    def _use_names(self, names: list[str]) -> None:
+        """Windows for shafts ``names`` (new ones when the names change)."""
         if names is not self.names:
             if names != self.names or self.speeds is None:
                 cap = self.params['capacity']
                 self.speeds = RollingWindow(cap, max(len(names), 1))
                 self.efforts = RollingWindow(cap, max(len(names), 1))
             self.names = names
-        return True
 
     def _read_joint_state(self, msg: Any) -> tuple[float, Any, Any] | None:
         """(t in s, velocity row, effort row) of one joint state for the windows (NaN rows

@@ -211,7 +211,13 @@ class Intruder:
         # publishers only once the real loop steps: before step 0 cvj-sim and the coupling
         # node refuse a domain with another run's publishers (the refusal test's case)
         self.pubs: dict = {}
-        self.node.create_subscription(JointState, '/driveline/joint_states', self._on_js, DATA_QOS)
+        # the joint-state subscription only once the real loop steps (its first /clock): a
+        # subscriber already there would count toward the coupling node's min_subscribers
+        # and let it start before the recorder is matched (seen once in CI: the bag missed
+        # the run's first 4 joint states) - another run on the domain that is not yet
+        # running is the refusal test's case
+        self._js_sub = None
+        self.node.create_subscription(Clock, '/clock', self._on_clock, DATA_QOS)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
@@ -221,6 +227,11 @@ class Intruder:
     def _spin(self) -> None:
         while not self._stop.is_set():
             self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_clock(self, _msg) -> None:
+        if self._js_sub is None:
+            self._js_sub = self.node.create_subscription(
+                self.JointState, '/driveline/joint_states', self._on_js, self.qos)
 
     def _on_js(self, msg) -> None:
         if msg.header.frame_id.endswith(self.OTHER) or msg.header.stamp.nanosec < 20 * H_NS \

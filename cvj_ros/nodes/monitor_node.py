@@ -84,22 +84,6 @@ PARAMS = (
 )
 
 
-def load_window_kernels() -> None:
-    """Load (or compile) the compiled window statistics, ring pushes and bulk CDR reading
-    (cvj_ros.physics.kernel.window_nb) now: loading one from numba's cache takes 10-50 ms,
-    which inside the first publications of a running loop is that many ms of lateness
-    (measured: a fresh `cvj-sim run --composed` ran its 5 s loop ~20 % slower than a second
-    run in the same process before this)."""
-    import numpy as np
-
-    from cvj_ros.physics.kernel.window_nb import cdr_rows
-    win = RollingWindow(2, 1)
-    win.push_many([0.0], [[1.0]])
-    win.stats(1.0)
-    cdr_rows(np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
-             np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))
-
-
 #: samples collected before they are read into the windows anyway (bounds the memory with a
 #: large publish_every: the windows are fixed-size ring buffers, the collection is not)
 MAX_COLLECTED = 1000
@@ -137,7 +121,10 @@ class MonitorNode(CvjNode):
         # per sample cost ~4x more; issue 10)
         self._js_decoder = JointStateDecoder()
         self._decode = self._js_decoder.decode
-        load_window_kernels()
+        # the compiled window kernels loaded now, not at the first publication inside the loop
+        # (a fresh `cvj-sim run --composed` ran its 5 s loop ~20 % slower before)
+        from cvj_ros.physics.kernel import window_nb
+        window_nb.warm()
         # Samples are collected as they come and read in bulk when the statuses are computed
         # (every publish_every joint states): the per-sample callback only checks the run
         # token and appends (composed mode, in-process bus: ~45 -> ~10 us per exchange).

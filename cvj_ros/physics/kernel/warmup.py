@@ -81,14 +81,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
     Simulation(scene, method='dopri5').run(0.002, sample_dt=0.001)   # sample_outputs
     fill_mid_samples(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((0, 4), np.int64),
                      np.zeros(1))   # the offline trace's intermediate members
-    from cvj_ros.physics.monitor_metrics import RollingWindow
-    win = RollingWindow(2, 1)         # the monitor's windows and bulk reading (kernel/window_nb.py)
-    win.push_many([0.0], [[1.0]])
-    win.stats(1.0)
-    from cvj_ros.physics.kernel.window_nb import cdr_rows
-    # read-only bytes, as np.frombuffer gives them (another numba type than a writable array)
-    cdr_rows(np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
-             np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))
+    from cvj_ros.physics.kernel import window_nb
+    window_nb.warm()                  # the monitor's windows and bulk reading
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

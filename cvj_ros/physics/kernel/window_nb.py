@@ -131,3 +131,18 @@ def cdr_rows(buf: np.ndarray, fixed: np.ndarray, starts: np.ndarray, n: int,
             for j in range(n):
                 values[a, r, j] = _f8(buf, r, at + 8 * j, scratch)
     return True
+
+
+def warm() -> None:
+    """Load (or compile) every function of this module for the argument types the monitor
+    uses: called by ``make kernel`` (kernel/warmup.py) and when a monitor node is created,
+    so neither a first run nor a running loop pays the load (10-50 ms each from numba's
+    cache). The byte buffer is read-only, as ``np.frombuffer`` gives it: another numba type
+    than a writable array."""
+    t = np.zeros(2)
+    rows = np.zeros((2, 1))
+    nxt = ring_push(t, rows, 0, np.zeros(1), np.ones((1, 1)))
+    out = np.empty(1)
+    ring_window_stats(t, rows, 1, nxt, 1.0, out, np.empty(1), np.empty(1))
+    cdr_rows(np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
+             np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))

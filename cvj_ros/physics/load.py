@@ -214,7 +214,8 @@ class RandomLoad(Load):
         derivative jumps."""
         k_lo = math.floor(t0 / self.dt)
         k_hi = math.ceil(t1 / self.dt)
-        return _inside(np.arange(k_lo, k_hi + 1) * self.dt, t0, t1)
+        knots = np.arange(k_lo, k_hi + 1) * self.dt   # ascending and unique already
+        return knots[(knots > t0) & (knots < t1)]
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
         """M_m + delta(t) (N m)."""

@@ -102,20 +102,23 @@ def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = 1e-9
     rows = np.arange(times.size)
     if breaks.size == 0:
         return times, rows
-    b = np.unique(breaks[(breaks > times[0]) & (breaks < times[-1])])
+    b = breaks[(breaks > times[0]) & (breaks < times[-1])]
+    if b.size > 1 and not (b[1:] > b[:-1]).all():
+        b = np.unique(b)   # the loads list them ascending and unique; a user's may not
     near = tol * np.maximum(1.0, np.abs(b))
     i = np.searchsorted(times, b)
     keep = (b - times[np.maximum(i - 1, 0)] > near) & (times[np.minimum(i, times.size - 1)] - b > near)
-    b, near = b[keep], near[keep]
-    if b.size > 1:
-        last = b[0]
-        keep = np.ones(b.size, dtype=bool)
-        for j in range(1, b.size):
-            if b[j] - last <= near[j]:
-                keep[j] = False
-            else:
-                last = b[j]
-        b = b[keep]
+    if not keep.all():
+        b, near = b[keep], near[keep]
+    if b.size > 1 and not (b[1:] - b[:-1] > near[1:]).all():
+        # a cluster: keep a breakpoint only past tol of the last one kept (sequential)
+        bl, nl = b.tolist(), near.tolist()
+        kept, last = [bl[0]], bl[0]
+        for bj, nj in zip(bl[1:], nl[1:]):
+            if bj - last > nj:
+                kept.append(bj)
+                last = bj
+        b = np.array(kept)
     if b.size == 0:
         return times, rows
     grid = np.concatenate((times, b))
@@ -226,24 +229,38 @@ class Simulation:
                         res: FloatArray) -> None:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
-        from cvj_ros.physics.kernel import load_cached_once
+        from cvj_ros.physics.kernel import entry_point_once
         from cvj_ros.physics.kernel.outputs_nb import (fill_mid_samples, mid_table,
                                                        sample_outputs, shaft_table)
         if self._shaft_table is None:
             self._shaft_table = shaft_table(self.driveline)
             self._mid_table = mid_table(self.driveline)
+        # every array here is allocated by run() (C-contiguous float64/int64): one type each
         args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
                 float(e0), pos, vel, eff, te, tl, res)
-        load_cached_once(sample_outputs, args)
-        bad = sample_outputs(*args)
+        bad = entry_point_once(sample_outputs, args)(*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
-            load_cached_once(fill_mid_samples, (pos, vel, mtab, mfp))
-            fill_mid_samples(pos, vel, mtab, mfp)
+            args = (pos, vel, mtab, mfp)
+            entry_point_once(fill_mid_samples, args)(*args)
         if python_members:
             self.driveline.fill_mid(pos, vel, members=python_members)
+
+    @staticmethod
+    def _landing_grid(times: FloatArray, breaks: FloatArray) -> tuple[FloatArray, np.ndarray]:
+        """:func:`landing_grid` compiled (kernel/grid_nb.py, same grid; tested against it)."""
+        if breaks.size == 0:
+            return times, np.arange(times.size)
+        from cvj_ros.physics.kernel import entry_point_once
+        from cvj_ros.physics.kernel.grid_nb import landing_grid as landing_grid_nb
+        breaks = np.ascontiguousarray(breaks, dtype=np.float64)
+        grid = np.empty(times.size + breaks.size)
+        rows = np.empty(times.size, np.int64)
+        args = (times, breaks, 1e-9, grid, rows)
+        m = entry_point_once(landing_grid_nb, args)(*args)
+        return grid[:m], rows
 
     def _initial_energy(self, x0: FloatArray) -> float:
         """Kinetic + elastic energy (J) of x0, the energy residual's reference; kept per x0."""
@@ -347,7 +364,8 @@ class Simulation:
         breaks = self.breakpoints(float(times[-1])) if breakpoints else _NO_BREAKS
         if sampling == 'land':
             # the steps land on grid; row j of it is a sample where is_sample[j]
-            grid, rows = landing_grid(times, breaks)
+            grid, rows = (self._landing_grid(times, breaks) if self.backend == 'kernel'
+                          else landing_grid(times, breaks))
             is_sample = np.zeros(grid.size, dtype=bool)
             is_sample[rows] = True
         else:

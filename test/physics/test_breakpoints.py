@@ -46,6 +46,35 @@ def test_landing_grid_keeps_samples_and_drops_near_duplicates():
     assert g0 is times and r0.tolist() == list(range(6))
 
 
+def _landing_grid_plain(times, breaks, tol=1e-9):
+    """The definition, one breakpoint at a time: sorted unique breakpoints inside the
+    span, none within tol max(1, |t|) of a sample or of the last breakpoint kept."""
+    kept = []
+    for b in sorted(set(float(x) for x in breaks)):
+        near = tol * max(1.0, abs(b))
+        if not (times[0] < b < times[-1]) or np.min(np.abs(times - b)) <= near:
+            continue
+        if kept and b - kept[-1] <= near:
+            continue
+        kept.append(b)
+    return np.sort(np.concatenate((times, kept)))
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_landing_grid_matches_its_definition_on_fuzzed_breakpoints(seed):
+    """Unsorted, repeated, clustered (gaps below tol) and out-of-span breakpoints."""
+    rng = np.random.default_rng(seed)
+    times = np.arange(int(rng.integers(2, 30))) * 0.05
+    base = rng.uniform(-0.1, times[-1] + 0.1, int(rng.integers(0, 40)))
+    clusters = np.repeat(base[:5], 3) + rng.choice([0.0, 3e-10, 2e-9], 15)[:3 * base[:5].size]
+    on_samples = times[rng.integers(0, times.size, 3)] + rng.choice([0.0, 5e-10, 1e-6], 3)
+    breaks = np.concatenate((base, clusters, on_samples, base[:3]))
+    rng.shuffle(breaks)
+    grid, rows = landing_grid(times, breaks)
+    np.testing.assert_array_equal(grid, _landing_grid_plain(times, breaks))
+    np.testing.assert_array_equal(grid[rows], times)
+
+
 def _kavz(**kw):
     return Simulation(load_scene(find_scene('kavz685_lever')), **kw)
 
@@ -79,3 +108,20 @@ def test_dense_sampling_lands_on_breakpoints_too(backend):
         tr = sim.run(0.2, sample_dt=0.002, sampling='dense', breakpoints=breaks)
         err[breaks] = float(np.max(np.abs(tr.velocity - ref.velocity)) / scale)
     assert err[True] < 1e-7 and err[True] * 10 < err[False], err
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_compiled_landing_grid_is_the_numpy_one(seed):
+    """kernel/grid_nb.py (what a kernel run uses) against landing_grid on the fuzzed
+    breakpoints of the test above: the same grid and rows, bit for bit."""
+    rng = np.random.default_rng(1000 + seed)
+    times = np.arange(int(rng.integers(2, 30))) * 0.05
+    base = rng.uniform(-0.1, times[-1] + 0.1, int(rng.integers(0, 40)))
+    near = np.repeat(base[:5], 3) + rng.choice([0.0, 3e-10, 2e-9], 3 * base[:5].size)
+    on_samples = times[rng.integers(0, times.size, 3)] + rng.choice([0.0, 5e-10, 1e-6], 3)
+    breaks = np.concatenate((base, near, on_samples, [np.nan]))
+    rng.shuffle(breaks)
+    grid, rows = Simulation._landing_grid(times, breaks)
+    g_ref, r_ref = landing_grid(times, breaks)
+    np.testing.assert_array_equal(grid, g_ref)
+    np.testing.assert_array_equal(rows, r_ref)

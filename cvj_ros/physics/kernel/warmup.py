@@ -60,7 +60,8 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
 def warm_outputs(*, out=sys.stdout) -> float:
     """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
     joint_state_one and wrenches_one with every joint's reactions, the offline trace's
-    sample_outputs and fill_mid_samples, and the monitor's window statistics; returns the
+    sample_outputs, fill_mid_samples and landing grid, and the monitor's window statistics;
+    returns the
     wall time (s)."""
     from cvj_ros.physics.driveline import Driveline
     from cvj_ros.physics.scene import parse_scene
@@ -83,6 +84,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
                      np.zeros(1))   # the offline trace's intermediate members
     from cvj_ros.physics.kernel import window_nb
     window_nb.warm()                  # the monitor's windows and bulk reading
+    from cvj_ros.physics.kernel import grid_nb
+    grid_nb.warm()                    # an offline run's landing grid
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -47,7 +47,7 @@ tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
 tripod_series_nb = njit(cache=True)(tripod_series_scalar)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def tripod_series_at(phi, fp, off):
     """tripod_series_scalar with its nc coefficients at fp[off + 1:]; the slice lives here, not
     in joint_eval, so joint_eval stays small enough to inline."""
@@ -55,7 +55,7 @@ def tripod_series_at(phi, fp, off):
     return tripod_series_nb(phi, fp[off + 1:off + 1 + nc])
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:

@@ -22,7 +22,7 @@ from cvj_ros.physics.kernel.layout import (
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def section(g, q, ip, fp):
     """(phi_end rad, a_end -, b_end 1/rad, M kg m^2, C kg m^2/rad, dM/dq, has_joint) of
     section g at angle q: chain rule a <- r a, b <- s a^2 + r b over the section's ops."""
@@ -48,7 +48,7 @@ def section(g, q, ip, fp):
     return phi, a, b, m, c, mp, has_joint
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _sigmoid(u):
     if u >= 0.0:
         return 1.0 / (1.0 + math.exp(-u))
@@ -56,7 +56,7 @@ def _sigmoid(u):
     return z / (1.0 + z)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def spring_deflection(th, g, w):
     """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw)."""
     if g == 0.0:
@@ -70,7 +70,7 @@ def spring_deflection(th, g, w):
     return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def spring_eval(th, thd, fp, off):
     """(torque N m, dT/dtheta, dT/dthetadot, dissipated power W) of spring at fp[off:off+5]."""
     c = fp[off]
@@ -83,7 +83,7 @@ def spring_eval(th, thd, fp, off):
     return t, k_th, d * de, d * de * thd * thd
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def engine_torque(t, y, ip, fp):
     """(Te, dTe/domega, dTe/dphi) at the engine shaft (omega = y[n], phi = y[0])."""
     n = ip[H_NDOF]
@@ -96,7 +96,7 @@ def engine_torque(t, y, ip, fp):
     return engine_eval(t, we, y[0], ip, fp, H_ENGINE, ip[H_ENGINE_F])
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def load_torque(t, y, ip, fp, phi_load, a_load):
     """(Tl, dTl/domega, dTl/dphi) at the load shaft (omega = a_load y[2n-1], phi_load)."""
     n = ip[H_NDOF]

@@ -68,7 +68,7 @@ def map_engine_at(omega, phi, fp, foff):
                          fp[foff + 12], fp[foff + 13])
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def engine_eval(t, omega, phi, ip, fp, ioff, foff):
     """Engine torque and slopes; ip[ioff] is the model code (rhs passes layout.H_ENGINE),
     fp[foff:] its parameters."""
@@ -80,7 +80,7 @@ def engine_eval(t, omega, phi, ip, fp, ioff, foff):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def load_eval(t, omega, phi, ip, fp, ioff, foff):
     """Load torque (resisting) and slopes; ip[ioff] is the code (layout.H_LOAD)."""
     code = ip[ioff]
@@ -140,7 +140,7 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def random_load(t, fp, foff):
     """M_m + A H(t) (N m): cubic Hermite with Fritsch-Butland PCHIP knot slopes between the
     pre-generated knots u_k at t_k = k dt (same expression order as load.RandomLoad)."""
@@ -172,7 +172,7 @@ def random_load(t, fp, foff):
     return mean + amp * val
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def time_series_load(t, fp, foff):
     """load.TimeSeriesLoad: linear interpolation of samples (t_i, T_i), held (or zero) outside."""
     n = int(fp[foff + 1])

@@ -102,7 +102,7 @@ def new_state(n: int, stages: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
 
 
 # ------------------------------------------------------------------ helpers
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _first_nonfinite(v: np.ndarray) -> int:
     """Index of the first non-finite entry of v, -1 when all are finite."""
     for i in range(v.shape[0]):
@@ -148,7 +148,7 @@ def _initial_step(y, f0, ip, fp, fs, cnt, rtol, atol, max_step, order, tmp, f1):
     return min(100 * h0, h1, max_step)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _proposal(h, err, fs, expo, fac_max):
     """PI controller after an accepted step (solvers._proposal)."""
     fac = err ** expo / fs[FS_ERROLD] ** BETA / SAFETY
@@ -161,7 +161,7 @@ def _proposal(h, err, fs, expo, fac_max):
 
 
 # ------------------------------------------------------------------ dopri5
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _dopri5_attempt(h, y, ip, fp, fs, cnt, rtol, atol, K, work):
     """One DOPRI5 attempt of size h from (fs[FS_T], y) with K[0] = f(t, y).
     Fills K[1..6] (K[6] = f(t+h, y_new), FSAL) and work[1] = y_new; returns the
@@ -203,7 +203,7 @@ def _dopri5_attempt(h, y, ip, fp, fs, cnt, rtol, atol, K, work):
     return abs(h) * math.sqrt(ss / n)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def dopri5_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """One accepted DOPRI5 step from fs[FS_T] of the controller's size, clipped to
     land on t_bound when within 1 %. y is updated in place (old value in
@@ -270,7 +270,7 @@ def dopri5_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, wor
             h = h * FAC_MIN
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _dopri5_fsal(K, cnt):
     """Move the FSAL derivative of the last accepted step (K[6]) to K[0]."""
     if cnt[C_HAVEF] == 2:
@@ -279,7 +279,7 @@ def _dopri5_fsal(K, cnt):
         cnt[C_HAVEF] = 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def dopri5_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work):
     """Integrate to exactly t_end (s); keeps h across calls. Returns ST_*.
     After return K holds the last step's stages (dense output valid)."""
@@ -359,7 +359,7 @@ def dopri5_sample(t_eval, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, wo
 
 
 # ---------------------------------------------------------------------- rk4
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _rk4_take(dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
     """One classic RK4 step of dt; K[0] = f(t, y) on entry (computed when
     cnt[C_HAVEF] == 0), K[4] = f at the new point is left invalid (cnt[C_HAVEF]=0)."""
@@ -400,7 +400,7 @@ def _rk4_take(dt, t_new, y, y_old, ip, fp, fs, cnt, K, work):
     return ST_OK
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def rk4_advance(t_end, y, y_old, ip, fp, fs, cnt, K, work):
     """Integrate to exactly t_end with ceil((t_end - t)/h) equal substeps <= h
     (h = fs[FS_H]), as solvers._FixedStepper.advance_to. Returns ST_*."""
@@ -498,7 +498,7 @@ ROS2_ALPHA = np.array([0.0, 1.0])
 ROS2_GSUM = np.array([ROS2_GAMMA, -ROS2_GAMMA])
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def lu_factor(G, piv):
     """In-place LU with partial pivoting (Doolittle, row interchanges in piv).
     Returns False when a pivot is zero or the factors are not finite."""
@@ -532,7 +532,7 @@ def lu_factor(G, piv):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def lu_solve(LU, piv, b):
     """Solve (LU) x = b in place in b (forward then back substitution)."""
     n = LU.shape[0]
@@ -554,7 +554,7 @@ def lu_solve(LU, piv, b):
         b[i] = acc / LU[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
     """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed
     (same policy as solvers._LinearlyImplicit._prepare). K[0] = f(t, y)."""
@@ -600,7 +600,7 @@ def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, wo
     return ST_OK
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
     """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
     y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
@@ -636,7 +636,7 @@ def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, wor
         ynew[i] = y[i] + acc
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _ros2_take(dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                J, LU, piv, ft, K, work):
     """One ROS2 step of dt (solvers.Ros2Stepper._step + _FixedStepper._take)."""
@@ -667,7 +667,7 @@ def _ros2_take(dt, t_new, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
     return ST_OK
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def ros2_advance(t_end, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
                  J, LU, piv, ft, K, work):
     """ROS2 to exactly t_end with ceil(span/h) equal substeps <= h. Returns ST_*."""
@@ -709,7 +709,7 @@ def ros2_step_once(t_bound, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac,
 # Tableau arrays (K form of solvers._rodas5p_tableau / _rodas4_tableau) are passed
 # in; K has s + 2 rows: K[0] = f(t, y), K[1..s] the stages, K[s+1] = f at the
 # start of the last accepted step (Hermite dense output for RODAS4).
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def ros_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
              constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft, K,
              work):
@@ -792,7 +792,7 @@ def ros_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomou
             h = h * FAC_MIN
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def ros_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomous,
                 constant_jac, gamma, A, C, M, E, alpha, gsum, order, fac_max, J, LU, piv, ft,
                 K, work):
@@ -837,7 +837,7 @@ D8_FAC_MIN = 0.333
 D8_FAC_MAX = 6.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _proposal_nobeta(h, err, fac_min, fac_max, expo):
     """solvers._proposal with beta = 0 (DOP853): h * (safety / err^expo), clamped."""
     fac = err ** expo / SAFETY
@@ -848,7 +848,7 @@ def _proposal_nobeta(h, err, fac_min, fac_max, expo):
     return h / fac
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def dop853_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3,
                 K, work):
     """One accepted DOP853 step (solvers.Dop853Stepper + _step_once). Returns ST_*."""
@@ -948,7 +948,7 @@ def dop853_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, 
             h = h * D8_FAC_MIN
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def dop853_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5,
                    E3, K, work):
     """DOP853 to exactly t_end; returns ST_*."""
@@ -1006,7 +1006,7 @@ def dop853_dense(t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out):
 # progress callback). One Python round trip per sample cost ~15-20 us of dispatch and state
 # sync (measured: 10 samples of a 0.5 s kavz685_lever run at tol 1e-3 = ~30 % of the run).
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _store_row(X, k, y):
     for i in range(y.size):
         X[k, i] = y[i]

@@ -109,7 +109,7 @@ def load_torque(t, y, ip, fp, phi_load, a_load):
     return load_eval(t, wl, phi_load, ip, fp, H_LOAD, ip[H_LOAD_F])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def rhs(t, y, ip, fp, dy):
     """dy/dt (filled in place, length n_state) of the driveline state y.
 

@@ -61,3 +61,42 @@ def test_kernel_entry_points_borrow_their_arrays():
             assert isinstance(first, ast.Assign) and first.value.func.id == 'borrowed_all', node.name
             seen.add(node.name)
     assert seen == entries
+
+
+def test_rhs_call_tree_and_step_chain_compile_without_calls_between_them():
+    """The helpers under the rhs and the step chain under each land/advance are inlined at
+    numba IR level, and the rhs compiles without reference counting: every call left
+    between them passed its arrays exploded with an NRT incref/decref per array (rhs per
+    call, docs/solvers.md "Where an rhs call's time goes": stiff 96 -> 27 ns). A missing
+    flag only costs speed, so the flags themselves are checked."""
+    from cvj_ros.physics.kernel import joints_nb, rhs_nb, sources_nb, steppers_nb
+    inlined = {rhs_nb: ('section', '_sigmoid', 'spring_deflection', 'spring_eval',
+                        'engine_torque', 'load_torque'),
+               sources_nb: ('engine_eval', 'load_eval', 'random_load', 'time_series_load'),
+               joints_nb: ('joint_eval', 'tripod_series_at'),
+               steppers_nb: ('_first_nonfinite', '_proposal', '_dopri5_attempt', 'dopri5_step',
+                             '_dopri5_fsal', 'dopri5_advance', '_store_row', 'lu_factor',
+                             'lu_solve', '_ros_prepare', '_ros_stages', '_proposal_nobeta',
+                             '_rk4_take', 'rk4_advance', '_ros2_take', 'ros2_advance',
+                             'ros_step', 'ros_advance', 'dop853_step', 'dop853_advance')}
+    for mod, names in inlined.items():
+        for name in names:
+            assert getattr(mod, name).targetoptions.get('inline') == 'always', name
+    assert rhs_nb.rhs.targetoptions.get('_nrt') is False
+
+
+def test_rhs_without_reference_counting_called_from_python_leaves_counts_alone():
+    """rhs (compiled with _nrt=False) called from Python, as the bench's solve_ivp with the
+    compiled rhs does: the caller's arrays keep their reference counts, dy is written."""
+    from cvj_ros.physics.kernel import rhs_nb
+    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.scene import find_scene, load_scene
+    from cvj_ros.physics.simulate import Simulation
+    sim = Simulation(load_scene(find_scene('kavz685_lever')))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load, horizon=1.0)
+    y, dy = model.x0.copy(), np.full(model.n_state, np.nan)
+    counts = [sys.getrefcount(a) for a in (y, model.ip, model.fp, dy)]
+    for _ in range(100):
+        rhs_nb.rhs(0.01, y, model.ip, model.fp, dy)
+    assert [sys.getrefcount(a) for a in (y, model.ip, model.fp, dy)] == counts
+    np.testing.assert_allclose(dy, sim.fun(0.01, y), rtol=1e-12, atol=0.0)

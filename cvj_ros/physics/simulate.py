@@ -20,7 +20,6 @@ max energy scale (cvj_ros.physics.driveline.Driveline.energy_residual).
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -216,13 +215,14 @@ class Simulation:
         and kept (packing is model building, like the fidelity choice: ~0.3 ms for
         kavz685_lever's 0.5 s of random-load knots); each run gets fresh copies of the
         arrays, so a run never sees another run's input block."""
-        from cvj_ros.physics.kernel.layout import build_model
+        from cvj_ros.physics.kernel.layout import ModelData, build_model
         h = max(horizon, float(self.scene.duration))
         cached = self._packed.get(h)
         if cached is None:
             cached = build_model(self.driveline, engine=self.engine, load=self.load, horizon=h)
             self._packed = {h: cached}
-        return dataclasses.replace(cached, ip=cached.ip.copy(), fp=cached.fp.copy())
+        return ModelData(ip=cached.ip.copy(), fp=cached.fp.copy(), n_dof=cached.n_dof,
+                         n_state=cached.n_state, track_energy=cached.track_energy, x0=cached.x0)
 
     def _kernel_outputs(self, times: FloatArray, X: FloatArray, e0: float, pos: FloatArray,
                         vel: FloatArray, eff: FloatArray, te: FloatArray, tl: FloatArray,
@@ -380,7 +380,7 @@ class Simulation:
                 XG = X if grid.size == times.size else np.empty((grid.size, x0.size))
                 XG[0] = x0
                 c0 = clock()
-                stepper.land(grid, XG)
+                stepper._land(grid, XG)   # grid and XG built here: checked by construction
                 integ += clock() - c0
                 if XG is not X:
                     X[:] = XG[rows]

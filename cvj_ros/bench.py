@@ -73,6 +73,8 @@ class BenchConfig:
     samples: int = 20                    # sample points on the horizon (error grid)
     repeats: int = 5                     # at most; stop repeating once a config used repeat_budget_s
     repeat_budget_s: float = 3.0
+    min_timed_s: float = 0.02            # short runs: repeat until their walls fill this (timeit's
+    max_repeats: int = 200               # autorange), up to max_repeats; split over the passes
     passes: int = 2                      # the repeats of a scene's configs, spread over this many passes
     max_rhs_evals: int = 1_000_000
     exchange_steps: Sequence[float] = (1e-4, 2.5e-4, 1e-3, 2e-3, 5e-3, 1e-2)   # divide the horizon
@@ -196,21 +198,36 @@ def prepare(scene: Any, cfg: BenchConfig, *, reference_tol: float) -> SceneProbl
 
 
 def _time_runs(run_once: Callable[[], tuple[Any, int, int]], repeats: int,
-               budget_s: float = math.inf) -> dict[str, Any]:
+               budget_s: float = math.inf, *, min_total_s: float = 0.0,
+               max_repeats: int = 0) -> dict[str, Any]:
     """Call ``run_once`` up to ``repeats`` times (fewer once ``budget_s`` of wall time is
-    used, at least once); wall time = min, spread = (max - min)/min."""
+    used, at least once), then on while the walls sum to less than ``min_total_s``, up to
+    ``max_repeats`` calls in all (timeit's autorange: a 0.1 ms run's minimum over 5 calls
+    still carries the first calls' cold caches - measured 117-209 us against 100-175 us over
+    30 for kavz685_lever; a 4 ms baseline run fills the time with its 5); wall time = min,
+    spread = (max - min)/min."""
     walls: list[float] = []
     result: Any = None
     nfev = njev = 0
-    for _ in range(repeats):
+    while True:
         t0 = time.perf_counter()
         result, nfev, njev = run_once()
         walls.append(time.perf_counter() - t0)
-        if sum(walls) > budget_s:
+        total = sum(walls)
+        if total > budget_s:
+            break
+        if len(walls) >= repeats and (total >= min_total_s or len(walls) >= max_repeats):
             break
     w = min(walls)
     return {'result': result, 'wall_s': w, 'wall_spread': (max(walls) - w) / w if w > 0 else 0.0,
             'repeats': len(walls), 'nfev': nfev, 'njev': njev, 'walls': walls}
+
+
+def _autorange(cfg: BenchConfig) -> dict[str, Any]:
+    """Per pass: its share of ``cfg.min_timed_s`` and of ``cfg.max_repeats``."""
+    passes = max(1, cfg.passes)
+    return {'min_total_s': cfg.min_timed_s / passes,
+            'max_repeats': max(1, math.ceil(cfg.max_repeats / passes))}
 
 
 def _first_pass_repeats(cfg: BenchConfig) -> int:
@@ -222,7 +239,8 @@ def retime_passes(rows: list[dict[str, Any]], cfg: BenchConfig, *,
                   horizon: float) -> None:
     """Time every configuration of ``rows`` (one scene's, ok, with a kept ``_once``) again
     in ``cfg.passes - 1`` more passes over all of them, up to ``cfg.repeats`` runs each in
-    all; wall_s = the min, wall_spread over all runs. A configuration is thus timed at
+    all (more for a run shorter than ``cfg.min_timed_s`` over them, see :func:`_time_runs`);
+    wall_s = the min, wall_spread over all runs. A configuration is thus timed at
     moments spread over the scene's whole run rather than within one second: this machine's
     speed drifts by up to 1.5x over minutes (docs/benchmark.md), and the ratios compare
     configurations timed at different moments. A failure in a later pass keeps the first
@@ -239,7 +257,7 @@ def retime_passes(rows: list[dict[str, Any]], cfg: BenchConfig, *,
             if not r.get('ok') or once is None:
                 continue
             try:
-                extra = _time_runs(once, n, cfg.repeat_budget_s)
+                extra = _time_runs(once, n, cfg.repeat_budget_s, **_autorange(cfg))
             except (_BudgetExceeded, CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError):
                 continue
             walls = r['_walls'] + extra['walls']
@@ -362,7 +380,7 @@ def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfi
 def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
             cfg: BenchConfig, *, output: Callable[[Any], tuple[np.ndarray, np.ndarray]] = None) -> dict[str, Any]:
     try:
-        timed = _time_runs(once, _first_pass_repeats(cfg), cfg.repeat_budget_s)
+        timed = _time_runs(once, _first_pass_repeats(cfg), cfg.repeat_budget_s, **_autorange(cfg))
     except _BudgetExceeded:
         return {**row, 'ok': False, 'note': f'more than {cfg.max_rhs_evals} rhs evaluations'}
     except (CvjError, ArithmeticError, np.linalg.LinAlgError, ValueError) as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ def result(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5', 'dop853', 'rk4'),
                             tolerances=TOLS, rk4_steps=(2e-3, 5e-4), fidelities=('ideal', 'exact', 'auto'),
                             baselines=('RK45', 'LSODA'), horizon=0.2, samples=20, repeats=2,
-                            exchange_steps=(1e-3, 4e-3), lockstep_scenes=None, round_trip_n=0)
+                            min_timed_s=0.0, exchange_steps=(1e-3, 4e-3), lockstep_scenes=None, round_trip_n=0)
     return bench.run_bench(cfg, out, log=lambda m: None), out
 
 
@@ -188,7 +189,7 @@ def test_repeats_are_spread_over_passes_and_rows_keep_no_private_keys(
 def test_retime_passes_takes_the_min_over_all_passes() -> None:
     """Unit: a configuration slow in its first pass and fast in the second reports the fast
     time; one that fails in a later pass keeps its first-pass figures."""
-    cfg = bench.BenchConfig(repeats=5, passes=3)
+    cfg = bench.BenchConfig(repeats=5, passes=3, min_timed_s=0.0)
     assert bench._first_pass_repeats(cfg) == 2
     calls = {'a': 0, 'b': 0}
 
@@ -209,6 +210,31 @@ def test_retime_passes_takes_the_min_over_all_passes() -> None:
     assert rows[0]['wall_per_sim_s'] == rows[0]['wall_s'] / 2.0
     assert rows[1]['wall_s'] == 0.3 and rows[1]['repeats'] == 1
     assert all('_once' not in r and '_walls' not in r for r in rows)
+
+
+def test_short_runs_repeat_until_they_fill_the_minimum_time() -> None:
+    """Unit (timeit's autorange): a run far shorter than min_total_s is repeated beyond
+    ``repeats`` until the walls fill it, never past max_repeats; a run that fills it alone
+    is called ``repeats`` times; the per-pass share splits cfg.min_timed_s and max_repeats."""
+    calls = {'n': 0}
+
+    def quick() -> tuple[None, int, int]:
+        calls['n'] += 1
+        return None, 1, 0
+
+    t = bench._time_runs(quick, 3, min_total_s=0.05, max_repeats=40)
+    assert t['repeats'] == calls['n'] == 40          # 40 no-op calls fill far less than 50 ms
+    calls['n'] = 0
+
+    def slow() -> tuple[None, int, int]:
+        calls['n'] += 1
+        time.sleep(0.01)
+        return None, 1, 0
+
+    t = bench._time_runs(slow, 2, min_total_s=0.015, max_repeats=40)
+    assert t['repeats'] == 2                         # 2 x 10 ms fill 15 ms
+    assert bench._autorange(bench.BenchConfig(min_timed_s=0.02, max_repeats=200, passes=2)) == \
+        {'min_total_s': 0.01, 'max_repeats': 100}
 
 
 def test_real_lockstep_reports_both_modes_against_their_targets(tmp_path: Path,

@@ -49,7 +49,7 @@ test-stress: kernel
 	$(PY) scripts/stress.py
 
 bench: kernel
-	$(VENV)/bin/cvj-sim bench --out bench_out
+	$(VENV)/bin/cvj-sim bench --real-lockstep --startup --out bench_out
 
 clean:
 	rm -rf build install log runs bench_out *.egg-info

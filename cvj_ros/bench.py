@@ -83,6 +83,7 @@ class BenchConfig:
     round_trip_n: int = 1000             # 0: skip the rclpy round-trip measurement
     real_lockstep: bool = False          # also time a real `cvj-sim run` lockstep run
     studies: bool = False                # run `pytest -m slow` and append its summary
+    startup: bool = False                # time the kernel's cold compile and a warm simulate
     compiled_baselines: bool = True      # also solve_ivp over the compiled rhs (expert baseline)
 
     @classmethod
@@ -715,13 +716,50 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
     studies = run_studies() if cfg.studies else None
+    startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
-                           work_precision_plot)
+                           work_precision_plot, startup=startup)
     log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
     return {'rows': rows, 'lockstep': lock_rows, 'round_trip': rt, 'real_lockstep': real,
-            'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
+            'startup': startup, 'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
             'tables': {name: best_at_levels([r for r in rows if r['scene'] == name]) for name in problems}}
+
+
+def kernel_startup(*, warm_runs: int = 3, timeout: float = 1800.0) -> dict[str, Any]:
+    """The kernel's start-up in fresh interpreters (issue 9): the cold compile of every
+    method and the outputs (``python -m cvj_ros.physics.kernel.warmup`` with an empty
+    NUMBA_CACHE_DIR; what the first ``make`` pays), and the whole command
+    ``cvj-sim simulate kavz685_lever --duration 2`` on the warm cache (target <= 1.5 s),
+    median and min of ``warm_runs``. Wall seconds; ``{'note': ...}`` when not possible."""
+    import tempfile
+    exe = Path(sys.executable).with_name('cvj-sim')
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / 'numba'))
+        t0 = time.perf_counter()
+        try:
+            r = subprocess.run([sys.executable, '-m', 'cvj_ros.physics.kernel.warmup'], env=env,
+                               capture_output=True, text=True, timeout=timeout)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return {'note': f'cold compile failed: {exc}'}
+        if r.returncode != 0:
+            return {'note': f'cold compile exited {r.returncode}: {(r.stderr or r.stdout).strip()[-200:]}'}
+        out['cold_compile_s'] = time.perf_counter() - t0
+        walls = []
+        for _ in range(max(1, warm_runs)):   # the same (now warm) cache directory
+            t0 = time.perf_counter()
+            try:
+                r = subprocess.run([str(exe), 'simulate', 'kavz685_lever', '--duration', '2'],
+                                   env=env, capture_output=True, text=True, timeout=timeout)
+            except (OSError, subprocess.TimeoutExpired) as exc:
+                return {**out, 'note': f'warm simulate failed: {exc}'}
+            if r.returncode != 0:
+                return {**out, 'note': f'warm simulate exited {r.returncode}'}
+            walls.append(time.perf_counter() - t0)
+    out.update(warm_simulate_s_median=float(np.median(walls)), warm_simulate_s_min=min(walls),
+               warm_runs=len(walls))
+    return out
 
 
 def run_studies(timeout: float = 3600.0) -> dict[str, Any]:
@@ -755,7 +793,8 @@ def _config_label(r: dict[str, Any] | None) -> str:
 def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],
                    problems: dict[str, SceneProblem], rt: dict[str, Any], real: dict[str, Any] | None,
                    studies: dict[str, Any] | None, duration: float, ref_tol: float,
-                   plot: Callable[..., Path], *, partial: bool = False) -> list[Path]:
+                   plot: Callable[..., Path], *, partial: bool = False,
+                   startup: dict[str, Any] | None = None) -> list[Path]:
     paths = []
     p = out / 'bench.csv'
     with p.open('w', newline='') as fh:
@@ -865,6 +904,17 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                      else 'n/a (round trip not measured)'))
     if studies:
         md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
+    if startup is not None:
+        md += ['', '## Kernel start-up', '']
+        if 'cold_compile_s' in startup:
+            md.append(f'- cold compile (`python -m cvj_ros.physics.kernel.warmup`, empty cache, every '
+                      f'method and the outputs; what the first `make` pays): {startup["cold_compile_s"]:.1f} s')
+        if 'warm_simulate_s_median' in startup:
+            md.append(f'- warm start, whole command `cvj-sim simulate kavz685_lever --duration 2`: '
+                      f'{startup["warm_simulate_s_median"]:.2f} s median, {startup["warm_simulate_s_min"]:.2f} s '
+                      f'min of {startup["warm_runs"]} (target <= 1.5 s)')
+        if 'note' in startup:
+            md.append(f'- {startup["note"]}')
     p = out / 'bench.md'
     p.write_text('\n'.join(md) + '\n')
     paths.append(p)

@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
     parser.add_argument('--real-lockstep', action='store_true', help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the first scene, one process per node and --composed')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
+    parser.add_argument('--startup', action='store_true',
+                        help="time the kernel's cold compile (empty cache, ~100 s) and a warm "
+                             '`cvj-sim simulate kavz685_lever --duration 2`')
     parser.add_argument('--sweep', type=int, metavar='N',
                         help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '
                              'all workers, scaling efficiency (docs/sweeps.md)')
@@ -73,6 +76,7 @@ def config_from_args(args: argparse.Namespace) -> object:
         cfg.round_trip_n = 0
     cfg.real_lockstep = bool(args.real_lockstep)
     cfg.studies = bool(args.studies)
+    cfg.startup = bool(args.startup)
     check_config(cfg)
     return cfg
 

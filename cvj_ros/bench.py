@@ -317,6 +317,22 @@ def compiled_rhs_function(sim: Any, horizon: float) -> Callable[[float, np.ndarr
     return fun
 
 
+def hooke_2dof_scene() -> Any:
+    """The model of issue 9's hand-written rhs figure (25 ns): a 2-DOF engine-spring-Hooke-
+    load driveline - linear engine, linear spring with damping, exact Hooke joint at 20 deg,
+    constant load."""
+    from cvj_ros.physics.scene import parse_scene
+    return parse_scene({
+        'name': 'hooke_2dof', 'duration': 1.0, 'exchange_step': 0.001,
+        'engine': {'model': 'linear', 'm1': 100.0, 'k1': 0.5},
+        'load': {'model': 'constant', 'torque': 20.0}, 'initial': {'speed_rad_s': 100.0},
+        'driveline': [{'type': 'inertia', 'name': 'engine_shaft', 'J': 0.1},
+                      {'type': 'spring', 'name': 'spring', 'stiffness': 1000.0, 'damping': 1.0},
+                      {'type': 'joint', 'name': 'hooke', 'kind': 'hooke', 'fidelity': 'exact',
+                       'params': {'beta_deg': 20.0}},
+                      {'type': 'inertia', 'name': 'load_shaft', 'J': 0.2}]})
+
+
 def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
     """Cost of one right-hand side (exact fidelity, engine and load inside): ns per call of
     the compiled rhs called from a compiled loop, us per call of the same rhs from Python
@@ -715,14 +731,18 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         # partial report after every scene: an interrupted long run keeps what it measured
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
+    try:
+        rhs_reference = rhs_cost(hooke_2dof_scene())
+    except (CvjError, NotImplementedError) as exc:
+        rhs_reference = {'note': str(exc).splitlines()[0][:160]}
     studies = run_studies() if cfg.studies else None
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
-                           work_precision_plot, startup=startup)
+                           work_precision_plot, startup=startup, rhs_reference=rhs_reference)
     log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
     return {'rows': rows, 'lockstep': lock_rows, 'round_trip': rt, 'real_lockstep': real,
-            'startup': startup, 'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
+            'startup': startup, 'rhs_reference': rhs_reference, 'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
             'tables': {name: best_at_levels([r for r in rows if r['scene'] == name]) for name in problems}}
 
 
@@ -794,7 +814,8 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                    problems: dict[str, SceneProblem], rt: dict[str, Any], real: dict[str, Any] | None,
                    studies: dict[str, Any] | None, duration: float, ref_tol: float,
                    plot: Callable[..., Path], *, partial: bool = False,
-                   startup: dict[str, Any] | None = None) -> list[Path]:
+                   startup: dict[str, Any] | None = None,
+                   rhs_reference: dict[str, Any] | None = None) -> list[Path]:
     paths = []
     p = out / 'bench.csv'
     with p.open('w', newline='') as fh:
@@ -904,6 +925,16 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                      else 'n/a (round trip not measured)'))
     if studies:
         md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
+    if rhs_reference:
+        md += ['', "## Right-hand side of issue 9's hand-written model", '']
+        if 'compiled_ns' in rhs_reference:
+            md.append(f'2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
+                      f'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): compiled '
+                      f'{rhs_reference["compiled_ns"]:.0f} ns per call from a compiled loop; '
+                      f'{rhs_reference["compiled_from_python_us"]:.2f} us per call from Python; '
+                      f'Python reference {rhs_reference["python_us"]:.1f} us per call.')
+        else:
+            md.append(f'Not measured ({rhs_reference.get("note", "")}).')
     if startup is not None:
         md += ['', '## Kernel start-up', '']
         if 'cold_compile_s' in startup:

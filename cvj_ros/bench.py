@@ -362,6 +362,21 @@ def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
     return out
 
 
+def _rhs_cost_or_note(scene: Any) -> dict[str, Any]:
+    """:func:`rhs_cost`, or ``{'note': why}`` when the kernel cannot build the scene."""
+    try:
+        return rhs_cost(scene)
+    except (CvjError, NotImplementedError) as exc:
+        return {'note': str(exc).splitlines()[0][:160]}
+
+
+def _rhs_cost_text(rc: dict[str, Any]) -> str:
+    """The three per-call costs of :func:`rhs_cost` as report text."""
+    return (f'compiled {rc["compiled_ns"]:.0f} ns per call from a compiled loop; '
+            f'{rc["compiled_from_python_us"]:.2f} us per call from Python (the solve_ivp wrapper); '
+            f'Python reference {rc["python_us"]:.1f} us per call.')
+
+
 def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig,
                  compiled: bool = False) -> dict[str, Any]:
     """Time plain solve_ivp on the same closed-loop equations (exact fidelity): one call over
@@ -721,20 +736,14 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     if progress is not None:
                         progress(len(rows))
         retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
-        try:
-            prob.rhs_cost = rhs_cost(scene)
-        except (CvjError, NotImplementedError) as exc:
-            prob.rhs_cost = {'note': str(exc).splitlines()[0][:160]}
+        prob.rhs_cost = _rhs_cost_or_note(scene)
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names:
             lock_rows += lockstep_study(prob, cfg)
         # partial report after every scene: an interrupted long run keeps what it measured
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
-    try:
-        rhs_reference = rhs_cost(hooke_2dof_scene())
-    except (CvjError, NotImplementedError) as exc:
-        rhs_reference = {'note': str(exc).splitlines()[0][:160]}
+    rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
     studies = run_studies() if cfg.studies else None
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
@@ -860,10 +869,7 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                       f'{_g(e["speedup_compiled"], ".2f") + "x" if e["speedup_compiled"] else "-"} |')
         rc = getattr(prob, 'rhs_cost', None) or {}
         if 'compiled_ns' in rc:
-            md += ['', f'Right-hand side (exact fidelity, engine and load inside): compiled '
-                   f'{rc["compiled_ns"]:.0f} ns per call from a compiled loop; '
-                   f'{rc["compiled_from_python_us"]:.2f} us per call from Python (the solve_ivp wrapper); '
-                   f'Python reference {rc["python_us"]:.1f} us per call.']
+            md += ['', 'Right-hand side (exact fidelity, engine and load inside): ' + _rhs_cost_text(rc)]
         elif rc:
             md += ['', f'Right-hand side cost: not measured ({rc.get("note", "")}).']
         front = pareto_front(srows)
@@ -928,11 +934,9 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
     if rhs_reference:
         md += ['', "## Right-hand side of issue 9's hand-written model", '']
         if 'compiled_ns' in rhs_reference:
-            md.append(f'2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
-                      f'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): compiled '
-                      f'{rhs_reference["compiled_ns"]:.0f} ns per call from a compiled loop; '
-                      f'{rhs_reference["compiled_from_python_us"]:.2f} us per call from Python; '
-                      f'Python reference {rhs_reference["python_us"]:.1f} us per call.')
+            md.append('2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
+                      'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): '
+                      + _rhs_cost_text(rhs_reference))
         else:
             md.append(f'Not measured ({rhs_reference.get("note", "")}).')
     if startup is not None:

@@ -90,9 +90,12 @@ class Trace:
 
 
 _NO_BREAKS = np.empty(0)
+#: a breakpoint within LANDING_TOL max(1, |t|) (s) of a sample or of the breakpoint kept
+#: before it is not landed on (``landing_grid`` and its compiled twin)
+LANDING_TOL = 1e-9
 
 
-def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = 1e-9
+def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = LANDING_TOL
                  ) -> tuple[FloatArray, np.ndarray]:
     """(grid, rows): the ascending sample ``times`` with the breakpoints (s) inside
     (times[0], times[-1]) merged in, and the index in ``grid`` of every sample. A breakpoint
@@ -258,7 +261,7 @@ class Simulation:
         breaks = np.ascontiguousarray(breaks, dtype=np.float64)
         grid = np.empty(times.size + breaks.size)
         rows = np.empty(times.size, np.int64)
-        args = (times, breaks, 1e-9, grid, rows)
+        args = (times, breaks, LANDING_TOL, grid, rows)
         m = entry_point_once(landing_grid_nb, args)(*args)
         return grid[:m], rows
 

@@ -138,18 +138,6 @@ def load_cached(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any] | No
         return None
 
 
-_LOAD_TRIED: set[Any] = set()
-
-
-def load_cached_once(dispatcher: Any, args: Sequence[Any]) -> None:
-    """:func:`load_cached` the first time per process for ``dispatcher``, nothing after:
-    for callers that then call the dispatcher itself (its C-level typing of the arguments
-    costs a few us; load_cached's Python typing ~250 us for a dozen arrays)."""
-    if dispatcher not in _LOAD_TRIED:
-        load_cached(dispatcher, args)   # else the dispatcher's call loads (or compiles) it
-        _LOAD_TRIED.add(dispatcher)
-
-
 def entry_point(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any]:
     """The compiled entry point of ``dispatcher`` for the types of ``args`` (loaded from the
     cache, or compiled by a first call through the dispatcher), or the dispatcher itself

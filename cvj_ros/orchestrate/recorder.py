@@ -15,6 +15,14 @@ from cvj_ros.orchestrate.options import EXTERNAL_PEERS  # noqa: F401  (re-export
 from cvj_ros.orchestrate.processes import error_line
 
 
+# The recorder's take loop sleeps this long after each wake that took messages (s): at a
+# ~0.5 ms exchange step one wake then takes the messages of ~4 steps instead of one message.
+# Measured (separate processes, kavz685_lever 5 s, 3 alternating pairs, /proc per-thread
+# CPU): the recorder thread 149-164 -> 79-108 us CPU per exchange step. The bag is then a
+# few ms behind the loop; RECORDER_QOS's depth holds 10 s.
+RECORDER_COALESCE_S = 0.002
+
+
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
@@ -36,7 +44,7 @@ class _Recorder:
         # BagRecorder.spin takes every queued sample per wake. Executors were measured too slow
         # or lossy here: SingleThreadedExecutor fell ~0.7 s behind a 200-step run, and
         # rclpy.experimental.EventsExecutor left samples unread (24 of 101 joint states).
-        self.recorder.spin(self._stop)
+        self.recorder.spin(self._stop, coalesce=RECORDER_COALESCE_S)
 
     def publisher_count(self, topic: str) -> int:
         """Publishers matched by the recorder's subscription of ``topic``."""

@@ -314,8 +314,9 @@ class KernelStepper(_StepperBase):
                              self._cnt, self._K, out, self._K.shape[0] - 1)
             self._sync()
         else:
+            # frow given: _call keeps one entry point per function (rodas4 passes its own row)
             self._call(self._nb.hermite_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
-                             self._cnt, self._K, out)
+                       self._cnt, self._K, out, 4)
             self._sync()
         return out
 
@@ -328,9 +329,25 @@ class KernelStepper(_StepperBase):
         Y = np.empty((t_eval.size, self.n))
         if t_eval.size == 0:
             return Y
-        a = (t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method in _ROSENBROCK or self.method == 'dop853':
-            return super_sample(self, t_eval)
+            # stepper_base.sample_dense's contract and steps (super_sample), in one call
+            if t_eval[0] < self.t_old:
+                raise SolverOptionError('t_eval', f'must be finite, increasing and >= the start of '
+                                        f'the last step t_old={self.t_old!r}')
+            b = (t_eval, Y, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
+            if self.method == 'dop853':
+                st, _ = self._call(self._nb.dop853_sample, *b, self.rtol, self._atol, self.max_step,
+                                   *self._d8, *self._d8_dense, self._K, self._work)
+            elif self.method == 'ros2':
+                st, _ = self._call(self._nb.ros2_sample, *b, *self._ros_args())
+            else:
+                hermite = self.method == 'rodas4'   # as dense(): cubic Hermite from K's last row
+                st, _ = self._call(self._nb.ros_sample, *b, *self._rodas_args(),
+                                   _NO_H if hermite else self._H,
+                                   self._K.shape[0] - 1 if hermite else -1)
+            self._check(st)
+            return Y
+        a = (t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
             st, _ = self._call(self._nb.dopri5_sample, *a, self.rtol, self._atol, self.max_step, self._K,
                                      self._work, Y)
@@ -346,8 +363,12 @@ class KernelStepper(_StepperBase):
         self._cnt[nb.C_HAVELU] = 0
 
 
+_NO_H = np.zeros((3, 0))   # ros_sample's H for rodas4 (not read: its dense output is Hermite)
+
+
 def super_sample(stepper: KernelStepper, t_eval: np.ndarray) -> np.ndarray:
-    """Sampling by natural steps + dense output from Python (methods without a
-    compiled sampled loop yet: ros2); same contract as solvers.sample_dense."""
+    """Sampling by natural steps + dense output from Python (stepper_base.sample_dense over
+    step/dense): the oracle of the compiled sampled loops of the Rosenbrock methods and
+    dop853 (test_kernel_sample.py)."""
     from ..stepper_base import sample_dense
     return sample_dense(stepper, t_eval)

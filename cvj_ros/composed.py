@@ -87,53 +87,6 @@ def make_composed_executor(kind: str, context: Any) -> tuple[Any, str, str | Non
     return SingleThreadedExecutor(context=context), 'single', None
 
 
-class BatchingWriter:
-    """Front of a :class:`cvj_ros.bag.BagWriter` for a recorder that shares its thread with
-    the nodes: messages are collected and handed to the writer thread ``batch`` at a time
-    (:meth:`cvj_ros.bag.BagWriter.write_batch`) or when :meth:`flush` is called (every spin
-    tick, <= 0.25 s). Why: one queue hand-off per message woke the writer thread ~6 times per
-    exchange, and each wake-up made the executor thread wait for the GIL (measured on this
-    2-core machine under load: the recorder callbacks took 1.3-2.5 ms per exchange, most
-    of the exchange). ``counts`` include the collected messages, so progress and the drain
-    see every message at once.
-    """
-
-    def __init__(self, writer: Any, *, batch: int = 1024) -> None:
-        self.writer = writer
-        self.batch = batch
-        self.counts: dict[str, int] = {}
-        self._items: list[tuple[str, int, bytes]] = []
-
-    def add_topic(self, topic: str, msgtype: str | None = None) -> None:
-        self.writer.add_topic(topic, msgtype)
-        self.counts.setdefault(topic, 0)
-
-    def write_many(self, items: list[tuple[str, int, bytes]]) -> None:
-        """Collect ``(topic, record time ns, bytes)`` messages of registered topics."""
-        self._items.extend(items)
-        counts = self.counts
-        for topic, _ts, _data in items:
-            counts[topic] += 1
-        if len(self._items) >= self.batch:
-            self.flush()
-
-    def write(self, topic: str, timestamp_ns: int, data: Any) -> None:
-        """Collect one raw CDR message (record time ns); hand over when ``batch`` are collected."""
-        self._items.append((topic, int(timestamp_ns), bytes(data)))
-        self.counts[topic] += 1
-        if len(self._items) >= self.batch:
-            self.flush()
-
-    def set_custom_data(self, key: str, value: str) -> None:
-        self.writer.set_custom_data(key, value)
-
-    def flush(self) -> None:
-        """Hand everything collected to the writer thread."""
-        if self._items:
-            items, self._items = self._items, []
-            self.writer.write_batch(items)
-
-
 class ComposedDriveline:
     """Hosts cvj_ros nodes (and optionally the recorder) on one context and one executor.
 
@@ -154,7 +107,7 @@ class ComposedDriveline:
         self.executor, self.executor_kind, self.executor_note = make_composed_executor(executor, context)
         self.nodes: dict[str, Any] = {}
         self.recorder: Any = None
-        self.batching: BatchingWriter | None = None
+        self.batching: Any = None      # cvj_ros.bag.BatchingWriter once the recorder is added
         self._recorder_node: Any = None
         self._wake: Any = None
         # the container's own node (as rclcpp's component manager has one): its timers end
@@ -204,7 +157,7 @@ class ComposedDriveline:
         self._recorder_node = rclpy.create_node('cvj_recorder', context=self.context)
         if self.bus is not None:
             self.bus.register(self._recorder_node)
-        self.batching = BatchingWriter(writer)
+        self.batching = bagmod.BatchingWriter(writer)
         self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
                                            run_token=run_token)
         self.recorder.hold = frozenset(hold)

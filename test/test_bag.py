@@ -307,10 +307,11 @@ def test_fast_mcap_writes_are_rosbags_bytes(tmp_path: Path, monkeypatch: pytest.
 
 @pytest.mark.ros
 def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None:
-    """spin(coalesce=c) (the separate-process recorder, orchestrate.RECORDER_COALESCE_S):
-    every message of a fast publisher recorded, in order; and at most one
-    wake per c s while they arrive (the wait after a productive wake is c: the bound is
-    the loop's own rule, not a timing guess)."""
+    """spin(coalesce=c) over a BatchingWriter (the separate-process recorder,
+    orchestrate.RECORDER_COALESCE_S): every message of a fast publisher in the bag, in order,
+    although nothing flushes the front but spin itself; and at most one wake per c s while
+    they arrive (the wait after a productive wake is c: the bound is the loop's own rule,
+    not a timing guess)."""
     import threading
 
     import rclpy
@@ -325,7 +326,8 @@ def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None
         node = rclpy.create_node('rec_coalesce', context=ctx)
         pub_node = rclpy.create_node('pub_coalesce', context=pub_ctx)
         writer = bag.BagWriter(tmp_path / 'b')
-        rec = bag.BagRecorder(node, writer)
+        front = bag.BatchingWriter(writer)     # as the orchestrator's recorder: spin flushes it
+        rec = bag.BagRecorder(node, front)
         thread = threading.Thread(target=rec.spin, args=(stop,), kwargs={'coalesce': c}, daemon=True)
         thread.start()
         pub = pub_node.create_publisher(WrenchStamped, '/load/wrench', bag.recorder_qos())
@@ -343,8 +345,8 @@ def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None
             sent.append(k)
             time.sleep(0.0005)
         deadline = time.monotonic() + 10
-        while writer.counts.get('/load/wrench', 0) < n:
-            assert time.monotonic() < deadline, writer.counts
+        while writer.counts.get('/load/wrench', 0) < n:   # handed to the writer thread
+            assert time.monotonic() < deadline, (writer.counts, front.counts)
             time.sleep(0.005)
         t1 = time.monotonic()
         stop.set()

@@ -1,4 +1,4 @@
-"""Batched bag writes of the composed-mode recorder (cvj_ros.composed.BatchingWriter,
+"""Batched bag writes of the composed-mode recorder (cvj_ros.bag.BatchingWriter,
 cvj_ros.bag.BagWriter.write_batch): the same bag as one write per message, counts at once."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from cvj_ros import bag
-from cvj_ros.composed import BatchingWriter
+from cvj_ros.bag import BatchingWriter
 
 
 def _messages() -> list[tuple[str, int, bytes]]:

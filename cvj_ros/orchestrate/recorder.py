@@ -34,7 +34,9 @@ class _Recorder:
         rclpy.init(context=self.ctx, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
-        self.recorder = bagmod.BagRecorder(self.node, writer, topics=topics, run_token=run_token)
+        # one hand-off to the writer thread per wake of the take loop, not one per message
+        self.batching = bagmod.BatchingWriter(writer)
+        self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_token=run_token)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
@@ -72,6 +74,7 @@ class _Recorder:
             self.recorder.destroy()
             self.node.destroy_node()
         finally:
+            self.batching.flush()      # what the last wake (or destroy) collected
             if self.ctx.ok():
                 rclpy.shutdown(context=self.ctx)
 

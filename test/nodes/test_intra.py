@@ -227,7 +227,7 @@ def test_recorder_taps_the_bus_and_writes_what_it_would_per_message(ctx, bus, tm
     order) with and without the run-token check of each message (``trust_local``), the
     counts current when read, walls per topic set."""
     from cvj_ros import bag as bagmod
-    from cvj_ros.composed import BatchingWriter
+    from cvj_ros.bag import BatchingWriter
     node = rclpy.create_node('cvj_recorder', context=ctx)
     pub_node = rclpy.create_node('engine_like', context=ctx)
     ex = EventsExecutor(context=ctx)

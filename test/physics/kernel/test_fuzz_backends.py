@@ -368,13 +368,50 @@ def _report(results: list[dict[str, Any]], keys: tuple[str, ...], title: str) ->
 
 
 def _check_fixed(results: list[dict[str, Any]], rel: float) -> None:
+    """Fixed steps: both backends take the same steps, so they differ by rounding only:
+    within ``rel`` (and the intermediate members within _mid_bound) - or, for a scene that
+    amplifies rounding (_rounding_amplification), within n_steps times what a 4-ulp change
+    of the start does to the Python run itself."""
     for r in results:
         assert r['same_steps'], r
-        for k in ('velocity', 'position', 'torques'):
-            assert r[k] < rel, (k, r)
-        assert r['mid_vs_bound'] < 1.0, r
-        assert r['effort_excess'] < rel, r
         assert r['energy'] < 1e-9, r
+        if (all(r[k] < rel for k in ('velocity', 'position', 'torques'))
+                and r['mid_vs_bound'] < 1.0 and r['effort_excess'] < rel):
+            continue
+        amp = _rounding_amplification(r)
+        n = int(r['kernel'].solver['naccept'])
+        for k in ('velocity', 'position', 'torques', 'mid', 'effort'):
+            got = r[k] if k in r else amp[f'{k}_kernel']
+            assert got < max(rel, n * amp[k]), (k, got, n, amp, r)
+
+
+def _rounding_amplification(r: dict[str, Any]) -> dict[str, float]:
+    """How much fuzzed scene ``r`` amplifies a rounding-sized difference: the Python
+    backend's run from x0 (1 + 4 eps) against its run from x0, in compare_backends'
+    measures (velocity, position, torques relative; mid and effort absolute), plus the
+    kernel's mid and effort differences in the same absolute terms.
+
+    Why: the two backends round differently inside each step (the kernel's hand-written
+    LU and stage sums against numpy's), and some scenes (two backlash springs, an exact
+    lever hinge and tripod, the map engine: fuzzed seed 436 over 0.2 s with ros2) grow a
+    difference of a few ulps to 3e-12 relative in velocity where most stay below 1e-15.
+    Every step injects such a difference, so n_steps times the start's is the bound; seed
+    436 uses 1/20 (velocity, position), 1/14 (torques) and 1/16 (mid) of its ratio."""
+    sim = Simulation(r['scene'], backend='python')
+    sim.driveline.x0 = sim.driveline.x0 * (1 + 4 * EPS)
+    a, b, own = r['kernel'], r['python'], r['own']
+    p = sim.run(float(b.t[-1]), sample_dt=SAMPLE)
+    mids = [i for i, _ in sim.driveline._mid_index]
+
+    def mid(x: Any) -> float:
+        return float(np.max(np.abs(x.velocity[:, mids] - b.velocity[:, mids]))) if mids else 0.0
+    scale = max(1.0, float(np.max(np.abs(b.effort))))
+    return {'velocity': _rel(p.velocity[:, own], b.velocity[:, own]),
+            'position': _rel(p.position, b.position),
+            'torques': max(_rel(p.engine_torque, b.engine_torque), _rel(p.load_torque, b.load_torque)),
+            'mid': mid(p), 'mid_kernel': mid(a),
+            'effort': float(np.max(np.abs(p.effort - b.effort))) / scale,
+            'effort_kernel': float(np.max(np.abs(a.effort - b.effort))) / scale}
 
 
 def _check_adaptive(results: list[dict[str, Any]], rtol: float) -> tuple[int, float]:

@@ -46,8 +46,9 @@ ERROR naming the domain before step 0 (counts cannot tell our peers from the oth
 run's), and after step 0 only without a token or once an untagged answer came (those
 could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
-a publisher, so no message is lost. After t_N = duration it publishes the final joint
-state and exits 0.
+a publisher, so no message is lost, and in lockstep until that has held for
+START_SETTLE_S with no other run's publisher discovered. After t_N = duration it publishes
+the final joint state and exits 0.
 
 Free-run: exchange steps on wall time - tick j is due at w0 + j h (w0 = wall time of the
 initial state, CLOCK_MONOTONIC) and integrates to t_j = j h with the latest torques held
@@ -105,6 +106,15 @@ MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
 NONFINITE_POLICIES = ('stop', 'hold')
+# Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
+# before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell
+# this run's engine/load from another run's on the same domain, and a state published before
+# our own peers matched is lost to them (volatile QoS): the run then waits out peer_timeout
+# with no answer (seen in CI: a second run's coupling node started 2 ms after its participant
+# saw the first run's subscribers, and discovered the first run's engine publisher 2 ms
+# later). Holding the all-clear this long lets foreign_publishers() see the other run first
+# and refuse, as the orchestrator does before starting this node (DISCOVERY_SETTLE_S).
+START_SETTLE_S = 0.3
 # A stall during which only wrong-stamped answers came from a topic ends after this many
 # seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
 # (e.g. with now() under use_sim_time a step behind) never sends the right stamp, while a
@@ -265,6 +275,7 @@ class CouplingNode(CvjNode):
 
         self._publish_scene()
         self._start_deadline = time.monotonic() + p['start_timeout']
+        self._ready_since: float | None = None     # lockstep: peers connected since (monotonic s)
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._watchdog = None
         self._free_timer = None
@@ -393,11 +404,18 @@ class CouplingNode(CvjNode):
             return
         missing = self.missing_peers()
         if missing:
+            self._ready_since = None
             if time.monotonic() > self._start_deadline:
                 self._start_timer.cancel()
                 self.fail(f'start: peers not connected within start_timeout='
                           f'{self.params["start_timeout"]} s: {"; ".join(missing)}')
             return
+        if self.mode == 'lockstep':
+            now = time.monotonic()
+            if self._ready_since is None:
+                self._ready_since = now
+            if now - self._ready_since < START_SETTLE_S:
+                return
         self._start_timer.cancel()
         self.started = True
         self._t_wall0 = time.perf_counter()

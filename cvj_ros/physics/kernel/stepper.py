@@ -31,7 +31,9 @@ from . import steppers_nb as nb   # layout constants (FS_*, C_*, ST_*)
 _COPIES: dict = {}
 # Compiled entry point per stepper function, shared by every KernelStepper of the process:
 # the constructor normalises every argument's type (float64/int64 contiguous arrays, float
-# scalars, bools), so one function has one signature; resolving it per stepper cost ~130 us
+# scalars, bools), so one function has one signature per number of arguments (keyed so:
+# hermite_dense's optional row once made a 9-argument call hit the 10-argument entry point,
+# a TypeError); resolving it per stepper cost ~130 us
 # (typeof of ~20 arguments), more than a 0.5 s kavz685_lever run's whole integration.
 _ENTRY_POINTS: dict = {}
 
@@ -161,12 +163,13 @@ class KernelStepper(_StepperBase):
         whose arguments include a numba dispatcher (rhs, jac) costs ~7 us in
         typeof() per call (measured: 10.7 us per call via the dispatcher, 0.7 us
         via the entry point), which would dominate a 1 kHz exchange loop."""
-        entry = _ENTRY_POINTS.get(fn)
+        key = (fn, len(args))          # an entry point has one signature: one per arity
+        entry = _ENTRY_POINTS.get(key)
         if entry is not None:
             return entry(*args)
         entry = load_cached(fn, args)   # disk cache without numba's target refresh
         if entry is not None:
-            _ENTRY_POINTS[fn] = entry
+            _ENTRY_POINTS[key] = entry
             return entry(*args)
         misses = sum(fn.stats.cache_misses.values()) if hasattr(fn, 'stats') else 0
         c0 = time.perf_counter()
@@ -176,9 +179,9 @@ class KernelStepper(_StepperBase):
             self.cache_path = fn.stats.cache_path
         from numba import typeof
         try:
-            _ENTRY_POINTS[fn] = fn.overloads[tuple(typeof(a) for a in args)].entry_point
+            _ENTRY_POINTS[key] = fn.overloads[tuple(typeof(a) for a in args)].entry_point
         except (KeyError, AttributeError, ValueError):
-            _ENTRY_POINTS[fn] = fn
+            _ENTRY_POINTS[key] = fn
         return result
 
     # -- protocol attributes backed by the kernel arrays

@@ -69,3 +69,18 @@ def test_dense_run_matches_landing_within_tolerance(scene: str, method: str) -> 
     np.testing.assert_array_equal(dense.t, land.t)
     scale = np.max(np.abs(land.velocity))
     assert np.max(np.abs(dense.velocity - land.velocity)) < 1e-4 * scale
+
+
+def test_dense_of_every_method_in_one_process() -> None:
+    """rodas4's dense() calls hermite_dense with its K row, ros2's and rk4's with the default
+    one: after a rodas4 dense() the others once raised 'hermite_dense expected 10 arguments,
+    got 9' (one cached entry point per function). Every method's dense() in one process,
+    rodas4 first."""
+    for method in ('rodas4', 'ros2', 'rk4', 'rosenbrock', 'dop853', 'dopri5'):
+        sim = Simulation(resolve_scene('kavz685_lever'), method=method, rtol=1e-6, atol=1e-6)
+        h = 2e-5 if method in ('ros2', 'rk4') else None
+        st = sim.make_stepper(sim.driveline.x0.copy(), 1.0, rtol=1e-6, atol=1e-6, h=h)
+        st.advance_to(0.01)
+        st.step()
+        y = st.dense(0.5 * (st.t_old + st.t))
+        assert y.shape == (st.n,) and np.all(np.isfinite(y)), method

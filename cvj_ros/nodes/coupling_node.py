@@ -381,6 +381,10 @@ class CouplingNode(CvjNode):
             # step 0 they still are: publisher / subscriber counts (missing_peers) cannot
             # tell our peers from the other run's.
             return None
+        return self._extra_publishers()
+
+    def _extra_publishers(self) -> str | None:
+        """:meth:`foreign_publishers`' line from the publisher counts alone."""
         extra = [f'{topic} has {n} publishers'
                  for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
                                   (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
@@ -392,7 +396,7 @@ class CouplingNode(CvjNode):
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
                 f'and its messages would mix into this loop'
                 + (f' ({self.untokened_answers} answers carried no run token in header.frame_id)'
-                   if self.run_token and self.started else '')
+                   if self.run_token and self.started and self.untokened_answers else '')
                 + '; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:
@@ -496,6 +500,15 @@ class CouplingNode(CvjNode):
                 + self.wrong_stamp_line(stall[0], *self._wrong_in_wait[stall[0]]))
             return
         if waited > self.params['peer_timeout']:
+            if self.k == 0 and not (self._have_engine or self._have_load):
+                # state 0 unanswered by both while another run's publishers are in sight: that
+                # run's subscribers made the start look ready before our peers had matched
+                # (discovery slower than START_SETTLE_S); say so, not "is engine_node running?"
+                foreign = self._extra_publishers()
+                if foreign:
+                    self._stop_with_error(f'{foreign} (state 0 went unanswered: this run started '
+                                          f'before its own peers had matched it)')
+                    return
             missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
                                          (LOAD_WRENCH_TOPIC, self._have_load)) if not have]
             self._stop_with_error(

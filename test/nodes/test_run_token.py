@@ -210,6 +210,29 @@ def test_only_foreign_answers_time_out(ctx, tmp_path: Path) -> None:
     assert node.exit_code == 1 and node.k == 0 and node.foreign_answers >= 2
 
 
+def test_unanswered_state_0_beside_another_runs_publisher_names_it(ctx, tmp_path: Path) -> None:
+    """Another run's engine publisher discovered only after step 0 went out (slower than the
+    start settle) and state 0 answered only with the other run's token: the node stops with
+    the line naming the publishers and the domain (as a refused start does), not with 'is
+    engine_node running?' (seen in CI: test_faults_processes, second run on one domain)."""
+    other: list = []
+
+    def frames(k: int, frame: str) -> list:
+        if not other:      # the other run's engine appears once our state 0 is out
+            node = rclpy.create_node('other_runs_engine', context=ctx)
+            other.append((node, node.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)))
+        return [(f'x@{OTHER}', True)]
+    try:
+        node, _ = run_coupling(ctx, tmp_path, frames, run_token=OURS, peer_timeout=0.5)
+    finally:
+        for n, _pub in other:
+            n.destroy_node()
+    assert node.exit_code == 1 and node.k == 0
+    assert '/engine/wrench has 2 publishers' in node.error_message, node.error_message
+    assert 'ROS_DOMAIN_ID=' in node.error_message and 'state 0 went unanswered' in node.error_message
+    assert 'answers carried no run token' not in node.error_message
+
+
 def test_bad_run_token_is_a_parameter_error(ctx, tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match='^run_token'):
         CouplingNode(context=ctx, parameter_overrides=[

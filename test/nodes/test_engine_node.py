@@ -158,3 +158,33 @@ def test_bad_scene_names_scene(ctx, tmp_path):
     with pytest.raises(ParameterError) as err:
         EngineNode(context=ctx)
     assert str(err.value).startswith('scene:')
+
+
+def test_map_engine_answers_through_the_compiled_formula_with_the_same_bytes() -> None:
+    """engine_node answers a map engine through CompiledMapEngineTorque (map_engine_nb's
+    entry point): the same bytes as the Python MapEngine.torque at random speeds (both
+    directions, past the rev limiter) and crank angles, for fwd_halfshaft's engine and the
+    default map with idle governor, stall fade and ripple; the throttle follows
+    set_throttle at once; a linear engine is answered as it is."""
+    import numpy as np
+
+    from cvj_ros.bench import resolve_scene
+    from cvj_ros.nodes.engine_node import CompiledMapEngineTorque, answering_source
+    from cvj_ros.physics.engine import engine_from_spec
+    rng = np.random.default_rng(7)
+    specs = [dict(resolve_scene('fwd_halfshaft').engine),
+             {'model': 'map', 'idle_rpm': 800.0, 'stall_rpm': 400.0, 'cylinders': 4,
+              'ripple_amplitude': 0.3}]
+    for spec in specs:
+        engine = engine_from_spec(spec)
+        fast = answering_source(engine)
+        assert isinstance(fast, CompiledMapEngineTorque)
+        for x in (1.0, 0.37, 0.0):
+            engine.set_throttle(x)
+            for w, phi in zip(rng.uniform(-100.0, 900.0, 3000), rng.uniform(-50.0, 50.0, 3000)):
+                a = engine.torque(0.0, float(w), float(phi))
+                b = fast.torque(0.0, float(w), float(phi))
+                assert np.float64(a).tobytes() == np.float64(b).tobytes(), (spec, x, w, phi, a, b)
+        assert fast.describe() == engine.describe()
+    linear = engine_from_spec({'model': 'linear'})
+    assert answering_source(linear) is linear

@@ -48,6 +48,16 @@ def _hermite_table_in_jit(omega, w, tq, d):
 
 map_engine_nb = njit(cache=True)(map_engine_eval)     # engine.map_engine_eval, one source
 
+
+def map_engine_args(engine) -> tuple:
+    """``engine.kernel_params()`` (a MapEngine's table and constants) in the types the
+    Python-callable compile of ``map_engine_nb`` takes: C-contiguous float64 arrays and
+    floats; ``map_engine_nb(omega, phi, throttle, *map_engine_args(engine))`` is then
+    ``engine.map_engine_eval(omega, phi, throttle, *engine.kernel_params())``."""
+    import numpy as np
+    return tuple(np.ascontiguousarray(v, dtype=np.float64) if isinstance(v, (list, tuple, np.ndarray))
+                 else float(v) for v in engine.kernel_params())
+
 from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, ENGINE_MAP, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
                                           LOAD_FOURIER, LOAD_TIME_SERIES,
                                           LOAD_RANDOM, LOAD_ROAD)

@@ -60,7 +60,8 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
 def warm_outputs(*, out=sys.stdout) -> float:
     """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
     joint_state_one and wrenches_one with every joint's reactions, the offline trace's
-    sample_outputs, fill_mid_samples and landing grid, and the monitor's window statistics;
+    sample_outputs, fill_mid_samples and landing grid, the monitor's window statistics and
+    the engine node's map engine torque;
     returns the
     wall time (s)."""
     from cvj_ros.physics.driveline import Driveline
@@ -86,6 +87,11 @@ def warm_outputs(*, out=sys.stdout) -> float:
     window_nb.warm()                  # the monitor's windows and bulk reading
     from cvj_ros.physics.kernel import grid_nb
     grid_nb.warm()                    # an offline run's landing grid
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.kernel import entry_point
+    from cvj_ros.physics.kernel.sources_nb import map_engine_args, map_engine_nb
+    engine = engine_from_spec({'model': 'map'})   # engine_node's per-answer map engine torque
+    entry_point(map_engine_nb, (0.0, 0.0, float(engine.throttle), *map_engine_args(engine)))
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -38,37 +38,14 @@ PARAMS = (
 )
 
 
-class CompiledMapEngineTorque:
-    """A :class:`cvj_ros.physics.engine.MapEngine`'s ``torque`` through the compiled
-    ``map_engine_nb`` (kernel/sources_nb.py: numba's compile of the same
-    ``engine.map_engine_eval`` source), called through its entry point: 0.60-0.65 us per
-    answer instead of 2.9-3.0 us in Python, the same bytes (20000 random speeds and angles of
-    fwd_halfshaft's engine; test/nodes/test_engine_node.py). The pedal position is read from
-    the engine at every call (``set_throttle`` acts at once); everything else is the
-    engine's (attribute access falls through to it). The Python model stays the offline
-    reference."""
-
-    def __init__(self, engine: Any) -> None:
-        from cvj_ros.physics.kernel import entry_point
-        from cvj_ros.physics.kernel.sources_nb import map_engine_args, map_engine_nb
-        self.engine = engine
-        self._params = map_engine_args(engine)
-        self._eval = entry_point(map_engine_nb, (0.0, 0.0, float(engine.throttle), *self._params))
-
-    def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
-        """Engine torque (N m) at crank speed omega (rad/s) and angle phi (rad)."""
-        return self._eval(float(omega), float(phi), float(self.engine.throttle), *self._params)[0]
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.engine, name)
-
-
 def answering_source(engine: Any) -> Any:
     """What the node evaluates per answer: a map engine through the compiled formula
-    (:class:`CompiledMapEngineTorque`), any other engine as it is."""
+    (:class:`cvj_ros.physics.kernel.sources_nb.CompiledMapEngineTorque`), any other engine
+    as it is."""
     from cvj_ros.physics.engine import MapEngine
     if type(engine) is MapEngine:
         try:
+            from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque
             return CompiledMapEngineTorque(engine)
         except ImportError:      # no numba: the Python formula
             return engine

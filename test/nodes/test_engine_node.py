@@ -169,7 +169,8 @@ def test_map_engine_answers_through_the_compiled_formula_with_the_same_bytes() -
     import numpy as np
 
     from cvj_ros.bench import resolve_scene
-    from cvj_ros.nodes.engine_node import CompiledMapEngineTorque, answering_source
+    from cvj_ros.nodes.engine_node import answering_source
+    from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque
     from cvj_ros.physics.engine import engine_from_spec
     rng = np.random.default_rng(7)
     specs = [dict(resolve_scene('fwd_halfshaft').engine),

@@ -88,10 +88,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
     from cvj_ros.physics.kernel import grid_nb
     grid_nb.warm()                    # an offline run's landing grid
     from cvj_ros.physics.engine import engine_from_spec
-    from cvj_ros.physics.kernel import entry_point
-    from cvj_ros.physics.kernel.sources_nb import map_engine_args, map_engine_nb
-    engine = engine_from_spec({'model': 'map'})   # engine_node's per-answer map engine torque
-    entry_point(map_engine_nb, (0.0, 0.0, float(engine.throttle), *map_engine_args(engine)))
+    from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque
+    CompiledMapEngineTorque(engine_from_spec({'model': 'map'}))   # engine_node's answers
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -169,19 +169,11 @@ def jac(t, y, ip, fp, J):
     for i in range(ns):
         for j in range(ns):
             J[i, j] = 0.0
-    # one allocation for all per-section scratch (each np.empty/np.zeros is an NRT
-    # allocation with atomic counters; ten of them were half of a small jac)
-    buf = np.zeros(10 * n + n * n2)
-    phis = buf[0:n]
-    aa = buf[n:2 * n]
-    bb = buf[2 * n:3 * n]
-    mm = buf[3 * n:4 * n]
-    cc = buf[4 * n:5 * n]
-    mps = buf[5 * n:6 * n]
-    cps = buf[6 * n:7 * n]
-    qf = buf[7 * n:8 * n]
-    dpd = buf[8 * n:10 * n]
-    dq = buf[10 * n:].reshape((n, n2))
+    # one allocation for all per-section scratch, indexed by row (each np.empty/np.zeros is
+    # an NRT allocation with atomic counters - ten were half of a small jac - and so is
+    # every view of it: rows are indexed, not sliced). Rows: phi_end, a, b, M, C, dM/dq,
+    # dC/dq, generalised force (per section), d(damping power)/dy (2n), then dQ_g/dy.
+    sc = np.zeros((9 + n, n2))
     for g in range(n):
         q = y[g]
         phi, a, b, m, c, mp, hj = section(g, q, ip, fp)
@@ -190,29 +182,29 @@ def jac(t, y, ip, fp, J):
             cp = (section(g, q + h, ip, fp)[4] - section(g, q - h, ip, fp)[4]) / (2.0 * h)
         else:
             cp = 0.0
-        phis[g] = phi
-        aa[g] = a
-        bb[g] = b
-        mm[g] = m
-        cc[g] = c
-        mps[g] = mp
-        cps[g] = cp
-    al = aa[n - 1]
-    bl = bb[n - 1]
+        sc[0, g] = phi
+        sc[1, g] = a
+        sc[2, g] = b
+        sc[3, g] = m
+        sc[4, g] = c
+        sc[5, g] = mp
+        sc[6, g] = cp
+    al = sc[1, n - 1]
+    bl = sc[2, n - 1]
     vl = y[n2 - 1]
     te, dte, dtep = engine_torque(t, y, ip, fp)
-    tl, dtl, dtlp = load_torque(t, y, ip, fp, phis[n - 1], al)
-    qf[0] += te
-    dq[0, n] += dte
-    dq[0, 0] += dtep
-    qf[n - 1] -= tl * al
-    dq[n - 1, n - 1] += -tl * bl - dtl * bl * vl * al - dtlp * al * al
-    dq[n - 1, n2 - 1] += -dtl * al * al
+    tl, dtl, dtlp = load_torque(t, y, ip, fp, sc[0, n - 1], al)
+    sc[7, 0] += te
+    sc[9 + 0, n] += dte
+    sc[9 + 0, 0] += dtep
+    sc[7, n - 1] -= tl * al
+    sc[9 + n - 1, n - 1] += -tl * bl - dtl * bl * vl * al - dtlp * al * al
+    sc[9 + n - 1, n2 - 1] += -dtl * al * al
     for k in range(n - 1):
         off = sp0 + SPRING_STRIDE * k
-        a_l = aa[k]
-        b_l = bb[k]
-        th = phis[k] - y[k + 1]
+        a_l = sc[1, k]
+        b_l = sc[2, k]
+        th = sc[0, k] - y[k + 1]
         thd = a_l * y[n + k] - y[n + k + 1]
         ts, k_th, k_d, _pd = spring_eval(th, thd, fp, off)
         dthd_qk = b_l * y[n + k]
@@ -220,39 +212,39 @@ def jac(t, y, ip, fp, J):
         d_qk1 = -k_th
         d_vk = k_d * a_l
         d_vk1 = -k_d
-        qf[k] -= ts * a_l
-        qf[k + 1] += ts
-        dq[k, k] -= d_qk * a_l + ts * b_l
-        dq[k, k + 1] -= d_qk1 * a_l
-        dq[k, n + k] -= d_vk * a_l
-        dq[k, n + k + 1] -= d_vk1 * a_l
-        dq[k + 1, k] += d_qk
-        dq[k + 1, k + 1] += d_qk1
-        dq[k + 1, n + k] += d_vk
-        dq[k + 1, n + k + 1] += d_vk1
+        sc[7, k] -= ts * a_l
+        sc[7, k + 1] += ts
+        sc[9 + k, k] -= d_qk * a_l + ts * b_l
+        sc[9 + k, k + 1] -= d_qk1 * a_l
+        sc[9 + k, n + k] -= d_vk * a_l
+        sc[9 + k, n + k + 1] -= d_vk1 * a_l
+        sc[9 + k + 1, k] += d_qk
+        sc[9 + k + 1, k + 1] += d_qk1
+        sc[9 + k + 1, n + k] += d_vk
+        sc[9 + k + 1, n + k + 1] += d_vk1
         d = fp[off + 1]
         if energy and d != 0.0:
             _e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
             dp_dth = d * dde * thd * thd
             dp_dthd = 2.0 * d * de * thd
-            dpd[k] += dp_dth * a_l + dp_dthd * dthd_qk
-            dpd[k + 1] -= dp_dth
-            dpd[n + k] += dp_dthd * a_l
-            dpd[n + k + 1] -= dp_dthd
+            sc[8, k] += dp_dth * a_l + dp_dthd * dthd_qk
+            sc[8, k + 1] -= dp_dth
+            sc[8, n + k] += dp_dthd * a_l
+            sc[8, n + k + 1] -= dp_dthd
     for g in range(n):
         J[g, n + g] = 1.0
     for g in range(n):
         v = y[n + g]
-        inv = 1.0 / mm[g]
+        inv = 1.0 / sc[3, g]
         r = n + g
         for j in range(n2):
-            J[r, j] = dq[g, j] * inv
-        J[r, g] += -cps[g] * v * v * inv - (qf[g] - cc[g] * v * v) * mps[g] * inv * inv
-        J[r, n + g] += -2.0 * cc[g] * v * inv
+            J[r, j] = sc[9 + g, j] * inv
+        J[r, g] += -sc[6, g] * v * v * inv - (sc[7, g] - sc[4, g] * v * v) * sc[5, g] * inv * inv
+        J[r, n + g] += -2.0 * sc[4, g] * v * inv
     if energy:
         J[n2, n] = te + dte * y[n]
         J[n2, 0] += dtep * y[n]
         J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl + dtlp * al * al * vl
         J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
         for j in range(n2):
-            J[n2 + 2, j] = dpd[j]
+            J[n2 + 2, j] = sc[8, j]

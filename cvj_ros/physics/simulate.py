@@ -128,6 +128,19 @@ def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = LANDING_
     return grid[order], np.flatnonzero(order < times.size)
 
 
+@dataclass
+class _KernelPlan:
+    """A kernel run's options made concrete once (Simulation._kernel_plan)."""
+
+    times: FloatArray                     # sample times (s); a trace gets a copy
+    grid: FloatArray | None               # land: the landing grid (s)
+    rows: np.ndarray | None               # land: grid row of every sample
+    is_sample: np.ndarray | None          # land: grid row is a sample
+    segments: list[tuple[int, int, float | None]]   # dense: sample rows, breakpoint after
+    stepper: Any                          # reset for every run after the first
+    model: Any                            # its ModelData
+
+
 class Simulation:
     """Offline closed loop of ``scene``.
 
@@ -197,6 +210,7 @@ class Simulation:
         self.backend_note: str | None = None
         self.compile_seconds: float | None = None
         self._packed: dict[float, Any] = {}
+        self._plans: dict[tuple, _KernelPlan] = {}
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
@@ -328,19 +342,153 @@ class Simulation:
         dt = float(sample_dt or sc.sample_step or sc.exchange_step)
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
-        dl = self.driveline
-        x0 = dl.x0.copy()
+        if self.backend == 'kernel':
+            return self._run_kernel(dur, dt, sampling, progress, breakpoints)
+        return self._run_python(dur, dt, sampling, progress, breakpoints)
+
+    def _stepper_options(self, dt: float) -> dict[str, Any]:
+        """Keyword options of this run's stepper: tolerances, h (the scene's, or for the
+        fixed-step methods a tenth of the smaller of sample and exchange step), max_step."""
+        sc = self.scene
         h = sc.solver.h
         if self.method in ('rk4', 'ros2') and h is None:
             h = min(dt, sc.exchange_step) / 10.0
         kwargs: dict[str, Any] = dict(rtol=self.rtol, atol=self.atol, h=h)
         if sc.solver.max_step is not None:
             kwargs['max_step'] = sc.solver.max_step
-        stepper = self.make_stepper(x0, dur, **kwargs)
+        return kwargs
+
+    def _sample_times(self, dur: float, dt: float) -> FloatArray:
+        """0, dt, 2 dt, ... and ``dur`` itself (s)."""
         n_samples = int(math.floor(dur / dt + 1e-9)) + 1
         times = np.arange(n_samples) * dt
         if times[-1] < dur - 1e-12:
             times = np.append(times, dur)
+        return times
+
+    def _kernel_plan(self, dur: float, dt: float, sampling: str, breakpoints: bool) -> _KernelPlan:
+        """What a kernel run of these options computes before integrating: the sample times,
+        the landing grid (land) or the breakpoints (dense), the stepper. Kept per options
+        (:meth:`_run_kernel`): none of it depends on x0 or on an earlier run."""
+        times = self._sample_times(dur, dt)
+        breaks = self.breakpoints(float(times[-1])) if breakpoints else _NO_BREAKS
+        grid = rows = None
+        is_sample = None
+        if sampling == 'land':
+            # the steps land on grid; row j of it is a sample where is_sample[j]
+            grid, rows = self._landing_grid(times, breaks)
+            is_sample = np.zeros(grid.size, dtype=bool)
+            is_sample[rows] = True
+            breaks = _NO_BREAKS
+        elif breaks.size:
+            # dense: samples are not landings, so a breakpoint on a sample is kept too;
+            # merged with the two end times only, then the ends taken out again
+            g, r = landing_grid(times[[0, -1]], breaks)
+            breaks = np.delete(g, r)
+        # dense: (first sample, end) row slices between the breakpoints, the landing after
+        segments = []
+        if sampling == 'dense':
+            k = 1
+            for b in (*breaks.tolist(), None):
+                k_end = times.size if b is None else int(np.searchsorted(times, b, 'right'))
+                segments.append((k, k_end, b))
+                k = max(k, k_end)
+        kwargs = self._stepper_options(dt)
+        stepper = self.make_stepper(self.driveline.x0.copy(), dur, **kwargs)
+        return _KernelPlan(times=times, grid=grid, rows=rows, is_sample=is_sample,
+                           segments=segments, stepper=stepper, model=self.model)
+
+    def _run_kernel(self, dur: float, dt: float, sampling: str,
+                    progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
+        """:meth:`run` on the compiled kernel. The plan of these options (sample times, grid,
+        stepper) is made once per Simulation and options; a later run resets the plan's
+        stepper (the same steps and bytes as a new one) and spends its Python on little more
+        than two compiled calls - a loose-tolerance stiff run is ~20 us in all, its Python
+        set-up was ~45 (docs/benchmark.md)."""
+        key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
+        plan = self._plans.get(key)
+        x0 = self.driveline.x0
+        if plan is None:
+            plan = self._kernel_plan(dur, dt, sampling, breakpoints)
+            self._plans = {key: plan}   # the latest options only
+        else:
+            plan.stepper.reset(0.0, x0)
+        stepper = plan.stepper
+        self.model = plan.model
+        times = plan.times
+        m = times.size
+        n_sh = len(self.driveline.shaft_names)
+        pos = np.empty((m, n_sh))
+        vel = np.empty((m, n_sh))
+        eff = np.empty((m, n_sh))
+        te = np.empty(m)
+        tl = np.empty(m)
+        res = np.empty(m)
+        e0 = self._initial_energy(x0)
+        clock = time.perf_counter
+        wall0 = clock()
+        X = np.empty((m, x0.size))
+        X[0] = x0
+        if sampling == 'dense':
+            # dense output between the breakpoints, a landing on each
+            for k, k_end, b in plan.segments:
+                if k_end > k:   # contiguous slices of arrays built here: unchecked
+                    stepper._sample_into(times[k:k_end], X[k:k_end])
+                if b is not None and b > stepper.t:
+                    stepper.advance_to(b)
+                if progress is not None:
+                    for tk in times[k:k_end].tolist():
+                        progress(tk)
+            integ = clock() - wall0
+        elif progress is None:
+            grid = plan.grid
+            XG = X if grid.size == m else np.empty((grid.size, x0.size))
+            XG[0] = x0
+            stepper._land(grid, XG)   # grid and XG built by the plan: checked by construction
+            integ = clock() - wall0
+            if XG is not X:
+                X[:] = XG[plan.rows]
+        else:
+            integ = 0.0
+            k = 1
+            grid, is_sample = plan.grid, plan.is_sample
+            for j in range(1, grid.size):
+                c0 = clock()
+                xj = stepper.advance_to(float(grid[j]))
+                integ += clock() - c0
+                if is_sample[j]:
+                    X[k] = xj
+                    progress(float(grid[j]))
+                    k += 1
+        self._kernel_outputs(times, X, e0, pos, vel, eff, te, tl, res)
+        return self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
+                            integ, clock() - wall0)
+
+    def _finish(self, stepper: Any, times: FloatArray, pos: FloatArray, vel: FloatArray,
+                eff: FloatArray, te: FloatArray, tl: FloatArray, res: FloatArray,
+                x: FloatArray, integ: float, wall: float) -> Trace:
+        """The run's Trace with the stepper's counters; kept as ``last_trace``."""
+        self.compile_seconds = getattr(stepper, 'compile_seconds', None)
+        self.cache_path = getattr(stepper, 'cache_path', None)
+        stats = stepper.stats() if hasattr(stepper, 'stats') else {
+            'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,
+            'naccept': stepper.naccept, 'nreject': stepper.nreject}
+        stats.update(method=self.method, rtol=self.rtol, atol=self.atol, integration_wall_time=integ,
+                     backend=self.backend, backend_fallback=self.backend_note)
+        trace = Trace(t=times, names=list(self.driveline.shaft_names), position=pos,
+                      velocity=vel, effort=eff, engine_torque=te, load_torque=tl,
+                      energy_residual=res, solver=stats, wall_time=wall)
+        self.last_trace = trace
+        self.final_state = x
+        return trace
+
+    def _run_python(self, dur: float, dt: float, sampling: str,
+                    progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
+        """:meth:`run` on the Python reference right-hand side and steppers."""
+        dl = self.driveline
+        x0 = dl.x0.copy()
+        stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
+        times = self._sample_times(dur, dt)
         n_sh = len(dl.shaft_names)
         pos = np.empty((times.size, n_sh))
         vel = np.empty_like(pos)
@@ -365,57 +513,12 @@ class Simulation:
                 progress(tk)
 
         breaks = self.breakpoints(float(times[-1])) if breakpoints else _NO_BREAKS
+        record(0, x)
         if sampling == 'land':
             # the steps land on grid; row j of it is a sample where is_sample[j]
-            grid, rows = (self._landing_grid(times, breaks) if self.backend == 'kernel'
-                          else landing_grid(times, breaks))
+            grid, rows = landing_grid(times, breaks)
             is_sample = np.zeros(grid.size, dtype=bool)
             is_sample[rows] = True
-        else:
-            # dense: samples are not landings, so a breakpoint on a sample is kept too;
-            # merged with the two end times only, then the ends taken out again
-            grid, rows = landing_grid(times[[0, -1]], breaks)
-            breaks = np.delete(grid, rows)
-        if self.backend == 'kernel':
-            X = np.empty((times.size, x0.size))
-            X[0] = x0
-            if sampling == 'land' and progress is None:
-                XG = X if grid.size == times.size else np.empty((grid.size, x0.size))
-                XG[0] = x0
-                c0 = clock()
-                stepper._land(grid, XG)   # grid and XG built here: checked by construction
-                integ += clock() - c0
-                if XG is not X:
-                    X[:] = XG[rows]
-            elif sampling == 'land':
-                k = 1
-                for j in range(1, grid.size):
-                    c0 = clock()
-                    xj = stepper.advance_to(float(grid[j]))
-                    integ += clock() - c0
-                    if is_sample[j]:
-                        X[k] = xj
-                        progress(float(grid[j]))
-                        k += 1
-            else:
-                # dense output between the breakpoints, a landing on each
-                k = 1
-                for b in (*breaks, None):
-                    k_end = times.size if b is None else int(np.searchsorted(times, b, 'right'))
-                    c0 = clock()
-                    if k_end > k:
-                        X[k:k_end] = stepper.sample(times[k:k_end])
-                        k = k_end
-                    if b is not None and b > stepper.t:
-                        stepper.advance_to(float(b))
-                    integ += clock() - c0
-            x = X[-1]
-            self._kernel_outputs(times, X, e0, pos, vel, eff, te, tl, res)
-        else:
-            record(0, x)
-        if self.backend == 'kernel':
-            pass
-        elif sampling == 'land':
             k = 1
             for j in range(1, grid.size):
                 c0 = clock()
@@ -425,6 +528,11 @@ class Simulation:
                     record(k, x)
                     k += 1
         else:
+            if breaks.size:
+                # samples are not landings, so a breakpoint on a sample is kept too;
+                # merged with the two end times only, then the ends taken out again
+                grid, rows = landing_grid(times[[0, -1]], breaks)
+                breaks = np.delete(grid, rows)
             k = 1
             t_end = float(times[-1])
             bounds = [float(b) for b in breaks] + [t_end]
@@ -440,22 +548,9 @@ class Simulation:
                     record(k, np.asarray(x, dtype=float))
                     k += 1
             x = stepper.y
-        if self.backend != 'kernel':   # the kernel's outputs filled them (compiled)
-            dl.fill_mid(pos, vel)
-        self.compile_seconds = getattr(stepper, 'compile_seconds', None)
-        self.cache_path = getattr(stepper, 'cache_path', None)
-        wall = time.perf_counter() - wall0
-        stats = stepper.stats() if hasattr(stepper, 'stats') else {
-            'nfev': stepper.nfev, 'njev': stepper.njev, 'nlu': stepper.nlu,
-            'naccept': stepper.naccept, 'nreject': stepper.nreject}
-        stats.update(method=self.method, rtol=self.rtol, atol=self.atol, integration_wall_time=integ,
-                     backend=self.backend, backend_fallback=self.backend_note)
-        trace = Trace(t=times, names=list(dl.shaft_names), position=pos, velocity=vel, effort=eff,
-                      engine_torque=te, load_torque=tl, energy_residual=res, solver=stats,
-                      wall_time=wall)
-        self.last_trace = trace
-        self.final_state = x
-        return trace
+        dl.fill_mid(pos, vel)
+        return self._finish(stepper, times, pos, vel, eff, te, tl, res, x, integ,
+                            time.perf_counter() - wall0)
 
     def summary(self, *, transient: float | None = None) -> dict[str, Any]:
         """Summary of the last run (runs the scene first if needed): the steady window

@@ -311,3 +311,38 @@ def test_closed_loop_jacobian_includes_torque_angle_dependence() -> None:
         fd[:, i] = (sim.fun(t, xp) - sim.fun(t, xm)) / (2 * h)
     scale = np.maximum(1.0, np.abs(fd))
     assert np.max(np.abs(jac - fd) / scale) < 1e-4
+
+
+@pytest.mark.parametrize('scene', ['stiff', 'kavz685_lever'])
+@pytest.mark.parametrize('method', ['dopri5', 'rodas4'])
+@pytest.mark.parametrize('sampling', ['land', 'dense'])
+def test_repeated_runs_reuse_the_plan_and_repeat_the_bytes(scene: str, method: str,
+                                                            sampling: str) -> None:
+    """Simulation._run_kernel keeps one plan (sample times, grid, stepper) per options and
+    resets its stepper: every run of one Simulation gives a fresh Simulation's trace, byte
+    for byte (kavz685_lever: random-load breakpoints, landed or between dense segments);
+    other options get their own plan; a trace's times are its own copy."""
+    from cvj_ros.physics.scene import find_scene, load_scene
+    sc = load_scene(find_scene(scene))
+
+    def arrays(tr) -> bytes:
+        return b''.join(a.tobytes() for a in (tr.t, tr.position, tr.velocity, tr.effort,
+                                              tr.engine_torque, tr.load_torque,
+                                              tr.energy_residual))
+
+    def counters(tr) -> tuple:
+        return tuple(tr.solver[k] for k in ('nfev', 'njev', 'naccept', 'nreject'))
+
+    sim = Simulation(sc, method=method, rtol=1e-5, atol=1e-7)
+    first = sim.run(0.3, sample_dt=0.01, sampling=sampling)
+    plan = next(iter(sim._plans.values()))
+    first.t[:] = -1.0                                   # the caller's array, not the plan's
+    second = sim.run(0.3, sample_dt=0.01, sampling=sampling)
+    assert next(iter(sim._plans.values())) is plan
+    fresh = Simulation(sc, method=method, rtol=1e-5, atol=1e-7).run(0.3, sample_dt=0.01,
+                                                                    sampling=sampling)
+    assert arrays(second) == arrays(fresh) and counters(second) == counters(fresh)
+    sim.rtol = 1e-3                                     # other options: another plan
+    loose = sim.run(0.3, sample_dt=0.01, sampling=sampling)
+    assert next(iter(sim._plans.values())) is not plan
+    assert counters(loose) != counters(fresh)

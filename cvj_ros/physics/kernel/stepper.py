@@ -141,21 +141,53 @@ class KernelStepper(_StepperBase):
         if method in ('rosenbrock', 'rodas4'):
             self._tab, self._H = _rosenbrock_args(method)
             stages = len(self._tab[3]) + 1   # K rows: f, stages (M), f at the last step start
+        # every float array of the state is a C-contiguous view of one buffer (and every
+        # int one of another), so reset() is two fills: a run that reuses its stepper
+        # (Simulation.run) pays ~2 us instead of this constructor's ~14
+        n = self.n
+        sizes = [nb.NFS, n, (stages + 1) * n, 4 * n]
         if method in _ROSENBROCK:
-            buf = np.zeros((3, self.n, self.n))   # one allocation; each view C-contiguous
-            self._J, self._LU, self._ft = buf[0], buf[1], buf[2, 0]
-            self._piv = np.zeros(self.n, np.int64)
-        self._fs, self._cnt, self._y_old, self._K, self._work = nb.new_state(self.n, stages)
-        self._y_old[:] = self._y
-        self._fs[nb.FS_T] = self.t
-        self._fs[nb.FS_TOLD] = self.t
-        self._fs[nb.FS_H] = 0.0 if self.h is None else self.h
+            sizes += [n * n, n * n, n]
+        self._fbuf = np.zeros(sum(sizes))
+        self._ibuf = np.zeros(nb.NCNT + (n if method in _ROSENBROCK else 0), np.int64)
+        views, o = [], 0
+        for size in sizes:
+            views.append(self._fbuf[o:o + size])
+            o += size
+        self._fs, self._y_old = views[0], views[1]
+        self._K, self._work = views[2].reshape(stages + 1, n), views[3].reshape(4, n)
+        self._cnt = self._ibuf[:nb.NCNT]
+        if method in _ROSENBROCK:
+            self._J, self._LU, self._ft = views[4].reshape(n, n), views[5].reshape(n, n), views[6]
+            self._piv = self._ibuf[nb.NCNT:]
+        self._h0 = self.h
+        self._set_start(self.t, self._y)
         if isinstance(self.atol, float):
             self._atol = np.empty(self.n)
             self._atol.fill(self.atol)
         else:
             self._atol = np.array(self.atol, dtype=float)
         self._dense_out = np.empty(self.n)
+
+    def _set_start(self, t0: float, y0: np.ndarray) -> None:
+        """The constructor's state at (t0, y0): every array zero, then t, y, the h given."""
+        self._fbuf.fill(0.0)
+        self._ibuf.fill(0)
+        self._y[:] = y0
+        self._y_old[:] = y0
+        fs = self._fs
+        fs[nb.FS_ERROLD] = 1e-4
+        fs[nb.FS_T] = t0
+        fs[nb.FS_TOLD] = t0
+        fs[nb.FS_H] = 0.0 if self._h0 is None else self._h0
+
+    def reset(self, t0: float, y0: np.ndarray) -> None:
+        """Start again at (t0 (s), y0) as a new stepper with the same options would: the same
+        steps and bytes (test_kernel_stepper.py). y0: float64, finite, this stepper's size -
+        the caller's promise (``Simulation.run`` passes its driveline's checked x0); counters
+        restart at 0."""
+        self._set_start(float(t0), y0)
+        self._sync()
 
     def _call(self, fn, *args):
         """Call the compiled function fn; after the first call (which loads the cache,
@@ -332,11 +364,19 @@ class KernelStepper(_StepperBase):
         Y = np.empty((t_eval.size, self.n))
         if t_eval.size == 0:
             return Y
+        if (self.method in _ROSENBROCK or self.method == 'dop853') and t_eval[0] < self.t_old:
+            # stepper_base.sample_dense's contract (super_sample)
+            raise SolverOptionError('t_eval', f'must be finite, increasing and >= the start of '
+                                    f'the last step t_old={self.t_old!r}')
+        self._sample_into(t_eval, Y)
+        return Y
+
+    def _sample_into(self, t_eval: np.ndarray, Y: np.ndarray) -> None:
+        """:meth:`sample` into ``Y`` without its checks, for a caller that built ``t_eval``
+        (float64, C-contiguous, finite, non-decreasing, >= t_old; not empty) and ``Y``
+        (C-contiguous float64, one row per time) itself: ``Simulation.run``."""
         if self.method in _ROSENBROCK or self.method == 'dop853':
-            # stepper_base.sample_dense's contract and steps (super_sample), in one call
-            if t_eval[0] < self.t_old:
-                raise SolverOptionError('t_eval', f'must be finite, increasing and >= the start of '
-                                        f'the last step t_old={self.t_old!r}')
+            # stepper_base.sample_dense's steps (super_sample), in one call
             b = (t_eval, Y, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
             if self.method == 'dop853':
                 st, _ = self._call(self._nb.dop853_sample, *b, self.rtol, self._atol, self.max_step,
@@ -349,7 +389,7 @@ class KernelStepper(_StepperBase):
                                    _NO_H if hermite else self._H,
                                    self._K.shape[0] - 1 if hermite else -1)
             self._check(st)
-            return Y
+            return
         a = (t_eval, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt)
         if self.method == 'dopri5':
             st, _ = self._call(self._nb.dopri5_sample, *a, self.rtol, self._atol, self.max_step, self._K,
@@ -357,7 +397,6 @@ class KernelStepper(_StepperBase):
         else:
             st, _ = self._call(self._nb.rk4_sample, *a, self._K, self._work, Y)
         self._check(st)
-        return Y
 
     def restart(self) -> None:
         """Inputs changed discontinuously: drop the FSAL derivative; keep h."""

@@ -272,16 +272,22 @@ def retime_passes(rows: list[dict[str, Any]], cfg: BenchConfig, *,
 
 
 def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
-                fidelity: str, cfg: BenchConfig, breakpoints: bool = True) -> dict[str, Any]:
+                fidelity: str, cfg: BenchConfig, breakpoints: bool = True,
+                sampling: str = 'land') -> dict[str, Any]:
     """Time one project configuration: ``Simulation.run`` (the project's own path: persistent
-    stepper landing on every sample and, with ``breakpoints``, on every load breakpoint; joint
-    states and energy residual per sample). Building the Simulation (fidelity choice, joint
-    set-up) is not timed, for project and baseline alike."""
+    stepper landing on every sample - or with ``sampling='dense'`` reading the samples from
+    the method's dense output, as solve_ivp's ``t_eval`` does - and, with ``breakpoints``, on
+    every load breakpoint; joint states and energy residual per sample). Building the
+    Simulation (fidelity choice, joint set-up) is not timed, for project and baseline alike;
+    the runs after the first reuse its plan (``Simulation._run_kernel``: sample times,
+    stepper), as a user's repeated runs of one Simulation do."""
     from cvj_ros.physics.simulate import Simulation
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
                            'fidelity': fidelity, 'tol': tol, 'h': h, 'breakpoints': breakpoints,
-                           'label': f'{solver} {fidelity}' + ('' if breakpoints else ' across-breaks')}
+                           'sampling': sampling,
+                           'label': f'{solver} {fidelity}' + ('' if breakpoints else ' across-breaks')
+                           + (' dense' if sampling == 'dense' else '')}
     tol_ = tol if tol is not None else 1e-6
     try:
         sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
@@ -292,7 +298,8 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
 
     def once() -> tuple[Any, int, int]:
         sim.fun = _counted(plain_fun, cfg.max_rhs_evals)
-        tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples, breakpoints=breakpoints)
+        tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples, breakpoints=breakpoints,
+                     sampling=sampling)
         nfev = int(tr.solver.get('nfev', sim.fun.count[0]))
         if nfev > cfg.max_rhs_evals:    # the compiled path is not stopped midway: checked after
             raise _BudgetExceeded
@@ -646,7 +653,7 @@ def machine_description() -> dict[str, str]:
 
 CSV_FIELDS = ('scene', 'family', 'solver', 'fidelity', 'tol', 'h', 'label', 'ok', 'wall_s',
               'wall_spread', 'repeats', 'wall_per_sim_s', 'nfev', 'njev', 'err_speed_rel', 'err_angle_rad',
-              'levels', 'breakpoints', 'note')
+              'levels', 'breakpoints', 'sampling', 'note')
 LOCKSTEP_FIELDS = ('scene', 'scheme', 'exchange_step', 'ok', 'err_speed_rel', 'rtf', 'us_per_exchange', 'note')
 
 
@@ -658,9 +665,10 @@ def planned_runs(cfg: BenchConfig) -> int:
     families = 2 if cfg.compiled_baselines else 1
     total = 0
     for scene in cfg.scenes:
-        # adaptive runs of a scene whose load has breakpoints run twice (landing / across)
-        twice = 2 if _may_have_breakpoints(scene) else 1
-        total += (len(cfg.fidelities) * (fixed + twice * adaptive)
+        # adaptive runs: landing on the samples (and, on a load with breakpoints, once more
+        # stepping across them) and dense sampling
+        variants = 3 if _may_have_breakpoints(scene) else 2
+        total += (len(cfg.fidelities) * (fixed + variants * adaptive)
                   + families * len(cfg.baselines) * len(cfg.tolerances))
     return total
 
@@ -723,10 +731,15 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                 grid = [(None, h) for h in cfg.rk4_steps] if solver in ('rk4', 'ros2') else \
                        [(tol, None) for tol in cfg.tolerances]
                 for tol, h in grid:
-                    for breaks in ((True, False) if tol is not None and prob.has_breakpoints
-                                   else (True,)):
+                    # (breakpoints, sampling): landing on samples and breakpoints; stepping
+                    # across the breakpoints; dense sampling (adaptive methods only)
+                    variants = [(True, 'land')]
+                    if tol is not None:
+                        variants += [(False, 'land')] if prob.has_breakpoints else []
+                        variants += [(True, 'dense')]
+                    for breaks, sampling in variants:
                         rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid,
-                                                cfg=cfg, breakpoints=breaks))
+                                                cfg=cfg, breakpoints=breaks, sampling=sampling))
                         if progress is not None:
                             progress(len(rows))
         for compiled in ((False, True) if cfg.compiled_baselines else (False,)):
@@ -816,7 +829,8 @@ def _config_label(r: dict[str, Any] | None) -> str:
     if r['family'] != 'project':
         return f'{r["solver"]} {knob}'
     across = '' if r.get('breakpoints', True) in (True, 'True', '') else ' across-breaks'
-    return f'{r["solver"]} {r["fidelity"]} {knob}{across}'
+    dense = ' dense' if r.get('sampling') == 'dense' else ''
+    return f'{r["solver"]} {r["fidelity"]} {knob}{across}{dense}'
 
 
 def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],

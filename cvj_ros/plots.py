@@ -618,8 +618,9 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             fid = rs[0].get('fidelity', 'exact')
             # a project run that stepped across the load's breakpoints: dotted, hollow markers
             across = not base and rs[0].get('breakpoints', True) in (False, 'False')
+            dense = not base and rs[0].get('sampling') == 'dense'
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls='--' if base else (':' if across else '-'),
+                      ls='--' if base else (':' if across else ('-.' if dense else '-')),
                       marker='s' if base else markers.get(fid, 'o'),
                       mfc='none' if across else None,
                       ms=5 if fid != 'auto' or base else 9, lw=1.3 if base else 1.6,
@@ -631,7 +632,8 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
                       else error_key)
         ax.set_ylabel('wall time per simulated second  [s/s]')
         ax.set_title(f'Work-precision: {scene}\n(lower-left is better; markers: o exact, * auto, '
-                     f'v ideal, D closed; dotted, hollow: stepping across load breakpoints)',
+                     f'v ideal, D closed; dotted, hollow: stepping across load breakpoints; '
+                     f'dash-dot: dense sampling)',
                      fontsize=9)
         ax.grid(True, which='both', alpha=0.25)
         ax.legend(loc='best', fontsize=7, framealpha=0.85, ncol=1 if len(groups) < 9 else 2)

@@ -50,9 +50,11 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
     with (out / 'bench.csv').open() as fh:
         rows = list(csv.DictReader(fh))
     # 'auto' resolves to the exact model here (no accuracy target): not rerun
-    # project: 2 fidelities x (2 adaptive x 3 tol + 2 rk4 steps); baselines: 2 methods x 3 tol,
-    # once with the Python rhs and once with the compiled rhs
-    assert len(rows) == 2 * (2 * 3 + 2) + 2 * 2 * 3
+    # project: 2 fidelities x (2 adaptive x 3 tol x (landing, dense) + 2 rk4 steps);
+    # baselines: 2 methods x 3 tol, once with the Python rhs and once with the compiled rhs
+    assert len(rows) == 2 * (2 * 3 * 2 + 2) + 2 * 2 * 3
+    assert sum(r['sampling'] == 'dense' for r in rows) == 2 * 2 * 3
+    assert all(r['label'].endswith(' dense') for r in rows if r['sampling'] == 'dense')
     assert sum(r['family'] == 'baseline_compiled' for r in rows) == 2 * 3
     assert res['rows'] and all(r['fidelity'] != 'auto' for r in res['rows'])
     for r in rows:
@@ -79,6 +81,20 @@ def test_errors_shrink_as_tolerances_tighten(result: tuple[dict, Path]) -> None:
     assert rk4[1]['err_speed_rel'] < rk4[0]['err_speed_rel'] / 50
     cost = [_rows(res, solver='dop853', fidelity='exact', tol=t)[0]['nfev'] for t in TOLS]
     assert cost[0] < cost[1] < cost[2]
+
+
+def test_dense_sampling_reaches_the_landing_runs_accuracy(result: tuple[dict, Path]) -> None:
+    """Dense rows read the samples from the method's dense output (as solve_ivp's t_eval):
+    at the same tolerance the error stays of the landing run's order (the dense order is
+    the method's: dopri5 4th, dop853 7th); dopri5's free dense output adds no evaluations
+    (dop853's costs three per step that holds a sample)."""
+    res, _ = result
+    for solver in ('dopri5', 'dop853'):
+        for t in TOLS:
+            land = _rows(res, solver=solver, fidelity='exact', tol=t, sampling='land')[0]
+            dense = _rows(res, solver=solver, fidelity='exact', tol=t, sampling='dense')[0]
+            assert solver != 'dopri5' or dense['nfev'] <= land['nfev'], t
+            assert dense['err_speed_rel'] < max(100 * land['err_speed_rel'], 10 * t), (solver, t)
 
 
 def test_ideal_fidelity_has_a_model_error_floor(result: tuple[dict, Path]) -> None:

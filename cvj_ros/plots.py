@@ -595,7 +595,13 @@ def _oscillates(h: dict[str, Any]) -> bool:
 def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str | Path,
                         error_key: str = 'err_speed_rel', cost_key: str = 'wall_per_sim_s') -> Path:
     """Log-log work-precision figure of one scene: error (x) vs cost (y), one line per
-    (solver, fidelity); rows whose ``family`` is ``'baseline'`` (solve_ivp) are dashed."""
+    configuration family (solver, fidelity, sampling variant) over its tolerances or steps.
+    Colour = method, marker = fidelity, line = variant (project: landing on the samples
+    solid, across the load's breakpoints dotted and hollow, dense sampling dash-dot;
+    solve_ivp: Python rhs dashed with squares, compiled rhs solid with squares). The key
+    names each of the three once, outside the axes, instead of one entry per line (a full
+    run draws ~50 lines)."""
+    from matplotlib.lines import Line2D
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     groups: dict[str, list[dict[str, Any]]] = {}
@@ -606,37 +612,67 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         if e is None or c is None or not (np.isfinite(e) and np.isfinite(c)) or e <= 0 or c <= 0:
             continue
         groups.setdefault(r['label'], []).append(r)
-    solvers = sorted({rs[0]['solver'] for rs in groups.values()})
-    colors = {s: plt.get_cmap('tab10')(i % 10) for i, s in enumerate(solvers)}
-    markers = {'ideal': 'v', 'closed': 'D', 'exact': 'o', 'auto': '*'}
+
+    def variant(r: dict[str, Any]) -> str:
+        fam = r.get('family')
+        if fam == 'baseline':
+            return 'solve_ivp, Python rhs'
+        if fam == 'baseline_compiled':
+            return 'solve_ivp, compiled rhs'
+        if r.get('breakpoints', True) in (False, 'False'):
+            return 'project, across breakpoints'
+        return 'project, dense sampling' if r.get('sampling') == 'dense' else 'project, landing'
+
+    lines = {'project, landing': '-', 'project, across breakpoints': ':',
+             'project, dense sampling': '-.', 'solve_ivp, Python rhs': '--',
+             'solve_ivp, compiled rhs': '-'}
+    markers = {'exact': 'o', 'auto': '*', 'closed': 'D', 'ideal': 'v'}
+    methods = sorted({rs[0]['solver'] for rs in groups.values()},
+                     key=lambda m: (m[:1].isupper(), m))   # project methods, then solve_ivp's
+    colors = {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(methods)}
+    used_variants: list[str] = []
+    used_fids: list[str] = []
     with plt.rc_context(_STYLE):
-        fig, ax = plt.subplots(figsize=(9, 6.2))
-        for label, rs in sorted(groups.items(), key=lambda kv: (kv[1][0].get('family') == 'baseline', kv[0])):
+        fig, ax = plt.subplots(figsize=(11.5, 6.4))
+        for _label, rs in sorted(groups.items(), key=lambda kv: (variant(kv[1][0]), kv[0])):
             # connect in order of the knob (tolerance, or fixed step for rk4): loose -> tight
             rs = sorted(rs, key=lambda r: -(r.get('tol') or r.get('h') or 0.0))
-            base = rs[0].get('family') == 'baseline'
-            fid = rs[0].get('fidelity', 'exact')
-            # a project run that stepped across the load's breakpoints: dotted, hollow markers
-            across = not base and rs[0].get('breakpoints', True) in (False, 'False')
-            dense = not base and rs[0].get('sampling') == 'dense'
+            v = variant(rs[0])
+            base = v.startswith('solve_ivp')
+            fid = 'baseline' if base else rs[0].get('fidelity', 'exact')
+            used_variants += [v] if v not in used_variants else []
+            used_fids += [fid] if not base and fid not in used_fids else []
+            strong = base or fid in ('exact', 'auto')
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls='--' if base else (':' if across else ('-.' if dense else '-')),
-                      marker='s' if base else markers.get(fid, 'o'),
-                      mfc='none' if across else None,
-                      ms=5 if fid != 'auto' or base else 9, lw=1.3 if base else 1.6,
-                      color=colors[rs[0]['solver']], alpha=0.95 if fid in ('exact', 'auto') or base else 0.6,
-                      label=f'solve_ivp {rs[0]["solver"]} (baseline)' if base else label)
+                      ls=lines[v], marker='s' if base else markers.get(fid, 'o'),
+                      mfc='none' if v == 'project, across breakpoints' else None,
+                      ms=9 if fid == 'auto' else 5, lw=1.8 if base else 1.4,
+                      color=colors[rs[0]['solver']], alpha=0.95 if strong else 0.5)
         for lv in (1e-3, 1e-8):
             ax.axvline(lv, color='0.6', lw=0.8, ls=':')
         ax.set_xlabel('max relative error of output speed  [-]' if error_key == 'err_speed_rel'
                       else error_key)
         ax.set_ylabel('wall time per simulated second  [s/s]')
-        ax.set_title(f'Work-precision: {scene}\n(lower-left is better; markers: o exact, * auto, '
-                     f'v ideal, D closed; dotted, hollow: stepping across load breakpoints; '
-                     f'dash-dot: dense sampling)',
-                     fontsize=9)
+        ax.set_title(f'Work-precision: {scene} (lower left is better; dotted verticals: the '
+                     f'error levels 1e-3 and 1e-8 of the report)', fontsize=10)
         ax.grid(True, which='both', alpha=0.25)
-        ax.legend(loc='best', fontsize=7, framealpha=0.85, ncol=1 if len(groups) < 9 else 2)
+        key: list[Any] = [Line2D([], [], ls='none', label='colour: method')]
+        key += [Line2D([], [], color=colors[m], lw=3, label=m if m[:1].islower()
+                       else f'solve_ivp {m}') for m in methods]
+        key += [Line2D([], [], ls='none', label=''),
+                Line2D([], [], ls='none', label='marker: fidelity')]
+        key += [Line2D([], [], ls='none', marker=markers[f], color='0.3', ms=9 if f == 'auto' else 6,
+                       label=f) for f in ('exact', 'auto', 'closed', 'ideal') if f in used_fids]
+        key += [Line2D([], [], ls='none', marker='s', color='0.3', ms=6, label='solve_ivp')]
+        key += [Line2D([], [], ls='none', label=''), Line2D([], [], ls='none', label='line: run')]
+        key += [Line2D([], [], ls=lines[v], color='0.3', lw=1.6,
+                       marker='o' if 'across' in v else None,
+                       mfc='none', label=v) for v in lines if v in used_variants]
+        leg = ax.legend(handles=key, loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize=8,
+                        frameon=False, handlelength=2.6)
+        for text in leg.get_texts():
+            if text.get_text().endswith((': method', ': fidelity', ': run')):
+                text.set_fontweight('bold')
         fig.tight_layout()
         fig.savefig(p)
         plt.close(fig)

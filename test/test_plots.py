@@ -374,3 +374,34 @@ def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert sorted(Path(p).name for p in summary['plots']) == \
         ['harmonics.png', 'nonuniformity.png', 'speeds_torques.png']
     assert all((out / n).read_bytes()[:4] == b'\x89PNG' for n in ('speeds_torques.png', 'nonuniformity.png'))
+
+
+def test_work_precision_key_names_methods_fidelities_and_runs_once(tmp_path, monkeypatch) -> None:
+    """The work-precision figure's key has one entry per method, fidelity and kind of run
+    (not one per line: a full bench draws ~50), outside the axes."""
+    from cvj_ros import plots
+    kept = []
+    monkeypatch.setattr(plots.plt, 'close', kept.append)
+    rows = []
+    for solver, fam, fid, breaks, sampling in (
+            ('dopri5', 'project', 'exact', True, 'land'), ('dopri5', 'project', 'exact', False, 'land'),
+            ('dopri5', 'project', 'ideal', True, 'dense'), ('rodas4', 'project', 'auto', True, 'land'),
+            ('LSODA', 'baseline', 'exact', True, None), ('LSODA', 'baseline_compiled', 'exact', True, None)):
+        label = f'{solver} {fam} {fid} {breaks} {sampling}'
+        for k, tol in enumerate((1e-3, 1e-6)):
+            rows.append({'scene': 's', 'family': fam, 'solver': solver, 'fidelity': fid, 'tol': tol,
+                         'h': None, 'breakpoints': breaks, 'sampling': sampling, 'label': label,
+                         'err_speed_rel': tol * (2 + k), 'wall_per_sim_s': 1e-3 / tol ** 0.1})
+    plots.work_precision_plot(rows, scene='s', path=tmp_path / 'wp.png')
+    assert (tmp_path / 'wp.png').stat().st_size > 10_000
+    (fig,) = kept
+    ax = fig.axes[0]
+    assert len(ax.get_lines()) == 6 + 2          # six series and the two level markers
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    for want in ('colour: method', 'dopri5', 'rodas4', 'solve_ivp LSODA', 'marker: fidelity',
+                 'exact', 'auto', 'ideal', 'solve_ivp', 'line: run', 'project, landing',
+                 'project, across breakpoints', 'project, dense sampling',
+                 'solve_ivp, Python rhs', 'solve_ivp, compiled rhs'):
+        assert texts.count(want) == 1, (want, texts)
+    assert 'closed' not in texts                  # no closed-fidelity series here
+    assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1

@@ -632,6 +632,10 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     colors = {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(methods)}
     used_variants: list[str] = []
     used_fids: list[str] = []
+    # ideal/closed runs are drawn faint beside exact ones; a scene whose modes are all one
+    # model (stiff: only 'ideal' runs, exact = auto = ideal) draws them in full
+    has_exact = any(rs[0].get('family') == 'project' and rs[0].get('fidelity') in ('exact', 'auto')
+                    for rs in groups.values())
     with plt.rc_context(_STYLE):
         fig, ax = plt.subplots(figsize=(11.5, 6.4))
         for _label, rs in sorted(groups.items(), key=lambda kv: (variant(kv[1][0]), kv[0])):
@@ -642,7 +646,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             fid = 'baseline' if base else rs[0].get('fidelity', 'exact')
             used_variants += [v] if v not in used_variants else []
             used_fids += [fid] if not base and fid not in used_fids else []
-            strong = base or fid in ('exact', 'auto')
+            strong = base or fid in ('exact', 'auto') or not has_exact
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
                       ls=lines[v], marker='s' if base else markers.get(fid, 'o'),
                       mfc='none' if v == 'project, across breakpoints' else None,

@@ -128,6 +128,25 @@ def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = LANDING_
     return grid[order], np.flatnonzero(order < times.size)
 
 
+# the compiled outputs' entry points (sample_outputs, fill_mid_samples), found on first use
+# (importing outputs_nb loads numba: commands that do not integrate must not pay for it)
+_OUTPUT_ENTRIES: list[Any] = []
+
+
+def _output_entries(args: tuple, *, mid: bool = False) -> list[Any]:
+    """Fill :data:`_OUTPUT_ENTRIES` from the first call's arguments (sample_outputs', or with
+    ``mid`` fill_mid_samples'); an import inside every run cost ~1 us."""
+    from cvj_ros.physics.kernel import entry_point_once
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples, sample_outputs
+    if not _OUTPUT_ENTRIES:
+        _OUTPUT_ENTRIES[:] = [None, None]
+    if mid:
+        _OUTPUT_ENTRIES[1] = entry_point_once(fill_mid_samples, args)
+    else:
+        _OUTPUT_ENTRIES[0] = entry_point_once(sample_outputs, args)
+    return _OUTPUT_ENTRIES
+
+
 @dataclass
 class _KernelPlan:
     """A kernel run's options made concrete once (Simulation._kernel_plan)."""
@@ -246,22 +265,21 @@ class Simulation:
                         res: FloatArray) -> None:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
-        from cvj_ros.physics.kernel import entry_point_once
-        from cvj_ros.physics.kernel.outputs_nb import (fill_mid_samples, mid_table,
-                                                       sample_outputs, shaft_table)
         if self._shaft_table is None:
+            from cvj_ros.physics.kernel.outputs_nb import mid_table, shaft_table
             self._shaft_table = shaft_table(self.driveline)
             self._mid_table = mid_table(self.driveline)
         # every array here is allocated by run() (C-contiguous float64/int64): one type each
         args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
                 float(e0), pos, vel, eff, te, tl, res)
-        bad = entry_point_once(sample_outputs, args)(*args)
+        entries = _OUTPUT_ENTRIES or _output_entries(args)
+        bad = entries[0](*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
             args = (pos, vel, mtab, mfp)
-            entry_point_once(fill_mid_samples, args)(*args)
+            (entries[1] or _output_entries(args, mid=True)[1])(*args)
         if python_members:
             self.driveline.fill_mid(pos, vel, members=python_members)
 

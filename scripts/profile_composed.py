@@ -62,11 +62,13 @@ def instrument() -> None:
     CouplingNode._step = timed('coupling step (integrate + publish)', CouplingNode._step)
     CouplingNode._on_engine = timed('coupling wrench callbacks (incl. step)', CouplingNode._on_engine)
     CouplingNode._on_load = timed('coupling wrench callbacks (incl. step)', CouplingNode._on_load)
-    TorqueResponder._on_joint_states = timed(lambda self: f'{self.get_name()} answer',
-                                             TorqueResponder._on_joint_states)
-    MonitorNode._on_joint_states = timed('monitor', MonitorNode._on_joint_states)
-    MonitorNode._on_torque_raw = timed('monitor', MonitorNode._on_torque_raw)
-    MonitorNode._on_diagnostics = timed('monitor', MonitorNode._on_diagnostics)
+    # the loop subscriptions take CDR bytes (``_raw``); the message variants serve ros2 run
+    for name in ('_on_joint_states', '_on_joint_states_raw'):
+        setattr(TorqueResponder, name, timed(lambda self: f'{self.get_name()} answer',
+                                             getattr(TorqueResponder, name)))
+    for name in ('_on_joint_states', '_on_joint_states_raw', '_on_torque_raw',
+                 '_on_diagnostics', '_on_diagnostics_raw'):
+        setattr(MonitorNode, name, timed('monitor', getattr(MonitorNode, name)))
     bag.BagRecorder._on_message = timed('recorder callbacks', bag.BagRecorder._on_message)
     Writer.write = timed('writer thread (rosbags write)', Writer.write)
 

@@ -9,7 +9,7 @@
   ``depth``. At depth 1000 the first run's bag in
   ``test_second_run_on_the_same_domain_is_refused_and_mixes_nothing`` lost thousands of its
   joint states after the second run started (4402 of 13190 in one try), with two CPU
-  burners (8 of 15 tries, code of stops 22 and 23 alike); at 10000, 6 of 6 complete. Peak RSS of every node process of a
+  burners (8 of about 20 tries, code of stops 22 and 23 alike); at 10000, 6 of 6 complete. Peak RSS of every node process of a
   kavz685_lever run unchanged (the history is allocated as it fills; acknowledged samples
   leave it).
 * :data:`RECORDER_QOS` - the recorder's subscriptions to data topics: as DATA_QOS with

@@ -20,6 +20,7 @@ max energy scale (cvj_ros.physics.driveline.Driveline.energy_residual).
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -128,23 +129,14 @@ def landing_grid(times: FloatArray, breaks: FloatArray, *, tol: float = LANDING_
     return grid[order], np.flatnonzero(order < times.size)
 
 
-# the compiled outputs' entry points (sample_outputs, fill_mid_samples), found on first use
-# (importing outputs_nb loads numba: commands that do not integrate must not pay for it)
-_OUTPUT_ENTRIES: list[Any] = []
-
-
-def _output_entries(args: tuple, *, mid: bool = False) -> list[Any]:
-    """Fill :data:`_OUTPUT_ENTRIES` from the first call's arguments (sample_outputs', or with
-    ``mid`` fill_mid_samples'); an import inside every run cost ~1 us."""
+@functools.lru_cache(maxsize=None)
+def _outputs_kernel() -> tuple[Any, Any, Any]:
+    """(entry_point_once, sample_outputs, fill_mid_samples), imported on first use: importing
+    outputs_nb loads numba, which commands that do not integrate must not pay for, and an
+    import inside every run cost ~1 us."""
     from cvj_ros.physics.kernel import entry_point_once
     from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples, sample_outputs
-    if not _OUTPUT_ENTRIES:
-        _OUTPUT_ENTRIES[:] = [None, None]
-    if mid:
-        _OUTPUT_ENTRIES[1] = entry_point_once(fill_mid_samples, args)
-    else:
-        _OUTPUT_ENTRIES[0] = entry_point_once(sample_outputs, args)
-    return _OUTPUT_ENTRIES
+    return entry_point_once, sample_outputs, fill_mid_samples
 
 
 @dataclass
@@ -272,14 +264,14 @@ class Simulation:
         # every array here is allocated by run() (C-contiguous float64/int64): one type each
         args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
                 float(e0), pos, vel, eff, te, tl, res)
-        entries = _OUTPUT_ENTRIES or _output_entries(args)
-        bad = entries[0](*args)
+        entry_point_once, sample_outputs, fill_mid_samples = _outputs_kernel()
+        bad = entry_point_once(sample_outputs, args)(*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
             args = (pos, vel, mtab, mfp)
-            (entries[1] or _output_entries(args, mid=True)[1])(*args)
+            entry_point_once(fill_mid_samples, args)(*args)
         if python_members:
             self.driveline.fill_mid(pos, vel, members=python_members)
 
@@ -421,8 +413,8 @@ class Simulation:
         """:meth:`run` on the compiled kernel. The plan of these options (sample times, grid,
         stepper) is made once per Simulation and options; a later run resets the plan's
         stepper (the same steps and bytes as a new one) and spends its Python on little more
-        than two compiled calls - a loose-tolerance stiff run is ~20 us in all, its Python
-        set-up was ~45 (docs/benchmark.md)."""
+        than two compiled calls - a loose-tolerance stiff run is ~27 us in all, ~80 before
+        (docs/solvers.md "Short runs")."""
         key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
         plan = self._plans.get(key)
         x0 = self.driveline.x0

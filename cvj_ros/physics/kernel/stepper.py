@@ -143,7 +143,9 @@ class KernelStepper(_StepperBase):
             stages = len(self._tab[3]) + 1   # K rows: f, stages (M), f at the last step start
         # every float array of the state is a C-contiguous view of one buffer (and every
         # int one of another), so reset() is two fills: a run that reuses its stepper
-        # (Simulation.run) pays ~2 us instead of this constructor's ~14
+        # (Simulation.run) pays ~2 us instead of this constructor's ~14. fs (NFS), y_old,
+        # K (stages+1, n: stage derivatives, row 0 = f at the step start, FSAL), work (4, n:
+        # stage argument, y_new, error, spare); Rosenbrock: J, LU (n, n), ft (n), piv (n)
         n = self.n
         sizes = [nb.NFS, n, (stages + 1) * n, 4 * n]
         if method in _ROSENBROCK:
@@ -184,7 +186,7 @@ class KernelStepper(_StepperBase):
 
     def reset(self, t0: float, y0: np.ndarray) -> None:
         """Start again at (t0 (s), y0) as a new stepper with the same options would: the same
-        steps and bytes (test_kernel_stepper.py). y0: float64, finite, this stepper's size -
+        steps and bytes (test/physics/kernel/test_stepper_reset.py). y0: float64, finite, this stepper's size -
         the caller's promise (``Simulation.run`` passes its driveline's checked x0); counters
         restart at 0."""
         self._set_start(float(t0), y0)

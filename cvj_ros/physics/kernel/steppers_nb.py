@@ -92,17 +92,6 @@ DP_P = np.array([
 DP_ORDER = 4  # order of the error estimator: controller exponent 1/(order+1)
 
 
-def new_state(n: int, stages: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                             np.ndarray]:
-    """Fresh persistent arrays for an n-state stepper: (fs, cnt, y_old, K, work).
-
-    K (stages+1, n) holds the stage derivatives (row 0 = f at the step start,
-    FSAL); work (4, n) is scratch (stage argument, y_new, error, spare)."""
-    fs = np.zeros(NFS)
-    fs[FS_ERROLD] = 1e-4
-    return fs, np.zeros(NCNT, np.int64), np.zeros(n), np.zeros((stages + 1, n)), np.zeros((4, n))
-
-
 # ------------------------------------------------------------------ helpers
 @njit(cache=True, inline='always')
 def _first_nonfinite(v: np.ndarray) -> int:

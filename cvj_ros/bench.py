@@ -285,9 +285,8 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
                            'fidelity': fidelity, 'tol': tol, 'h': h, 'breakpoints': breakpoints,
-                           'sampling': sampling,
-                           'label': f'{solver} {fidelity}' + ('' if breakpoints else ' across-breaks')
-                           + (' dense' if sampling == 'dense' else '')}
+                           'sampling': sampling}
+    row['label'] = f'{solver} {fidelity}{_run_kind(row)}'
     tol_ = tol if tol is not None else 1e-6
     try:
         sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
@@ -828,9 +827,15 @@ def _config_label(r: dict[str, Any] | None) -> str:
     knob = f'h={_g(r["h"])}' if r.get('h') else f'tol={_g(r["tol"], ".0e")}'
     if r['family'] != 'project':
         return f'{r["solver"]} {knob}'
+    return f'{r["solver"]} {r["fidelity"]} {knob}{_run_kind(r)}'
+
+
+def _run_kind(r: dict[str, Any]) -> str:
+    """A project row's label suffix: ' across-breaks' (stepping across the load's
+    breakpoints), ' dense' (dense sampling), or '' (landing on samples and breakpoints); rows
+    read back from the CSV hold the flags as strings."""
     across = '' if r.get('breakpoints', True) in (True, 'True', '') else ' across-breaks'
-    dense = ' dense' if r.get('sampling') == 'dense' else ''
-    return f'{r["solver"]} {r["fidelity"]} {knob}{across}{dense}'
+    return across + (' dense' if r.get('sampling') == 'dense' else '')
 
 
 def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock_rows: list[dict[str, Any]],

@@ -1,17 +1,20 @@
 """`cvj-sim run`: launch a driveline run as ROS processes and record it to a bag.
 
-Like a launch file: engine_node, load_node, monitor_node and coupling_node each run as
+Like a launch file: the loop nodes engine_node, load_node and coupling_node each run as
 their own process (the console scripts, ``--ros-args -p ...``); the recorder
-(:class:`cvj_ros.bag.BagRecorder`) runs inside the ``cvj-sim`` process. Why there: the
-bag's lifetime then belongs to the process that handles Ctrl-C/SIGTERM and decides the
-shutdown order, so the bag is finalised on every exit path without inter-process
-signalling, and the message counts/wall times feed the report directly; the
-orchestrator itself only sleeps, so it costs no extra core on a 2-core machine.
+(:class:`cvj_ros.bag.BagRecorder`) runs inside the ``cvj-sim`` process, and beside it the
+observer monitor_node (:data:`HOSTED_IN_RUN`: its own rclpy node, parameters and
+executor thread, on the recorder's DDS participant, so a loop message crosses into this
+process once for both readers). Why there: the bag's lifetime then belongs to the process
+that handles Ctrl-C/SIGTERM and decides the shutdown order, so the bag is finalised on
+every exit path without inter-process signalling, and the message counts/wall times feed
+the report directly; the orchestrator itself only sleeps.
 
 Sequence: validate everything (scene, options, load bag) -> create the run directory
 ``OUT`` (``OUT/bag`` the rosbag2 bag, ``OUT/logs/<node>.log`` the node outputs,
-``OUT/report.json``) -> start the recorder (subscribed before any node exists, so the
-coupling node sees it matched before step 0) -> start engine, load, monitor, coupling ->
+``OUT/report.json``) -> start the recorder and the hosted monitor (subscribed before any
+node exists, so the coupling node sees them matched before step 0) -> start engine, load,
+coupling ->
 wait for the coupling node to exit -> wait until the recorder is drained -> SIGINT the
 other nodes (SIGTERM, then SIGKILL after a grace period) -> close the bag -> report.
 
@@ -42,10 +45,12 @@ from typing import Any, TextIO
 import numpy as np
 
 from cvj_ros import bag as bagmod
+from cvj_ros.errors import CvjError
 from cvj_ros.orchestrate.options import (  # noqa: F401  (re-exported)
     MODES, NODE_ORDER, RUN_ENTRIES, SCHEMES, RunOptions, RunResult, _domain_env, _Prepared, prepare)
 from cvj_ros.orchestrate.recorder import (  # noqa: F401  (re-exported)
-    DISCOVERY_SETTLE_S, EXTERNAL_PEERS, LOOP_TOPICS, PEER_TOPICS, _Recorder, _wait_for_peers,
+    DISCOVERY_SETTLE_S, EXTERNAL_PEERS, HOSTED_IN_RUN, LOOP_TOPICS, PEER_TOPICS, _Recorder,
+    _wait_for_peers,
     external_wait_line, open_run_bag)
 from cvj_ros.orchestrate.processes import (  # noqa: F401  (re-exported)
     _die_with_parent, _ros_args, _signal_name, _stop_processes, error_line, node_command,
@@ -125,9 +130,19 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         recorder = _Recorder(writer, prep.coupling_topics, domain,
                              hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
                              if options.mode == 'lockstep' else (), run_token=run_token)
+        # the observers run in this process, subscribed before any loop node starts
+        for name in (n for n in prep.nodes if n in HOSTED_IN_RUN):
+            try:
+                recorder.host(name, _ros_args(node_parameters(
+                    prep, name, load_override=load_override, run_token=run_token)),
+                    log=logs / f'{name}.log')
+            except CvjError as exc:   # bad parameter: the line the node's own process prints
+                error = f'{name}: error: {exc}'
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
+            if name in recorder.hosted:
+                continue
             if name == 'coupling_node':
                 # volatile topics lose what is published before a match: the coupling node (which
                 # makes the peers talk) starts only once the recorder sees the peers' publishers
@@ -202,7 +217,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         finally:
             rec_state = None
             foreign_dropped: dict[str, int] = {}
+            hosted_codes: dict[str, int] = {}
             if recorder is not None:
+                hosted_codes = recorder.hosted_exit_codes()
                 rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
                 foreign_dropped = dict(recorder.recorder.foreign)
                 recorder.close()
@@ -223,7 +240,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     result = result_from_recording(
         options, prep, out, domain, code=code, error=error, stopped_by=stopped_by,
         counts=dict(writer.counts), rec_state=rec_state,
-        exit_codes={n: p.returncode for n, p in procs.items()}, phases=phases, wall=wall,
-        steps=steps)
+        exit_codes={**{n: p.returncode for n, p in procs.items()}, **hosted_codes},
+        phases=phases, wall=wall, steps=steps)
     return finish_result(result, options, prep, stream=stream, run_token=run_token,
-                         foreign_dropped=foreign_dropped)
+                         foreign_dropped=foreign_dropped,
+                         settings={'process': 'separate'} | (
+                             {'hosted': ','.join(hosted_codes)} if hosted_codes else {}))

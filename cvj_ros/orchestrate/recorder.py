@@ -22,6 +22,15 @@ from cvj_ros.orchestrate.processes import error_line
 # few ms behind the loop; RECORDER_QOS's depth holds 10 s.
 RECORDER_COALESCE_S = 0.002
 
+# Nodes `cvj-sim run` hosts in its own process, beside the recorder, instead of one process
+# each: the observers, which read every loop message the recorder reads. On the recorder's
+# context (one DDS participant) a message crosses into this process once for both; as a
+# process of its own the monitor took three more inter-process deliveries per exchange and a
+# fifth process on two cores. Measured (kavz685_lever 5 s, h = 1 ms, 4 alternating pairs,
+# /proc CPU): real-time factor 1.43-2.01 -> 1.67-2.45, CPU per exchange 761-1042 ->
+# 704-1008 us (docs/nodes.md, "Separate processes"). The loop nodes keep their processes.
+HOSTED_IN_RUN = ('monitor_node',)
+
 
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
@@ -39,6 +48,9 @@ class _Recorder:
         self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_token=run_token)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
+        self.hosted: dict[str, tuple[Any, Any]] = {}     # name -> (node, executor): see host()
+        self.host_errors: dict[str, str] = {}
+        self._hosted_threads: list[threading.Thread] = []
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
         self.thread.start()
 
@@ -47,6 +59,47 @@ class _Recorder:
         # or lossy here: SingleThreadedExecutor fell ~0.7 s behind a 200-step run, and
         # rclpy.experimental.EventsExecutor left samples unread (24 of 101 joint states).
         self.recorder.spin(self._stop, coalesce=RECORDER_COALESCE_S)
+
+    def host(self, name: str, cli_args: Sequence[str], *, log: Path | None = None) -> None:
+        """Create node ``name`` (:func:`cvj_ros.composed.node_class`, its own ``--ros-args``)
+        on the recorder's context and spin it on its own EventsExecutor in a thread of this
+        process (:data:`HOSTED_IN_RUN`). One context is one DDS participant: every message
+        the node and the recorder both read crosses into this process once, not twice.
+
+        Raises CvjError (a bad parameter, naming it) as the node's own process would exit 2.
+        A callback's exception ends the node's thread: :attr:`host_errors` holds the line
+        (also written to ``log``), the run goes on as it would without that process."""
+        from cvj_ros.composed import make_composed_executor, node_class
+        node = node_class(name)(context=self.ctx, cli_args=list(cli_args))
+        executor, _kind, _note = make_composed_executor('events', self.ctx)
+        executor.add_node(node)
+        self.hosted[name] = (node, executor)
+        thread = threading.Thread(target=self._spin_hosted, args=(name, node, executor, log),
+                                  name=name[:15], daemon=True)
+        self._hosted_threads.append(thread)
+        thread.start()
+
+    def _spin_hosted(self, name: str, node: Any, executor: Any, log: Path | None) -> None:
+        from rclpy.task import Future
+        never = Future()      # spin inside the executor (no per-event Python loop), 0.1 s wakes
+        try:
+            while not self._stop.is_set() and self.ctx.ok():
+                executor.spin_until_future_complete(never, timeout_sec=0.1)
+        except Exception as exc:  # noqa: BLE001 (the node's callback failed: its process would exit 1)
+            if self._stop.is_set() or not self.ctx.ok():
+                return          # shutting down
+            line = f'{name}: {type(exc).__name__}: {exc}'
+            self.host_errors[name] = line
+            if log is not None:
+                try:
+                    with open(log, 'a', encoding='utf-8') as fh:
+                        fh.write(line + '\n')
+                except OSError:
+                    pass
+
+    def hosted_exit_codes(self) -> dict[str, int]:
+        """What the hosted nodes' processes would have exited with: 1 after an error, else 0."""
+        return {name: 1 if name in self.host_errors else 0 for name in self.hosted}
 
     def publisher_count(self, topic: str) -> int:
         """Publishers matched by the recorder's subscription of ``topic``."""
@@ -69,7 +122,15 @@ class _Recorder:
     def close(self) -> None:
         import rclpy
         self._stop.set()
+        for thread in self._hosted_threads:
+            thread.join(2.0)
         self.thread.join(2.0)
+        for node, executor in self.hosted.values():
+            try:
+                executor.remove_node(node)
+                executor.shutdown()
+            finally:
+                node.destroy_node()
         try:
             self.recorder.destroy()
             self.node.destroy_node()

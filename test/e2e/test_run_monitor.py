@@ -44,7 +44,7 @@ def test_fail_on_error_fails_the_run_and_reports(tmp_path: Path) -> None:
     assert 'ERROR and' in err[0] and '(--fail-on error); worst: ERROR t = ' in err[0]
     assert 'nonuniformity' in err[0]
     assert '  monitor: ' in r.stdout and 'first ERROR: t = ' in r.stdout
-    assert '  settings: seed 5, mode lockstep, scheme zoh, storage mcap, fidelity cpl=exact' in r.stdout
+    assert '  settings: seed 5, mode lockstep, scheme zoh, storage mcap, process separate, hosted monitor_node, fidelity cpl=exact' in r.stdout
     report = json.loads((tmp_path / 'default' / 'report.json').read_text())
     assert report['metrics']['monitor']['error'] >= 1 and report['exit_code'] == 1
 

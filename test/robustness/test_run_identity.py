@@ -232,15 +232,22 @@ class Intruder:
         if self._js_sub is None:
             self._js_sub = self.node.create_subscription(
                 self.JointState, '/driveline/joint_states', self._on_js, self.qos)
+            # the publishers now too, not at the first answer: the coupling node must discover
+            # them while the loop runs (seen under two CPU burners with a 0.5 s loop: its
+            # subscriptions matched them only after the last step, 0 foreign answers taken)
+            self._make_publishers()
+
+    def _make_publishers(self) -> None:
+        self.pubs = {t: self.node.create_publisher(c, t, self.qos) for t, c in (
+            ('/clock', self.Clock), ('/driveline/joint_states', self.JointState),
+            ('/engine/wrench', self.WrenchStamped), ('/load/wrench', self.WrenchStamped))}
 
     def _on_js(self, msg) -> None:
         if msg.header.frame_id.endswith(self.OTHER) or msg.header.stamp.nanosec < 20 * H_NS \
                 and msg.header.stamp.sec == 0:
             return      # our own echo, or the real loop not yet 20 steps in (its start check)
         if not self.pubs:
-            self.pubs = {t: self.node.create_publisher(c, t, self.qos) for t, c in (
-                ('/clock', self.Clock), ('/driveline/joint_states', self.JointState),
-                ('/engine/wrench', self.WrenchStamped), ('/load/wrench', self.WrenchStamped))}
+            self._make_publishers()
         stamp = msg.header.stamp
         self.pubs['/clock'].publish(self.Clock(clock=stamp))
         js = self.JointState(name=list(msg.name), position=list(msg.position),
@@ -295,19 +302,25 @@ def test_running_loop_ignores_another_runs_messages_with_its_stamps(tmp_path: Pa
     import io
 
     from cvj_ros.orchestrate import RunOptions, run
-    scene = dict(SCENE, duration=0.5)
+    scene = dict(SCENE, duration=1.0)   # 1 s: the intruder is discovered while the loop runs
     path = tmp_path / 'identity.yaml'
     path.write_text(yaml.safe_dump(scene, sort_keys=False))
-    intruder = Intruder()
+    # the intruder in a process of its own, as another run is: in this process it shared the
+    # GIL with the recorder and the hosted monitor and, under two CPU burners, answered late
+    # (300 of 980 states) and was matched by the coupling node only after the last step
+    intruder = subprocess.Popen([sys.executable, __file__, 'intruder'], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
+        assert intruder.stdout is not None and intruder.stdout.readline().strip() == 'ready'
         result = run(RunOptions(scene=str(path), out=tmp_path / 'run'), stream=io.StringIO())
     finally:
-        intruder.close()
-    print(f'intruder sent {intruder.sent}; loop {result.metrics.get("loop_counters")}; recorder dropped '
+        out, _ = intruder.communicate('', timeout=30)     # EOF on stdin: it stops, says how many
+    sent = int(out.split()[-1]) if out.strip() else 0
+    print(f'intruder sent {sent}; loop {result.metrics.get("loop_counters")}; recorder dropped '
           f'{result.metrics["run_identity"]["foreign_dropped"]}; counts {result.counts}; '
           f'wall {result.wall_time:.1f} s, phases {result.phases}')
     assert result.exit_code == 0, result.error
-    assert intruder.sent > 100        # it answered most of the run's 480 states after step 20
+    assert sent > 100        # it answered most of the run's 980 states after step 20
     bad, counts, problems = mixed_messages(tmp_path / 'run' / 'bag')
     assert bad == 0, problems
     n = round(scene['duration'] * 1e9 / H_NS)
@@ -321,3 +334,19 @@ def test_running_loop_ignores_another_runs_messages_with_its_stamps(tmp_path: Pa
     # rounding remain; one foreign 1e4 N m torque would move speeds by ~78 rad/s
     np.testing.assert_allclose(js.velocity, offline_speeds(scene, n), rtol=1e-6, atol=1e-9)
     assert result.metrics['loop_counters'].get('foreign_answers', 0) > 0, result.metrics['loop_counters']
+
+
+def _intruder_main() -> None:
+    """``python test_run_identity.py intruder``: an :class:`Intruder` until EOF on stdin;
+    prints ``ready`` once created and ``sent N`` at the end."""
+    intruder = Intruder()
+    print('ready', flush=True)
+    try:
+        sys.stdin.read()
+    finally:
+        intruder.close()
+        print(f'sent {intruder.sent}', flush=True)
+
+
+if __name__ == '__main__' and sys.argv[1:] == ['intruder']:
+    _intruder_main()

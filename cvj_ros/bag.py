@@ -29,7 +29,7 @@ import shutil
 import struct
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -847,6 +847,11 @@ class BagRecorder:
         self.first_wall: dict[str, float] = {}   # monotonic s of the first message per topic
         self.last_wall: dict[str, float] = {}
         self._subs: dict[str, Any] = {}
+        # per topic, called with every sample this recorder takes from DDS (after recording
+        # it; also another run's and held ones): readers in this process that share the
+        # recorder's subscriptions (cvj_ros.orchestrate.recorder.RecorderFeed). They must not
+        # raise.
+        self.observers: dict[str, list[Callable[[bytes], None]]] = {}
         self._bus_subs: list[Any] = []          # composed mode: bus legs of mixed topics
         self._local: list[tuple[str, bytes]] = []   # composed: collected loop messages
         # composed mode: every hosted publisher carries this run's token (set by the container),
@@ -939,6 +944,8 @@ class BagRecorder:
 
             def callback(data: bytes, _topic: str = topic, _type: str = msgtype) -> None:
                 self._on_message(_topic, _type, data, stamped=stamped, is_clock=is_clock)
+                for fn in self.observers.get(_topic, ()):
+                    fn(data)
             self._subs[topic] = self.node.create_subscription(
                 _msg_class(msgtype), topic, callback, qos, raw=True)
 
@@ -1166,12 +1173,16 @@ class BagRecorder:
             for topic, sub, stamped, is_clock, msgtype in entries:
                 if sub.handle.pointer not in ready:
                     continue
+                fed = self.observers.get(topic)
                 with sub.handle:
                     while True:
                         taken = sub.handle.take_message(sub.msg_type, True)
                         if taken is None:
                             break
                         self._on_message(topic, msgtype, taken[0], stamped=stamped, is_clock=is_clock)
+                        if fed:
+                            for fn in fed:
+                                fn(taken[0])
             if ready:
                 self.wakes += 1
                 if flush is not None:

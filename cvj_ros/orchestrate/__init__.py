@@ -4,8 +4,8 @@ Like a launch file: the loop nodes engine_node, load_node and coupling_node each
 their own process (the console scripts, ``--ros-args -p ...``); the recorder
 (:class:`cvj_ros.bag.BagRecorder`) runs inside the ``cvj-sim`` process, and beside it the
 observer monitor_node (:data:`HOSTED_IN_RUN`: its own rclpy node, parameters and
-executor thread, on the recorder's DDS participant, so a loop message crosses into this
-process once for both readers). Why there: the bag's lifetime then belongs to the process
+executor thread, its subscriptions fed from the recorder's, so a loop message crosses into
+this process once for both). Why there: the bag's lifetime then belongs to the process
 that handles Ctrl-C/SIGTERM and decides the shutdown order, so the bag is finalised on
 every exit path without inter-process signalling, and the message counts/wall times feed
 the report directly; the orchestrator itself only sleeps.
@@ -159,6 +159,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                     break
                 recorder.recorder.hold = frozenset()
             params = node_parameters(prep, name, load_override=load_override, run_token=run_token)
+            if name == 'coupling_node':   # a fed hosted node has no joint-state reader of its own
+                params['min_subscribers'] -= sum(
+                    1 for feed in recorder.feeds.values() if feed.carries(bagmod.JOINT_STATES_TOPIC))
             fh = open(logs / f'{name}.log', 'wb')
             log_files.append(fh)
             procs[name] = subprocess.Popen(

@@ -1,7 +1,8 @@
 """`_Recorder.host` (cvj_ros/orchestrate/recorder.py): the observers `cvj-sim run` hosts in its
-own process, on the recorder's context - a hosted monitor reads the joint states, publishes its
-statuses and the recorder records them; a bad parameter is the node's one-line CvjError; a
-failing callback ends only the node's thread and is reported as its exit status 1."""
+own process, on the recorder's context - a hosted monitor is fed the joint states the recorder
+takes (no DDS reader of its own), publishes its statuses and the recorder records them; a bad
+parameter is the node's one-line CvjError; a failing callback ends only that node (its feed
+stops, the recorder goes on) and is reported as its exit status 1."""
 from __future__ import annotations
 
 import time
@@ -61,7 +62,9 @@ def _run_hosted(tmp_path: Path, domain: int, n: int,
     try:
         rec.host('monitor_node', ['--ros-args', '-p', 'publish_every:=10'], log=tmp_path / 'monitor_node.log')
         ctx, node, pub = _publisher(domain)
-        assert _wait(lambda: pub.get_subscription_count() >= 2)   # the recorder's and the monitor's
+        assert _wait(lambda: pub.get_subscription_count() >= 1)   # the recorder's
+        time.sleep(0.2)
+        assert pub.get_subscription_count() == 1      # the monitor's is fed by it: no reader of its own
         for k in range(n):
             pub.publish(_joint_state(k))
         _wait(lambda: rec.recorder.counts.get(DIAGNOSTICS, 0) >= n // 10
@@ -112,3 +115,4 @@ def test_failing_callback_ends_the_node_thread_with_exit_status_1(
     assert rec.host_errors == {'monitor_node': 'monitor_node: RuntimeError: monitor broke'}
     assert rec.hosted_exit_codes() == {'monitor_node': 1}
     assert 'RuntimeError: monitor broke' in (tmp_path / 'monitor_node.log').read_text()
+    assert rec.recorder.observers.get(bagmod.JOINT_STATES_TOPIC) == []   # its feed stopped

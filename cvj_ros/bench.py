@@ -585,7 +585,7 @@ MODE_ROUND_TRIP = {'separate': 'events_ipc2', 'composed': 'events'}
 
 def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0,
                       composed: bool = False) -> dict[str, Any]:
-    """Loop figures of a real ROS lockstep run (`cvj-sim run`: one process per node, or
+    """Loop figures of a real ROS lockstep run (`cvj-sim run`: one process per loop node, or
     ``composed``: every node and the recorder in one process, ``--composed``).
 
     Reads the coupling node's last loop diagnostics from the bag: per exchange wall time,
@@ -935,7 +935,7 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
             md.append(f'- real lockstep run, {mode}: {run.get("note", run)}')
             continue
         how = ('`cvj-sim run --composed`, one process' if mode == 'composed'
-               else '`cvj-sim run`, one process per node')
+               else '`cvj-sim run`, one process per loop node')
         md.append(f'- real lockstep run, {mode} ({run["scene"]}, {run["exchanges"]} exchanges, {how}): '
                   f'{run.get("exchange_wall_us_mean", math.nan):.0f} us per exchange, of which integration '
                   f'{run.get("integration_us_mean", math.nan):.0f} us, lockstep wait '

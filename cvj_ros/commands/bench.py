@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--passes', type=int, metavar='N',
                         help="spread each configuration's repeats over N passes of its scene [2]")
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
-    parser.add_argument('--real-lockstep', action='store_true', help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the first scene, one process per node and --composed')
+    parser.add_argument('--real-lockstep', action='store_true', help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the first scene, one process per loop node and --composed')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
     parser.add_argument('--startup', action='store_true',
                         help="time the kernel's cold compile (empty cache, ~100 s) and a warm "

@@ -45,3 +45,8 @@ class BagError(CvjError):
 
 class LockstepError(CvjError, RuntimeError):
     """The lockstep loop cannot continue (peer timeout, bad stamp, non-finite torque)."""
+
+
+class StartCancelled(Exception):
+    """A node told to wait for a start signal (coupling_node ``start_gate``) did not get it:
+    not an error of the node, which exits 0 without starting (so not a CvjError)."""

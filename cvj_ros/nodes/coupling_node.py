@@ -86,7 +86,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from cvj_ros.errors import CvjError
+from cvj_ros.errors import CvjError, StartCancelled
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
@@ -122,6 +122,9 @@ START_SETTLE_S = 0.3
 # (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
 WRONG_STAMP_STALL_S = 1.0
 
+#: coupling_node ``start_gate`` values (:func:`wait_for_go`)
+START_GATES = ('', 'stdin')
+
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
     ParamSpec('seed', -1, 'random seed; -1 = the scene seed', lo=-1, hi=2**31 - 1),
@@ -137,6 +140,10 @@ PARAMS = (
               lo=0.0, hi=3600.0, lo_open=True),
     ParamSpec('min_subscribers', 2, 'subscribers /driveline/joint_states must have before step 0 '
               '(engine + load = 2; + recorder + monitor = 4)', lo=0, hi=64),
+    ParamSpec('start_gate', '', 'stdin = build the physics, then wait for a line "go" on '
+              'standard input before creating any topic endpoint (EOF: exit 0 without '
+              'starting); how `cvj-sim run` starts this process while the peers start; '
+              'empty = no wait', choices=START_GATES),
     ParamSpec('solver', '', 'integration method; empty = the scene solver', choices=SOLVERS),
     ParamSpec('rtol', 0.0, 'relative tolerance [-]; 0 = the scene rtol', lo=0.0, hi=1.0),
     ParamSpec('atol', 0.0, 'absolute tolerance [rad, rad/s]; 0 = the scene atol', lo=0.0, hi=1.0),
@@ -161,6 +168,26 @@ PARAMS = (
               'needs CAP_SYS_NICE, else a WARN and normal scheduling); 0 = normal scheduling',
               lo=0, hi=99),
 )
+
+
+def wait_for_go(logger: Any = None, stream: Any = None) -> None:
+    """``start_gate=stdin``: block until a line ``go`` on ``stream`` (standard input).
+
+    `cvj-sim run` starts this process together with the peers so that its imports and the
+    compiled physics load while they start (~1-3 s per run), and says ``go`` once the
+    recorder has matched the peers and no other run shares the domain (the check that needs
+    this node to have no /driveline/joint_states publisher yet). Anything else, or EOF (the
+    run was stopped, or cvj-sim died), raises :class:`StartCancelled`: the process exits 0
+    without having created a topic endpoint."""
+    stream = sys.stdin if stream is None else stream
+    if logger is not None:
+        logger.info('physics ready; waiting for "go" on standard input (start_gate=stdin)')
+    try:
+        line = stream.readline()
+    except (OSError, ValueError):       # closed or unreadable: no go
+        line = ''
+    if line.strip() != 'go':
+        raise StartCancelled('start_gate: no "go" on standard input; not started')
 
 
 class CouplingNode(CvjNode):
@@ -196,6 +223,8 @@ class CouplingNode(CvjNode):
         self.energy0 = self._energy_total(self.x)
         self.reaction_joints = [name for name, m in self.driveline.joint_models.items()
                                 if hasattr(m, 'reactions')]
+        if p['start_gate'] == 'stdin':
+            wait_for_go(self.get_logger())
 
         # publishers
         # loop topics: through the in-process bus in composed mode (cvj_ros.nodes.intra)

@@ -12,7 +12,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 
-from cvj_ros.errors import CvjError
+from cvj_ros.errors import CvjError, StartCancelled
 
 from cvj_ros.nodes.parameters import EXIT_OK, EXIT_PARAMETER, EXIT_RUNTIME
 
@@ -115,6 +115,9 @@ def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pr
     try:
         try:
             node = factory(context=ctx)
+        except StartCancelled as exc:     # told to wait for a start signal that never came
+            print(f'{prog}: {exc}', file=sys.stderr)
+            return EXIT_OK
         except CvjError as exc:
             print(f'{prog}: error: {exc}', file=sys.stderr)
             return EXIT_PARAMETER

@@ -75,8 +75,37 @@ def _die_with_parent() -> None:
         _LIBC.prctl(1, int(signal.SIGTERM))
 
 
+def close_stdin(proc: subprocess.Popen[bytes]) -> None:
+    """Close our end of ``proc``'s standard input, if it has one (idempotent): a node still
+    waiting at its start gate reads EOF and exits 0 without starting."""
+    if proc.stdin is not None and not proc.stdin.closed:
+        try:
+            proc.stdin.close()
+        except OSError:      # it exited: a broken pipe on the flush
+            pass
+
+
+def start_gated(proc: subprocess.Popen[bytes], log: Path) -> str | None:
+    """Say ``go`` to a node waiting at its start gate (coupling_node ``start_gate=stdin``);
+    None, or the error line when the process exited before it could hear it."""
+    rc = proc.poll()
+    if rc is None and proc.stdin is not None:
+        try:
+            proc.stdin.write(b'go\n')
+            proc.stdin.flush()
+            return None
+        except OSError:      # BrokenPipeError: it exited meanwhile
+            rc = proc.wait()
+        finally:
+            close_stdin(proc)
+    return f'coupling_node: {error_line(log) or f"exited with status {rc}"} (before the loop started)'
+
+
 def _stop_processes(procs: dict[str, subprocess.Popen[bytes]], names: Sequence[str], grace: float) -> None:
-    """SIGINT ``names``; after ``grace`` s SIGTERM the survivors; after another ``grace`` SIGKILL."""
+    """SIGINT ``names``; after ``grace`` s SIGTERM the survivors; after another ``grace`` SIGKILL.
+    Their standard input is closed first (a node at its start gate then exits at once)."""
+    for n in names:
+        close_stdin(procs[n])
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         alive = [n for n in names if procs[n].poll() is None]
         if not alive:

@@ -258,9 +258,13 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
     settled_since: float | None = None
     dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
     while not stop_signal:
+        for name, proc in procs.items():   # any node (the gated coupling node too) that died
+            rc = proc.poll()
+            if rc is not None:
+                return f'{name}: ' + (error_line(logs / f'{name}.log') or f'exited with status {rc}')
         # another run on this domain: stop before our coupling node publishes a single state
         # into the other run's bag (its own watchdog can take 0.25 s and more under load).
-        # Our coupling node is not started yet, so any joint-state publisher is another run's;
+        # Our coupling node waits at its start gate (no endpoints), so any joint-state publisher is another run's;
         # engine/load counts alone cannot tell: the other run's peers, discovered before ours
         # start, made a count of 1 look like "our peer is up" (measured: the second run then
         # started and mixed into the first one's bag).
@@ -283,10 +287,6 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
             time.sleep(0.02)
             continue
         settled_since = None
-        for name in missing:
-            rc = procs[name].poll() if name in procs else None
-            if rc is not None:
-                return f'{name}: ' + (error_line(logs / f'{name}.log') or f'exited with status {rc}')
         now = time.monotonic()
         for name in missing:
             if name in outside and now > t0 + external_timeout:

@@ -1,0 +1,90 @@
+"""coupling_node ``start_gate=stdin`` (how `cvj-sim run` starts it with the peers): the physics
+is built, no topic endpoint exists until a line "go" on standard input, EOF or anything else
+exits 0 without starting."""
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cvj_ros.errors import CvjError, StartCancelled
+from cvj_ros.nodes.coupling_node import START_GATES, wait_for_go
+
+pytestmark = pytest.mark.ros
+
+COUPLING = str(Path(sys.executable).with_name('coupling_node'))
+
+
+def test_wait_for_go_reads_one_line() -> None:
+    assert START_GATES == ('', 'stdin')
+    wait_for_go(stream=io.StringIO('go\n'))
+    wait_for_go(stream=io.StringIO(' go \nmore'))
+    for text in ('', 'stop\n', 'gogo\n'):
+        with pytest.raises(StartCancelled, match='no "go"'):
+            wait_for_go(stream=io.StringIO(text))
+    assert not issubclass(StartCancelled, CvjError)       # not a parameter error: exit 0
+
+
+def _joint_state_publishers(node, seconds: float) -> int:
+    deadline = time.monotonic() + seconds
+    n = 0
+    while time.monotonic() < deadline:
+        n = node.count_publishers('/driveline/joint_states')
+        if n:
+            break
+        time.sleep(0.05)
+    return n
+
+
+def _start(tmp_path: Path) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [COUPLING, '--ros-args', '-p', 'scene:=kavz685_lever', '-p', 'start_gate:=stdin',
+         '-p', 'start_timeout:=30.0'],
+        stdin=subprocess.PIPE, stdout=open(tmp_path / 'log', 'wb'), stderr=subprocess.STDOUT)
+
+
+def _wait_for_line(path: Path, text: str, seconds: float = 60.0) -> None:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if text in path.read_text(errors='replace'):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f'{text!r} not in {path.read_text(errors="replace")!r}')
+
+
+def test_gated_node_has_no_endpoint_until_go(tmp_path: Path, ros_domain: int) -> None:
+    import rclpy
+    from rclpy.context import Context
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    node = rclpy.create_node('observer', context=ctx)
+    proc = _start(tmp_path)
+    try:
+        _wait_for_line(tmp_path / 'log', 'waiting for "go"')
+        assert _joint_state_publishers(node, 1.0) == 0    # gated: nothing on the graph yet
+        assert proc.stdin is not None
+        proc.stdin.write(b'go\n')
+        proc.stdin.close()
+        assert _joint_state_publishers(node, 20.0) == 1
+        _wait_for_line(tmp_path / 'log', 'waiting for peers')
+    finally:
+        proc.send_signal(signal.SIGINT)
+        rc = proc.wait(20)
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert rc == 0
+
+
+def test_eof_at_the_gate_exits_0_without_starting(tmp_path: Path) -> None:
+    proc = _start(tmp_path)
+    _wait_for_line(tmp_path / 'log', 'waiting for "go"')
+    assert proc.stdin is not None
+    proc.stdin.close()
+    assert proc.wait(20) == 0
+    log = (tmp_path / 'log').read_text()
+    assert 'not started' in log and 'waiting for peers' not in log and 'Traceback' not in log

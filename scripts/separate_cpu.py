@@ -3,7 +3,8 @@
 (issue 10; results in docs/nodes.md, "Separate processes: where the CPU goes").
 
 Runs ``cvj-sim run SCENE --duration D`` in this process (``cvj_ros.orchestrate.run``: engine,
-load, monitor and coupling nodes as their own processes, the recorder in this one) and
+load and coupling nodes as their own processes, the recorder and the hosted monitor - a
+thread named ``monitor_node`` - in this one) and
 samples ``/proc/<pid>/task/<tid>/stat`` (user + system CPU of each thread) every 50 ms. The
 window is the middle of the loop: from the sample where the recorder holds 10 % of the
 run's joint states to the one where it holds 90 %, so start-up and shutdown stay out; CPU

@@ -849,7 +849,7 @@ class BagRecorder:
         self._subs: dict[str, Any] = {}
         # per topic, called with every sample this recorder takes from DDS (after recording
         # it; also another run's and held ones): readers in this process that share the
-        # recorder's subscriptions (cvj_ros.orchestrate.recorder.RecorderFeed). They must not
+        # recorder's subscriptions (cvj_ros.nodes.intra.RecorderFeed). They must not
         # raise.
         self.observers: dict[str, list[Callable[[bytes], None]]] = {}
         self._bus_subs: list[Any] = []          # composed mode: bus legs of mixed topics

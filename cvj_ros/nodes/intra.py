@@ -27,6 +27,10 @@ module is the rclpy equivalent for the cvj_ros nodes:
   gives the executor back after ``budget_s`` (timers, /engine/throttle, Ctrl-C) and re-arms
   the timer. The loop is deterministic either way: the answers carry the stamp they answer.
 
+The same "bus" interface serves `cvj-sim run`'s separate-process mode once more:
+:class:`RecorderFeed` hands an observer node hosted beside the recorder (the monitor) the
+samples the recorder takes, instead of DDS readers of its own.
+
 What an outside node cannot do in composed mode: publish on a carried topic and be heard by
 the hosted nodes (the hosted ones have no DDS subscription there). That is a second engine or
 load answerer, or another run - what the lockstep loop refuses anyway (docs/ros.md, "Run
@@ -391,7 +395,76 @@ class IntraProcessBus:
             pass
 
 
-def attach(context: Any, bus: IntraProcessBus) -> None:
+class FedSubscription(_BusEndpoint):
+    """A hosted node's subscription fed by a recorder (:class:`RecorderFeed`): ``fn(bytes)``
+    among the recorder's observers of the topic until ``destroy``."""
+
+    def __init__(self, feed: 'RecorderFeed', node: Any, topic: str,
+                 fn: Callable[[bytes], None]) -> None:
+        super().__init__(feed, node, topic)   # type: ignore[arg-type]  (a bus's endpoint)
+        self.fn = fn
+
+    def destroy(self) -> None:
+        fns = self.bus.recorder.observers.get(self.topic_name, [])
+        if self.fn in fns:
+            fns.remove(self.fn)
+
+
+class RecorderFeed:
+    """In-process delivery from a recorder to an observer node hosted beside it
+    (``cvj-sim run``'s monitor, cvj_ros.orchestrate.recorder.HOSTED_IN_RUN): while the node
+    is created, :func:`attach` makes this the "bus" of the recorder's context, so
+    ``loop_subscription`` of a topic the recorder subscribes to creates no DDS reader and
+    adds the callback to :attr:`cvj_ros.bag.BagRecorder.observers` instead; the recorder
+    thread calls it with each sample's CDR bytes right after recording it (the same
+    samples, in the order taken, another run's included: the node does its own run-token
+    filtering). Publishers (the monitor's /diagnostics) stay plain DDS publishers.
+
+    A callback that raises ends the node's feed (as the exception would end its process):
+    ``on_error(name, exc)`` is called once and its callbacks are dropped."""
+
+    def __init__(self, recorder: Any, name: str, topics: Any, on_error: Any) -> None:
+        self.recorder = recorder
+        self.name = name
+        self.topics = frozenset(topics)
+        self.on_error = on_error
+        self.failed = False
+        self.subscriptions: list[FedSubscription] = []
+
+    def carries(self, topic: str) -> bool:
+        return topic in self.topics
+
+    def stop(self) -> None:
+        """Feed the node nothing more (its subscriptions leave the recorder's observers)."""
+        self.failed = True
+        for sub in self.subscriptions:
+            sub.destroy()
+
+    @staticmethod
+    def is_mixed(topic: str) -> bool:
+        return False
+
+    @staticmethod
+    def wrap(publisher: Any) -> Any:
+        return publisher
+
+    def subscribe(self, topic: str, callback: Callable[[bytes], None], *,
+                  node: Any) -> FedSubscription:
+        def fed(data: bytes) -> None:
+            if self.failed:
+                return
+            try:
+                callback(data)
+            except Exception as exc:  # noqa: BLE001 (the node's callback: its process would exit 1)
+                self.stop()
+                self.on_error(self.name, exc)
+        sub = FedSubscription(self, node, topic, fed)
+        self.recorder.observers.setdefault(topic, []).append(fed)
+        self.subscriptions.append(sub)
+        return sub
+
+
+def attach(context: Any, bus: 'IntraProcessBus | RecorderFeed') -> None:
     """Make ``bus`` the bus of the nodes created on ``context`` from now on."""
     _BUSES[id(context)] = bus
 

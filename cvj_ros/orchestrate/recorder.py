@@ -26,77 +26,10 @@ RECORDER_COALESCE_S = 0.002
 # each: the observers, which read every loop message the recorder reads. As a process of its
 # own the monitor took three more inter-process deliveries per exchange and a fifth process
 # on two cores. Hosted, its subscriptions of the topics the recorder records are fed from the
-# recorder's (RecorderFeed): every sample is taken from DDS once, in the recorder thread.
+# recorder's (intra.RecorderFeed): every sample is taken from DDS once, in the recorder thread.
 # Measured (kavz685_lever 5 s, h = 1 ms, alternating pairs, /proc CPU): docs/nodes.md,
 # "Separate processes: the monitor beside the recorder". The loop nodes keep their processes.
 HOSTED_IN_RUN = ('monitor_node',)
-
-
-class _FedSubscription:
-    """A hosted node's subscription fed by the recorder (what ``loop_subscription`` returns)."""
-
-    def __init__(self, feed: 'RecorderFeed', node: Any, topic: str, fn: Any) -> None:
-        self.feed, self.node, self.topic_name, self.fn = feed, node, topic, fn
-
-    def get_publisher_count(self) -> int:
-        return self.node.count_publishers(self.topic_name)
-
-    def destroy(self) -> None:
-        fns = self.feed.recorder.observers.get(self.topic_name, [])
-        if self.fn in fns:
-            fns.remove(self.fn)
-
-
-class RecorderFeed:
-    """The hosted node's side of :data:`HOSTED_IN_RUN`: while the node is created,
-    :func:`cvj_ros.nodes.intra.attach` makes this the "bus" of the recorder's context, so
-    ``loop_subscription`` of a topic the recorder subscribes to creates no DDS reader and
-    adds the callback to :attr:`cvj_ros.bag.BagRecorder.observers` instead; the recorder
-    thread calls it with each sample's CDR bytes right after recording it (the same
-    samples, in the order taken, another run's included: the node does its own run-token
-    filtering). Publishers (the monitor's /diagnostics) stay plain DDS publishers.
-
-    A callback that raises ends the node's feed (as the exception would end its process):
-    ``on_error(name, exc)`` is called once and its callbacks are dropped."""
-
-    def __init__(self, recorder: Any, name: str, topics: Any, on_error: Any) -> None:
-        self.recorder = recorder
-        self.name = name
-        self.topics = frozenset(topics)
-        self.on_error = on_error
-        self.failed = False
-        self.subscriptions: list[_FedSubscription] = []
-
-    def carries(self, topic: str) -> bool:
-        return topic in self.topics
-
-    def stop(self) -> None:
-        """Feed the node nothing more (its subscriptions leave the recorder's observers)."""
-        self.failed = True
-        for sub in self.subscriptions:
-            sub.destroy()
-
-    @staticmethod
-    def is_mixed(topic: str) -> bool:
-        return False
-
-    @staticmethod
-    def wrap(publisher: Any) -> Any:
-        return publisher
-
-    def subscribe(self, topic: str, callback: Any, *, node: Any) -> _FedSubscription:
-        def fed(data: bytes) -> None:
-            if self.failed:
-                return
-            try:
-                callback(data)
-            except Exception as exc:  # noqa: BLE001 (the node's callback: its process would exit 1)
-                self.stop()
-                self.on_error(self.name, exc)
-        sub = _FedSubscription(self, node, topic, fed)
-        self.recorder.observers.setdefault(topic, []).append(fed)
-        self.subscriptions.append(sub)
-        return sub
 
 
 class _Recorder:
@@ -117,7 +50,7 @@ class _Recorder:
         self._stop = threading.Event()
         self.hosted: dict[str, tuple[Any, Any]] = {}     # name -> (node, executor): see host()
         self.host_errors: dict[str, str] = {}
-        self.feeds: dict[str, RecorderFeed] = {}          # name -> its subscriptions' feed
+        self.feeds: dict[str, Any] = {}       # name -> its subscriptions' intra.RecorderFeed
         self._hosted_threads: list[threading.Thread] = []
         self.thread = threading.Thread(target=self._spin, name='recorder', daemon=True)
         self.thread.start()
@@ -132,8 +65,8 @@ class _Recorder:
         """Create node ``name`` (:func:`cvj_ros.composed.node_class`, its own ``--ros-args``)
         on the recorder's context and spin it on its own EventsExecutor in a thread of this
         process (:data:`HOSTED_IN_RUN`). Its subscriptions of topics the recorder subscribes
-        to are fed by the recorder (:class:`RecorderFeed`: no DDS reader of its own, the
-        callbacks run in the recorder thread); its other subscriptions, its publishers,
+        to are fed by the recorder (:class:`cvj_ros.nodes.intra.RecorderFeed`: no DDS reader
+        of its own, the callbacks run in the recorder thread); its other subscriptions, its publishers,
         parameters and services are its own, served by its executor.
 
         Raises CvjError (a bad parameter, naming it) as the node's own process would exit 2.
@@ -141,7 +74,7 @@ class _Recorder:
         the line (also written to ``log``), the run goes on as it would without that process."""
         from cvj_ros.composed import make_composed_executor, node_class
         from cvj_ros.nodes import intra
-        feed = RecorderFeed(self.recorder, name, self.recorder._subs,
+        feed = intra.RecorderFeed(self.recorder, name, self.recorder._subs,
                             on_error=lambda n, exc: self._host_failed(n, exc, log))
         intra.attach(self.ctx, feed)      # its subscriptions of recorded topics: fed, no DDS reader
         try:

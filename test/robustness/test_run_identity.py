@@ -308,8 +308,13 @@ def test_running_loop_ignores_another_runs_messages_with_its_stamps(tmp_path: Pa
     # the intruder in a process of its own, as another run is: in this process it shared the
     # GIL with the recorder and the hosted monitor and, under two CPU burners, answered late
     # (300 of 980 states) and was matched by the coupling node only after the last step
+    # With the DDS settings of a run (cvj_ros.nodes.qos.dds_environment), as another run has:
+    # with Fast DDS's default 3 s discovery announcements this older participant was found by
+    # the run's newer ones only after the ~0.6 s loop had ended (0 states answered, once in 3).
+    from cvj_ros.nodes.qos import dds_environment
+    env = dds_environment(dict(os.environ), profile_dir=str(tmp_path))
     intruder = subprocess.Popen([sys.executable, __file__, 'intruder'], stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, text=True, start_new_session=True)
+                                stdout=subprocess.PIPE, text=True, start_new_session=True, env=env)
     try:
         assert intruder.stdout is not None and intruder.stdout.readline().strip() == 'ready'
         result = run(RunOptions(scene=str(path), out=tmp_path / 'run'), stream=io.StringIO())

@@ -266,16 +266,20 @@ def test_short_runs_repeat_until_they_fill_the_minimum_time() -> None:
         {'min_total_s': 0.01, 'max_repeats': 100}
 
 
-def test_real_lockstep_reports_both_modes_against_their_targets(tmp_path: Path,
-                                                                monkeypatch: pytest.MonkeyPatch) -> None:
-    """--real-lockstep times `cvj-sim run` one process per node and --composed (issue 10);
-    bench.md gives each with its target and the overhead against the round trip of the same
-    topology (ROS runs replaced by fixed figures here: the real ones are e2e tests' job)."""
+def test_real_lockstep_reports_both_scenes_and_modes_against_their_targets(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--real-lockstep times `cvj-sim run` one process per node and --composed on both of
+    issue 10's scenes, in rounds that run every scene and mode once (issue 10); bench.md
+    gives each run with its target and the overhead against the round trip of the same
+    topology, then the median per scene and mode (ROS runs replaced by fixed figures here:
+    the real ones are the e2e tests' job)."""
     calls = []
+    walls = {('kavz685_lever', False): [600.0, 450.0], ('kavz685_lever', True): [100.0, 80.0],
+             ('fwd_halfshaft', False): [700.0, 650.0], ('fwd_halfshaft', True): [110.0, 120.0]}
 
     def fake_run(scene_name: str, *, duration: float, composed: bool = False, timeout: float = 300.0):
         calls.append((scene_name, duration, composed))
-        wall = 100.0 if composed else 600.0
+        wall = walls[(scene_name, composed)].pop(0)
         return {'scene': scene_name, 'exchanges': 5000, 'mode': 'composed' if composed else 'separate',
                 'exchange_wall_us_mean': wall, 'integration_us_mean': 10.0, 'overhead_us_mean': wall - 10.0,
                 'lockstep_wait_us_mean': wall / 2, 'state_us_mean': 5.0, 'real_time_factor': 1e3 / wall}
@@ -284,15 +288,34 @@ def test_real_lockstep_reports_both_modes_against_their_targets(tmp_path: Path,
         'events': {'us_mean': 60.0}, 'events_ipc2': {'us_mean': 400.0}})
     cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5',), tolerances=(1e-4,),
                             fidelities=('exact',), baselines=('RK45',), repeats=1, passes=1,
-                            horizon=0.05, samples=20, exchange_steps=(1e-3,), real_lockstep=True)
+                            horizon=0.05, samples=20, exchange_steps=(1e-3,), real_lockstep=True,
+                            lockstep_scenes=('kavz685_lever', 'fwd_halfshaft'))
     res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
-    assert [c[2] for c in calls] == [False, True] and all(c[1] == 5.0 for c in calls)
-    assert set(res['real_lockstep']) == {'separate', 'composed'}
+    one_round = [('kavz685_lever', 5.0, False), ('kavz685_lever', 5.0, True),
+                 ('fwd_halfshaft', 5.0, False), ('fwd_halfshaft', 5.0, True)]
+    assert calls == one_round * 2                    # alternating: round 1, then round 2
+    assert [(r['round'], r['mode']) for r in res['real_lockstep']][:2] == [(1, 'separate'), (1, 'composed')]
     md = (tmp_path / 'bench.md').read_text()
-    assert 'real lockstep run, separate' in md and 'real-time factor 1.67 (target >= 2)' in md
-    assert 'real lockstep run, composed' in md and 'real-time factor 10 (target >= 10)' in md
-    assert '1.50x (60 us; aim <= 1.5x)' in md          # (100 - 10) / 60: composed vs in-process
-    assert '1.48x (400 us; aim <= 1.5x)' in md         # (600 - 10) / 400: separate vs inter-process
+    # one row per run: (600 - 10) / 400 = 1.48x inter-process; (100 - 10) / 60 = 1.50x in-process
+    assert '| 1 | kavz685_lever | separate | 600 | 10 | 300 | 5 | 590 | 1.48x (400 us) | 1.67 (>= 2) |' in md
+    assert '| 1 | kavz685_lever | composed | 100 | 10 | 50 | 5 | 90 | 1.50x (60 us) | 10 (>= 10) |' in md
+    assert '| 2 | fwd_halfshaft | composed | 120 |' in md
+    # medians: kavz separate 1.67 and 2.22 -> 1.94, below 2 in one run
+    assert ('kavz685_lever, separate: real-time factor median 1.94 (range 1.67-2.22 over 2 runs), '
+            'target >= 2: not met') in md
+    assert 'kavz685_lever, composed: real-time factor median 11.2 (range 10-12.5 over 2 runs), target >= 10: met' in md
+    assert 'fwd_halfshaft, composed: real-time factor median 8.71' in md and 'not met' in md
+
+
+def test_real_lockstep_median_notes_runs_that_did_not_finish() -> None:
+    real = [{'scene': 's', 'mode': 'separate', 'note': 'cvj-sim run exited 2: x', 'round': 1},
+            {'scene': 's', 'mode': 'separate', 'real_time_factor': 2.5, 'overhead_us_mean': 390.0,
+             'round': 2}]
+    (m,) = bench.real_lockstep_medians(real)
+    assert (m['runs'], m['finished'], m['rtf_median']) == (2, 1, 2.5)
+    lines = '\n'.join(bench._real_lockstep_lines(real, {}))
+    assert '| 1 | s | separate | cvj-sim run exited 2: x |' in lines
+    assert 'n/a (round trip not measured)' in lines
 
 
 def test_startup_times_a_cold_compile_in_an_empty_cache_then_warm_commands(

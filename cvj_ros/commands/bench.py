@@ -46,7 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--passes', type=int, metavar='N',
                         help="spread each configuration's repeats over N passes of its scene [2]")
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
-    parser.add_argument('--real-lockstep', action='store_true', help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the first scene, one process per loop node and --composed')
+    parser.add_argument('--real-lockstep', action='store_true',
+                        help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the '
+                             'lockstep scenes (kavz685_lever and fwd_halfshaft; with --scenes the '
+                             'first one), one process per loop node and --composed')
+    parser.add_argument('--real-lockstep-runs', type=int, metavar='N',
+                        help='rounds of real lockstep runs, every scene and mode once per round [2]')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
     parser.add_argument('--startup', action='store_true',
                         help="time the kernel's cold compile (empty cache, ~100 s) and a warm "
@@ -75,6 +80,10 @@ def config_from_args(args: argparse.Namespace) -> object:
     if args.no_ros:
         cfg.round_trip_n = 0
     cfg.real_lockstep = bool(args.real_lockstep)
+    if args.real_lockstep_runs is not None:
+        if not 1 <= args.real_lockstep_runs <= 100:
+            raise SceneError('--real-lockstep-runs', f'must be in 1..100, got {args.real_lockstep_runs}')
+        cfg.real_lockstep_runs = args.real_lockstep_runs
     cfg.studies = bool(args.studies)
     cfg.startup = bool(args.startup)
     check_config(cfg)

@@ -129,7 +129,10 @@ class MonitorNode(CvjNode):
         # (every publish_every joint states): the per-sample callback only checks the run
         # token and appends (composed mode, in-process bus: ~45 -> ~10 us per exchange).
         self._js_batch: list[bytes] = []
-        self._torque_batch: list[tuple[bytes, RollingWindow]] = []
+        # the answers per window, in arrival order (one list each: grouping (bytes, window)
+        # pairs at every publication cost ~100 us of its ~800 in a running composed loop)
+        self._engine_batch: list[bytes] = []
+        self._load_batch: list[bytes] = []
         # (from the in-process bus in composed mode: cvj_ros.nodes.intra)
         self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
                                         self._on_joint_states_raw, DATA_QOS)
@@ -137,11 +140,9 @@ class MonitorNode(CvjNode):
         # (decode_wrench_header_torque_z) instead of rclpy building a Python WrenchStamped per
         # sample (measured 75-145 us each, two per exchange; docs/nodes.md, composed mode)
         self.engine_sub = loop_subscription(self, WrenchStamped, ENGINE_WRENCH_TOPIC,
-                                            lambda data: self._collect_torque(data, self._engine_torque),
-                                            DATA_QOS)
+                                            self._collect_engine, DATA_QOS)
         self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
-                                          lambda data: self._collect_torque(data, self._load_torque),
-                                          DATA_QOS)
+                                          self._collect_load, DATA_QOS)
         self.diag_sub = loop_subscription(self, DiagnosticArray, DIAGNOSTICS_TOPIC,
                                           self._on_diagnostics_raw, DATA_QOS)
         self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene, LATCHED_QOS,
@@ -208,12 +209,26 @@ class MonitorNode(CvjNode):
         elif len(batch) >= MAX_COLLECTED:
             self.take_samples()
 
-    def _collect_torque(self, data: bytes, window: RollingWindow) -> None:
-        """A serialised answer, kept for :meth:`take_samples`."""
-        batch = self._torque_batch
-        batch.append((data, window))
-        if len(batch) >= 2 * MAX_COLLECTED:
+    def _collect_engine(self, data: bytes) -> None:
+        """A serialised /engine/wrench answer, kept for :meth:`take_samples`."""
+        batch = self._engine_batch
+        batch.append(data)
+        if len(batch) >= MAX_COLLECTED:
             self.take_samples()
+
+    def _collect_load(self, data: bytes) -> None:
+        """A serialised /load/wrench answer, kept for :meth:`take_samples`."""
+        batch = self._load_batch
+        batch.append(data)
+        if len(batch) >= MAX_COLLECTED:
+            self.take_samples()
+
+    def _collect_torque(self, data: bytes, window: RollingWindow) -> None:
+        """A serialised answer for ``window`` (the engine's or the load's)."""
+        if window is self._engine_torque:
+            self._collect_engine(data)
+        else:
+            self._collect_load(data)
 
     @property
     def engine_torque(self) -> RollingWindow:
@@ -245,14 +260,12 @@ class MonitorNode(CvjNode):
                 t = block.stamp_ns / 1e9
                 self.last_ns = int(block.stamp_ns[-1])
                 self._push_js(t, block.velocity, block.effort)
-        if self._torque_batch:
-            batch = list(self._torque_batch)
-            self._torque_batch.clear()
-            groups: dict[int, tuple[RollingWindow, list[bytes]]] = {}
-            for data, window in batch:
-                groups.setdefault(id(window), (window, []))[1].append(data)
-            for window, samples in groups.values():
-                self._take_torques(window, samples)
+        if self._engine_batch:
+            batch, self._engine_batch = self._engine_batch, []
+            self._take_torques(self._engine_torque, batch)
+        if self._load_batch:
+            batch, self._load_batch = self._load_batch, []
+            self._take_torques(self._load_torque, batch)
 
     def _take_torques(self, window: RollingWindow, samples: list[bytes]) -> None:
         block = read_wrench_torque_z_block(samples)

@@ -44,7 +44,9 @@ import numpy as np
 
 from cvj_ros.errors import LockstepError
 from cvj_ros.physics.fixed_order import dot
-from cvj_ros.physics.solvers import SolverOptionError, Stepper, make_stepper
+# the Python steppers (solvers.py) only for backend='python': importing them loads
+# scipy.integrate and scipy.linalg (~0.3 s of every node process's start-up)
+from cvj_ros.physics.stepper_base import SolverOptionError
 
 __all__ = ['SCHEMES', 'DrivelineLike', 'CoupledStepper']
 
@@ -164,6 +166,7 @@ class CoupledStepper:
             warm.advance_to(t0 + 1e-6)
             self.compile_seconds = warm.compile_seconds
         else:
+            from cvj_ros.physics.solvers import make_stepper
             self.stepper = make_stepper(method, fun, t0, x_start, rtol=rtol, atol=atol, h=h,
                                         jac=jac, max_step=max_step, autonomous=autonomous,
                                         constant_jac=constant_jac)

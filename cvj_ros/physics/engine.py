@@ -369,6 +369,31 @@ DEFAULT_FULL_LOAD_RPM = (1000.0, 1500.0, 2000.0, 3000.0, 4000.0, 5000.0, 6000.0,
 DEFAULT_FULL_LOAD_TORQUE = (130.0, 160.0, 180.0, 195.0, 200.0, 190.0, 170.0, 155.0)
 
 
+def pchip_slopes(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Slopes dy/dx at the interior knots of the PCHIP interpolant through (x, y) (x strictly
+    increasing, at least 3 knots; units of y per unit of x): Fritsch and Carlson 1980 - zero
+    where the neighbouring secant slopes m_(k-1), m_k differ in sign or one is zero, else the
+    weighted harmonic mean 1/d_k = (w1/m_(k-1) + w2/m_k)/(w1 + w2), w1 = 2 h_k + h_(k-1),
+    w2 = h_k + 2 h_(k-1), with h_k = x_(k+1) - x_k. The same operations in the same order as
+    scipy.interpolate.PchipInterpolator (1.17, ``_find_derivatives``), so the same bytes
+    (test/physics/test_engine.py); written out because importing scipy.interpolate took
+    0.4-0.9 s of every process that builds a map engine. The end slopes are left 0 (the
+    map engine holds them flat)."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    hk = x[1:] - x[:-1]
+    mk = (y[1:] - y[:-1]) / hk
+    smk = np.sign(mk)
+    condition = (smk[1:] != smk[:-1]) | (mk[1:] == 0) | (mk[:-1] == 0)
+    w1 = 2 * hk[1:] + hk[:-1]
+    w2 = hk[1:] + 2 * hk[:-1]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        whmean = (w1 / mk[:-1] + w2 / mk[1:]) / (w1 + w2)
+    dk = np.zeros_like(y)
+    dk[1:-1][~condition] = 1.0 / whmean[~condition]
+    return dk
+
+
 class MapEngine(Engine):
     """Engine map: full-load curve, part-load law, motoring friction, idle governor,
     rev limiter, firing-pulse ripple. All terms are pure functions of (omega, phi) and the
@@ -447,11 +472,7 @@ class MapEngine(Engine):
         self.full_load_torque = tq
         omega_tab = rpm * RPM
         # PCHIP interior slopes, zero end slopes: C1, monotone-preserving, flat outside.
-        if len(rpm) >= 3:
-            from scipy.interpolate import PchipInterpolator   # lazy: ~0.9 s of import
-            d = PchipInterpolator(omega_tab, tq).derivative()(omega_tab)
-        else:
-            d = np.zeros_like(tq)
+        d = pchip_slopes(omega_tab, tq) if len(rpm) >= 3 else np.zeros_like(tq)
         d[0] = d[-1] = 0.0
         # plain Python lists: the scalar fast path avoids numpy scalar overhead
         self._w = [float(x) for x in omega_tab]

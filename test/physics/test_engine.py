@@ -10,6 +10,7 @@ from scipy.integrate import solve_ivp
 
 from cvj_ros.errors import SceneError
 from cvj_ros.physics.engine import (KAVZ685_K1, RPM, LinearEngine, MapEngine, engine_from_spec,
+                                   pchip_slopes,
                                     smooth_ramp, smoothstep)
 
 
@@ -293,3 +294,33 @@ def test_linear_engine_from_standstill_hits_steady_speed_with_random_load() -> N
     w = sol.y[0]
     assert w.mean() == pytest.approx(39.0, abs=0.1)
     assert np.max(np.abs(w - 39.0)) <= 8.8 / e.k1 + 1e-6
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_pchip_slopes_are_scipys_bytes(seed: int) -> None:
+    """The map engine's interior PCHIP slopes (written out to keep scipy.interpolate out of
+    the node processes' start-up) are scipy's PchipInterpolator derivatives at the knots,
+    bit for bit: monotone tables, tables with a peak, flat pieces and sign changes."""
+    from scipy.interpolate import PchipInterpolator
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 14))
+    x = np.cumsum(rng.uniform(50.0, 800.0, n))
+    y = rng.uniform(-50.0, 300.0, n)
+    if seed % 3 == 0:
+        y = np.sort(y)                       # monotone
+    if seed % 4 == 1:
+        y[n // 2:] = y[n // 2]               # a flat piece: zero secants
+    ref = PchipInterpolator(x, y).derivative()(x)
+    got = pchip_slopes(x, y)
+    assert got[1:-1].tobytes() == ref[1:-1].tobytes()
+    assert got[0] == got[-1] == 0.0
+
+
+def test_map_engine_build_does_not_import_scipy_interpolate() -> None:
+    """A process that builds the default map engine does not pay for scipy.interpolate."""
+    import subprocess
+    import sys
+    code = ('import sys; from cvj_ros.physics.engine import MapEngine; MapEngine(); '
+            'print("scipy.interpolate" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == 'False'

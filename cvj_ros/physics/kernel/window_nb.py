@@ -138,11 +138,17 @@ def warm() -> None:
     uses: called by ``make kernel`` (kernel/warmup.py) and when a monitor node is created,
     so neither a first run nor a running loop pays the load (10-50 ms each from numba's
     cache). The byte buffer is read-only, as ``np.frombuffer`` gives it: another numba type
-    than a writable array."""
+    than a writable array. Loaded through :func:`cvj_ros.physics.kernel.entry_point`
+    (numba's own first call refreshes its typing registries, which imports scipy.linalg:
+    0.5 s of a composed run's start-up); a cache miss compiles as a first call would."""
+    from cvj_ros.physics.kernel import entry_point
     t = np.zeros(2)
     rows = np.zeros((2, 1))
-    nxt = ring_push(t, rows, 0, np.zeros(1), np.ones((1, 1)))
+    args = (t, rows, 0, np.zeros(1), np.ones((1, 1)))
+    nxt = entry_point(ring_push, args)(*args)
     out = np.empty(1)
-    ring_window_stats(t, rows, 1, nxt, 1.0, out, np.empty(1), np.empty(1))
-    cdr_rows(np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
-             np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))
+    args = (t, rows, 1, nxt, 1.0, out, np.empty(1), np.empty(1))
+    entry_point(ring_window_stats, args)(*args)
+    args = (np.frombuffer(bytes(24), np.uint8).reshape(1, 24), np.zeros((1, 2), np.int64),
+            np.array([16], np.int64), 1, np.empty(1, np.int64), np.empty((1, 1, 1)))
+    entry_point(cdr_rows, args)(*args)

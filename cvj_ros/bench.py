@@ -827,6 +827,9 @@ def kernel_startup(*, warm_runs: int = 3, timeout: float = 1800.0) -> dict[str, 
         if r.returncode != 0:
             return {'note': f'cold compile exited {r.returncode}: {(r.stderr or r.stdout).strip()[-200:]}'}
         out['cold_compile_s'] = time.perf_counter() - t0
+        ready = [ln for ln in (r.stdout or '').splitlines() if ln.startswith('kernel ready')]
+        if ready and '(' in ready[-1]:
+            out['cold_compile_how'] = ready[-1].rsplit('(', 1)[1].rstrip(')')   # 'two processes'
         walls = []
         for _ in range(max(1, warm_runs)):   # the same (now warm) cache directory
             t0 = time.perf_counter()
@@ -1035,7 +1038,8 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md += ['', '## Kernel start-up', '']
         if 'cold_compile_s' in startup:
             md.append(f'- cold compile (`python -m cvj_ros.physics.kernel.warmup`, empty cache, every '
-                      f'method and the outputs; what the first `make` pays): {startup["cold_compile_s"]:.1f} s')
+                      f'method and the outputs; what the first `make` pays): {startup["cold_compile_s"]:.1f} s'
+                      + (f' ({startup["cold_compile_how"]})' if startup.get('cold_compile_how') else ''))
         if 'warm_simulate_s_median' in startup:
             md.append(f'- warm start, whole command `cvj-sim simulate kavz685_lever --duration 2`: '
                       f'{startup["warm_simulate_s_median"]:.2f} s median, {startup["warm_simulate_s_min"]:.2f} s '

@@ -35,6 +35,8 @@ setup(
         'console_scripts': [
             'cvj-sim = cvj_ros.cli:main',
             'driveline_composed = cvj_ros.composed:main',
-        ] + [f'{n} = cvj_ros.nodes.{n}:main' for n in NODES],
+        # each node's main() through its launcher (cvj_ros/nodes/entry.py: a Ctrl-C during the
+        # node module's imports ends it quietly)
+        ] + [f'{n} = cvj_ros.nodes.entry:{n}' for n in NODES],
     },
 )

@@ -178,11 +178,24 @@ def wait_for_go(logger: Any = None, stream: Any = None) -> None:
     recorder has matched the peers and no other run shares the domain (the check that needs
     this node to have no /driveline/joint_states publisher yet). Anything else, or EOF (the
     run was stopped, or cvj-sim died), raises :class:`StartCancelled`: the process exits 0
-    without having created a topic endpoint."""
+    without having created a topic endpoint. A SIGINT/SIGTERM while it waits (caught by
+    :func:`~cvj_ros.nodes.executor.run_node`'s handler, which does not interrupt a blocking
+    read) raises it too: standard input is polled every 0.1 s when it is a file or pipe."""
+    import select
+
+    from cvj_ros.nodes.executor import stop_requested
     stream = sys.stdin if stream is None else stream
     if logger is not None:
         logger.info('physics ready; waiting for "go" on standard input (start_gate=stdin)')
     try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):   # not a file (a test's StringIO)
+        fd = None
+    try:
+        while fd is not None and not select.select([fd], [], [], 0.1)[0]:
+            if stop_requested():
+                raise StartCancelled(f'start_gate: stopped by signal {stop_requested()} before '
+                                     '"go"; not started')
         line = stream.readline()
     except (OSError, ValueError):       # closed or unreadable: no go
         line = ''

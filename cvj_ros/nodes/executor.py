@@ -94,6 +94,17 @@ def run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pro
     return int(guarded(prog, lambda: _run_node(factory, args, prog=prog, executor=executor)))
 
 
+#: the SIGINT/SIGTERM :func:`run_node`'s handler caught in this process (0: none yet)
+_STOP = {'signal': 0}
+
+
+def stop_requested() -> int:
+    """The signal number (SIGINT/SIGTERM) :func:`run_node` caught since it started, else 0:
+    for code that blocks before the node spins (the coupling node's start gate), which the
+    handler does not interrupt."""
+    return _STOP['signal']
+
+
 def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, prog: str,
               executor: str = 'events') -> int:
     """:func:`run_node` without the guard."""
@@ -105,7 +116,8 @@ def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pr
     # Own SIGINT/SIGTERM handling: finish the spin loop cleanly and exit 0.
     rclpy.init(args=list(args) if args is not None else None, context=ctx,
                signal_handler_options=SignalHandlerOptions.NO)
-    stop = {'signal': 0}
+    stop = _STOP
+    stop['signal'] = 0
 
     def on_signal(signum: int, _frame: Any) -> None:
         stop['signal'] = signum

@@ -88,3 +88,22 @@ def test_eof_at_the_gate_exits_0_without_starting(tmp_path: Path) -> None:
     assert proc.wait(20) == 0
     log = (tmp_path / 'log').read_text()
     assert 'not started' in log and 'waiting for peers' not in log and 'Traceback' not in log
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_at_the_gate_exits_0_without_starting(tmp_path: Path, sig: int) -> None:
+    """Ctrl-C (or SIGTERM) while the node waits at its gate with standard input still open:
+    run_node's handler only sets a flag, so the gate polls for it (a blocking read would wait
+    for EOF: it hung here until the input closed)."""
+    proc = _start(tmp_path)
+    try:
+        _wait_for_line(tmp_path / 'log', 'waiting for "go"')
+        proc.send_signal(sig)
+        assert proc.wait(10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    log = (tmp_path / 'log').read_text()
+    assert f'stopped by signal {int(sig)}' in log and 'not started' in log
+    assert 'waiting for peers' not in log and 'Traceback' not in log

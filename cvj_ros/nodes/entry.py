@@ -1,0 +1,45 @@
+"""Console-script launchers of the node executables (setup.py entry points): each imports its
+node module and calls that module's ``main()``.
+
+Why not ``cvj_ros.nodes.<node>:main`` directly: a console script imports the module before it
+calls ``main``, so a SIGINT that arrives while the module's imports (rclpy, numpy, numba, the
+physics) are still loading - Ctrl-C right after ``ros2 run``, or ``cvj-sim run`` stopping
+nodes it has just started - ended the process with the interpreter's KeyboardInterrupt
+traceback (in the node's log file under ``cvj-sim run``). Here the import runs inside the
+launcher: interrupted, the process exits with status 0 and no output, as a node interrupted
+while spinning does (``executor.run_node``). This module imports nothing heavy.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+
+def launch(module: str) -> None:
+    """Import ``cvj_ros.nodes.<module>`` and run its ``main()`` (exit status 0 if a SIGINT
+    interrupts the import)."""
+    try:
+        node_module = importlib.import_module(f'cvj_ros.nodes.{module}')
+    except KeyboardInterrupt:
+        sys.exit(0)
+    node_module.main()
+
+
+def engine_node() -> None:
+    launch('engine_node')
+
+
+def coupling_node() -> None:
+    launch('coupling_node')
+
+
+def load_node() -> None:
+    launch('load_node')
+
+
+def monitor_node() -> None:
+    launch('monitor_node')
+
+
+def replay_node() -> None:
+    launch('replay_node')

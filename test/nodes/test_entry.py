@@ -1,0 +1,58 @@
+"""The node executables' launchers (cvj_ros/nodes/entry.py): a SIGINT while a node's modules
+are still importing ends it with exit status 0 and no traceback, as a SIGINT while it spins
+does (`cvj-sim run` stops nodes it has just started that way; Ctrl-C after `ros2 run`)."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cvj_ros.nodes import entry
+
+pytestmark = pytest.mark.ros
+
+COUPLING = str(Path(sys.executable).with_name('coupling_node'))
+
+
+def test_every_node_executable_goes_through_its_launcher() -> None:
+    """setup.py registers each node's console script as its launcher, and each launcher
+    names the module of the same name."""
+    import re
+    setup = (Path(__file__).resolve().parents[2] / 'setup.py').read_text()
+    nodes = re.search(r"NODES = \[(.*?)\]", setup).group(1)
+    names = [n.strip().strip("'") for n in nodes.split(',')]
+    assert "f'{n} = cvj_ros.nodes.entry:{n}' for n in NODES" in setup
+    for name in names:
+        assert callable(getattr(entry, name))
+        assert (Path(entry.__file__).with_name(f'{name}.py')).is_file()
+    script = Path(sys.executable).with_name('coupling_node').read_text()
+    assert 'cvj_ros.nodes.entry' in script          # the installed executable (make setup)
+
+
+@pytest.mark.parametrize('delay', [0.15, 0.4, 0.8, 1.5])
+def test_sigint_during_start_up_exits_0_without_a_traceback(tmp_path: Path, ros_domain: int,
+                                                            delay: float) -> None:
+    """The gated coupling node (no topic endpoint until "go": nothing reaches the domain)
+    interrupted at increasing times after exec: during the imports (~1-2 s here: rclpy,
+    numba, the physics), then while it builds or waits at its gate. Every time: status 0,
+    no traceback in its output."""
+    log = tmp_path / 'log'
+    with open(log, 'wb') as out:
+        proc = subprocess.Popen([COUPLING, '--ros-args', '-p', 'scene:=kavz685_lever',
+                                 '-p', 'start_gate:=stdin'],
+                                stdin=subprocess.PIPE, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            time.sleep(delay)
+            proc.send_signal(signal.SIGINT)
+            rc = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    text = log.read_text(errors='replace')
+    assert rc == 0, text
+    assert 'Traceback' not in text and 'KeyboardInterrupt' not in text, text

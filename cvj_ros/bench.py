@@ -535,6 +535,7 @@ def lockstep_study(prob: SceneProblem, cfg: BenchConfig) -> list[dict[str, Any]]
 
 ROUND_TRIP_LABELS = {
     'events': 'in-process, events executor',
+    'events2': 'in-process, 2 answering nodes (= engine + load pattern), events executor',
     'single': 'in-process, single-threaded executor',
     'events_ipc': 'inter-process (1 echo process), events executor',
     'events_ipc2': 'inter-process (2 echo processes = engine + load pattern), events executor',
@@ -550,11 +551,13 @@ def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
         return {'note': 'skipped'}
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     try:
-        from cvj_ros.nodes.roundtrip import measure_round_trip, measure_round_trip_ipc
+        from cvj_ros.nodes.roundtrip import (measure_round_trip, measure_round_trip_ipc,
+                                             measure_round_trip_peers)
     except ImportError as exc:
         return {'note': f'unavailable: {exc}'}
     runs: dict[str, Callable[[], dict[str, Any]]] = {
         'events': lambda: measure_round_trip(n, 'events'),
+        'events2': lambda: measure_round_trip_peers(n, 2),
         'single': lambda: measure_round_trip(n, 'single'),
         'events_ipc': lambda: measure_round_trip_ipc(n, 'events', echoes=1),
         'events_ipc2': lambda: measure_round_trip_ipc(n, 'events', echoes=2),
@@ -581,7 +584,7 @@ def overhead_ratios(real: dict[str, Any], rt: dict[str, Any]) -> dict[str, float
 
 
 #: the round trip of the same topology per loop mode (overhead ratio, issue 10)
-MODE_ROUND_TRIP = {'separate': 'events_ipc2', 'composed': 'events'}
+MODE_ROUND_TRIP = {'separate': 'events_ipc2', 'composed': 'events2'}
 
 
 def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.0,

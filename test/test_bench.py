@@ -285,7 +285,7 @@ def test_real_lockstep_reports_both_scenes_and_modes_against_their_targets(
                 'lockstep_wait_us_mean': wall / 2, 'state_us_mean': 5.0, 'real_time_factor': 1e3 / wall}
     monkeypatch.setattr(bench, 'real_lockstep_run', fake_run)
     monkeypatch.setattr(bench, 'measure_rclpy_round_trip', lambda n: {
-        'events': {'us_mean': 60.0}, 'events_ipc2': {'us_mean': 400.0}})
+        'events': {'us_mean': 20.0}, 'events2': {'us_mean': 60.0}, 'events_ipc2': {'us_mean': 400.0}})
     cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5',), tolerances=(1e-4,),
                             fidelities=('exact',), baselines=('RK45',), repeats=1, passes=1,
                             horizon=0.05, samples=20, exchange_steps=(1e-3,), real_lockstep=True,

@@ -111,6 +111,86 @@ def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'e
 
 
 
+def measure_round_trip_peers(n: int = 1000, peers: int = 2, *, warmup: int = 100,
+                             timeout: float = 60.0) -> dict[str, float]:
+    """In-process round trip with ``peers`` answering nodes on one EventsExecutor (us): the
+    composed loop's topology (engine + load answering the coupling node; issue 10 compares
+    the composed overhead per exchange with it).
+
+    The ping node publishes a Float64; each peer node answers on its own topic; the round
+    trip (time.perf_counter) ends when all ``peers`` answers are in, and the next ping goes
+    out from that callback, like the lockstep coupling node. The executor spins on a Future
+    completed after the last round trip (no Python loop per event). Every message goes
+    through DDS inside the process (no in-process bus: what rclpy gives an application).
+    Returns ``us_mean``, ``us_p50``, ``us_p95``, ``n``, ``peers``, ``executor``."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+    from rclpy.task import Future
+    from std_msgs.msg import Float64
+
+    from cvj_ros.nodes.qos import DATA_QOS
+    if n < 1:
+        raise ValueError(f'n: must be >= 1, got {n}')
+    if peers < 1:
+        raise ValueError(f'peers: must be >= 1, got {peers}')
+    ctx = Context()
+    rclpy.init(context=ctx)
+    suffix = f'{os.getpid()}_{time.monotonic_ns()}'
+    try:
+        ping = rclpy.create_node('cvj_rt_ping', context=ctx)
+        ping_pub = ping.create_publisher(Float64, f'/cvj_rt/ping_{suffix}', DATA_QOS)
+        nodes = [ping]
+        for i in range(peers):
+            peer = rclpy.create_node(f'cvj_rt_peer{i}', context=ctx)
+            pub = peer.create_publisher(Float64, f'/cvj_rt/pong{i}_{suffix}', DATA_QOS)
+            peer.create_subscription(Float64, f'/cvj_rt/ping_{suffix}',
+                                     lambda m, _p=pub: _p.publish(m), DATA_QOS)
+            nodes.append(peer)
+        total = n + warmup
+        samples = np.empty(total)
+        state = {'i': 0, 'got': 0, 't0': 0.0}
+        msg = Float64()
+        done = Future()
+
+        def on_pong(_m: Float64) -> None:
+            state['got'] += 1
+            if state['got'] < peers:
+                return
+            state['got'] = 0
+            samples[state['i']] = time.perf_counter() - state['t0']
+            state['i'] += 1
+            if state['i'] < total:
+                state['t0'] = time.perf_counter()
+                ping_pub.publish(msg)
+            else:
+                done.set_result(True)
+        subs = [ping.create_subscription(Float64, f'/cvj_rt/pong{i}_{suffix}', on_pong, DATA_QOS)
+                for i in range(peers)]
+        ex = EventsExecutor(context=ctx)
+        for node in nodes:
+            ex.add_node(node)
+        deadline = time.monotonic() + timeout
+        while ping_pub.get_subscription_count() < peers or any(sub.get_publisher_count() < 1
+                                                               for sub in subs):
+            ex.spin_once(timeout_sec=0.01)
+            if time.monotonic() > deadline:
+                raise RuntimeError('round trip: topics never matched')
+        state['t0'] = time.perf_counter()
+        ping_pub.publish(msg)
+        ex.spin_until_future_complete(done, timeout_sec=timeout)
+        if not done.done():
+            raise RuntimeError(f'round trip: only {state["i"]} of {total} in {timeout} s')
+        ex.shutdown()
+        for node in nodes:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    us = samples[warmup:] * 1e6
+    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
+            'us_p95': float(np.percentile(us, 95)), 'n': n, 'peers': peers, 'executor': 'events'}
+
+
 def measure_lockstep(scene: str, *, duration: float | None = None, exchange_step: float | None = None,
                      executor: Literal['events', 'single'] = 'events', coupling_scheme: str = 'zoh',
                      timeout: float = 120.0) -> dict[str, float]:

@@ -10,7 +10,8 @@ import math
 
 import pytest
 
-from cvj_ros.nodes.roundtrip import main, measure_round_trip, measure_round_trip_ipc
+from cvj_ros.nodes.roundtrip import (main, measure_round_trip, measure_round_trip_ipc,
+                                     measure_round_trip_peers)
 
 
 def _check_stats(r: dict, n: int) -> None:
@@ -30,6 +31,16 @@ def test_inter_process_round_trip_completes(echoes: int) -> None:
 
 def test_in_process_round_trip_completes() -> None:
     _check_stats(measure_round_trip(60, 'events', warmup=10), 60)
+
+
+@pytest.mark.parametrize('peers', [1, 2])
+def test_in_process_round_trip_with_answering_peers_completes(peers: int) -> None:
+    """The composed loop's topology (issue 10): a round trip ends when every peer answered."""
+    r = measure_round_trip_peers(60, peers, warmup=10)
+    _check_stats(r, 60)
+    assert r['peers'] == peers
+    with pytest.raises(ValueError, match='^peers:'):
+        measure_round_trip_peers(10, 0)
 
 
 @pytest.mark.parametrize(('kwargs', 'field'), [

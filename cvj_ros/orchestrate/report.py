@@ -4,6 +4,7 @@ separate-process and the composed run)."""
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, TextIO
@@ -55,6 +56,13 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
         counters = {}
     if counters:
         result.metrics['loop_counters'] = counters
+    if options.mode == 'lockstep':
+        try:
+            timing = loop_timing(result.bag)
+        except CvjError:
+            timing = {}
+        if timing:
+            result.metrics['loop_timing'] = timing
     # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
     result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
     if options.mode == 'free-run':
@@ -171,6 +179,53 @@ def loop_counters(bag: Path) -> dict[str, int]:
     return {}
 
 
+#: the coupling node's per-exchange figures (us, means since step 0) in its loop diagnostics
+LOOP_TIMING_KEYS = ('exchange_wall_us_mean', 'integration_us_mean', 'overhead_us_mean',
+                    'lockstep_wait_us_mean', 'state_us_mean')
+#: issue 10's real-time targets of a lockstep run at 1 ms exchange steps, per process layout
+REAL_TIME_TARGETS = {'composed': 10.0, 'separate': 2.0}
+
+
+def loop_timing(bag: Path) -> dict[str, float]:
+    """Per-exchange wall, integration, overhead (wall - integration), lockstep wait and
+    state evaluation + publication (us) of the coupling node's last recorded loop
+    diagnostics; empty when not recorded."""
+    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is None:
+        return {}
+    for statuses in reversed(diags.statuses):
+        for st in statuses:
+            if st['name'] == 'coupling_node: loop' and 'overhead_us_mean' in st['values']:
+                out = {}
+                for key in LOOP_TIMING_KEYS:
+                    try:
+                        out[key] = float(st['values'][key])
+                    except (KeyError, ValueError):
+                        pass
+                return out
+    return {}
+
+
+def loop_line(r: RunResult) -> str | None:
+    """The report's per-exchange line of a lockstep run: where the wall time of an exchange
+    goes and the real-time factor against issue 10's target for the run's process layout
+    (the targets are stated for 1 ms exchange steps); None without loop diagnostics."""
+    t = r.metrics.get('loop_timing') or {}
+    if 'overhead_us_mean' not in t or r.settings.get('mode') != 'lockstep':
+        return None
+    layout = 'composed' if str(r.settings.get('process', '')).startswith('composed') else 'separate'
+    target = REAL_TIME_TARGETS[layout]
+    line = (f'  loop per exchange: wall {t.get("exchange_wall_us_mean", math.nan):.0f} us = integration '
+            f'{t.get("integration_us_mean", math.nan):.0f} us + overhead {t["overhead_us_mean"]:.0f} us '
+            f'(lockstep wait {t.get("lockstep_wait_us_mean", math.nan):.0f} us, state evaluation + '
+            f'publication {t.get("state_us_mean", math.nan):.0f} us)')
+    if r.real_time_factor and abs(r.exchange_step - 1e-3) < 1e-12:
+        met = 'met' if r.real_time_factor >= target else 'not met'
+        line += (f'; real-time factor {r.real_time_factor:.3g} against the {layout} target '
+                 f'>= {target:g}: {met}')
+    return line
+
+
 FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'overruns',
                  'lateness_us_p50', 'lateness_us_p99', 'lateness_us_max', 'lateness_us_mean',
                  'drift_s', 'drift_max_s', 'realtime_priority')
@@ -232,6 +287,9 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     per = f'{r.wall_per_step * 1e6:.0f} us' if r.wall_per_step else 'n/a'
     loop = f'{r.loop_wall_time:.3f} s' if r.loop_wall_time is not None else 'n/a'
     p(f'  wall time {r.wall_time:.2f} s (loop {loop}), real-time factor {rtf}, wall per exchange step {per}')
+    line = loop_line(r)
+    if line:
+        p(line)
     shafts = r.metrics.get('shafts', {})
     if shafts:
         p(f'  steady window {r.metrics.get("window_text", "")}:')

@@ -51,25 +51,21 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
     except CvjError as exc:
         result.metrics = {'error': str(exc)}
     try:
-        counters = loop_counters(result.bag)
+        diags = read_diagnostics(result.bag)   # once, for every figure below
+        diags_read = True
     except CvjError:
-        counters = {}
+        diags, diags_read = None, False
+    counters = loop_counters(result.bag, diags=diags)
     if counters:
         result.metrics['loop_counters'] = counters
     if options.mode == 'lockstep':
-        try:
-            timing = loop_timing(result.bag)
-        except CvjError:
-            timing = {}
+        timing = loop_timing(result.bag, diags=diags)
         if timing:
             result.metrics['loop_timing'] = timing
     # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
     result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
     if options.mode == 'free-run':
-        try:
-            timing = free_run_timing(result.bag)
-        except CvjError:
-            timing = {}
+        timing = free_run_timing(result.bag, diags=diags)
         if timing:
             result.metrics['free_run'] = timing
             # skipped ticks advance simulated time without a joint state: the simulated
@@ -78,10 +74,8 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
                 result.sim_duration = timing['ticks_handled'] * prep.exchange_step
                 if loop_wall:
                     result.real_time_factor = result.sim_duration / loop_wall
-    try:
-        result.metrics['monitor'] = monitor_statuses(result.bag)
-    except CvjError:
-        pass
+    if diags_read:
+        result.metrics['monitor'] = monitor_statuses(result.bag, diags=diags)
     result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
                        'mode': options.mode, 'scheme': options.scheme,
                        'storage': options.storage, **(settings or {})}
@@ -165,18 +159,39 @@ LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
 IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
 
 
-def loop_counters(bag: Path) -> dict[str, int]:
-    """The coupling node's last recorded counters (``/diagnostics`` status ``coupling_node:
-    loop``): ignored stamps, rejected and held (``nonfinite_torque=hold``) torques."""
-    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+#: ``diags`` not given: the functions below read the bag's /diagnostics themselves
+_READ = object()
+
+
+def read_diagnostics(bag: Path) -> Any:
+    """The bag's /diagnostics series (bag.DiagnosticsSeries), or None when it has none: read
+    once by :func:`finish_result` for every figure below (one read of a 5 s run's bag costs
+    ~0.1 s)."""
+    return bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+
+
+def _last_loop_values(bag: Path, diags: Any, key: str | None = None) -> dict[str, str] | None:
+    """The values of the coupling node's last ``coupling_node: loop`` status (the last one
+    holding ``key``, if given) on /diagnostics; None when there is none."""
+    if diags is _READ:
+        diags = read_diagnostics(bag)
     if diags is None:
-        return {}
+        return None
     for statuses in reversed(diags.statuses):
         for st in statuses:
-            if st['name'] == 'coupling_node: loop':
-                return {k: int(float(st['values'][k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS
-                        if k in st['values']}
-    return {}
+            if st['name'] == 'coupling_node: loop' and (key is None or key in st['values']):
+                return st['values']
+    return None
+
+
+def loop_counters(bag: Path, *, diags: Any = _READ) -> dict[str, int]:
+    """The coupling node's last recorded counters (``/diagnostics`` status ``coupling_node:
+    loop``): ignored stamps, rejected and held (``nonfinite_torque=hold``) torques.
+    ``diags``: the bag's /diagnostics already read (:func:`read_diagnostics`)."""
+    vals = _last_loop_values(bag, diags)
+    if vals is None:
+        return {}
+    return {k: int(float(vals[k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS if k in vals}
 
 
 #: the coupling node's per-exchange figures (us, means since step 0) in its loop diagnostics
@@ -186,24 +201,18 @@ LOOP_TIMING_KEYS = ('exchange_wall_us_mean', 'integration_us_mean', 'overhead_us
 REAL_TIME_TARGETS = {'composed': 10.0, 'separate': 2.0}
 
 
-def loop_timing(bag: Path) -> dict[str, float]:
+def loop_timing(bag: Path, *, diags: Any = _READ) -> dict[str, float]:
     """Per-exchange wall, integration, overhead (wall - integration), lockstep wait and
     state evaluation + publication (us) of the coupling node's last recorded loop
     diagnostics; empty when not recorded."""
-    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
-    if diags is None:
-        return {}
-    for statuses in reversed(diags.statuses):
-        for st in statuses:
-            if st['name'] == 'coupling_node: loop' and 'overhead_us_mean' in st['values']:
-                out = {}
-                for key in LOOP_TIMING_KEYS:
-                    try:
-                        out[key] = float(st['values'][key])
-                    except (KeyError, ValueError):
-                        pass
-                return out
-    return {}
+    vals = _last_loop_values(bag, diags, 'overhead_us_mean')
+    out: dict[str, float] = {}
+    for key in LOOP_TIMING_KEYS if vals is not None else ():
+        try:
+            out[key] = float(vals[key])
+        except (KeyError, ValueError):
+            pass
+    return out
 
 
 def loop_line(r: RunResult) -> str | None:
@@ -231,30 +240,26 @@ FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'ove
                  'drift_s', 'drift_max_s', 'realtime_priority')
 
 
-def free_run_timing(bag: Path) -> dict[str, Any]:
+def free_run_timing(bag: Path, *, diags: Any = _READ) -> dict[str, Any]:
     """Free-run deadline figures of the coupling node's last recorded loop diagnostics:
     catch-up policy, ticks run/skipped, overruns (ticks late by >= one exchange step),
     lateness p50/p99/max/mean (us), drift (s; wall time since start - simulated time at the
     last publication, and its largest magnitude); empty when not recorded."""
-    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
-    if diags is None:
+    vals = _last_loop_values(bag, diags, 'overruns')
+    if vals is None:
         return {}
-    for statuses in reversed(diags.statuses):
-        for st in statuses:
-            if st['name'] == 'coupling_node: loop' and 'overruns' in st['values']:
-                vals = st['values']
-                return {k: (vals[k] if k == 'catch_up' else
-                            int(float(vals[k])) if k.startswith(('ticks', 'overruns', 'realtime'))
-                            else float(vals[k]))
-                        for k in FREE_RUN_KEYS if k in vals}
-    return {}
+    return {k: (vals[k] if k == 'catch_up' else
+                int(float(vals[k])) if k.startswith(('ticks', 'overruns', 'realtime'))
+                else float(vals[k]))
+            for k in FREE_RUN_KEYS if k in vals}
 
 
-def monitor_statuses(bag: Path) -> dict[str, Any]:
+def monitor_statuses(bag: Path, *, diags: Any = _READ) -> dict[str, Any]:
     """WARN and ERROR statuses recorded on /diagnostics (every node but the coupling loop's
     counters, reported on their own): counts, the first of each level and the first of the
     worst level seen, each as 't = T s NAME: MESSAGE'."""
-    diags = bagmod.read_bag(bag, ['/diagnostics']).get('/diagnostics')
+    if diags is _READ:
+        diags = read_diagnostics(bag)
     out: dict[str, Any] = {'warn': 0, 'error': 0}
     if diags is None:
         return out

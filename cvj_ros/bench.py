@@ -884,10 +884,6 @@ def _run_kind(r: dict[str, Any]) -> str:
     return across + (' dense' if r.get('sampling') == 'dense' else '')
 
 
-#: issue 10's real-time targets per loop mode
-REAL_TIME_TARGET = {'separate': 2.0, 'composed': 10.0}
-
-
 def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> list[str]:
     """bench.md lines of the real `cvj-sim run` lockstep runs: one table row per run (wall,
     integration, wait, state, overhead per exchange, the overhead over the round trip of
@@ -895,6 +891,7 @@ def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> 
     and mode."""
     if not real:
         return []
+    from cvj_ros.orchestrate.report import REAL_TIME_TARGETS   # issue 10's, as cvj-sim run says
     md = ['', 'Real lockstep runs (`cvj-sim run SCENE --duration 5`, 1 ms exchange step; separate = '
           'one process per loop node, the monitor beside the recorder; composed = `--composed`, one '
           'process). Overhead = exchange wall - integration; its ratio is to the round trip of the '
@@ -913,7 +910,7 @@ def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> 
         ratio = overhead_ratios(run, {key: rt[key]} if key in rt else {}).get(key)
         ratio_text = (f'{ratio:.2f}x ({rt[key]["us_mean"]:.0f} us)' if ratio is not None
                       else 'n/a (round trip not measured)')
-        target = REAL_TIME_TARGET.get(mode, math.nan)
+        target = REAL_TIME_TARGETS.get(mode, math.nan)
         md.append(f'{head} {run.get("exchange_wall_us_mean", math.nan):.0f} | '
                   f'{run.get("integration_us_mean", math.nan):.0f} | '
                   f'{run.get("lockstep_wait_us_mean", math.nan):.0f} | '
@@ -921,7 +918,7 @@ def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> 
                   f'{ratio_text} | {run.get("real_time_factor", math.nan):.3g} (>= {target:g}) |')
     md.append('')
     for m in real_lockstep_medians(real):
-        target = REAL_TIME_TARGET.get(m['mode'], math.nan)
+        target = REAL_TIME_TARGETS.get(m['mode'], math.nan)
         if not m['finished']:
             md.append(f'- {m["scene"]}, {m["mode"]}: no run finished ({m["runs"]} tried)')
             continue

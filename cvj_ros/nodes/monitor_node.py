@@ -223,13 +223,6 @@ class MonitorNode(CvjNode):
         if len(batch) >= MAX_COLLECTED:
             self.take_samples()
 
-    def _collect_torque(self, data: bytes, window: RollingWindow) -> None:
-        """A serialised answer for ``window`` (the engine's or the load's)."""
-        if window is self._engine_torque:
-            self._collect_engine(data)
-        else:
-            self._collect_load(data)
-
     @property
     def engine_torque(self) -> RollingWindow:
         """The engine answers' torque.z window (N m; collected samples read first)."""

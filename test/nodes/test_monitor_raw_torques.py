@@ -106,7 +106,7 @@ def test_collected_samples_stay_bounded_with_a_large_publish_every(ctx):
         for k in range(2500):
             sec, ns = divmod(k * 1_000_000, 10**9)
             node._on_joint_states_raw(js.encode(sec, ns, [0.0, 1.0], [40.0, 41.0], [1.0, 2.0]))
-            node._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 5.0), node._engine_torque)
+            node._collect_engine(we.encode(sec, ns, 0, 0, 0, 0, 0, 5.0))
             assert len(node._js_batch) < mn.MAX_COLLECTED
             assert len(node._engine_batch) < mn.MAX_COLLECTED and not node._load_batch
         assert node.samples + len(node._js_batch) == 2500 and node.published == 0
@@ -152,8 +152,8 @@ def test_bulk_reading_gives_the_statuses_of_reading_one_by_one(ctx, monkeypatch)
             w = 50 + 5 * np.sin(2 * np.pi * 7 * t + np.arange(enc.n))
             samples.append(enc.encode(sec, ns, w * t, w, -w))
             bulk._on_joint_states_raw(samples[-1])
-            bulk._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 10 + t), bulk._engine_torque)
-            bulk._collect_torque(we.encode(sec, ns, 0, 0, 0, 0, 0, 20 - t), bulk._load_torque)
+            bulk._collect_engine(we.encode(sec, ns, 0, 0, 0, 0, 0, 10 + t))
+            bulk._collect_load(we.encode(sec, ns, 0, 0, 0, 0, 0, 20 - t))
             if k % 97 == 0:
                 bulk.take_samples()                          # blocks of different sizes
         for k, data in enumerate(samples):

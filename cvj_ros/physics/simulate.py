@@ -150,6 +150,8 @@ class _KernelPlan:
     segments: list[tuple[int, int, float | None]]   # dense: sample rows, breakpoint after
     stepper: Any                          # reset for every run after the first
     model: Any                            # its ModelData
+    run: Any = None                       # KernelStepper.bind_run's one-call run
+    XG: FloatArray | None = None          # land: its states at the grid (None: X itself)
 
 
 class Simulation:
@@ -168,6 +170,10 @@ class Simulation:
             ``backend_note`` set when an element is not compiled) or 'python'
             (the reference right-hand side and Python steppers).
     """
+
+    #: kernel runs without a progress callback: start, integration and outputs in one
+    #: compiled call (kernel/run_nb.py); False takes the step-by-step path (the tests' oracle)
+    _one_call = True
 
     def __init__(self, scene: Scene, *, method: str | None = None, rtol: float | None = None,
                  atol: float | None = None, fidelity: Mapping[str, str] | None = None,
@@ -252,22 +258,32 @@ class Simulation:
         return ModelData(ip=cached.ip.copy(), fp=cached.fp.copy(), n_dof=cached.n_dof,
                          n_state=cached.n_state, track_energy=cached.track_energy, x0=cached.x0)
 
+    def _output_tables(self) -> None:
+        """The shaft and intermediate-member tables of the compiled outputs, made once."""
+        if self._shaft_table is None:
+            from cvj_ros.physics.kernel.outputs_nb import mid_table, shaft_table
+            self._shaft_table = shaft_table(self.driveline)
+            self._mid_table = mid_table(self.driveline)
+
     def _kernel_outputs(self, times: FloatArray, X: FloatArray, e0: float, pos: FloatArray,
                         vel: FloatArray, eff: FloatArray, te: FloatArray, tl: FloatArray,
                         res: FloatArray) -> None:
         """Joint states, torques and energy residual of every sample, compiled
         (kernel/outputs_nb.py); the same quantities the Python ``record`` computes."""
-        if self._shaft_table is None:
-            from cvj_ros.physics.kernel.outputs_nb import mid_table, shaft_table
-            self._shaft_table = shaft_table(self.driveline)
-            self._mid_table = mid_table(self.driveline)
         # every array here is allocated by run() (C-contiguous float64/int64): one type each
-        args = (times, X, self.model.ip, self.model.fp, self._shaft_table,
-                float(e0), pos, vel, eff, te, tl, res)
-        entry_point_once, sample_outputs, fill_mid_samples = _outputs_kernel()
-        bad = entry_point_once(sample_outputs, args)(*args)
+        self._output_tables()
+        args = (times, X, self.model.ip, self.model.fp, self._shaft_table, float(e0), pos, vel,
+                eff, te, tl, res)
+        entry_point_once, sample_outputs, _fill = _outputs_kernel()
+        self._check_outputs(times, entry_point_once(sample_outputs, args)(*args), pos, vel)
+
+    def _check_outputs(self, times: FloatArray, bad: int, pos: FloatArray,
+                       vel: FloatArray) -> None:
+        """SolverError when sample ``bad`` (>= 0) was not finite; else the intermediate
+        members' angles and speeds (compiled where the kernel has them, else Python)."""
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
+        entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
             args = (pos, vel, mtab, mfp)
@@ -405,8 +421,25 @@ class Simulation:
                 k = max(k, k_end)
         kwargs = self._stepper_options(dt)
         stepper = self.make_stepper(self.driveline.x0.copy(), dur, **kwargs)
-        return _KernelPlan(times=times, grid=grid, rows=rows, is_sample=is_sample,
+        plan = _KernelPlan(times=times, grid=grid, rows=rows, is_sample=is_sample,
                            segments=segments, stepper=stepper, model=self.model)
+        if self._one_call:
+            # the same plan as arrays for the one-call run (kernel/run_nb.py); the unused
+            # mode's arrays are empty, of the types every call passes
+            n = self.driveline.x0.size
+            if sampling == 'land':
+                arrays = (grid, rows.astype(np.int64), np.zeros((0, 2), np.int64), np.zeros(0))
+                if grid.size != times.size:
+                    plan.XG = np.empty((grid.size, n))
+            else:
+                arrays = (np.zeros(0), np.zeros(0, np.int64),
+                          np.array([(k, k_end) for k, k_end, _b in segments], dtype=np.int64),
+                          np.array([math.nan if b is None else b for _k, _ke, b in segments]))
+            self._output_tables()
+            plan.run = stepper.bind_run(self.driveline.x0, times,
+                                        (*arrays, np.zeros(2), np.zeros((2, n))),
+                                        self._shaft_table)
+        return plan
 
     def _run_kernel(self, dur: float, dt: float, sampling: str,
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
@@ -418,11 +451,10 @@ class Simulation:
         key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
         plan = self._plans.get(key)
         x0 = self.driveline.x0
-        if plan is None:
+        fresh = plan is None
+        if fresh:
             plan = self._kernel_plan(dur, dt, sampling, breakpoints)
             self._plans = {key: plan}   # the latest options only
-        else:
-            plan.stepper.reset(0.0, x0)
         stepper = plan.stepper
         self.model = plan.model
         times = plan.times
@@ -438,6 +470,16 @@ class Simulation:
         clock = time.perf_counter
         wall0 = clock()
         X = np.empty((m, x0.size))
+        if progress is None and plan.run is not None:
+            # start, integration and outputs in one compiled call (kernel/run_nb.py)
+            XG = plan.XG
+            bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            wall = clock() - wall0
+            self._check_outputs(times, bad, pos, vel)
+            return self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
+                                wall, wall)
+        if not fresh:
+            stepper.reset(0.0, x0)
         X[0] = x0
         if sampling == 'dense':
             # dense output between the breakpoints, a landing on each

@@ -9,8 +9,9 @@ slow is asserted absent instead, in a fresh interpreter after a warm-up run:
 * numba's full target initialisation (``CPUContext.refresh``, ~0.55 s measured): its
   first import is ``numba.np.arraymath``'s module, absent when the cached entry points
   were loaded by ``kernel.load_cached``;
-* compiled entry points of other methods: exactly the chosen method's stepper, the
-  sample outputs and the intermediate members' fill are loaded;
+* compiled entry points of other methods: exactly the chosen method's whole run
+  (kernel/run_nb.py: integration and sample outputs in one call) and the intermediate
+  members' fill are loaded;
 * for rosenbrock and dop853 too: their coefficients come from physics/tableaux.py, not
   from solvers.py / scipy.integrate.
 The numbers are in docs/solvers.md "Start-up".
@@ -31,8 +32,8 @@ import json, sys
 from cvj_ros.cli import main
 rc = main(sys.argv[2:])
 from numba.core.registry import CPUDispatcher
-from cvj_ros.physics.kernel import outputs_nb, steppers_nb
-loaded = sorted(f'{m.__name__.rsplit(".", 1)[-1]}.{n}' for m in (steppers_nb, outputs_nb)
+from cvj_ros.physics.kernel import outputs_nb, run_nb, steppers_nb
+loaded = sorted(f'{m.__name__.rsplit(".", 1)[-1]}.{n}' for m in (steppers_nb, outputs_nb, run_nb)
                 for n, f in vars(m).items()
                 if isinstance(f, CPUDispatcher) and f.py_func.__module__ == m.__name__
                 and f.overloads)
@@ -54,10 +55,10 @@ def _probe(tmp_path: Path, args: list[str]) -> dict:
     return json.loads(out.read_text())
 
 
-@pytest.mark.parametrize('method, stepper', [('dopri5', 'steppers_nb.dopri5_land'),
-                                             ('rk4', 'steppers_nb.rk4_land'),
-                                             ('rosenbrock', 'steppers_nb.ros_land'),
-                                             ('dop853', 'steppers_nb.dop853_land')])
+@pytest.mark.parametrize('method, stepper', [('dopri5', 'run_nb.dopri5_run'),
+                                             ('rk4', 'run_nb.rk4_run'),
+                                             ('rosenbrock', 'run_nb.ros_run'),
+                                             ('dop853', 'run_nb.dop853_run')])
 def test_warm_simulate_imports_and_loads_only_what_it_needs(tmp_path: Path, capsys,
                                                             method: str, stepper: str) -> None:
     args = ['simulate', 'kavz685_lever', '--duration', '0.05', '--method', method]
@@ -71,8 +72,9 @@ def test_warm_simulate_imports_and_loads_only_what_it_needs(tmp_path: Path, caps
     assert heavy == []
     assert sorted(m for m in mods if m.startswith('cvj_ros.commands.')) == [
         'cvj_ros.commands.simulate']
-    # the lever hinge's earring is an intermediate member: its compiled fill is loaded too
-    assert got['loaded'] == ['outputs_nb.fill_mid_samples', 'outputs_nb.sample_outputs', stepper]
+    # one compiled call runs it (kernel/run_nb.py: integration and outputs); the lever
+    # hinge's earring is an intermediate member: its compiled fill is loaded too
+    assert got['loaded'] == ['outputs_nb.fill_mid_samples', stepper]
 
 
 def test_fast_load_is_off_with_cvj_kernel_load_numba(tmp_path: Path, monkeypatch) -> None:
@@ -81,8 +83,7 @@ def test_fast_load_is_off_with_cvj_kernel_load_numba(tmp_path: Path, monkeypatch
     monkeypatch.setenv('CVJ_KERNEL_LOAD', 'numba')
     got = _probe(tmp_path, ['simulate', 'kavz685_lever', '--duration', '0.05'])
     assert 'numba.np.arraymath' in got['modules']
-    assert got['loaded'] == ['outputs_nb.fill_mid_samples', 'outputs_nb.sample_outputs',
-                             'steppers_nb.dopri5_land']
+    assert got['loaded'] == ['outputs_nb.fill_mid_samples', 'run_nb.dopri5_run']
 
 
 def test_command_named_picks_the_subcommand_or_none() -> None:

@@ -416,6 +416,55 @@ class KernelStepper(_StepperBase):
                                              self._K, self._work), True)
         return self._nb.rk4_sample, (*state, self._K, self._work), True
 
+    def _run_call(self) -> tuple:
+        """(whole-run function of ``run_nb`` for this method, its arguments after the state)."""
+        from . import run_nb
+        if self.method == 'dopri5':
+            return run_nb.dopri5_run, (self.rtol, self._atol, self.max_step, self._K, self._work)
+        if self.method == 'dop853':
+            return run_nb.dop853_run, (self.rtol, self._atol, self.max_step, *self._d8,
+                                       *self._d8_dense, self._K, self._work)
+        if self.method == 'ros2':
+            return run_nb.ros2_run, self._ros_args()
+        if self.method in _ROSENBROCK:
+            hermite = self.method == 'rodas4'   # as _sample_call
+            return run_nb.ros_run, (*self._rodas_args(), _NO_H if hermite else self._H,
+                                    self._K.shape[0] - 1 if hermite else -1)
+        return run_nb.rk4_run, (self._K, self._work)
+
+    def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray):
+        """A whole offline run in one compiled call (``run_nb``), bound to what is fixed for a
+        Simulation's options: ``run(e0, X, XG, pos, vel, eff, te, tl, res)`` starts again at
+        (0, x0) as :meth:`reset` does, integrates over ``times`` (s) into ``X`` (X[0] = x0)
+        by the ``plan`` - ``(grid, rows, seg, brk, tb, two)``, see ``run_nb`` - and fills
+        the samples' outputs as ``outputs_nb.sample_outputs(times, X, ip, fp, tab, e0,
+        pos, ...)`` does. Same steps and bytes as reset + land / sample + sample_outputs
+        (test_run_nb.py). It raises SolverError as :meth:`advance_to` and returns the first
+        sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
+        array (C-contiguous float64 / int64, fixed ndim): nothing is checked per run. Only
+        for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). After the first call the
+        fixed arguments are bound to the entry point (functools.partial: ~1 us less per run
+        than passing 49 arguments through Python)."""
+        if self._nb is not steppers_nb:
+            raise SolverOptionError('rhs', 'bind_run runs the driveline kernel only')
+        fn, tail = self._run_call()
+        head = (x0, 0.0 if self._h0 is None else float(self._h0), times, *plan, self._fbuf,
+                self._ibuf, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt,
+                *tail, tab)
+        check = self._check
+        bound = None
+
+        def run(*per_run) -> int:
+            nonlocal bound
+            if bound is None:
+                st, bad = self._call(fn, *head, *per_run)
+                bound = functools.partial(_ENTRY_POINTS[(fn, len(head) + len(per_run))], *head)
+            else:
+                st, bad = bound(*per_run)
+            check(st)
+            return bad
+        return run
+
     def restart(self) -> None:
         """Inputs changed discontinuously: drop the FSAL derivative; keep h."""
         self._cnt[nb.C_HAVEF] = 0

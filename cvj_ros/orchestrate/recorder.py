@@ -15,12 +15,16 @@ from cvj_ros.orchestrate.options import EXTERNAL_PEERS  # noqa: F401  (re-export
 from cvj_ros.orchestrate.processes import error_line
 
 
-# The recorder's take loop sleeps this long after each wake that took messages (s): at a
-# ~0.5 ms exchange step one wake then takes the messages of ~4 steps instead of one message.
-# Measured (separate processes, kavz685_lever 5 s, 3 alternating pairs, /proc per-thread
-# CPU): the recorder thread 149-164 -> 79-108 us CPU per exchange step. The bag is then a
-# few ms behind the loop; RECORDER_QOS's depth holds 10 s.
-RECORDER_COALESCE_S = 0.002
+# The recorder's take loop sleeps this long after each wake that took messages (s): one wake
+# then takes the messages of many exchange steps instead of one message, and the recorder's
+# process (which also hosts the monitor) competes less with the loop's processes for the
+# cores. Measured (separate processes, kavz685_lever 5 s, 3 alternating pairs, /proc
+# per-thread CPU): 0 -> 2 ms took the recorder thread from 149-164 to 79-108 us CPU per
+# exchange step; 2 -> 20 ms (fwd_halfshaft 5 s, 3 alternating pairs, 2026-11-24): real-time
+# factor 2.05-2.30 -> 2.32 (all three), state publication 97-114 -> 79-90 us per exchange.
+# The bag is then up to ~20 ms behind the loop (stamps are the messages' own, not arrival
+# times); RECORDER_QOS's depth holds 10 s; a stop takes what is queued (BagRecorder.destroy).
+RECORDER_COALESCE_S = 0.02
 
 # Nodes `cvj-sim run` hosts in its own process, beside the recorder, instead of one process
 # each: the observers, which read every loop message the recorder reads. As a process of its

@@ -31,6 +31,13 @@ EXECUTORS = ('events', 'single')
 ECHO_MATCH_TIMEOUT_S = 30.0
 
 
+def _us_summary(seconds: np.ndarray) -> dict[str, float]:
+    """Mean, median and 95th percentile (us) of round-trip times given in s."""
+    us = seconds * 1e6
+    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
+            'us_p95': float(np.percentile(us, 95))}
+
+
 def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'events', *,
                        warmup: int = 50, timeout: float = 60.0) -> dict[str, float]:
     """Round-trip wall time of ``n`` ping-pong exchanges with the given executor.
@@ -104,11 +111,7 @@ def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'e
         pong.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
-    us = samples[warmup:] * 1e6
-    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
-            'us_p95': float(np.percentile(us, 95)), 'n': n, 'executor': executor}
-
-
+    return {**_us_summary(samples[warmup:]), 'n': n, 'executor': executor}
 
 
 def measure_round_trip_peers(n: int = 1000, peers: int = 2, *, warmup: int = 100,
@@ -186,9 +189,7 @@ def measure_round_trip_peers(n: int = 1000, peers: int = 2, *, warmup: int = 100
             node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
-    us = samples[warmup:] * 1e6
-    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
-            'us_p95': float(np.percentile(us, 95)), 'n': n, 'peers': peers, 'executor': 'events'}
+    return {**_us_summary(samples[warmup:]), 'n': n, 'peers': peers, 'executor': 'events'}
 
 
 def measure_lockstep(scene: str, *, duration: float | None = None, exchange_step: float | None = None,
@@ -427,9 +428,7 @@ def _measure_ipc(n: int, executor: str, *, echoes: int, warmup: int, timeout: fl
                 p.wait()
             if p.stdout is not None:
                 p.stdout.close()
-    us = samples[warmup:] * 1e6
-    return {'us_mean': float(us.mean()), 'us_p50': float(np.percentile(us, 50)),
-            'us_p95': float(np.percentile(us, 95)), 'n': n, 'executor': executor,
+    return {**_us_summary(samples[warmup:]), 'n': n, 'executor': executor,
             'echoes': echoes, 'processes': echoes + 1}
 
 

@@ -428,9 +428,12 @@ class Simulation:
             # mode's arrays are empty, of the types every call passes
             n = self.driveline.x0.size
             if sampling == 'land':
-                arrays = (grid, rows.astype(np.int64), np.zeros((0, 2), np.int64), np.zeros(0))
-                if grid.size != times.size:
+                # every landing a sample: the landings' states are X itself, rows not needed
+                gather = grid.size != times.size
+                if gather:
                     plan.XG = np.empty((grid.size, n))
+                arrays = (grid, rows.astype(np.int64) if gather else np.zeros(0, np.int64),
+                          np.zeros((0, 2), np.int64), np.zeros(0))
             else:
                 arrays = (np.zeros(0), np.zeros(0, np.int64),
                           np.array([(k, k_end) for k, k_end, _b in segments], dtype=np.int64),

@@ -11,8 +11,8 @@ method and sampling with the step-by-step path).
 Arguments, in order - first what is fixed for a Simulation's options (bound once,
 ``KernelStepper.bind_run``), then what each run allocates: ``x0, h0`` (start state and
 step proposal, 0 = HINIT), ``times`` (sample times, s), the plan - ``grid, rows``
-(landing: the grid of landings and the grid row of every sample; ``grid`` empty for dense
-sampling) and ``seg, brk, tb, two`` (dense: sample rows [seg[i, 0], seg[i, 1]) read by
+(landing: the grid of landings and the grid row of every sample, empty when every landing
+is a sample; ``grid`` empty for dense sampling) and ``seg, brk, tb, two`` (dense: sample rows [seg[i, 0], seg[i, 1]) read by
 dense output up to breakpoint brk[i] (NaN: none), on which a step lands; ``tb`` (2,) and
 ``two`` (2, n) are that landing's scratch) -, the stepper's buffers ``fbuf, ibuf`` (every
 float / int array of its state is a view of one of them, see ``KernelStepper.__init__``),
@@ -57,7 +57,8 @@ def _start(x0, h0, X, fbuf, ibuf, y, y_old, fs):
 
 @njit(cache=True, inline='always')
 def _gather(X, XG, rows):
-    """X[k] = XG[rows[k]] for k >= 1 (landing: the samples among the grid's landings)."""
+    """X[k] = XG[rows[k]] for k >= 1 (landing: the samples among the grid's landings; rows
+    is empty when every landing is a sample and XG is X itself: nothing to copy)."""
     for k in range(1, rows.shape[0]):
         r = rows[k]
         for i in range(X.shape[1]):

@@ -1170,25 +1170,37 @@ class BagRecorder:
                     wait_set.add_subscription(sub.handle)
                 wait_set.wait(int(poll * 1e9))
                 ready = set(wait_set.get_ready_entities('subscription'))
-            for topic, sub, stamped, is_clock, msgtype in entries:
-                if sub.handle.pointer not in ready:
-                    continue
-                fed = self.observers.get(topic)
-                with sub.handle:
-                    while True:
-                        taken = sub.handle.take_message(sub.msg_type, True)
-                        if taken is None:
-                            break
-                        self._on_message(topic, msgtype, taken[0], stamped=stamped, is_clock=is_clock)
-                        if fed:
-                            for fn in fed:
-                                fn(taken[0])
+            self._take_queued(entries, ready)
             if ready:
                 self.wakes += 1
                 if flush is not None:
                     flush()          # a BatchingWriter: this wake's messages in one hand-off
                 if coalesce > 0:
                     stop.wait(coalesce)
+        if ctx.ok() and entries:
+            # stopped (possibly inside a coalesce wait): what arrived since the last wake is
+            # queued in the subscriptions and would go with them - take it now
+            self._take_queued(entries, None)
+            if flush is not None:
+                flush()
+
+    def _take_queued(self, entries: list[tuple[str, Any, bool, bool, str]],
+                     ready: set[Any] | None) -> None:
+        """Take every queued message of the subscriptions in ``entries`` (those whose handle
+        is in ``ready``; all when None) and record it (:meth:`spin`)."""
+        for topic, sub, stamped, is_clock, msgtype in entries:
+            if ready is not None and sub.handle.pointer not in ready:
+                continue
+            fed = self.observers.get(topic)
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    self._on_message(topic, msgtype, taken[0], stamped=stamped, is_clock=is_clock)
+                    if fed:
+                        for fn in fed:
+                            fn(taken[0])
 
     def discover(self) -> None:
         """Subscribe to pattern topics (``/coupling/*/wrench``) that appeared in the graph."""

@@ -367,3 +367,63 @@ def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None
     np.testing.assert_array_equal(bag.read_bag(tmp_path / 'b', ['/load/wrench'])['/load/wrench'].torque_z,
                                   np.arange(float(n)))
     assert 1 <= wakes <= (t1 - t0) / c + 2, (wakes, t1 - t0)
+
+
+@pytest.mark.ros
+def test_recorder_spin_stopped_in_its_coalesce_wait_takes_what_is_queued(tmp_path: Path) -> None:
+    """A stop that comes while spin waits out its coalesce time (orchestrate's 20 ms) takes
+    the messages that arrived meanwhile before spin returns: acknowledged by the recorder's
+    reader (in its queue), they are in the bag. The coalesce wait here is 60 s, so every
+    message after the first is in that window."""
+    import threading
+
+    import rclpy
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.duration import Duration
+
+    ctx, pub_ctx = rclpy.context.Context(), rclpy.context.Context()
+    rclpy.init(context=ctx)
+    rclpy.init(context=pub_ctx)
+    stop = threading.Event()
+    try:
+        node = rclpy.create_node('rec_stop', context=ctx)
+        pub_node = rclpy.create_node('pub_stop', context=pub_ctx)
+        writer = bag.BagWriter(tmp_path / 'b')
+        front = bag.BatchingWriter(writer)
+        rec = bag.BagRecorder(node, front)
+        thread = threading.Thread(target=rec.spin, args=(stop,), kwargs={'coalesce': 60.0},
+                                  daemon=True)
+        thread.start()
+        pub = pub_node.create_publisher(WrenchStamped, '/load/wrench', bag.recorder_qos())
+        deadline = time.monotonic() + 10
+        while pub.get_subscription_count() == 0:
+            assert time.monotonic() < deadline, 'recorder subscription not matched'
+            time.sleep(0.01)
+
+        def send(k: int) -> None:
+            w = WrenchStamped()
+            w.header.stamp.nanosec = 1_000_000 * k
+            w.wrench.torque.z = float(k)
+            pub.publish(w)
+
+        send(0)
+        while front.counts.get('/load/wrench', 0) < 1:   # taken: spin is now in its wait
+            assert time.monotonic() < deadline, front.counts
+            time.sleep(0.005)
+        for k in range(1, 6):
+            send(k)
+        assert pub.wait_for_all_acked(Duration(seconds=10))   # in the recorder's queue
+        assert front.counts['/load/wrench'] == 1              # not taken yet
+        stop.set()
+        thread.join(5)
+        assert not thread.is_alive()
+        rec.destroy()
+        writer.close()
+        node.destroy_node()
+        pub_node.destroy_node()
+    finally:
+        stop.set()
+        rclpy.shutdown(context=ctx)
+        rclpy.shutdown(context=pub_ctx)
+    np.testing.assert_array_equal(bag.read_bag(tmp_path / 'b', ['/load/wrench'])['/load/wrench'].torque_z,
+                                  np.arange(6.0))

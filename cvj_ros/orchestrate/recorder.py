@@ -23,7 +23,8 @@ from cvj_ros.orchestrate.processes import error_line
 # exchange step; 2 -> 20 ms (fwd_halfshaft 5 s, 3 alternating pairs, 2026-11-24): real-time
 # factor 2.05-2.30 -> 2.32 (all three), state publication 97-114 -> 79-90 us per exchange.
 # The bag is then up to ~20 ms behind the loop (stamps are the messages' own, not arrival
-# times); RECORDER_QOS's depth holds 10 s; a stop takes what is queued (BagRecorder.destroy).
+# times); RECORDER_QOS's depth holds 10 s; a stop takes what is queued (the last take of
+# BagRecorder.spin).
 RECORDER_COALESCE_S = 0.02
 
 # Nodes `cvj-sim run` hosts in its own process, beside the recorder, instead of one process

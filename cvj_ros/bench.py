@@ -51,7 +51,7 @@ import numpy as np
 from cvj_ros.errors import CvjError, SceneError
 
 REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff')
-ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4')
+ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3')
 BASELINES = ('RK45', 'LSODA', 'Radau')
 FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto')
 COUPLING_SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')

@@ -17,6 +17,8 @@ method          order  stability                        source
 ``rosenbrock``  5(4)   L-stable, stiffly accurate,      Steinebach 2023 (RODAS5P);
                        linearly implicit (RODAS5P)      Hairer & Wanner II, IV.7
 ``rodas4``      4(3)   as rosenbrock (RODAS4)           Hairer & Wanner II, IV.7
+``rodas3``      3(2)   as rosenbrock (RODAS3)           Sandu et al. 1997, Atmos.
+                                                        Environ. 31 (RODAS3)
 ``rk4``         4      explicit, fixed step             Kutta 1901 (classic RK4)
 ``ros2``        2      L-stable, linearly implicit,     Verwer et al. 1999, SIAM J.
                        fixed step (real time, stiff)    Sci. Comput. 20 (ROS2)
@@ -77,8 +79,9 @@ __all__ = [
 from cvj_ros.physics.stepper_base import (  # noqa: F401  (re-exported)
     _EPS, _INVERSE_MAX_N, JacFunction, RhsFunction, SolverOptionError, Stepper, _StepperBase,
     sample_dense)
-from cvj_ros.physics.tableaux import (RODAS4_ORDER, RODAS5P_ORDER, RODAS_FAC_MAX,
-                                      rodas4_tableau, rodas5p_tableau)
+from cvj_ros.physics.tableaux import (RODAS3_ORDER, RODAS4_ORDER, RODAS5P_ORDER,
+                                      RODAS_FAC_MAX, rodas3_tableau, rodas4_tableau,
+                                      rodas5p_tableau)
 
 # ---------------------------------------------------------------- adaptive base
 
@@ -463,6 +466,11 @@ class _LinearlyImplicit:
         self._hC = np.zeros((st, st))  # C / h, refreshed with the LU
         self._c_rows = [self._hC[i, :i] for i in range(st)]
         self._k_views = [self._KE[1:i + 1] for i in range(st)]
+        # stages whose argument is (t, y) itself (alpha_i = 0, no A terms: RODAS3's second)
+        # reuse f(t, y) instead of evaluating it again (KPP's ros_NewF)
+        self._reuse_f = [i > 0 and tableau['alpha'][i] == 0.0 and not np.any(tableau['A'][i, :i])
+                         for i in range(st)]
+        self._stage_fev = st - 1 - sum(self._reuse_f)   # fev of the stages after the first
         self._autonomous = bool(autonomous)
         self._constant_jac = bool(constant_jac)
         self._J = None
@@ -554,7 +562,10 @@ class _LinearlyImplicit:
                 if ft is not None:
                     rhs = rhs + (h * gsum[0]) * ft
             else:
-                rhs = fun(t + alpha[i] * h, dot(arg_rows[i], arg_views[i]))
+                if self._reuse_f[i]:
+                    rhs = self._ensure_f()
+                else:
+                    rhs = fun(t + alpha[i] * h, dot(arg_rows[i], arg_views[i]))
                 rhs = rhs + dot(c_rows[i], k_views[i])
                 if ft is not None and gsum[i] != 0.0:
                     rhs += (h * gsum[i]) * ft
@@ -562,7 +573,7 @@ class _LinearlyImplicit:
                 dot(inv, rhs, out=KE[i + 1])
             else:
                 KE[i + 1] = _dgetrs(self._lu[0], self._lu[1], rhs)[0]
-        self.nfev += st - 1
+        self.nfev += self._stage_fev
         return dot(self._A_ext[st], KE), dot(self._E_ext, KE)
 
     def _after_accept(self) -> None:
@@ -641,6 +652,20 @@ class RosenbrockStepper(_LinearlyImplicit, _AdaptiveStepper):
         x = (t - self.t_old) / h
         x1 = 1.0 - x
         return x1 * self.y_old + x * (self.y + x1 * (D[0] + x * (D[1] + x * D[2])))
+
+
+class Rodas3Stepper(RosenbrockStepper):
+    """RODAS3: adaptive Rosenbrock method of order 3(2), 4 stages (3 fev - stage 2
+    reuses f(t, y) -, 1 Jacobian, 1 LU per step), L-stable and stiffly accurate (method
+    'rodas3'). The cheapest step of the three RODAS methods: for loose tolerances.
+    Dense output: cubic Hermite, as RODAS4.
+    Source: Sandu et al., Atmos. Environ. 31 (1997) 3459 (RODAS3), in the framework of
+    Hairer & Wanner, Solving ODEs II, sec. IV.7.
+    """
+
+    method = 'rodas3'
+    order = RODAS3_ORDER  # embedded order 2 -> controller exponent 1/3
+    _tableau = staticmethod(rodas3_tableau)
 
 
 class Rodas4Stepper(RosenbrockStepper):
@@ -802,6 +827,7 @@ METHODS: dict[str, type] = {
     'dop853': Dop853Stepper,
     'rosenbrock': RosenbrockStepper,
     'rodas4': Rodas4Stepper,
+    'rodas3': Rodas3Stepper,
     'rk4': Rk4Stepper,
     'ros2': Ros2Stepper,
 }

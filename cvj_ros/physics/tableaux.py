@@ -1,5 +1,5 @@
-"""Coefficients of the methods whose compiled steppers take them as arguments (RODAS4,
-RODAS5P, DOP853), importable without scipy.integrate / scipy.linalg: the compiled path
+"""Coefficients of the methods whose compiled steppers take them as arguments (RODAS3,
+RODAS4, RODAS5P, DOP853), importable without scipy.integrate / scipy.linalg: the compiled path
 (kernel/stepper.py) reads them from here, so a `cvj-sim simulate --method rosenbrock` or
 a coupling node does not pay ~0.3-0.5 s of scipy imports for a few dozen numbers
 (docs/solvers.md "Start-up"). solvers.py (the Python steppers) uses the same functions.
@@ -14,7 +14,31 @@ import numpy as np
 
 RODAS5P_ORDER = 4   # embedded order of RODAS5P -> controller exponent 1/5
 RODAS4_ORDER = 3    # embedded order of RODAS4 -> controller exponent 1/4
-RODAS_FAC_MAX = 6.0  # largest step increase of both (Hairer's RODAS: FAC2 = 6)
+RODAS3_ORDER = 2    # embedded order of RODAS3 -> controller exponent 1/3
+RODAS_FAC_MAX = 6.0  # largest step increase of all three (Hairer's RODAS: FAC2 = 6)
+
+
+def rodas3_tableau() -> dict:
+    """RODAS3 (Sandu, Verwer, Blom, Spee, Carmichael, Potra, Atmos. Environ. 31 (1997) 3459,
+    "Benchmarking stiff ODE solvers for atmospheric chemistry problems II: Rosenbrock
+    solvers"; the coefficients as KPP's Rosenbrock integrator lists them) in the K form of
+    :func:`rodas4_tableau`: 4 stages, order 3, embedded order 2, stiffly accurate
+    (y_new = stage 4's argument + K_4), L-stable; err = K_4. Stage 2 evaluates f at
+    (t, y) like stage 1 (alpha_2 = 0, no A terms): the steppers reuse f(t, y) there
+    (KPP's ros_NewF(2) = false), so a step costs 3 fev, 1 Jacobian, 1 LU, 4 solves.
+    """
+    A = np.zeros((4, 4))
+    C = np.zeros((4, 4))
+    A[2, :2] = [2.0, 0.0]
+    A[3, :3] = [2.0, 0.0, 1.0]
+    C[1, 0] = 4.0
+    C[2, :2] = [1.0, -1.0]
+    C[3, :3] = [1.0, -1.0, -8.0 / 3.0]
+    M = np.array([2.0, 0.0, 1.0, 1.0])
+    E = np.array([0.0, 0.0, 0.0, 1.0])
+    alpha = np.array([0.0, 0.0, 1.0, 1.0])
+    gamma_sum = np.array([0.5, 1.5, 0.0, 0.0])
+    return dict(gamma=0.5, A=A, C=C, M=M, E=E, alpha=alpha, gamma_sum=gamma_sum)
 
 
 def rodas4_tableau() -> dict:
@@ -89,9 +113,10 @@ def rodas5p_tableau() -> dict:
                 gamma_sum=gamma_sum, H=H)
 
 
-#: compiled Rosenbrock method -> (tableau, embedded order); both use RODAS_FAC_MAX
+#: compiled Rosenbrock method -> (tableau, embedded order); all use RODAS_FAC_MAX
 ROSENBROCK_TABLEAUX = {'rosenbrock': (rodas5p_tableau, RODAS5P_ORDER),
-                       'rodas4': (rodas4_tableau, RODAS4_ORDER)}
+                       'rodas4': (rodas4_tableau, RODAS4_ORDER),
+                       'rodas3': (rodas3_tableau, RODAS3_ORDER)}
 
 
 @functools.lru_cache(maxsize=1)

@@ -206,7 +206,7 @@ def test_ros2_l_stable_on_a_stiff_chain():
     assert abs(y[2] - w_rigid) < 1e-6 * w_rigid and abs(y[3] - w_rigid) < 1e-6 * w_rigid
 
 
-@pytest.mark.parametrize('method', ['rosenbrock', 'rodas4'])
+@pytest.mark.parametrize('method', ['rosenbrock', 'rodas4', 'rodas3'])
 @pytest.mark.parametrize('stiff', [False, True])
 def test_adaptive_rosenbrock_matches_python_oracle(method, stiff):
     fp = FP_CHAIN.copy()
@@ -228,7 +228,11 @@ def test_adaptive_rosenbrock_matches_python_oracle(method, stiff):
     # global error vs the closed form: below 100 * rtol (measured <= ~10 x rtol)
     assert _rel(y, chain_exact(1.0, fp)) < 100 * rtol
     tm = ks.t_old + 0.3 * (ks.t - ks.t_old)
-    assert _rel(ks.dense(tm), ps.dense(tm)) < 1e-10
+    # the Hermite dense output (rodas4, rodas3) reads f at the step end, which on the stiff
+    # chain (h |J| ~ 0.1 s * 8e7 / 0.2 = 4e7) magnifies the last-bit differences of y (~3e-15)
+    # up to ~1e-7 (measured: rodas4 7.8e-12, rodas3 1.1e-9)
+    bound = 1e-7 if stiff and method != 'rosenbrock' else 1e-10
+    assert _rel(ks.dense(tm), ps.dense(tm)) < bound
 
 
 _DIGEST_SCRIPT = r'''

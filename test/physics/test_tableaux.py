@@ -44,3 +44,47 @@ def test_rosenbrock_tableaux_are_the_python_steppers() -> None:
         want, got = cls._tableau(), tableau()
         for key in want:
             np.testing.assert_array_equal(got[key], want[key])
+
+
+def _classical_form(tab: dict, weights: np.ndarray) -> tuple[float, np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+    """(gamma, Gamma, alpha, b) of a K-form tableau (Hairer & Wanner II, sec. IV.7, the
+    transformation before (7.4)): Gamma^-1 = diag(1/gamma) - C, alpha = A Gamma,
+    b = weights Gamma (weights M for the solution, M - E for the embedded one)."""
+    g = float(tab['gamma'])
+    s = len(tab['M'])
+    G = np.linalg.inv(np.diag(np.full(s, 1.0 / g)) - tab['C'])
+    return g, G, tab['A'] @ G, weights @ G
+
+
+def _order_residuals(g: float, G: np.ndarray, al: np.ndarray, b: np.ndarray) -> list[float]:
+    """Residuals of the Rosenbrock order conditions up to order 4 (Hairer & Wanner II,
+    Table IV.7.1; beta_ij = alpha_ij + gamma_ij for j < i, beta'_i = sum_j beta_ij,
+    alpha_i = sum_j alpha_ij): orders 1, 2, 3, 3, 4, 4, 4, 4."""
+    beta = np.tril(al + G, -1)
+    bp = beta.sum(1)
+    a = al.sum(1)
+    return [b.sum() - 1.0, b @ bp - (0.5 - g), b @ a ** 2 - 1 / 3,
+            b @ beta @ bp - (1 / 6 - g + g * g), b @ a ** 3 - 0.25,
+            (b * a) @ al @ bp - (1 / 8 - g / 3), b @ beta @ a ** 2 - (1 / 12 - g / 3),
+            b @ beta @ beta @ bp - (1 / 24 - g / 2 + 1.5 * g * g - g ** 3)]
+
+
+def test_rosenbrock_tableaux_meet_their_order_conditions() -> None:
+    """Each K-form tableau, taken back to the classical form, meets the order conditions of
+    its order (up to 4: RODAS5P's order-5 conditions are not listed here) and its embedded
+    method those of the embedded order; the orders one above are not met (RODAS3 is order 3,
+    not 4; the embedded methods are exactly the order the controller assumes). The time
+    nodes and gamma sums the steppers read are the row sums of alpha and Gamma."""
+    n_conditions = {1: 1, 2: 2, 3: 4, 4: 8}
+    main_order = {'rodas3': 3, 'rodas4': 4, 'rosenbrock': 4}
+    for method, (tableau, emb_order) in ROSENBROCK_TABLEAUX.items():
+        tab = tableau()
+        for weights, order in ((tab['M'], main_order[method]), (tab['M'] - tab['E'], emb_order)):
+            g, G, al, b = _classical_form(tab, weights)
+            res = _order_residuals(g, G, al, b)
+            assert np.max(np.abs(res[:n_conditions[order]])) < 1e-12, (method, order, res)
+            if order < 4 and method != 'rosenbrock':
+                assert np.max(np.abs(res[n_conditions[order]:n_conditions[order + 1]])) > 1e-3
+            np.testing.assert_allclose(al.sum(1), tab['alpha'], atol=1e-12)
+            np.testing.assert_allclose(G.sum(1), tab['gamma_sum'], atol=1e-12)

@@ -10,7 +10,8 @@ commands that do not integrate do not pay for it.
 Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermite
 dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compiled
 ``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output), 'rosenbrock'
-(RODAS5P, its own dense output) and 'rodas4' (Hermite dense output), adaptive, and
+(RODAS5P, its own dense output), 'rodas4' and 'rodas3' (Hermite dense output),
+adaptive, and
 'dop853' (8(5,3), 7th-order dense output). Every method of solvers.METHODS is compiled;
 unknown names raise
 SolverOptionError('method', ...).
@@ -74,8 +75,10 @@ def steppers_for(rhs, jac=None):
         mod = mod[0]
     return mod
 
-KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4')
-_ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4')
+KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4', 'rodas3')
+_ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4', 'rodas3')
+_RODAS = ('rosenbrock', 'rodas4', 'rodas3')   # adaptive, tableau passed in (tableaux.py)
+_HERMITE_RODAS = ('rodas4', 'rodas3')   # dense output: cubic Hermite from K's last row
 
 
 @functools.lru_cache(maxsize=None)
@@ -138,7 +141,7 @@ class KernelStepper(_StepperBase):
         if method == 'dop853':
             self._d8, self._d8_dense = _dop853_args()
             stages = 22   # K rows: 13 stages + FSAL, 3 dense stages, 7 dense coefficients
-        if method in ('rosenbrock', 'rodas4'):
+        if method in _RODAS:
             self._tab, self._H = _rosenbrock_args(method)
             stages = len(self._tab[3]) + 1   # K rows: f, stages (M), f at the last step start
         # every float array of the state is a C-contiguous view of one buffer (and every
@@ -363,14 +366,14 @@ class KernelStepper(_StepperBase):
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
             self._call(self._nb.ros_dense_h, t, self._y, self._y_old, self._fs, self._H, self._K, out)
-        elif self.method == 'rodas4':
+        elif self.method in _HERMITE_RODAS:
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
                 return self.y.copy()
             self._call(self._nb.hermite_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                              self._cnt, self._K, out, self._K.shape[0] - 1)
             self._sync()
         else:
-            # frow given: _call keeps one entry point per function (rodas4 passes its own row)
+            # frow given: _call keeps one entry point per function (rodas4/3 pass their own row)
             self._call(self._nb.hermite_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                        self._cnt, self._K, out, 4)
             self._sync()
@@ -417,7 +420,7 @@ class KernelStepper(_StepperBase):
         if self.method == 'ros2':
             return self._nb.ros2_sample, (*state, *self._ros_args()), False
         if self.method in _ROSENBROCK:
-            hermite = self.method == 'rodas4'   # as dense(): cubic Hermite from K's last row
+            hermite = self.method in _HERMITE_RODAS   # as dense(): cubic Hermite, K's last row
             return (self._nb.ros_sample, (*state, *self._rodas_args(), _NO_H if hermite else self._H,
                                           self._K.shape[0] - 1 if hermite else -1), False)
         if self.method == 'dopri5':
@@ -436,7 +439,7 @@ class KernelStepper(_StepperBase):
         if self.method == 'ros2':
             return run_nb.ros2_run, self._ros_args()
         if self.method in _ROSENBROCK:
-            hermite = self.method == 'rodas4'   # as _sample_call
+            hermite = self.method in _HERMITE_RODAS   # as _sample_call
             return run_nb.ros_run, (*self._rodas_args(), _NO_H if hermite else self._H,
                                     self._K.shape[0] - 1 if hermite else -1)
         return run_nb.rk4_run, (self._K, self._work)
@@ -484,7 +487,7 @@ class KernelStepper(_StepperBase):
         self._cnt[nb.C_HAVELU] = 0
 
 
-_NO_H = np.zeros((3, 0))   # ros_sample's H for rodas4 (not read: its dense output is Hermite)
+_NO_H = np.zeros((3, 0))   # ros_sample's H for rodas4/3 (not read: their dense output is Hermite)
 
 
 def super_sample(stepper: KernelStepper, t_eval: np.ndarray) -> np.ndarray:

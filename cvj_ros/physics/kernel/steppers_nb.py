@@ -624,20 +624,38 @@ def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, wo
 
 
 @njit(cache=True, inline='always')
+def _stage_at_start(s, A, alpha):
+    """True when stage s > 0 evaluates f at (t, y) itself: alpha_s = 0 and no A terms
+    (RODAS3's second stage; KPP's ros_NewF = false). Its f is K[0], reused."""
+    if alpha[s] != 0.0:
+        return False
+    for j in range(s):
+        if A[s, j] != 0.0:
+            return False
+    return True
+
+
+@njit(cache=True, inline='always')
 def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work):
     """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
     y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
-    (K[0] = f(t, y)). y_new into work[1]."""
+    (K[0] = f(t, y), also the f of a stage at (t, y): _stage_at_start). y_new into
+    work[1]; work[3] is the C sums' scratch."""
     n = y.shape[0]
     st = M.shape[0]
     t = fs[FS_T]
     arg = work[0]
+    csum = work[3]
     lum = cnt[C_LUM]
     for s in range(st):
         b = K[s + 1]
         if s == 0:
             for i in range(n):
                 b[i] = K[0, i] + (h * gsum[0]) * ft[i]
+        elif _stage_at_start(s, A, alpha):
+            # argument (t, y) itself (RODAS3's second stage): f(t, y) = K[0], not evaluated
+            for i in range(n):
+                b[i] = K[0, i]
         else:
             for i in range(n):
                 acc = 0.0
@@ -645,13 +663,20 @@ def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, wor
                     acc += A[s, j] * K[j + 1, i]
                 arg[i] = y[i] + acc
             RHS(t + alpha[s] * h, arg, ip, fp, b)
+            cnt[C_NFEV] += 1
+        if s > 0:
+            # sum_j (C_sj / h) K_j with j outermost: one division per (s, j) instead of
+            # one per (s, j, i); every csum[i] still adds its terms in ascending j from 0.0,
+            # so the bytes are those of the i-outer loop
             for i in range(n):
-                acc = 0.0
-                for j in range(s):
-                    acc += (C[s, j] / h) * K[j + 1, i]
-                b[i] += acc + (h * gsum[s]) * ft[i]
+                csum[i] = 0.0
+            for j in range(s):
+                c = C[s, j] / h
+                for i in range(n):
+                    csum[i] += c * K[j + 1, i]
+            for i in range(n):
+                b[i] += csum[i] + (h * gsum[s]) * ft[i]
         lu_solve(LU, piv, b, lum)
-    cnt[C_NFEV] += st - 1
     ynew = work[1]
     for i in range(n):
         acc = 0.0

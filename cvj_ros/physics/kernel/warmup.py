@@ -27,7 +27,7 @@ import time
 from cvj_ros.physics.kernel.stepper import KERNEL_METHODS
 
 #: what the child process compiles when the warm-up runs in two processes
-CHILD_METHODS = ('ros2', 'rosenbrock', 'rodas4')
+CHILD_METHODS = ('ros2', 'rosenbrock', 'rodas4', 'rodas3')   # rodas3: rodas4's functions, loaded
 
 
 def tiny_scene():

@@ -12,7 +12,7 @@ from cvj_ros.physics.kernel.stepper import super_sample
 from cvj_ros.physics.simulate import Simulation
 from cvj_ros.physics.stepper_base import SolverOptionError
 
-METHODS = ('rosenbrock', 'rodas4', 'ros2', 'dop853')
+METHODS = ('rosenbrock', 'rodas4', 'rodas3', 'ros2', 'dop853')
 COUNTERS = ('t', 't_old', 'h', 'nfev', 'njev', 'nlu', 'naccept', 'nreject')
 
 

@@ -292,6 +292,10 @@ class Engine:
     """Base of the engine models: throttle state and the torque-source protocol."""
 
     model = 'engine'
+    #: the torque does not depend on t explicitly (only on omega, phi and the throttle, which
+    #: changes between runs or exchange steps): Rosenbrock steppers then skip f_t. False unless
+    #: a model says so; any torque source without the attribute counts as time-dependent.
+    time_invariant = False
 
     def __init__(self, *, throttle: float = 1.0) -> None:
         self.throttle = check_throttle(throttle)
@@ -328,6 +332,7 @@ class LinearEngine(Engine):
     """
 
     model = 'linear'
+    time_invariant = True
 
     def __init__(self, *, m1: float = KAVZ685_M1, k1: float = KAVZ685_K1,
                  throttle: float = 1.0) -> None:
@@ -455,6 +460,7 @@ class MapEngine(Engine):
     """
 
     model = 'map'
+    time_invariant = True
 
     def __init__(self, *, full_load_rpm: Sequence[float] = DEFAULT_FULL_LOAD_RPM,
                  full_load_torque: Sequence[float] = DEFAULT_FULL_LOAD_TORQUE,

@@ -41,6 +41,9 @@ class Load:
     """Base of the load models (torque-source protocol)."""
 
     model = 'load'
+    #: the torque does not depend on t explicitly (Rosenbrock steppers then skip f_t); False
+    #: unless a model says so (random, brake steps and time series depend on t)
+    time_invariant = False
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:  # pragma: no cover
         raise NotImplementedError
@@ -80,6 +83,7 @@ class ConstantLoad(Load):
     """
 
     model = 'constant'
+    time_invariant = True
 
     def __init__(self, *, torque: float = KAVZ685_LOAD_MEAN, speed_scale: float | None = None) -> None:
         self.value = float(torque)
@@ -290,6 +294,7 @@ class FourierLoad(Load):
     """
 
     model = 'fourier'
+    time_invariant = True
 
     def __init__(self, *, mean: float = 0.0, cos: Sequence[float] = (), sin: Sequence[float] = (),
                  phase_rad: float = 0.0, source: str = 'explicit') -> None:
@@ -383,6 +388,7 @@ class RoadLoad(Load):
     """
 
     model = 'road'
+    time_invariant = True
 
     def __init__(self, *, mass: float, wheel_radius: float, final_drive_ratio: float = 1.0,
                  rolling_coeff: float = 0.012, air_density: float = 1.2, drag_coeff: float = 0.3,
@@ -708,6 +714,7 @@ class SumLoad(Load):
 
     def __init__(self, components: Sequence[Load]) -> None:
         self.components = list(components)
+        self.time_invariant = all(getattr(c, 'time_invariant', False) for c in self.components)
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
         return sum(c.torque(t, omega, phi) for c in self.components)

@@ -152,6 +152,7 @@ class _KernelPlan:
     model: Any                            # its ModelData
     run: Any = None                       # KernelStepper.bind_run's one-call run
     XG: FloatArray | None = None          # land: its states at the grid (None: X itself)
+    shape: tuple[int, int, int] = (0, 0, 0)   # samples, states, shafts (the run's arrays)
 
 
 class Simulation:
@@ -198,6 +199,10 @@ class Simulation:
             load = load_from_spec(scene.load, seed=scene.seed, field='load')
         self.engine = engine
         self.load = load
+        # no explicit t in the closed loop (joints and springs have none): the Rosenbrock
+        # steppers skip f_t, 2 of RODAS3's 5 fev per step (same bytes: f_t is exactly 0)
+        self.autonomous = bool(getattr(engine, 'time_invariant', False)
+                               and getattr(load, 'time_invariant', False))
         self.last_trace: Trace | None = None
         dl = self.driveline
         n = dl.n_dof
@@ -330,13 +335,14 @@ class Simulation:
             from cvj_ros.physics.solvers import make_stepper
             if self.method in ('rosenbrock', 'ros2'):
                 kwargs['jac'] = self.jac
-            return make_stepper(self.method, self.fun, 0.0, x0, **kwargs)
+            return make_stepper(self.method, self.fun, 0.0, x0, autonomous=self.autonomous,
+                                **kwargs)
         from cvj_ros.physics.kernel import rhs_nb
         from cvj_ros.physics.kernel.stepper import KernelStepper
         model = self._model(horizon)
         self.model = model
         stepper = KernelStepper(self.method, rhs_nb.rhs, model.ip, model.fp, 0.0, x0,
-                                jac=rhs_nb.jac, **kwargs)
+                                jac=rhs_nb.jac, autonomous=self.autonomous, **kwargs)
         return stepper
 
     def torques(self, t: float, x: FloatArray) -> tuple[float, float]:
@@ -422,7 +428,9 @@ class Simulation:
         kwargs = self._stepper_options(dt)
         stepper = self.make_stepper(self.driveline.x0.copy(), dur, **kwargs)
         plan = _KernelPlan(times=times, grid=grid, rows=rows, is_sample=is_sample,
-                           segments=segments, stepper=stepper, model=self.model)
+                           segments=segments, stepper=stepper, model=self.model,
+                           shape=(times.size, self.driveline.x0.size,
+                                  len(self.driveline.shaft_names)))
         if self._one_call:
             # the same plan as arrays for the one-call run (kernel/run_nb.py); the unused
             # mode's arrays are empty, of the types every call passes
@@ -458,11 +466,12 @@ class Simulation:
         if fresh:
             plan = self._kernel_plan(dur, dt, sampling, breakpoints)
             self._plans = {key: plan}   # the latest options only
-        stepper = plan.stepper
         self.model = plan.model
+        if progress is None and plan.run is not None:
+            return self._run_one_call(plan, x0)
+        stepper = plan.stepper
         times = plan.times
-        m = times.size
-        n_sh = len(self.driveline.shaft_names)
+        m, n, n_sh = plan.shape
         pos = np.empty((m, n_sh))
         vel = np.empty((m, n_sh))
         eff = np.empty((m, n_sh))
@@ -472,15 +481,7 @@ class Simulation:
         e0 = self._initial_energy(x0)
         clock = time.perf_counter
         wall0 = clock()
-        X = np.empty((m, x0.size))
-        if progress is None and plan.run is not None:
-            # start, integration and outputs in one compiled call (kernel/run_nb.py)
-            XG = plan.XG
-            bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
-            wall = clock() - wall0
-            self._check_outputs(times, bad, pos, vel)
-            return self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
-                                wall, wall)
+        X = np.empty((m, n))
         if not fresh:
             stepper.reset(0.0, x0)
         X[0] = x0
@@ -518,6 +519,41 @@ class Simulation:
         self._kernel_outputs(times, X, e0, pos, vel, eff, te, tl, res)
         return self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             integ, clock() - wall0)
+
+    def _run_one_call(self, plan: _KernelPlan, x0: FloatArray) -> Trace:
+        """Start, integration and outputs in one compiled call (kernel/run_nb.py), and the
+        Trace. The Python around the call is what a short run pays beyond its compiled time
+        (stiff at tol 1e-3: ~15 us compiled; docs/solvers.md "Short runs"), so it allocates
+        the run's arrays and builds the Trace and no more; as :meth:`_finish` otherwise."""
+        m, n, n_sh = plan.shape
+        empty = np.empty
+        X = empty((m, n))
+        pos = empty((m, n_sh))
+        vel = empty((m, n_sh))
+        eff = empty((m, n_sh))
+        te = empty(m)
+        tl = empty(m)
+        res = empty(m)
+        e0 = self._initial_energy(x0)
+        XG = plan.XG
+        clock = time.perf_counter
+        wall0 = clock()
+        bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+        wall = clock() - wall0
+        times = plan.times
+        if bad >= 0 or self._mid_table[0].shape[0] or self._mid_table[2]:
+            self._check_outputs(times, bad, pos, vel)
+        stepper = plan.stepper
+        stats = stepper.stats(method=self.method, rtol=self.rtol, atol=self.atol,
+                              integration_wall_time=wall, backend='kernel',
+                              backend_fallback=self.backend_note)
+        trace = Trace(times.copy(), list(self.driveline.shaft_names), pos, vel, eff, te, tl,
+                      res, stats, wall)
+        self.compile_seconds = stepper.compile_seconds
+        self.cache_path = stepper.cache_path
+        self.last_trace = trace
+        self.final_state = X[-1]
+        return trace
 
     def _finish(self, stepper: Any, times: FloatArray, pos: FloatArray, vel: FloatArray,
                 eff: FloatArray, te: FloatArray, tl: FloatArray, res: FloatArray,

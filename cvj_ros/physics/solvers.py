@@ -850,7 +850,7 @@ def make_stepper(method: str, fun: RhsFunction, t0: float, y0, *, rtol: float = 
         jac: ``jac(t, y) -> (n, n)`` (Rosenbrock methods; finite differences if None).
         max_step: largest step (s).
         autonomous: Rosenbrock only: fun does not depend on t explicitly (skips
-            the f_t finite difference, 1 fev per step).
+            the f_t central difference, 2 fev per Jacobian).
         constant_jac: Rosenbrock only: J is constant (linear problem): reuse it and its LU.
     Raises:
         SolverOptionError: unknown method or invalid option (message starts with its name).

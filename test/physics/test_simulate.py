@@ -346,3 +346,23 @@ def test_repeated_runs_reuse_the_plan_and_repeat_the_bytes(scene: str, method: s
     loose = sim.run(0.3, sample_dt=0.01, sampling=sampling)
     assert next(iter(sim._plans.values())) is not plan
     assert counters(loose) != counters(fresh)
+
+
+@pytest.mark.parametrize('backend', ['kernel', 'python'])
+def test_time_invariant_sources_skip_f_t_with_the_same_trajectory(backend: str) -> None:
+    """Linear engine + constant load have no explicit t: the Rosenbrock steppers skip the f_t
+    central difference (2 fev per Jacobian) and, f_t being exactly 0 by the difference too,
+    the trajectory is bit for bit the one computed with it. A random load depends on t: not
+    autonomous."""
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    scene = load_scene(shipped_scenes()['stiff'])
+    auto = Simulation(scene, method='rodas3', rtol=1e-5, atol=1e-5, backend=backend)
+    assert auto.autonomous
+    timed = Simulation(scene, method='rodas3', rtol=1e-5, atol=1e-5, backend=backend)
+    timed.autonomous = False
+    a, b = auto.run(0.3, sample_dt=0.01), timed.run(0.3, sample_dt=0.01)
+    assert a.velocity.tobytes() == b.velocity.tobytes()
+    assert a.position.tobytes() == b.position.tobytes()
+    assert a.solver['naccept'] == b.solver['naccept']
+    assert b.solver['nfev'] - a.solver['nfev'] == 2 * b.solver['njev'] > 0
+    assert not Simulation(load_scene(shipped_scenes()['kavz685_lever'])).autonomous

@@ -14,6 +14,7 @@ import numpy as np
 
 from numba import njit
 
+from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
     ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_INPUT_F, H_LOAD, H_LOAD_F, H_NDOF, H_SEC,
@@ -169,11 +170,15 @@ def jac(t, y, ip, fp, J):
     for i in range(ns):
         for j in range(ns):
             J[i, j] = 0.0
-    # one allocation for all per-section scratch, indexed by row (each np.empty/np.zeros is
-    # an NRT allocation with atomic counters - ten were half of a small jac - and so is
-    # every view of it: rows are indexed, not sliced). Rows: phi_end, a, b, M, C, dM/dq,
-    # dC/dq, generalised force (per section), d(damping power)/dy (2n), then dQ_g/dy.
-    sc = np.zeros((9 + n, n2))
+    # one scratch for all per-section values, indexed by row (each np.empty/np.zeros is an
+    # NRT allocation with atomic counters - ten were half of a small jac - and so is every
+    # view of it: rows are indexed, not sliced), on the stack unless it is large. Rows:
+    # phi_end, a, b, M, C, dM/dq, dC/dq, generalised force (per section), d(damping
+    # power)/dy (2n), then dQ_g/dy.
+    if (9 + n) * n2 <= STACK_MAX_DOUBLES:
+        sc = stack_zeros_2d(9 + n, n2)
+    else:
+        sc = np.zeros((9 + n, n2))
     for g in range(n):
         q = y[g]
         phi, a, b, m, c, mp, hj = section(g, q, ip, fp)

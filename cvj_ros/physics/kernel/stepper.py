@@ -430,20 +430,24 @@ class KernelStepper(_StepperBase):
         return self._nb.rk4_sample, (*state, self._K, self._work), True
 
     def _run_call(self) -> tuple:
-        """(whole-run function of ``run_nb`` for this method, its arguments after the state)."""
+        """(whole-run function of ``run_nb`` for this method, its scalar options after the
+        model arrays, the method's pack entries after the common ones)."""
         from . import run_nb
         if self.method == 'dopri5':
-            return run_nb.dopri5_run, (self.rtol, self._atol, self.max_step, self._K, self._work)
+            return run_nb.dopri5_run, (self.rtol, self.max_step), ()
         if self.method == 'dop853':
-            return run_nb.dop853_run, (self.rtol, self._atol, self.max_step, *self._d8,
-                                       *self._d8_dense, self._K, self._work)
+            return run_nb.dop853_run, (self.rtol, self.max_step), (*self._d8, *self._d8_dense)
+        if self.method == 'rk4':
+            return run_nb.rk4_run, (), ()
+        linear = (self._J, self._LU, self._ft, self._piv)
         if self.method == 'ros2':
-            return run_nb.ros2_run, self._ros_args()
-        if self.method in _ROSENBROCK:
-            hermite = self.method in _HERMITE_RODAS   # as _sample_call
-            return run_nb.ros_run, (*self._rodas_args(), _NO_H if hermite else self._H,
-                                    self._K.shape[0] - 1 if hermite else -1)
-        return run_nb.rk4_run, (self._K, self._work)
+            return run_nb.ros2_run, (self._autonomous, self._constant_jac), linear
+        hermite = self.method in _HERMITE_RODAS   # as _sample_call
+        gamma, A, C, M, E, alpha, gsum, order, fac_max = self._tab
+        return (run_nb.ros_run,
+                (self.rtol, self.max_step, self._autonomous, self._constant_jac, gamma,
+                 order, fac_max, self._K.shape[0] - 1 if hermite else -1),
+                (*linear, A, C, M, E, alpha, gsum, _NO_H if hermite else self._H))
 
     def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray):
         """A whole offline run in one compiled call (``run_nb``), bound to what is fixed for a
@@ -457,15 +461,20 @@ class KernelStepper(_StepperBase):
         array (C-contiguous float64 / int64, fixed ndim): nothing is checked per run, and a
         run that succeeds leaves the Python attributes (t, y, counters: ~1.1 us to refresh)
         as they were - :meth:`stats` reads the arrays; :meth:`reset` refreshes them. Only
-        for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). After the first call the
-        fixed arguments are bound to the entry point (functools.partial: ~1 us less per run
-        than passing 49 arguments through Python)."""
+        for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). ``x0``, ``times``, the plan,
+        ``atol``, the tableau and ``tab`` are copied into the run's packs here
+        (``run_nb.pack``: fixed for these options); the fixed arguments are bound to the
+        entry point after its first call (functools.partial)."""
         if self._nb is not steppers_nb:
             raise SolverOptionError('rhs', 'bind_run runs the driveline kernel only')
-        fn, tail = self._run_call()
-        head = (x0, 0.0 if self._h0 is None else float(self._h0), times, *plan, self._fbuf,
-                self._ibuf, self._y, self._y_old, self.ip, self.fp, self._fs, self._cnt,
-                *tail, tab)
+        from .run_nb import pack
+        fn, scalars, entries = self._run_call()
+        grid, rows, seg, brk, tb, two = plan
+        fpk, ipk = pack([x0, times, grid, brk, tb, two, self._atol, self._fs, self._y_old,
+                         self._K, self._work, rows, seg, tab, self._cnt, *entries],
+                        self._fbuf, self._ibuf)
+        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp,
+                0.0 if self._h0 is None else float(self._h0), *scalars)
         check = self._check
         bound = None
 

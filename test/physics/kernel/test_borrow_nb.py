@@ -100,3 +100,29 @@ def test_rhs_without_reference_counting_called_from_python_leaves_counts_alone()
         rhs_nb.rhs(0.01, y, model.ip, model.fp, dy)
     assert [sys.getrefcount(a) for a in (y, model.ip, model.fp, dy)] == counts
     np.testing.assert_allclose(dy, sim.fun(0.01, y), rtol=1e-12, atol=0.0)
+
+
+def test_stack_zeros_2d_is_zeroed_writable_and_released_per_call():
+    """stack_zeros_2d: zeros of the asked shape, writable, a fresh zeroed array at every call
+    (a million calls from a loop: the stack does not grow)."""
+    from cvj_ros.physics.kernel.borrow_nb import stack_zeros_2d
+
+    @njit
+    def fill(r, c):
+        a = stack_zeros_2d(r, c)
+        s = 0.0
+        for i in range(r):
+            for j in range(c):
+                s += a[i, j]          # zero before any write
+                a[i, j] += 10.0 * i + j
+        return s, a.sum(), a.shape[0], a.shape[1], a.strides[0]
+
+    @njit
+    def many(n):
+        t = 0.0
+        for _ in range(n):
+            t += fill(11, 4)[1]
+        return t
+
+    assert fill(3, 5) == (0.0, sum(10.0 * i + j for i in range(3) for j in range(5)), 3, 5, 40)
+    assert many(1_000_000) == 1_000_000 * fill(11, 4)[1]

@@ -304,3 +304,22 @@ def test_kernel_time_series_load(outside):
     for t in (0.0, 0.05, float(ts[0]), float(ts[7]), float(ts[-1]), 1.95):
         rhs(t, np.array(dl.x0), model.ip, model.fp, dy)
         _close(dy, dl._rhs(t, np.array(dl.x0), 0.0, 0.0, engine.torque, load.torque))
+
+
+@pytest.mark.parametrize('n_sections', [3, 46])
+def test_jac_scratch_on_the_stack_and_on_the_heap(n_sections):
+    """jac's per-section scratch ((9 + n) x 2n doubles) is on the stack up to
+    borrow_nb.STACK_MAX_DOUBLES and an np.zeros above (46 sections: 5060 > 4096); both match
+    the oracle Jacobian."""
+    from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES
+    chain = [{'type': 'inertia', 'name': 'i0', 'J': 0.2}]
+    for k in range(1, n_sections):
+        chain += [{'type': 'spring', 'name': f's{k}', 'stiffness': 500.0 + 37.0 * k,
+                   'damping': 0.5},
+                  {'type': 'inertia', 'name': f'i{k}', 'J': 0.05 + 0.01 * k}]
+    chain.insert(1, HOOKE)
+    sc = _scene(chain)
+    dl = Driveline.from_scene(sc, track_energy=True)
+    assert ((9 + dl.n_dof) * 2 * dl.n_dof > STACK_MAX_DOUBLES) == (n_sections > 40)
+    _check(dl, engine_from_spec(sc.engine), load_from_spec(sc.load, seed=sc.seed, field='load'),
+           np.random.default_rng(11))

@@ -73,3 +73,36 @@ def test_a_run_that_fails_raises_the_same_error_on_both_paths(method):
             sim.run(0.1, sample_dt=0.01)
         messages.append(str(err.value))
     assert messages[0] == messages[1]
+
+
+def test_pack_keeps_state_views_in_place_and_copies_the_rest():
+    """run_nb.pack: an entry that is a view of the stepper's buffers is its offset there (the
+    run writes the state in place), any other array is a copy; the compiled accessors give
+    back every entry, 1-d and 2-d, float and int, empty ones included."""
+    from numba import njit
+
+    from cvj_ros.physics.kernel import run_nb
+
+    fbuf = np.arange(30.0)
+    ibuf = np.arange(10, dtype=np.int64)
+    view_f, view_f2, view_i = fbuf[4:9], fbuf[10:16].reshape(2, 3), ibuf[3:7]
+    own_f, own_f2 = np.array([7.5, -1.0]), np.arange(12.0).reshape(4, 3)
+    own_i2, empty = np.arange(6, dtype=np.int64).reshape(3, 2), np.zeros((3, 0))
+    entries = [view_f, own_f, view_f2, own_f2, empty, view_i, own_i2]
+    fpk, ipk = run_nb.pack(entries, fbuf, ibuf)
+    assert fpk.size == own_f.size + own_f2.size          # the views are not copied
+
+    @njit
+    def unpack(fpk, ipk, fbuf, ibuf):
+        return (run_nb._f1(0, fpk, ipk, fbuf), run_nb._f1(1, fpk, ipk, fbuf),
+                run_nb._f2(2, fpk, ipk, fbuf), run_nb._f2(3, fpk, ipk, fbuf),
+                run_nb._f2(4, fpk, ipk, fbuf), run_nb._i1(5, ipk, ibuf),
+                run_nb._i2(6, ipk, ibuf))
+
+    got = unpack(fpk, ipk, fbuf, ibuf)
+    for a, b in zip(got, entries):
+        assert a.shape == b.shape and np.array_equal(a, b)
+    got[0][0] = 99.0                                     # a state view writes the buffer
+    assert fbuf[4] == 99.0
+    with pytest.raises(ValueError, match='pack entry 0'):
+        run_nb.pack([np.zeros((2, 2, 2))], fbuf, ibuf)

@@ -93,47 +93,50 @@ def pack(entries: list[np.ndarray], fbuf: np.ndarray, ibuf: np.ndarray
 
 
 @njit(cache=True, inline='always')
-def _f1(e, fpk, ipk, fbuf):
-    """1-d float entry e of the pack table."""
+def _view1(e, ipk, pk, buf, in_buf):
+    """1-d entry e of the pack table: in ``buf`` (the stepper's buffer) when the table says
+    ``in_buf``, else in the pack ``pk``."""
     r = 1 + _HEAD * e
     o = ipk[r + 1]
-    if ipk[r] == B_FBUF:
-        return fbuf[o:o + ipk[r + 2]]
-    return fpk[o:o + ipk[r + 2]]
+    if ipk[r] == in_buf:
+        return buf[o:o + ipk[r + 2]]
+    return pk[o:o + ipk[r + 2]]
+
+
+@njit(cache=True, inline='always')
+def _view2(e, ipk, pk, buf, in_buf):
+    """2-d entry e of the pack table (as :func:`_view1`)."""
+    r = 1 + _HEAD * e
+    o = ipk[r + 1]
+    d0 = ipk[r + 2]
+    d1 = ipk[r + 3]
+    if ipk[r] == in_buf:
+        return buf[o:o + d0 * d1].reshape((d0, d1))
+    return pk[o:o + d0 * d1].reshape((d0, d1))
+
+
+@njit(cache=True, inline='always')
+def _f1(e, fpk, ipk, fbuf):
+    """1-d float entry e."""
+    return _view1(e, ipk, fpk, fbuf, B_FBUF)
 
 
 @njit(cache=True, inline='always')
 def _f2(e, fpk, ipk, fbuf):
-    """2-d float entry e of the pack table."""
-    r = 1 + _HEAD * e
-    o = ipk[r + 1]
-    d0 = ipk[r + 2]
-    d1 = ipk[r + 3]
-    if ipk[r] == B_FBUF:
-        return fbuf[o:o + d0 * d1].reshape((d0, d1))
-    return fpk[o:o + d0 * d1].reshape((d0, d1))
+    """2-d float entry e."""
+    return _view2(e, ipk, fpk, fbuf, B_FBUF)
 
 
 @njit(cache=True, inline='always')
 def _i1(e, ipk, ibuf):
-    """1-d int entry e of the pack table."""
-    r = 1 + _HEAD * e
-    o = ipk[r + 1]
-    if ipk[r] == B_IBUF:
-        return ibuf[o:o + ipk[r + 2]]
-    return ipk[o:o + ipk[r + 2]]
+    """1-d int entry e."""
+    return _view1(e, ipk, ipk, ibuf, B_IBUF)
 
 
 @njit(cache=True, inline='always')
 def _i2(e, ipk, ibuf):
-    """2-d int entry e of the pack table."""
-    r = 1 + _HEAD * e
-    o = ipk[r + 1]
-    d0 = ipk[r + 2]
-    d1 = ipk[r + 3]
-    if ipk[r] == B_IBUF:
-        return ibuf[o:o + d0 * d1].reshape((d0, d1))
-    return ipk[o:o + d0 * d1].reshape((d0, d1))
+    """2-d int entry e."""
+    return _view2(e, ipk, ipk, ibuf, B_IBUF)
 
 
 @njit(cache=True, inline='always')

@@ -233,15 +233,14 @@ class KernelStepper(_StepperBase):
         self.y = self._y.copy()
         self.y_old = self._y_old.copy()
 
-    def stats(self, **extra) -> dict:
+    def stats(self) -> dict:
         """Counters and the current step-size proposal (s), read from the kernel arrays (so
-        also right after :meth:`bind_run`'s run, which does not refresh the attributes);
-        ``extra`` items are added (one dict built, for ``Simulation.run``'s Trace)."""
+        also right after :meth:`bind_run`'s run, which does not refresh the attributes)."""
         fs, cnt = self._fs.tolist(), self._cnt.tolist()
         h = fs[nb.FS_H]
         return {'method': self.method, 't': fs[nb.FS_T], 'h': h if h > 0 else None,
                 'nfev': cnt[nb.C_NFEV], 'njev': cnt[nb.C_NJEV], 'nlu': cnt[nb.C_NLU],
-                'naccept': cnt[nb.C_NACC], 'nreject': cnt[nb.C_NREJ], **extra}
+                'naccept': cnt[nb.C_NACC], 'nreject': cnt[nb.C_NREJ]}
 
     def _check(self, status: int) -> None:
         self._sync()

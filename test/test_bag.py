@@ -1,8 +1,11 @@
 """Bags: raw round trip (mcap, sqlite3), typed reading, stamps from CDR, errors, recorder."""
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -305,53 +308,47 @@ def test_fast_mcap_writes_are_rosbags_bytes(tmp_path: Path, monkeypatch: pytest.
     assert ours == ref
 
 
-@pytest.mark.ros
-def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None:
-    """spin(coalesce=c) over a BatchingWriter (the separate-process recorder,
-    orchestrate.RECORDER_COALESCE_S): every message of a fast publisher in the bag, in order,
-    although nothing flushes the front but spin itself; and at most one wake per c s while
-    they arrive (the wait after a productive wake is c: the bound is the loop's own rule,
-    not a timing guess)."""
+@contextlib.contextmanager
+def _spinning_recorder(path: Path, *, coalesce: float) -> Iterator[SimpleNamespace]:
+    """A BagRecorder over a BatchingWriter (as the orchestrator's separate-process recorder:
+    only spin flushes the front) spinning in a thread with ``coalesce``, and a publisher of
+    /load/wrench in its own context, matched. Yields writer, front, rec, stop, thread and
+    ``send(k)`` (a wrench stamped k ms with torque z = k); afterwards stops the spin and
+    closes everything."""
     import threading
 
     import rclpy
     from geometry_msgs.msg import WrenchStamped
 
-    n, c = 200, 0.02
     ctx, pub_ctx = rclpy.context.Context(), rclpy.context.Context()
     rclpy.init(context=ctx)
     rclpy.init(context=pub_ctx)
     stop = threading.Event()
     try:
-        node = rclpy.create_node('rec_coalesce', context=ctx)
-        pub_node = rclpy.create_node('pub_coalesce', context=pub_ctx)
-        writer = bag.BagWriter(tmp_path / 'b')
-        front = bag.BatchingWriter(writer)     # as the orchestrator's recorder: spin flushes it
+        node = rclpy.create_node('rec_spin', context=ctx)
+        pub_node = rclpy.create_node('pub_spin', context=pub_ctx)
+        writer = bag.BagWriter(path)
+        front = bag.BatchingWriter(writer)
         rec = bag.BagRecorder(node, front)
-        thread = threading.Thread(target=rec.spin, args=(stop,), kwargs={'coalesce': c}, daemon=True)
+        thread = threading.Thread(target=rec.spin, args=(stop,), kwargs={'coalesce': coalesce},
+                                  daemon=True)
         thread.start()
         pub = pub_node.create_publisher(WrenchStamped, '/load/wrench', bag.recorder_qos())
         deadline = time.monotonic() + 10
         while pub.get_subscription_count() == 0:
             assert time.monotonic() < deadline, 'recorder subscription not matched'
             time.sleep(0.01)
-        sent = []
-        t0 = time.monotonic()
-        for k in range(n):
+
+        def send(k: int) -> None:
             w = WrenchStamped()
             w.header.stamp.nanosec = 1_000_000 * k
             w.wrench.torque.z = float(k)
             pub.publish(w)
-            sent.append(k)
-            time.sleep(0.0005)
-        deadline = time.monotonic() + 10
-        while writer.counts.get('/load/wrench', 0) < n:   # handed to the writer thread
-            assert time.monotonic() < deadline, (writer.counts, front.counts)
-            time.sleep(0.005)
-        t1 = time.monotonic()
+
+        yield SimpleNamespace(writer=writer, front=front, rec=rec, pub=pub, stop=stop,
+                              thread=thread, send=send)
         stop.set()
-        thread.join(2)
-        wakes = rec.wakes
+        thread.join(5)
         rec.destroy()
         writer.close()
         node.destroy_node()
@@ -360,6 +357,31 @@ def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None
         stop.set()
         rclpy.shutdown(context=ctx)
         rclpy.shutdown(context=pub_ctx)
+
+
+@pytest.mark.ros
+def test_recorder_spin_coalesces_wakes_and_loses_nothing(tmp_path: Path) -> None:
+    """spin(coalesce=c) over a BatchingWriter (the separate-process recorder,
+    orchestrate.RECORDER_COALESCE_S): every message of a fast publisher in the bag, in order,
+    although nothing flushes the front but spin itself; and at most one wake per c s while
+    they arrive (the wait after a productive wake is c: the bound is the loop's own rule,
+    not a timing guess)."""
+    n, c = 200, 0.02
+    with _spinning_recorder(tmp_path / 'b', coalesce=c) as r:
+        sent = []
+        t0 = time.monotonic()
+        for k in range(n):
+            r.send(k)
+            sent.append(k)
+            time.sleep(0.0005)
+        deadline = time.monotonic() + 10
+        while r.writer.counts.get('/load/wrench', 0) < n:   # handed to the writer thread
+            assert time.monotonic() < deadline, (r.writer.counts, r.front.counts)
+            time.sleep(0.005)
+        t1 = time.monotonic()
+        r.stop.set()
+        r.thread.join(2)
+        wakes = r.rec.wakes
     # content, not bytes: rclpy leaves the CDR alignment padding uninitialised
     raw = bag.read_raw(tmp_path / 'b', ['/load/wrench'])
     assert len(raw) == len(sent) == n
@@ -375,55 +397,20 @@ def test_recorder_spin_stopped_in_its_coalesce_wait_takes_what_is_queued(tmp_pat
     the messages that arrived meanwhile before spin returns: acknowledged by the recorder's
     reader (in its queue), they are in the bag. The coalesce wait here is 60 s, so every
     message after the first is in that window."""
-    import threading
-
-    import rclpy
-    from geometry_msgs.msg import WrenchStamped
     from rclpy.duration import Duration
 
-    ctx, pub_ctx = rclpy.context.Context(), rclpy.context.Context()
-    rclpy.init(context=ctx)
-    rclpy.init(context=pub_ctx)
-    stop = threading.Event()
-    try:
-        node = rclpy.create_node('rec_stop', context=ctx)
-        pub_node = rclpy.create_node('pub_stop', context=pub_ctx)
-        writer = bag.BagWriter(tmp_path / 'b')
-        front = bag.BatchingWriter(writer)
-        rec = bag.BagRecorder(node, front)
-        thread = threading.Thread(target=rec.spin, args=(stop,), kwargs={'coalesce': 60.0},
-                                  daemon=True)
-        thread.start()
-        pub = pub_node.create_publisher(WrenchStamped, '/load/wrench', bag.recorder_qos())
+    with _spinning_recorder(tmp_path / 'b', coalesce=60.0) as r:
         deadline = time.monotonic() + 10
-        while pub.get_subscription_count() == 0:
-            assert time.monotonic() < deadline, 'recorder subscription not matched'
-            time.sleep(0.01)
-
-        def send(k: int) -> None:
-            w = WrenchStamped()
-            w.header.stamp.nanosec = 1_000_000 * k
-            w.wrench.torque.z = float(k)
-            pub.publish(w)
-
-        send(0)
-        while front.counts.get('/load/wrench', 0) < 1:   # taken: spin is now in its wait
-            assert time.monotonic() < deadline, front.counts
+        r.send(0)
+        while r.front.counts.get('/load/wrench', 0) < 1:   # taken: spin is now in its wait
+            assert time.monotonic() < deadline, r.front.counts
             time.sleep(0.005)
         for k in range(1, 6):
-            send(k)
-        assert pub.wait_for_all_acked(Duration(seconds=10))   # in the recorder's queue
-        assert front.counts['/load/wrench'] == 1              # not taken yet
-        stop.set()
-        thread.join(5)
-        assert not thread.is_alive()
-        rec.destroy()
-        writer.close()
-        node.destroy_node()
-        pub_node.destroy_node()
-    finally:
-        stop.set()
-        rclpy.shutdown(context=ctx)
-        rclpy.shutdown(context=pub_ctx)
+            r.send(k)
+        assert r.pub.wait_for_all_acked(Duration(seconds=10))   # in the recorder's queue
+        assert r.front.counts['/load/wrench'] == 1              # not taken yet
+        r.stop.set()
+        r.thread.join(5)
+        assert not r.thread.is_alive()
     np.testing.assert_array_equal(bag.read_bag(tmp_path / 'b', ['/load/wrench'])['/load/wrench'].torque_z,
                                   np.arange(6.0))

@@ -640,12 +640,11 @@ def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, wor
     """Rosenbrock stages in K form: (I/(h g) - J) K_i = f(t + alpha_i h,
     y + sum_j A_ij K_j) + sum_j C_ij/h K_j + h gsum_i f_t; K_i into K[i+1]
     (K[0] = f(t, y), also the f of a stage at (t, y): _stage_at_start). y_new into
-    work[1]; work[3] is the C sums' scratch."""
+    work[1]."""
     n = y.shape[0]
     st = M.shape[0]
     t = fs[FS_T]
     arg = work[0]
-    csum = work[3]
     lum = cnt[C_LUM]
     for s in range(st):
         b = K[s + 1]
@@ -665,17 +664,11 @@ def _ros_stages(h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, wor
             RHS(t + alpha[s] * h, arg, ip, fp, b)
             cnt[C_NFEV] += 1
         if s > 0:
-            # sum_j (C_sj / h) K_j with j outermost: one division per (s, j) instead of
-            # one per (s, j, i); every csum[i] still adds its terms in ascending j from 0.0,
-            # so the bytes are those of the i-outer loop
             for i in range(n):
-                csum[i] = 0.0
-            for j in range(s):
-                c = C[s, j] / h
-                for i in range(n):
-                    csum[i] += c * K[j + 1, i]
-            for i in range(n):
-                b[i] += csum[i] + (h * gsum[s]) * ft[i]
+                acc = 0.0
+                for j in range(s):
+                    acc += (C[s, j] / h) * K[j + 1, i]
+                b[i] += acc + (h * gsum[s]) * ft[i]
         lu_solve(LU, piv, b, lum)
     ynew = work[1]
     for i in range(n):

@@ -288,9 +288,9 @@ class Simulation:
         members' angles and speeds (compiled where the kernel has them, else Python)."""
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
-        entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
         mtab, mfp, python_members = self._mid_table
         if mtab.shape[0]:
+            entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
             args = (pos, vel, mtab, mfp)
             entry_point_once(fill_mid_samples, args)(*args)
         if python_members:
@@ -457,8 +457,8 @@ class Simulation:
         """:meth:`run` on the compiled kernel. The plan of these options (sample times, grid,
         stepper) is made once per Simulation and options; a later run resets the plan's
         stepper (the same steps and bytes as a new one) and spends its Python on little more
-        than two compiled calls - a loose-tolerance stiff run is ~27 us in all, ~80 before
-        (docs/solvers.md "Short runs")."""
+        than one compiled call - a loose-tolerance stiff run is ~17 us in all (rodas3),
+        ~80 before stop 23 (docs/solvers.md "Short runs")."""
         key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
         plan = self._plans.get(key)
         x0 = self.driveline.x0
@@ -541,8 +541,7 @@ class Simulation:
         bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
         wall = clock() - wall0
         times = plan.times
-        if bad >= 0 or self._mid_table[0].shape[0] or self._mid_table[2]:
-            self._check_outputs(times, bad, pos, vel)
+        self._check_outputs(times, bad, pos, vel)
         return self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             wall, wall)
 

@@ -99,9 +99,9 @@ def run(args: argparse.Namespace) -> int:
         if v is not None and not (math.isfinite(v) and (v > 0 or (opt == 'transient' and v >= 0))):
             raise SceneError(f'--{opt.replace("_", "-")}', f'must be > 0, got {v}')
     if args.method is not None:
-        from cvj_ros.physics.scene import SOLVER_METHODS
-        if args.method not in SOLVER_METHODS:
-            raise SceneError('--method', f'must be one of {", ".join(SOLVER_METHODS)}, got {args.method!r}')
+        from cvj_ros.physics.scene import OFFLINE_METHODS
+        if args.method not in OFFLINE_METHODS:
+            raise SceneError('--method', f'must be one of {", ".join(OFFLINE_METHODS)}, got {args.method!r}')
     scene = load_scene(find_scene(args.scene))
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                      fidelity=parse_fidelity(args.fidelity), backend=args.backend)

@@ -39,6 +39,9 @@ LIMIT_KEYS = ('max_angle_deg', 'max_speed_rad_s', 'max_torque_nm', 'max_twist_de
               'max_nonuniformity')
 # Solver names of cvj_ros.physics.solvers.METHODS (validated here so a typo stops early).
 SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
+# every solver an offline run takes (cvj-sim simulate --method, Simulation): all of
+# solvers.METHODS, the two loose-tolerance RODAS methods besides the scene's choices
+OFFLINE_METHODS = SOLVER_METHODS + ('rodas4', 'rodas3')
 # unit suffix in a scene file -> (SI unit of the registry, factor to SI)
 _SUFFIX_TO_SI = {'_deg': ('rad', math.pi / 180.0), '_rad': ('rad', 1.0),
                  '_mm': ('m', 1e-3), '_m': ('m', 1.0), '_kg': ('kg', 1.0)}

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from cvj_ros.cli import main
 
@@ -34,6 +35,22 @@ def test_simulate_json_and_csv(tmp_path, capsys) -> None:
     header = csv.read_text().splitlines()[0].split(',')
     assert header[0] == 't_s' and 'driven_velocity_rad_s' in header
     assert data[-1, 0] == 0.1
+
+
+@pytest.mark.parametrize('method', ['rodas4', 'rodas3'])
+def test_simulate_takes_every_offline_solver(method, capsys) -> None:
+    """--method takes every solver Simulation runs (solvers.METHODS), the loose-tolerance
+    RODAS methods included (their --help names them); a name outside is one line, exit 2."""
+    from cvj_ros.physics.scene import OFFLINE_METHODS
+    from cvj_ros.physics.solvers import METHODS
+    assert set(OFFLINE_METHODS) == set(METHODS)
+    assert main(['simulate', 'stiff', '--duration', '0.1', '--json', '--method', method,
+                 '--rtol', '1e-3']) == 0
+    assert json.loads(capsys.readouterr().out)['solver']['method'] == method
+    assert main(['simulate', 'stiff', '--method', 'nope']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('cvj-sim: error: --method: must be one of')
+    assert 'rodas3' in err[0]
 
 
 def test_simulate_fidelity_override(capsys) -> None:

@@ -76,6 +76,17 @@ def coupling_wrench_topic(joint: str) -> str:
 #   to a busy subscriber (shared-memory port full on a loaded 2-core machine) is repaired
 #   within milliseconds, and a writer's wait for acknowledgements at exit ends as soon as
 #   all arrived;
+# * writers: NACK suppression 20 ms instead of Fast DDS's 0. Fast DDS (re)starts a reader
+#   proxy's nack-suppression timer for every sample sent to a reader in another process; at 0
+#   the timer was idle again before the next sample, so every sample woke the participant's
+#   event thread (and its writer-mutex hand-offs): measured with `perf` sched_wakeup stacks in
+#   a separate-process kavz685_lever run, ~3 event-thread wakes per exchange in the coupling
+#   process (ReaderProxy::from_unsent_to_status -> ResourceEvent::notify), 2-3 in engine and
+#   load; context switches of all processes 36-37 -> 17-18 per exchange with 20 ms (the
+#   event threads drop out). A timer still armed is not restarted, so it fires once per
+#   20 ms. The cost: a sample lost on the way (shared-memory port full) is NACKed within the
+#   suppression window in vain, so its repair can take one heartbeat longer (<= ~45 ms);
+#   reliability is unchanged (docs/nodes.md, "Separate processes: the DDS event thread");
 # * participants: a discovery announcement every 0.25 s instead of 3 s. A participant that
 #   starts after another learns of it only from the other's next periodic announcement:
 #   the recorder's participant exists before the node processes start, so `cvj-sim run`
@@ -96,6 +107,7 @@ FASTDDS_PROFILE = '''<?xml version="1.0" encoding="UTF-8" ?>
   <publisher profile_name="cvj_ros_writer" is_default_profile="true">
     <times>
       <heartbeatPeriod><sec>0</sec><nanosec>20000000</nanosec></heartbeatPeriod>
+      <nackSupressionDuration><sec>0</sec><nanosec>20000000</nanosec></nackSupressionDuration>
     </times>
   </publisher>
 </profiles>

@@ -557,9 +557,12 @@ def measure_rclpy_round_trip(n: int) -> dict[str, Any]:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     try:
         from cvj_ros.nodes.roundtrip import (measure_round_trip, measure_round_trip_ipc,
-                                             measure_round_trip_peers)
+                                             measure_round_trip_peers, run_dds_settings)
     except ImportError as exc:
         return {'note': f'unavailable: {exc}'}
+    # every side of every round trip with the DDS settings of the run's node processes
+    # (the Fast DDS profile applies only to a process's first participant)
+    run_dds_settings()
     runs: dict[str, Callable[[], dict[str, Any]]] = {
         'events': lambda: measure_round_trip(n, 'events'),
         'events2': lambda: measure_round_trip_peers(n, 2),

@@ -99,9 +99,8 @@ def main() -> None:
     ap.add_argument('--modes', nargs='+', choices=sorted(MODE_ARGS), default=['composed', 'separate'],
                     help='composed (in-process bus), composed-dds (--no-intra-process), separate')
     a = ap.parse_args()
-    from cvj_ros.nodes.qos import dds_environment
-    dds_environment(os.environ)     # the node processes' DDS settings, also for the round trips
-    from cvj_ros.nodes.roundtrip import measure_round_trip_ipc
+    from cvj_ros.nodes.roundtrip import measure_round_trip_ipc, run_dds_settings
+    run_dds_settings()     # the node processes' DDS settings (profile too), also for the round trips
     load0 = os.getloadavg()
     print(f'load average before: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f} ({os.cpu_count()} cores)')
     rt_in = round_trip_in_process(peers=2)

@@ -325,14 +325,25 @@ def measure_round_trip_ipc(n: int = 1000, executor: Literal['events', 'single'] 
         wake-ups of an echo process's Fast DDS event thread per round trip (mean over the
         echo processes; :func:`event_thread_sleeps`, None where /proc cannot tell).
     """
-    import tempfile
-
     if executor not in EXECUTORS:
         raise ValueError(f'executor: must be one of {EXECUTORS}, got {executor!r}')
     if n < 1:
         raise ValueError(f'n: must be >= 1, got {n}')
     if not 1 <= echoes <= 8:
         raise ValueError(f'echoes: must be in 1..8, got {echoes}')
+    env = run_dds_settings()
+    return _measure_ipc(n, executor, echoes=echoes, warmup=warmup, timeout=timeout, env=env)
+
+
+def run_dds_settings() -> dict[str, str]:
+    """The environment with the DDS settings of `cvj-sim run`'s node processes
+    (:func:`cvj_ros.nodes.qos.dds_environment`, the profile file in a stable per-user
+    directory), for the processes a measurement starts; the same keys are also set in this
+    process's environment where unset. Fast DDS reads them once, when a process creates its
+    first participant: a benchmark calls this before any rclpy measurement, so the pinging
+    side of a round trip has the settings of the loop's coupling node too."""
+    import tempfile
+
     from cvj_ros.nodes.qos import dds_environment
     # a stable per-user directory: the profile path may stay in os.environ after this call
     profile_dir = os.path.join(tempfile.gettempdir(), f'cvj_ros_dds_{os.getuid()}')
@@ -342,7 +353,7 @@ def measure_round_trip_ipc(n: int = 1000, executor: Literal['events', 'single'] 
                 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'RMW_IMPLEMENTATION'):
         if key in env:
             os.environ.setdefault(key, env[key])
-    return _measure_ipc(n, executor, echoes=echoes, warmup=warmup, timeout=timeout, env=env)
+    return env
 
 
 def event_thread_sleeps(pid: int) -> int | None:

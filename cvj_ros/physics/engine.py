@@ -24,7 +24,6 @@ Spec validation raises :class:`cvj_ros.errors.SceneError` whose field is
 """
 from __future__ import annotations
 
-import bisect
 import difflib
 import math
 from collections.abc import Mapping, Sequence

@@ -94,7 +94,7 @@ class KernelStateOutputs:
         self.driveline = driveline
         self.joints = list(joints)
         self.model = build_model(driveline)     # torques from the input block
-        ip, fp = self.model.ip, self.model.fp
+        ip = self.model.ip
         from cvj_ros.physics.kernel.layout import H_INPUT_F, IN_TE, IN_TL
         self._i_te = int(ip[H_INPUT_F]) + IN_TE
         self._i_tl = int(ip[H_INPUT_F]) + IN_TL

@@ -479,7 +479,6 @@ class Tripod:
 
     def _build_spectral(self) -> None:
         """Continuation along phi_in over one period, then a Fourier sine table."""
-        l = self.l
         # Start at phi_in = 0 (symmetric: s_v = 0, phi_out = 0) by continuation in beta.
         q = np.zeros((3, 1))
         ph0 = np.zeros(1)

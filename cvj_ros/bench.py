@@ -600,10 +600,14 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
     """Loop figures of a real ROS lockstep run (`cvj-sim run`: one process per loop node, or
     ``composed``: every node and the recorder in one process, ``--composed``).
 
-    Reads the coupling node's last loop diagnostics from the bag: per exchange wall time,
-    lockstep wait, integration time and overhead = exchange wall - integration (us), and the
-    real-time factor. Returns ``{'note': ...}`` when the run is not possible here.
+    Reads the run's ``report.json``: the per-exchange wall time, lockstep wait, integration,
+    state evaluation + publication and overhead = exchange wall - integration (us) of its
+    ``loop_timing`` (the coupling node's last loop diagnostics), and the real-time factor the
+    run's report prints (simulated time over the recorded loop's wall span), so the bench and
+    `cvj-sim run` give the same figure. Returns ``{'note': ...}`` when the run is not
+    possible here.
     """
+    import json
     import tempfile
     exe = Path(sys.executable).with_name('cvj-sim')
     env = dict(os.environ)
@@ -621,23 +625,18 @@ def real_lockstep_run(scene_name: str, *, duration: float, timeout: float = 300.
         if r.returncode != 0:
             return {'note': f'cvj-sim run exited {r.returncode}: {(r.stderr or r.stdout).strip()[-200:]}'}
         try:
-            from cvj_ros.analysis import read_bag_signals
-            sig = read_bag_signals(Path(tmp) / 'run' / 'bag')
-        except CvjError as exc:
-            return {'note': f'bag unreadable: {exc}'}
-    loop = [v for _t, name, _lv, _msg, v in sig.diagnostics
-            if name.startswith('coupling') and 'overhead_us_mean' in v]
-    out: dict[str, Any] = {'scene': scene_name, 'exchanges': int(max(1, sig.t.size - 1)),
+            rep = json.loads((Path(tmp) / 'run' / 'report.json').read_text())
+        except (OSError, ValueError) as exc:
+            return {'note': f'report.json unreadable: {exc}'}
+    states = int((rep.get('counts') or {}).get('/driveline/joint_states', 1))
+    out: dict[str, Any] = {'scene': scene_name, 'exchanges': max(1, states - 1),
                            'process_wall_s': wall, 'mode': 'composed' if composed else 'separate'}
-    if loop:
-        for key in ('exchange_wall_us_mean', 'lockstep_wait_us_mean', 'integration_us_mean',
-                    'overhead_us_mean', 'state_us_mean', 'real_time_factor'):
-            try:
-                out[key] = float(loop[-1][key])
-            except (KeyError, ValueError):
-                pass
+    timing = (rep.get('metrics') or {}).get('loop_timing') or {}
+    if 'overhead_us_mean' in timing:
+        out.update({key: float(v) for key, v in timing.items()})
+        out['real_time_factor'] = float(rep.get('real_time_factor') or 'nan')
     else:
-        out['note'] = 'no coupling-node loop diagnostics in the bag'
+        out['note'] = 'no coupling-node loop diagnostics in the run report'
     return out
 
 

@@ -360,3 +360,34 @@ def test_startup_times_a_cold_compile_in_an_empty_cache_then_warm_commands(
     md = (tmp_path / 'bench.md').read_text()
     assert 'cold compile' in md and ': 98.7 s (two processes)' in md
     assert '1.04 s median, 0.97 s min of 3 (target <= 1.5 s)' in md
+
+
+def test_real_lockstep_run_reads_the_runs_report(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The figures of a real run come from its report.json - the loop timing and the
+    real-time factor `cvj-sim run` prints - so the bench and the run's report agree; a run
+    without loop timing or with an unreadable report gives a note (subprocess faked: the
+    real runs are the e2e tests' job)."""
+    import json
+    import subprocess
+
+    timing = {'exchange_wall_us_mean': 450.0, 'integration_us_mean': 25.0, 'overhead_us_mean': 425.0,
+              'lockstep_wait_us_mean': 300.0, 'state_us_mean': 80.0}
+    reports: list = [{'real_time_factor': 2.2, 'counts': {'/driveline/joint_states': 5001},
+                      'metrics': {'loop_timing': timing}},
+                     {'real_time_factor': 2.2, 'counts': {}, 'metrics': {}}, None]
+    seen = []
+
+    def fake_run(cmd, **_kw):
+        seen.append(cmd)
+        out = Path(cmd[cmd.index('--out') + 1])
+        out.mkdir(parents=True)
+        rep = reports.pop(0)
+        (out / 'report.json').write_text('{' if rep is None else json.dumps(rep))
+        return subprocess.CompletedProcess(cmd, 0, '', '')
+    monkeypatch.setattr(subprocess, 'run', fake_run)
+    r = bench.real_lockstep_run('kavz685_lever', duration=5.0, composed=True)
+    assert seen[0][1:3] == ['run', 'kavz685_lever'] and '--composed' in seen[0]
+    assert r == {'scene': 'kavz685_lever', 'exchanges': 5000, 'process_wall_s': r['process_wall_s'],
+                 'mode': 'composed', **timing, 'real_time_factor': 2.2}
+    assert 'no coupling-node loop diagnostics' in bench.real_lockstep_run('s', duration=1.0)['note']
+    assert bench.real_lockstep_run('s', duration=1.0)['note'].startswith('report.json unreadable')

@@ -62,10 +62,12 @@ def test_run_profile_keeps_the_dds_event_thread_out_of_every_sample() -> None:
     sample sent to a reader in another process from waking the writer's event thread. With
     Fast DDS's default 0 each answer of an echo process restarts the idle nack-suppression
     timer: >= 1 wake of its event thread per round trip (measured: 2.0-2.9 per round trip
-    with the default, 0.07-0.09 with the profile). With 20 ms the timer fires at most once per 20 ms, beside the
-    20 ms heartbeat and the 0.25 s announcements: a few wakes per 20 ms against one round
-    trip per <= 1 ms, so the bound 0.5 per round trip holds on any machine that runs one."""
+    with the default, 0.07-0.09 with the profile). With 20 ms the event thread wakes only on
+    time: its writer's heartbeat and nack-suppression timers and its reader's heartbeat
+    response, each at most once per 20 ms, and the 0.25 s announcements - under 250 per
+    second. Bound per round trip: 0.5 + 250/s x the mean round trip (0.55 at 200 us; on a
+    machine so slow that a round trip takes ms the time-driven wakes are allowed for)."""
     r = measure_round_trip_ipc(400, 'events', echoes=1, warmup=20, timeout=60.0)
     if r['event_thread_wakes'] is None:
         pytest.skip('no Fast DDS event thread visible in /proc (other RMW or not Linux)')
-    assert r['event_thread_wakes'] < 0.5, r
+    assert r['event_thread_wakes'] < 0.5 + 250.0 * r['us_mean'] * 1e-6, r

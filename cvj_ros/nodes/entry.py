@@ -15,13 +15,28 @@ import importlib
 import sys
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is a KeyboardInterrupt or was raised because of one: a SIGINT inside a C
+    extension's initialisation (rclpy's ``_rclpy_pybind11``) surfaces as ``ImportError:
+    initialization failed`` whose cause is the KeyboardInterrupt."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def launch(module: str) -> None:
     """Import ``cvj_ros.nodes.<module>`` and run its ``main()`` (exit status 0 if a SIGINT
-    interrupts the import)."""
+    interrupts the import, also inside a C extension's initialisation)."""
     try:
         node_module = importlib.import_module(f'cvj_ros.nodes.{module}')
-    except KeyboardInterrupt:
-        sys.exit(0)
+    except BaseException as exc:  # noqa: BLE001 (re-raised unless a SIGINT caused it)
+        if _interrupted(exc):
+            sys.exit(0)
+        raise
     node_module.main()
 
 

@@ -11,7 +11,8 @@ and a non-zero exit status:
   :func:`reading` context (a scene file, a bag, a parameter), else the program's own name;
 * a broken stdout pipe (``cvj-sim ... | head``): silent, exit 141 (128 + SIGPIPE).
 
-KeyboardInterrupt and SystemExit pass through unchanged, so the entry points keep their own
+KeyboardInterrupt and SystemExit pass through unchanged (also an exception a KeyboardInterrupt
+caused, e.g. a SIGINT inside a C extension's import: raised as KeyboardInterrupt), so the entry points keep their own
 exit codes for Ctrl-C / SIGTERM (130 / 143 in ``cvj-sim run``, 0 in the nodes) and argparse's
 usage errors (2). The traceback is printed (before the line) with ``--debug`` or when the
 environment has ``CVJ_DEBUG=1``.
@@ -69,6 +70,20 @@ def describe_unexpected(exc: BaseException, prog: str) -> str:
             f'CVJ_DEBUG=1 for the traceback)')
 
 
+def caused_by_sigint(exc: BaseException | None) -> bool:
+    """``exc`` is a KeyboardInterrupt or was raised because of one (its ``__cause__`` /
+    ``__context__`` chain holds one): a SIGINT inside a C extension's initialisation
+    (rclpy's ``_rclpy_pybind11``) surfaces as ``ImportError: initialization failed`` caused
+    by the KeyboardInterrupt."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def guarded(prog: str, entry: Callable[..., T], *args: Any, debug: bool = False,
             **kwargs: Any) -> T | int:
     """``entry(*args, **kwargs)``, or an exit status after one error line (see module doc)."""
@@ -88,6 +103,8 @@ def guarded(prog: str, entry: Callable[..., T], *args: Any, debug: bool = False,
         print(f'{prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)   # one line
         return EXIT_USER
     except Exception as exc:  # noqa: BLE001  (the point of the guard)
+        if caused_by_sigint(exc):   # Ctrl-C inside an import or a C call: the caller's Ctrl-C path
+            raise KeyboardInterrupt from exc
         trace(exc)
         print(f'{prog}: error: {describe_unexpected(exc, prog)}', file=sys.stderr)
         return EXIT_UNEXPECTED

@@ -14,18 +14,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-
-def _interrupted(exc: BaseException) -> bool:
-    """``exc`` is a KeyboardInterrupt or was raised because of one: a SIGINT inside a C
-    extension's initialisation (rclpy's ``_rclpy_pybind11``) surfaces as ``ImportError:
-    initialization failed`` whose cause is the KeyboardInterrupt."""
-    seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
+from cvj_ros.guard import caused_by_sigint
 
 
 def launch(module: str) -> None:
@@ -34,7 +23,7 @@ def launch(module: str) -> None:
     try:
         node_module = importlib.import_module(f'cvj_ros.nodes.{module}')
     except BaseException as exc:  # noqa: BLE001 (re-raised unless a SIGINT caused it)
-        if _interrupted(exc):
+        if caused_by_sigint(exc):
             sys.exit(0)
         raise
     node_module.main()

@@ -55,6 +55,21 @@ def test_keyboard_interrupt_and_system_exit_pass_through() -> None:
         guard.guarded('cvj-sim', sys.exit, 3)
 
 
+def test_an_exception_a_sigint_caused_is_a_keyboard_interrupt(capsys: pytest.CaptureFixture[str]) -> None:
+    """A SIGINT inside a C extension's initialisation surfaces as an ImportError caused by the
+    KeyboardInterrupt (seen in CI under a node launcher): the guard gives it to the entry
+    point's Ctrl-C path (cvj-sim: 130), not an "unexpected" error line."""
+    def interrupted_import() -> None:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError('initialization failed') from exc
+    with pytest.raises(KeyboardInterrupt):
+        guard.guarded('prog', interrupted_import)
+    assert capsys.readouterr().err == ''
+    assert guard.caused_by_sigint(ImportError('x')) is False
+
+
 def test_cli_debug_flag_through_the_executable(tmp_path: Path) -> None:
     scene = tmp_path / 'latin1.yaml'
     scene.write_bytes('name: Gelenkwelle_\u00e4\n'.encode('latin-1'))

@@ -417,6 +417,7 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
                                                      f'(also driveline[{seen[el.name]}])')
         seen[el.name] = i
     check_layout(chain)
+    check_hooke_phasing(chain)
     return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
                  exchange_step=exchange_step, solver=solver, engine=dict(engine),
                  load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
@@ -447,6 +448,48 @@ def check_layout(chain: tuple[Element, ...]) -> None:
             has_inertia = False
         elif isinstance(el, Inertia):
             has_inertia = True
+
+
+def check_hooke_phasing(chain: tuple[Element, ...], path: str = 'driveline') -> None:
+    """Reject a Hooke joint that follows another Hooke joint with only inertias and springs
+    (or nothing, inside a ``chain`` joint) between them, unless it states its yoke phase.
+
+    The phase of such a pair decides whether its nonuniformities cancel (yokes of the
+    shaft between in phase: ``phase_deg`` of the second = that of the first + 90 for a
+    square cross) or add (90 deg out of phase, the law's default 0), so it is never
+    assumed. ``path`` is the field path of ``chain`` in error messages.
+    """
+    prev: str | None = None          # field path of the last Hooke with only shafts since
+    for i, el in enumerate(chain):
+        if not isinstance(el, Joint):
+            continue
+        here = f'{path}[{i}]'
+        if el.kind == 'chain':
+            stages = el.params.get('joints', ())
+            for k, st in enumerate(stages):
+                kind = st.get('kind') if isinstance(st, Mapping) else getattr(st, 'kind', None)
+                if kind != 'hooke':
+                    prev = None
+                    continue
+                stated = isinstance(st, Mapping) and 'phase' in st
+                spath = f'{here}.params.joints[{k}]'
+                if prev is not None and not stated and isinstance(st, Mapping):
+                    raise SceneError(f'{spath}.phase', _phase_missing(prev))
+                prev = spath
+            continue
+        if el.kind != 'hooke':
+            prev = None
+            continue
+        if prev is not None and not any(k.startswith('phase_') for k in el.params_file):
+            raise SceneError(f'{here}.params.phase_deg', _phase_missing(prev))
+        prev = here
+
+
+def _phase_missing(prev: str) -> str:
+    return (f'missing: this Hooke joint follows the Hooke joint {prev} with only shafts between '
+            'them, so their yoke phase decides whether the nonuniformities cancel or add; '
+            'state it (phase_deg of the first + 90 puts the yokes of the shaft between in '
+            'phase, + 0 puts them 90 deg out of phase)')
 
 
 # --- files ------------------------------------------------------------------------------

@@ -64,7 +64,8 @@ SCENE_B = {
         {'type': 'joint', 'name': 'inner', 'kind': 'hooke', 'fidelity': 'exact', 'params': {'beta_deg': 10.0}},
         {'type': 'inertia', 'name': 'mid', 'J': 0.02},
         {'type': 'spring', 'name': 'midshaft', 'stiffness': 2000.0, 'damping': 2.0},
-        {'type': 'joint', 'name': 'outer', 'kind': 'hooke', 'fidelity': 'exact', 'params': {'beta_deg': 10.0}},
+        {'type': 'joint', 'name': 'outer', 'kind': 'hooke', 'fidelity': 'exact',
+         'params': {'beta_deg': 10.0, 'phase_deg': 0.0}},     # yokes 90 deg out of phase
         {'type': 'inertia', 'name': 'wheel', 'J': 0.161},
     ],
 }

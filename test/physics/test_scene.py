@@ -154,3 +154,57 @@ def test_summed_load_list_round_trip() -> None:
     d['load'][1]['amplitud'] = 1.0
     with pytest.raises(SceneError, match=r'^load\[1\]\.amplitud'):
         parse_scene(d)
+
+
+def _propshaft(second: dict, *, between: list | None = None) -> dict:
+    """BASE with a second Hooke joint after the first, only shafts between them."""
+    d = copy.deepcopy(BASE)
+    mid = [{'type': 'inertia', 'name': 'centre', 'J': 0.02}] if between is None else between
+    d['driveline'][3:3] = mid + [dict({'type': 'joint', 'name': 'rear', 'kind': 'hooke'}, **second)]
+    return d
+
+
+def test_two_hooke_joints_without_a_phase_name_phase_deg() -> None:
+    """A second Hooke joint behind the first with only shafts between must state its yoke
+    phase: the error names the field path and the first joint."""
+    with pytest.raises(SceneError, match=r'^driveline\[4\]\.params\.phase_deg: missing: .*'
+                                         r'driveline\[2\]') as info:
+        parse_scene(_propshaft({'params': {'beta_deg': 15.0}}))
+    assert info.value.field == 'driveline[4].params.phase_deg'
+    # springs and inertias between (a centre bearing, an elastic tube) do not break the pair
+    tube = [{'type': 'inertia', 'name': 'tube_front', 'J': 0.02},
+            {'type': 'spring', 'name': 'tube', 'stiffness': 2e4},
+            {'type': 'inertia', 'name': 'tube_rear', 'J': 0.02}]
+    with pytest.raises(SceneError, match=r'^driveline\[6\]\.params\.phase_deg: missing'):
+        parse_scene(_propshaft({'params': {'beta_deg': 15.0}, 'fidelity': 'ideal'}, between=tube))
+
+
+def test_stated_phase_or_a_joint_between_is_accepted() -> None:
+    sc = parse_scene(_propshaft({'params': {'beta_deg': 15.0, 'phase_deg': 90.0}}))
+    assert sc.element('rear').params['phase'] == pytest.approx(math.pi / 2)
+    assert sc.element('rear').params_file == {'beta_deg': 15.0, 'phase_deg': 90.0}
+    assert parse_scene(sc.to_dict()) == sc
+    parse_scene(_propshaft({'params': {'beta_deg': 15.0, 'phase_rad': 0.0}}))
+    gear = [{'type': 'inertia', 'name': 'centre', 'J': 0.02},
+            {'type': 'joint', 'name': 'box', 'kind': 'gear', 'params': {'gear_ratio': 2.0}},
+            {'type': 'inertia', 'name': 'centre2', 'J': 0.02}]
+    parse_scene(_propshaft({'params': {'beta_deg': 15.0}}, between=gear))
+
+
+def test_two_hooke_stages_of_a_chain_joint_need_a_phase() -> None:
+    d = copy.deepcopy(BASE)
+    d['driveline'][2] = {'type': 'joint', 'name': 'shaft', 'kind': 'chain',
+                         'params': {'joints': [{'kind': 'hooke', 'beta': 0.2},
+                                               {'kind': 'hooke', 'beta': 0.2}]}}
+    with pytest.raises(SceneError, match=r'^driveline\[2\]\.params\.joints\[1\]\.phase: missing'):
+        parse_scene(d)
+    d['driveline'][2]['params']['joints'][1]['phase'] = math.pi / 2
+    parse_scene(d)
+
+
+@pytest.mark.parametrize('key, value, words', [
+    ('cross_angle_deg', 10.0, 'locks'), ('phase_deg', 400.0, 'out of range'),
+    ('bend_plane_deg', float('nan'), 'finite')])
+def test_hooke_phase_parameters_validated(key: str, value: float, words: str) -> None:
+    with pytest.raises(SceneError, match=rf'^driveline\[2\]\.params\.{key}: .*{words}'):
+        parse_scene(scene_with(f'driveline[2].params.{key}', value))

@@ -22,7 +22,7 @@ def _math_fmod(x, y):
 
 
 from cvj_ros.physics.joints.double_cardan import double_cardan_scalar
-from cvj_ros.physics.joints.hooke import hooke_stage_scalar
+from cvj_ros.physics.joints.hooke import hooke_phased_scalar, hooke_stage_scalar
 from cvj_ros.physics.joints.tripod import tripod_closed_scalar, tripod_series_scalar
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY,
@@ -40,6 +40,7 @@ def _hooke_stage_in_jit(phi, cos_beta):
     def impl(phi, cos_beta):
         return hooke_stage_nb(phi, cos_beta)
     return impl
+hooke_phased_nb = njit(cache=True)(hooke_phased_scalar)
 double_cardan_nb = njit(cache=True)(double_cardan_scalar)
 lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
 lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
@@ -59,7 +60,7 @@ def tripod_series_at(phi, fp, off):
 def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
-        return hooke_stage_nb(phi, fp[off])
+        return hooke_phased_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3])
     if code == OP_DOUBLE_CARDAN:
         return double_cardan_nb(phi, fp[off], fp[off + 1], fp[off + 2])
     if code == OP_TRIPOD_SERIES:

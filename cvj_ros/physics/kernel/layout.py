@@ -12,10 +12,11 @@ ip header (``H_*`` indices):
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
-    phi_out = phi_in); OP_HOOKE fp[off] = cos(beta); OP_GEAR fp[off] = ratio k
+    phi_out = phi_in); OP_HOOKE fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)]
+    (joints/hooke.py hooke_phased_scalar; yoke phase, bend plane, cross angle); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
     fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions);
-    OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = k;
+    OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = [k, 0, 0, 0];
     OP_TRIPOD_CLOSED fp = [a]; OP_TRIPOD_SERIES fp = [n_coeff, b_1 .. b_n] (joints/tripod.py).
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
@@ -105,15 +106,17 @@ def _joint_op(name: str, model: Any, fp: list[float]) -> tuple[int, int]:
             model.scalar(p) == (p, 1.0, 0.0) for p in (-2.3, 0.0, 0.7, 4.1))):
         return OP_JOINT_IDENTITY, 0
     if model.kind == 'rzeppa':          # non-ideal: one Hooke stage with cos = k (rzeppa.py)
-        fp.append(float(model.k))
-        return OP_HOOKE, len(fp) - 1
+        off = len(fp)
+        fp.extend([float(model.k), 0.0, 0.0, 0.0])
+        return OP_HOOKE, off
     if model.kind == 'double_cardan':
         off = len(fp)
         fp.extend([model._c1, model._c2, model._off])
         return OP_DOUBLE_CARDAN, off
     if model.kind == 'hooke' and fid == 'exact':
-        fp.append(math.cos(model.beta))
-        return OP_HOOKE, len(fp) - 1
+        off = len(fp)
+        fp.extend(model.kernel_params())
+        return OP_HOOKE, off
     if model.kind == 'lever_hinge' and fid == 'closed':
         off = len(fp)
         fp.extend([model._ca, model._sa2, model._ta, model.twist, model.delta_alpha])

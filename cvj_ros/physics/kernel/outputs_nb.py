@@ -69,11 +69,13 @@ def _mid_op(model: Any, mfp: list[float]) -> tuple[int, int]:
     if kind in ('rzeppa', 'double_cardan') and fid == 'ideal':
         return OP_JOINT_IDENTITY, 0
     if kind == 'rzeppa':            # cage: tan(phi3) = cos(alpha) tan(phi1)
-        mfp.append(float(model._cage_c))
-        return OP_HOOKE, len(mfp) - 1
+        off = len(mfp)
+        mfp.extend([float(model._cage_c), 0.0, 0.0, 0.0])
+        return OP_HOOKE, off
     if kind == 'double_cardan':     # intermediate shaft: the first Hooke stage
-        mfp.append(float(model._c1))
-        return OP_HOOKE, len(mfp) - 1
+        off = len(mfp)
+        mfp.extend([float(model._c1), 0.0, 0.0, 0.0])
+        return OP_HOOKE, off
     if kind == 'tripod':            # the spider turns with the output shaft
         return _joint_op(kind, model, mfp)
     if kind == 'chain':             # after the first stage, or the single stage's member
@@ -124,8 +126,11 @@ def _reaction_code(model: Any, rfp: list[float]) -> tuple[int, int]:
     if kind == 'hooke':
         if fid == 'ideal':
             return R.R_HOOKE_IDEAL, 0
+        if model._k != 0.0:         # cross angle != 90 deg: Hooke._reactions_vector
+            raise NotImplementedError('compiled outputs: reactions of a Hooke cross at '
+                                      f'{math.degrees(model.cross_angle):g} deg')
         off = len(rfp)
-        rfp.extend([float(model._c), math.sin(model.beta)])
+        rfp.extend([float(model._c), math.sin(model.beta), float(model._off)])
         return R.R_HOOKE_EXACT, off
     if kind == 'tripod' and fid in ('ideal', 'closed'):
         off = len(rfp)

@@ -37,7 +37,7 @@ TWO_PI_3 = 2.0 * math.pi / 3.0       # = joints/tripod.py TWO_PI_3
 R_TORQUE_IDENTITY = 0   # ideal CV: torque_out = T_in
 R_TORQUE_GEAR = 1       # rfp = [gear_ratio]: torque_out = gear_ratio T_in
 R_TORQUE_RATIO = 2      # rfp = [op code, op fp offset into rfp]: torque_out = T_in / ratio(phi)
-R_HOOKE_EXACT = 3       # rfp = [cos b, sin b]
+R_HOOKE_EXACT = 3       # rfp = [cos b, sin b, psi - gamma]
 R_HOOKE_IDEAL = 4
 R_TRIPOD_SMALL = 5      # rfp = [r, l, sin b, cos b, roller_mass]
 R_TRIPOD_EXACT = 6      # rfp: see tripod_exact_params
@@ -382,9 +382,10 @@ def joint_wrench(code, phi, omega, torque, rfp, off, out):
         ratio = joint_eval(int(rfp[off]), phi, rfp, int(rfp[off + 1]))[1]
         out[5] = torque / ratio
     elif code == R_HOOKE_EXACT:
-        c, sb = rfp[off], rfp[off + 1]
+        c, sb, yoke = rfp[off], rfp[off + 1], rfp[off + 2]
         tb = sb / c
-        s1, c1 = math.sin(phi), math.cos(phi)
+        th = phi + yoke if yoke != 0.0 else phi     # driving arm from the bend plane
+        s1, c1 = math.sin(th), math.cos(th)
         n2 = c * c * c1 * c1 + s1 * s1
         out[3] = -torque * tb * s1 * c1
         out[4] = -(torque * tb * s1 * s1)

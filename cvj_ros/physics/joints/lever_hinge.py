@@ -7,9 +7,13 @@ pin axis p; the earring's second hinge axis q (normal to p) carries the connecti
 rods (levers). The rods of both halves join the two earrings, so the earrings' rod
 hinge axes stay parallel to each other and normal to the line O1-O2 through the fork
 centres: the earrings and rods form the intermediate member, turning about O1-O2
-(angle c, the earring angle, ``phi_mid``). The fork rotation relative to the earring
-is xi = asin(sin(alpha) cos(phi)) (seed 004 eq. 3.2): each half is kinematically a
-Hooke joint with bend angle alpha between its shaft and O1-O2.
+(angle c, the earring angle, ``phi_mid``). Each half is kinematically a Hooke joint
+with bend angle alpha between its shaft and O1-O2. Its two rocking angles
+(:func:`rocking_angles`): the earring turns in the fork about the fork pin by
+atan(tan(alpha) sin(phi)), and the rods turn on the earring about its rod hinge by
+asin(sin(alpha) cos(phi)) - the angle xi of Davidbaev et al. 2023 eq. 3.2, which with
+phi = 0 at the fork pin in the bend plane is this earring-rod angle, not the
+fork-earring one.
 
 Frame (m, rad): x along O1-O2, bend plane x-y. Input shaft axis a1 = (cos a, sin a, 0),
 fork pin p1 = cos(phi_in) b1 + sin(phi_in) z with b1 = (-sin a, cos a, 0) (phi_in = 0:
@@ -94,6 +98,20 @@ def twist_for_torque(torque: float, *, stiffness: float = KAVZ685_C_Y) -> float:
     t = check_finite('torque', torque)
     c = check_range('stiffness', stiffness, lo=0.0, lo_open=True, hi=None, unit=' N m/rad')
     return t / c
+
+
+def rocking_angles(phi_in: ArrayLike, alpha: float) -> tuple[FloatArray, FloatArray]:
+    """(fork-earring, earring-rod) rocking angles (rad) of one half at fork angle ``phi_in``
+    (rad, 0 = fork pin in the bend plane) and bend angle ``alpha`` (rad).
+
+    With the module frame's fork pin p1, earring rod-hinge axis q (p1 . q = 0) and shaft
+    axis a1: the earring turns about p1 out of the plane normal to a1 by
+    asin(-q . a1) = atan(tan(alpha) sin(phi)); the rods (along O1-O2 = x) see p1 turned out
+    of the plane normal to x by asin(-p1 . x) = asin(sin(alpha) cos(phi)).
+    """
+    phi = as_angle_array(phi_in)
+    return (np.arctan(math.tan(alpha) * np.sin(phi)),
+            np.arcsin(math.sin(alpha) * np.cos(phi)))
 
 
 def _hooke_dev(phi: FloatArray, cos_a: float) -> FloatArray:

@@ -10,7 +10,7 @@ import pytest
 from cvj_ros.errors import GeometryError
 from cvj_ros.physics.joints import JOINTS, make_joint
 from cvj_ros.physics.joints.lever_hinge import (KAVZ685_ALPHA, LeverHinge, deformation_angles,
-                                                twist_for_torque)
+                                                rocking_angles, twist_for_torque)
 
 H = 1e-3
 PHI = np.array([-7.3, -1.1, 0.0, 0.37, 1.9, 4.4, 11.0, 1e4 + 0.3, 2.5e4 - 1.2])
@@ -169,3 +169,28 @@ def test_registry_entry() -> None:
     lh = make_joint('lever_hinge', fidelity='exact', alpha=0.3, twist=0.01)
     assert lh.kind == 'lever_hinge' and lh.mid_name == 'earring'
     assert make_joint('lever_hinge').params()['alpha'] == pytest.approx(math.radians(15.0))
+
+
+@pytest.mark.parametrize('alpha_deg', [5.0, 15.0, 40.0])
+def test_rocking_angles_against_vector_construction(alpha_deg: float) -> None:
+    """Fork pin p1 = cos(phi) b1 + sin(phi) z on the shaft axis a1 = (cos a, sin a, 0),
+    earring rod-hinge axis q normal to p1 and to O1-O2 (x), found as the unit x x p1 (no
+    Hooke formula; it is q(c) = (0, -sin c, cos c) with c continuous in phi): the earring's turn in the fork about p1 is asin(-q . a1) and equals
+    atan(tan a sin phi); the rods' turn on the earring is asin(-p1 . x) and equals
+    asin(sin a cos phi) (Davidbaev et al. 2023 eq. 3.2's xi): the docs' attribution."""
+    a = math.radians(alpha_deg)
+    a1 = np.array([math.cos(a), math.sin(a), 0.0])
+    b1 = np.array([-math.sin(a), math.cos(a), 0.0])
+    x = np.array([1.0, 0.0, 0.0])
+    phi = np.linspace(-7.0, 7.0, 71)
+    fork_earring, earring_rod = rocking_angles(phi, a)
+    for k, p in enumerate(phi):
+        p1 = math.cos(p) * b1 + math.sin(p) * np.array([0.0, 0.0, 1.0])
+        q = np.cross(x, p1)
+        q /= np.linalg.norm(q)
+        assert abs(p1 @ q) < 1e-12
+        assert fork_earring[k] == pytest.approx(math.asin(-q @ a1), abs=1e-12)
+        assert earring_rod[k] == pytest.approx(math.asin(-p1 @ x), abs=1e-12)
+    # they are different angles: equal amplitude alpha, a quarter turn apart
+    assert np.max(np.abs(fork_earring)) == pytest.approx(a, rel=1e-3)
+    assert abs(fork_earring[35]) < 1e-12 and earring_rod[35] == pytest.approx(a, rel=1e-12)

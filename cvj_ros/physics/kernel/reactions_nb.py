@@ -296,6 +296,16 @@ def tripod_exact_reactions(phi, omega, torque, rfp, o, out):
             arms[j, i] = G[6 + 3 * jr + i, 0]
             rollers[j, i] = S[i] + h * arms[j, i]
     _solve_tripod_balance(P, n, arms, rollers, acc, torque, m, S, inertia, out)
+    # the plungers' angular momentum rate about O (Tripod._solve_reactions with omega)
+    w2 = omega * omega
+    dlx, dly = 0.0, 0.0
+    for j in range(3):
+        x, y, z = rollers[j, 0], rollers[j, 1], rollers[j, 2]
+        ax, ay, az = -w2 * x, -w2 * y, acc[j]
+        dlx += m * (y * az - z * ay)
+        dly += m * (z * ax - x * az)
+    out[3] += dlx
+    out[4] += dly
     return 0
 
 

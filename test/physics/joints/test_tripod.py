@@ -308,3 +308,72 @@ def test_registry_entry() -> None:
     tp = make_joint('tripod', fidelity='closed', beta=0.3, r=0.02, l=0.5)
     assert tp.kind == 'tripod' and tp.params()['r'] == 0.02
     assert RECOMMENDED_MAX_BETA == pytest.approx(math.radians(25.0))
+
+
+def test_per_roller_forces_against_a_reduced_construction() -> None:
+    """Massless rollers (Xiu et al. 2024 eqs. 22-24): a frictionless roller force is normal
+    to its track (z) and to its trunnion e_j, so F_j = f_j (z x e_j)/|z x e_j|; the housing
+    torque and the spider's moment balance about P then fix (f_0, f_1, f_2, T_out) by a
+    4 x 4 system built here from positions() alone. The model's roller_force_j (force on
+    the trunnion across it in the spider plane) must equal -F_j . (n x e_j); the three
+    differ (3.5 % at 25 deg), the arms sum to 3 r + 3 rho(phi) (rho = orbit radius, to
+    ~rho^2/r), so their mean is T / (3 r + 3 rho), not the paper's T / (3 r - 3 rho)."""
+    r, l, torque = 0.026, 0.7, 100.0
+    tp = Tripod(math.radians(25.0), r, l, roller_mass=0.0)
+    spreads = []
+    for p in np.linspace(0.0, TWO_PI_3, 13):
+        g = tp.positions(float(p))
+        z = np.array([0.0, 0.0, 1.0])
+        dirs = [np.cross(z, e) / np.linalg.norm(np.cross(z, e)) for e in g['arms']]
+        A = np.zeros((4, 4))
+        for j in range(3):
+            A[0, j] = np.cross(g['rollers'][j], dirs[j])[2]            # housing torque: -T_in
+            A[1:4, j] = -np.cross(g['rollers'][j] - g['P'], dirs[j])  # spider about P
+        A[1:4, 3] = g['n']
+        x = np.linalg.solve(A, np.array([-torque, 0.0, 0.0, 0.0]))
+        rx = tp.reactions(float(p), 0.0, torque)
+        assert rx['torque_out'] == pytest.approx(-x[3], rel=1e-10)
+        forces = [rx[f'roller_force_{j}'] for j in range(3)]
+        arms = [rx[f'roller_arm_{j}'] for j in range(3)]
+        for j in range(3):
+            ref = -x[j] * dirs[j] @ np.cross(g['n'], g['arms'][j])
+            assert forces[j] == pytest.approx(ref, rel=1e-9)
+            assert arms[j] == pytest.approx(np.linalg.norm(g['rollers'][j] - g['S']), rel=1e-12)
+        assert sum(f * h for f, h in zip(forces, arms)) == pytest.approx(rx['torque_out'], rel=1e-10)
+        rho = tp.solve(np.array([float(p)]))['orbit_radius'][0]
+        assert sum(arms) == pytest.approx(3 * r + 3 * rho, abs=3e-6)      # rho^2/r = 7e-5 r
+        spreads.append((max(forces) - min(forces)) / np.mean(forces))
+    assert max(spreads) > 0.03
+    rho0 = r * (1 / math.cos(math.radians(25.0)) - 1) / 2
+    mean = np.mean([tp.reactions(float(p), 0.0, torque)[f'roller_force_{j}']
+                    for p in np.linspace(0.0, TWO_PI_3, 12, endpoint=False) for j in range(3)])
+    assert mean == pytest.approx(torque / (3 * r + 3 * rho0), rel=1e-4)
+    assert abs(mean / (torque / (3 * r - 3 * rho0)) - 1) > 0.09
+
+
+def test_input_moment_includes_the_plungers_angular_momentum() -> None:
+    """The housing bearing supplies dL/dt of the plungers about O (Euler on housing +
+    plungers): plunger_moment = omega dL/dphi with L = sum m R_j x V_j, V_j = omega dR_j/dphi,
+    both derivatives by central differences of positions() (h = 1e-4 rad: error ~h^2 ~1e-8
+    relative). Without load torque it is 1.4 % of the bearing moment at 25 deg and 1.8 % at
+    30 deg (m = 0.2 kg, 2000 rpm, r = 26 mm, l = 700 mm)."""
+    omega, m, h = 2000 * math.pi / 30, 0.2, 1e-4
+    for beta_deg, share in ((25.0, 0.0142), (30.0, 0.0182)):
+        tp = Tripod(math.radians(beta_deg), 0.026, 0.7, roller_mass=m)
+
+        def momentum(p: float) -> np.ndarray:
+            rp, rm = tp.positions(p + h)['rollers'], tp.positions(p - h)['rollers']
+            vel = omega * (rp - rm) / (2 * h)
+            return m * np.cross(tp.positions(p)['rollers'], vel).sum(axis=0)
+
+        worst, old_max, new_max = 0.0, 0.0, 0.0
+        for p in np.linspace(0.0, TWO_PI_3, 40, endpoint=False):
+            rx = tp.reactions(float(p), omega, 0.0)
+            dl = omega * (momentum(float(p) + h) - momentum(float(p) - h)) / (2 * h)
+            pl = np.array([rx['plunger_moment_x'], rx['plunger_moment_y']])
+            worst = max(worst, float(np.max(np.abs(pl - dl[:2]))))
+            new = np.array([rx['input_moment_x'], rx['input_moment_y']])
+            old_max = max(old_max, float(np.hypot(*(new - pl))))
+            new_max = max(new_max, float(np.hypot(*pl)))
+        assert worst < 1e-5 * new_max
+        assert new_max / old_max == pytest.approx(share, abs=5e-4)

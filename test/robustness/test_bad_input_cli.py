@@ -142,6 +142,12 @@ def test_tab_indented_yaml_names_the_line(tmp_path: Path, capsys: pytest.Capture
     ('load.torque', float('inf'), 'load.torque', ''),
     # missing things
     ('driveline[0].J', DELETE, 'driveline[0].J', 'missing'),
+    # two Hooke joints in a row without the second's yoke phase; a cross that locks
+    ('driveline', [VALID['driveline'][0], VALID['driveline'][2],
+                   {'type': 'inertia', 'name': 'centre', 'J': 0.02},
+                   dict(VALID['driveline'][2], name='cardan_rear'), VALID['driveline'][3]],
+     'driveline[3].params.phase_deg', 'missing'),
+    ('driveline[2].params.cross_angle_deg', 10.0, 'driveline[2].params.cross_angle_deg', 'locks'),
     ('engine', DELETE, 'engine', 'missing'),
     # non-monotonic time series (inline load samples)
     ('load', {'model': 'time_series', 't': [0.0, 0.2, 0.1], 'torque': [1.0, 2.0, 3.0]},

@@ -57,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--beta', type=float, help='bend angle (deg): hooke beta, double_cardan beta1, '
                                                    'rzeppa delta, tripod/lever beta')
     parser.add_argument('--beta2', type=float, help='second bend angle (deg), double_cardan')
-    parser.add_argument('--phase', type=float, help='yoke phase (deg): double_cardan intermediate yokes, hooke driving yoke')
+    parser.add_argument('--phase', type=float,
+                        help='yoke phase (deg): double_cardan intermediate yokes, '
+                             'hooke driving yoke')
     parser.add_argument('--r', type=float, help='radius (m): tripod roller / rzeppa ball pitch radius')
     parser.add_argument('--l', type=float, help='length (m): tripod shaft length')
     parser.add_argument('--delta', type=float, help='bend angle (deg), rzeppa')

@@ -34,7 +34,8 @@ def joint(name: str, kind: str, **params: float) -> dict:
 
 MIXED = [inertia('crank', 0.2), joint('box', 'gear', gear_ratio=3.0), inertia('shaft', 0.01),
          spring('mid', 800.0, 2.0, law='progressive', k2=5.0, backlash_deg=2.0),
-         joint('h1', 'hooke', beta_deg=25.0), inertia('yoke', 0.02), joint('h2', 'hooke', beta_deg=30.0, phase_deg=0.0),
+         joint('h1', 'hooke', beta_deg=25.0), inertia('yoke', 0.02),
+         joint('h2', 'hooke', beta_deg=30.0, phase_deg=0.0),
          spring('tyre', 300.0, 1.5), inertia('wheel', 0.9)]
 
 

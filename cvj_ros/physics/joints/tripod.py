@@ -622,9 +622,10 @@ class Tripod:
 
         Per roller (Xiu et al. 2024 eqs. 22-24, from this model): ``roller_force_j`` (N) =
         -F_j . (n x e_j), the force roller j puts on its trunnion across it in the spider
-        plane (the one that carries the torque), and ``roller_arm_j`` (m) = |R_j - S|; sum_j roller_arm_j roller_force_j =
-        torque_out (the moment balance about n). The three forces differ and the arms sum
-        to 3 r + 3 rho to first order, not 3 r - 3 rho (their eq. 24).
+        plane (the one that carries the torque), and ``roller_arm_j`` (m) = |R_j - S|;
+        sum_j roller_arm_j roller_force_j = torque_out (the moment balance about n). The
+        three forces differ, and the arms sum to 3 r + 3 rho (rho the spider's orbit
+        radius, up to ~rho^2/r), not 3 r - 3 rho (their eqs. 21, 24).
 
         With ``omega`` (rad/s, exact geometry) the housing bearing also supplies the rate of
         the plungers' angular momentum about O, dL/dt = sum_j m R_j x A_j with

@@ -13,7 +13,7 @@ section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
     phi_out = phi_in); OP_HOOKE fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)]
-    (joints/hooke.py hooke_phased_scalar; yoke phase, bend plane, cross angle); OP_GEAR fp[off] = ratio k
+    (joints/hooke.py hooke_phased_scalar: yoke phase, bend plane, cross); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
     fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions);
     OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = [k, 0, 0, 0];

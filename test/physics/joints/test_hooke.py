@@ -207,7 +207,8 @@ def test_phase_and_bend_plane_only_shift_the_single_joint_law() -> None:
     plain = Hooke(b)
     joint = Hooke(b, phase=0.7, bend_plane=-0.2)
     phi = np.linspace(0.0, 2 * np.pi, 1001)
-    assert np.allclose(joint.evaluate(phi).ratio, plain.evaluate(phi + 0.9).ratio, rtol=0, atol=1e-14)
+    assert np.allclose(joint.evaluate(phi).ratio, plain.evaluate(phi + 0.9).ratio,
+                       rtol=0, atol=1e-14)
     assert joint.nonuniformity() == plain.nonuniformity()
 
 
@@ -215,7 +216,8 @@ def _pair(beta1: float, beta2: float, psi2: float, gamma2: float,
           delta: float = math.pi / 2) -> object:
     return make_joint('chain', joints=[
         {'kind': 'hooke', 'beta': beta1, 'cross_angle': delta},
-        {'kind': 'hooke', 'beta': beta2, 'phase': psi2, 'bend_plane': gamma2, 'cross_angle': delta}])
+        {'kind': 'hooke', 'beta': beta2, 'phase': psi2, 'bend_plane': gamma2,
+         'cross_angle': delta}])
 
 
 @pytest.mark.parametrize('gamma2_deg', [0.0, 180.0])       # W and Z layouts

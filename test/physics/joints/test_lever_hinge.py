@@ -175,9 +175,10 @@ def test_registry_entry() -> None:
 def test_rocking_angles_against_vector_construction(alpha_deg: float) -> None:
     """Fork pin p1 = cos(phi) b1 + sin(phi) z on the shaft axis a1 = (cos a, sin a, 0),
     earring rod-hinge axis q normal to p1 and to O1-O2 (x), found as the unit x x p1 (no
-    Hooke formula; it is q(c) = (0, -sin c, cos c) with c continuous in phi): the earring's turn in the fork about p1 is asin(-q . a1) and equals
-    atan(tan a sin phi); the rods' turn on the earring is asin(-p1 . x) and equals
-    asin(sin a cos phi) (Davidbaev et al. 2023 eq. 3.2's xi): the docs' attribution."""
+    Hooke formula; it is q(c) = (0, -sin c, cos c) with c continuous in phi): the
+    earring's turn in the fork about p1 is asin(-q . a1) and equals atan(tan a sin phi);
+    the rods' turn on the earring is asin(-p1 . x) and equals asin(sin a cos phi) (Davidbaev
+    et al. 2023 eq. 3.2's xi): the docs' attribution."""
     a = math.radians(alpha_deg)
     a1 = np.array([math.cos(a), math.sin(a), 0.0])
     b1 = np.array([-math.sin(a), math.cos(a), 0.0])

@@ -339,7 +339,8 @@ def test_per_roller_forces_against_a_reduced_construction() -> None:
             ref = -x[j] * dirs[j] @ np.cross(g['n'], g['arms'][j])
             assert forces[j] == pytest.approx(ref, rel=1e-9)
             assert arms[j] == pytest.approx(np.linalg.norm(g['rollers'][j] - g['S']), rel=1e-12)
-        assert sum(f * h for f, h in zip(forces, arms)) == pytest.approx(rx['torque_out'], rel=1e-10)
+        assert sum(f * h for f, h in zip(forces, arms)) == pytest.approx(rx['torque_out'],
+                                                                        rel=1e-10)
         rho = tp.solve(np.array([float(p)]))['orbit_radius'][0]
         assert sum(arms) == pytest.approx(3 * r + 3 * rho, abs=3e-6)      # rho^2/r = 7e-5 r
         spreads.append((max(forces) - min(forces)) / np.mean(forces))

@@ -36,7 +36,8 @@ GRAVITY = 9.81   # m/s^2, as cvj_ros.physics.load
 class VehicleBody:
     """Mass ``mass`` (kg), ``grade_percent`` (%), rolling coefficient ``rolling_coeff`` C_r (-),
     ``drag_area`` C_d A (m^2), ``air_density`` rho (kg/m^3), ``speed_scale`` v_s (m/s),
-    optional ``cg_height`` h (m) and ``wheelbase`` L (m) for load transfer (both or none)."""
+    optional ``cg_height`` h (m), ``wheelbase`` L (m) and ``front_share`` (static share of the
+    weight on the front axle, l_r / L) for load transfer (all three or none)."""
 
     mass: float
     grade_percent: float = 0.0
@@ -46,6 +47,7 @@ class VehicleBody:
     speed_scale: float = 0.1
     cg_height: float | None = None
     wheelbase: float | None = None
+    front_share: float | None = None
     gravity: float = GRAVITY
 
     @property
@@ -81,35 +83,25 @@ class VehicleBody:
 
     def normal_loads(self, share: Sequence[float], axle: Sequence[int],
                      grip: Sequence[float], v: float) -> list[float]:
-        """Per wheel F_z (N) given its static share (sum 1), its axle (+1 front, -1 rear,
-        0 not on an axle: static share only) and its grip y_i = F_x,i / F_z,i (-).
+        """Per driven wheel F_z (N) given its static share of the weight, its axle (+1 front,
+        -1 rear) and its grip y_i = F_x,i / F_z,i (-). Wheels not listed (undriven) roll
+        freely: F_x = 0.
 
-        Without ``cg_height`` (or a wheel without an axle) F_z,i = share_i m g cos(theta).
-        With it, the front/rear split solves the moment equation of the module docstring
-        (closed form, linear in F_zf); the front axle's static share is the sum of the
-        front wheels' shares."""
+        Without ``cg_height`` F_z,i = share_i m g cos(theta). With it, the front axle carries
+        F_zf from the moment equation of the module docstring (static front share
+        f = ``front_share``, linear in F_zf, closed form), each wheel its static fraction of
+        its axle's load (share_i / f front, share_i / (1 - f) rear)."""
         w = self.weight_normal
-        if self.cg_height is None or self.wheelbase is None:
+        if self.cg_height is None or self.wheelbase is None or self.front_share is None:
             return [s * w for s in share]
-        sf = sum(s for s, a in zip(share, axle) if a > 0)
-        sr = sum(s for s, a in zip(share, axle) if a < 0)
+        sf = self.front_share
+        sr = 1.0 - sf
         gf = sum(s * y for s, y, a in zip(share, grip, axle) if a > 0) / sf if sf > 0 else 0.0
         gr = sum(s * y for s, y, a in zip(share, grip, axle) if a < 0) / sr if sr > 0 else 0.0
-        # sum F_x = F_zf gf + F_zr gr + (wheels without axle: static) ; F_zr = W_ax - F_zf
-        w_ax = w * (sf + sr)
-        other = sum(s * w * y for s, y, a in zip(share, grip, axle) if a == 0)
         h, el = self.cg_height, self.wheelbase
-        # F_zf L = W sf L - h (F_zf gf + (W_ax - F_zf) gr + other - F_roll)
-        fzf = (w * sf * el - h * (w_ax * gr + other - self.rolling(v))) / (el + h * (gf - gr))
+        # F_zf L = W f L - h (F_zf gf + (W - F_zf) gr - F_roll)
+        fzf = (w * sf * el - h * (w * gr - self.rolling(v))) / (el + h * (gf - gr))
         # a lifted axle (wheelie, stoppie) is outside this model: clamp, the tyre reports NO_LOAD
-        fzf = min(max(fzf, 0.0), w_ax)
-        fzr = w_ax - fzf
-        out = []
-        for s, a in zip(share, axle):
-            if a > 0:
-                out.append(fzf * s / sf)
-            elif a < 0:
-                out.append(fzr * s / sr)
-            else:
-                out.append(s * w)
-        return out
+        fzf = min(max(fzf, 0.0), w)
+        fzr = w - fzf
+        return [fzf * s / sf if a > 0 else fzr * s / sr for s, a in zip(share, axle)]

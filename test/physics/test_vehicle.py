@@ -49,12 +49,12 @@ def test_load_transfer_satisfies_the_moment_balance(grip: list[float]) -> None:
     """Independent check of the closed-form solve: total F_z = m g cos(theta), and the moment
     balance about the rear contact F_zf L = m g cos(theta) l_r - h (sum F_x - F_roll) with
     sum F_x computed from the returned loads (F_x,i = F_z,i y_i)."""
-    body = VehicleBody(mass=1500.0, grade_percent=8.0, cg_height=0.55, wheelbase=2.6)
+    body = VehicleBody(mass=1500.0, grade_percent=8.0, cg_height=0.55, wheelbase=2.6, front_share=0.62)
     share, axle = [0.31, 0.31, 0.19, 0.19], [1, 1, -1, -1]
     v = 15.0
     fz = body.normal_loads(share, axle, grip, v)
     w = body.weight_normal
-    assert sum(fz) == pytest.approx(w, rel=1e-13)
+    assert sum(fz) == pytest.approx(w, rel=1e-13)    # all wheels listed: shares sum to 1
     sum_fx = sum(f * y for f, y in zip(fz, grip))
     fzf = fz[0] + fz[1]
     lhs = fzf * 2.6
@@ -66,3 +66,13 @@ def test_load_transfer_satisfies_the_moment_balance(grip: list[float]) -> None:
         assert fzf < 0.62 * w
     else:
         assert fzf > 0.62 * w
+
+
+def test_load_transfer_with_undriven_wheels() -> None:
+    """Front-wheel drive: only the front wheels are listed; the rear axle carries the rest."""
+    body = VehicleBody(mass=1500.0, cg_height=0.55, wheelbase=2.6, front_share=0.6)
+    fz = body.normal_loads([0.3, 0.3], [1, 1], [0.8, 0.2], 20.0)
+    w = body.weight_normal
+    sum_fx = fz[0] * 0.8 + fz[1] * 0.2
+    assert (fz[0] + fz[1]) * 2.6 == pytest.approx(w * 0.6 * 2.6 - 0.55 * (sum_fx - body.rolling(20.0)),
+                                                  rel=1e-12)

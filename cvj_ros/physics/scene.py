@@ -331,6 +331,8 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], path: str) ->
             where = f'{path}.{key}' if path else str(key)
             near = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f"; did you mean '{near[0]}'?" if near else f'; allowed: {", ".join(allowed)}'
+            if not str(key):   # an empty key names no field: name the mapping that holds it
+                raise SceneError(path or 'scene', f"unknown empty key ''{hint}")
             raise SceneError(where, f'unknown key{hint}')
 
 

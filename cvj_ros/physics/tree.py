@@ -101,22 +101,31 @@ def _ratio_fn(k: float) -> Callable[[float], tuple[float, float, float]]:
 
 
 def _cholesky_solve(m: list[list[float]], f: list[float]) -> list[float]:
-    """Solve M x = f for a small symmetric positive definite M (Cholesky, plain floats)."""
+    """Solve M x = f for a small symmetric positive definite M (Cholesky M = L L^T, plain
+    floats; only the lower triangle of M is read)."""
     n = len(f)
     low = [[0.0] * n for _ in range(n)]
     for i in range(n):
+        li = low[i]
         for j in range(i + 1):
-            s = m[i][j] - sum(low[i][k] * low[j][k] for k in range(j))
-            if i == j:
-                low[i][i] = math.sqrt(s)
-            else:
-                low[i][j] = s / low[j][j]
+            lj = low[j]
+            acc = m[i][j]
+            for k in range(j):
+                acc -= li[k] * lj[k]
+            li[j] = math.sqrt(acc) if i == j else acc / lj[j]
     y = [0.0] * n
     for i in range(n):
-        y[i] = (f[i] - sum(low[i][k] * y[k] for k in range(i))) / low[i][i]
+        acc = f[i]
+        li = low[i]
+        for k in range(i):
+            acc -= li[k] * y[k]
+        y[i] = acc / li[i]
     x = [0.0] * n
     for i in reversed(range(n)):
-        x[i] = (y[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))) / low[i][i]
+        acc = y[i]
+        for k in range(i + 1, n):
+            acc -= low[k][i] * x[k]
+        x[i] = acc / low[i][i]
     return x
 
 
@@ -164,6 +173,7 @@ class TreeDriveline:
         self._iv = 2 * self.n_dof + self.n_wheel          # index of v in x
         self._n_state = self._iv + 1 + (N_WORK if track_energy else 0)
         self._groups = self._make_groups()
+        self._prepare_tables()
         self.x0 = self._initial_state()
 
     # --- construction -------------------------------------------------------------------
@@ -270,6 +280,27 @@ class TreeDriveline:
         self._group_of = group_of
         return groups
 
+    def _prepare_tables(self) -> None:
+        """Per section: its ops as a tuple, its group and the local index of its joining
+        differential's delta (-1: none); per group: its spider inertias by local index.
+        Rows r_s are kept in group-local coordinates (a group has 1 + its differentials')."""
+        self._sec_ops = [tuple(sec.ops) for sec in self.sections]
+        self._group_size = [len(self._groups[g][0]) for g in self._group_of]
+        local = {}
+        for coords, _secs in self._groups:
+            for i, c in enumerate(coords):
+                local[c] = i
+        self._sec_local = []
+        for sec in self.sections:
+            if sec.parent < 0:
+                self._sec_local.append(-1)
+            else:
+                c = self.diffs[sec.diff].coord
+                self._sec_local.append(local[c] if c >= 0 else -1)
+        self._group_spiders = [[(local[d.coord], d.model.spider_inertia) for d in self.diffs
+                                if d.coord in coords and d.model.spider_inertia != 0.0]
+                               for coords, _secs in self._groups]
+
     def _initial_state(self) -> FloatArray:
         """Rigid start: first inertia at the scene's angle and speed, springs at their initial
         twist with zero rate, differentials at delta = 0 with equal side speeds, relaxed slips
@@ -310,7 +341,8 @@ class TreeDriveline:
     # --- kinematics -----------------------------------------------------------------------
 
     def _kinematics(self, x: FloatArray) -> _Kin:
-        """Section angles, speeds, rows r_s, bias accelerations k_s and end kinematics."""
+        """Section angles, speeds, rows r_s (group-local), bias accelerations k_s and end
+        kinematics."""
         n = self.n_dof
         xl = x.tolist() if isinstance(x, np.ndarray) else list(x)
         ns = len(self.sections)
@@ -319,26 +351,29 @@ class TreeDriveline:
         rows: list[list[float]] = [[]] * ns
         bias = [0.0] * ns
         ends: list[tuple[float, float, float, float, float]] = [(0.0, 0.0, 0.0, 0.0, 0.0)] * ns
+        ops = self._sec_ops
+        sec_local = self._sec_local
+        group_size = self._group_size
         for s, sec in enumerate(self.sections):
             if sec.parent < 0:
                 c = sec.coord
                 q[s], qd[s] = xl[c], xl[n + c]
-                row = [0.0] * n
-                row[c] = 1.0
-                rows[s] = row
+                row = [0.0] * group_size[s]
+                row[0] = 1.0
             else:
                 p = sec.parent
                 phi_p, a_p, b_p = ends[p][0], ends[p][1], ends[p][2]
-                c = self.diffs[sec.diff].coord
                 row = [a_p * r for r in rows[p]]
                 q[s], qd[s] = phi_p, a_p * qd[p]
-                if c >= 0:
+                i = sec_local[s]
+                if i >= 0:
+                    c = self.diffs[sec.diff].coord
                     q[s] += sec.sign * xl[c]
                     qd[s] += sec.sign * xl[n + c]
-                    row[c] += sec.sign
-                rows[s] = row
+                    row[i] += sec.sign
                 bias[s] = a_p * bias[p] + b_p * qd[p] * qd[p]
-            ends[s] = section_kinematics(tuple(sec.ops), q[s])
+            rows[s] = row
+            ends[s] = section_kinematics(ops[s], q[s])
         return _Kin(q, qd, rows, bias, ends)
 
     # --- forces -----------------------------------------------------------------------------
@@ -390,33 +425,39 @@ class TreeDriveline:
         return _Forces(T_engine, qf, spring_t, bias_t, fx, fz, status, omega, p_damp, p_slip)
 
     def _accelerations(self, kin: _Kin, fo: _Forces) -> list[float]:
-        """Generalised accelerations uddot (rad/s^2) of every coordinate, group by group."""
+        """Generalised accelerations uddot (rad/s^2) of every coordinate, group by group:
+        M = sum_s M_s r_s r_s^T + sum_d P_d e_d e_d^T, f = sum_s r_s (Q_s - C_s qdot_s^2 - M_s k_s)."""
         acc = [0.0] * self.n_dof
-        for coords, secs in self._groups:
+        ends, rows, qd, bias, qf = kin.ends, kin.rows, kin.qd, kin.bias, fo.q
+        for (coords, secs), spiders in zip(self._groups, self._group_spiders):
             k = len(coords)
-            loc = {c: i for i, c in enumerate(coords)}
+            if k == 1:
+                m0 = f0 = 0.0
+                for s in secs:
+                    ms = ends[s][3]
+                    r = rows[s][0]
+                    m0 += ms * r * r
+                    f0 += r * (qf[s] - ends[s][4] * qd[s] * qd[s] - ms * bias[s])
+                acc[coords[0]] = f0 / m0
+                continue
             m = [[0.0] * k for _ in range(k)]
             f = [0.0] * k
             for s in secs:
-                ms, cs = kin.ends[s][3], kin.ends[s][4]
-                row = kin.rows[s]
-                rl = [row[c] for c in coords]
-                gen = fo.q[s] - cs * kin.qd[s] * kin.qd[s] - ms * kin.bias[s]
+                ms = ends[s][3]
+                rl = rows[s]
+                gen = qf[s] - ends[s][4] * qd[s] * qd[s] - ms * bias[s]
                 for i in range(k):
-                    if rl[i] == 0.0:
+                    ri = rl[i]
+                    if ri == 0.0:
                         continue
-                    f[i] += rl[i] * gen
-                    for j in range(k):
-                        m[i][j] += ms * rl[i] * rl[j]
-            for d in self.diffs:
-                if d.coord in loc:
-                    i = loc[d.coord]
-                    m[i][i] += d.model.spider_inertia
-            if k == 1:
-                acc[coords[0]] = f[0] / m[0][0]
-            else:
-                for c, a in zip(coords, _cholesky_solve(m, f)):
-                    acc[c] = a
+                    f[i] += ri * gen
+                    mi = m[i]
+                    for j in range(i + 1):      # the lower triangle (all Cholesky reads)
+                        mi[j] += ms * ri * rl[j]
+            for i, p in spiders:
+                m[i][i] += p
+            for c, a in zip(coords, _cholesky_solve(m, f)):
+                acc[c] = a
         return acc
 
     # --- right-hand side --------------------------------------------------------------------
@@ -574,7 +615,8 @@ class TreeDriveline:
         states: list[list[tuple[tuple[float, float, float], tuple[float, float, float]]]] = [[]] * ns
         for s in reversed(range(ns)):
             sec = self.sections[s]
-            qdd = sum(r * a for r, a in zip(kin.rows[s], acc)) + kin.bias[s]
+            coords = self._groups[self._group_of[s]][0]
+            qdd = sum(r * acc[c] for r, c in zip(kin.rows[s], coords)) + kin.bias[s]
             kind, idx = sec.end
             if kind == 'wheel':
                 t_end = fo.fx[idx] * self.wheels[idx].tyre.radius

@@ -4,8 +4,6 @@ Lagrange solve against a Newton-Euler backward walk, energy balance with every d
 split-mu spin-up, start from rest, a lifted wheel's status."""
 from __future__ import annotations
 
-import copy
-import math
 from typing import Any
 
 import numpy as np

@@ -43,3 +43,14 @@ def test_split_mu_scene_spins_the_ice_wheel() -> None:
     d = dl.diffs[0]
     # equal within the spider inertia's share (P delta_ddot): 1 %
     assert start[d.left] == pytest.approx(start[d.right], rel=1e-2)
+
+
+def test_csv_carries_vehicle_channels(tmp_path) -> None:
+    tr = Simulation(load_scene(shipped_scenes()['fwd_axle_split_mu'])).run(0.02, sample_dt=0.01)
+    path = tmp_path / 'run.csv'
+    tr.to_csv(str(path))
+    header = path.read_text().splitlines()[0].split(',')
+    for col in ('vehicle_speed', 'wheel_left.slip', 'wheel_right.fx', 'wheel_left.fz', 'wheel_left.status'):
+        assert col in header
+    data = np.loadtxt(path, delimiter=',', skiprows=1)
+    assert data[0, header.index('vehicle_speed')] == pytest.approx(20 / 3.6)

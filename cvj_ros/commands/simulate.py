@@ -87,6 +87,13 @@ def format_summary(summary: dict) -> str:
     for name, m in summary['shafts'].items():
         lines.append(f"{name:<24}{m['mean_speed']:>12.5g}{m['delta']:>11.3e}{m['speed_amplitude']:>11.4g}"
                      f"{m['acceleration_amplitude']:>11.4g}{m['mean_torque']:>11.5g}{m['torque_amplitude']:>11.4g}")
+    veh = summary.get('vehicle')
+    if veh:
+        lines.append(f"vehicle speed {veh['speed_start_kmh']:.4g} -> {veh['speed_end_kmh']:.4g} km/h")
+        lines.append(f"{'wheel':<24}{'slip (end)':>12}{'mean F_x N':>12}{'mean F_z N':>12}{'no-load samples':>17}")
+        for name, w in veh['wheels'].items():
+            lines.append(f"{name:<24}{w['slip_end']:>12.4g}{w['fx_mean']:>12.5g}{w['fz_mean']:>12.5g}"
+                         f"{w['no_load_samples']:>17d}")
     lines.append(summary['fidelity_text'])
     return '\n'.join(lines)
 

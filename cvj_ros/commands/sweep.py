@@ -127,9 +127,9 @@ def run(args: argparse.Namespace) -> int:
     base = load_scene_data(path)
     sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
     if args.orders_shaft is not None:
-        from cvj_ros.physics.driveline import Driveline
+        from cvj_ros.physics.driveline import build_driveline
         from cvj_ros.physics.scene import parse_scene
-        shafts = Driveline.from_scene(parse_scene(base)).shaft_names
+        shafts = build_driveline(parse_scene(base)).shaft_names
         if args.orders_shaft not in shafts:
             raise SweepError(f'--orders-shaft {args.orders_shaft}: no such shaft in '
                              f'{base.get("name")}; shafts: {", ".join(shafts)}')

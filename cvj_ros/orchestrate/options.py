@@ -124,6 +124,9 @@ def prepare(options: RunOptions) -> _Prepared:
     from cvj_ros.physics.scene import Joint, find_scene, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
+    if scene.is_tree:
+        raise CvjError(f'{scene_path.name}: a vehicle scene (wheels, differentials) runs offline '
+                       f'only for now (cvj-sim simulate); the ROS loop carries one chain')
     if options.mode not in MODES:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
     if options.scheme not in SCHEMES:

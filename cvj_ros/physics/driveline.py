@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cvj_ros.errors import SceneError
 from cvj_ros.physics.fidelity import choose_fidelity
 from cvj_ros.physics.scene import Scene, Spring
 from cvj_ros.physics.sections import (  # noqa: F401  (SpringLaw, Shaft re-exported)
@@ -57,6 +58,10 @@ class Driveline:
     """
 
     def __init__(self, scene: Scene, levels: Mapping[str, str], *, track_energy: bool = False) -> None:
+        if scene.is_tree:
+            raise SceneError('driveline', 'a vehicle scene (wheels, differentials) is not a '
+                                          'chain: it runs offline only for now (cvj-sim simulate; '
+                                          'Python: build_driveline / TreeDriveline)')
         self.scene = scene
         self.levels = dict(levels)
         self.track_energy = track_energy
@@ -490,3 +495,13 @@ class Driveline:
             else:
                 pos[i], vel[i], eff[i] = phi, om, tq
         return pos, vel, eff, react
+
+
+def build_driveline(scene: Scene, *, fidelity: Mapping[str, str] | None = None,
+                    track_energy: bool = False) -> Any:
+    """The equations of ``scene``: a :class:`Driveline` for a chain, a
+    :class:`cvj_ros.physics.tree.TreeDriveline` for a vehicle scene (wheels, differentials)."""
+    if scene.is_tree:
+        from cvj_ros.physics.tree import TreeDriveline
+        return TreeDriveline.from_scene(scene, fidelity=fidelity, track_energy=track_energy)
+    return Driveline.from_scene(scene, fidelity=fidelity, track_energy=track_energy)

@@ -35,7 +35,7 @@ import numpy as np
 
 from cvj_ros.errors import SceneError
 from cvj_ros.physics.joints import JOINTS, make_joint
-from cvj_ros.physics.scene import Joint, Scene, Spring
+from cvj_ros.physics.scene import Joint, Scene, Spring, iter_elements
 from cvj_ros.physics.sections import build_sections, section_kinematics
 
 N_SAMPLES = 2048          # samples per revolution for joint error bounds
@@ -173,12 +173,13 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
                     ) -> FidelityReport:
     """Resolve 'auto' levels of every joint and spring of ``scene`` (see module doc)."""
     overrides = dict(overrides or {})
-    by_name = {el.name: el for el in scene.driveline}
+    elements = list(iter_elements(scene.driveline))   # a chain's elements, or every branch's
+    by_name = {el.name: el for el in elements}
     for name, level in overrides.items():
         el = by_name.get(name)
         if el is None or not isinstance(el, (Joint, Spring)):
             import difflib
-            names = [e.name for e in scene.driveline if isinstance(e, (Joint, Spring))]
+            names = [e.name for e in elements if isinstance(e, (Joint, Spring))]
             near = difflib.get_close_matches(name, names, n=1)
             hint = f"; did you mean '{near[0]}'?" if near else f'; joints/springs: {", ".join(names)}'
             raise SceneError(f'fidelity.{name}', f'no joint or spring of that name{hint}')
@@ -190,7 +191,7 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
     order = max(1.0, engine_order(scene.engine))
     choices: list[FidelityChoice] = []
     joint_orders = []
-    for el in scene.driveline:
+    for el in elements:
         if not isinstance(el, Joint):
             continue
         fids = JOINTS[el.kind].fidelities
@@ -213,9 +214,22 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
     if joint_orders:
         order = max(order, float(max(joint_orders)))
     band = omega_op * order
-    springs = [el for el in scene.driveline if isinstance(el, Spring)]
-    adjacent = _adjacent_inertias(scene, {c.name: c.chosen for c in choices}) if springs else {}
+    springs = [el for el in elements if isinstance(el, Spring)]
+    tree = scene.vehicle is not None
+    adjacent = (_adjacent_inertias(scene, {c.name: c.chosen for c in choices})
+                if springs and not tree else {})
     for el in springs:
+        if tree:
+            # the adjacent inertias across a differential are a 2x2 matrix, not two numbers:
+            # the rigid rule is not derived for them, a vehicle scene's springs stay elastic
+            if el.name in overrides:
+                chosen, reason = overrides[el.name], 'forced by argument'
+            elif el.fidelity != 'auto':
+                chosen, reason = el.fidelity, 'forced by scene'
+            else:
+                chosen, reason = 'elastic', 'vehicle scene: springs stay elastic unless forced'
+            choices.append(FidelityChoice(el.name, 'spring', chosen, reason, {}))
+            continue
         j_l, j_r = adjacent[el.name]
         omega_n = math.sqrt(el.stiffness * (1.0 / j_l + 1.0 / j_r))
         r = band / omega_n

@@ -24,7 +24,7 @@ from typing import Any
 from cvj_ros.errors import GeometryError, SceneError
 
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
-              'accuracy_target', 'solver', 'engine', 'load', 'initial', 'driveline')
+              'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline')
 SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
 INITIAL_KEYS = ('speed_rad_s', 'speed_rpm', 'angle_deg')
 INERTIA_KEYS = ('type', 'name', 'J', 'limits')
@@ -32,6 +32,17 @@ SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_de
                'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits')
 JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
 ELEMENT_TYPES = ('inertia', 'spring', 'joint')
+# vehicle scenes (a ``vehicle:`` block) also take wheels and differentials
+TREE_TYPES = ELEMENT_TYPES + ('differential', 'wheel')
+WHEEL_KEYS = ('type', 'name', 'J', 'radius', 'mu', 'load_share', 'axle', 'tyre', 'limits')
+TYRE_KEYS = ('B', 'C', 'E', 'relaxation_length')
+DIFF_KEYS = ('type', 'name', 'kind', 'ratio', 'J_carrier', 'J_side', 'J_spider', 'spider_ratio',
+             'viscous', 'left', 'right', 'limits')
+DIFF_KINDS = ('open', 'locked', 'viscous')
+AXLES = ('front', 'rear')
+VEHICLE_KEYS = ('mass', 'grade_percent', 'rolling_coeff', 'drag_coeff', 'frontal_area',
+                'air_density', 'speed_scale', 'cg_height', 'wheelbase', 'front_share',
+                'initial_speed_kmh', 'initial_speed_m_s')
 SPRING_LAWS = ('linear', 'progressive')
 JOINT_FIDELITIES = ('auto', 'ideal', 'closed', 'exact')
 SPRING_FIDELITIES = ('auto', 'elastic', 'rigid')
@@ -96,7 +107,70 @@ class Joint:
     type: str = 'joint'
 
 
-Element = Inertia | Spring | Joint
+@dataclass(frozen=True)
+class Wheel:
+    """A wheel ending a branch: inertia ``J`` (kg m^2, wheel + hub + tyre), rolling
+    ``radius`` (m), friction ``mu`` (-), static ``load_share`` of the vehicle weight (-),
+    ``axle`` 'front' | 'rear' | None, magic-formula ``B``, ``C``, ``E`` (-) and
+    ``relaxation_length`` (m) (cvj_ros.physics.tyre)."""
+
+    name: str
+    J: float
+    radius: float
+    mu: float
+    load_share: float
+    axle: str | None = None
+    B: float = 10.0
+    C: float = 1.9
+    E: float = 0.97
+    relaxation_length: float = 0.2
+    limits: Mapping[str, float] = field(default_factory=dict)
+    type: str = 'wheel'
+
+
+@dataclass(frozen=True)
+class Differential:
+    """A bevel differential ending a chain and branching it into ``left`` and ``right``
+    chains (cvj_ros.physics.differential): ``kind`` open | locked | viscous, ring ``ratio``
+    omega_in / omega_carrier (-), ``J_carrier``, ``J_side`` (each side gear), ``J_spider``
+    (sum of spider spin inertias) in kg m^2, ``spider_ratio`` z_side / z_spider (-),
+    ``viscous`` c_v (N m s/rad)."""
+
+    name: str
+    kind: str
+    ratio: float
+    J_carrier: float
+    J_side: float
+    left: tuple[Any, ...]
+    right: tuple[Any, ...]
+    J_spider: float = 0.0
+    spider_ratio: float = 1.0
+    viscous: float = 0.0
+    limits: Mapping[str, float] = field(default_factory=dict)
+    type: str = 'differential'
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """The vehicle body of a vehicle scene (cvj_ros.physics.vehicle.VehicleBody): mass (kg),
+    grade_percent (%), rolling_coeff C_r (-), drag_coeff C_d (-), frontal_area A (m^2),
+    air_density (kg/m^3), speed_scale v_s (m/s), optional cg_height and wheelbase (m) and
+    front_share (-) for load transfer, initial_speed (m/s)."""
+
+    mass: float
+    grade_percent: float = 0.0
+    rolling_coeff: float = 0.012
+    drag_coeff: float = 0.3
+    frontal_area: float = 2.2
+    air_density: float = 1.2
+    speed_scale: float = 0.1
+    cg_height: float | None = None
+    wheelbase: float | None = None
+    front_share: float | None = None
+    initial_speed: float | None = None
+
+
+Element = Inertia | Spring | Joint | Wheel | Differential
 
 
 @dataclass(frozen=True)
@@ -112,7 +186,8 @@ class SolverSettings:
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene (frozen). ``driveline`` is ordered from engine to load."""
+    """A validated scene (frozen). ``driveline`` is ordered from engine to load; in a
+    vehicle scene (``vehicle`` set, ``load`` empty) it may branch at differentials."""
 
     name: str
     description: str
@@ -128,10 +203,16 @@ class Scene:
     accuracy_target: float | None = None
     sample_step: float | None = None   # s, output sampling (default exchange_step)
     source: str = '<dict>'
+    vehicle: VehicleSpec | None = None   # vehicle scenes: the body replacing ``load``
+
+    @property
+    def is_tree(self) -> bool:
+        """True for a vehicle scene (wheels, possibly differentials), False for a chain."""
+        return self.vehicle is not None
 
     def element(self, name: str) -> Element:
-        """The driveline element called ``name`` (KeyError if absent)."""
-        for el in self.driveline:
+        """The driveline element called ``name``, in any branch (KeyError if absent)."""
+        for el in iter_elements(self.driveline):
             if el.name == name:
                 return el
         raise KeyError(name)
@@ -152,39 +233,86 @@ class Scene:
             sol['max_step'] = self.solver.max_step
         d['solver'] = sol
         d['engine'] = _plain(self.engine)
-        d['load'] = _plain(self.load)
+        if self.vehicle is None:
+            d['load'] = _plain(self.load)
+        else:
+            d['vehicle'] = _vehicle_dict(self.vehicle)
         d['initial'] = {'speed_rad_s': self.initial_speed,
                         'angle_deg': math.degrees(self.initial_angle)}
-        els = []
-        for el in self.driveline:
-            e: dict[str, Any]
-            if isinstance(el, Inertia):
-                e = {'type': 'inertia', 'name': el.name, 'J': el.J}
-            elif isinstance(el, Spring):
-                e = {'type': 'spring', 'name': el.name, 'stiffness': el.stiffness,
-                     'damping': el.damping, 'law': el.law}
-                if el.law == 'progressive':
-                    e['k2'] = el.k2
-                if el.backlash:
-                    e['backlash_deg'] = math.degrees(el.backlash)
-                    e['backlash_smoothing'] = el.backlash_smoothing
-                if el.initial_twist:
-                    e['initial_twist_deg'] = math.degrees(el.initial_twist)
-                if el.fidelity != 'auto':
-                    e['fidelity'] = el.fidelity
-            else:
-                e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
-                     'params': dict(el.params_file)}
-            if el.limits:
-                e['limits'] = dict(el.limits)
-            els.append(e)
-        d['driveline'] = els
+        if self.vehicle is not None and self.vehicle.initial_speed is not None:
+            del d['initial']['speed_rad_s']    # set by the vehicle's speed
+        d['driveline'] = _chain_dicts(self.driveline)
         return d
 
     def to_yaml(self) -> str:
         """The scene as YAML text (what is stored in bags as ``/driveline/scene``)."""
         import yaml
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+def iter_elements(chain: tuple[Element, ...]) -> Any:
+    """Every element of a driveline, depth first (a differential, then its left and its
+    right branch)."""
+    for el in chain:
+        yield el
+        if isinstance(el, Differential):
+            yield from iter_elements(el.left)
+            yield from iter_elements(el.right)
+
+
+def _vehicle_dict(v: VehicleSpec) -> dict[str, Any]:
+    d: dict[str, Any] = {'mass': v.mass, 'grade_percent': v.grade_percent,
+                         'rolling_coeff': v.rolling_coeff, 'drag_coeff': v.drag_coeff,
+                         'frontal_area': v.frontal_area, 'air_density': v.air_density,
+                         'speed_scale': v.speed_scale}
+    for key in ('cg_height', 'wheelbase', 'front_share'):
+        if getattr(v, key) is not None:
+            d[key] = getattr(v, key)
+    if v.initial_speed is not None:
+        d['initial_speed_m_s'] = v.initial_speed
+    return d
+
+
+def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
+    els = []
+    for el in chain:
+        e: dict[str, Any]
+        if isinstance(el, Wheel):
+            e = {'type': 'wheel', 'name': el.name, 'J': el.J, 'radius': el.radius, 'mu': el.mu,
+                 'load_share': el.load_share}
+            if el.axle is not None:
+                e['axle'] = el.axle
+            e['tyre'] = {'B': el.B, 'C': el.C, 'E': el.E,
+                         'relaxation_length': el.relaxation_length}
+        elif isinstance(el, Differential):
+            e = {'type': 'differential', 'name': el.name, 'kind': el.kind, 'ratio': el.ratio,
+                 'J_carrier': el.J_carrier, 'J_side': el.J_side, 'J_spider': el.J_spider,
+                 'spider_ratio': el.spider_ratio}
+            if el.kind == 'viscous':
+                e['viscous'] = el.viscous
+            e['left'] = _chain_dicts(el.left)
+            e['right'] = _chain_dicts(el.right)
+        elif isinstance(el, Inertia):
+            e = {'type': 'inertia', 'name': el.name, 'J': el.J}
+        elif isinstance(el, Spring):
+            e = {'type': 'spring', 'name': el.name, 'stiffness': el.stiffness,
+                 'damping': el.damping, 'law': el.law}
+            if el.law == 'progressive':
+                e['k2'] = el.k2
+            if el.backlash:
+                e['backlash_deg'] = math.degrees(el.backlash)
+                e['backlash_smoothing'] = el.backlash_smoothing
+            if el.initial_twist:
+                e['initial_twist_deg'] = math.degrees(el.initial_twist)
+            if el.fidelity != 'auto':
+                e['fidelity'] = el.fidelity
+        else:
+            e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
+                 'params': dict(el.params_file)}
+        if el.limits:
+            e['limits'] = dict(el.limits)
+        els.append(e)
+    return els
 
 
 def _plain(value: Any) -> Any:
@@ -203,6 +331,8 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], path: str) ->
             where = f'{path}.{key}' if path else str(key)
             near = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f"; did you mean '{near[0]}'?" if near else f'; allowed: {", ".join(allowed)}'
+            if not str(key):   # an empty key names no field: name the mapping that holds it
+                raise SceneError(path or 'scene', f"unknown empty key ''{hint}")
             raise SceneError(where, f'unknown key{hint}')
 
 
@@ -282,18 +412,26 @@ def _joint_params(kind: str, raw: Mapping[str, Any], path: str) -> dict[str, Any
     return out
 
 
-def _element(raw: Any, path: str) -> Element:
+def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Element:
     from cvj_ros.physics.joints import JOINTS, make_joint
     el = _mapping(raw, path)
+    types = TREE_TYPES if tree else ELEMENT_TYPES
     if 'type' not in el:
-        raise SceneError(f'{path}.type', f'missing; one of {", ".join(ELEMENT_TYPES)}')
-    etype = _string(el['type'], f'{path}.type', choices=ELEMENT_TYPES)
+        raise SceneError(f'{path}.type', f'missing; one of {", ".join(types)}')
+    if not tree and el['type'] in ('differential', 'wheel'):
+        raise SceneError(f'{path}.type', f"{el['type']!r} needs a vehicle scene (a 'vehicle:' "
+                                         "block instead of 'load:')")
+    etype = _string(el['type'], f'{path}.type', choices=types)
     if 'name' not in el:
         raise SceneError(f'{path}.name', 'missing')
     name = _string(el['name'], f'{path}.name')
     if not name.replace('_', 'a').isalnum() or not name[0].isalpha():
         raise SceneError(f'{path}.name', f'must be an identifier (letters, digits, _), got {name!r}')
     limits = _limits(el['limits'], f'{path}.limits') if 'limits' in el else {}
+    if etype == 'wheel':
+        return _wheel(el, path, name, limits)
+    if etype == 'differential':
+        return _differential(el, path, name, limits, depth)
     if etype == 'inertia':
         _check_keys(el, INERTIA_KEYS, path)
         if 'J' not in el:
@@ -346,6 +484,100 @@ def _element(raw: Any, path: str) -> Element:
                               for k, v in raw_params.items()}, limits=limits)
 
 
+def _wheel(el: Mapping[str, Any], path: str, name: str, limits: dict[str, float]) -> Wheel:
+    _check_keys(el, WHEEL_KEYS, path)
+    for key, unit in (('J', 'kg m^2'), ('radius', 'm'), ('mu', '-'), ('load_share', '-')):
+        if key not in el:
+            raise SceneError(f'{path}.{key}', f'missing ({unit})')
+    tyre = _mapping(el.get('tyre', {}) or {}, f'{path}.tyre')
+    _check_keys(tyre, TYRE_KEYS, f'{path}.tyre')
+    axle = _string(el['axle'], f'{path}.axle', choices=AXLES) if el.get('axle') is not None else None
+    return Wheel(name=name, J=_number(el['J'], f'{path}.J', positive=True),
+                 radius=_number(el['radius'], f'{path}.radius', positive=True, hi=5.0),
+                 mu=_number(el['mu'], f'{path}.mu', positive=True, hi=3.0),
+                 load_share=_number(el['load_share'], f'{path}.load_share', positive=True, hi=1.0),
+                 axle=axle,
+                 B=_number(tyre.get('B', 10.0), f'{path}.tyre.B', positive=True),
+                 C=_number(tyre.get('C', 1.9), f'{path}.tyre.C', positive=True, hi=2.0),
+                 E=_number(tyre.get('E', 0.97), f'{path}.tyre.E', hi=1.0),
+                 relaxation_length=_number(tyre.get('relaxation_length', 0.2),
+                                           f'{path}.tyre.relaxation_length', positive=True),
+                 limits=limits)
+
+
+#: nesting bound of differentials in branches (a 4x4 needs 2)
+MAX_DIFF_DEPTH = 8
+
+
+def _differential(el: Mapping[str, Any], path: str, name: str, limits: dict[str, float],
+                  depth: int) -> Differential:
+    _check_keys(el, DIFF_KEYS, path)
+    if depth >= MAX_DIFF_DEPTH:
+        raise SceneError(path, f'differentials nested deeper than {MAX_DIFF_DEPTH}')
+    kind = _string(el.get('kind', 'open'), f'{path}.kind', choices=DIFF_KINDS)
+    for key, unit in (('J_carrier', 'kg m^2'), ('J_side', 'kg m^2 of each side gear'),
+                      ('left', 'list of elements'), ('right', 'list of elements')):
+        if key not in el:
+            raise SceneError(f'{path}.{key}', f'missing ({unit})')
+    if 'viscous' in el and kind != 'viscous':
+        raise SceneError(f'{path}.viscous', "only for kind 'viscous'")
+    if kind == 'viscous' and 'viscous' not in el:
+        raise SceneError(f'{path}.viscous', 'missing (N m s/rad, the coupling coefficient c_v)')
+    ratio = _number(el.get('ratio', 1.0), f'{path}.ratio')
+    if not 1e-3 <= abs(ratio) <= 1e3:
+        raise SceneError(f'{path}.ratio', f'must satisfy 1e-3 <= |ratio| <= 1e3 '
+                                          f'(omega_in / omega_carrier), got {ratio:g}')
+    branches = []
+    for side in ('left', 'right'):
+        raw = el[side]
+        if not isinstance(raw, list) or not raw:
+            raise SceneError(f'{path}.{side}', 'must be a non-empty list of elements')
+        branches.append(tuple(_element(x, f'{path}.{side}[{i}]', tree=True, depth=depth + 1)
+                              for i, x in enumerate(raw)))
+    return Differential(
+        name=name, kind=kind, ratio=ratio,
+        J_carrier=_number(el['J_carrier'], f'{path}.J_carrier', positive=True),
+        J_side=_number(el['J_side'], f'{path}.J_side', positive=True),
+        left=branches[0], right=branches[1],
+        J_spider=_number(el.get('J_spider', 0.0), f'{path}.J_spider', nonneg=True),
+        spider_ratio=_number(el.get('spider_ratio', 1.0), f'{path}.spider_ratio', positive=True),
+        viscous=_number(el.get('viscous', 0.0), f'{path}.viscous', nonneg=True), limits=limits)
+
+
+def _vehicle(raw: Any) -> VehicleSpec:
+    v = _mapping(raw, 'vehicle')
+    _check_keys(v, VEHICLE_KEYS, 'vehicle')
+    if 'mass' not in v:
+        raise SceneError('vehicle.mass', 'missing (kg)')
+    opt = {k: (_number(v[k], f'vehicle.{k}', positive=True) if v.get(k) is not None else None)
+           for k in ('cg_height', 'wheelbase', 'front_share')}
+    given = [k for k, x in opt.items() if x is not None]
+    if given and len(given) != 3:
+        missing = next(k for k, x in opt.items() if x is None)
+        raise SceneError(f'vehicle.{missing}', 'load transfer needs cg_height, wheelbase and '
+                                               'front_share together')
+    if opt['front_share'] is not None and opt['front_share'] >= 1.0:
+        raise SceneError('vehicle.front_share', f'must be < 1, got {opt["front_share"]}')
+    if 'initial_speed_kmh' in v and 'initial_speed_m_s' in v:
+        raise SceneError('vehicle.initial_speed_m_s', 'give either initial_speed_kmh or '
+                                                      'initial_speed_m_s, not both')
+    v0 = None
+    if 'initial_speed_kmh' in v:
+        v0 = _number(v['initial_speed_kmh'], 'vehicle.initial_speed_kmh', lo=-500.0, hi=500.0) / 3.6
+    elif 'initial_speed_m_s' in v:
+        v0 = _number(v['initial_speed_m_s'], 'vehicle.initial_speed_m_s', lo=-150.0, hi=150.0)
+    return VehicleSpec(
+        mass=_number(v['mass'], 'vehicle.mass', positive=True),
+        grade_percent=_number(v.get('grade_percent', 0.0), 'vehicle.grade_percent', lo=-100.0, hi=100.0),
+        rolling_coeff=_number(v.get('rolling_coeff', 0.012), 'vehicle.rolling_coeff', nonneg=True),
+        drag_coeff=_number(v.get('drag_coeff', 0.3), 'vehicle.drag_coeff', nonneg=True),
+        frontal_area=_number(v.get('frontal_area', 2.2), 'vehicle.frontal_area', nonneg=True),
+        air_density=_number(v.get('air_density', 1.2), 'vehicle.air_density', nonneg=True),
+        speed_scale=_number(v.get('speed_scale', 0.1), 'vehicle.speed_scale', positive=True),
+        cg_height=opt['cg_height'], wheelbase=opt['wheelbase'], front_share=opt['front_share'],
+        initial_speed=v0)
+
+
 def _deg_message(msg: str, given: Any) -> str:
     """Rewrite a rad-range message ('must be < 1.5707963 rad, got 1.65 rad') in degrees."""
     import re
@@ -359,9 +591,15 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
     """Validate a scene given as a plain dict (YAML-loaded). Raises SceneError."""
     d = _mapping(data, source if source != '<dict>' else 'scene')
     _check_keys(d, SCENE_KEYS, '')
-    for key in ('name', 'duration', 'driveline', 'engine', 'load'):
+    for key in ('name', 'duration', 'driveline', 'engine'):
         if key not in d:
             raise SceneError(key, 'missing')
+    if 'load' in d and 'vehicle' in d:
+        raise SceneError('vehicle', "give either 'load' (a chain's output) or 'vehicle' (wheels "
+                                    "with tyres), not both")
+    if 'load' not in d and 'vehicle' not in d:
+        raise SceneError('load', "missing (or a 'vehicle' block for a driveline ending in wheels)")
+    tree = 'vehicle' in d
     name = _string(d['name'], 'name')
     description = d.get('description', '')
     if not isinstance(description, str):
@@ -387,14 +625,16 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
         max_step=(_number(sol['max_step'], 'solver.max_step', positive=True)
                   if sol.get('max_step') is not None else None))
     engine = _mapping(d['engine'], 'engine')
-    load = d['load']
+    load = d.get('load', {})
     if not isinstance(load, list):
         load = _mapping(load, 'load')
+    vehicle = _vehicle(d['vehicle']) if tree else None
     # build once so spec errors stop here, before any run
     from cvj_ros.physics.engine import engine_from_spec
     from cvj_ros.physics.load import load_from_spec
     engine_from_spec(engine, field='engine')
-    load_from_spec(load, seed=seed, field='load')
+    if not tree:
+        load_from_spec(load, seed=seed, field='load')
     init = _mapping(d.get('initial', {}) or {}, 'initial')
     _check_keys(init, INITIAL_KEYS, 'initial')
     if 'speed_rad_s' in init and 'speed_rpm' in init:
@@ -406,23 +646,32 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
     elif 'speed_rpm' in init:
         speed = _number(init['speed_rpm'], 'initial.speed_rpm', lo=-9.5e6, hi=9.5e6) * math.pi / 30.0
     angle = math.radians(_number(init.get('angle_deg', 0.0), 'initial.angle_deg'))
+    if (tree and vehicle.initial_speed is not None
+            and ('speed_rad_s' in init or 'speed_rpm' in init)):
+        key = 'speed_rad_s' if 'speed_rad_s' in init else 'speed_rpm'
+        raise SceneError(f'initial.{key}', "the vehicle's initial speed sets the driveline's "
+                                           '(rolling without slip); give one of them')
     raw_chain = d['driveline']
     if not isinstance(raw_chain, list) or not raw_chain:
         raise SceneError('driveline', 'must be a non-empty list of elements')
-    chain = tuple(_element(el, f'driveline[{i}]') for i, el in enumerate(raw_chain))
-    seen: dict[str, int] = {}
-    for i, el in enumerate(chain):
-        if el.name in seen:
-            raise SceneError(f'driveline[{i}].name', f'duplicate name {el.name!r} '
-                                                     f'(also driveline[{seen[el.name]}])')
-        seen[el.name] = i
-    check_layout(chain)
+    chain = tuple(_element(el, f'driveline[{i}]', tree=tree) for i, el in enumerate(raw_chain))
+    if tree:
+        check_tree(chain, vehicle)
+    else:
+        seen: dict[str, int] = {}
+        for i, el in enumerate(chain):
+            if el.name in seen:
+                raise SceneError(f'driveline[{i}].name', f'duplicate name {el.name!r} '
+                                                         f'(also driveline[{seen[el.name]}])')
+            seen[el.name] = i
+        check_layout(chain)
     check_hooke_phasing(chain)
     return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
                  exchange_step=exchange_step, solver=solver, engine=dict(engine),
                  load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
                  driveline=chain, initial_speed=speed, initial_angle=angle,
-                 accuracy_target=target, sample_step=sample_step, source=source)
+                 accuracy_target=target, sample_step=sample_step, source=source,
+                 vehicle=vehicle)
 
 
 def check_layout(chain: tuple[Element, ...]) -> None:
@@ -461,9 +710,14 @@ def check_hooke_phasing(chain: tuple[Element, ...], path: str = 'driveline') -> 
     """
     prev: str | None = None          # field path of the last Hooke with only shafts since
     for i, el in enumerate(chain):
+        here = f'{path}[{i}]'
+        if isinstance(el, Differential):
+            prev = None          # a bevel gear between: no propshaft pair across it
+            check_hooke_phasing(el.left, f'{here}.left')
+            check_hooke_phasing(el.right, f'{here}.right')
+            continue
         if not isinstance(el, Joint):
             continue
-        here = f'{path}[{i}]'
         if el.kind == 'chain':
             stages = el.params.get('joints', ())
             for k, st in enumerate(stages):
@@ -490,6 +744,75 @@ def _phase_missing(prev: str) -> str:
             'them, so their yoke phase decides whether the nonuniformities cancel or add; '
             'state it (phase_deg of the first + 90 puts the yokes of the shaft between in '
             'phase, + 0 puts them 90 deg out of phase)')
+
+
+def _paths(chain: tuple[Element, ...], path: str = 'driveline') -> list[tuple[str, Element]]:
+    """(field path, element) of every element, depth first."""
+    out = []
+    for i, el in enumerate(chain):
+        p = f'{path}[{i}]'
+        out.append((p, el))
+        if isinstance(el, Differential):
+            out += _paths(el.left, f'{p}.left') + _paths(el.right, f'{p}.right')
+    return out
+
+
+def check_tree(chain: tuple[Element, ...], vehicle: VehicleSpec) -> None:
+    """Reject vehicle drivelines the equations cannot integrate (docs/scenes.md, vehicle
+    scenes): names unique across branches; the main chain starts with an inertia; a
+    differential is the last element of its chain; every chain ends in a wheel or a
+    differential, and a wheel only there; every rigid section between springs holds an
+    inertia (a differential's carrier and side gears count); static load shares sum to at
+    most 1 (the rest rides on undriven wheels); with load transfer every wheel names its
+    axle and the front wheels' shares fit in ``front_share``."""
+    items = _paths(chain)
+    seen: dict[str, str] = {}
+    for p, el in items:
+        if el.name in seen:
+            raise SceneError(f'{p}.name', f'duplicate name {el.name!r} (also {seen[el.name]})')
+        seen[el.name] = p
+    if not isinstance(chain[0], Inertia):
+        raise SceneError('driveline[0].type', 'the first element must be an inertia '
+                                              '(the engine acts on it)')
+
+    def walk(ch: tuple[Element, ...], path: str, has_inertia: bool) -> None:
+        last = len(ch) - 1
+        for i, el in enumerate(ch):
+            p = f'{path}[{i}]'
+            if isinstance(el, (Wheel, Differential)) and i != last:
+                raise SceneError(f'{p}.type', f'a {el.type} must be the last element of its chain')
+            if isinstance(el, Spring):
+                if not has_inertia:
+                    raise SceneError(p, 'no inertia between this spring and the previous one '
+                                        '(massless node); add an inertia')
+                has_inertia = False
+            elif isinstance(el, (Inertia, Wheel, Differential)):
+                has_inertia = True
+            if isinstance(el, Differential):
+                walk(el.left, f'{p}.left', True)
+                walk(el.right, f'{p}.right', True)
+        if not isinstance(ch[last], (Wheel, Differential)):
+            raise SceneError(f'{path}[{last}].type', 'a vehicle driveline ends every chain in a '
+                                                     'wheel or a differential')
+
+    walk(chain, 'driveline', True)
+    wheels = [(p, el) for p, el in items if isinstance(el, Wheel)]
+    total = sum(el.load_share for _p, el in wheels)
+    if total > 1.0 + 1e-9:
+        raise SceneError(f'{wheels[-1][0]}.load_share', f'the wheels\' static load shares sum to '
+                                                        f'{total:g} > 1')
+    if vehicle.front_share is not None:
+        for p, el in wheels:
+            if el.axle is None:
+                raise SceneError(f'{p}.axle', 'missing (front or rear): the vehicle has load '
+                                              'transfer (cg_height)')
+        for ax, cap in (('front', vehicle.front_share), ('rear', 1.0 - vehicle.front_share)):
+            on = [(p, el) for p, el in wheels if el.axle == ax]
+            s = sum(el.load_share for _p, el in on)
+            if on and s > cap + 1e-9:
+                raise SceneError(f'{on[-1][0]}.load_share', f'the {ax} wheels\' shares sum to '
+                                                            f'{s:g}, more than the {ax} axle\'s '
+                                                            f'static share {cap:g}')
 
 
 # --- files ------------------------------------------------------------------------------

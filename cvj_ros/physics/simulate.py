@@ -64,6 +64,9 @@ class Trace:
     solver: dict[str, Any] = field(default_factory=dict)
     wall_time: float = 0.0               # s of wall clock, integration + sampling
                                          # (solver['integration_wall_time']: stepping only)
+    #: vehicle scenes: (samples,) series 'vehicle_speed' (m/s) and per wheel '<wheel>.slip'
+    #: (relaxed slip, -), '<wheel>.fx', '<wheel>.fz' (N), '<wheel>.status' (tyre.TYRE_*)
+    channels: dict[str, FloatArray] = field(default_factory=dict)
 
     @property
     def max_energy_residual(self) -> float:
@@ -87,6 +90,9 @@ class Trace:
         for i in range(len(self.names)):
             data.append(np.stack([self.position[:, i], self.velocity[:, i], self.effort[:, i]], 1))
         data.append(np.stack([self.engine_torque, self.load_torque, self.energy_residual], 1))
+        for key, series in self.channels.items():
+            cols.append(key)
+            data.append(np.asarray(series, dtype=float)[:, None])
         np.savetxt(path, np.hstack(data), delimiter=',', header=','.join(cols), comments='')
 
 
@@ -189,12 +195,18 @@ class Simulation:
         for name, v in (('rtol', self.rtol), ('atol', self.atol)):
             if not (math.isfinite(v) and v > 0):
                 raise SceneError(f'solver.{name}', f'must be > 0, got {v}')
-        self.driveline = Driveline.from_scene(scene, fidelity=fidelity, track_energy=track_energy)
+        if scene.is_tree:
+            # wheels, tyres and the vehicle body are the load (cvj_ros.physics.tree)
+            from cvj_ros.physics.tree import TreeDriveline
+            self.driveline = TreeDriveline.from_scene(scene, fidelity=fidelity,
+                                                      track_energy=track_energy)
+        else:
+            self.driveline = Driveline.from_scene(scene, fidelity=fidelity, track_energy=track_energy)
         self.fidelity_report = self.driveline.fidelity_report
         if engine is None:
             from cvj_ros.physics.engine import engine_from_spec
             engine = engine_from_spec(scene.engine, field='engine')
-        if load is None:
+        if load is None and not scene.is_tree:
             from cvj_ros.physics.load import load_from_spec
             load = load_from_spec(scene.load, seed=scene.seed, field='load')
         self.engine = engine
@@ -206,8 +218,8 @@ class Simulation:
         self.last_trace: Trace | None = None
         dl = self.driveline
         n = dl.n_dof
-        load_state = dl.load_state
-        e_torque, l_torque = engine.torque, load.torque
+        load_state = getattr(dl, 'load_state', None)      # None: a vehicle scene
+        e_torque, l_torque = engine.torque, getattr(load, 'torque', None)
 
         rhs_sources = dl.rhs_sources
 
@@ -225,6 +237,10 @@ class Simulation:
                                dTl_domega=load.slope(t, w_l, phi_l),
                                dTe_dphi=(e_torque(t, w_e, phi_e + he) - e_torque(t, w_e, phi_e - he)) / (2 * he),
                                dTl_dphi=(l_torque(t, w_l, phi_l + hl) - l_torque(t, w_l, phi_l - hl)) / (2 * hl))
+
+        if scene.is_tree:
+            def jac(t: float, x: FloatArray) -> FloatArray:   # noqa: F811
+                return dl.jacobian_fd(t, x, engine)
 
         self.fun = fun
         self.jac = jac
@@ -346,8 +362,13 @@ class Simulation:
         return stepper
 
     def torques(self, t: float, x: FloatArray) -> tuple[float, float]:
-        """(engine torque, load torque) in N m at state x."""
+        """(engine torque, load torque) in N m at state x; a vehicle scene's load torque is its
+        tyres' sum F_x r."""
         n = self.driveline.n_dof
+        if self.scene.is_tree:
+            dl = self.driveline
+            return (float(self.engine.torque(t, dl.engine_omega(x), dl.engine_phi(x))),
+                    float(dl.tyre_torque(x)))
         phi_l, w_l = self.driveline.load_state(x)
         return (float(self.engine.torque(t, float(x[n]), float(x[0]))),
                 float(self.load.torque(t, w_l, phi_l)))
@@ -585,10 +606,22 @@ class Simulation:
         clock = time.perf_counter
         x = x0
 
+        channels: dict[str, FloatArray] = {}
+        if self.scene.is_tree:
+            channels['vehicle_speed'] = np.empty(times.size)
+            for w in dl.wheels:
+                for q in ('slip', 'fx', 'fz', 'status'):
+                    channels[f'{w.name}.{q}'] = np.empty(times.size)
+
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
             if not np.all(np.isfinite(x)):
                 raise SolverError(f'state became non-finite at t = {tk:g} s')
+            if channels:
+                channels['vehicle_speed'][k] = dl.vehicle_speed(x)
+                for name, out in dl.wheel_outputs(x).items():
+                    for q in ('slip', 'fx', 'fz', 'status'):
+                        channels[f'{name}.{q}'][k] = out[q]
             te[k], tl[k] = self.torques(tk, x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan
@@ -632,8 +665,10 @@ class Simulation:
                     k += 1
             x = stepper.y
         dl.fill_mid(pos, vel)
-        return self._finish(stepper, times, pos, vel, eff, te, tl, res, x, integ,
-                            time.perf_counter() - wall0)
+        trace = self._finish(stepper, times, pos, vel, eff, te, tl, res, x, integ,
+                             time.perf_counter() - wall0)
+        trace.channels = channels
+        return trace
 
     def summary(self, *, transient: float | None = None) -> dict[str, Any]:
         """Summary of the last run (runs the scene first if needed): the steady window
@@ -644,10 +679,30 @@ class Simulation:
         tr = self.last_trace or self.run()
         sim_time = float(tr.t[-1] - tr.t[0]) or 1.0
         window = steady_window(tr.t, tr.names, tr.velocity, tr.effort, transient=transient)
-        return {'scene': self.scene.name, 'duration': float(tr.t[-1]),
+        out = {'scene': self.scene.name, 'duration': float(tr.t[-1]),
                 'window': window.to_dict(), 'window_text': window.describe(),
                 'shafts': summarize(tr, window=window),
                 'energy_residual': tr.max_energy_residual,
                 'solver': dict(tr.solver), 'wall_time': tr.wall_time,
                 'wall_per_sim_second': tr.wall_time / sim_time,
                 'fidelity': self.fidelity_report.to_dict()}
+        if tr.channels:
+            out['vehicle'] = vehicle_summary(tr)
+        return out
+
+
+def vehicle_summary(tr: Trace) -> dict[str, Any]:
+    """A vehicle run's body and tyres: speed at start and end (km/h) and per wheel the final
+    relaxed slip, the mean F_x and F_z (N) over the record and how many samples had the
+    tyre status NO_LOAD (F_z <= 0)."""
+    ch = tr.channels
+    v = ch['vehicle_speed']
+    wheels = {}
+    for key in ch:
+        if key.endswith('.slip'):
+            w = key[:-5]
+            wheels[w] = {'slip_end': float(ch[key][-1]), 'fx_mean': float(np.mean(ch[f'{w}.fx'])),
+                         'fz_mean': float(np.mean(ch[f'{w}.fz'])),
+                         'no_load_samples': int(np.count_nonzero(ch[f'{w}.status']))}
+    return {'speed_start_kmh': float(v[0]) * 3.6, 'speed_end_kmh': float(v[-1]) * 3.6,
+            'wheels': wheels}

@@ -8,13 +8,13 @@ import random
 import pytest
 
 from cvj_ros.errors import SceneError
-from cvj_ros.physics.driveline import Driveline
+from cvj_ros.physics.driveline import Driveline, build_driveline
 from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes
 
 
 @pytest.mark.parametrize('name', sorted(shipped_scenes()))
 def test_shipped_scenes_have_unique_shaft_names(name: str) -> None:
-    names = Driveline.from_scene(load_scene(shipped_scenes()[name])).shaft_names
+    names = build_driveline(load_scene(shipped_scenes()[name])).shaft_names
     assert len(set(names)) == len(names), names
 
 

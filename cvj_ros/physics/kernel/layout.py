@@ -214,6 +214,9 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     sequences (seeded random load); unused by the models covered so far.
     """
     from cvj_ros.physics.scene import Inertia, Joint
+    if getattr(driveline, 'is_tree', False):
+        raise NotImplementedError('compiled kernel: vehicle driveline (differentials, wheels, '
+                                  'tyres) is not compiled yet')
     fp: list[float] = [0.0]          # fp[0] unused, so offset 0 never aliases a parameter
     ops: list[tuple[int, int]] = []
     sec_start = [0]

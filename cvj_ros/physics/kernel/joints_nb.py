@@ -25,7 +25,7 @@ from cvj_ros.physics.joints.double_cardan import double_cardan_scalar
 from cvj_ros.physics.joints.hooke import hooke_phased_scalar, hooke_stage_scalar
 from cvj_ros.physics.joints.tripod import tripod_closed_scalar, tripod_series_scalar
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
-from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY,
+from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_HOOKE_PHASED, OP_JOINT_IDENTITY,
                                           OP_LEVER_CLOSED, OP_LEVER_EXACT, OP_TRIPOD_CLOSED,
                                           OP_TRIPOD_SERIES, OP_DOUBLE_CARDAN)
 
@@ -60,7 +60,7 @@ def tripod_series_at(phi, fp, off):
 def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
-        return hooke_phased_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3])
+        return hooke_stage_nb(phi, fp[off])
     if code == OP_DOUBLE_CARDAN:
         return double_cardan_nb(phi, fp[off], fp[off + 1], fp[off + 2])
     if code == OP_TRIPOD_SERIES:
@@ -76,4 +76,6 @@ def joint_eval(code, phi, fp, off):
         return phi * k, k, 0.0        # joints/gear.py Gear.scalar
     if code == OP_JOINT_IDENTITY:
         return phi, 1.0, 0.0
+    if code == OP_HOOKE_PHASED:    # last: its code in the inlined rhs must not slow the others
+        return hooke_phased_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3])
     return phi, 1.0, 0.0   # unreachable: layout.build_model rejects unknown joints

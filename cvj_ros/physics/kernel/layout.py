@@ -12,12 +12,13 @@ ip header (``H_*`` indices):
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
-    phi_out = phi_in); OP_HOOKE fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)]
-    (joints/hooke.py hooke_phased_scalar: yoke phase, bend plane, cross); OP_GEAR fp[off] = ratio k
+    phi_out = phi_in); OP_HOOKE fp[off] = cos(beta); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
     fp = [ca, sa2, twist, ca2, sa22] (arguments of joints/lever_hinge.py's scalar functions);
-    OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = [k, 0, 0, 0];
+    OP_DOUBLE_CARDAN fp = [c1, c2, off]; Rzeppa (non-ideal) is OP_HOOKE with fp = k;
     OP_TRIPOD_CLOSED fp = [a]; OP_TRIPOD_SERIES fp = [n_coeff, b_1 .. b_n] (joints/tripod.py).
+    OP_HOOKE_PHASED fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)] (a Hooke joint
+    with a yoke phase, bend plane or cross angle: joints/hooke.py hooke_phased_scalar).
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
 input block (9 floats): t_k, Te, Te_rate, Ke, we, Tl, Tl_rate, Kl, wl (see set_torque_inputs).
@@ -66,6 +67,7 @@ OP_LEVER_EXACT = 5
 OP_TRIPOD_CLOSED = 6
 OP_TRIPOD_SERIES = 7
 OP_DOUBLE_CARDAN = 8
+OP_HOOKE_PHASED = 9
 
 # torque source codes
 ENGINE_INPUTS = 0
@@ -106,17 +108,20 @@ def _joint_op(name: str, model: Any, fp: list[float]) -> tuple[int, int]:
             model.scalar(p) == (p, 1.0, 0.0) for p in (-2.3, 0.0, 0.7, 4.1))):
         return OP_JOINT_IDENTITY, 0
     if model.kind == 'rzeppa':          # non-ideal: one Hooke stage with cos = k (rzeppa.py)
-        off = len(fp)
-        fp.extend([float(model.k), 0.0, 0.0, 0.0])
-        return OP_HOOKE, off
+        fp.append(float(model.k))
+        return OP_HOOKE, len(fp) - 1
     if model.kind == 'double_cardan':
         off = len(fp)
         fp.extend([model._c1, model._c2, model._off])
         return OP_DOUBLE_CARDAN, off
     if model.kind == 'hooke' and fid == 'exact':
+        c, yoke, k, shift = model.kernel_params()
+        if yoke == 0.0 and k == 0.0:    # the plain law (the same bits as Hooke.scalar)
+            fp.append(c)
+            return OP_HOOKE, len(fp) - 1
         off = len(fp)
-        fp.extend(model.kernel_params())
-        return OP_HOOKE, off
+        fp.extend([c, yoke, k, shift])
+        return OP_HOOKE_PHASED, off
     if model.kind == 'lever_hinge' and fid == 'closed':
         off = len(fp)
         fp.extend([model._ca, model._sa2, model._ta, model.twist, model.delta_alpha])

@@ -69,13 +69,11 @@ def _mid_op(model: Any, mfp: list[float]) -> tuple[int, int]:
     if kind in ('rzeppa', 'double_cardan') and fid == 'ideal':
         return OP_JOINT_IDENTITY, 0
     if kind == 'rzeppa':            # cage: tan(phi3) = cos(alpha) tan(phi1)
-        off = len(mfp)
-        mfp.extend([float(model._cage_c), 0.0, 0.0, 0.0])
-        return OP_HOOKE, off
+        mfp.append(float(model._cage_c))
+        return OP_HOOKE, len(mfp) - 1
     if kind == 'double_cardan':     # intermediate shaft: the first Hooke stage
-        off = len(mfp)
-        mfp.extend([float(model._c1), 0.0, 0.0, 0.0])
-        return OP_HOOKE, off
+        mfp.append(float(model._c1))
+        return OP_HOOKE, len(mfp) - 1
     if kind == 'tripod':            # the spider turns with the output shaft
         return _joint_op(kind, model, mfp)
     if kind == 'chain':             # after the first stage, or the single stage's member

@@ -87,7 +87,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError, StartCancelled
+from cvj_ros.nodes.cdr import CdrError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
+from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
@@ -296,6 +298,7 @@ class CouplingNode(CvjNode):
         self.foreign_answers = 0
         self.untokened_answers = 0
         self.rejected_torques = 0
+        self.malformed = MalformedInputs(self.get_logger())   # undecodable answers, per topic
         self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
         self._last_finite = {ENGINE_WRENCH_TOPIC: 0.0, LOAD_WRENCH_TOPIC: 0.0}   # N m
         # answers with a stamp other than t_k while t_k is awaited: (stamp ns, expected ns)
@@ -613,14 +616,30 @@ class CouplingNode(CvjNode):
         return False
 
     def _on_engine(self, data: bytes) -> None:
-        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        try:
+            stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        except CdrError as exc:
+            self._drop_malformed(ENGINE_WRENCH_TOPIC, str(exc))
+            return
         if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
             self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
-        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        try:
+            stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+        except CdrError as exc:
+            self._drop_malformed(LOAD_WRENCH_TOPIC, str(exc))
+            return
         if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
             self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _drop_malformed(self, topic: str, reason: str) -> None:
+        """A message on ``topic`` the checked decoder refused: never integrated, counted
+        (``malformed_messages``), the first one per topic in one WARN line (log and
+        /diagnostics)."""
+        line = self.malformed.drop(topic, reason)
+        if line is not None and self.exit_code is None:
+            self.publish_diagnostics(WARN, line)
 
     def _answer_is_ours(self, frame: bytes, stamp_ns: int, topic: str) -> bool:
         """Run-token filter of one answer (``frame`` = its header.frame_id bytes): False, and
@@ -814,9 +833,11 @@ class CouplingNode(CvjNode):
     # --- diagnostics ------------------------------------------------------------------------
 
     def _level(self) -> bytes:
-        """WARN once a stamp was ignored, a torque held or a free-run tick overran, else OK."""
+        """WARN once a stamp was ignored, a torque held, a message dropped as malformed or a
+        free-run tick overran, else OK."""
         overran = self.scheduler is not None and self.scheduler.overruns > 0
-        return WARN if self.ignored_stamps or self.held_torques or overran else OK
+        return (WARN if self.ignored_stamps or self.held_torques or overran or self.malformed.counts
+                else OK)
 
     def real_time_factor(self) -> float:
         """Simulated seconds per wall second since step 0."""
@@ -838,7 +859,7 @@ class CouplingNode(CvjNode):
             'process_cpu_us_mean': 1e6 * (time.process_time() - self._cpu0) / n if self.started else 0.0,
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
-            'held_torques': self.held_torques,
+            'held_torques': self.held_torques, MALFORMED_KEY: self.malformed.total,
             'foreign_answers': self.foreign_answers, 'untokened_answers': self.untokened_answers,
         }
         if self.scheduler is not None:

@@ -36,7 +36,8 @@ from cvj_ros.nodes.common import (ERROR, OK, WARN, CvjNode, ParamSpec, declare_p
 from cvj_ros.nodes.diagnostics import Status, plain_status, publish_statuses
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
-from cvj_ros.nodes.cdr import (JointStateDecoder, decode_wrench_header_torque_z,
+from cvj_ros.nodes.malformed import MalformedInputs
+from cvj_ros.nodes.cdr import (CdrError, JointStateDecoder, decode_string, decode_wrench_header_torque_z,
                                decode_diagnostic_array, read_joint_state_block,
                                read_wrench_torque_z_block)
 from cvj_ros.nodes.run_token import (cdr_is_foreign, is_foreign, run_token_param, tag_frame,
@@ -99,6 +100,7 @@ class MonitorNode(CvjNode):
         # this domain are ignored and counted (cvj_ros.nodes.run_token)
         self.run_token = validated_run_token(self.params)
         self.foreign_messages = 0
+        self.malformed = MalformedInputs(self.get_logger())   # undecodable inputs, per topic
         self._diag_frame = tag_frame('monitor_node', self.run_token)
         self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
         self.internal_members: set[str] = set()   # shafts of INTERNAL_MEMBERS: no limit
@@ -145,8 +147,8 @@ class MonitorNode(CvjNode):
                                           self._collect_load, DATA_QOS)
         self.diag_sub = loop_subscription(self, DiagnosticArray, DIAGNOSTICS_TOPIC,
                                           self._on_diagnostics_raw, DATA_QOS)
-        self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene, LATCHED_QOS,
-                                           raw=False)
+        self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene_raw,
+                                           LATCHED_QOS)
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -180,6 +182,19 @@ class MonitorNode(CvjNode):
             self.foreign_messages += 1
             return True
         return False
+
+    def _drop(self, topic: str, reason: str) -> None:
+        """A message the checked decoders refused: dropped, counted (``malformed_messages``),
+        the first one per topic in one WARN line."""
+        self.malformed.drop(topic, reason)
+
+    def _on_scene_raw(self, data: bytes) -> None:
+        try:
+            text = decode_string(data)
+        except CdrError as exc:
+            self._drop(SCENE_TOPIC, str(exc))
+            return
+        self._on_scene(String(data=text))
 
     def _on_scene(self, msg: String) -> None:
         if self.params['scene']:
@@ -255,12 +270,12 @@ class MonitorNode(CvjNode):
                 self._push_js(t, block.velocity, block.effort)
         if self._engine_batch:
             batch, self._engine_batch = self._engine_batch, []
-            self._take_torques(self._engine_torque, batch)
+            self._take_torques(self._engine_torque, batch, ENGINE_WRENCH_TOPIC)
         if self._load_batch:
             batch, self._load_batch = self._load_batch, []
-            self._take_torques(self._load_torque, batch)
+            self._take_torques(self._load_torque, batch, LOAD_WRENCH_TOPIC)
 
-    def _take_torques(self, window: RollingWindow, samples: list[bytes]) -> None:
+    def _take_torques(self, window: RollingWindow, samples: list[bytes], topic: str) -> None:
         block = read_wrench_torque_z_block(samples)
         if block is not None:
             stamp_ns, frame, torque_z = block
@@ -272,7 +287,11 @@ class MonitorNode(CvjNode):
         t: list[float] = []
         z: list[float] = []
         for data in samples:
-            stamp_ns, frame_b, torque_z = decode_wrench_header_torque_z(data)
+            try:
+                stamp_ns, frame_b, torque_z = decode_wrench_header_torque_z(data)
+            except CdrError as exc:
+                self._drop(topic, str(exc))
+                continue
             if self._foreign(frame_b.decode('utf-8', errors='replace')):
                 continue
             t.append(stamp_ns / 1e9)
@@ -285,7 +304,11 @@ class MonitorNode(CvjNode):
         vel: list[Any] = []
         eff: list[Any] = []
         for data in batch:
-            msg = decode(data)
+            try:
+                msg = decode(data)
+            except CdrError as exc:
+                self._drop(JOINT_STATES_TOPIC, str(exc))
+                continue
             if msg.name is not self.names and ts:
                 self._push_js(ts, vel, eff)          # the samples before a change of names
                 ts, vel, eff = [], [], []
@@ -336,10 +359,14 @@ class MonitorNode(CvjNode):
         if publish and self.samples % self.params['publish_every'] == 0:
             self.publish()
 
-    def _on_torque_raw(self, data: bytes, window: RollingWindow) -> None:
-        """A serialised WrenchStamped answer: dropped (counted) if another run's, else
-        torque.z (N m) at its stamp into ``window``."""
-        stamp_ns, frame, torque_z = decode_wrench_header_torque_z(data)
+    def _on_torque_raw(self, data: bytes, window: RollingWindow, topic: str = ENGINE_WRENCH_TOPIC) -> None:
+        """A serialised WrenchStamped answer: dropped (counted) if another run's or malformed,
+        else torque.z (N m) at its stamp into ``window``."""
+        try:
+            stamp_ns, frame, torque_z = decode_wrench_header_torque_z(data)
+        except CdrError as exc:
+            self._drop(topic, str(exc))
+            return
         if self._foreign(frame.decode('utf-8', errors='replace')):
             return
         window.push(stamp_ns / 1e9, [torque_z])
@@ -353,7 +380,11 @@ class MonitorNode(CvjNode):
             return
         if b'coupling_node' not in data:
             return
-        _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+        try:
+            _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+        except CdrError as exc:
+            self._drop(DIAGNOSTICS_TOPIC, str(exc))
+            return
         self._take_loop_status(frame, [(name, values) for _l, name, _m, _h, values in statuses])
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

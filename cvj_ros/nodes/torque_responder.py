@@ -13,7 +13,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from cvj_ros.nodes.executor import CvjNode
 from cvj_ros.nodes.diagnostics import ERROR, WARN, plain_status, publish_statuses
 from cvj_ros.nodes.parameters import NS_PER_S, ParameterError
-from cvj_ros.nodes.cdr import WrenchStampedEncoder
+from cvj_ros.nodes.cdr import CdrError, WrenchStampedEncoder
+from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.qos import JOINT_STATES_TOPIC
 from cvj_ros.nodes.run_token import frame_token, is_foreign, tag_frame
 
 class TorqueResponder(CvjNode):
@@ -26,7 +28,9 @@ class TorqueResponder(CvjNode):
     (``<shaft>@<token>``, cvj_ros.nodes.run_token). With a ``run_token`` of its own the
     node answers only joint states of that run (others are counted in ``foreign_states``).
     A non-finite input or torque is never published: an ERROR diagnostic names it (the
-    coupling node then times out with a clear error).
+    coupling node then times out with a clear error). A joint state that does not decode
+    (:class:`~cvj_ros.nodes.cdr.CdrError`) or lacks the shaft is not answered: counted in
+    ``malformed_messages``, the first one named in one WARN line.
     """
 
     def start_answering(self, *, source: Any, shaft: str, wrench_topic: str,
@@ -38,13 +42,14 @@ class TorqueResponder(CvjNode):
         from geometry_msgs.msg import WrenchStamped
         from sensor_msgs.msg import JointState
 
-        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC, JOINT_STATES_TOPIC
+        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC
         self._wrench_cls = WrenchStamped
         self.source = source
         self.shaft = shaft
         self.answered = 0
         self.run_token = run_token
         self.foreign_states = 0          # joint states of another run (not answered)
+        self.malformed = MalformedInputs(self.get_logger())   # joint states not answerable
         self._diag_frame = tag_frame(self.get_name(), run_token)
         self._names: list[str] | None = None
         self._index = -1
@@ -101,7 +106,12 @@ class TorqueResponder(CvjNode):
         decoded whole (:meth:`_on_joint_states` names what is missing)."""
         got = self._read_shaft(data)
         if got is None:
-            self._on_joint_states(self._decode(data))
+            try:
+                msg = self._decode(data)
+            except CdrError as exc:
+                self._drop(str(exc))
+                return
+            self._on_joint_states(msg)
             return
         sec, nanosec, frame, phi, omega = got
         self._answer_state(sec, nanosec, frame, phi, omega)
@@ -113,12 +123,23 @@ class TorqueResponder(CvjNode):
         i = self._index if names == self._names else self._shaft_index(names)
         if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
             if self._accept_frame(msg.header.frame_id):
-                self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
-                self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
-                                   f'and velocity (names: {", ".join(msg.name)}); not answered')
+                names = ', '.join(msg.name[:8]) + (f', ... ({len(msg.name)} names)'
+                                                   if len(msg.name) > 8 else '')
+                self._drop(f'no shaft {self.shaft!r} with position and velocity; names: {names}')
             return
         self._answer_state(stamp.sec, stamp.nanosec, msg.header.frame_id,
                            float(msg.position[i]), float(msg.velocity[i]))
+
+    def _drop(self, reason: str, topic: str = JOINT_STATES_TOPIC) -> None:
+        """A message on ``topic`` this node cannot use (undecodable; a joint state without its
+        shaft): dropped, counted in ``malformed_messages``, the first one per topic in one
+        WARN line (log and /diagnostics); an unanswered state is then named by the coupling
+        node's wait."""
+        line = self.malformed.drop(topic, reason)
+        if line is not None:
+            publish_statuses(self.diag_pub, self.last_stamp_ns, self._diag_frame,
+                             [plain_status(self.get_name(), WARN, line,
+                                           {MALFORMED_KEY: self.malformed.total})])
 
     def _accept_frame(self, frame: str) -> bool:
         """False (counted, first one logged) for a joint state of another run; else the

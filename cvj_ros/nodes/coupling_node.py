@@ -90,6 +90,7 @@ from cvj_ros.errors import CvjError, StartCancelled
 from cvj_ros.nodes.cdr import CdrError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.peers import describe, publisher_endpoints, strangers
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
@@ -254,6 +255,12 @@ class CouplingNode(CvjNode):
                                             self._on_engine, DATA_QOS)
         self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
                                           self._on_load, DATA_QOS)
+        # run identity by publisher (cvj_ros.nodes.peers): answers that come through DDS are
+        # taken only while their topic has one publisher, the one matched at step 0; from
+        # the in-process bus (composed mode) only hosted nodes' answers come at all
+        self._dds_engine = not hasattr(self.engine_sub, 'bus')
+        self._dds_load = not hasattr(self.load_sub, 'bus')
+        self._peer_gids: dict[str, frozenset[str]] = {}
         # Reused message objects: one builtin_interfaces/Time shared by every header and
         # /clock, updated in place each step (publish() serialises synchronously, so reuse is
         # safe); WrenchStamped construction alone measured 27 us per message here.
@@ -412,37 +419,63 @@ class CouplingNode(CvjNode):
         return missing
 
     def foreign_publishers(self) -> str | None:
-        """Lockstep: a description of extra publishers on the loop topics, else None.
+        """Lockstep: the line naming extra publishers on the loop topics, else None.
 
         The loop needs exactly one publisher of /driveline/joint_states (this node), of
-        /engine/wrench and of /load/wrench. More means another run shares this ROS domain:
-        its answers carry the same stamps and would be integrated here (silently wrong).
+        /engine/wrench and of /load/wrench: the peers are the publishers matched when step 0
+        goes out (cvj_ros.nodes.peers). More before step 0 is an ambiguity (another run or
+        node shares this ROS domain: the line names every publisher); more after it is an
+        intruder, named against the peer matched at step 0. Messages on a topic with two
+        publishers cannot be told apart (rclpy gives no per-message publisher), so neither
+        case integrates anything from that topic any more.
         """
         if self.mode != 'lockstep':
             return None
-        if self.run_token and self.started and not self.untokened_answers:
-            # every answer so far carried our token: another run's messages are told apart
-            # and dropped (foreign_answers), so its publishers are no reason to stop. Before
-            # step 0 they still are: publisher / subscriber counts (missing_peers) cannot
-            # tell our peers from the other run's.
-            return None
         return self._extra_publishers()
 
+    def _guarded_topics(self) -> list[tuple[str, Any]]:
+        """(topic, publisher count function) of the loop topics whose messages reach this
+        run through DDS: all three before step 0, and after it those the in-process bus does
+        not carry (composed mode hears only its hosted publishers there)."""
+        topics: list[tuple[str, Any]] = [
+            (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
+            (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count),
+            (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count)]
+        bus = bus_for(self.context)
+        if self.started and bus is not None:
+            topics = [(t, n) for t, n in topics if not bus.carries(t)]
+        return topics
+
     def _extra_publishers(self) -> str | None:
-        """:meth:`foreign_publishers`' line from the publisher counts alone."""
-        extra = [f'{topic} has {n} publishers'
-                 for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
-                                  (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
-                                  (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count()))
-                 if n > 1]
+        """:meth:`foreign_publishers`' line from the publisher counts and the ROS graph."""
+        extra = [(topic, n) for topic, count in self._guarded_topics() if (n := count()) > 1]
         if not extra:
             return None
-        return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
+        if self.started:
+            return self._intruder_line(extra[0][0])
+        named = '; '.join(f'{topic} has {n} publishers: {describe(publisher_endpoints(self, topic))}'
+                          for topic, n in extra)
+        return (f'lockstep: {named} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
-                f'and its messages would mix into this loop'
-                + (f' ({self.untokened_answers} answers carried no run token in header.frame_id)'
-                   if self.run_token and self.started and self.untokened_answers else '')
-                + '; give each run its own ROS_DOMAIN_ID')
+                f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
+
+    def _note_peers(self) -> None:
+        """Step 0: the publishers of the loop topics now are this run's peers."""
+        self._peer_gids = {topic: frozenset(e.gid for e in publisher_endpoints(self, topic))
+                           for topic, _count in self._guarded_topics()}
+
+    def _intruder_line(self, topic: str) -> str:
+        """One line naming the publisher on ``topic`` that is not the peer matched at step 0."""
+        known = self._peer_gids.get(topic, frozenset())
+        endpoints = publisher_endpoints(self, topic)
+        new = strangers(endpoints, known)
+        peers = [e for e in endpoints if e.gid in known]
+        who = describe(new) if new else 'a publisher not in the ROS graph yet'
+        return (f'{self.mode}: {topic}: intruder {who} besides this run\'s peer '
+                f'{describe(peers) if peers else "(gone)"} on ROS_DOMAIN_ID='
+                f'{os.environ.get("ROS_DOMAIN_ID", "0")}; stopped at t={self.t_ns / NS_PER_S:.9g} s '
+                f'(step {self.k}) without integrating any of its messages: answers on a topic with '
+                f'two publishers cannot be told apart; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:
         if self.started or self.exit_code is not None:
@@ -466,6 +499,7 @@ class CouplingNode(CvjNode):
             if now - self._ready_since < START_SETTLE_S:
                 return
         self._start_timer.cancel()
+        self._note_peers()
         self.started = True
         self._t_wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
@@ -621,6 +655,9 @@ class CouplingNode(CvjNode):
         except CdrError as exc:
             self._drop_malformed(ENGINE_WRENCH_TOPIC, str(exc))
             return
+        if self.started and self._dds_engine and self.engine_sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(ENGINE_WRENCH_TOPIC))
+            return
         if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
             self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
@@ -629,6 +666,9 @@ class CouplingNode(CvjNode):
             stamp_ns, frame, value = decode_wrench_header_torque_z(data)
         except CdrError as exc:
             self._drop_malformed(LOAD_WRENCH_TOPIC, str(exc))
+            return
+        if self.started and self._dds_load and self.load_sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(LOAD_WRENCH_TOPIC))
             return
         if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
             self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)

@@ -73,6 +73,10 @@ class TorqueResponder(CvjNode):
         self._read_shaft = ShaftReader(shaft).read
         self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
                                         self._on_joint_states_raw, DATA_QOS)
+        # run identity by publisher (cvj_ros.nodes.peers): through DDS, joint states are
+        # answered only while the topic has one publisher (in composed mode the in-process
+        # bus brings only the hosted coupling node's)
+        self._js_dds = not hasattr(self.js_sub, 'bus')
 
     def _shaft_index(self, names: Sequence[str]) -> int:
         if self._names is None or list(names) != self._names:
@@ -104,6 +108,9 @@ class TorqueResponder(CvjNode):
         """A serialised joint state: the shaft's angle and speed read in place
         (:class:`~cvj_ros.nodes.cdr.ShaftReader`: the loop's samples keep one layout), else
         decoded whole (:meth:`_on_joint_states` names what is missing)."""
+        if self._js_dds and self.js_sub.get_publisher_count() > 1:
+            self._stranger_state()
+            return
         got = self._read_shaft(data)
         if got is None:
             try:
@@ -129,6 +136,18 @@ class TorqueResponder(CvjNode):
             return
         self._answer_state(stamp.sec, stamp.nanosec, msg.header.frame_id,
                            float(msg.position[i]), float(msg.velocity[i]))
+
+    def _stranger_state(self) -> None:
+        """A joint state while /driveline/joint_states has more than one publisher: whose it
+        is cannot be told, so it is not answered (``foreign_states``; the first one named in
+        one WARN line). The coupling node stops its run naming the intruder."""
+        self.foreign_states += 1
+        if self.foreign_states == 1:
+            from cvj_ros.nodes.peers import describe, publisher_endpoints
+            self.get_logger().warning(
+                f'{JOINT_STATES_TOPIC} has {self.js_sub.get_publisher_count()} publishers '
+                f'({describe(publisher_endpoints(self, JOINT_STATES_TOPIC))}): not answering '
+                f'while more than one node publishes joint states')
 
     def _drop(self, reason: str, topic: str = JOINT_STATES_TOPIC) -> None:
         """A message on ``topic`` this node cannot use (undecodable; a joint state without its

@@ -213,8 +213,9 @@ def test_only_foreign_answers_time_out(ctx, tmp_path: Path) -> None:
 def test_unanswered_state_0_beside_another_runs_publisher_names_it(ctx, tmp_path: Path) -> None:
     """Another run's engine publisher discovered only after step 0 went out (slower than the
     start settle) and state 0 answered only with the other run's token: the node stops with
-    the line naming the publishers and the domain (as a refused start does), not with 'is
-    engine_node running?' (seen in CI: test_faults_processes, second run on one domain)."""
+    the line naming that publisher as the intruder besides its peer and the domain, not
+    with 'is engine_node running?' (seen in CI: test_faults_processes, second run on one
+    domain)."""
     other: list = []
 
     def frames(k: int, frame: str) -> list:
@@ -228,9 +229,10 @@ def test_unanswered_state_0_beside_another_runs_publisher_names_it(ctx, tmp_path
         for n, _pub in other:
             n.destroy_node()
     assert node.exit_code == 1 and node.k == 0
-    assert '/engine/wrench has 2 publishers' in node.error_message, node.error_message
-    assert 'ROS_DOMAIN_ID=' in node.error_message and 'state 0 went unanswered' in node.error_message
-    assert 'answers carried no run token' not in node.error_message
+    # a publisher that appeared after step 0 is an intruder, named against the peer
+    assert '/engine/wrench: intruder /other_runs_engine (gid ' in node.error_message, node.error_message
+    assert "this run's peer /tagged_peers (gid " in node.error_message
+    assert 'ROS_DOMAIN_ID=' in node.error_message
 
 
 def test_bad_run_token_is_a_parameter_error(ctx, tmp_path: Path) -> None:

@@ -264,6 +264,7 @@ class JointStateDecoder:
         self._frame_raw = b''
         self._frame = ''
         self._arrays: dict[int, struct.Struct] = {}
+        self.end = 0          # bytes the last little-endian sample decoded took
 
     # the last sample decoded by any decoder and its view: in composed mode the engine, load
     # and monitor nodes get the same bytes object from the in-process bus (cvj_ros.nodes.intra)
@@ -302,8 +303,11 @@ class JointStateDecoder:
             raise CdrError(f'header.frame_id length {n} does not fit {size} bytes')
         frame_raw = data[16:15 + n]
         if frame_raw != self._frame_raw:
+            try:
+                self._frame = bytes(frame_raw).decode('utf-8')
+            except UnicodeDecodeError:
+                raise CdrError('header.frame_id not UTF-8') from None
             self._frame_raw = bytes(frame_raw)
-            self._frame = self._frame_raw.decode('utf-8', errors='replace')
         frame = self._frame
         off = 12 + n                                  # payload offset after frame_id
         off += (-off) % 4
@@ -322,7 +326,10 @@ class JointStateDecoder:
                 m = u32(data, 4 + off)[0]
                 if not 1 <= m <= MAX_STRING_BYTES or 8 + off + m > size:
                     raise CdrError(f'joint name length {m} does not fit {size} bytes')
-                names.append(bytes(data[4 + off + 4:4 + off + 3 + m]).decode('utf-8', errors='replace'))
+                try:
+                    names.append(bytes(data[4 + off + 4:4 + off + 3 + m]).decode('utf-8'))
+                except UnicodeDecodeError:
+                    raise CdrError('joint name not UTF-8') from None
                 off += 4 + m
             self._names_raw, self._names = bytes(data[4 + start:4 + off]), names
         arrays = []
@@ -339,6 +346,7 @@ class JointStateDecoder:
                 unpack = self._arrays[k] = struct.Struct(f'<{k}d')
             arrays.append(unpack.unpack_from(data, 4 + off))
             off += 8 * k
+        self.end = 4 + off                            # bytes the message takes (padding not)
         return JointStateView(_Header(_Stamp(sec, nanosec), frame), self._names, *arrays)
 
 
@@ -636,7 +644,10 @@ def _decode_diagnostic_array_le(data: bytes) -> tuple[int, str, list[tuple[Any, 
         n = u32(data, pos)[0]
         if not 1 <= n <= MAX_STRING_BYTES or pos + 4 + n > size:
             raise CdrError(f'string length {n} does not fit {size} bytes')
-        text = bytes(data[pos + 4:pos + 3 + n]).decode('utf-8', errors='replace')
+        try:
+            text = bytes(data[pos + 4:pos + 3 + n]).decode('utf-8')
+        except UnicodeDecodeError:
+            raise CdrError('a string is not UTF-8') from None
         pos += 4 + n
         return text
 
@@ -660,4 +671,60 @@ def _decode_diagnostic_array_le(data: bytes) -> tuple[int, str, list[tuple[Any, 
         name, message, hardware_id = string(), string(), string()
         values = [(string(), string()) for _ in range(count())]
         statuses.append((level, name, message, hardware_id, values))
+    _LAST_END[0] = pos
     return sec * NS_PER_S + nanosec, frame, statuses
+
+
+_LAST_END = [0]     # bytes the last little-endian DiagnosticArray decoded took (check_message)
+
+
+def checked_length(type_name: str, data: bytes | memoryview,
+                   js_decoder: 'JointStateDecoder | None' = None) -> int:
+    """How many bytes of the serialised message ``data`` of rosbags type ``type_name`` (e.g.
+    ``sensor_msgs/msg/JointState``) to keep: all of them, or the message without the bytes
+    beyond its end and 3 bytes of padding (rclpy's serialisation can leave 4-8 stray bytes
+    there; rosbags, what ``cvj-sim analyze`` reads with, refuses more than 3). Raises
+    :class:`CdrError` when it cannot be read: the checked decoders above for the contract
+    types (strings UTF-8, as rosbags wants them), the CDR encapsulation and size limit for
+    others. What the recorder checks before it writes a message. ``js_decoder``: a decoder
+    kept by the caller (its name cache makes the loop's joint states a slice comparison)."""
+    big = _cdr_kind(data)
+    end: int | None = None
+    if type_name == 'sensor_msgs/msg/JointState':
+        dec = js_decoder or JointStateDecoder()
+        dec._decode(data)
+        end = None if big else dec.end
+    elif type_name == 'geometry_msgs/msg/WrenchStamped':
+        frame = _wrench_fields(data)[2]
+        try:
+            frame.decode('utf-8')
+        except UnicodeDecodeError:
+            raise CdrError('header.frame_id not UTF-8') from None
+        n = (_BE_UINT32 if big else _LE_UINT32).unpack_from(data, 12)[0]
+        end = 4 + 12 + n + (-(12 + n)) % 8 + 48
+    elif type_name == 'rosgraph_msgs/msg/Clock':
+        if (_BE_STAMP if big else _STAMP).unpack_from(data, 4)[1] >= NS_PER_S:
+            raise CdrError('clock.nanosec >= 1e9')
+        end = 12
+    elif type_name == 'diagnostic_msgs/msg/DiagnosticArray':
+        decode_diagnostic_array(data)
+        end = None if big else _LAST_END[0]
+    elif type_name == 'std_msgs/msg/Float64':
+        decode_float64(data)
+        end = 12
+    elif type_name == 'std_msgs/msg/String':
+        decode_string(data)
+        end = 8 + (_BE_UINT32 if big else _LE_UINT32).unpack_from(data, 4)[0]
+    if end is not None and len(data) > end + 3:
+        return end
+    return len(data)
+
+
+def check_message(type_name: str, data: bytes | memoryview,
+                  js_decoder: 'JointStateDecoder | None' = None) -> str | None:
+    """Why ``data`` cannot be read (:func:`checked_length`), or None when it can."""
+    try:
+        checked_length(type_name, data, js_decoder)
+    except CdrError as exc:
+        return str(exc)
+    return None

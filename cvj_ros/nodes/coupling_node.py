@@ -35,16 +35,14 @@ integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
 counted as ``held_torques`` (diagnostics level WARN, first one logged).
 
-Run identity (``run_token``, cvj_ros.nodes.run_token): with a token the joint states go
-out with frame_id ``driveline@<token>`` (reaction wrenches ``<joint>_housing@<token>``,
-diagnostics ``coupling_node@<token>``, ``run_token`` in /driveline/scene); an answer whose
-frame_id ends in another run's token is ignored and counted (``foreign_answers``, first
-one in one WARN line), one without ``@`` is accepted (``untokened_answers``: an outside
-node that echoes only the stamp). A second publisher on /driveline/joint_states,
-/engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
-ERROR naming the domain before step 0 (counts cannot tell our peers from the other
-run's), and after step 0 only without a token or once an untagged answer came (those
-could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
+Run identity by publisher (cvj_ros.nodes.peers; frame_ids are plain frame names:
+``driveline``, ``<joint>_housing``, ``coupling_node``): the publishers of
+/driveline/joint_states, /engine/wrench and /load/wrench when step 0 goes out are the run's
+peers. A second publisher on one of them stops the loop with one ERROR line naming every
+publisher (before step 0) or the intruder, its topic and the step (after it); an answer that
+arrives while its topic has two matched publishers is never integrated. An answer that does
+not decode is dropped and counted (``malformed_messages``, first one per topic in one WARN
+line). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost, and in lockstep until that has held for
 START_SETTLE_S with no other run's publisher discovered. After t_N = duration it publishes
@@ -96,19 +94,19 @@ from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
-                                  decode_wrench_header_torque_z, load_scene_param,
+                                  decode_wrench_stamp_torque_z, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
                                JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
                                coupling_wrench_topic)
-from cvj_ros.nodes.run_token import (JOINT_STATES_FRAME, frame_token_bytes, run_token_param,
-                                     tag_frame, validated_run_token)
 
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
 NONFINITE_POLICIES = ('stop', 'hold')
+#: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
+JOINT_STATES_FRAME = 'driveline'
 # Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
 # before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell
 # this run's engine/load from another run's on the same domain, and a state published before
@@ -124,6 +122,10 @@ START_SETTLE_S = 0.3
 # peer that sends junk next to its right answer sends the right one within milliseconds
 # (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
 WRONG_STAMP_STALL_S = 1.0
+# Lockstep: the loop looks at the ROS graph (a second /driveline/joint_states publisher, which
+# no answer callback sees) at most this often (s) between two exchanges, besides the watchdog;
+# three publisher counts, so ~10 us per check, i.e. far below 1 % of the loop at 10 ms.
+GRAPH_CHECK_S = 0.01
 
 #: coupling_node ``start_gate`` values (:func:`wait_for_go`)
 START_GATES = ('', 'stdin')
@@ -160,7 +162,6 @@ PARAMS = (
     ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
               '(stop) or is replaced by the last finite torque of that topic, counted as '
               'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
-    run_token_param(),
     ParamSpec('catch_up', 'skip', 'free-run: missed ticks are dropped, one step jumping to wall '
               'time (skip), or run back to back up to burst_max per wake-up, then dropped (burst)',
               choices=CATCH_UP_POLICIES),
@@ -214,11 +215,9 @@ class CouplingNode(CvjNode):
         p = self.params = declare_parameters(self, PARAMS)
         scene = self.scene = load_scene_param(p['scene'])
         self.seed = scene_seed(scene, p['seed'])
-        # run identity (cvj_ros.nodes.run_token): frame_id '<frame>@<token>' on what we publish
-        self.run_token = validated_run_token(p)
-        self._token_b = self.run_token.encode()
-        self.js_frame = tag_frame(JOINT_STATES_FRAME, self.run_token) if self.run_token else ''
-        self.diag_frame = tag_frame('coupling_node', self.run_token)
+        # plain frame names (a run is told apart by its publishers: cvj_ros.nodes.peers)
+        self.js_frame = JOINT_STATES_FRAME
+        self.diag_frame = 'coupling_node'
         self.mode = p['mode']
         self.scheme = p['coupling_scheme']
         h = p['exchange_step'] or scene.exchange_step
@@ -261,6 +260,7 @@ class CouplingNode(CvjNode):
         self._dds_engine = not hasattr(self.engine_sub, 'bus')
         self._dds_load = not hasattr(self.load_sub, 'bus')
         self._peer_gids: dict[str, frozenset[str]] = {}
+        self._graph_due = 0.0         # monotonic s of the next graph check inside the loop
         # Reused message objects: one builtin_interfaces/Time shared by every header and
         # /clock, updated in place each step (publish() serialises synchronously, so reuse is
         # safe); WrenchStamped construction alone measured 27 us per message here.
@@ -274,12 +274,12 @@ class CouplingNode(CvjNode):
         for j in self.reaction_joints:
             w = WrenchStamped()
             w.header.stamp = self._stamp
-            w.header.frame_id = tag_frame(f'{j}_housing', self.run_token)
+            w.header.frame_id = f'{j}_housing'
             self._reaction_msgs[j] = w
         # pre-serialised publication (bytes): skips rclpy's field-by-field conversion
         self._js_cdr = JointStateEncoder(self.names, self.js_frame)
         self._clock_cdr = ClockEncoder()
-        self._reaction_cdr = {j: WrenchStampedEncoder(tag_frame(f'{j}_housing', self.run_token))
+        self._reaction_cdr = {j: WrenchStampedEncoder(f'{j}_housing')
                               for j in self.reaction_joints}
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
@@ -300,10 +300,6 @@ class CouplingNode(CvjNode):
         self.waiting = False
         self.started = False
         self.ignored_stamps = 0
-        # answers tagged with another run's token (ignored; WARN once) and answers without
-        # a token (accepted: an outside node echoing only the stamp; INFO once)
-        self.foreign_answers = 0
-        self.untokened_answers = 0
         self.rejected_torques = 0
         self.malformed = MalformedInputs(self.get_logger())   # undecodable answers, per topic
         self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
@@ -397,7 +393,6 @@ class CouplingNode(CvjNode):
                        'backend': getattr(self.stepper, 'backend', 'python'),
                        'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
-            'run_token': self.run_token,
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))
 
@@ -651,27 +646,25 @@ class CouplingNode(CvjNode):
 
     def _on_engine(self, data: bytes) -> None:
         try:
-            stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+            stamp_ns, value = decode_wrench_stamp_torque_z(data)
         except CdrError as exc:
             self._drop_malformed(ENGINE_WRENCH_TOPIC, str(exc))
             return
         if self.started and self._dds_engine and self.engine_sub.get_publisher_count() > 1:
             self._stop_with_error(self._intruder_line(ENGINE_WRENCH_TOPIC))
             return
-        if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
-            self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
+        self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
         try:
-            stamp_ns, frame, value = decode_wrench_header_torque_z(data)
+            stamp_ns, value = decode_wrench_stamp_torque_z(data)
         except CdrError as exc:
             self._drop_malformed(LOAD_WRENCH_TOPIC, str(exc))
             return
         if self.started and self._dds_load and self.load_sub.get_publisher_count() > 1:
             self._stop_with_error(self._intruder_line(LOAD_WRENCH_TOPIC))
             return
-        if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
-            self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+        self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
 
     def _drop_malformed(self, topic: str, reason: str) -> None:
         """A message on ``topic`` the checked decoder refused: never integrated, counted
@@ -680,33 +673,6 @@ class CouplingNode(CvjNode):
         line = self.malformed.drop(topic, reason)
         if line is not None and self.exit_code is None:
             self.publish_diagnostics(WARN, line)
-
-    def _answer_is_ours(self, frame: bytes, stamp_ns: int, topic: str) -> bool:
-        """Run-token filter of one answer (``frame`` = its header.frame_id bytes): False, and
-        counted in ``foreign_answers`` (first one logged as WARN), when it carries another
-        run's token; True for our token and for an untagged frame_id (counted in
-        ``untokened_answers``, first one logged: accepted as an outside node that echoes
-        only the stamp; while another run shares the domain it stops the loop, see
-        :meth:`foreign_publishers`)."""
-        token = frame_token_bytes(frame)
-        if token == self._token_b:
-            return True
-        if token is None:
-            self.untokened_answers += 1
-            if self.untokened_answers == 1:
-                self.get_logger().info(
-                    f'{topic}: answer frame_id {frame.decode(errors="replace")!r} carries no run token; '
-                    f'accepted (echo the joint-state header.frame_id "{self.js_frame}" to tell this '
-                    f'run apart from another on the same ROS domain)')
-            return True
-        self.foreign_answers += 1
-        if self.foreign_answers == 1:
-            line = (f'{topic}: ignoring answers of another run on this ROS domain (frame_id '
-                    f'{frame.decode(errors="replace")!r} at t={stamp_ns / NS_PER_S:.9g} s, this run is '
-                    f'{self.run_token!r}); counted as foreign_answers')
-            self.get_logger().warning(line)
-            self.publish_diagnostics(WARN, line)
-        return False
 
     def _on_wrench(self, stamp_ns: int, value: float, topic: str, *, engine: bool) -> None:
         """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
@@ -736,6 +702,13 @@ class CouplingNode(CvjNode):
         else:
             self.T_load, self._have_load = value, True
         if self._have_engine and self._have_load:
+            now = time.monotonic()
+            if now >= self._graph_due:        # a second joint-state publisher (not an answer)
+                self._graph_due = now + GRAPH_CHECK_S
+                foreign = self.foreign_publishers()
+                if foreign:
+                    self._stop_with_error(foreign)
+                    return
             self.waiting = False
             sent = self._wait_start
             self.wait_total += time.perf_counter() - sent
@@ -900,7 +873,6 @@ class CouplingNode(CvjNode):
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
             'held_torques': self.held_torques, MALFORMED_KEY: self.malformed.total,
-            'foreign_answers': self.foreign_answers, 'untokened_answers': self.untokened_answers,
         }
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())

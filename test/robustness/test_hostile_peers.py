@@ -201,10 +201,14 @@ def test_second_engine_node_mid_run_is_named(ctx, tmp_path) -> None:
 
 
 def test_foreign_joint_states_stop_the_run_and_are_not_answered(ctx, tmp_path) -> None:
+    sent = []
+
     def attack(hostile, k):
-        if k == 5:
+        if k == 5 and not sent:
+            sent.append(1)
             hostile.foreign_joint_states(4)
-    node, peers, _hostile = run_loop(ctx, tmp_path, attack=attack)
+    # 0.5 s simulated: the loop looks at the graph every 10 ms of wall time
+    node, peers, _hostile = run_loop(ctx, tmp_path, attack=attack, duration=0.5)
     assert peers.js and all(on_the_line(js) for js in peers.js if js.name == ['engine_crank', 'wheel'])
     assert node.exit_code == 1
     assert '/driveline/joint_states: intruder /hostile (gid ' in node.error_message

@@ -469,7 +469,7 @@ class CouplingNode(CvjNode):
         return (f'{self.mode}: {topic}: intruder {who} besides this run\'s peer '
                 f'{describe(peers) if peers else "(gone)"} on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}; stopped at t={self.t_ns / NS_PER_S:.9g} s '
-                f'(step {self.k}) without integrating any of its messages: answers on a topic with '
+                f'(step {self.k}) without integrating any of its messages: messages on a topic with '
                 f'two publishers cannot be told apart; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:

@@ -184,7 +184,7 @@ def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> 
     parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
     return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
             f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
-            f'every message with a geometry_msgs/WrenchStamped whose header (stamp, frame_id) '
+            f'every message with a geometry_msgs/WrenchStamped whose header.stamp '
             f'echoes the joint state\'s (docs/ros.md, "Outside nodes")')
 
 

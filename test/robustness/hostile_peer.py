@@ -145,34 +145,68 @@ class HostilePeer:
         self.node.destroy_node()
 
 
+ATTACKS = ('forge_engine', 'forge_load', 'flood_engine', 'malformed_engine', 'malformed_load',
+           'foreign_js', 'clock_back')
+
+
 def main(argv: list[str]) -> None:
-    """``hostile_peer.py ATTACK SECONDS``: forge_engine | forge_load | flood_engine |
-    foreign_js | clock_back | malformed_engine, against the run on ROS_DOMAIN_ID."""
-    import time
+    """``hostile_peer.py ATTACK FROM_S``: one of :data:`ATTACKS` against the run on
+    ROS_DOMAIN_ID, from its first joint state stamped >= FROM_S simulated seconds (the
+    backwards /clock from the start) until EOF on standard input. Prints ``ready`` once its
+    node exists and ``sent {...}`` at the end. Like another run, it subscribes to the joint
+    states only once the run's /clock shows up (a subscriber there before would count toward
+    the coupling node's ``min_subscribers``)."""
+    import select
+    import threading
+
+    from rosgraph_msgs.msg import Clock as ClockMsg
 
     from cvj_ros.nodes.executor import make_executor
-    attack, seconds = argv[0], float(argv[1])
+    attack, from_s = argv[0], float(argv[1])
+    if attack not in ATTACKS:
+        raise SystemExit(f'hostile_peer.py: ATTACK must be one of {", ".join(ATTACKS)}')
     rclpy.init()
     peer = HostilePeer(None)
     ex = make_executor('events', None)
     ex.add_node(peer.node)
-    if attack == 'forge_engine':
-        peer.forge_echo('/engine/wrench', from_s=0.2)
-    elif attack == 'forge_load':
-        peer.forge_echo('/load/wrench', from_s=0.2)
-    elif attack == 'flood_engine':
-        peer.flood('/engine/wrench')
-    elif attack == 'clock_back':
-        peer.backwards_clock()
-    t_end = time.monotonic() + seconds
-    while time.monotonic() < t_end:
-        if attack == 'foreign_js':
-            peer.foreign_joint_states(2)
-        elif attack == 'malformed_engine':
+    from_ns = int(round(from_s * 1e9))
+    started = threading.Event()
+
+    def on_state(msg: JointState) -> None:
+        peer._on_js(msg)                 # the attacks already started (forged answers)
+        if started.is_set() or msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec < from_ns:
+            return
+        started.set()
+        if attack.startswith('forge_'):
+            topic = '/engine/wrench' if attack == 'forge_engine' else '/load/wrench'
+            peer.forge_echo(topic, from_s=from_s)
+            peer.send(topic, WrenchStamped, peer.forged(msg, FORGED_TORQUE))
+        elif attack == 'flood_engine':
+            peer.flood('/engine/wrench')
+        elif attack.startswith('malformed_'):
+            topic = '/engine/wrench' if attack == 'malformed_engine' else '/load/wrench'
             for data in malformed_samples('wrench'):
-                peer.send('/engine/wrench', WrenchStamped, data)
-        ex.spin_once(timeout_sec=0.05)
-    print(f'hostile_peer: {attack}: sent {peer.sent}', flush=True)
+                peer.send(topic, WrenchStamped, data)
+        elif attack == 'foreign_js':
+            peer.foreign_joint_states(14)
+
+    def on_clock(_msg: Any) -> None:
+        if peer._js_sub is None:
+            peer._js_sub = peer.node.create_subscription(JointState, '/driveline/joint_states',
+                                                         on_state, DATA_QOS)
+
+    peer.node.create_subscription(ClockMsg, '/clock', on_clock, DATA_QOS)
+    if attack == 'clock_back':
+        peer.backwards_clock()
+    print('ready', flush=True)
+    try:
+        while not select.select([sys.stdin], [], [], 0)[0]:
+            ex.spin_once(timeout_sec=0.02)
+    finally:
+        print(f'sent {peer.sent}', flush=True)
+        ex.shutdown()
+        peer.destroy()
+        rclpy.shutdown()
 
 
 if __name__ == '__main__':

@@ -11,6 +11,10 @@
   leftovers;
 * counts as passed when pytest exits 0.
 
+Tests marked ``stress`` (heavy repetitions, e.g. every attack of
+test/robustness/test_hostile_runs.py) run here and not in ``make test``: this script's
+``-m`` replaces the one in pytest.ini.
+
 Prints one line per repetition and the summary ``stress: N/REPS passed``; exit status 0
 only if all passed. Environment: ``CVJ_STRESS_DOMAIN_BASE`` (default ``ROS_DOMAIN_ID`` or
 100), ``CVJ_STRESS_DOMAIN_SPAN`` (default 4), ``CVJ_STRESS_REPS`` (default 5).

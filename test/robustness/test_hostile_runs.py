@@ -9,7 +9,8 @@ names, wrong sizes, 1e5 entries), and a /clock going backwards from 100 s (from 
 Oracle: the run either ends normally with joint states byte for byte those of the
 undisturbed run, or stops with exactly one line naming the intruder node and the topic,
 its joint states byte for byte the undisturbed run's up to the stop; `cvj-sim analyze`
-reads the bag (exit 0). All of them under load in `make test-stress`.
+reads the bag (exit 0). `make test` runs the forged echo and the backwards /clock; all of
+them, under load, run in `make test-stress` (marker ``stress``).
 """
 from __future__ import annotations
 
@@ -62,9 +63,13 @@ def attacked_run(tmp_path: Path, attack: str) -> tuple[subprocess.CompletedProce
 
 
 @pytest.mark.parametrize('attack, topic', [
-    ('forge_engine', '/engine/wrench'), ('forge_load', '/load/wrench'),
-    ('flood_engine', '/engine/wrench'), ('malformed_engine', '/engine/wrench'),
-    ('foreign_js', '/driveline/joint_states'), ('clock_back', None)])
+    ('forge_engine', '/engine/wrench'), ('clock_back', None),
+    # the same rule on the other topics: in `make test-stress` (each ~15 s here); in-process
+    # in test_hostile_peers.py
+    pytest.param('forge_load', '/load/wrench', marks=pytest.mark.stress),
+    pytest.param('flood_engine', '/engine/wrench', marks=pytest.mark.stress),
+    pytest.param('malformed_engine', '/engine/wrench', marks=pytest.mark.stress),
+    pytest.param('foreign_js', '/driveline/joint_states', marks=pytest.mark.stress)])
 def test_attack_leaves_the_undisturbed_run_or_one_named_line(reference: Path, tmp_path: Path,
                                                              attack: str, topic: str | None) -> None:
     r, sent = attacked_run(tmp_path, attack)

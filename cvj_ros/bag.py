@@ -72,6 +72,11 @@ STAMPED_TYPES = frozenset({
 # Topics with one publisher in a run: BagRecorder(run_only=True) records a message of
 # these only while its topic has one matched publisher (besides /coupling/*/wrench).
 RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench', SCENE_TOPIC})
+
+
+def _one_publisher_topic(topic: str) -> bool:
+    """A topic with exactly one publisher in a run (RUN_ONLY_TOPICS, /coupling/*/wrench)."""
+    return topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
 STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9
 
@@ -828,10 +833,13 @@ class BagRecorder:
     Run identity (``run_only``; docs/ros.md "Run identity"). The run's publishers are the
     only publisher of each loop topic (cvj_ros.nodes.peers): a message of
     /driveline/joint_states, /engine/wrench, /load/wrench, /coupling/*/wrench or
-    /driveline/scene that arrives while its topic has more than one matched publisher
-    cannot be attributed and is dropped; so is a joint state whose names differ from the
-    run's (the first joint state written, or ``joint_names``), and any scene after the
-    first. They are counted per topic in :attr:`foreign`. /diagnostics and
+    /driveline/scene that DDS received after its topic was last seen with one matched
+    publisher, once it has more, cannot be attributed and is dropped, and so is every later
+    one (the run's coupling node stops for such an intruder, and a match count can lag or
+    flicker while DDS discovers it); samples received before are kept (the recorder may
+    take them late); so is a joint state whose names differ from the run's (the first joint
+    state written, or ``joint_names``) or whose stamp is not newer than the last one
+    written, and any scene after the first. They are counted per topic in :attr:`foreign`. /diagnostics and
     /engine/throttle have several legitimate publishers and are recorded. /clock is
     attributed by value, whoever else publishes it: until the run's own first two joint
     states (stamps s0, s1) are in, /clock samples are kept back; those before s0 are not
@@ -879,6 +887,11 @@ class BagRecorder:
         self._js_names: bytes | None = None   # names of the run's joint states (CDR bytes)
         self._joint_names = list(joint_names) if joint_names else None
         self._js_decoder: Any = None          # cvj_ros.nodes.cdr.JointStateDecoder (lazy)
+        # run_only: topics seen with two publishers -> reception time (ns) of the first
+        # sample dropped for it; samples received before the last time the topic was seen
+        # with one publisher (_clear_ns) are still the run's
+        self._ambiguous: dict[str, int] = {}
+        self._clear_ns: dict[str, int] = {}
         self._own_js_ns: list[int] = []       # the first two and the latest own joint-state stamps
         self._loop_ended = False
         # /clock samples (value ns, CDR) received before the run's own first two joint states
@@ -1023,9 +1036,11 @@ class BagRecorder:
             self._clock_written = clock_ns
 
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
-                    is_clock: bool, own_clock: bool = False, wall: float | None = None) -> bool:
+                    is_clock: bool, own_clock: bool = False, wall: float | None = None,
+                    received_ns: int | None = None) -> bool:
         """Record one message (class docstring); False when it was dropped (held,
-        malformed, not the run's), True when written or kept back."""
+        malformed, not the run's), True when written or kept back. ``received_ns``: when DDS
+        received it (message info, system clock ns), where known."""
         if wall is None and self._local:
             self.take_local()          # hosted loop messages first: they were published before
         if topic in self.hold:
@@ -1043,7 +1058,7 @@ class BagRecorder:
             if keep < len(data):
                 data = bytes(data[:keep])     # stray bytes beyond the message and its padding
         if self.run_only and not own_clock:
-            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock)
+            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock, received_ns=received_ns)
             if verdict is None:            # a /clock sample kept until it can be attributed
                 return True
             if not verdict:
@@ -1118,7 +1133,8 @@ class BagRecorder:
                 continue
             self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
 
-    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool | None:
+    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool,
+                 received_ns: int | None = None) -> bool | None:
         """Run-identity check of one well-formed message (class docstring); notes own
         joint-state stamps. None: a /clock sample kept in ``_pending_clock`` until the run's
         own joint states tell whose it is."""
@@ -1134,10 +1150,19 @@ class BagRecorder:
                 return True
             self._pending_clock.append((value, bytes(data)))   # ahead of own states: kept back
             return None
-        if topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench'):
-            sub = self._subs.get(topic)
-            if sub is not None and not hasattr(sub, 'bus') and sub.get_publisher_count() > 1:
-                return False              # two publishers: whose it is cannot be told
+        if _one_publisher_topic(topic):
+            since = self._ambiguous.get(topic)
+            if received_ns is not None and received_ns <= self._clear_ns.get(topic, -1) and (
+                    since is None or received_ns < since):
+                pass                      # received while the topic had one publisher
+            elif since is not None:
+                return False
+            else:
+                sub = self._subs.get(topic)
+                if sub is not None and not hasattr(sub, 'bus') and sub.get_publisher_count() > 1:
+                    # whose it is cannot be told, from now on
+                    self._ambiguous[topic] = received_ns if received_ns is not None else 0
+                    return False
         if topic == JOINT_STATES_TOPIC:
             names = self._js_decoder.decode(data).name
             if self._joint_names is None:
@@ -1146,6 +1171,8 @@ class BagRecorder:
                 return False
             stamp = cdr_stamp_ns(data)
             own = self._own_js_ns
+            if own and stamp <= own[-1]:
+                return False              # the run's stamps increase: a copy or a repeat
             if len(own) < 3:
                 own.append(stamp)
             else:
@@ -1221,13 +1248,18 @@ class BagRecorder:
             if ready is not None and sub.handle.pointer not in ready:
                 continue
             fed = self.observers.get(topic)
+            guarded = self.run_only and _one_publisher_topic(topic)
+            if guarded and sub.get_publisher_count() <= 1:
+                # every sample DDS received up to now came from the topic's one publisher
+                self._clear_ns[topic] = time.time_ns()
             with sub.handle:
                 while True:
                     taken = sub.handle.take_message(sub.msg_type, True)
                     if taken is None:
                         break
+                    received = taken[1].get('received_timestamp') if guarded else None
                     if self._on_message(topic, msgtype, taken[0], stamped=stamped,
-                                        is_clock=is_clock) and fed:
+                                        is_clock=is_clock, received_ns=received) and fed:
                         for fn in fed:
                             fn(taken[0])
 

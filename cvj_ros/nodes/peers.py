@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-__all__ = ['Endpoint', 'describe', 'publisher_endpoints', 'strangers']
+__all__ = ['UNKNOWN_NODE', 'Endpoint', 'describe', 'named_publisher_endpoints', 'publisher_endpoints',
+           'strangers']
 
 
 class Endpoint(NamedTuple):
@@ -21,8 +22,27 @@ class Endpoint(NamedTuple):
     gid: str
 
 
+#: what rmw reports for an endpoint whose node is not known yet (DDS discovered the endpoint,
+#: the node-to-endpoint mapping has not arrived)
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+
+
 def _node_path(namespace: str, name: str) -> str:
+    if name == UNKNOWN_NODE:
+        return 'a node not yet named in the ROS graph'
     return f'{namespace.rstrip("/")}/{name}'
+
+
+def named_publisher_endpoints(node: Any, topic: str, wait_s: float = 0.2) -> list[Endpoint]:
+    """:func:`publisher_endpoints`, waiting up to ``wait_s`` (polling every 10 ms) while
+    an endpoint's node is not named yet (for an error line, once)."""
+    import time
+    deadline = time.monotonic() + wait_s
+    while True:
+        endpoints = publisher_endpoints(node, topic)
+        if all(not e.node.startswith('a node not yet') for e in endpoints) or time.monotonic() > deadline:
+            return endpoints
+        time.sleep(0.01)
 
 
 def publisher_endpoints(node: Any, topic: str) -> list[Endpoint]:

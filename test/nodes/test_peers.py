@@ -336,7 +336,16 @@ def test_recorder_drops_loop_messages_while_two_publishers(ctx, tmp_path: Path) 
             time.sleep(0.02)
         assert not feed('/engine/wrench', _wrench('engine_crank', 1))
         assert feed('/diagnostics', DiagnosticArray())      # several publishers by design
-        assert rec.foreign == {'/engine/wrench': 1}
+        for p in pubs[1:]:                                  # the second one leaves again
+            p.destroy_node()
+        del pubs[1:]
+        deadline = time.monotonic() + 5
+        while rec._subs['/engine/wrench'].get_publisher_count() > 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not feed('/engine/wrench', _wrench('engine_crank', 2))   # for the rest of the run
+        # joint states: a copy of a stamp already written is not the run's
+        assert feed('/driveline/joint_states', _js(0)) and not feed('/driveline/joint_states', _js(0))
+        assert rec.foreign == {'/engine/wrench': 2, '/driveline/joint_states': 1}
         rec.destroy()
     finally:
         writer.close()

@@ -296,10 +296,11 @@ def test_second_run_on_the_same_domain_is_refused_and_mixes_nothing(tmp_path: Pa
         assert second.returncode in (1, 130), (second.returncode, b_out, b_err)
         if (out_b / 'bag' / 'metadata.yaml').exists():
             check_bag_up_to_stop(out_b / 'bag')
-    # A goes on, or stops naming B's node as an intruder; it never integrates B's answers
-    if first.returncode == 1:
-        lines = err.strip().splitlines()
-        assert len(lines) == 1 and ': intruder /' in lines[0] and domain in lines[0], err
+    # A goes on, or stops naming B's node as an intruder (exit 1, or 130 when the test's
+    # SIGINT came while it was closing); it never integrates B's answers
+    if ': intruder /' in out + err:
+        assert first.returncode in (1, 130), (first.returncode, out, err)
+        assert domain in out + err and 'Traceback' not in err
     else:
         assert first.returncode == 130 and 'stopped by SIGINT' in out, (first.returncode, out, err)
     js = check_bag_up_to_stop(out_a / 'bag')

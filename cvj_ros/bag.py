@@ -1213,7 +1213,7 @@ class BagRecorder:
                 next_discovery = now + discover_period
             with self._lock:
                 # /clock last in each wake: joint states queued before it are taken first, so
-                # the run-token check rarely has to keep a /clock sample back (_is_ours)
+                # the /clock attribution rarely has to keep a sample back (_is_ours)
                 subs = sorted(self._subs.items(), key=lambda item: item[0] == CLOCK_TOPIC)
             if wait_set is None or len(subs) != len(entries):
                 entries = [(topic, sub, self._types[topic] in STAMPED_TYPES, topic == CLOCK_TOPIC,

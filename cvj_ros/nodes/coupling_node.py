@@ -123,8 +123,9 @@ START_SETTLE_S = 0.3
 # peer that sends junk next to its right answer sends the right one within milliseconds
 # (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
 WRONG_STAMP_STALL_S = 1.0
-# Lockstep: the loop looks at the ROS graph (a second /driveline/joint_states publisher, which
-# no answer callback sees) at most this often (s) between two exchanges, besides the watchdog;
+# The loop looks at the ROS graph (a second /driveline/joint_states publisher, which no
+# answer callback sees) at most this often (s): lockstep between two exchanges, besides the
+# watchdog; free-run at a wake-up;
 # three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
 GRAPH_CHECK_S = 0.01
 
@@ -772,6 +773,13 @@ class CouplingNode(CvjNode):
         sched = self.scheduler
         if self.exit_code is not None or sched is None:
             return
+        now = time.monotonic()
+        if now >= self._graph_due:      # a second publisher on a loop topic (as in lockstep)
+            self._graph_due = now + GRAPH_CHECK_S
+            foreign = self._extra_publishers()
+            if foreign:
+                self._stop_with_error(foreign)
+                return
         run_wakeup(sched, time.monotonic_ns, self._run_free_step)
         if self.exit_code is not None or sched.finished() or self._free_timer is None:
             return

@@ -325,3 +325,18 @@ def test_malformed_inputs_never_crash_the_monitor(ctx, tmp_path) -> None:
         ex.shutdown()
         for n in (monitor, hostile.node):
             n.destroy_node()
+
+
+def test_free_run_stops_for_foreign_joint_states(ctx, tmp_path) -> None:
+    """Free-run holds the same rule: engine and load would stop answering beside a second
+    joint-state publisher and the loop would run on held torques; it stops, naming it."""
+    sent = []
+
+    def attack(hostile, k):
+        if k == 5 and not sent:
+            sent.append(1)
+            hostile.foreign_joint_states(4)
+    node, peers, _hostile = run_loop(ctx, tmp_path, attack=attack, mode='free-run', duration=2.0,
+                                     exchange_step=0.002, timeout=20.0)
+    assert node.exit_code == 1, node.error_message
+    assert node.error_message.startswith('free-run: /driveline/joint_states: intruder /hostile (gid ')

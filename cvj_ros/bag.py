@@ -57,8 +57,7 @@ TOPIC_TYPES: dict[str, str] = {
 PATTERN_TYPES: dict[str, str] = {
     '/coupling/*/wrench': 'geometry_msgs/msg/WrenchStamped',
 }
-# Types that start with a std_msgs/Header: their frame_id carries the run token
-# (cvj_ros.nodes.run_token) that BagRecorder.run_token checks.
+# Types that start with a std_msgs/Header.
 HEADER_TYPES = frozenset({
     'sensor_msgs/msg/JointState',
     'geometry_msgs/msg/WrenchStamped',
@@ -70,6 +69,14 @@ STAMPED_TYPES = frozenset({
     'sensor_msgs/msg/JointState',
     'geometry_msgs/msg/WrenchStamped',
 })
+# Topics with one publisher in a run: BagRecorder(run_only=True) records a message of
+# these only while its topic has one matched publisher (besides /coupling/*/wrench).
+RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench', SCENE_TOPIC})
+
+
+def _one_publisher_topic(topic: str) -> bool:
+    """A topic with exactly one publisher in a run (RUN_ONLY_TOPICS, /coupling/*/wrench)."""
+    return topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
 STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9
 
@@ -815,29 +822,39 @@ class BagRecorder:
         topics: extra topics to subscribe to at once, e.g. the scene's
             ``/coupling/<joint>/wrench`` (contract types).
         discover_period: seconds between graph scans for new pattern topics (0 = off).
-        run_token: this run's token (cvj_ros.nodes.run_token); '' records everything.
+        run_only: record this run's publishers only (`cvj-sim run`); False records every
+            well-formed message (`cvj-sim record`).
 
-    Run identity (``run_token`` set): a message whose ``header.frame_id`` carries another
-    run's token (``<frame>@<other>``) and a /driveline/scene whose ``run_token`` differs
-    are dropped and counted in :attr:`foreign` (per topic); untagged messages (outside
-    nodes, /engine/throttle) are recorded. /clock has no header: a /clock sample is
-    recorded only while exactly one /clock publisher is matched (with two runs on the
-    domain neither bag gets the other's /clock; both lose /clock while both publish it,
-    counted in ``foreign['/clock']``); until the run's own first two joint states (stamps
-    s0, s1) are in, /clock samples are kept back; those before s0 are another run's (one
-    that was the only one matched before this run's coupling node came up). A /clock
-    sample is written only if it is newer than the last one written (the run's own /clock
-    is strictly increasing, so a repeat is another run's: Fast DDS may deliver a new
-    publisher's first samples before the match count says two) and at most one exchange
-    step after the run's own latest joint state taken (own /clock t_k goes out just before
-    the state t_k), after :attr:`loop_ended` at most that state; a sample further ahead is
-    kept back until the run's joint states catch up (a loop faster than the recorder's
-    wake-ups can leave a whole short run's /clock kept back before its first two states:
-    it is written as they come in). What is still kept back at the end is another run's.
+    Malformed messages (:func:`cvj_ros.nodes.cdr.checked_length`: not CDR, cut short,
+    oversized, lengths outside the message, strings not UTF-8) are never written; they are
+    counted per topic in :attr:`malformed`. Stray bytes after a message and its padding are
+    left out (rosbags refuses them).
+
+    Run identity (``run_only``; docs/ros.md "Run identity"). The run's publishers are the
+    only publisher of each loop topic (cvj_ros.nodes.peers): a message of
+    /driveline/joint_states, /engine/wrench, /load/wrench, /coupling/*/wrench or
+    /driveline/scene that DDS received after its topic was last seen with one matched
+    publisher, once it has more, cannot be attributed and is dropped, and so is every later
+    one (the run's coupling node stops for such an intruder, and a match count can lag or
+    flicker while DDS discovers it); samples received before are kept (the recorder may
+    take them late); so is a joint state whose names differ from the run's (the first joint
+    state written, or ``joint_names``) or whose stamp is not newer than the last one
+    written, and any scene after the first. They are counted per topic in :attr:`foreign`. /diagnostics and
+    /engine/throttle have several legitimate publishers and are recorded. /clock is
+    attributed by value, whoever else publishes it: until the run's own first two joint
+    states (stamps s0, s1) are in, /clock samples are kept back; those before s0 are not
+    the run's. A /clock sample is written only if it is newer than the last one written
+    (the run's own /clock is strictly increasing, so a repeat or a clock going backwards
+    is another publisher's) and at most one exchange step after the run's own latest
+    joint state taken (own /clock t_k goes out just before the state t_k), after
+    :attr:`loop_ended` at most that state; a sample further ahead is kept back until the
+    run's joint states catch up. What is still kept back at the end is not the run's.
+    Observers (:attr:`observers`) get the samples written or kept back, not the dropped.
     """
 
     def __init__(self, node: Any, writer: BagWriter, *, topics: Sequence[str] = (),
-                 discover_period: float = 0.2, run_token: str = '') -> None:
+                 discover_period: float = 0.2, run_only: bool = False,
+                 joint_names: Sequence[str] | None = None) -> None:
         self.node = node
         self.writer = writer
         self.clock_ns = 0
@@ -854,8 +871,8 @@ class BagRecorder:
         self.observers: dict[str, list[Callable[[bytes], None]]] = {}
         self._bus_subs: list[Any] = []          # composed mode: bus legs of mixed topics
         self._local: list[tuple[str, bytes]] = []   # composed: collected loop messages
-        # composed mode: every hosted publisher carries this run's token (set by the container),
-        # so the collected loop messages need no run-token check
+        # composed mode: the hosted publishers are this run's by construction, so the
+        # collected loop messages need no identity check
         self.trust_local = False
         self._types: dict[str, str] = {}
         self._lock = threading.Lock()
@@ -864,8 +881,17 @@ class BagRecorder:
         # the domain, so a refused run's bag never holds the other run's messages
         self.hold: frozenset[str] = frozenset()
         self.held = 0
-        self.run_token = run_token
-        self._foreign: dict[str, int] = {}    # dropped messages of another run, per topic
+        self.run_only = run_only
+        self._foreign: dict[str, int] = {}    # dropped messages not the run's, per topic
+        self._malformed: dict[str, int] = {}  # dropped malformed messages, per topic
+        self._js_names: bytes | None = None   # names of the run's joint states (CDR bytes)
+        self._joint_names = list(joint_names) if joint_names else None
+        self._js_decoder: Any = None          # cvj_ros.nodes.cdr.JointStateDecoder (lazy)
+        # run_only: topics seen with two publishers -> reception time (ns) of the first
+        # sample dropped for it; samples received before the last time the topic was seen
+        # with one publisher (_clear_ns) are still the run's
+        self._ambiguous: dict[str, int] = {}
+        self._clear_ns: dict[str, int] = {}
         self._own_js_ns: list[int] = []       # the first two and the latest own joint-state stamps
         self._loop_ended = False
         # /clock samples (value ns, CDR) received before the run's own first two joint states
@@ -900,6 +926,11 @@ class BagRecorder:
         if self._loop_ended and self._pending_clock:
             out[CLOCK_TOPIC] = out.get(CLOCK_TOPIC, 0) + len(self._pending_clock)
         return out
+
+    @property
+    def malformed(self) -> dict[str, int]:
+        """Dropped malformed messages, per topic (a copy)."""
+        return dict(self._malformed)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -943,9 +974,9 @@ class BagRecorder:
                 return
 
             def callback(data: bytes, _topic: str = topic, _type: str = msgtype) -> None:
-                self._on_message(_topic, _type, data, stamped=stamped, is_clock=is_clock)
-                for fn in self.observers.get(_topic, ()):
-                    fn(data)
+                if self._on_message(_topic, _type, data, stamped=stamped, is_clock=is_clock):
+                    for fn in self.observers.get(_topic, ()):
+                        fn(data)
             self._subs[topic] = self.node.create_subscription(
                 _msg_class(msgtype), topic, callback, qos, raw=True)
 
@@ -1005,23 +1036,39 @@ class BagRecorder:
             self._clock_written = clock_ns
 
     def _on_message(self, topic: str, msgtype: str, data: bytes, *, stamped: bool,
-                    is_clock: bool, own_clock: bool = False, wall: float | None = None) -> None:
+                    is_clock: bool, own_clock: bool = False, wall: float | None = None,
+                    received_ns: int | None = None) -> bool:
+        """Record one message (class docstring); False when it was dropped (held,
+        malformed, not the run's), True when written or kept back. ``received_ns``: when DDS
+        received it (message info, system clock ns), where known."""
         if wall is None and self._local:
             self.take_local()          # hosted loop messages first: they were published before
         if topic in self.hold:
             self.held += 1
-            return
-        if self.run_token and not own_clock:
-            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock)
+            return False
+        if not own_clock:
+            from cvj_ros.nodes.cdr import CdrError, JointStateDecoder, checked_length
+            if self._js_decoder is None:
+                self._js_decoder = JointStateDecoder()
+            try:
+                keep = checked_length(msgtype, data, self._js_decoder)
+            except CdrError:
+                self._malformed[topic] = self._malformed.get(topic, 0) + 1
+                return False
+            if keep < len(data):
+                data = bytes(data[:keep])     # stray bytes beyond the message and its padding
+        if self.run_only and not own_clock:
+            verdict = self._is_ours(topic, msgtype, data, is_clock=is_clock, received_ns=received_ns)
             if verdict is None:            # a /clock sample kept until it can be attributed
-                return
+                return True
             if not verdict:
                 self._foreign[topic] = self._foreign.get(topic, 0) + 1
-                return
+                return False
         self._write(topic, msgtype, data, stamped=stamped, is_clock=is_clock, wall=wall)
-        if self.run_token and topic == JOINT_STATES_TOPIC and (
+        if self.run_only and topic == JOINT_STATES_TOPIC and (
                 self._pending_clock or (len(self._own_js_ns) >= 2 and not self._clock_started)):
             self._flush_pending_clock()
+        return True
 
     def _write(self, topic: str, msgtype: str, data: bytes, *, stamped: bool, is_clock: bool,
                wall: float | None = None) -> None:
@@ -1086,44 +1133,53 @@ class BagRecorder:
                 continue
             self._write(CLOCK_TOPIC, TOPIC_TYPES[CLOCK_TOPIC], data, stamped=True, is_clock=True)
 
-    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool) -> bool | None:
-        """Run-token check of one message (class docstring); notes own joint-state stamps.
-        None: a /clock sample kept in ``_pending_clock`` until the run's own first joint
-        states tell whose it is."""
-        from cvj_ros.nodes.run_token import cdr_is_foreign
-        if msgtype in HEADER_TYPES:
-            if cdr_is_foreign(data, self.run_token):
-                return False
-            if topic == JOINT_STATES_TOPIC:
-                stamp = cdr_stamp_ns(data)
-                own = self._own_js_ns
-                if len(own) < 3:
-                    own.append(stamp)
-                else:
-                    own[2] = stamp
-            return True
+    def _is_ours(self, topic: str, msgtype: str, data: bytes, *, is_clock: bool,
+                 received_ns: int | None = None) -> bool | None:
+        """Run-identity check of one well-formed message (class docstring); notes own
+        joint-state stamps. None: a /clock sample kept in ``_pending_clock`` until the run's
+        own joint states tell whose it is."""
         if is_clock:
-            sub = self._subs.get(topic)
-            if sub is not None and sub.get_publisher_count() > 1:
-                return False
             own = self._own_js_ns
             value = cdr_stamp_ns(data)
             if len(own) < 2 or not self._clock_started:
                 self._pending_clock.append((value, bytes(data)))
                 return None
             if self._clock_written is not None and value <= self._clock_written:
-                return False              # a repeat or an older value: another run's
+                return False              # a repeat or an older value: not the run's
             if value <= own[-1] + (0 if self._loop_ended else own[1] - own[0]):
                 return True
             self._pending_clock.append((value, bytes(data)))   # ahead of own states: kept back
             return None
+        if _one_publisher_topic(topic):
+            since = self._ambiguous.get(topic)
+            if received_ns is not None and received_ns <= self._clear_ns.get(topic, -1) and (
+                    since is None or received_ns < since):
+                pass                      # received while the topic had one publisher
+            elif since is not None:
+                return False
+            else:
+                sub = self._subs.get(topic)
+                if sub is not None and not hasattr(sub, 'bus') and sub.get_publisher_count() > 1:
+                    # whose it is cannot be told, from now on
+                    self._ambiguous[topic] = received_ns if received_ns is not None else 0
+                    return False
+        if topic == JOINT_STATES_TOPIC:
+            names = self._js_decoder.decode(data).name
+            if self._joint_names is None:
+                self._joint_names = list(names)
+            elif names != self._joint_names:
+                return False
+            stamp = cdr_stamp_ns(data)
+            own = self._own_js_ns
+            if own and stamp <= own[-1]:
+                return False              # the run's stamps increase: a copy or a repeat
+            if len(own) < 3:
+                own.append(stamp)
+            else:
+                own[2] = stamp
+            return True
         if topic == SCENE_TOPIC:
-            try:
-                text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
-                scene = yaml.safe_load(text)
-            except Exception:  # noqa: BLE001 (not ours to judge: record it)
-                return True
-            return not (isinstance(scene, dict) and scene.get('run_token', self.run_token) != self.run_token)
+            return self.scene_text is None        # the run's scene is published once
         return True
 
     def spin(self, stop: threading.Event, *, poll: float = 0.05, discover_period: float = 0.2,
@@ -1157,7 +1213,7 @@ class BagRecorder:
                 next_discovery = now + discover_period
             with self._lock:
                 # /clock last in each wake: joint states queued before it are taken first, so
-                # the run-token check rarely has to keep a /clock sample back (_is_ours)
+                # the /clock attribution rarely has to keep a sample back (_is_ours)
                 subs = sorted(self._subs.items(), key=lambda item: item[0] == CLOCK_TOPIC)
             if wait_set is None or len(subs) != len(entries):
                 entries = [(topic, sub, self._types[topic] in STAMPED_TYPES, topic == CLOCK_TOPIC,
@@ -1192,13 +1248,18 @@ class BagRecorder:
             if ready is not None and sub.handle.pointer not in ready:
                 continue
             fed = self.observers.get(topic)
+            guarded = self.run_only and _one_publisher_topic(topic)
+            if guarded and sub.get_publisher_count() <= 1:
+                # every sample DDS received up to now came from the topic's one publisher
+                self._clear_ns[topic] = time.time_ns()
             with sub.handle:
                 while True:
                     taken = sub.handle.take_message(sub.msg_type, True)
                     if taken is None:
                         break
-                    self._on_message(topic, msgtype, taken[0], stamped=stamped, is_clock=is_clock)
-                    if fed:
+                    received = taken[1].get('received_timestamp') if guarded else None
+                    if self._on_message(topic, msgtype, taken[0], stamped=stamped,
+                                        is_clock=is_clock, received_ns=received) and fed:
                         for fn in fed:
                             fn(taken[0])
 

@@ -147,7 +147,7 @@ class ComposedDriveline:
         return node
 
     def add_recorder(self, writer: Any, topics: Sequence[str] = (), *,
-                     hold: Sequence[str] = (), run_token: str = '') -> Any:
+                     hold: Sequence[str] = (), run_only: bool = True) -> Any:
         """A ``cvj_recorder`` node with a :class:`cvj_ros.bag.BagRecorder` writing to ``writer``
         (subscribes to every contract topic plus ``topics``); its callbacks run on the shared
         executor. ``hold``: topics dropped (counted) until :attr:`recorder.hold` is cleared."""
@@ -159,20 +159,17 @@ class ComposedDriveline:
             self.bus.register(self._recorder_node)
         self.batching = bagmod.BatchingWriter(writer)
         self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
-                                           run_token=run_token)
+                                           run_only=run_only)
         self.recorder.hold = frozenset(hold)
         self._trust_hosted()
         self.executor.add_node(self._recorder_node)
         return self.recorder
 
     def _trust_hosted(self) -> None:
-        """The recorder takes the hosted loop messages without a run-token check when every
-        hosted node that publishes them has the recorder's token (or the recorder has none):
-        they are this run's by construction."""
+        """The recorder takes the hosted loop messages (from the in-process bus) without an
+        identity check: they are this run's by construction."""
         if self.recorder is not None:
-            token = self.recorder.run_token
-            self.recorder.trust_local = self.bus is not None and (not token or all(
-                getattr(node, 'run_token', token) == token for node in self.nodes.values()))
+            self.recorder.trust_local = self.bus is not None
 
     def publisher_count(self, topic: str) -> int:
         """Publishers matched by the recorder's subscription of ``topic`` (0 without
@@ -375,8 +372,9 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
 
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
-    writer, run_token = orch.open_run_bag(options, prep, out, extra=(('cvj_ros.process', 'composed'),))
+    writer = orch.open_run_bag(options, prep, out, extra=(('cvj_ros.process', 'composed'),))
     foreign_dropped: dict[str, int] = {}
+    malformed_dropped: dict[str, int] = {}
     steps = int(round(prep.duration / prep.exchange_step))
     error: str | None = None
     stopped_by: str | None = None
@@ -398,7 +396,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                                  intra_process=getattr(options, 'intra_process', True))
         comp.add_recorder(writer, prep.coupling_topics,
                           hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
-                          if options.mode == 'lockstep' else (), run_token=run_token)
+                          if options.mode == 'lockstep' else ())
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break
@@ -415,8 +413,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                 if error is not None or stop_signal:
                     break
                 comp.recorder.hold = frozenset()
-            params = orch.node_parameters(prep, name, load_override=load_override,
-                                          run_token=run_token)
+            params = orch.node_parameters(prep, name, load_override=load_override)
             try:
                 comp.add_node(name, cli_args=orch._ros_args(params))
             except CvjError as exc:   # bad parameter: the line the node's own process prints
@@ -466,6 +463,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                     comp.settle()
                     rec_state = (dict(comp.recorder.first_wall), dict(comp.recorder.last_wall))
                     foreign_dropped = dict(comp.recorder.foreign)
+                    malformed_dropped = comp.recorder.malformed
                 comp.destroy()
         finally:
             if ctx is not None and ctx.ok():
@@ -490,20 +488,20 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                    counts=dict(writer.counts), rec_state=rec_state, exit_codes=exit_codes,
                    phases=phases, wall=time.monotonic() - wall0, steps=steps, stream=stream,
                    executor=comp.executor_kind if comp is not None else options.executor,
-                   run_token=run_token, foreign_dropped=foreign_dropped)
+                   foreign_dropped=foreign_dropped, malformed_dropped=malformed_dropped)
 
 
 def _finish(orch: Any, options: Any, prep: Any, out: Path, domain: int, *, code: int,
             error: str | None, stopped_by: str | None, counts: dict[str, int],
             rec_state: Any, exit_codes: dict[str, int | None], phases: dict[str, float],
-            wall: float, steps: int, stream: TextIO, executor: str, run_token: str,
-            foreign_dropped: dict[str, int]) -> Any:
+            wall: float, steps: int, stream: TextIO, executor: str,
+            foreign_dropped: dict[str, int], malformed_dropped: dict[str, int]) -> Any:
     """RunResult, metrics, report.json and the printed report (as the tail of orchestrate.run)."""
     result = orch.result_from_recording(
         options, prep, out, domain, code=code, error=error, stopped_by=stopped_by, counts=counts,
         rec_state=rec_state, exit_codes=exit_codes, phases=phases, wall=wall, steps=steps)
-    return orch.finish_result(result, options, prep, stream=stream, run_token=run_token,
-                              foreign_dropped=foreign_dropped,
+    return orch.finish_result(result, options, prep, stream=stream,
+                              foreign_dropped=foreign_dropped, malformed_dropped=malformed_dropped,
                               settings={'process': 'composed', 'executor': executor})
 
 

@@ -10,8 +10,8 @@ It plays two roles a vehicle software stack plays against a driveline:
   ``/load/wrench`` (geometry_msgs/WrenchStamped), in place of cvj_ros's ``load_node``.
 
 What an answerer must echo (docs/ros.md, "Outside nodes"): the answer's ``header.stamp``
-is the joint-state ``header.stamp`` it answers, and its ``header.frame_id`` is the
-joint-state ``header.frame_id`` (copy the whole header, whatever it carries). ``torque.z``
+is the joint-state ``header.stamp`` it answers (copying the whole header does it; the
+run knows its peers by their publishers, not by the frame_id). ``torque.z``
 is the resisting torque on the output shaft in N m (positive opposes positive rotation).
 Do not stamp the answer with ``get_clock().now()``: under ``use_sim_time`` it can lag the
 joint state by a step; echoing is always right.

@@ -12,9 +12,8 @@ false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after
 goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false),
 ``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy),
 ``catch_up`` (skip | burst) and ``realtime_priority`` (0..99) for free-run (docs/ros.md
-"Free-run"),
-``run_token`` (auto | none | 8 hex characters: the run identity given to every node and
-the recorder, docs/ros.md "Run identity"; auto draws one per launch).
+"Free-run"). The recorder records the run's publishers only (``cvj-sim record --run-only``,
+docs/ros.md "Run identity").
 
 The mapping from launch arguments to node parameters is plain Python
 (:func:`node_parameters`), importable without ``launch`` so the test suite checks it
@@ -45,8 +44,6 @@ ARGUMENTS: dict[str, tuple[str, str]] = {
                          '(skip) or run back to back, at most burst_max (10) per wake-up (burst)'),
     'realtime_priority': ('0', 'free-run: SCHED_FIFO priority 1..99 of the coupling process '
                                '(needs CAP_SYS_NICE); 0 = normal scheduling'),
-    'run_token': ('auto', 'run identity in header.frame_id: auto (random per launch) | none | '
-                          '8 lowercase hex characters'),
 }
 
 CHOICES: dict[str, tuple[str, ...]] = {
@@ -66,26 +63,6 @@ RECORDER_EXECUTABLE = 'cvj-sim'
 
 def _flag(value: str) -> bool:
     return value.strip().lower() == 'true'
-
-
-def resolve_run_token(value: str) -> str:
-    """The run token for launch argument ``run_token``: 'auto' draws one (8 hex characters
-    with at least one of a-d/f, never numeric under --ros-args; cvj_ros.nodes.run_token),
-    'none' gives '' (nodes tag nothing), else the value itself if it is 8 lowercase hex
-    characters (ValueError naming the argument otherwise)."""
-    import re
-    import secrets
-    value = value.strip()
-    if value == 'auto':
-        while True:
-            token = secrets.token_hex(4)
-            if re.search('[a-df]', token):
-                return token
-    if value == 'none':
-        return ''
-    if not re.fullmatch('[0-9a-f]{8}', value):
-        raise ValueError(f'run_token: must be auto, none or 8 lowercase hex characters, got {value!r}')
-    return value
 
 
 def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
@@ -114,10 +91,7 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
         started.append('load_node')
     if _flag(args['monitor']):
         started.append('monitor_node')
-    token = resolve_run_token(args['run_token'])
     common: dict[str, Any] = {'scene': args['scene'], 'seed': seed}
-    if token:
-        common['run_token'] = token
     # subscribers of /driveline/joint_states before step 0: engine + load (ours or outside),
     # monitor, recorder: no message is lost to a late match
     min_subs = 2 + _flag(args['monitor']) + _flag(args['record'])
@@ -129,7 +103,7 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
                                  if args['mode'] == 'free-run' else {})),
         'engine_node': dict(common),
         'load_node': dict(common),
-        'monitor_node': {'scene': args['scene'], **({'run_token': token} if token else {})},
+        'monitor_node': {'scene': args['scene']},
     }
     return {name: params[name] for name in NODE_EXECUTABLES if name in started}
 
@@ -139,9 +113,8 @@ def recorder_arguments(arguments: dict[str, str]) -> list[str] | None:
     args = {k: str(arguments.get(k, default)) for k, (default, _d) in ARGUMENTS.items()}
     if not _flag(args['record']):
         return None
-    token = resolve_run_token(args['run_token'])
-    return (['record', args['out'], '--storage', args['storage'], '--overwrite', '--until-idle', '2.0']
-            + (['--run-token', token] if token else []))
+    return ['record', args['out'], '--storage', args['storage'], '--overwrite', '--until-idle', '2.0',
+            '--run-only']
 
 
 def generate_launch_description() -> Any:
@@ -151,7 +124,6 @@ def generate_launch_description() -> Any:
 
     def setup(context: Any) -> list[Any]:
         values = {k: context.launch_configurations.get(k, d) for k, (d, _x) in ARGUMENTS.items()}
-        values['run_token'] = resolve_run_token(values['run_token']) or 'none'  # one token for all
         actions: list[Any] = []
         rec = recorder_arguments(values)
         if rec is not None:  # first, so it matches every topic before step 0

@@ -11,6 +11,10 @@
   leftovers;
 * counts as passed when pytest exits 0.
 
+Tests marked ``stress`` (heavy repetitions, e.g. every attack of
+test/robustness/test_hostile_runs.py) run here and not in ``make test``: this script's
+``-m`` replaces the one in pytest.ini.
+
 Prints one line per repetition and the summary ``stress: N/REPS passed``; exit status 0
 only if all passed. Environment: ``CVJ_STRESS_DOMAIN_BASE`` (default ``ROS_DOMAIN_ID`` or
 100), ``CVJ_STRESS_DOMAIN_SPAN`` (default 4), ``CVJ_STRESS_REPS`` (default 5).
@@ -31,7 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 STRESS_PATHS = ('test/nodes', 'test/e2e/test_run.py', 'test/robustness/test_faults_processes.py',
                 'test/robustness/test_fuzz_wrench_inputs.py', 'test/robustness/test_hard_kill.py',
                 'test/test_bag.py', 'test/test_bench_loop.py', 'test/e2e/test_vehicle_stack.py',
-                'test/commands/test_run_external_options.py', 'test/e2e/test_free_run_deadline.py')
+                'test/commands/test_run_external_options.py', 'test/e2e/test_free_run_deadline.py',
+                'test/robustness/test_hostile_peers.py', 'test/robustness/test_hostile_runs.py')
 
 
 def _burners(n: int) -> list[subprocess.Popen]:

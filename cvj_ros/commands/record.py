@@ -43,21 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='stop after S wall seconds (default: until Ctrl-C)')
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
                         help='stop once no message arrived for S wall seconds (after the first one)')
-    parser.add_argument('--run-token', default='', metavar='TOKEN',
-                        help='record only the run with this token (the nodes\' run_token parameter, '
-                             '8 hex characters): messages of another run on the domain are dropped '
-                             '(docs/ros.md "Run identity"); default: everything')
+    parser.add_argument('--run-only', action='store_true',
+                        help='record one run\'s publishers only: a loop topic\'s messages while it has '
+                             'one publisher, /clock attributed by value (docs/ros.md "Run identity"); '
+                             'default: every well-formed message')
     parser.add_argument('--topics', nargs='+', default=[], metavar='T',
                         help='extra topics to record at once (contract types); '
                              '/coupling/*/wrench are found by themselves')
 
 
 def _check(args: argparse.Namespace) -> None:
-    from cvj_ros.nodes.run_token import check_run_token
-    try:
-        check_run_token(args.run_token)
-    except ValueError as exc:
-        raise CvjError(f'--run-token: {exc}') from None
     for opt, value in (('--duration', args.duration), ('--until-idle', args.until_idle)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
@@ -81,9 +76,7 @@ def run(args: argparse.Namespace) -> int:
     domain = int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
     try:
         from cvj_ros.orchestrate import _Recorder
-        if args.run_token:
-            writer.set_custom_data('cvj_ros.run_token', args.run_token)
-        recorder = _Recorder(writer, list(args.topics), domain, run_token=args.run_token)
+        recorder = _Recorder(writer, list(args.topics), domain, run_only=args.run_only)
         print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
               f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
         while not stop:
@@ -110,9 +103,12 @@ def run(args: argparse.Namespace) -> int:
         print(f'  {topic:32s} {counts[topic]:8d}', file=sys.stderr)
     foreign = dict(recorder.recorder.foreign) if recorder is not None else {}
     if foreign:
-        print(f'cvj-sim record: dropped {sum(foreign.values())} messages of another run '
-              f'(run token {args.run_token}): ' + ', '.join(f'{t} {n}' for t, n in sorted(foreign.items())),
-              file=sys.stderr)
+        print(f'cvj-sim record: dropped {sum(foreign.values())} messages of publishers outside '
+              'the run: ' + ', '.join(f'{t} {n}' for t, n in sorted(foreign.items())), file=sys.stderr)
+    malformed = recorder.recorder.malformed if recorder is not None else {}
+    if malformed:
+        print(f'cvj-sim record: dropped {sum(malformed.values())} malformed messages: '
+              + ', '.join(f'{t} {n}' for t, n in sorted(malformed.items())), file=sys.stderr)
     if recorder is not None and recorder.recorder.scene_text is None and total:
         print('cvj-sim record: note: no /driveline/scene message was received '
               '(start the recorder before coupling_node to store the scene)', file=sys.stderr)

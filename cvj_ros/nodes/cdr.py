@@ -122,40 +122,99 @@ class JointStateEncoder:
 
 _LE_UINT32 = struct.Struct('<I')
 _LE_DOUBLE = struct.Struct('<d')
+_BE_STAMP = struct.Struct('>iI')
+_BE_UINT32 = struct.Struct('>I')
+_BE_DOUBLE = struct.Struct('>d')
+
+#: largest serialised message any decoder reads (bytes): the loop's largest, a joint state of
+#: a few dozen shafts, is ~2 kB; anything beyond is dropped as oversized, unread
+MAX_MESSAGE_BYTES = 1 << 20
+#: longest string (bytes, NUL included) in a header, a joint name or a diagnostic field
+MAX_STRING_BYTES = 4096
+#: most entries of a sequence (joint names, array values, diagnostic statuses or values)
+MAX_SEQUENCE = 4096
+
+
+class CdrError(ValueError):
+    """A serialised message that cannot be read: not CDR, cut short, oversized, or a length
+    field pointing outside the message. The message says what, in a few words."""
+
+
+def _cdr_kind(data: bytes | memoryview) -> bool:
+    """True for big-endian CDR, False for little-endian; CdrError otherwise (encapsulation
+    ``00 00`` / ``00 01``, at least the 4 encapsulation bytes and a stamp, at most
+    :data:`MAX_MESSAGE_BYTES`)."""
+    size = len(data)
+    if size > MAX_MESSAGE_BYTES:
+        raise CdrError(f'oversized: {size} bytes (limit {MAX_MESSAGE_BYTES})')
+    if size < 12 or data[0] != 0 or data[1] > 1:
+        raise CdrError(f'not CDR: {size} bytes starting {bytes(data[:4]).hex() or "(empty)"}')
+    return data[1] == 0
+
+
+def _wrench_fields(data: bytes | memoryview) -> tuple[int, int, bytes, float]:
+    """(sec, nanosec, frame_id bytes, torque.z) of a serialised WrenchStamped, every length
+    checked: stamp at payload offset 0, frame_id string at 8, six float64 8-aligned after
+    it (torque.z last). Bytes after them are not read (rclpy's own serialisation may leave
+    a few there)."""
+    big = _cdr_kind(data)
+    stamp, u32, f64 = (_BE_STAMP, _BE_UINT32, _BE_DOUBLE) if big else (_STAMP, _LE_UINT32, _LE_DOUBLE)
+    size = len(data)
+    if size < 16:
+        raise CdrError(f'cut short: {size} bytes, a WrenchStamped has at least 64')
+    n = u32.unpack_from(data, 12)[0]          # frame_id length, NUL included
+    if not 1 <= n <= MAX_STRING_BYTES:
+        raise CdrError(f'header.frame_id length {n} (1..{MAX_STRING_BYTES})')
+    off = 12 + n                              # payload offset after frame_id
+    off += (-off) % 8
+    end = 4 + off + 48
+    if size < end:
+        raise CdrError(f'cut short: {size} bytes, a WrenchStamped with this frame_id has {end}')
+    if data[15 + n] != 0:
+        raise CdrError('header.frame_id not NUL-terminated')
+    sec, nanosec = stamp.unpack_from(data, 4)
+    return sec, nanosec, bytes(data[16:15 + n]), f64.unpack_from(data, end - 8)[0]
 
 
 def decode_wrench_stamp_torque_z(data: bytes) -> tuple[int, float]:
-    """(stamp in integer ns, torque.z in N m) of a serialised geometry_msgs/WrenchStamped.
-
-    Little-endian CDR is read directly (stamp at payload offset 0, frame_id string at 8,
-    then six float64 aligned to 8, torque.z last); other encodings go through
-    rclpy.serialization.deserialize_message.
-    """
-    if len(data) >= 16 and data[1] == 1:
-        sec, nanosec = _STAMP.unpack_from(data, 4)
-        off = 12 + _LE_UINT32.unpack_from(data, 12)[0]   # payload offset after frame_id
-        off += (-off) % 8
-        return sec * NS_PER_S + nanosec, _LE_DOUBLE.unpack_from(data, 4 + off + 40)[0]
-    from geometry_msgs.msg import WrenchStamped
-    from rclpy.serialization import deserialize_message
-    msg = deserialize_message(data, WrenchStamped)
-    return stamp_to_ns(msg.header.stamp), float(msg.wrench.torque.z)
+    """(stamp in integer ns, torque.z in N m) of a serialised geometry_msgs/WrenchStamped
+    (little- or big-endian CDR, read in place: stamp at payload offset 0, frame_id string at
+    8, then six float64 aligned to 8, torque.z last). Raises :class:`CdrError` for anything
+    else (sizes and lengths are checked before any read)."""
+    sec, nanosec, _frame, tz = _wrench_fields(data)
+    return sec * NS_PER_S + nanosec, tz
 
 
 def decode_wrench_header_torque_z(data: bytes) -> tuple[int, bytes, float]:
     """(stamp in integer ns, header.frame_id as UTF-8 bytes, torque.z in N m) of a serialised
-    geometry_msgs/WrenchStamped; same layout and fallback as :func:`decode_wrench_stamp_torque_z`."""
-    if len(data) >= 16 and data[1] == 1:
-        sec, nanosec = _STAMP.unpack_from(data, 4)
-        n = _LE_UINT32.unpack_from(data, 12)[0]
-        off = 12 + n            # payload offset after frame_id
-        off += (-off) % 8
-        return (sec * NS_PER_S + nanosec, bytes(data[16:16 + max(n - 1, 0)]),
-                _LE_DOUBLE.unpack_from(data, 4 + off + 40)[0])
-    from geometry_msgs.msg import WrenchStamped
-    from rclpy.serialization import deserialize_message
-    msg = deserialize_message(data, WrenchStamped)
-    return stamp_to_ns(msg.header.stamp), msg.header.frame_id.encode(), float(msg.wrench.torque.z)
+    geometry_msgs/WrenchStamped; checked as :func:`decode_wrench_stamp_torque_z`."""
+    sec, nanosec, frame, tz = _wrench_fields(data)
+    return sec * NS_PER_S + nanosec, frame, tz
+
+
+def decode_float64(data: bytes) -> float:
+    """std_msgs/Float64 (``data``) of serialised CDR: 4 encapsulation bytes, then the float64
+    (12 bytes; bytes after it are not read). Raises :class:`CdrError` otherwise."""
+    big = _cdr_kind(data)
+    if len(data) < 12:
+        raise CdrError(f'{len(data)} bytes, a Float64 has 12')
+    return (_BE_DOUBLE if big else _LE_DOUBLE).unpack_from(data, 4)[0]
+
+
+def decode_string(data: bytes) -> str:
+    """std_msgs/String (``data``) of serialised CDR, UTF-8 checked (:class:`CdrError`
+    otherwise; the string may be up to :data:`MAX_MESSAGE_BYTES` long)."""
+    big = _cdr_kind(data)
+    size = len(data)
+    if size < 9:
+        raise CdrError(f'cut short: {size} bytes')
+    n = (_BE_UINT32 if big else _LE_UINT32).unpack_from(data, 4)[0]
+    if n < 1 or 8 + n > size or data[7 + n] != 0:
+        raise CdrError(f'string length {n} does not fit {size} bytes')
+    try:
+        return bytes(data[8:7 + n]).decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise CdrError(f'not UTF-8 text (byte {exc.start})') from None
 
 
 # --- node base and main loop ----------------------------------------------------------------
@@ -205,6 +264,7 @@ class JointStateDecoder:
         self._frame_raw = b''
         self._frame = ''
         self._arrays: dict[int, struct.Struct] = {}
+        self.end = 0          # bytes the last little-endian sample decoded took
 
     # the last sample decoded by any decoder and its view: in composed mode the engine, load
     # and monitor nodes get the same bytes object from the in-process bus (cvj_ros.nodes.intra)
@@ -225,17 +285,29 @@ class JointStateDecoder:
         return view
 
     def _decode(self, data: bytes) -> Any:
-        if len(data) < 16 or data[1] != 1:
-            from rclpy.serialization import deserialize_message
-            from sensor_msgs.msg import JointState
-            return deserialize_message(bytes(data), JointState)
+        if _cdr_kind(data):
+            return _deserialize_checked(data, 'sensor_msgs/JointState')
+        try:
+            return self._decode_le(data)
+        except struct.error:
+            raise CdrError(f'cut short: a length field points past the end of {len(data)} bytes') from None
+
+    def _decode_le(self, data: bytes) -> Any:
+        """Little-endian CDR; every length is checked against its limit and the message size
+        before it is used (CdrError), a read past the end raises struct.error."""
+        size = len(data)
         u32 = _LE_UINT32.unpack_from
         sec, nanosec = _STAMP.unpack_from(data, 4)
         n = u32(data, 12)[0]
-        frame_raw = data[16:16 + max(n - 1, 0)]
+        if not 1 <= n <= MAX_STRING_BYTES or 16 + n > size:
+            raise CdrError(f'header.frame_id length {n} does not fit {size} bytes')
+        frame_raw = data[16:15 + n]
         if frame_raw != self._frame_raw:
+            try:
+                self._frame = bytes(frame_raw).decode('utf-8')
+            except UnicodeDecodeError:
+                raise CdrError('header.frame_id not UTF-8') from None
             self._frame_raw = bytes(frame_raw)
-            self._frame = self._frame_raw.decode('utf-8', errors='replace')
         frame = self._frame
         off = 12 + n                                  # payload offset after frame_id
         off += (-off) % 4
@@ -245,22 +317,27 @@ class JointStateDecoder:
             off = start + len(known)
         else:
             count = u32(data, 4 + off)[0]
+            if count > MAX_SEQUENCE:
+                raise CdrError(f'{count} joint names (limit {MAX_SEQUENCE})')
             off += 4
+            names = []
             for _ in range(count):
                 off += (-off) % 4
-                off += 4 + u32(data, 4 + off)[0]
-            names = []
-            o = start + 4
-            for _ in range(count):
-                o += (-o) % 4
-                m = u32(data, 4 + o)[0]
-                names.append(bytes(data[4 + o + 4:4 + o + 4 + max(m - 1, 0)]).decode('utf-8', errors='replace'))
-                o += 4 + m
+                m = u32(data, 4 + off)[0]
+                if not 1 <= m <= MAX_STRING_BYTES or 8 + off + m > size:
+                    raise CdrError(f'joint name length {m} does not fit {size} bytes')
+                try:
+                    names.append(bytes(data[4 + off + 4:4 + off + 3 + m]).decode('utf-8'))
+                except UnicodeDecodeError:
+                    raise CdrError('joint name not UTF-8') from None
+                off += 4 + m
             self._names_raw, self._names = bytes(data[4 + start:4 + off]), names
         arrays = []
         for _ in range(3):
             off += (-off) % 4
             k = u32(data, 4 + off)[0]
+            if k > MAX_SEQUENCE:
+                raise CdrError(f'array of {k} values (limit {MAX_SEQUENCE})')
             off += 4
             if k:
                 off += (-off) % 8
@@ -269,7 +346,22 @@ class JointStateDecoder:
                 unpack = self._arrays[k] = struct.Struct(f'<{k}d')
             arrays.append(unpack.unpack_from(data, 4 + off))
             off += 8 * k
+        self.end = 4 + off                            # bytes the message takes (padding not)
         return JointStateView(_Header(_Stamp(sec, nanosec), frame), self._names, *arrays)
+
+
+def _deserialize_checked(data: bytes, type_name: str) -> Any:
+    """A big-endian sample through rclpy's deserialisation (which raises on malformed bytes,
+    measured on 9000 random ones): the rclpy message, or CdrError."""
+    from importlib import import_module
+
+    from rclpy.serialization import deserialize_message
+    pkg, name = type_name.split('/')
+    cls = getattr(import_module(f'{pkg}.msg'), name)
+    try:
+        return deserialize_message(bytes(data), cls)
+    except Exception as exc:  # noqa: BLE001 (rclpy/Fast CDR raise assorted types)
+        raise CdrError(f'malformed {type_name} ({type(exc).__name__})') from None
 
 
 # --- bulk readers (the monitor reads its collected samples at once) --------------------------
@@ -290,17 +382,34 @@ def _joint_state_arrays(data: bytes) -> tuple[list[tuple[int, int]], list[int]] 
     """(content byte ranges [start, end) of frame_id, names and the array lengths - the
     alignment padding left out, which rclpy leaves uninitialised -, [absolute byte offsets
     of the position, velocity, effort values]) of a little-endian JointState whose three
-    arrays have one value per name, else None."""
+    arrays have one value per name, else None (also for anything cut short or beyond the
+    limits of :class:`JointStateDecoder`)."""
+    if not 20 <= len(data) <= MAX_MESSAGE_BYTES or data[0] != 0 or data[1] != 1:
+        return None
+    try:
+        return _joint_state_arrays_le(data)
+    except struct.error:
+        return None
+
+
+def _joint_state_arrays_le(data: bytes) -> tuple[list[tuple[int, int]], list[int]] | None:
     u32 = _LE_UINT32.unpack_from
+    if not 1 <= u32(data, 12)[0] <= MAX_STRING_BYTES:
+        return None
     fixed = [(12, 16 + u32(data, 12)[0])]     # frame_id: length, bytes, NUL
     off = 12 + u32(data, 12)[0]               # payload offset after frame_id
     off += (-off) % 4
     count = u32(data, 4 + off)[0]
+    if count > MAX_SEQUENCE:
+        return None
     fixed.append((4 + off, 8 + off))
     off += 4
     for _ in range(count):
         off += (-off) % 4
-        end = off + 4 + u32(data, 4 + off)[0]
+        m = u32(data, 4 + off)[0]
+        if not 1 <= m <= MAX_STRING_BYTES:
+            return None
+        end = off + 4 + m
         fixed.append((4 + off, 4 + end))
         off = end
     starts = []
@@ -380,6 +489,8 @@ def read_wrench_torque_z_block(batch: Sequence[bytes]) -> tuple[Any, bytes, Any]
         return None
     first = batch[0]
     n = _LE_UINT32.unpack_from(first, 12)[0]
+    if not 1 <= n <= MAX_STRING_BYTES or size > MAX_MESSAGE_BYTES:
+        return None
     off = 12 + n
     off += (-off) % 8
     if 4 + off + 48 != size:
@@ -488,7 +599,10 @@ class ShaftReader:
         if layout is None:
             return False
         _fixed, starts = layout
-        view = JointStateDecoder().decode(data)
+        try:
+            view = JointStateDecoder().decode(data)
+        except CdrError:
+            return False
         if self.shaft not in view.name:
             return False
         i = view.name.index(self.shaft)
@@ -505,23 +619,35 @@ def decode_diagnostic_array(data: bytes) -> tuple[int, str, list[tuple[Any, ...]
     """(stamp in integer ns, header.frame_id, statuses) of a serialised
     diagnostic_msgs/DiagnosticArray, statuses as :class:`DiagnosticArrayEncoder` takes them:
     (level bytes, name, message, hardware_id, [(key, value), ...]). Little-endian CDR is read
-    directly (rclpy's Python message costs 200-400 us for a coupling status); other
-    encodings go through rclpy.serialization.deserialize_message."""
-    if len(data) < 16 or data[1] != 1:
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.serialization import deserialize_message
-        msg = deserialize_message(bytes(data), DiagnosticArray)
+    directly (rclpy's Python message costs 200-400 us for a coupling status); big-endian
+    goes through rclpy.serialization.deserialize_message. Every string and sequence length
+    is checked against its limit and the message size first: :class:`CdrError` otherwise."""
+    if _cdr_kind(data):
+        msg = _deserialize_checked(data, 'diagnostic_msgs/DiagnosticArray')
         return (stamp_to_ns(msg.header.stamp), msg.header.frame_id,
                 [(st.level, st.name, st.message, st.hardware_id,
                   [(kv.key, kv.value) for kv in st.values]) for st in msg.status])
+    try:
+        return _decode_diagnostic_array_le(data)
+    except struct.error:
+        raise CdrError(f'cut short: a length field points past the end of {len(data)} bytes') from None
+
+
+def _decode_diagnostic_array_le(data: bytes) -> tuple[int, str, list[tuple[Any, ...]]]:
     u32 = _LE_UINT32.unpack_from
+    size = len(data)
     pos = 12                     # absolute offset; alignment is relative to the payload (4)
 
     def string() -> str:
         nonlocal pos
         pos += -(pos - 4) % 4
         n = u32(data, pos)[0]
-        text = bytes(data[pos + 4:pos + 4 + max(n - 1, 0)]).decode('utf-8', errors='replace')
+        if not 1 <= n <= MAX_STRING_BYTES or pos + 4 + n > size:
+            raise CdrError(f'string length {n} does not fit {size} bytes')
+        try:
+            text = bytes(data[pos + 4:pos + 3 + n]).decode('utf-8')
+        except UnicodeDecodeError:
+            raise CdrError('a string is not UTF-8') from None
         pos += 4 + n
         return text
 
@@ -529,6 +655,8 @@ def decode_diagnostic_array(data: bytes) -> tuple[int, str, list[tuple[Any, ...]
         nonlocal pos
         pos += -(pos - 4) % 4
         n = u32(data, pos)[0]
+        if n > MAX_SEQUENCE or pos + 4 + n > size:
+            raise CdrError(f'sequence of {n} entries does not fit {size} bytes')
         pos += 4
         return n
 
@@ -536,9 +664,67 @@ def decode_diagnostic_array(data: bytes) -> tuple[int, str, list[tuple[Any, ...]
     frame = string()
     statuses = []
     for _ in range(count()):
+        if pos >= size:
+            raise CdrError(f'cut short at byte {pos} of {size}')
         level = bytes(data[pos:pos + 1])
         pos += 1
         name, message, hardware_id = string(), string(), string()
         values = [(string(), string()) for _ in range(count())]
         statuses.append((level, name, message, hardware_id, values))
+    _LAST_END[0] = pos
     return sec * NS_PER_S + nanosec, frame, statuses
+
+
+_LAST_END = [0]     # bytes the last little-endian DiagnosticArray decoded took (check_message)
+
+
+def checked_length(type_name: str, data: bytes | memoryview,
+                   js_decoder: 'JointStateDecoder | None' = None) -> int:
+    """How many bytes of the serialised message ``data`` of rosbags type ``type_name`` (e.g.
+    ``sensor_msgs/msg/JointState``) to keep: all of them, or the message without the bytes
+    beyond its end and 3 bytes of padding (rclpy's serialisation can leave 4-8 stray bytes
+    there; rosbags, what ``cvj-sim analyze`` reads with, refuses more than 3). Raises
+    :class:`CdrError` when it cannot be read: the checked decoders above for the contract
+    types (strings UTF-8, as rosbags wants them), the CDR encapsulation and size limit for
+    others. What the recorder checks before it writes a message. ``js_decoder``: a decoder
+    kept by the caller (its name cache makes the loop's joint states a slice comparison)."""
+    big = _cdr_kind(data)
+    end: int | None = None
+    if type_name == 'sensor_msgs/msg/JointState':
+        dec = js_decoder or JointStateDecoder()
+        dec._decode(data)
+        end = None if big else dec.end
+    elif type_name == 'geometry_msgs/msg/WrenchStamped':
+        frame = _wrench_fields(data)[2]
+        try:
+            frame.decode('utf-8')
+        except UnicodeDecodeError:
+            raise CdrError('header.frame_id not UTF-8') from None
+        n = (_BE_UINT32 if big else _LE_UINT32).unpack_from(data, 12)[0]
+        end = 4 + 12 + n + (-(12 + n)) % 8 + 48
+    elif type_name == 'rosgraph_msgs/msg/Clock':
+        if (_BE_STAMP if big else _STAMP).unpack_from(data, 4)[1] >= NS_PER_S:
+            raise CdrError('clock.nanosec >= 1e9')
+        end = 12
+    elif type_name == 'diagnostic_msgs/msg/DiagnosticArray':
+        decode_diagnostic_array(data)
+        end = None if big else _LAST_END[0]
+    elif type_name == 'std_msgs/msg/Float64':
+        decode_float64(data)
+        end = 12
+    elif type_name == 'std_msgs/msg/String':
+        decode_string(data)
+        end = 8 + (_BE_UINT32 if big else _LE_UINT32).unpack_from(data, 4)[0]
+    if end is not None and len(data) > end + 3:
+        return end
+    return len(data)
+
+
+def check_message(type_name: str, data: bytes | memoryview,
+                  js_decoder: 'JointStateDecoder | None' = None) -> str | None:
+    """Why ``data`` cannot be read (:func:`checked_length`), or None when it can."""
+    try:
+        checked_length(type_name, data, js_decoder)
+    except CdrError as exc:
+        return str(exc)
+    return None

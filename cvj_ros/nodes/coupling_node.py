@@ -35,16 +35,14 @@ integrated: with ``nonfinite_torque=stop`` (default) ERROR diagnostic and exit 1
 ``hold`` the last finite torque of that topic (0 N m before the first) stands in for it,
 counted as ``held_torques`` (diagnostics level WARN, first one logged).
 
-Run identity (``run_token``, cvj_ros.nodes.run_token): with a token the joint states go
-out with frame_id ``driveline@<token>`` (reaction wrenches ``<joint>_housing@<token>``,
-diagnostics ``coupling_node@<token>``, ``run_token`` in /driveline/scene); an answer whose
-frame_id ends in another run's token is ignored and counted (``foreign_answers``, first
-one in one WARN line), one without ``@`` is accepted (``untokened_answers``: an outside
-node that echoes only the stamp). A second publisher on /driveline/joint_states,
-/engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
-ERROR naming the domain before step 0 (counts cannot tell our peers from the other
-run's), and after step 0 only without a token or once an untagged answer came (those
-could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
+Run identity by publisher (cvj_ros.nodes.peers; frame_ids are plain frame names:
+``driveline``, ``<joint>_housing``, ``coupling_node``): the publishers of
+/driveline/joint_states, /engine/wrench and /load/wrench when step 0 goes out are the run's
+peers. A second publisher on one of them stops the loop with one ERROR line naming every
+publisher (before step 0) or the intruder, its topic and the step (after it); an answer that
+arrives while its topic has two matched publishers is never integrated. An answer that does
+not decode is dropped and counted (``malformed_messages``, first one per topic in one WARN
+line). Before step 0 the node waits (bounded by ``start_timeout``) until
 ``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
 a publisher, so no message is lost, and in lockstep until that has held for
 START_SETTLE_S with no other run's publisher discovered. After t_N = duration it publishes
@@ -87,25 +85,29 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError, StartCancelled
+from cvj_ros.nodes.cdr import CdrError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
+from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.peers import (describe, named_publisher_endpoints, publisher_endpoints,
+                                 strangers)
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
 from cvj_ros.nodes.diagnostics import plain_status, publish_statuses
 from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNode,
                                   JointStateEncoder, ParameterError, ParamSpec,
                                   WrenchStampedEncoder, declare_parameters,
-                                  decode_wrench_header_torque_z, load_scene_param,
+                                  decode_wrench_stamp_torque_z, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
                                JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
                                coupling_wrench_topic)
-from cvj_ros.nodes.run_token import (JOINT_STATES_FRAME, frame_token_bytes, run_token_param,
-                                     tag_frame, validated_run_token)
 
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
 NONFINITE_POLICIES = ('stop', 'hold')
+#: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
+JOINT_STATES_FRAME = 'driveline'
 # Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
 # before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell
 # this run's engine/load from another run's on the same domain, and a state published before
@@ -121,6 +123,11 @@ START_SETTLE_S = 0.3
 # peer that sends junk next to its right answer sends the right one within milliseconds
 # (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
 WRONG_STAMP_STALL_S = 1.0
+# The loop looks at the ROS graph (a second /driveline/joint_states publisher, which no
+# answer callback sees) at most this often (s): lockstep between two exchanges, besides the
+# watchdog; free-run at a wake-up;
+# three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
+GRAPH_CHECK_S = 0.01
 
 #: coupling_node ``start_gate`` values (:func:`wait_for_go`)
 START_GATES = ('', 'stdin')
@@ -157,7 +164,6 @@ PARAMS = (
     ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
               '(stop) or is replaced by the last finite torque of that topic, counted as '
               'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
-    run_token_param(),
     ParamSpec('catch_up', 'skip', 'free-run: missed ticks are dropped, one step jumping to wall '
               'time (skip), or run back to back up to burst_max per wake-up, then dropped (burst)',
               choices=CATCH_UP_POLICIES),
@@ -211,11 +217,9 @@ class CouplingNode(CvjNode):
         p = self.params = declare_parameters(self, PARAMS)
         scene = self.scene = load_scene_param(p['scene'])
         self.seed = scene_seed(scene, p['seed'])
-        # run identity (cvj_ros.nodes.run_token): frame_id '<frame>@<token>' on what we publish
-        self.run_token = validated_run_token(p)
-        self._token_b = self.run_token.encode()
-        self.js_frame = tag_frame(JOINT_STATES_FRAME, self.run_token) if self.run_token else ''
-        self.diag_frame = tag_frame('coupling_node', self.run_token)
+        # plain frame names (a run is told apart by its publishers: cvj_ros.nodes.peers)
+        self.js_frame = JOINT_STATES_FRAME
+        self.diag_frame = 'coupling_node'
         self.mode = p['mode']
         self.scheme = p['coupling_scheme']
         h = p['exchange_step'] or scene.exchange_step
@@ -252,6 +256,13 @@ class CouplingNode(CvjNode):
                                             self._on_engine, DATA_QOS)
         self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
                                           self._on_load, DATA_QOS)
+        # run identity by publisher (cvj_ros.nodes.peers): answers that come through DDS are
+        # taken only while their topic has one publisher, the one matched at step 0; from
+        # the in-process bus (composed mode) only hosted nodes' answers come at all
+        self._dds_engine = not hasattr(self.engine_sub, 'bus')
+        self._dds_load = not hasattr(self.load_sub, 'bus')
+        self._peer_gids: dict[str, frozenset[str]] = {}
+        self._graph_due = 0.0         # monotonic s of the next graph check inside the loop
         # Reused message objects: one builtin_interfaces/Time shared by every header and
         # /clock, updated in place each step (publish() serialises synchronously, so reuse is
         # safe); WrenchStamped construction alone measured 27 us per message here.
@@ -265,12 +276,12 @@ class CouplingNode(CvjNode):
         for j in self.reaction_joints:
             w = WrenchStamped()
             w.header.stamp = self._stamp
-            w.header.frame_id = tag_frame(f'{j}_housing', self.run_token)
+            w.header.frame_id = f'{j}_housing'
             self._reaction_msgs[j] = w
         # pre-serialised publication (bytes): skips rclpy's field-by-field conversion
         self._js_cdr = JointStateEncoder(self.names, self.js_frame)
         self._clock_cdr = ClockEncoder()
-        self._reaction_cdr = {j: WrenchStampedEncoder(tag_frame(f'{j}_housing', self.run_token))
+        self._reaction_cdr = {j: WrenchStampedEncoder(f'{j}_housing')
                               for j in self.reaction_joints}
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
@@ -291,11 +302,8 @@ class CouplingNode(CvjNode):
         self.waiting = False
         self.started = False
         self.ignored_stamps = 0
-        # answers tagged with another run's token (ignored; WARN once) and answers without
-        # a token (accepted: an outside node echoing only the stamp; INFO once)
-        self.foreign_answers = 0
-        self.untokened_answers = 0
         self.rejected_torques = 0
+        self.malformed = MalformedInputs(self.get_logger())   # undecodable answers, per topic
         self.held_torques = 0            # nonfinite_torque=hold: NaN/inf answers replaced
         self._last_finite = {ENGINE_WRENCH_TOPIC: 0.0, LOAD_WRENCH_TOPIC: 0.0}   # N m
         # answers with a stamp other than t_k while t_k is awaited: (stamp ns, expected ns)
@@ -387,7 +395,6 @@ class CouplingNode(CvjNode):
                        'backend': getattr(self.stepper, 'backend', 'python'),
                        'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
-            'run_token': self.run_token,
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))
 
@@ -409,37 +416,64 @@ class CouplingNode(CvjNode):
         return missing
 
     def foreign_publishers(self) -> str | None:
-        """Lockstep: a description of extra publishers on the loop topics, else None.
+        """Lockstep: the line naming extra publishers on the loop topics, else None.
 
         The loop needs exactly one publisher of /driveline/joint_states (this node), of
-        /engine/wrench and of /load/wrench. More means another run shares this ROS domain:
-        its answers carry the same stamps and would be integrated here (silently wrong).
+        /engine/wrench and of /load/wrench: the peers are the publishers matched when step 0
+        goes out (cvj_ros.nodes.peers). More before step 0 is an ambiguity (another run or
+        node shares this ROS domain: the line names every publisher); more after it is an
+        intruder, named against the peer matched at step 0. Messages on a topic with two
+        publishers cannot be told apart (rclpy gives no per-message publisher), so neither
+        case integrates anything from that topic any more.
         """
         if self.mode != 'lockstep':
             return None
-        if self.run_token and self.started and not self.untokened_answers:
-            # every answer so far carried our token: another run's messages are told apart
-            # and dropped (foreign_answers), so its publishers are no reason to stop. Before
-            # step 0 they still are: publisher / subscriber counts (missing_peers) cannot
-            # tell our peers from the other run's.
-            return None
         return self._extra_publishers()
 
+    def _guarded_topics(self) -> list[tuple[str, Any]]:
+        """(topic, publisher count function) of the loop topics whose messages reach this
+        run through DDS: all three before step 0, and after it those the in-process bus does
+        not carry (composed mode hears only its hosted publishers there)."""
+        topics: list[tuple[str, Any]] = [
+            (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
+            (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count),
+            (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count)]
+        bus = bus_for(self.context)
+        if self.started and bus is not None:
+            topics = [(t, n) for t, n in topics if not bus.carries(t)]
+        return topics
+
     def _extra_publishers(self) -> str | None:
-        """:meth:`foreign_publishers`' line from the publisher counts alone."""
-        extra = [f'{topic} has {n} publishers'
-                 for topic, n in ((JOINT_STATES_TOPIC, self.count_publishers(JOINT_STATES_TOPIC)),
-                                  (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count()),
-                                  (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count()))
-                 if n > 1]
+        """:meth:`foreign_publishers`' line from the publisher counts and the ROS graph."""
+        extra = [(topic, n) for topic, count in self._guarded_topics() if (n := count()) > 1]
         if not extra:
             return None
-        return (f'lockstep: {", ".join(extra)} (expected 1) on ROS_DOMAIN_ID='
+        if self.started:
+            return self._intruder_line(extra[0][0])
+        named = '; '.join(f'{topic} has {n} publishers: {describe(publisher_endpoints(self, topic))}'
+                          for topic, n in extra)
+        return (f'lockstep: {named} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
-                f'and its messages would mix into this loop'
-                + (f' ({self.untokened_answers} answers carried no run token in header.frame_id)'
-                   if self.run_token and self.started and self.untokened_answers else '')
-                + '; give each run its own ROS_DOMAIN_ID')
+                f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
+
+    def _note_peers(self) -> None:
+        """Step 0: the publishers of the loop topics now are this run's peers."""
+        self._peer_gids = {topic: frozenset(e.gid for e in publisher_endpoints(self, topic))
+                           for topic, _count in self._guarded_topics()}
+
+    def _intruder_line(self, topic: str) -> str:
+        """One line naming the publisher on ``topic`` that is not the peer matched at step 0."""
+        known = self._peer_gids.get(topic, frozenset())
+        # the run stops on this line: worth up to 0.2 s for the intruder's node name
+        endpoints = named_publisher_endpoints(self, topic)
+        new = strangers(endpoints, known)
+        peers = [e for e in endpoints if e.gid in known]
+        who = describe(new) if new else 'a publisher not in the ROS graph yet'
+        return (f'{self.mode}: {topic}: intruder {who} besides this run\'s peer '
+                f'{describe(peers) if peers else "(gone)"} on ROS_DOMAIN_ID='
+                f'{os.environ.get("ROS_DOMAIN_ID", "0")}; stopped at t={self.t_ns / NS_PER_S:.9g} s '
+                f'(step {self.k}) without integrating any of its messages: messages on a topic with '
+                f'two publishers cannot be told apart; give each run its own ROS_DOMAIN_ID')
 
     def _try_start(self) -> None:
         if self.started or self.exit_code is not None:
@@ -463,6 +497,7 @@ class CouplingNode(CvjNode):
             if now - self._ready_since < START_SETTLE_S:
                 return
         self._start_timer.cancel()
+        self._note_peers()
         self.started = True
         self._t_wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
@@ -613,41 +648,34 @@ class CouplingNode(CvjNode):
         return False
 
     def _on_engine(self, data: bytes) -> None:
-        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
-        if not self._token_b or self._answer_is_ours(frame, stamp_ns, ENGINE_WRENCH_TOPIC):
-            self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
+        try:
+            stamp_ns, value = decode_wrench_stamp_torque_z(data)
+        except CdrError as exc:
+            self._drop_malformed(ENGINE_WRENCH_TOPIC, str(exc))
+            return
+        if self.started and self._dds_engine and self.engine_sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(ENGINE_WRENCH_TOPIC))
+            return
+        self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
-        stamp_ns, frame, value = decode_wrench_header_torque_z(data)
-        if not self._token_b or self._answer_is_ours(frame, stamp_ns, LOAD_WRENCH_TOPIC):
-            self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+        try:
+            stamp_ns, value = decode_wrench_stamp_torque_z(data)
+        except CdrError as exc:
+            self._drop_malformed(LOAD_WRENCH_TOPIC, str(exc))
+            return
+        if self.started and self._dds_load and self.load_sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(LOAD_WRENCH_TOPIC))
+            return
+        self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
 
-    def _answer_is_ours(self, frame: bytes, stamp_ns: int, topic: str) -> bool:
-        """Run-token filter of one answer (``frame`` = its header.frame_id bytes): False, and
-        counted in ``foreign_answers`` (first one logged as WARN), when it carries another
-        run's token; True for our token and for an untagged frame_id (counted in
-        ``untokened_answers``, first one logged: accepted as an outside node that echoes
-        only the stamp; while another run shares the domain it stops the loop, see
-        :meth:`foreign_publishers`)."""
-        token = frame_token_bytes(frame)
-        if token == self._token_b:
-            return True
-        if token is None:
-            self.untokened_answers += 1
-            if self.untokened_answers == 1:
-                self.get_logger().info(
-                    f'{topic}: answer frame_id {frame.decode(errors="replace")!r} carries no run token; '
-                    f'accepted (echo the joint-state header.frame_id "{self.js_frame}" to tell this '
-                    f'run apart from another on the same ROS domain)')
-            return True
-        self.foreign_answers += 1
-        if self.foreign_answers == 1:
-            line = (f'{topic}: ignoring answers of another run on this ROS domain (frame_id '
-                    f'{frame.decode(errors="replace")!r} at t={stamp_ns / NS_PER_S:.9g} s, this run is '
-                    f'{self.run_token!r}); counted as foreign_answers')
-            self.get_logger().warning(line)
+    def _drop_malformed(self, topic: str, reason: str) -> None:
+        """A message on ``topic`` the checked decoder refused: never integrated, counted
+        (``malformed_messages``), the first one per topic in one WARN line (log and
+        /diagnostics)."""
+        line = self.malformed.drop(topic, reason)
+        if line is not None and self.exit_code is None:
             self.publish_diagnostics(WARN, line)
-        return False
 
     def _on_wrench(self, stamp_ns: int, value: float, topic: str, *, engine: bool) -> None:
         """One answer: stamp (integer ns) and torque.z (N m) of a WrenchStamped on ``topic``."""
@@ -677,6 +705,13 @@ class CouplingNode(CvjNode):
         else:
             self.T_load, self._have_load = value, True
         if self._have_engine and self._have_load:
+            now = time.monotonic()
+            if now >= self._graph_due:        # a second joint-state publisher (not an answer)
+                self._graph_due = now + GRAPH_CHECK_S
+                foreign = self.foreign_publishers()
+                if foreign:
+                    self._stop_with_error(foreign)
+                    return
             self.waiting = False
             sent = self._wait_start
             self.wait_total += time.perf_counter() - sent
@@ -738,6 +773,13 @@ class CouplingNode(CvjNode):
         sched = self.scheduler
         if self.exit_code is not None or sched is None:
             return
+        now = time.monotonic()
+        if now >= self._graph_due:      # a second publisher on a loop topic (as in lockstep)
+            self._graph_due = now + GRAPH_CHECK_S
+            foreign = self._extra_publishers()
+            if foreign:
+                self._stop_with_error(foreign)
+                return
         run_wakeup(sched, time.monotonic_ns, self._run_free_step)
         if self.exit_code is not None or sched.finished() or self._free_timer is None:
             return
@@ -814,9 +856,11 @@ class CouplingNode(CvjNode):
     # --- diagnostics ------------------------------------------------------------------------
 
     def _level(self) -> bytes:
-        """WARN once a stamp was ignored, a torque held or a free-run tick overran, else OK."""
+        """WARN once a stamp was ignored, a torque held, a message dropped as malformed or a
+        free-run tick overran, else OK."""
         overran = self.scheduler is not None and self.scheduler.overruns > 0
-        return WARN if self.ignored_stamps or self.held_torques or overran else OK
+        return (WARN if self.ignored_stamps or self.held_torques or overran or self.malformed.counts
+                else OK)
 
     def real_time_factor(self) -> float:
         """Simulated seconds per wall second since step 0."""
@@ -838,8 +882,7 @@ class CouplingNode(CvjNode):
             'process_cpu_us_mean': 1e6 * (time.process_time() - self._cpu0) / n if self.started else 0.0,
             'overhead_us_mean': 1e6 * (self.exchange_total - self.integration_total) / n,
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
-            'held_torques': self.held_torques,
-            'foreign_answers': self.foreign_answers, 'untokened_answers': self.untokened_answers,
+            'held_torques': self.held_torques, MALFORMED_KEY: self.malformed.total,
         }
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())

@@ -19,11 +19,11 @@ from typing import Any
 from std_msgs.msg import Float64
 
 from cvj_ros.errors import CvjError
+from cvj_ros.nodes.cdr import CdrError, decode_float64
 from cvj_ros.nodes.common import (ERROR, OK, ParameterError, ParamSpec, TorqueResponder,
                                   declare_parameters, inertia_names, load_scene_param,
                                   load_yaml_mapping, run_node, scene_dict)
 from cvj_ros.nodes.qos import DATA_QOS, ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC
-from cvj_ros.nodes.run_token import run_token_param, validated_run_token
 
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
@@ -34,7 +34,6 @@ PARAMS = (
     ParamSpec('engine_spec', '', 'YAML mapping replacing the scene engine spec '
               '(e.g. "{model: linear, M1: 600, K1: 12}"); empty = the scene engine'),
     ParamSpec('crank_shaft', '', 'JointState name of the crank shaft; empty = the scene first inertia'),
-    run_token_param(),
 )
 
 
@@ -74,13 +73,23 @@ class EngineNode(TorqueResponder):
         self.engine = engine
         self.throttle = p['throttle'] if p['throttle'] >= 0.0 else float('nan')
         self.throttle_rejected = 0
-        self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC,
-                             run_token=validated_run_token(p))
+        self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
+        # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
+        # deserialisation inside the executor (which raised out of spin())
         self.throttle_sub = self.create_subscription(Float64, ENGINE_THROTTLE_TOPIC,
-                                                     self._on_throttle, DATA_QOS)
+                                                     self._on_throttle_raw, DATA_QOS, raw=True)
         describe = getattr(engine, 'describe', None)
         self.get_logger().info(f'engine {describe() if describe else type(engine).__name__} on shaft '
                                f'{shaft!r}; waiting for /driveline/joint_states')
+
+    def _on_throttle_raw(self, data: bytes) -> None:
+        """A serialised /engine/throttle sample: checked (:func:`decode_float64`), applied."""
+        try:
+            x = decode_float64(data)
+        except CdrError as exc:
+            self._drop(str(exc), ENGINE_THROTTLE_TOPIC)
+            return
+        self._on_throttle(Float64(data=x))
 
     def _on_throttle(self, msg: Float64) -> None:
         x = float(msg.data)

@@ -21,7 +21,6 @@ from cvj_ros.nodes.common import (ParameterError, ParamSpec, TorqueResponder, de
                                   inertia_names, load_scene_param, load_torque_series_file,
                                   run_node, scene_dict, scene_seed)
 from cvj_ros.nodes.qos import LOAD_WRENCH_TOPIC
-from cvj_ros.nodes.run_token import run_token_param, validated_run_token
 
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
@@ -32,7 +31,6 @@ PARAMS = (
     ParamSpec('load_override', '', 'path of a load torque time series (.npz or YAML with t [s], '
               'torque [N m]) used instead of the scene load; empty = none'),
     ParamSpec('output_shaft', '', 'JointState name of the output shaft; empty = the scene last inertia'),
-    run_token_param(),
 )
 
 
@@ -72,8 +70,7 @@ class LoadNode(TorqueResponder):
         self.scene = scene
         self.load = build_load(scene, p)
         shaft = p['output_shaft'] or inertia_names(scene)[-1]
-        self.start_answering(source=self.load, shaft=shaft, wrench_topic=LOAD_WRENCH_TOPIC,
-                             run_token=validated_run_token(p))
+        self.start_answering(source=self.load, shaft=shaft, wrench_topic=LOAD_WRENCH_TOPIC)
         describe = getattr(self.load, 'describe', None)
         self.get_logger().info(f'load {describe() if describe else type(self.load).__name__} on '
                                f'shaft {shaft!r}; waiting for /driveline/joint_states')

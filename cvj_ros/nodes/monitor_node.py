@@ -36,11 +36,10 @@ from cvj_ros.nodes.common import (ERROR, OK, WARN, CvjNode, ParamSpec, declare_p
 from cvj_ros.nodes.diagnostics import Status, plain_status, publish_statuses
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
-from cvj_ros.nodes.cdr import (JointStateDecoder, decode_wrench_header_torque_z,
+from cvj_ros.nodes.malformed import MalformedInputs
+from cvj_ros.nodes.cdr import (CdrError, JointStateDecoder, decode_string, decode_wrench_header_torque_z,
                                decode_diagnostic_array, read_joint_state_block,
                                read_wrench_torque_z_block)
-from cvj_ros.nodes.run_token import (cdr_is_foreign, is_foreign, run_token_param, tag_frame,
-                                     validated_run_token)
 from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
                                              DEFAULT_NONUNIFORMITY_WARN,
                                              RECOMMENDED_MAX_ANGLE_DEG, RollingWindow,
@@ -80,7 +79,6 @@ PARAMS = (
               '(free-run: 1.0); 0 = off', lo=0.0, hi=1e6, read_only=False),
     ParamSpec('angle_error_margin_deg', 5.0, 'ERROR when a joint angle exceeds its recommended '
               'limit by more than this [deg]', lo=0.0, hi=90.0, read_only=False),
-    run_token_param(),
 )
 
 
@@ -95,11 +93,11 @@ class MonitorNode(CvjNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('monitor_node', **kwargs)
         self.params = declare_parameters(self, PARAMS)
-        # run identity: joint states, torques, loop diagnostics and scenes of another run on
-        # this domain are ignored and counted (cvj_ros.nodes.run_token)
-        self.run_token = validated_run_token(self.params)
+        # messages that arrive while their loop topic has more than one publisher (whose
+        # they are cannot be told: cvj_ros.nodes.peers) are ignored and counted
         self.foreign_messages = 0
-        self._diag_frame = tag_frame('monitor_node', self.run_token)
+        self.malformed = MalformedInputs(self.get_logger())   # undecodable inputs, per topic
+        self._diag_frame = 'monitor_node'
         self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
         self.internal_members: set[str] = set()   # shafts of INTERNAL_MEMBERS: no limit
         if self.params['scene']:
@@ -127,7 +125,7 @@ class MonitorNode(CvjNode):
         window_nb.warm()
         # Samples are collected as they come and read in bulk when the statuses are computed
         # (every publish_every joint states): the per-sample callback only checks the run
-        # token and appends (composed mode, in-process bus: ~45 -> ~10 us per exchange).
+        # publisher count and appends (composed mode, in-process bus: ~45 -> ~10 us per exchange).
         self._js_batch: list[bytes] = []
         # the answers per window, in arrival order (one list each: grouping (bytes, window)
         # pairs at every publication cost ~100 us of its ~800 in a running composed loop)
@@ -145,8 +143,8 @@ class MonitorNode(CvjNode):
                                           self._collect_load, DATA_QOS)
         self.diag_sub = loop_subscription(self, DiagnosticArray, DIAGNOSTICS_TOPIC,
                                           self._on_diagnostics_raw, DATA_QOS)
-        self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene, LATCHED_QOS,
-                                           raw=False)
+        self.scene_sub = loop_subscription(self, String, SCENE_TOPIC, self._on_scene_raw,
+                                           LATCHED_QOS)
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -174,12 +172,27 @@ class MonitorNode(CvjNode):
         self.joint_limits = limits
         self.internal_members = members
 
-    def _foreign(self, frame_id: str) -> bool:
-        """True (and counted) when ``frame_id`` carries another run's token."""
-        if is_foreign(frame_id, self.run_token):
-            self.foreign_messages += 1
-            return True
-        return False
+    def _foreign(self, sub: Any) -> bool:
+        """True (and counted) when ``sub`` (a DDS subscription of a loop topic) has more than
+        one publisher: whose the message is cannot be told (cvj_ros.nodes.peers). In
+        composed mode and beside the recorder the monitor gets the run's messages only."""
+        if hasattr(sub, 'bus') or sub.get_publisher_count() <= 1:
+            return False
+        self.foreign_messages += 1
+        return True
+
+    def _drop(self, topic: str, reason: str) -> None:
+        """A message the checked decoders refused: dropped, counted (``malformed_messages``),
+        the first one per topic in one WARN line."""
+        self.malformed.drop(topic, reason)
+
+    def _on_scene_raw(self, data: bytes) -> None:
+        try:
+            text = decode_string(data)
+        except CdrError as exc:
+            self._drop(SCENE_TOPIC, str(exc))
+            return
+        self._on_scene(String(data=text))
 
     def _on_scene(self, msg: String) -> None:
         if self.params['scene']:
@@ -189,18 +202,13 @@ class MonitorNode(CvjNode):
         except yaml.YAMLError:
             self.get_logger().error('/driveline/scene: not valid YAML; joint angles not monitored')
             return
-        if (self.run_token and isinstance(data, dict)
-                and data.get('run_token', self.run_token) != self.run_token):
-            self.foreign_messages += 1       # another run's scene
-            return
         if isinstance(data, dict) and isinstance(data.get('scene'), dict):
             self._use_scene(data['scene'])
 
     def _on_joint_states_raw(self, data: bytes) -> None:
         """A serialised joint state: dropped (counted) if another run's, else collected; the
         statuses are published at every publish_every-th accepted sample."""
-        if self.run_token and cdr_is_foreign(data, self.run_token):
-            self.foreign_messages += 1
+        if self._foreign(self.js_sub):
             return
         batch = self._js_batch
         batch.append(data)
@@ -211,6 +219,8 @@ class MonitorNode(CvjNode):
 
     def _collect_engine(self, data: bytes) -> None:
         """A serialised /engine/wrench answer, kept for :meth:`take_samples`."""
+        if self._foreign(self.engine_sub):
+            return
         batch = self._engine_batch
         batch.append(data)
         if len(batch) >= MAX_COLLECTED:
@@ -218,6 +228,8 @@ class MonitorNode(CvjNode):
 
     def _collect_load(self, data: bytes) -> None:
         """A serialised /load/wrench answer, kept for :meth:`take_samples`."""
+        if self._foreign(self.load_sub):
+            return
         batch = self._load_batch
         batch.append(data)
         if len(batch) >= MAX_COLLECTED:
@@ -246,8 +258,6 @@ class MonitorNode(CvjNode):
             block = read_joint_state_block(batch, self._js_decoder, position=False)
             if block is None:
                 self._take_js_one_by_one(batch)
-            elif self.run_token and self._foreign(block.frame_id):
-                self.foreign_messages += len(batch) - 1
             else:
                 self._use_names(block.name)
                 t = block.stamp_ns / 1e9
@@ -255,25 +265,24 @@ class MonitorNode(CvjNode):
                 self._push_js(t, block.velocity, block.effort)
         if self._engine_batch:
             batch, self._engine_batch = self._engine_batch, []
-            self._take_torques(self._engine_torque, batch)
+            self._take_torques(self._engine_torque, batch, ENGINE_WRENCH_TOPIC)
         if self._load_batch:
             batch, self._load_batch = self._load_batch, []
-            self._take_torques(self._load_torque, batch)
+            self._take_torques(self._load_torque, batch, LOAD_WRENCH_TOPIC)
 
-    def _take_torques(self, window: RollingWindow, samples: list[bytes]) -> None:
+    def _take_torques(self, window: RollingWindow, samples: list[bytes], topic: str) -> None:
         block = read_wrench_torque_z_block(samples)
         if block is not None:
-            stamp_ns, frame, torque_z = block
-            if self._foreign(frame.decode('utf-8', errors='replace')):
-                self.foreign_messages += len(samples) - 1
-                return
+            stamp_ns, _frame, torque_z = block
             window.push_many(stamp_ns / 1e9, torque_z)
             return
         t: list[float] = []
         z: list[float] = []
         for data in samples:
-            stamp_ns, frame_b, torque_z = decode_wrench_header_torque_z(data)
-            if self._foreign(frame_b.decode('utf-8', errors='replace')):
+            try:
+                stamp_ns, _frame, torque_z = decode_wrench_header_torque_z(data)
+            except CdrError as exc:
+                self._drop(topic, str(exc))
                 continue
             t.append(stamp_ns / 1e9)
             z.append(torque_z)
@@ -285,7 +294,11 @@ class MonitorNode(CvjNode):
         vel: list[Any] = []
         eff: list[Any] = []
         for data in batch:
-            msg = decode(data)
+            try:
+                msg = decode(data)
+            except CdrError as exc:
+                self._drop(JOINT_STATES_TOPIC, str(exc))
+                continue
             if msg.name is not self.names and ts:
                 self._push_js(ts, vel, eff)          # the samples before a change of names
                 ts, vel, eff = [], [], []
@@ -307,10 +320,7 @@ class MonitorNode(CvjNode):
 
     def _read_joint_state(self, msg: Any) -> tuple[float, Any, Any] | None:
         """(t in s, velocity row, effort row) of one joint state for the windows (NaN rows
-        for arrays shorter than the names), or None for another run's (counted); the
-        windows follow its names."""
-        if self.run_token and self._foreign(msg.header.frame_id):
-            return None
+        for arrays shorter than the names); the windows follow its names."""
         names = msg.name     # a decoder's cached list: identical object while names repeat
         self._use_names(names)
         self.last_ns = stamp_to_ns(msg.header.stamp)
@@ -336,11 +346,13 @@ class MonitorNode(CvjNode):
         if publish and self.samples % self.params['publish_every'] == 0:
             self.publish()
 
-    def _on_torque_raw(self, data: bytes, window: RollingWindow) -> None:
-        """A serialised WrenchStamped answer: dropped (counted) if another run's, else
-        torque.z (N m) at its stamp into ``window``."""
-        stamp_ns, frame, torque_z = decode_wrench_header_torque_z(data)
-        if self._foreign(frame.decode('utf-8', errors='replace')):
+    def _on_torque_raw(self, data: bytes, window: RollingWindow, topic: str = ENGINE_WRENCH_TOPIC) -> None:
+        """A serialised WrenchStamped answer: dropped (counted) if malformed, else torque.z
+        (N m) at its stamp into ``window``."""
+        try:
+            stamp_ns, _frame, torque_z = decode_wrench_header_torque_z(data)
+        except CdrError as exc:
+            self._drop(topic, str(exc))
             return
         window.push(stamp_ns / 1e9, [torque_z])
 
@@ -348,12 +360,13 @@ class MonitorNode(CvjNode):
         """A serialised /diagnostics message: another run's counted; deserialised (200-400 us
         with rclpy) only when it can hold a coupling node status - its own and the peers'
         statuses (one per publication) have nothing the monitor reads."""
-        if self.run_token and cdr_is_foreign(data, self.run_token):
-            self.foreign_messages += 1
-            return
         if b'coupling_node' not in data:
             return
-        _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+        try:
+            _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+        except CdrError as exc:
+            self._drop(DIAGNOSTICS_TOPIC, str(exc))
+            return
         self._take_loop_status(frame, [(name, values) for _l, name, _m, _h, values in statuses])
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -362,9 +375,7 @@ class MonitorNode(CvjNode):
 
     def _take_loop_status(self, frame_id: str, statuses: list[tuple[str, list[tuple[str, str]]]]) -> None:
         """Keep the float values of the coupling node's statuses (name, key/values) of one
-        /diagnostics message with header.frame_id ``frame_id`` (another run's: counted)."""
-        if self._foreign(frame_id):
-            return
+        /diagnostics message with header.frame_id ``frame_id``."""
         for name, values in statuses:
             if not name.startswith('coupling_node'):
                 continue

@@ -13,8 +13,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from cvj_ros.nodes.executor import CvjNode
 from cvj_ros.nodes.diagnostics import ERROR, WARN, plain_status, publish_statuses
 from cvj_ros.nodes.parameters import NS_PER_S, ParameterError
-from cvj_ros.nodes.cdr import WrenchStampedEncoder
-from cvj_ros.nodes.run_token import frame_token, is_foreign, tag_frame
+from cvj_ros.nodes.cdr import CdrError, WrenchStampedEncoder
+from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.qos import JOINT_STATES_TOPIC
 
 class TorqueResponder(CvjNode):
     """Answers every /driveline/joint_states sample with a WrenchStamped from a torque source.
@@ -22,30 +23,27 @@ class TorqueResponder(CvjNode):
     ``torque.z`` = ``source.torque(t, omega, phi)`` (N m) at the speed omega (rad/s) and
     unwrapped angle phi (rad) of shaft ``shaft`` in the joint-state message, t (s) = its
     stamp; the answer's stamp echoes the joint-state stamp exactly and its frame_id is the
-    shaft name, tagged with the joint state's run token when it has one
-    (``<shaft>@<token>``, cvj_ros.nodes.run_token). With a ``run_token`` of its own the
-    node answers only joint states of that run (others are counted in ``foreign_states``).
+    shaft name. Joint states that arrive while /driveline/joint_states has more than one
+    publisher are not answered (counted in ``foreign_states``; cvj_ros.nodes.peers).
     A non-finite input or torque is never published: an ERROR diagnostic names it (the
-    coupling node then times out with a clear error).
+    coupling node then times out with a clear error). A joint state that does not decode
+    (:class:`~cvj_ros.nodes.cdr.CdrError`) or lacks the shaft is not answered: counted in
+    ``malformed_messages``, the first one named in one WARN line.
     """
 
-    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str,
-                        run_token: str = '') -> None:
-        """Create the publishers and the joint-state subscription (call once, after validation).
-
-        ``run_token``: answer only joint states whose frame_id carries this token or none
-        ('' = answer all)."""
+    def start_answering(self, *, source: Any, shaft: str, wrench_topic: str) -> None:
+        """Create the publishers and the joint-state subscription (call once, after validation)."""
         from geometry_msgs.msg import WrenchStamped
         from sensor_msgs.msg import JointState
 
-        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC, JOINT_STATES_TOPIC
+        from cvj_ros.nodes.qos import DATA_QOS, DIAGNOSTICS_TOPIC
         self._wrench_cls = WrenchStamped
         self.source = source
         self.shaft = shaft
         self.answered = 0
-        self.run_token = run_token
-        self.foreign_states = 0          # joint states of another run (not answered)
-        self._diag_frame = tag_frame(self.get_name(), run_token)
+        self.foreign_states = 0          # joint states while the topic had two publishers
+        self.malformed = MalformedInputs(self.get_logger())   # joint states not answerable
+        self._diag_frame = self.get_name()
         self._names: list[str] | None = None
         self._index = -1
         self.last_stamp_ns = 0
@@ -58,9 +56,6 @@ class TorqueResponder(CvjNode):
         self._answer.header.frame_id = shaft
         self._answer_torque = self._answer.wrench.torque
         self._answer_cdr = WrenchStampedEncoder(shaft)
-        self._js_frame = ''                      # frame_id of the last joint state answered
-        self._answer_frame = shaft
-        self._encoders = {shaft: self._answer_cdr}
         # raw CDR read by JointStateDecoder: rclpy's Python JointState per sample cost ~4x more
         # (docs/nodes.md, composed mode); _on_joint_states takes either form
         from cvj_ros.nodes.cdr import JointStateDecoder, ShaftReader
@@ -68,6 +63,10 @@ class TorqueResponder(CvjNode):
         self._read_shaft = ShaftReader(shaft).read
         self.js_sub = loop_subscription(self, JointState, JOINT_STATES_TOPIC,
                                         self._on_joint_states_raw, DATA_QOS)
+        # run identity by publisher (cvj_ros.nodes.peers): through DDS, joint states are
+        # answered only while the topic has one publisher (in composed mode the in-process
+        # bus brings only the hosted coupling node's)
+        self._js_dds = not hasattr(self.js_sub, 'bus')
 
     def _shaft_index(self, names: Sequence[str]) -> int:
         if self._names is None or list(names) != self._names:
@@ -84,24 +83,21 @@ class TorqueResponder(CvjNode):
         publish_statuses(self.diag_pub, self.last_stamp_ns, self._diag_frame,
                          [plain_status(self.get_name(), level, message, values)])
 
-    def _retag(self, js_frame: str) -> None:
-        """Answer frame_id for joint states with frame_id ``js_frame``: the shaft name, tagged
-        with their run token if they carry one."""
-        token = frame_token(js_frame)
-        self._js_frame = js_frame
-        self._answer_frame = tag_frame(self.shaft, token) if token else self.shaft
-        if self._answer_frame not in self._encoders:   # one per run seen (untagged node)
-            self._encoders[self._answer_frame] = WrenchStampedEncoder(self._answer_frame)
-        self._answer_cdr = self._encoders[self._answer_frame]
-        self._answer.header.frame_id = self._answer_frame
-
     def _on_joint_states_raw(self, data: bytes) -> None:
         """A serialised joint state: the shaft's angle and speed read in place
         (:class:`~cvj_ros.nodes.cdr.ShaftReader`: the loop's samples keep one layout), else
         decoded whole (:meth:`_on_joint_states` names what is missing)."""
+        if self._js_dds and self.js_sub.get_publisher_count() > 1:
+            self._stranger_state()
+            return
         got = self._read_shaft(data)
         if got is None:
-            self._on_joint_states(self._decode(data))
+            try:
+                msg = self._decode(data)
+            except CdrError as exc:
+                self._drop(str(exc))
+                return
+            self._on_joint_states(msg)
             return
         sec, nanosec, frame, phi, omega = got
         self._answer_state(sec, nanosec, frame, phi, omega)
@@ -112,34 +108,39 @@ class TorqueResponder(CvjNode):
         names = msg.name
         i = self._index if names == self._names else self._shaft_index(names)
         if i < 0 or i >= len(msg.velocity) or i >= len(msg.position):
-            if self._accept_frame(msg.header.frame_id):
-                self.last_stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
-                self.report(ERROR, f'/driveline/joint_states: no shaft {self.shaft!r} with position '
-                                   f'and velocity (names: {", ".join(msg.name)}); not answered')
+            names = ', '.join(msg.name[:8]) + (f', ... ({len(msg.name)} names)'
+                                               if len(msg.name) > 8 else '')
+            self._drop(f'no shaft {self.shaft!r} with position and velocity; names: {names}')
             return
         self._answer_state(stamp.sec, stamp.nanosec, msg.header.frame_id,
                            float(msg.position[i]), float(msg.velocity[i]))
 
-    def _accept_frame(self, frame: str) -> bool:
-        """False (counted, first one logged) for a joint state of another run; else the
-        answer's frame_id follows ``frame`` (its run token)."""
-        if frame == self._js_frame:
-            return True
-        if is_foreign(frame, self.run_token):
-            self.foreign_states += 1
-            if self.foreign_states == 1:
-                self.get_logger().warning(
-                    f'/driveline/joint_states: ignoring states of another run on this ROS '
-                    f'domain (frame_id {frame!r}, this run is {self.run_token!r}); not answered')
-            return False
-        self._retag(frame)
-        return True
+    def _stranger_state(self) -> None:
+        """A joint state while /driveline/joint_states has more than one publisher: whose it
+        is cannot be told, so it is not answered (``foreign_states``; the first one named in
+        one WARN line). The coupling node stops its run naming the intruder."""
+        self.foreign_states += 1
+        if self.foreign_states == 1:
+            from cvj_ros.nodes.peers import describe, publisher_endpoints
+            self.get_logger().warning(
+                f'{JOINT_STATES_TOPIC} has {self.js_sub.get_publisher_count()} publishers '
+                f'({describe(publisher_endpoints(self, JOINT_STATES_TOPIC))}): not answering '
+                f'while more than one node publishes joint states')
+
+    def _drop(self, reason: str, topic: str = JOINT_STATES_TOPIC) -> None:
+        """A message on ``topic`` this node cannot use (undecodable; a joint state without its
+        shaft): dropped, counted in ``malformed_messages``, the first one per topic in one
+        WARN line (log and /diagnostics); an unanswered state is then named by the coupling
+        node's wait."""
+        line = self.malformed.drop(topic, reason)
+        if line is not None:
+            publish_statuses(self.diag_pub, self.last_stamp_ns, self._diag_frame,
+                             [plain_status(self.get_name(), WARN, line,
+                                           {MALFORMED_KEY: self.malformed.total})])
 
     def _answer_state(self, sec: int, nanosec: int, frame: str, phi: float, omega: float) -> None:
         """Answer the state of the shaft at stamp (sec, nanosec): angle ``phi`` (rad), speed
         ``omega`` (rad/s), from a joint state with header.frame_id ``frame``."""
-        if frame != self._js_frame and not self._accept_frame(frame):
-            return
         self.last_stamp_ns = sec * NS_PER_S + nanosec
         if not (math.isfinite(omega) and math.isfinite(phi)):
             self.report(ERROR, f'/driveline/joint_states: {self.shaft} position/velocity not finite '

@@ -121,7 +121,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
 
     def mark(name: str) -> None:
         phases[name] = round(time.monotonic() - wall0, 4)
-    writer, run_token = open_run_bag(options, prep, out)
+    writer = open_run_bag(options, prep, out)
     procs: dict[str, subprocess.Popen[bytes]] = {}
     log_files: list[Any] = []
     recorder: _Recorder | None = None
@@ -136,12 +136,12 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         with process_dds_profile(env):   # the recorder announces itself every 0.25 s too
             recorder = _Recorder(writer, prep.coupling_topics, domain,
                                  hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
-                                 if options.mode == 'lockstep' else (), run_token=run_token)
+                                 if options.mode == 'lockstep' else ())
         # the observers run in this process, subscribed before any loop node starts
         for name in (n for n in prep.nodes if n in HOSTED_IN_RUN):
             try:
                 recorder.host(name, _ros_args(node_parameters(
-                    prep, name, load_override=load_override, run_token=run_token)),
+                    prep, name, load_override=load_override)),
                     log=logs / f'{name}.log')
             except CvjError as exc:   # bad parameter: the line the node's own process prints
                 error = f'{name}: error: {exc}'
@@ -154,7 +154,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 break
             if name in recorder.hosted:
                 continue
-            params = node_parameters(prep, name, load_override=load_override, run_token=run_token)
+            params = node_parameters(prep, name, load_override=load_override)
             gated = name == 'coupling_node'
             if gated:
                 params['start_gate'] = 'stdin'
@@ -237,11 +237,13 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         finally:
             rec_state = None
             foreign_dropped: dict[str, int] = {}
+            malformed_dropped: dict[str, int] = {}
             hosted_codes: dict[str, int] = {}
             if recorder is not None:
                 hosted_codes = recorder.hosted_exit_codes()
                 rec_state = (dict(recorder.recorder.first_wall), dict(recorder.recorder.last_wall))
                 foreign_dropped = dict(recorder.recorder.foreign)
+                malformed_dropped = recorder.recorder.malformed
                 recorder.close()
             writer.close()
             for fh in log_files:
@@ -262,7 +264,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         counts=dict(writer.counts), rec_state=rec_state,
         exit_codes={**{n: p.returncode for n, p in procs.items()}, **hosted_codes},
         phases=phases, wall=wall, steps=steps)
-    return finish_result(result, options, prep, stream=stream, run_token=run_token,
-                         foreign_dropped=foreign_dropped,
+    return finish_result(result, options, prep, stream=stream,
+                         foreign_dropped=foreign_dropped, malformed_dropped=malformed_dropped,
                          settings={'process': 'separate'} | (
                              {'hosted': ','.join(hosted_codes)} if hosted_codes else {}))

@@ -28,14 +28,10 @@ def node_command(name: str) -> list[str]:
     return [sys.executable, '-c', f'from cvj_ros.nodes.{name} import main; main()']
 
 
-def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None,
-                    run_token: str = '') -> dict[str, Any]:
-    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS);
-    ``run_token``: the run's identity (cvj_ros.nodes.run_token), '' = none."""
+def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -> dict[str, Any]:
+    """ROS parameters given to node ``name`` (see docs/ros.md and each node's PARAMS)."""
     o = prep.options
     params: dict[str, Any] = {'scene': str(prep.scene_path)}
-    if run_token:
-        params['run_token'] = run_token
     if prep.seed is not None:
         params['seed'] = int(prep.seed)
     if name == 'coupling_node':

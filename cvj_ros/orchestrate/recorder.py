@@ -41,7 +41,7 @@ class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
     def __init__(self, writer: bagmod.BagWriter, topics: Sequence[str], domain_id: int, *,
-                 hold: Sequence[str] = (), run_token: str = '') -> None:
+                 hold: Sequence[str] = (), run_only: bool = True) -> None:
         import rclpy
         from rclpy.signals import SignalHandlerOptions
         self.ctx = rclpy.context.Context()
@@ -50,7 +50,7 @@ class _Recorder:
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         # one hand-off to the writer thread per wake of the take loop, not one per message
         self.batching = bagmod.BatchingWriter(writer)
-        self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_token=run_token)
+        self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_only=run_only)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
         self.hosted: dict[str, tuple[Any, Any]] = {}     # name -> (node, executor): see host()
@@ -184,7 +184,7 @@ def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> 
     parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
     return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
             f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
-            f'every message with a geometry_msgs/WrenchStamped whose header (stamp, frame_id) '
+            f'every message with a geometry_msgs/WrenchStamped whose header.stamp '
             f'echoes the joint state\'s (docs/ros.md, "Outside nodes")')
 
 
@@ -244,15 +244,11 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
 
 
 def open_run_bag(options: Any, prep: Any, out: Path, *,
-                 extra: Sequence[tuple[str, str]] = ()) -> tuple[bagmod.BagWriter, str]:
+                 extra: Sequence[tuple[str, str]] = ()) -> bagmod.BagWriter:
     """The run's bag writer at ``out/bag`` with the run's metadata (scene, mode, scheme, seed,
-    duration, exchange step, outside nodes, ``extra`` pairs) and a new run token
-    (cvj_ros.nodes.run_token: every node and the recorder drop messages tagged with
-    another); returns (writer, token)."""
-    from cvj_ros.nodes.run_token import new_run_token
+    duration, exchange step, outside nodes, ``extra`` pairs): nothing random, so two runs of
+    one scene and seed write the same bytes."""
     writer = bagmod.BagWriter(out / 'bag', storage=options.storage)
-    run_token = new_run_token()
-    writer.set_custom_data('cvj_ros.run_token', run_token)
     for key, value in (('cvj_ros.scene_path', str(prep.scene_path)), ('cvj_ros.mode', options.mode),
                        ('cvj_ros.coupling_scheme', options.scheme),
                        ('cvj_ros.seed', '' if prep.seed is None else str(prep.seed)),
@@ -260,4 +256,4 @@ def open_run_bag(options: Any, prep: Any, out: Path, *,
                        ('cvj_ros.exchange_step', repr(prep.exchange_step)),
                        ('cvj_ros.external', ','.join(options.external)), *extra):
         writer.set_custom_data(key, value)
-    return writer, run_token
+    return writer

@@ -40,7 +40,7 @@ def result_from_recording(options: RunOptions, prep: _Prepared, out: Path, domai
 
 
 def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, stream: TextIO,
-                  run_token: str, foreign_dropped: dict[str, int],
+                  foreign_dropped: dict[str, int], malformed_dropped: dict[str, int] | None = None,
                   settings: dict[str, Any] | None = None) -> RunResult:
     """The tail of every run (separate processes or composed): metrics read back from the bag,
     loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
@@ -62,8 +62,9 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
         timing = loop_timing(result.bag, diags=diags)
         if timing:
             result.metrics['loop_timing'] = timing
-    # messages of another run on this domain that the recorder dropped (cvj_ros.nodes.run_token)
-    result.metrics['run_identity'] = {'run_token': run_token, 'foreign_dropped': foreign_dropped}
+    # messages the recorder dropped: not the run's publishers', or malformed (BagRecorder)
+    result.metrics['run_identity'] = {'foreign_dropped': foreign_dropped,
+                                      'malformed_dropped': dict(malformed_dropped or {})}
     if options.mode == 'free-run':
         timing = free_run_timing(result.bag, diags=diags)
         if timing:
@@ -155,8 +156,8 @@ def bag_metrics(bag: Path, *, transient: float | None = None) -> dict[str, Any]:
 
 
 LOOP_COUNTERS = ('ignored_stamps', 'rejected_torques', 'held_torques')
-# run identity (cvj_ros.nodes.run_token): answers of another run / without a token
-IDENTITY_COUNTERS = ('foreign_answers', 'untokened_answers')
+# boundary: answers the coupling node dropped as malformed (cvj_ros.nodes.malformed)
+IDENTITY_COUNTERS = ('malformed_messages',)
 
 
 #: ``diags`` not given: the functions below read the bag's /diagnostics themselves
@@ -308,11 +309,13 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     if 'error' in r.metrics:
         p(f'  metrics: {r.metrics["error"]}')
     identity = r.metrics.get('run_identity', {})
-    foreign = r.metrics.get('loop_counters', {}).get('foreign_answers', 0)
-    dropped = sum(identity.get('foreign_dropped', {}).values())
-    if foreign or dropped:
-        p(f'  another run on this domain: the loop ignored {foreign} of its answers, the recorder '
-          f'dropped {dropped} of its messages (this run token {identity.get("run_token")})')
+    malformed = r.metrics.get('loop_counters', {}).get('malformed_messages', 0)
+    dropped = identity.get('foreign_dropped', {})
+    bad = identity.get('malformed_dropped', {})
+    if malformed or dropped or bad:
+        p(f'  outside the run: the recorder dropped {sum(dropped.values())} messages of other '
+          f'publishers ({", ".join(f"{t} {n}" for t, n in sorted(dropped.items())) or "none"}) '
+          f'and {sum(bad.values())} malformed ones; the loop dropped {malformed} malformed answers')
     counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())

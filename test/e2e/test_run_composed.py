@@ -70,24 +70,14 @@ def raw_messages(bag_path: Path) -> dict[str, list[tuple[int, bytes]]]:
     Canonical = decoded and encoded again (rosbags): the same message gives the same bytes,
     every field bit for bit, while the trailing alignment padding that DDS may append to a
     sample (3 zero bytes after the /driveline/scene string between processes, none inside
-    one) does not count. Each run's random token is the one intended difference (frame_id
-    '<frame>@<token>', ``run_token`` in the scene; cvj_ros.nodes.run_token): taken out
-    before comparing, so a tagged and an untagged run compare too."""
-    import re
-
+    one) does not count. Frame ids are plain frame names (no run token), so nothing else
+    is taken out."""
     from rosbags.rosbag2 import Reader
     store = bag.typestore()
     out: dict[str, list[tuple[int, bytes]]] = {}
     with Reader(bag_path) as reader:
         for conn, stamp, data in reader.messages():
             msg = store.deserialize_cdr(bytes(data), conn.msgtype)
-            if hasattr(msg, 'header'):
-                frame = msg.header.frame_id
-                msg.header.frame_id = frame.rpartition('@')[0] if '@' in frame else frame
-                if conn.topic == '/driveline/joint_states':   # 'driveline@<token>' or '' untagged
-                    msg.header.frame_id = ''
-            if conn.topic == '/driveline/scene':
-                msg.data = re.sub(r'(?m)^run_token: .*$', 'run_token: RUNTOKEN', msg.data)
             out.setdefault(conn.topic, []).append(
                 (int(stamp), bytes(store.serialize_cdr(msg, conn.msgtype))))
     for msgs in out.values():
@@ -187,12 +177,9 @@ def test_driveline_composed_console_script(runs, work: Path) -> None:
     """The console script for a ROS install: global -p parameters reach every hosted node,
     --record writes the bag from inside the process; the same loop messages."""
     bag_dir = work / 'script_bag'
-    # a run token given as a parameter reaches every node: the frames then carry a token as in
-    # the cvj-sim runs (an untokened coupling node leaves the joint-state frame_id empty)
-    token = bag.bag_info(runs['separate'][1]).custom_data['cvj_ros.run_token']
     r = subprocess.run([*COMPOSED, '--record', str(bag_dir), '--ros-args',
                         '-p', f'scene:={work / "scene.yaml"}', '-p', f'duration:={DURATION}',
-                        '-p', 'min_subscribers:=4', '-p', f'run_token:={token}'],
+                        '-p', 'min_subscribers:=4'],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     a, b = raw_messages(runs['separate'][1]), raw_messages(bag_dir)

@@ -224,7 +224,7 @@ def test_mixed_topic_hosted_once_outside_from_dds(ctx, bus) -> None:
 def test_recorder_taps_the_bus_and_writes_what_it_would_per_message(ctx, bus, tmp_path, trust) -> None:
     """The recorder collects hosted loop messages at publish time (a tap, no queue) and writes
     them in bulk after each drain: the same bag records (stamp = header stamp, publication
-    order) with and without the run-token check of each message (``trust_local``), the
+    order) with and without the checks of each message (``trust_local``), the
     counts current when read, walls per topic set."""
     from cvj_ros import bag as bagmod
     from cvj_ros.bag import BatchingWriter
@@ -235,13 +235,13 @@ def test_recorder_taps_the_bus_and_writes_what_it_would_per_message(ctx, bus, tm
         ex.add_node(n)
     writer = bagmod.BagWriter(tmp_path / 'bag')
     try:
-        rec = bagmod.BagRecorder(node, BatchingWriter(writer), run_token='0123abcd', discover_period=0)
+        rec = bagmod.BagRecorder(node, BatchingWriter(writer), run_only=True, discover_period=0)
         rec.trust_local = trust
         assert isinstance(rec._subs[ENGINE_WRENCH_TOPIC], intra.IntraTap)
         assert rec.take_local in bus.after_drain
         pub = intra.loop_publisher(pub_node, WrenchStamped, ENGINE_WRENCH_TOPIC, DATA_QOS)
         assert pub.get_subscription_count() == 1            # the tap counts as a subscriber
-        enc = WrenchStampedEncoder('crank@0123abcd')
+        enc = WrenchStampedEncoder('crank')
         sent = [enc.encode(0, 1_000_000 * k, 0.0, 0.0, 0.0, 0.0, 0.0, float(k)) for k in range(300)]
         for data in sent:
             pub.publish(data)

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='scene field to identify and its range (repeatable)')
     parser.add_argument('--orders', type=int, default=4,
                         help='orders of the shaft angle compared besides the mean (default 4)')
+    parser.add_argument('--fit-orders', metavar='LIST',
+                        help='orders the residuals hold, 0 being the mean (default all of '
+                             '0..--orders; e.g. 0,2,4 for a model that produces only even orders)')
     parser.add_argument('--shaft', help="model shaft whose torque is compared (default the "
                                         "first; for a bag also the bag's shaft)")
     parser.add_argument('--angle-shaft', help='model shaft whose angle the orders refer to '
@@ -70,6 +73,16 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, opt)
         if v is not None and not (math.isfinite(v) and (v > 0 or (opt == 'skip' and v >= 0))):
             raise SceneError(f'--{opt}', f'must be > 0, got {v}')
+    use = None
+    if args.fit_orders is not None:
+        try:
+            use = sorted({int(x) for x in args.fit_orders.split(',') if x.strip()})
+        except ValueError:
+            raise SceneError('--fit-orders', f'expected a list of integers such as 0,2,4, got '
+                             f'{args.fit_orders!r}') from None
+        if not use or use[0] < 0 or use[-1] > args.orders:
+            raise SceneError('--fit-orders', f'orders must lie in 0..{args.orders} (--orders), got '
+                             f'{args.fit_orders!r}')
     path = find_scene(args.scene)
     base = load_scene_data(path)
     params = [parse_fit_parameter(base, text) for text in args.fits]
@@ -84,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
                          angle_shaft=args.angle_shaft or measured.angle_shaft,
                          duration=args.duration)
     problem.predict([p.value(0.5) for p in params])   # model errors before the solver starts
-    result = solve_fit(problem, measured.vector())
+    result = solve_fit(problem, measured.vector(), use=use)
     scene = str(base.get('name') or path)
     plot = None
     if args.plot.lower() != 'none':

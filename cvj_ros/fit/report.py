@@ -17,6 +17,11 @@ def _num(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+def _rms(result: FitResult) -> float:
+    """Root mean square of the residuals the fit used (N m)."""
+    return float(np.sqrt(np.mean(result.residuals[list(result.used)] ** 2)))
+
+
 def result_dict(result: FitResult, measured: MeasuredOrders, *, scene: str,
                 plot: str | None) -> dict[str, Any]:
     """The JSON object: ``fitted`` maps each PATH to its value (null when not identifiable),
@@ -28,9 +33,10 @@ def result_dict(result: FitResult, measured: MeasuredOrders, *, scene: str,
         'identifiable': {e.path: e.identifiable for e in result.estimates},
         'at_bound': {e.path: e.at_bound for e in result.estimates},
         'fields': {e.path: e.field for e in result.estimates},
-        'orders': [{'order': k, 'measured': float(m), 'fitted': float(f), 'residual': float(f - m)}
+        'orders': [{'order': k, 'measured': float(m), 'fitted': float(f), 'residual': float(f - m),
+                    'used': k in result.used}
                    for k, (m, f) in enumerate(zip(result.measured, result.fitted))],
-        'rms_residual': float(np.sqrt(np.mean(result.residuals ** 2))),
+        'rms_residual': _rms(result),
         'sigma': _num(result.sigma), 'dof': result.dof,
         'singular_values': [float(s) for s in result.singular_values],
         'evaluations': result.evaluations, 'solver_status': result.status,
@@ -56,8 +62,9 @@ def format_result(result: FitResult, measured: MeasuredOrders, *, scene: str,
     lines.append('  order   measured N m   fitted N m   residual N m')
     for k, (m, f) in enumerate(zip(result.measured, result.fitted)):
         label = 'mean' if k == 0 else str(k)
-        lines.append(f'  {label:>5}   {m:12.4f}   {f:10.4f}   {f - m:+12.4f}')
-    lines.append(f'  rms residual {np.sqrt(np.mean(result.residuals ** 2)):.4g} N m'
+        note = '' if k in result.used else '   (not fitted)'
+        lines.append(f'  {label:>5}   {m:12.4f}   {f:10.4f}   {f - m:+12.4f}{note}')
+    lines.append(f'  rms residual {_rms(result):.4g} N m'
                  + (f', residual sigma {result.sigma:.4g} N m on {result.dof} degrees of freedom'
                     if result.sigma is not None else ''))
     if plot:

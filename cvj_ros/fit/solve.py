@@ -1,7 +1,7 @@
 """Least squares on order amplitudes, confidence intervals and identifiability.
 
 Residuals r = model - measured over [mean, A_1 .. A_n] (N m, unweighted: all in the same unit
-and of the same measurement). The parameters are solved in normalised coordinates
+and of the same measurement), or over a chosen subset of those entries. The parameters are solved in normalised coordinates
 u = (p - LO)/(HI - LO) in [0, 1] by ``scipy.optimize.least_squares`` (trust-region reflective,
 bounds [0, 1], start at the middle of every range, two-point differences of step 1e-3 in u),
 which makes the result a deterministic function of the inputs.
@@ -19,6 +19,7 @@ At the optimum, with J the Jacobian in u and J = U S V^T its singular value deco
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +61,7 @@ class FitResult:
     estimates: tuple[ParameterEstimate, ...]
     measured: FloatArray
     fitted: FloatArray
+    used: tuple[int, ...]         # the entries of measured/fitted the residuals held
     singular_values: FloatArray
     dof: int
     sigma: float | None
@@ -73,20 +75,25 @@ class FitResult:
         return self.fitted - self.measured
 
 
-def solve_fit(problem: FitProblem, measured: FloatArray, *, ident_tol: float = IDENT_TOL,
-              max_nfev: int | None = None) -> FitResult:
-    """Fit ``problem`` to ``measured`` ([mean, A_1..A_n], N m)."""
+def solve_fit(problem: FitProblem, measured: FloatArray, *, use: Sequence[int] | None = None,
+              ident_tol: float = IDENT_TOL, max_nfev: int | None = None) -> FitResult:
+    """Fit ``problem`` to ``measured`` ([mean, A_1..A_n], N m). ``use``: the entries of that
+    vector the residuals hold (default all; e.g. the mean and the even orders, the only ones a
+    model can produce); the result reports every entry."""
     from scipy.optimize import least_squares
     from scipy.stats import t as student_t
     params = list(problem.params)
     n = len(params)
     meas = np.asarray(measured, dtype=float)
+    sel = np.arange(meas.size) if use is None else np.asarray(sorted(set(use)), dtype=int)
+    if sel.size == 0 or sel[0] < 0 or sel[-1] >= meas.size:
+        raise ValueError(f'use: entries must lie in 0..{meas.size - 1}, got {list(sel)}')
 
     def to_values(u: FloatArray) -> list[float]:
         return [p.value(float(x)) for p, x in zip(params, u)]
 
     def resid(u: FloatArray) -> FloatArray:
-        return problem.predict(to_values(u)) - meas
+        return (problem.predict(to_values(u)) - meas)[sel]
 
     u0 = np.full(n, 0.5)
     sol = least_squares(resid, u0, bounds=(np.zeros(n), np.ones(n)), method='trf',
@@ -101,7 +108,7 @@ def solve_fit(problem: FitProblem, measured: FloatArray, *, ident_tol: float = I
     share_lost = np.sum(V[:, ~keep] ** 2, axis=1) if np.any(~keep) else np.zeros(n)
     ident = share_lost <= 0.5
     q = int(np.count_nonzero(keep))
-    m = meas.size
+    m = sel.size
     dof = m - q
     sigma = math.sqrt(float(r @ r) / dof) if dof > 0 else None
     cov = None
@@ -119,7 +126,9 @@ def solve_fit(problem: FitProblem, measured: FloatArray, *, ident_tol: float = I
             path=p.path, field=p.field, value=float(values[j]) if ident[j] else None, ci=ci,
             identifiable=bool(ident[j]), at_bound=bool(u[j] <= AT_BOUND or u[j] >= 1 - AT_BOUND),
             lo=p.lo, hi=p.hi))
-    return FitResult(estimates=tuple(est), measured=meas, fitted=r + meas, singular_values=s,
+    fitted = problem.predict(values.tolist())
+    return FitResult(estimates=tuple(est), measured=meas, fitted=fitted, used=tuple(int(i) for i in sel),
+                     singular_values=s,
                      dof=dof, sigma=sigma, evaluations=problem.evaluations, status=int(sol.status),
                      message=str(sol.message), values=values)
 

@@ -57,3 +57,14 @@ def test_bad_data_file_one_line(tmp_path, capsys):
                  '--plot', 'none']) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(p) in err
+
+
+def test_fit_orders_subset(capsys):
+    assert main(['fit', 'kavz685_lever', '--data', 'davidbaev2023/4.2', '--fit',
+                 'load.mean=150:300', '--orders', '2', '--fit-orders', '0,2', '--duration', '1.0',
+                 '--plot', 'none', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [o['used'] for o in out['orders']] == [True, False, True]
+    assert main(['fit', 'kavz685_lever', '--data', 'davidbaev2023/4.2', '--fit',
+                 'load.mean=150:300', '--orders', '2', '--fit-orders', '0,3', '--plot', 'none']) == 2
+    assert '--fit-orders' in capsys.readouterr().err

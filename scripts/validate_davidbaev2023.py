@@ -75,8 +75,10 @@ def main() -> None:
         return
     for e in result.estimates:
         print(f'{e.path} = {e.value} +- {e.ci} (at bound: {e.at_bound})')
-    head = ' | '.join(['mean'] + [f'A{k}' for k in range(1, args.orders + 1)])
-    print(f'| table | role | torque | rubber, N m/rad | measured {head} | predicted | error |')
+    head = ' / '.join(['mean'] + [f'A{k}' for k in range(1, args.orders + 1)])
+    print(f'| table | role | torque | rubber, stiffness N m/rad | measured {head}, N m | predicted '
+          f'| predicted - measured |')
+    print('|---|---|---|---|---|---|---|')
     for r in rows:
         m, p = np.array(r['measured']), np.array(r['predicted'])
         fmt = lambda v: ' / '.join(f'{x:.1f}' for x in v)   # noqa: E731
@@ -85,7 +87,9 @@ def main() -> None:
     held = [r for r in rows if r['role'] == 'held out']
     err = np.array([np.array(r['predicted']) - np.array(r['measured']) for r in held])
     rel = err / np.array([r['measured'] for r in held])
+    print()
     print('| order | rms error over held-out tables, N m | rms relative error |')
+    print('|---|---|---|')
     for k in range(args.orders + 1):
         label = 'mean' if k == 0 else str(k)
         print(f'| {label} | {np.sqrt(np.mean(err[:, k] ** 2)):.2f} | '

@@ -64,9 +64,11 @@ def format_result(result: FitResult, measured: MeasuredOrders, *, scene: str,
         label = 'mean' if k == 0 else str(k)
         note = '' if k in result.used else '   (not fitted)'
         lines.append(f'  {label:>5}   {m:12.4f}   {f:10.4f}   {f - m:+12.4f}{note}')
-    lines.append(f'  rms residual {_rms(result):.4g} N m'
-                 + (f', residual sigma {result.sigma:.4g} N m on {result.dof} degrees of freedom'
-                    if result.sigma is not None else ''))
+    tail = ''
+    if result.sigma is not None:
+        plural = 's' if result.dof != 1 else ''
+        tail = f', residual sigma {result.sigma:.4g} N m on {result.dof} degree{plural} of freedom'
+    lines.append(f'  rms residual {_rms(result):.4g} N m{tail}')
     if plot:
         lines.append(f'plot: {plot}')
     return '\n'.join(lines)

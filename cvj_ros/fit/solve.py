@@ -1,10 +1,11 @@
 """Least squares on order amplitudes, confidence intervals and identifiability.
 
 Residuals r = model - measured over [mean, A_1 .. A_n] (N m, unweighted: all in the same unit
-and of the same measurement), or over a chosen subset of those entries. The parameters are solved in normalised coordinates
-u = (p - LO)/(HI - LO) in [0, 1] by ``scipy.optimize.least_squares`` (trust-region reflective,
-bounds [0, 1], start at the middle of every range, two-point differences of step 1e-3 in u),
-which makes the result a deterministic function of the inputs.
+and of the same measurement), or over a chosen subset of those entries. The parameters are
+solved in normalised coordinates u = (p - LO)/(HI - LO) in [0, 1] by
+``scipy.optimize.least_squares`` (trust-region reflective, bounds [0, 1], start at the middle
+of every range, two-point differences of step 1e-3 in u), which makes the result a
+deterministic function of the inputs.
 
 At the optimum, with J the Jacobian in u and J = U S V^T its singular value decomposition:
 

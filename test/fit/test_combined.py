@@ -1,7 +1,6 @@
 """Several operating conditions fitted at once."""
 from __future__ import annotations
 
-import copy
 
 import numpy as np
 import pytest

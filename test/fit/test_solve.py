@@ -69,3 +69,18 @@ def test_same_inputs_same_result(base):
     b = solve_fit(FitProblem(base, params, orders=3, duration=1.0), target)
     assert a.values.tobytes() == b.values.tobytes()
     assert a.fitted.tobytes() == b.fitted.tobytes()
+
+
+def test_as_many_parameters_as_data_gives_no_interval_and_bounds_are_flagged(base):
+    params = [parse_fit_parameter(base, 'load.torque=50:200')]
+    pr = FitProblem(base, params, orders=2, duration=1.0)
+    exact = solve_fit(pr, np.array([120.0, 0.0, 1.0]), use=[0])
+    est = exact.estimates[0]
+    assert exact.dof == 0 and exact.sigma is None and est.ci is None
+    # the model's mean drive-shaft torque matches exactly; the load that gives it is within
+    # 0.05 N m of it (the analysed revolutions are not perfectly steady after 1 s)
+    assert exact.fitted[0] == pytest.approx(120.0, abs=1e-6)
+    assert est.value == pytest.approx(120.0, abs=0.05) and not est.at_bound
+    # a mean torque above the range: the optimum sits on HI and says so
+    high = solve_fit(pr, np.array([260.0, 0.0, 1.0]), use=[0, 2])
+    assert high.estimates[0].at_bound and high.estimates[0].value == pytest.approx(200.0, abs=0.2)

@@ -41,7 +41,10 @@ class MeasuredOrders:
 
     ``kind`` 'ordinates' or 'series'; ``shaft``/``angle_shaft`` the shafts the data name
     (None: the CSV does not say); ``waveform`` one revolution of the measured torque at
-    ``waveform_phi`` (rad) for the plot.
+    ``waveform_phi`` (rad) for the plot. ``stderr`` [mean, orders] (N m), with two or more
+    measured revolutions of ordinates: the standard error of the cycle mean, and per order
+    that of the complex coefficient a_n - i b_n, sqrt(sum_i |c_i - c|^2 / (N (N - 1))) over
+    the N revolutions (it bounds the amplitude's); None otherwise.
     """
 
     source: str
@@ -52,6 +55,7 @@ class MeasuredOrders:
     angle_shaft: str | None = None
     waveform_phi: FloatArray | None = None
     waveform: FloatArray | None = None
+    stderr: FloatArray | None = None
 
     @property
     def orders(self) -> int:
@@ -98,10 +102,18 @@ def _from_ordinates(source: str, ordinates: FloatArray, orders: int, *, shaft: s
                            f'revolution, {source} has {m} (the Nyquist order m/2 is not used)')
     h = ordinate_harmonics(mean_rev)
     phi = 2 * math.pi * np.arange(m + 1) / m
+    stderr = None
+    n = ordinates.shape[0]
+    if n >= 2:
+        cyc = [ordinate_harmonics(row) for row in ordinates]
+        means = np.array([c.mean for c in cyc])
+        coef = np.array([c.cos_coeffs[:orders] - 1j * c.sin_coeffs[:orders] for c in cyc])
+        spread = np.sum(np.abs(coef - coef.mean(axis=0)) ** 2, axis=0) / (n * (n - 1))
+        stderr = np.concatenate([[np.std(means, ddof=1) / math.sqrt(n)], np.sqrt(spread)])
     return MeasuredOrders(source=source, kind='ordinates', mean=h.mean,
                           amplitudes=h.amplitudes[:orders].copy(), shaft=shaft,
                           angle_shaft=angle_shaft, waveform_phi=phi,
-                          waveform=np.append(mean_rev, mean_rev[0]))
+                          waveform=np.append(mean_rev, mean_rev[0]), stderr=stderr)
 
 
 def _csv(path: Path, orders: int, skip: float) -> MeasuredOrders:

@@ -34,7 +34,8 @@ def result_dict(result: FitResult, measured: MeasuredOrders, *, scene: str,
         'at_bound': {e.path: e.at_bound for e in result.estimates},
         'fields': {e.path: e.field for e in result.estimates},
         'orders': [{'order': k, 'measured': float(m), 'fitted': float(f), 'residual': float(f - m),
-                    'used': k in result.used}
+                    'used': k in result.used,
+                    'measured_stderr': None if measured.stderr is None else float(measured.stderr[k])}
                    for k, (m, f) in enumerate(zip(result.measured, result.fitted))],
         'rms_residual': _rms(result),
         'sigma': _num(result.sigma), 'dof': result.dof,
@@ -59,11 +60,14 @@ def format_result(result: FitResult, measured: MeasuredOrders, *, scene: str,
             ' (no interval: as many parameters as data)'
         bound = '  at the bound of its range' if e.at_bound else ''
         lines.append(f'  {e.path:<{width}}  {e.value:.6g}{ci}{bound}')
-    lines.append('  order   measured N m   fitted N m   residual N m')
+    se = measured.stderr
+    lines.append('  order   measured N m   fitted N m   residual N m'
+                 + ('   measured std. error N m' if se is not None else ''))
     for k, (m, f) in enumerate(zip(result.measured, result.fitted)):
         label = 'mean' if k == 0 else str(k)
+        err = f'   {se[k]:10.4f}' if se is not None else ''
         note = '' if k in result.used else '   (not fitted)'
-        lines.append(f'  {label:>5}   {m:12.4f}   {f:10.4f}   {f - m:+12.4f}{note}')
+        lines.append(f'  {label:>5}   {m:12.4f}   {f:10.4f}   {f - m:+12.4f}{err}{note}')
     tail = ''
     if result.sigma is not None:
         plural = 's' if result.dof != 1 else ''
@@ -89,7 +93,11 @@ def write_fit_plot(path: str | Path, result: FitResult, measured: MeasuredOrders
     ax0.bar([0.2], [result.fitted[0]], 0.4, label='fitted')
     ax0.set_xticks([0], ['mean'])
     ax0.set_ylabel('torque, N m')
-    ax1.bar(k - 0.2, result.measured[1:], 0.4, label='measured')
+    se = measured.stderr
+    ax0.errorbar([-0.2], [result.measured[0]], yerr=None if se is None else [se[0]], fmt='none',
+                 ecolor='k', capsize=3)
+    ax1.bar(k - 0.2, result.measured[1:], 0.4, label='measured',
+            yerr=None if se is None else se[1:], capsize=3)
     ax1.bar(k + 0.2, result.fitted[1:], 0.4, label='fitted')
     ax1.set_xticks(k)
     ax1.set_xlabel('order of the shaft angle')

@@ -80,3 +80,20 @@ def test_bag_of_a_simulation(tmp_path):
     assert m.mean == pytest.approx(107.5, abs=5.0)
     with pytest.raises(FitDataError, match='--shaft nosuch'):
         read_measured(str(bag), orders=2, shaft='nosuch')
+
+
+def test_standard_error_from_the_revolutions():
+    # two revolutions differing by a constant 2 N m: the mean's standard error is
+    # std([a, a + 2], ddof=1)/sqrt(2) = 1, and no order scatters
+    phi = 2 * math.pi * np.arange(12) / 12
+    rev = 200 + 30 * np.cos(phi)
+    from cvj_ros.fit.data import _from_ordinates
+    m = _from_ordinates('x', np.array([rev, rev + 2.0]), 2, shaft=None, angle_shaft=None)
+    np.testing.assert_allclose(m.stderr, [1.0, 0.0, 0.0], atol=1e-12)
+    # one order-1 coefficient scattering by +-d between two revolutions
+    d = 3.0
+    m = _from_ordinates('x', np.array([rev + d * np.cos(phi), rev - d * np.cos(phi)]), 2,
+                        shaft=None, angle_shaft=None)
+    # sum |c_i - c|^2 = 2 d^2 over N (N - 1) = 2: standard error d
+    np.testing.assert_allclose(m.stderr, [0.0, d, 0.0], atol=1e-12)
+    assert read_measured('davidbaev2023/4.3', orders=4).stderr.shape == (5,)

@@ -48,22 +48,29 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--orders', type=int, default=4)
     ap.add_argument('--json', action='store_true')
+    ap.add_argument('--starts', type=int, default=8, help='starting points of the fit (default 8)')
+    ap.add_argument('--train', default=','.join(TRAIN),
+                    help=f'tables fitted at once (default {",".join(TRAIN)}); the others with a '
+                         f'stiffness are predicted')
     args = ap.parse_args()
+    train_names = tuple(args.train.split(','))
+    held_names = tuple(n for n in TRAIN + HELD_OUT if n not in train_names)
     base = load_scene_data(find_scene('kavz685_lever'))
     base['engine'] = {'model': 'linear', 'm1': 623.0, 'k1': ENGINE_K1}
-    train = [problem_for(base, n, args.orders) for n in TRAIN]
+    train = [problem_for(base, n, args.orders) for n in train_names]
     combined = CombinedProblem([p for p, _ in train])
     # the residuals hold the mean and the even orders of every training table: the ideal
     # lever-hinge produces no odd order, so fitting those would only inflate the intervals
     n = args.orders + 1
     use = [i * n + k for i in range(len(train)) for k in range(n) if k % 2 == 0]
-    result = solve_fit(combined, np.concatenate([m for _, m in train]), use=use)
+    result = solve_fit(combined, np.concatenate([m for _, m in train]), use=use,
+                       starts=args.starts)
     rows = []
-    for name in TRAIN + HELD_OUT:
+    for name in train_names + held_names:
         pr, meas = problem_for(base, name, args.orders)
         pred = pr.predict(result.values)
         t = load_table(name)
-        rows.append({'table': name, 'role': 'fit' if name in TRAIN else 'held out',
+        rows.append({'table': name, 'role': 'fit' if name in train_names else 'held out',
                      'torque': t.torque, 'rubber': t.rubber, 'stiffness': t.stiffness,
                      'measured': meas.tolist(), 'predicted': pred.tolist()})
     out = {'fitted': {e.path: e.value for e in result.estimates},

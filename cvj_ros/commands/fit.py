@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                        "scene's)")
     parser.add_argument('--skip', type=float, default=0.0,
                         help='s left out at the start of a measured time series (default 0)')
+    parser.add_argument('--starts', type=int, default=1,
+                        help='local fits from this many starting points (the middle of the '
+                             'ranges, then a Halton sequence), the best kept (default 1)')
     parser.add_argument('--plot', default='fit.png', metavar='PNG',
                         help="measured-vs-fitted plot (default fit.png; 'none' for no plot)")
     parser.add_argument('--json', action='store_true', help='print one JSON object')
@@ -67,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.fits:
         raise SweepError('--fit: give at least one PATH=LO:HI '
                          "(e.g. --fit 'driveline[bushings].stiffness=300:1500')")
+    if not 1 <= args.starts <= 1000:
+        raise SceneError('--starts', f'must be in 1..1000, got {args.starts}')
     if not 1 <= args.orders <= 32:
         raise SceneError('--orders', f'must be in 1..32, got {args.orders}')
     for opt in ('duration', 'skip'):
@@ -97,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
                          angle_shaft=args.angle_shaft or measured.angle_shaft,
                          duration=args.duration)
     problem.predict([p.value(0.5) for p in params])   # model errors before the solver starts
-    result = solve_fit(problem, measured.vector(), use=use)
+    result = solve_fit(problem, measured.vector(), use=use, starts=args.starts)
     scene = str(base.get('name') or path)
     plot = None
     if args.plot.lower() != 'none':

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from cvj_ros.fit.data import MeasuredOrders
+from cvj_ros.fit.data import SHIPPED_PREFIX, MeasuredOrders
 from cvj_ros.fit.solve import LEVEL, FitResult
 
 __all__ = ['result_dict', 'format_result', 'write_fit_plot']
@@ -106,7 +106,9 @@ def write_fit_plot(path: str | Path, result: FitResult, measured: MeasuredOrders
     fitted = ', '.join(f'{e.path.split(".")[-1]} = {e.value:.4g}' + (f' +- {e.ci:.2g}' if e.ci else '')
                        if e.identifiable else f'{e.path.split(".")[-1]}: not identifiable'
                        for e in result.estimates)
-    fig.suptitle(f'{scene} fitted to {Path(measured.source).name}: {fitted}', fontsize=9)
+    source = measured.source if measured.source.startswith(SHIPPED_PREFIX) else \
+        Path(measured.source).name
+    fig.suptitle(f'{scene} fitted to {source}: {fitted}', fontsize=9)
     fig.tight_layout()
     fig.savefig(out, metadata={'Software': None})
     plt.close(fig)

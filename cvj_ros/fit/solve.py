@@ -4,8 +4,8 @@ Residuals r = model - measured over [mean, A_1 .. A_n] (N m, unweighted: all in 
 and of the same measurement), or over a chosen subset of those entries. The parameters are
 solved in normalised coordinates u = (p - LO)/(HI - LO) in [0, 1] by
 ``scipy.optimize.least_squares`` (trust-region reflective, bounds [0, 1], start at the middle
-of every range, two-point differences of step 1e-3 in u), which makes the result a
-deterministic function of the inputs.
+of every range, optionally also at more fixed points, the lowest cost kept; two-point
+differences of step 1e-3 in u), which makes the result a deterministic function of the inputs.
 
 At the optimum, with J the Jacobian in u and J = U S V^T its singular value decomposition:
 
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from cvj_ros.fit.problem import FitProblem
 
-__all__ = ['FitResult', 'ParameterEstimate', 'solve_fit', 'IDENT_TOL', 'DIFF_STEP']
+__all__ = ['FitResult', 'ParameterEstimate', 'solve_fit', 'start_points', 'IDENT_TOL', 'DIFF_STEP']
 
 FloatArray = NDArray[np.float64]
 IDENT_TOL = 1e-6
@@ -76,11 +76,26 @@ class FitResult:
         return self.fitted - self.measured
 
 
+def start_points(n: int, starts: int) -> list[FloatArray]:
+    """``starts`` starting points in [0, 1]^n: the middle, then the unscrambled Halton
+    sequence (bases 2, 3, 5, ...) from its second point on, so the same on every machine."""
+    if starts < 1:
+        raise ValueError(f'starts: must be >= 1, got {starts}')
+    points = [np.full(n, 0.5)]
+    if starts > 1:
+        from scipy.stats import qmc
+        points += list(qmc.Halton(d=n, scramble=False).random(starts)[1:])
+    return points
+
+
 def solve_fit(problem: FitProblem, measured: FloatArray, *, use: Sequence[int] | None = None,
-              ident_tol: float = IDENT_TOL, max_nfev: int | None = None) -> FitResult:
+              starts: int = 1, ident_tol: float = IDENT_TOL,
+              max_nfev: int | None = None) -> FitResult:
     """Fit ``problem`` to ``measured`` ([mean, A_1..A_n], N m). ``use``: the entries of that
     vector the residuals hold (default all; e.g. the mean and the even orders, the only ones a
-    model can produce); the result reports every entry."""
+    model can produce); the result reports every entry. ``starts``: local fits from that many
+    starting points (:func:`start_points`), the lowest cost kept (the least squares is local:
+    a cost with several minima needs more than one)."""
     from scipy.optimize import least_squares
     from scipy.stats import t as student_t
     params = list(problem.params)
@@ -96,9 +111,12 @@ def solve_fit(problem: FitProblem, measured: FloatArray, *, use: Sequence[int] |
     def resid(u: FloatArray) -> FloatArray:
         return (problem.predict(to_values(u)) - meas)[sel]
 
-    u0 = np.full(n, 0.5)
-    sol = least_squares(resid, u0, bounds=(np.zeros(n), np.ones(n)), method='trf',
-                        diff_step=DIFF_STEP, x_scale=1.0, max_nfev=max_nfev or 100 * n)
+    sol = None
+    for u0 in start_points(n, starts):
+        trial = least_squares(resid, u0, bounds=(np.zeros(n), np.ones(n)), method='trf',
+                              diff_step=DIFF_STEP, x_scale=1.0, max_nfev=max_nfev or 100 * n)
+        if sol is None or trial.cost < sol.cost:      # first start wins a tie: deterministic
+            sol = trial
     u = sol.x
     r = resid(u)
     J = _jacobian(resid, u, r)

@@ -84,3 +84,22 @@ def test_as_many_parameters_as_data_gives_no_interval_and_bounds_are_flagged(bas
     # a mean torque above the range: the optimum sits on HI and says so
     high = solve_fit(pr, np.array([260.0, 0.0, 1.0]), use=[0, 2])
     assert high.estimates[0].at_bound and high.estimates[0].value == pytest.approx(200.0, abs=0.2)
+
+
+def test_start_points_are_fixed():
+    from cvj_ros.fit.solve import start_points
+    pts = start_points(2, 4)
+    np.testing.assert_array_equal(pts[0], [0.5, 0.5])
+    # unscrambled Halton, bases 2 and 3, from its second point
+    np.testing.assert_allclose(pts[1:], [[0.5, 1 / 3], [0.25, 2 / 3], [0.75, 1 / 9]])
+    with pytest.raises(ValueError, match='starts'):
+        start_points(2, 0)
+
+
+def test_more_starts_never_end_higher(base):
+    # the fit kept is the best of its starts, so never worse than the middle start alone
+    params = [parse_fit_parameter(base, 'load.torque=50:200')]
+    target = np.array([120.0, 0.0, 1.0])
+    one = solve_fit(FitProblem(base, params, orders=2, duration=1.0), target)
+    many = solve_fit(FitProblem(base, params, orders=2, duration=1.0), target, starts=3)
+    assert np.sum(many.residuals ** 2) <= np.sum(one.residuals ** 2) + 1e-12

@@ -1,4 +1,4 @@
-"""Measured lever-hinge coupling torques shipped with the package (Davidbaev et al. 2023, tables 4.2-4.11).
+"""Measured lever-hinge coupling torques shipped in the package (Davidbaev et al. 2023, tables 4.2-4.11).
 
 The data are the book's printed numbers (``cvj_ros/data/davidbaev2023/``, its README gives
 columns, units and operating conditions). :func:`load_table` reads one table in SI units

@@ -146,9 +146,9 @@ def solve_fit(problem: FitProblem, measured: FloatArray, *, use: Sequence[int] |
             identifiable=bool(ident[j]), at_bound=bool(u[j] <= AT_BOUND or u[j] >= 1 - AT_BOUND),
             lo=p.lo, hi=p.hi))
     fitted = problem.predict(values.tolist())
-    return FitResult(estimates=tuple(est), measured=meas, fitted=fitted, used=tuple(int(i) for i in sel),
-                     singular_values=s,
-                     dof=dof, sigma=sigma, evaluations=problem.evaluations, status=int(sol.status),
+    return FitResult(estimates=tuple(est), measured=meas, fitted=fitted,
+                     used=tuple(int(i) for i in sel), singular_values=s, dof=dof, sigma=sigma,
+                     evaluations=problem.evaluations, status=int(sol.status),
                      message=str(sol.message), values=values)
 
 

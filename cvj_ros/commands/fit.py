@@ -100,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         measured = read_measured(args.data, orders=args.orders, shaft=args.shaft, skip=args.skip)
     problem = FitProblem(base, params, orders=args.orders, shaft=args.shaft,
                          angle_shaft=args.angle_shaft or measured.angle_shaft,
-                         duration=args.duration)
+                         duration=args.duration, revolutions=measured.revolutions,
+                         start_time=measured.start_time)
     problem.predict([p.value(0.5) for p in params])   # model errors before the solver starts
     result = solve_fit(problem, measured.vector(), use=use, starts=args.starts)
     scene = str(base.get('name') or path)

@@ -41,7 +41,9 @@ class MeasuredOrders:
 
     ``kind`` 'ordinates' or 'series'; ``shaft``/``angle_shaft`` the shafts the data name
     (None: the CSV does not say); ``waveform`` one revolution of the measured torque at
-    ``waveform_phi`` (rad) for the plot. ``stderr`` [mean, orders] (N m), with two or more
+    ``waveform_phi`` (rad) for the plot. A series also gives the ``start_time`` (s after its
+    first sample) and the whole ``revolutions`` analysed, so the model can analyse the same
+    window. ``stderr`` [mean, orders] (N m), with two or more
     measured revolutions of ordinates: the standard error of the cycle mean, and per order
     that of the complex coefficient a_n - i b_n, sqrt(sum_i |c_i - c|^2 / (N (N - 1))) over
     the N revolutions (it bounds the amplitude's); None otherwise.
@@ -56,6 +58,8 @@ class MeasuredOrders:
     waveform_phi: FloatArray | None = None
     waveform: FloatArray | None = None
     stderr: FloatArray | None = None
+    start_time: float | None = None     # series: s after the first sample where analysis starts
+    revolutions: int | None = None      # series: whole revolutions analysed
 
     @property
     def orders(self) -> int:
@@ -184,7 +188,8 @@ def _from_series(source: str, t: FloatArray, phi: FloatArray, torque: FloatArray
     return MeasuredOrders(source=source, kind='series', mean=h.mean,
                           amplitudes=h.amplitudes.copy(), shaft=shaft, angle_shaft=shaft,
                           waveform_phi=2 * math.pi * np.arange(n + 1) / n,
-                          waveform=np.append(wave, wave[0]))
+                          waveform=np.append(wave, wave[0]), start_time=float(skip),
+                          revolutions=int(h.revolutions))
 
 
 def _bag(path: Path, orders: int, shaft: str | None, skip: float) -> MeasuredOrders:

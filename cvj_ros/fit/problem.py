@@ -5,9 +5,10 @@ Each parameter is a scene field addressed as ``cvj-sim sweep --set`` addresses i
 into a copy of the scene dict, validated (:func:`cvj_ros.physics.scene.parse_scene`) and
 simulated offline on the compiled core (:class:`cvj_ros.physics.simulate.Simulation`, dense
 sampling). The torque of ``shaft`` is analysed over the angle of ``angle_shaft``
-(:func:`cvj_ros.physics.signal.harmonics_over_angle`, 72 points per revolution) on the last
-``revolutions`` whole revolutions of the run: a fixed number for every evaluation, so the
-analysed window does not jump when a parameter changes the speed.
+(:func:`cvj_ros.physics.signal.harmonics_over_angle`, 72 points per revolution) over a fixed
+number of whole revolutions for every evaluation, so the analysed window does not jump when a
+parameter changes the speed: the ``revolutions`` starting at ``start_time`` (s, the window of a
+measured time series, analysed the same way), else the last ``revolutions`` of the run.
 """
 from __future__ import annotations
 
@@ -68,8 +69,9 @@ class FitProblem:
     of the torque of ``shaft`` over the angle of ``angle_shaft``.
 
     ``duration``: s simulated per evaluation (None: the scene's); ``revolutions``: whole
-    revolutions analysed at the end of the run (None: set by the first evaluation to the
-    whole revolutions in the second half of its run, then kept).
+    revolutions analysed (None: set by the first evaluation to the whole revolutions in the
+    second half of its run, then kept); ``start_time``: s where they start (None: they end
+    at the end of the run).
     """
 
     base: Mapping[str, Any]
@@ -79,6 +81,7 @@ class FitProblem:
     angle_shaft: str | None = None
     duration: float | None = None
     revolutions: int | None = None
+    start_time: float | None = None
     evaluations: int = 0
     _cache: dict[tuple[float, ...], FloatArray] = field(default_factory=dict)
 
@@ -130,11 +133,24 @@ class FitProblem:
             if self.revolutions < 1:
                 raise SceneError('--fit', f'the model turns less than one revolution in the '
                                  f'second half of its {tr.t[-1]:g} s run; give a longer --duration')
-        mask = phi >= phi[-1] - self.revolutions * 2 * math.pi - 2 * dphi
+        if self.start_time is None:
+            mask = phi >= phi[-1] - self.revolutions * 2 * math.pi - 2 * dphi
+        else:       # from the first grid angle after start_time, as the measured series
+            after = tr.t >= self.start_time
+            if not np.any(after):
+                raise SceneError('--duration', f'the model run ({tr.t[-1]:g} s) ends before the '
+                                 f'measured window starts ({self.start_time:g} s)')
+            start = math.ceil(phi[after][0] / dphi - 1e-9) * dphi
+            mask = after & (phi <= start + self.revolutions * 2 * math.pi + dphi)
         try:
             h = harmonics_over_angle(phi[mask], torque[mask], n_harmonics=self.orders,
                                      samples_per_rev=m)
         except ValueError as exc:
             raise SceneError('--fit', f'the model\'s {angle_shaft} angle cannot be analysed '
                              f'({exc}): the shaft stopped or reversed') from None
+        if h.revolutions != self.revolutions:
+            shown = ', '.join(f'{p.path}={v:g}' for p, v in zip(self.params, values))
+            raise SceneError('--duration', f'the model turns {h.revolutions} whole revolutions '
+                             f'in the analysed window at {shown}, the measurement '
+                             f'{self.revolutions}; give a longer --duration')
         return np.concatenate([[h.mean], h.amplitudes])

@@ -68,3 +68,26 @@ def test_fit_orders_subset(capsys):
     assert main(['fit', 'kavz685_lever', '--data', 'davidbaev2023/4.2', '--fit',
                  'load.mean=150:300', '--orders', '2', '--fit-orders', '0,3', '--plot', 'none']) == 2
     assert '--fit-orders' in capsys.readouterr().err
+
+
+def test_fit_recovers_a_stiffness_from_a_recorded_bag(tmp_path, capsys):
+    # a bag of the KAVZ-685 unit (random load, seed 685) with 900 N m/rad bushings; the fit
+    # analyses the model over the bag's own window, so at the truth the residuals vanish
+    import yaml
+
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene
+    scene = load_scene_data(find_scene('kavz685_lever'))
+    scene['driveline'][1]['stiffness'] = 900.0
+    scene['duration'] = 1.5
+    path = tmp_path / 'unit.yaml'
+    path.write_text(yaml.safe_dump(scene))
+    bag = tmp_path / 'bag'
+    assert main(['simulate', str(path), '--bag', str(bag)]) == 0
+    capsys.readouterr()
+    assert main(['fit', 'kavz685_lever', '--duration', '1.5', '--data', str(bag), '--skip', '0.75',
+                 '--fit', 'driveline[bushings].stiffness=400:1600', '--plot', 'none',
+                 '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['fitted']['driveline[bushings].stiffness'] == pytest.approx(900.0, abs=0.5)
+    assert out['rms_residual'] < 1e-3

@@ -39,7 +39,9 @@ def test_recovers_truth_inside_confidence_intervals(base, tmp_path):
     path = _synthetic_csv(base, tmp_path, noise_nm=2.0, seed=7)
     measured = read_measured(str(path), orders=4, skip=0.5)
     params = [parse_fit_parameter(base, f'{p}={RANGES[p]}') for p in TRUTH]
-    result = solve_fit(FitProblem(base, params, orders=4, duration=1.0), measured.vector())
+    problem = FitProblem(base, params, orders=4, duration=1.0, start_time=measured.start_time,
+                         revolutions=measured.revolutions)
+    result = solve_fit(problem, measured.vector())
     for est in result.estimates:
         truth = TRUTH[est.path]
         assert est.identifiable and est.value is not None and est.ci is not None
@@ -55,7 +57,9 @@ def test_parameter_without_effect_is_not_identifiable(base, tmp_path):
     measured = read_measured(str(path), orders=3, skip=0.5)
     params = [parse_fit_parameter(base, 'load.torque=50:200'),
               parse_fit_parameter(base, 'driveline[coupling].limits.max_angle_deg=26:40')]
-    result = solve_fit(FitProblem(base, params, orders=3, duration=1.0), measured.vector())
+    problem = FitProblem(base, params, orders=3, duration=1.0, start_time=measured.start_time,
+                         revolutions=measured.revolutions)
+    result = solve_fit(problem, measured.vector())
     torque, limit = result.estimates
     assert torque.identifiable and abs(torque.value - 130.0) <= torque.ci
     assert not limit.identifiable and limit.value is None and limit.ci is None

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from cvj_ros.errors import CvjError
 
-__all__ = ['FitDataError', 'MeasuredOrders', 'read_measured', 'SHIPPED_PREFIX']
+__all__ = ['FitDataError', 'MeasuredOrders', 'read_measured', 'orders_of_series', 'SHIPPED_PREFIX']
 
 FloatArray = NDArray[np.float64]
 SHIPPED_PREFIX = 'davidbaev2023/'
@@ -169,11 +169,14 @@ def _csv(path: Path, orders: int, skip: float) -> MeasuredOrders:
     else:
         raise FitDataError(f'{path}: column angle_rad or speed_rad_s: missing (the shaft angle '
                            f'of the time series)')
-    return _from_series(str(path), t, phi, data['torque_Nm'], orders, skip, None)
+    return orders_of_series(str(path), t, phi, data['torque_Nm'], orders, skip, None)
 
 
-def _from_series(source: str, t: FloatArray, phi: FloatArray, torque: FloatArray, orders: int,
-                 skip: float, shaft: str | None) -> MeasuredOrders:
+def orders_of_series(source: str, t: FloatArray, phi: FloatArray, torque: FloatArray,
+                     orders: int, skip: float, shaft: str | None) -> MeasuredOrders:
+    """Mean and ``orders`` amplitudes of ``torque`` (N m) over the angle ``phi`` (rad) of a time
+    series ``t`` (s), from ``skip`` s after its first sample, over its whole revolutions;
+    ``source`` names it in errors."""
     from cvj_ros.physics.signal import harmonics_over_angle
     if np.any(np.diff(t) <= 0):
         raise FitDataError(f'{source}: column t_s: times must increase')
@@ -200,4 +203,4 @@ def _bag(path: Path, orders: int, shaft: str | None, skip: float) -> MeasuredOrd
         raise FitDataError(f'--shaft {name}: not in bag {path}; shafts: '
                            f'{", ".join(sig.joint_names)}')
     j = sig.column(name)
-    return _from_series(str(path), sig.t, sig.position[:, j], sig.effort[:, j], orders, skip, name)
+    return orders_of_series(str(path), sig.t, sig.position[:, j], sig.effort[:, j], orders, skip, name)

@@ -16,6 +16,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    # the measured tables (cvj_ros.measurements) ship inside the package
+    package_data={package_name: ['data/davidbaev2023/*.csv', 'data/davidbaev2023/*.md']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

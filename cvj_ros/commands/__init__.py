@@ -5,4 +5,4 @@ Each module defines ``NAME`` (str), ``HELP`` (str), ``add_arguments(parser)`` an
 """
 
 COMMANDS = ('kinematics', 'scenes', 'simulate', 'run', 'record', 'replay', 'analyze', 'reindex',
-            'bench', 'sweep')
+            'bench', 'sweep', 'fit')

@@ -1,0 +1,1 @@
+"""Identification of scene parameters from measured torques (`cvj-sim fit`, docs/fit.md)."""

@@ -4,7 +4,9 @@ Subcommands live in :mod:`cvj_ros.commands` (one module each). A user error
 (:class:`cvj_ros.errors.CvjError`) prints one line ``cvj-sim: error: <field>: <problem>``
 to stderr and exits with status 2; anything unexpected prints one line naming the file or
 bag being read and exits 1 (:mod:`cvj_ros.guard`); the traceback only with ``--debug``
-(before the subcommand) or ``CVJ_DEBUG=1``.
+(before the subcommand) or ``CVJ_DEBUG=1``. ROS arguments (``--ros-args ... [--]``, as
+launch_ros appends them to every command it starts) are accepted and ignored
+(:mod:`cvj_ros.rosargs`).
 
 Only the subcommand named on the command line is imported (all of them for ``--help``
 or a name that is not a subcommand), so ``cvj-sim simulate`` does not pay for the
@@ -22,6 +24,7 @@ import threading
 from collections.abc import Sequence
 
 from cvj_ros.commands import COMMANDS
+from cvj_ros.rosargs import remove_ros_args
 
 
 def command_named(argv: Sequence[str]) -> str | None:
@@ -87,6 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     as_program = argv is None
     if argv is None:
         argv = sys.argv[1:]
+    argv = remove_ros_args(argv)
     parser = build_parser(command_named(argv))
     args = parser.parse_args(argv)
     # what the user handed in, for the error line of an unexpected exception

@@ -44,10 +44,12 @@ node that echoes only the stamp). A second publisher on /driveline/joint_states,
 /engine/wrench or /load/wrench (another run on the same ROS domain) stops the loop with an
 ERROR naming the domain before step 0 (counts cannot tell our peers from the other
 run's), and after step 0 only without a token or once an untagged answer came (those
-could be the other run's). Before step 0 the node waits (bounded by ``start_timeout``) until
-``min_subscribers`` subscribers see /driveline/joint_states and both wrench topics have
-a publisher, so no message is lost, and in lockstep until that has held for
-START_SETTLE_S with no other run's publisher discovered. After t_N = duration it publishes
+could be the other run's). Before step 0 the node waits until ``min_subscribers`` subscribers
+see /driveline/joint_states (default 4: engine, load, monitor and the recorder ``cvj-sim
+record``) and both wrench topics have a publisher, so no message is lost, and in lockstep
+until that has held for START_SETTLE_S with no other run's publisher discovered. The wait
+has no deadline by default (``start_timeout`` 0: nodes started by hand in any order, with
+any pause); every START_REPORT_S it logs who is connected and who is missing. After t_N = duration it publishes
 the final joint state and exits 0.
 
 Free-run: exchange steps on wall time - tick j is due at w0 + j h (w0 = wall time of the
@@ -121,6 +123,12 @@ START_SETTLE_S = 0.3
 # peer that sends junk next to its right answer sends the right one within milliseconds
 # (fuzz tests: test/robustness/test_fuzz_wrench_inputs.py).
 WRONG_STAMP_STALL_S = 1.0
+# While waiting for its peers before step 0, the node says who is there and who is missing
+# this often (s): a person starting nodes by hand sees what the loop waits for.
+START_REPORT_S = 5.0
+#: the subscribers of /driveline/joint_states a hand-started run has by default (node names:
+#: the node executables and the recorder of `cvj-sim record`), named when they are missing
+EXPECTED_SUBSCRIBERS = ('engine_node', 'load_node', 'monitor_node', 'cvj_recorder')
 
 #: coupling_node ``start_gate`` values (:func:`wait_for_go`)
 START_GATES = ('', 'stdin')
@@ -136,10 +144,11 @@ PARAMS = (
     ParamSpec('duration', 0.0, 'simulated duration [s]; 0 = the scene duration', lo=0.0, hi=1e7),
     ParamSpec('peer_timeout', 5.0, 'lockstep: longest wait for an engine/load answer [s]',
               lo=0.0, hi=3600.0, lo_open=True),
-    ParamSpec('start_timeout', 10.0, 'longest wait for peers to connect before step 0 [s]',
-              lo=0.0, hi=3600.0, lo_open=True),
-    ParamSpec('min_subscribers', 2, 'subscribers /driveline/joint_states must have before step 0 '
-              '(engine + load = 2; + recorder + monitor = 4)', lo=0, hi=64),
+    ParamSpec('start_timeout', 0.0, 'longest wait for peers to connect before step 0 [s]; '
+              '0 = no limit (wait, naming who is missing every few seconds)', lo=0.0, hi=1e6),
+    ParamSpec('min_subscribers', 4, 'subscribers /driveline/joint_states must have before step 0 '
+              '(engine + load + monitor + recorder = 4; 3 without monitor or recorder; + 1 per '
+              'node of yours that must see step 0)', lo=0, hi=64),
     ParamSpec('start_gate', '', 'stdin = build the physics, then wait for a line "go" on '
               'standard input before creating any topic endpoint (EOF: exit 0 without '
               'starting); how `cvj-sim run` starts this process while the peers start; '
@@ -316,7 +325,9 @@ class CouplingNode(CvjNode):
         self._cpu0 = 0.0
 
         self._publish_scene()
-        self._start_deadline = time.monotonic() + p['start_timeout']
+        self._wait_t0 = time.monotonic()
+        self._start_deadline = self._wait_t0 + p['start_timeout'] if p['start_timeout'] > 0 else math.inf
+        self._next_report = self._wait_t0 + START_REPORT_S
         self._ready_since: float | None = None     # lockstep: peers connected since (monotonic s)
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._watchdog = None
@@ -399,7 +410,7 @@ class CouplingNode(CvjNode):
         n_sub = self.js_pub.get_subscription_count()
         if n_sub < self.params['min_subscribers']:
             missing.append(f'{JOINT_STATES_TOPIC} ({n_sub} of {self.params["min_subscribers"]} '
-                           f'subscribers)')
+                           f'subscribers{self._subscriber_names()})')
         for topic, sub in ((ENGINE_WRENCH_TOPIC, self.engine_sub), (LOAD_WRENCH_TOPIC, self.load_sub)):
             if sub.get_publisher_count() < 1:
                 missing.append(f'{topic} (no publisher)')
@@ -407,6 +418,17 @@ class CouplingNode(CvjNode):
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
         return missing
+
+    def _subscriber_names(self) -> str:
+        """': a, b; not yet: c' - the nodes subscribed to the joint states and the
+        :data:`EXPECTED_SUBSCRIBERS` not among them ('' when the graph cannot be read)."""
+        try:
+            names = sorted(info.node_name for info in
+                           self.get_subscriptions_info_by_topic(JOINT_STATES_TOPIC))
+        except Exception:  # noqa: BLE001 (graph query during shutdown: say nothing)
+            return ''
+        absent = [n for n in EXPECTED_SUBSCRIBERS if n not in names]
+        return (f': {", ".join(names) or "none"}' + (f'; not yet: {", ".join(absent)}' if absent else ''))
 
     def foreign_publishers(self) -> str | None:
         """Lockstep: a description of extra publishers on the loop topics, else None.
@@ -451,10 +473,16 @@ class CouplingNode(CvjNode):
         missing = self.missing_peers()
         if missing:
             self._ready_since = None
-            if time.monotonic() > self._start_deadline:
+            now = time.monotonic()
+            if now > self._start_deadline:
                 self._start_timer.cancel()
                 self.fail(f'start: peers not connected within start_timeout='
                           f'{self.params["start_timeout"]} s: {"; ".join(missing)}')
+            elif now >= self._next_report:
+                self._next_report = now + START_REPORT_S
+                self.get_logger().info(
+                    f'waiting for peers ({now - self._wait_t0:.0f} s): {"; ".join(missing)} '
+                    f'(min_subscribers={self.params["min_subscribers"]})')
             return
         if self.mode == 'lockstep':
             now = time.monotonic()

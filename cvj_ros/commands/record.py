@@ -42,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration', type=float, default=None, metavar='S',
                         help='stop after S wall seconds (default: until Ctrl-C)')
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
-                        help='stop once no message arrived for S wall seconds (after the first one)')
+                        help='stop once no message arrived for S wall seconds (after the run\'s '
+                             'first one; the latched scene message, sent while the coupling node '
+                             'still waits for its peers, does not count)')
     parser.add_argument('--run-token', default='', metavar='TOKEN',
                         help='record only the run with this token (the nodes\' run_token parameter, '
                              '8 hex characters): messages of another run on the domain are dropped '
@@ -61,6 +63,15 @@ def _check(args: argparse.Namespace) -> None:
     for opt, value in (('--duration', args.duration), ('--until-idle', args.until_idle)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
+
+
+def _last_run_message(rec: Any) -> float:
+    """Wall time (monotonic s) of the newest message recorded on any topic but the latched
+    /driveline/scene (0 before the first): the coupling node publishes the scene as it
+    starts, possibly long before step 0 while it waits for its peers, so --until-idle counts
+    from the run's first message instead."""
+    from cvj_ros.bag import SCENE_TOPIC
+    return max((w for topic, w in list(rec.last_wall.items()) if topic != SCENE_TOPIC), default=0.0)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break
-            last = recorder.recorder.last_message_wall
+            last = _last_run_message(recorder.recorder)
             if args.until_idle is not None and last and now - last >= args.until_idle:
                 break
             time.sleep(0.02)

@@ -660,7 +660,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
         with _damage_as_bag_error(path):
             for conn, ts, raw in reader.messages(connections=selected):
                 rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
-            types[conn.topic] = conn.msgtype
+                types[conn.topic] = conn.msgtype
         for conn in reader.connections:  # topics with zero messages
             if topics is None or conn.topic in rows or any(
                     fnmatch.fnmatchcase(conn.topic, w) for w in topics):

@@ -106,7 +106,7 @@ from cvj_ros.nodes.run_token import (JOINT_STATES_FRAME, frame_token_bytes, run_
 
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
-SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
+SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
 NONFINITE_POLICIES = ('stop', 'hold')
 # Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
 # before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell

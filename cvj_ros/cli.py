@@ -112,6 +112,10 @@ def _main(argv: Sequence[str] | None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     argv = remove_ros_args(argv)
+    # a cold physics kernel compiles on first use: say so while it does (this process and
+    # the node processes a run starts; cvj_ros.physics.kernel.compiling)
+    if as_program:
+        os.environ.setdefault('CVJ_COMPILE_NOTICE', '1')
     parser = build_parser(command_named(argv))
     args = parser.parse_args(argv)
     # what the user handed in, for the error line of an unexpected exception

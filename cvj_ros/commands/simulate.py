@@ -112,6 +112,15 @@ def degenerate_notes(scene: Any, sim: Any, summary: dict, trace: Any) -> list[st
                           float(scene.initial_speed))
     if stall:
         notes.append(stall)
+    else:
+        window = summary.get('window') or {}
+        if 'start_s' in window and len(trace.t):
+            import numpy as np
+            m = (trace.t >= window['start_s']) & (trace.t <= window['end_s'])
+            trend = dg.trend_line(trace.t[m], {n: trace.velocity[m, i] for i, n in enumerate(trace.names)
+                                              if n in summary.get('shafts', {})})
+            if trend:
+                notes.append(trend)
     return notes
 
 

@@ -10,6 +10,10 @@
 * :func:`stall_line`: a line whose mean speed is ~0 (|mean| < STALL_FRACTION of the speed
   it started at, or < STALL_RAD_S) stalled; its speed nonuniformity (w_max - w_min)/w_mean
   divides by ~0 and means nothing.
+* :func:`trend_line`: on an accelerating or decelerating record the speed nonuniformity
+  (w_max - w_min)/w_mean over the window includes the speed trend; when the least-squares
+  line's change over the window is more than TREND_SHARE of a shaft's max - min, that
+  share is named.
 * :func:`angle_limit_lines`: a joint bent beyond its scene ``limits.max_angle_deg`` (else
   the recommended limit the ROS monitor uses, :data:`RECOMMENDED_MAX_ANGLE_DEG`), said
   offline as the monitor says it in a ROS run.
@@ -22,13 +26,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ['Mode', 'fastest_mode', 'coarse_step_line', 'stall_line', 'angle_limit_lines',
-           'STALL_FRACTION', 'STALL_RAD_S']
+__all__ = ['Mode', 'fastest_mode', 'coarse_step_line', 'stall_line', 'trend_line',
+           'angle_limit_lines', 'STALL_FRACTION', 'STALL_RAD_S', 'TREND_SHARE']
 
 #: a mean speed below this fraction of the initial speed counts as a stall
 STALL_FRACTION = 0.01
 #: ... or below this many rad/s when the line started (near) standstill
 STALL_RAD_S = 0.05
+#: a trend whose change over the window exceeds this share of max - min is named
+TREND_SHARE = 0.5
 #: joint parameters that hold its bend angle (SI, rad)
 _ANGLE_PARAMS = ('beta', 'beta1', 'beta2', 'delta', 'alpha')
 
@@ -74,6 +80,31 @@ def stall_line(mean_speeds: Mapping[str, float], initial_speed: float) -> str | 
     return (f'stall: the line stopped (mean speeds within {bound:.3g} rad/s of 0, e.g. {name} '
             f'{v:.3g} rad/s, after {initial_speed:.4g} rad/s at the start): the torque cannot '
             f'drive it; speed nonuniformity, relative to a mean speed of ~0, means nothing here')
+
+
+def trend_line(t: Any, speeds: Mapping[str, Any]) -> str | None:
+    """One line naming the speed trend inside the window samples ``t`` (s) of ``speeds``
+    (shaft -> rad/s) when it makes up more than :data:`TREND_SHARE` of a shaft's
+    max - min (the shaft where the share is largest), else None."""
+    tt = np.asarray(t, dtype=float)
+    if tt.size < 3 or not tt[-1] > tt[0]:
+        return None
+    worst: tuple[float, str, float, float] | None = None
+    for name, w in speeds.items():
+        ww = np.asarray(w, dtype=float)
+        if ww.shape != tt.shape or not np.all(np.isfinite(ww)):
+            continue
+        span = float(ww.max() - ww.min())
+        slope = float(np.polyfit(tt, ww, 1)[0])
+        change = slope * float(tt[-1] - tt[0])
+        if span > 0 and abs(change) > TREND_SHARE * span and (worst is None or abs(change) / span > worst[0]):
+            worst = (abs(change) / span, name, slope, change)
+    if worst is None:
+        return None
+    share, name, slope, change = worst
+    return (f'speed trend: {name} {"accelerates" if slope > 0 else "decelerates"} by {change:+.4g} '
+            f'rad/s over the window ({slope:+.4g} rad/s^2), {min(share, 1.0):.0%} of its max - min '
+            f'speed: the speed nonuniformity there measures that trend, not a fluctuation')
 
 
 def angle_limit_lines(scene: Any) -> list[str]:

@@ -63,3 +63,18 @@ def test_angle_limit_lines_as_the_monitor() -> None:
     hooke.pop('limits')
     hooke['params']['beta_deg'] = 80.0
     assert dg.angle_limit_lines(_scene(hooke)) == []              # no limit known for hooke
+
+
+def test_trend_line_names_a_ramp_not_a_fluctuation() -> None:
+    import numpy as np
+    t = np.linspace(0.0, 2.0, 2001)
+    ramp = 100.0 + 3.0 * t                      # +6 rad/s over the window, all of max - min
+    line = dg.trend_line(t, {'crank': ramp})
+    assert line == ('speed trend: crank accelerates by +6 rad/s over the window (+3 rad/s^2), 100% '
+                    'of its max - min speed: the speed nonuniformity there measures that trend, '
+                    'not a fluctuation')
+    wave = 100.0 + 2.0 * np.sin(2 * np.pi * 5.0 * t)   # whole periods: least-squares slope ~0
+    assert dg.trend_line(t, {'crank': wave}) is None
+    # a ramp of 1 rad/s under a +-2 rad/s wave: change 1 < 0.5 * span (~5): not named
+    assert dg.trend_line(t, {'crank': wave + 0.5 * t}) is None
+    assert dg.trend_line(t[:2], {'crank': ramp[:2]}) is None

@@ -115,5 +115,5 @@ def test_simulate_says_what_makes_a_run_degenerate(tmp_path, capsys) -> None:
     assert notes[1].startswith("sample step 0.05 s is too coarse for the scene's fastest mode")
     # (0.2 s of a start-up: the speeds still fall, which is named too)
     assert all(n.startswith('speed trend: ') for n in notes[2:]) and len(notes) <= 3
-    assert main(['simulate', 'kavz685_lever', '--duration', '0.3']) == 0
+    assert main(['simulate', 'kavz685_lever', '--duration', '2']) == 0   # steady by then
     assert 'note:' not in capsys.readouterr().out

@@ -65,6 +65,32 @@ def _check(args: argparse.Namespace) -> None:
             raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
 
 
+# Most wall time one poll of the --until-idle loop counts as idle: a process starved of the
+# CPU (seconds, on a loaded machine) has not been able to receive either, so its own pause
+# is not silence of the run (a recorder woken after 2 s would otherwise stop before its
+# executor took the messages already waiting for it).
+IDLE_TICK_MAX_S = 0.1
+
+
+class IdleClock:
+    """Seconds without a new run message, counted only while this process ran: each poll
+    adds at most IDLE_TICK_MAX_S; a new message (its wall time changed) resets it; nothing
+    counts before the first message."""
+
+    def __init__(self) -> None:
+        self.idle = 0.0
+        self._seen = 0.0
+        self._prev: float | None = None
+
+    def tick(self, now: float, last_message: float) -> float:
+        if last_message != self._seen:
+            self._seen, self.idle = last_message, 0.0
+        elif last_message and self._prev is not None:
+            self.idle += min(max(now - self._prev, 0.0), IDLE_TICK_MAX_S)
+        self._prev = now
+        return self.idle
+
+
 def _last_run_message(rec: Any) -> float:
     """Wall time (monotonic s) of the newest message recorded on any topic but the latched
     /driveline/scene (0 before the first): the coupling node publishes the scene as it
@@ -97,12 +123,13 @@ def run(args: argparse.Namespace) -> int:
         recorder = _Recorder(writer, list(args.topics), domain, run_token=args.run_token)
         print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
               f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
+        idle = IdleClock()
         while not stop:
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break
-            last = _last_run_message(recorder.recorder)
-            if args.until_idle is not None and last and now - last >= args.until_idle:
+            if args.until_idle is not None and idle.tick(now, _last_run_message(recorder.recorder)) \
+                    >= args.until_idle:
                 break
             time.sleep(0.02)
     finally:

@@ -126,7 +126,8 @@ START_SETTLE_S = 0.3
 # 1 of 9 runs of test/e2e/test_hand_start.py recorded all 301 joint states but only 128 of
 # 300 engine and load answers, most likely because the recorder's wrench readers matched
 # after step 0 with the 0.3 s settle; `cvj-sim run` instead waits until its recorder has
-# matched the peers' writers before "go".
+# matched the peers' writers before "go", and in composed mode the in-process bus reports
+# the hosted nodes' matches (missing_peers): both keep START_SETTLE_S.
 OBSERVER_SETTLE_S = 2.0
 # A stall during which only wrong-stamped answers came from a topic ends after this many
 # seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
@@ -499,8 +500,10 @@ class CouplingNode(CvjNode):
             now = time.monotonic()
             if self._ready_since is None:
                 self._ready_since = now
+            # (composed: the in-process bus reports its DDS matches, missing_peers)
             settle = (OBSERVER_SETTLE_S if self.params['min_subscribers'] > 2
-                      and not self.params['start_gate'] else START_SETTLE_S)
+                      and not self.params['start_gate'] and bus_for(self.context) is None
+                      else START_SETTLE_S)
             if now - self._ready_since < settle:
                 return
         self._start_timer.cancel()

@@ -29,12 +29,15 @@ $(STAMP): setup.py setup.cfg package.xml requirements.txt requirements-ros.txt
 
 setup: $(STAMP)
 
-# Compile the numba kernel once (or load it: ~2 s when the cache is warm), so no run or
-# node pays the cold compile (~45 s for all methods here) while its peers wait.
+# Compile every method of the numba kernel once (or load it when the cache is warm), for the
+# test suite and the benchmark, which use them all (cold compile time: docs/solvers.md "Cache").
 kernel: $(STAMP)
 	$(PY) -m cvj_ros.physics.kernel.warmup
 
-demo: kernel
+# The demo compiles only what its run calls, on first use (one method's stepper, the outputs,
+# the monitor's windows, the engine map), printing a line per compiled function; a warm demo
+# loads only those.
+demo: $(STAMP)
 	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) $(DEMO_MODE) --overwrite
 
 test: kernel

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from cvj_ros.bag_qos import fix_metadata_file, offered_qos, patch_ros_distro
 from cvj_ros.errors import BagError
 
 SCENE_TOPIC = '/driveline/scene'
@@ -193,6 +194,7 @@ class BagWriter:
         try:
             writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugin)
             writer.open()
+            patch_ros_distro(writer)
         except Exception as exc:  # reported to the constructor
             self._error = exc
             self._opened.set()
@@ -220,11 +222,13 @@ class BagWriter:
                 if op in ('write', 'batch', 'idle') and self._error is None:
                     flusher.maybe_flush(time.monotonic())
                 elif op == 'topic':
-                    connections[args[0]] = writer.add_connection(args[0], args[1], typestore=typestore())
+                    connections[args[0]] = writer.add_connection(
+                        args[0], args[1], typestore=typestore(), offered_qos_profiles=[offered_qos(args[0])])
                 elif op == 'custom':
                     writer.set_custom_data(args[0], args[1])
                 elif op == 'close':
                     writer.close()
+                    fix_metadata_file(self.path)
                     return
             except Exception as exc:  # keep draining; close() reports the first error
                 if self._error is None:
@@ -663,7 +667,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
         with _damage_as_bag_error(path):
             for conn, ts, raw in reader.messages(connections=selected):
                 rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
-            types[conn.topic] = conn.msgtype
+                types[conn.topic] = conn.msgtype
         for conn in reader.connections:  # topics with zero messages
             if topics is None or conn.topic in rows or any(
                     fnmatch.fnmatchcase(conn.topic, w) for w in topics):

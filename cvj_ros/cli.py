@@ -4,24 +4,31 @@ Subcommands live in :mod:`cvj_ros.commands` (one module each). A user error
 (:class:`cvj_ros.errors.CvjError`) prints one line ``cvj-sim: error: <field>: <problem>``
 to stderr and exits with status 2; anything unexpected prints one line naming the file or
 bag being read and exits 1 (:mod:`cvj_ros.guard`); the traceback only with ``--debug``
-(before the subcommand) or ``CVJ_DEBUG=1``.
+(before the subcommand) or ``CVJ_DEBUG=1``. ROS arguments (``--ros-args ... [--]``, as
+launch_ros appends them to every command it starts) are accepted and ignored
+(:mod:`cvj_ros.rosargs`).
 
 Only the subcommand named on the command line is imported (all of them for ``--help``
 or a name that is not a subcommand), so ``cvj-sim simulate`` does not pay for the
 imports of the others (docs/solvers.md "Start-up"). Run as the program (``argv`` None:
 the console script, ``python -m cvj_ros.cli``), a subcommand that sets
 ``EXIT_WITHOUT_TEARDOWN = True`` ends the process with :func:`exit_without_teardown`.
+
+A Ctrl-C at any point of :func:`main` (also while it imports the subcommand) prints
+``cvj-sim: interrupted`` and exits 130. This module imports next to nothing at load time
+(``argparse`` and the rest inside the functions), so the window before ``main`` runs -
+the console script importing this module - is as short as it can be; a SIGINT during
+Python's own start-up (``site``, before any cvj_ros code) is the interpreter's to report.
 """
 from __future__ import annotations
 
-import argparse
-import importlib
 import os
 import sys
-import threading
-from collections.abc import Sequence
+from collections.abc import Sequence   # loaded by Python's start-up already (os)
 
 from cvj_ros.commands import COMMANDS
+
+# (annotations name argparse types; ``from __future__ import annotations`` never evaluates them)
 
 
 def command_named(argv: Sequence[str]) -> str | None:
@@ -38,6 +45,8 @@ def command_named(argv: Sequence[str]) -> str | None:
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The ``cvj-sim`` parser with every subcommand, or with the subcommand ``only``
     alone (its module is then the only one imported)."""
+    import argparse
+    import importlib
     parser = argparse.ArgumentParser(
         prog='cvj-sim',
         description='cvj_ros virtual driveline: kinematics, offline simulation, ROS runs, '
@@ -68,6 +77,7 @@ def exit_without_teardown(status: int) -> None:
     0.15-0.2 s CPU of a ~1 s warm ``cvj-sim simulate``. Only for a command whose files are
     all closed when it returns, and only with no other thread alive (else it returns and the
     caller exits normally). A stdout closed early (``| head``) gives 141 like the guard."""
+    import threading
     if threading.active_count() > 1:
         return
     import atexit
@@ -83,15 +93,40 @@ def exit_without_teardown(status: int) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        pass
+    except Exception as exc:   # a SIGINT inside an import's C extension surfaces as its cause
+        from cvj_ros.guard import caused_by_sigint
+        if not caused_by_sigint(exc):
+            raise
+    print('cvj-sim: interrupted', file=sys.stderr)
+    return 130
+
+
+def _main(argv: Sequence[str] | None) -> int:
     from cvj_ros.guard import guarded, reading
+    from cvj_ros.rosargs import remove_ros_args
     as_program = argv is None
     if argv is None:
         argv = sys.argv[1:]
+    argv = remove_ros_args(argv)
+    # a cold physics kernel compiles on first use: say so while it does (this process and
+    # the node processes a run starts; cvj_ros.physics.kernel.compiling)
+    if as_program:
+        os.environ.setdefault('CVJ_COMPILE_NOTICE', '1')
     parser = build_parser(command_named(argv))
     args = parser.parse_args(argv)
     # what the user handed in, for the error line of an unexpected exception
     label = getattr(args, 'scene', None) or getattr(args, 'bag', None) or args.command
     try:
+        if getattr(args, 'out', None):   # an unusable output directory: one line naming it
+            from cvj_ros.outdir import check_out_dir
+            bad = guarded('cvj-sim', check_out_dir, args.out,
+                          'OUT' if args.command == 'record' else '--out', debug=args.debug)
+            if bad is not None:
+                return int(bad)
         with reading(str(label)):
             status = int(guarded('cvj-sim', args._run, args, debug=args.debug) or 0)
     except KeyboardInterrupt:

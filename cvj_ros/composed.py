@@ -527,6 +527,33 @@ def _parse_args(argv: Sequence[str]) -> argparse.Namespace:
     return parser.parse_args(list(argv))
 
 
+def _user_sets(argv: Sequence[str], param: str) -> bool:
+    """Whether ``argv``'s ROS arguments set ``param`` (``-p``/``--param NAME:=V`` or a
+    ``--params-file`` that names it)."""
+    tokens = list(argv)
+    for i, tok in enumerate(tokens[:-1]):
+        nxt = tokens[i + 1]
+        if tok in ('-p', '--param') and nxt.split(':=', 1)[0].rsplit(':', 1)[-1] == param:
+            return True
+        if tok == '--params-file':
+            try:
+                if param in Path(nxt).read_text(errors='replace'):
+                    return True
+            except OSError:
+                pass
+    return False
+
+
+def _default_min_subscribers(argv: Sequence[str], opts: argparse.Namespace) -> list[str] | None:
+    """The hosted coupling node's ``min_subscribers`` when the user gives none: engine and
+    load (hosted or outside), the hosted monitor and the ``--record`` recorder, instead of
+    the node's hand-start default (which counts a monitor and a recorder of their own)."""
+    if _user_sets(argv, 'min_subscribers'):
+        return None
+    n = 2 + ('monitor_node' not in opts.without) + (opts.record is not None)
+    return ['--ros-args', '-p', f'min_subscribers:={n}']
+
+
 def _main(args: Sequence[str] | None) -> int:
     import rclpy
     from rclpy.context import Context
@@ -561,7 +588,8 @@ def _main(args: Sequence[str] | None) -> int:
             if name in opts.without:
                 continue
             try:
-                comp.add_node(name)
+                comp.add_node(name, cli_args=_default_min_subscribers(argv, opts)
+                              if name == 'coupling_node' else None)
             except CvjError as exc:
                 print(f'{PROG}: error: {name}: {exc}', file=sys.stderr)
                 return EXIT_PARAMETER

@@ -265,9 +265,11 @@ def _custom_from_scene(messages: list[tuple[str, int, bytes]]) -> dict[str, str]
 
 def _add_connection(writer: Any, topic: str, msgtype: str, msgdef: tuple[str, str] | None) -> Any:
     from cvj_ros.bag import typestore
+    from cvj_ros.bag_qos import offered_qos
     ts = typestore()
+    qos = [offered_qos(topic)]
     if msgtype in ts.fielddefs:
-        return writer.add_connection(topic, msgtype, typestore=ts)
+        return writer.add_connection(topic, msgtype, typestore=ts, offered_qos_profiles=qos)
     if msgdef is None:
         raise BagError(f'{topic}: message type {msgtype} unknown and no definition in the bag')
     from rosbags.typesys import get_types_from_msg
@@ -275,7 +277,7 @@ def _add_connection(writer: Any, topic: str, msgtype: str, msgdef: tuple[str, st
         ts.register(get_types_from_msg(msgdef[1], msgtype))
     except Exception as exc:  # noqa: BLE001
         raise BagError(f'{topic}: cannot use the definition of {msgtype} in the bag: {exc}') from None
-    return writer.add_connection(topic, msgtype, typestore=ts)
+    return writer.add_connection(topic, msgtype, typestore=ts, offered_qos_profiles=qos)
 
 
 def reindex(path: str | os.PathLike[str]) -> ReindexResult:
@@ -285,6 +287,7 @@ def reindex(path: str | os.PathLike[str]) -> ReindexResult:
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from cvj_ros.bag import BAG_VERSION
+    from cvj_ros.bag_qos import fix_metadata_file, patch_ros_distro
     p = Path(path)
     if not p.exists():
         raise BagError(f'{p}: no such bag')
@@ -315,6 +318,7 @@ def reindex(path: str | os.PathLike[str]) -> ReindexResult:
         plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
         writer = Writer(new_bag, version=BAG_VERSION, storage_plugin=plugin)
         writer.open()
+        patch_ros_distro(writer)
         try:
             conns = {t: _add_connection(writer, t, ty, msgdefs.get(ty)) for t, ty in topics.items()}
             for key, value in custom.items():
@@ -323,6 +327,7 @@ def reindex(path: str | os.PathLike[str]) -> ReindexResult:
                 writer.write(conns[topic], ts, data)
         finally:
             writer.close()
+        fix_metadata_file(new_bag)
         kept = []
         for f in files:                           # the damaged originals stay, renamed
             backup = f.with_name(f.name + '.orig')

@@ -414,3 +414,16 @@ def test_recorder_spin_stopped_in_its_coalesce_wait_takes_what_is_queued(tmp_pat
         assert not r.thread.is_alive()
     np.testing.assert_array_equal(bag.read_bag(tmp_path / 'b', ['/load/wrench'])['/load/wrench'].torque_z,
                                   np.arange(6.0))
+
+
+@pytest.mark.parametrize('storage', bag.STORAGES)
+def test_empty_bag_reads_as_no_series(tmp_path, storage: str) -> None:
+    """A bag without messages (a run stopped at once) reads as empty, not as an internal
+    error text that a report would show."""
+    for i, topics in enumerate(([], [bag.JOINT_STATES_TOPIC])):
+        path = tmp_path / f'bag{i}'
+        with bag.BagWriter(path, storage=storage) as w:
+            for t in topics:
+                w.add_topic(t)
+        data = bag.read_bag(path)
+        assert set(data) <= set(topics) and all(len(series.t) == 0 for series in data.values())

@@ -54,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='rounds of real lockstep runs, every scene and mode once per round [2]')
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
     parser.add_argument('--startup', action='store_true',
-                        help="time the kernel's cold compile (empty cache, ~100 s) and a warm "
+                        help="time the kernel's cold compile of every method (empty cache; "
+                             'docs/solvers.md "Cache") and a warm '
                              '`cvj-sim simulate kavz685_lever --duration 2`')
     parser.add_argument('--sweep', type=int, metavar='N',
                         help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '

@@ -159,9 +159,11 @@ def run(args: argparse.Namespace) -> int:
     dev = ev.phi_out - phi
     mean_ratio = float(np.mean(ev.ratio))
     nonu = getattr(joint, 'nonuniformity', None)
-    nonu_txt = f', nonuniformity {nonu():.6g} rad' if callable(nonu) else ''
+    # two measures, two names: an angle (rad) here, the speed ratio that simulate/run print
+    nonu_txt = (f', angle deviation over a revolution {nonu():.6g} rad' if callable(nonu) else '')
     rmin, rmax = float(ev.ratio.min()), float(ev.ratio.max())
     print(f'# max |phi_out - phi_in| {float(np.abs(dev).max()):.6g} rad '
           f'({math.degrees(float(np.abs(dev).max())):.6g} deg), ratio min {rmin:.9g} max {rmax:.9g} '
-          f'(speed fluctuation (max-min)/mean {(rmax - rmin) / mean_ratio:.6g})' + nonu_txt, file=out)
+          f'(speed nonuniformity (max-min)/mean of the ratio {(rmax - rmin) / mean_ratio:.6g})'
+          + nonu_txt, file=out)
     return 0

@@ -42,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration', type=float, default=None, metavar='S',
                         help='stop after S wall seconds (default: until Ctrl-C)')
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
-                        help='stop once no message arrived for S wall seconds (after the first one)')
+                        help='stop once no message arrived for S wall seconds (after the run\'s '
+                             'first one; the latched scene message, sent while the coupling node '
+                             'still waits for its peers, does not count)')
     parser.add_argument('--run-only', action='store_true',
                         help='record one run\'s publishers only: a loop topic\'s messages while it has '
                              'one publisher, /clock attributed by value (docs/ros.md "Run identity"); '
@@ -56,6 +58,41 @@ def _check(args: argparse.Namespace) -> None:
     for opt, value in (('--duration', args.duration), ('--until-idle', args.until_idle)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
+
+
+# Most wall time one poll of the --until-idle loop counts as idle: a process starved of the
+# CPU (seconds, on a loaded machine) has not been able to receive either, so its own pause
+# is not silence of the run (a recorder woken after 2 s would otherwise stop before its
+# executor took the messages already waiting for it).
+IDLE_TICK_MAX_S = 0.1
+
+
+class IdleClock:
+    """Seconds without a new run message, counted only while this process ran: each poll
+    adds at most IDLE_TICK_MAX_S; a new message (its wall time changed) resets it; nothing
+    counts before the first message."""
+
+    def __init__(self) -> None:
+        self.idle = 0.0
+        self._seen = 0.0
+        self._prev: float | None = None
+
+    def tick(self, now: float, last_message: float) -> float:
+        if last_message != self._seen:
+            self._seen, self.idle = last_message, 0.0
+        elif last_message and self._prev is not None:
+            self.idle += min(max(now - self._prev, 0.0), IDLE_TICK_MAX_S)
+        self._prev = now
+        return self.idle
+
+
+def _last_run_message(rec: Any) -> float:
+    """Wall time (monotonic s) of the newest message recorded on any topic but the latched
+    /driveline/scene (0 before the first): the coupling node publishes the scene as it
+    starts, possibly long before step 0 while it waits for its peers, so --until-idle counts
+    from the run's first message instead."""
+    from cvj_ros.bag import SCENE_TOPIC
+    return max((w for topic, w in list(rec.last_wall.items()) if topic != SCENE_TOPIC), default=0.0)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,12 +116,13 @@ def run(args: argparse.Namespace) -> int:
         recorder = _Recorder(writer, list(args.topics), domain, run_only=args.run_only)
         print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
               f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
+        idle = IdleClock()
         while not stop:
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break
-            last = recorder.recorder.last_message_wall
-            if args.until_idle is not None and last and now - last >= args.until_idle:
+            if args.until_idle is not None and idle.tick(now, _last_run_message(recorder.recorder)) \
+                    >= args.until_idle:
                 break
             time.sleep(0.02)
     finally:

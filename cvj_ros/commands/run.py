@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 NAME = 'run'
 HELP = 'run a scene as ROS 2 node processes and record a rosbag2 bag'
@@ -87,7 +88,35 @@ def run(args: argparse.Namespace) -> int:
         fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
         rt_priority=args.rt_priority, composed=args.composed, executor=args.executor,
         intra_process=args.intra_process))
+    import sys
+    for note in degenerate_notes(result):
+        print(f'  note: {note}')
     if result.error:
-        import sys
         print(f'cvj-sim: error: {result.error}', file=sys.stderr)
     return result.exit_code
+
+
+def degenerate_notes(result: Any) -> list[str]:
+    """After a run: the exchange step too coarse for the scene's fastest mode, a stall
+    (:mod:`cvj_ros.physics.degenerate`; the joint angle limits are the monitor's in a ROS
+    run). Empty when the run recorded nothing to judge."""
+    shafts = (result.metrics or {}).get('shafts') or {}
+    if not shafts or not result.scene_path:
+        return []
+    from cvj_ros.physics import degenerate as dg
+    from cvj_ros.physics.driveline import Driveline
+    from cvj_ros.physics.scene import load_scene
+    notes = []
+    try:
+        scene = load_scene(result.scene_path)
+        mode = dg.fastest_mode(Driveline.from_scene(scene))
+    except Exception:   # noqa: BLE001 (a note, never a failure of the run)
+        return []
+    line = dg.coarse_step_line(float(result.exchange_step), mode, 'exchange step')
+    if line:
+        notes.append(line)
+    stall = dg.stall_line({n: float(m.get('mean_speed', float('nan'))) for n, m in shafts.items()},
+                          float(scene.initial_speed))
+    if stall:
+        notes.append(stall)
+    return notes

@@ -82,7 +82,9 @@ def format_summary(summary: dict) -> str:
     if 'window_text' in summary:
         lines.append(f"steady window {summary['window_text']}")
         lines.append(f"  ({summary['window']['criterion']})")
-    lines.append(f"{'shaft':<24}{'mean rad/s':>12}{'delta':>11}{'A_speed':>11}{'A_accel':>11}"
+    # delta: speed nonuniformity (w_max - w_min)/w_mean, a ratio (kinematics prints the
+    # angle deviation in rad instead)
+    lines.append(f"{'shaft':<24}{'mean rad/s':>12}{'speed nonu':>11}{'A_speed':>11}{'A_accel':>11}"
                  f"{'mean N m':>11}{'A_torque':>11}")
     for name, m in summary['shafts'].items():
         lines.append(f"{name:<24}{m['mean_speed']:>12.5g}{m['delta']:>11.3e}{m['speed_amplitude']:>11.4g}"
@@ -95,7 +97,38 @@ def format_summary(summary: dict) -> str:
             lines.append(f"{name:<24}{w['slip_end']:>12.4g}{w['fx_mean']:>12.5g}{w['fz_mean']:>12.5g}"
                          f"{w['no_load_samples']:>17d}")
     lines.append(summary['fidelity_text'])
+    lines.extend(f'note: {n}' for n in summary.get('notes', ()))
     return '\n'.join(lines)
+
+
+def degenerate_notes(scene: Any, sim: Any, summary: dict, trace: Any) -> list[str]:
+    """The lines of :mod:`cvj_ros.physics.degenerate` for this offline run: joints beyond
+    their angle limits (as the ROS monitor says them), a sample step too coarse for the
+    fastest mode, a stall."""
+    from cvj_ros.physics import degenerate as dg
+    notes = dg.angle_limit_lines(scene)
+    if len(trace.t) > 1:
+        try:
+            mode = dg.fastest_mode(sim.driveline)
+        except Exception:   # noqa: BLE001 (a note, never a failure of the run)
+            mode = None
+        line = dg.coarse_step_line(float(trace.t[1] - trace.t[0]), mode, 'sample step')
+        if line:
+            notes.append(line)
+    stall = dg.stall_line({n: float(m['mean_speed']) for n, m in summary.get('shafts', {}).items()},
+                          float(scene.initial_speed))
+    if stall:
+        notes.append(stall)
+    else:
+        window = summary.get('window') or {}
+        if 'start_s' in window and len(trace.t):
+            import numpy as np
+            m = (trace.t >= window['start_s']) & (trace.t <= window['end_s'])
+            trend = dg.trend_line(trace.t[m], {n: trace.velocity[m, i] for i, n in enumerate(trace.names)
+                                              if n in summary.get('shafts', {})})
+            if trend:
+                notes.append(trend)
+    return notes
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'cvj-sim simulate: compiled the kernel in {sim.compile_seconds:.1f} s (first run; '
               f'cached in {sim.cache_path} for later runs)', file=sys.stderr)
     summary = sim.summary(transient=args.transient)
+    summary['notes'] = degenerate_notes(scene, sim, summary, trace)
     if args.csv:
         trace.to_csv(args.csv)
     if args.plots:

@@ -41,7 +41,9 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
                       **({'catch_up': o.catch_up, 'burst_max': int(o.burst_max),
                           'realtime_priority': int(o.rt_priority)} if o.mode == 'free-run' else {}),
                       # engine, load, the recorder (and monitor) see /driveline/joint_states before step 0
-                      min_subscribers=3 + ('monitor_node' in prep.nodes))
+                      min_subscribers=3 + ('monitor_node' in prep.nodes),
+                      # after "go" the peers are there: a bounded wait, as the run's own
+                      start_timeout=float(o.start_timeout))
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

@@ -26,6 +26,10 @@ from cvj_ros.errors import GeometryError, SceneError
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
               'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline')
 SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
+# names users give joints that the registry calls otherwise (suggested, never accepted):
+# a single cardan / universal joint is a Hooke joint (double_cardan is two of them)
+KIND_ALIASES = {'cardan': 'hooke', 'universal': 'hooke', 'u_joint': 'hooke', 'ujoint': 'hooke',
+                'single_cardan': 'hooke'}
 INITIAL_KEYS = ('speed_rad_s', 'speed_rpm', 'angle_deg')
 INERTIA_KEYS = ('type', 'name', 'J', 'limits')
 SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_deg',
@@ -48,11 +52,12 @@ JOINT_FIDELITIES = ('auto', 'ideal', 'closed', 'exact')
 SPRING_FIDELITIES = ('auto', 'elastic', 'rigid')
 LIMIT_KEYS = ('max_angle_deg', 'max_speed_rad_s', 'max_torque_nm', 'max_twist_deg',
               'max_nonuniformity')
-# Solver names of cvj_ros.physics.solvers.METHODS (validated here so a typo stops early).
-SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2')
-# every solver an offline run takes (cvj-sim simulate --method, Simulation): all of
-# solvers.METHODS, the two loose-tolerance RODAS methods besides the scene's choices
-OFFLINE_METHODS = SOLVER_METHODS + ('rodas4', 'rodas3')
+# Solver names of cvj_ros.physics.solvers.METHODS (validated here so a typo stops early):
+# a scene's solver.method takes every method `cvj-sim simulate --method` takes, the two
+# loose-tolerance RODAS methods included (each is compiled in the kernel too)
+SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
+# every solver an offline run takes (cvj-sim simulate --method, Simulation)
+OFFLINE_METHODS = SOLVER_METHODS
 # unit suffix in a scene file -> (SI unit of the registry, factor to SI)
 _SUFFIX_TO_SI = {'_deg': ('rad', math.pi / 180.0), '_rad': ('rad', 1.0),
                  '_mm': ('m', 1e-3), '_m': ('m', 1.0), '_kg': ('kg', 1.0)}
@@ -395,7 +400,10 @@ def _joint_params(kind: str, raw: Mapping[str, Any], path: str) -> dict[str, Any
     for key, value in raw.items():
         if key not in accepted:
             choices = tuple(accepted)
-            near = difflib.get_close_matches(str(key), choices, n=1)
+            # a bare name means the unit users write angles in: beta -> beta_deg, not beta_rad
+            unit_forms = [c for c in choices if c.startswith(f'{key}_')]
+            near = (sorted(unit_forms, key=lambda c: not c.endswith('_deg'))[:1]
+                    or difflib.get_close_matches(str(key), choices, n=1))
             hint = (f"; did you mean '{near[0]}'?" if near
                     else f'; {kind} accepts: {", ".join(choices) or "no params"}')
             raise SceneError(f'{path}.{key}', f'unknown parameter{hint}')
@@ -461,6 +469,9 @@ def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Elem
     _check_keys(el, JOINT_KEYS, path)
     if 'kind' not in el:
         raise SceneError(f'{path}.kind', f'missing; one of {", ".join(sorted(JOINTS))}')
+    if isinstance(el['kind'], str) and el['kind'] in KIND_ALIASES:
+        raise SceneError(f'{path}.kind', f'must be one of {", ".join(sorted(JOINTS))}, got '
+                                         f"{el['kind']!r}; did you mean '{KIND_ALIASES[el['kind']]}'?")
     kind = _string(el['kind'], f'{path}.kind', choices=tuple(sorted(JOINTS)))
     fidelity = _string(el.get('fidelity', 'auto'), f'{path}.fidelity', choices=JOINT_FIDELITIES)
     if fidelity != 'auto' and fidelity not in JOINTS[kind].fidelities:

@@ -102,10 +102,17 @@ class SteadyWindow:
         else:
             verdict = 'steady' if self.steady else (
                 f'NOT STEADY (criterion never met; last {FALLBACK_FRACTION:.0%} of the record used)')
-        return (f'{self.start_s:.4g}..{self.end_s:.4g} s, {verdict}: drift {self.drift:.2e} '
-                f'(<= {self.drift_tol:g}), amplitude change {self.amplitude_change:.2e} '
-                f'(<= {self.amplitude_tol:g}, {self.amplitude_signal or "-"}), '
-                f'{self.slices} slices of {self.slice_s:.4g} s')
+        if not (math.isfinite(self.drift) and math.isfinite(self.amplitude_change)):
+            # too few samples per slice to compare slices (a step as long as the slices)
+            measured = (f'drift and amplitude change not measurable (fewer than 2 samples per '
+                        f'slice of {self.slice_s:.4g} s)')
+        else:
+            measured = (f'drift {self.drift:.2e} (<= {self.drift_tol:g}), amplitude change '
+                        f'{self.amplitude_change:.2e} (<= {self.amplitude_tol:g}, '
+                        f'{self.amplitude_signal or "-"})')
+        slices = (f'{self.slices} slices of {self.slice_s:.4g} s' if self.slices
+                  else f'no run of >= {self.min_slices} agreeing slices of {self.slice_s:.4g} s')
+        return f'{self.start_s:.4g}..{self.end_s:.4g} s, {verdict}: {measured}, {slices}'
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (adds ``criterion``)."""

@@ -45,7 +45,8 @@ def test_table_and_summary(capsys) -> None:
     lines = out.strip().splitlines()
     assert code == 0 and lines[1].split()[0] == 'phi_in[deg]' and len(lines) == 1 + 1 + 5 + 1
     summary = lines[-1]
-    assert 'ratio min' in summary and 'nonuniformity' in summary
+    assert 'ratio min' in summary and 'angle deviation over a revolution' in summary
+    assert 'speed nonuniformity (max-min)/mean of the ratio' in summary
     c = math.cos(math.radians(20)) / math.cos(math.radians(30))
     assert f'{math.atan(abs(1 - c) / (2 * math.sqrt(c))):.6g}' in summary
 

@@ -93,3 +93,27 @@ def test_simulate_bag_is_read_by_analyze_with_the_same_window(tmp_path, capsys) 
     err = capsys.readouterr().err
     assert err.startswith('cvj-sim: error: ') and 'Traceback' not in err and err.count('\n') == 1
     assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag), '--overwrite']) == 0
+
+
+def test_simulate_says_what_makes_a_run_degenerate(tmp_path, capsys) -> None:
+    """One line each: a joint beyond its angle limit (as the ROS monitor), a sample step
+    too coarse for the fastest mode; a sound run has none."""
+    import yaml
+    scene = {'name': 'degenerate', 'duration': 0.2, 'exchange_step': 1e-3,
+             'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': 50.0},
+             'initial': {'speed_rpm': 300.0},
+             'driveline': [{'type': 'inertia', 'name': 'a', 'J': 0.128},
+                           {'type': 'spring', 'name': 's', 'stiffness': 715.4, 'damping': 6.35},
+                           {'type': 'joint', 'name': 'tj', 'kind': 'tripod', 'params': {'beta_deg': 40.0}},
+                           {'type': 'inertia', 'name': 'b', 'J': 0.161}]}
+    path = tmp_path / 'degenerate.yaml'
+    path.write_text(yaml.safe_dump(scene))
+    assert main(['simulate', str(path), '--sample-dt', '0.05', '--json']) == 0
+    notes = json.loads(capsys.readouterr().out)['notes']
+    assert notes[0] == ('limit exceeded: joint tj bent 40 deg, above the recommended limit for a '
+                        'tripod joint 25 deg')
+    assert notes[1].startswith("sample step 0.05 s is too coarse for the scene's fastest mode")
+    # (0.2 s of a start-up: the speeds still fall, which is named too)
+    assert all(n.startswith('speed trend: ') for n in notes[2:]) and len(notes) <= 3
+    assert main(['simulate', 'kavz685_lever', '--duration', '2']) == 0   # steady by then
+    assert 'note:' not in capsys.readouterr().out

@@ -187,6 +187,30 @@ def test_driveline_composed_console_script(runs, work: Path) -> None:
         assert a[topic] == b[topic], topic
 
 
+def test_driveline_composed_without_record_starts_with_its_default_peer_count(work: Path) -> None:
+    """No --record and no min_subscribers: the hosted coupling node waits for engine, load and
+    the hosted monitor only (not for the four subscribers a hand-started run has), and finishes."""
+    r = subprocess.run([*COMPOSED, '--ros-args', '-p', f'scene:={work / "scene.yaml"}',
+                        '-p', f'duration:={DURATION}'], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert 'waiting for peers (' not in r.stdout + r.stderr
+
+
+def test_default_min_subscribers_counts_hosted_peers_unless_set(tmp_path: Path) -> None:
+    import argparse
+
+    from cvj_ros.composed import _default_min_subscribers
+    opts = argparse.Namespace(without=[], record=None)
+    assert _default_min_subscribers(['--ros-args', '-p', 'scene:=x'], opts) == \
+        ['--ros-args', '-p', 'min_subscribers:=3']
+    opts = argparse.Namespace(without=['monitor_node'], record=tmp_path / 'bag')
+    assert _default_min_subscribers([], opts)[-1] == 'min_subscribers:=3'
+    assert _default_min_subscribers(['--ros-args', '-p', 'min_subscribers:=5'], opts) is None
+    params = tmp_path / 'p.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    min_subscribers: 2\n')
+    assert _default_min_subscribers(['--ros-args', '--params-file', str(params)], opts) is None
+
+
 def test_driveline_composed_bad_parameter_is_one_line() -> None:
     r = subprocess.run([*COMPOSED, '--ros-args', '-p', 'scene:=no_such_scene'],
                        capture_output=True, text=True, timeout=60)

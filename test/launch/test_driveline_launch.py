@@ -7,6 +7,7 @@ gives every node only parameters that node declares, with values its descriptors
 external peers are left out; every executable it names is a console script of setup.py
 (test/e2e/test_colcon.py checks they exist in a colcon install tree, next to the
 installed launch file); and with `launch_ros` importable the description is generated.
+test_launch_processes.py runs it with stand-in launch classes and real processes.
 """
 from __future__ import annotations
 

@@ -217,7 +217,36 @@ def test_start_timeout_names_missing_topic(ctx, tmp_path):
     node.destroy_node()
     assert node.exit_code == 1
     assert node.error_message.startswith('start: peers not connected within start_timeout=0.2 s')
-    assert '/driveline/joint_states (' in node.error_message and 'of 60 subscribers)' in node.error_message
+    assert '/driveline/joint_states (0 of 60 subscribers: none; not yet: engine_node, load_node' in node.error_message
+
+
+def test_waits_without_deadline_naming_who_is_there_and_who_is_missing(ctx, tmp_path, monkeypatch):
+    """Default start_timeout (0): no deadline; every START_REPORT_S one line with the
+    subscribers seen and the expected ones not seen (here: fake_peers only)."""
+    from cvj_ros.nodes import coupling_node as cn
+    monkeypatch.setattr(cn, 'START_REPORT_S', 0.2)
+    peers = FakePeers(ctx)
+    node = CouplingNode(context=ctx, parameter_overrides=[Parameter('scene', value=scene_file(tmp_path))])
+    assert node.params['start_timeout'] == 0.0 and node.params['min_subscribers'] == 4
+    lines: list[str] = []
+    monkeypatch.setattr(node.get_logger(), 'info', lambda msg, *a, **k: lines.append(msg))
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < 1.5:      # far beyond several reports
+            ex.spin_once(timeout_sec=0.05)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    assert node.exit_code is None and not node.started and not peers.js
+    waits = [m for m in lines if m.startswith('waiting for peers')]
+    assert len(waits) >= 2, lines
+    assert ('/driveline/joint_states (1 of 4 subscribers: fake_peers; not yet: engine_node, '
+            'load_node, monitor_node, cvj_recorder)') in waits[-1], waits[-1]
+    assert '(min_subscribers=4)' in waits[-1]
 
 
 def test_hooke_scene_publishes_reaction_wrench_in_housing_frame(ctx, tmp_path):

@@ -62,7 +62,7 @@ def test_paths(lever: dict) -> None:
     (['driveline[7].J=1'], '--set driveline[7].J: driveline[7] out of range'),
     (['driveline[coupling].params.alpha=1'],
      "--set driveline[coupling].params.alpha: driveline[2].params.alpha: unknown parameter; "
-     "did you mean 'alpha_rad'?"),
+     "did you mean 'alpha_deg'?"),   # a bare angle: the degree form first
     (['driveline[0].mass=1'], '--set driveline[0].mass: driveline[0].mass: unknown key'),
     (['initial.speed_rad_s'], 'expected PATH=SPEC'),
     (['initial..speed=1'], 'empty key'),

@@ -172,8 +172,11 @@ class LeverHinge:
         self.alpha = check_range('alpha', alpha, lo=0.0, hi=math.pi / 2, hi_open=True, unit=' rad')
         self.delta_alpha = check_finite('delta_alpha', delta_alpha)
         if not 0.0 <= self.alpha + self.delta_alpha < math.pi / 2:
-            raise GeometryError('delta_alpha', f'alpha + delta_alpha must be in [0, pi/2) rad, got '
-                                               f'{self.alpha + self.delta_alpha} rad')
+            # the sum is out of range: name it with both terms (in degrees, as scenes give them)
+            a, d = math.degrees(self.alpha), math.degrees(self.delta_alpha)
+            raise GeometryError('alpha' if abs(a) >= abs(d) else 'delta_alpha',
+                                f'the sum alpha + delta_alpha must be in [0, 90) deg, got '
+                                f'{a:.6g} + {d:.6g} = {a + d:.6g} deg')
         self.twist = check_range('twist', twist, lo=-math.pi / 2, lo_open=True, hi=math.pi / 2,
                                  unit=' rad')
         self._ca = math.cos(self.alpha)

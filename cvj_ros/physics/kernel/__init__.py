@@ -9,25 +9,40 @@ and colcon install trees work. ``NUMBA_CACHE_DIR`` set by the user always wins.
 numba checks a cached function against its own source file only, so code that inlines
 functions of other modules (the steppers inline rhs_nb, which inlines the joint and source
 formulas) would stay stale after an edit of those modules. :func:`drop_stale_cache` keeps
-a digest of every physics source beside the cache and deletes the package's cache files
-when it changes (hashing ~40 files costs ~2 ms per process).
+a digest of every physics source beside the cache (hashing ~40 files costs ~2 ms per
+process); when it changed, it deletes the cache files of exactly the modules whose import
+closure inside ``cvj_ros/physics`` holds a changed file (a compiled function can only
+inline what its module reaches through imports), so an edit of ``joints/hooke.py``
+recompiles the Hooke formula and what imports it (joints_nb, rhs_nb, the steppers, ...),
+an edit of ``simulate.py`` (imported by no compiled module) recompiles nothing.
 
 :func:`load_cached` loads a cached entry point without numba's full target
 initialisation (docs/solvers.md "Start-up"): numba's own cache load first runs
 ``CPUContext.refresh()``, which imports and registers every numba implementation module
 (and, through ``numba.np.arraymath``'s BLAS probe, ``scipy.linalg``): measured ~0.55 s
 of a ~1.7 s warm ``cvj-sim simulate``, for code that is already compiled.
+
+Compilation is per entry point and on first use: a run compiles the functions it calls
+(its method's stepper, the outputs, the monitor's windows, ...) and nothing else.
+:func:`compiling` announces each compile on stderr when ``CVJ_COMPILE_NOTICE=1`` (``cvj-sim``
+sets it): ``cvj_ros: compiling the physics kernel: dopri5_advance (first use; cached
+afterwards)`` and ``cvj_ros: compiled dopri5_advance in 9.1 s``.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
-from collections.abc import Callable, Sequence
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 PHYSICS_DIR = Path(__file__).resolve().parents[1]
 STAMP_NAME = 'cvj_kernel_sources.sha256'
+# per-module digests of the import closures (drop_stale_cache), beside STAMP_NAME
+CLOSURES_NAME = 'cvj_kernel_closures.json'
 
 
 def choose_cache_dir(package_dir: str, env: dict, writable) -> str | None:
@@ -77,10 +92,93 @@ def _cache_files(cache_dir: str | None, physics_dir: Path) -> list[Path]:
     return out
 
 
+def _imports(path: Path, physics_dir: Path) -> set[Path]:
+    """Files under ``physics_dir`` that module ``path`` imports (absolute
+    ``cvj_ros.physics...`` or relative imports, at any depth of the module; a name imported
+    from a package counts as its submodule when there is one)."""
+    import ast
+    tree = ast.parse(path.read_bytes())
+    package = path.parent
+    out: set[Path] = set()
+
+    def add(base: Path, parts: list[str]) -> None:
+        target = base.joinpath(*parts) if parts else base
+        for cand in (target.with_suffix('.py'), target / '__init__.py'):
+            if cand.is_file() and physics_dir in cand.parents:
+                out.add(cand)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith('cvj_ros.physics'):
+                    add(physics_dir, alias.name.split('.')[2:])
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package
+                for _ in range(node.level - 1):
+                    base = base.parent
+                mod = node.module.split('.') if node.module else []
+            elif node.module and node.module.startswith('cvj_ros.physics'):
+                base, mod = physics_dir, node.module.split('.')[2:]
+            else:
+                continue
+            add(base, mod)
+            for alias in node.names:
+                add(base, [*mod, alias.name])
+    return out
+
+
+def closure_digests(physics_dir: Path = PHYSICS_DIR) -> dict[str, str]:
+    """Per physics module (path relative to ``physics_dir``): sha256 over the names and
+    bytes of the module and of every physics file it imports, transitively."""
+    files = sorted(physics_dir.rglob('*.py'))
+    own = {f: hashlib.sha256(f.read_bytes()).digest() for f in files}
+    direct: dict[Path, set[Path]] = {}
+    for f in files:
+        try:
+            direct[f] = _imports(f, physics_dir)
+        except (SyntaxError, ValueError):
+            direct[f] = set(files)          # unreadable: depends on everything
+    out: dict[str, str] = {}
+    for f in files:
+        seen, todo = {f}, [f]
+        while todo:
+            for dep in direct.get(todo.pop(), ()):
+                if dep not in seen:
+                    seen.add(dep)
+                    todo.append(dep)
+        h = hashlib.sha256()
+        for dep in sorted(seen):
+            h.update(str(dep.relative_to(physics_dir)).encode())
+            h.update(own[dep])
+        out[str(f.relative_to(physics_dir))] = h.hexdigest()
+    return out
+
+
+def _source_of(cache_file: Path, cache_dir: str | None, physics_dir: Path) -> str | None:
+    """The physics module (relative path) a numba cache file belongs to: its name starts
+    with the module's name; its directory is the module's ``__pycache__`` (numba's default)
+    or, under NUMBA_CACHE_DIR, ``<source directory name>_<hash>``."""
+    module = cache_file.name.split('.', 1)[0]
+    if cache_dir is None:
+        rel = cache_file.parent.parent.relative_to(physics_dir)
+    else:
+        top = cache_file.parent.name.rsplit('_', 1)[0]
+        rel = Path('.') if top == physics_dir.name else Path(top)
+    return str(rel / f'{module}.py') if (physics_dir / rel / f'{module}.py').is_file() else None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f'{path.name}.tmp{os.getpid()}')
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def drop_stale_cache(cache_dir: str | None = None, physics_dir: Path = PHYSICS_DIR) -> bool:
-    """Delete the package's numba cache files when the physics sources changed since
-    they were written; returns True when it deleted any. Never raises (a cache that
-    cannot be cleaned is numba's to rebuild or to ignore)."""
+    """Delete the numba cache files of the physics modules whose import closure changed
+    since they were written (all of them when that is not known: no record yet, or a
+    cache file of a module that no longer exists); returns True when it deleted any.
+    Never raises (a cache that cannot be cleaned is numba's to rebuild or to ignore)."""
+    import json
     try:
         stamp_dir = Path(cache_dir) if cache_dir else physics_dir / 'kernel' / '__pycache__'
         stamp = stamp_dir / STAMP_NAME
@@ -88,13 +186,21 @@ def drop_stale_cache(cache_dir: str | None = None, physics_dir: Path = PHYSICS_D
         old = stamp.read_text().strip() if stamp.is_file() else None
         if old == digest:
             return False
-        files = _cache_files(cache_dir, physics_dir)
-        for f in files:
-            f.unlink(missing_ok=True)
+        closures = closure_digests(physics_dir)
+        record = stamp_dir / CLOSURES_NAME
+        try:
+            before = json.loads(record.read_text()) if old is not None else {}
+        except (OSError, ValueError):
+            before = {}
+        files = []
+        for f in _cache_files(cache_dir, physics_dir):
+            src = _source_of(f, cache_dir, physics_dir)
+            if src is None or before.get(src) != closures.get(src):
+                files.append(f)
+                f.unlink(missing_ok=True)
         stamp_dir.mkdir(parents=True, exist_ok=True)
-        tmp = stamp.with_name(f'{STAMP_NAME}.tmp{os.getpid()}')
-        tmp.write_text(digest + '\n')
-        os.replace(tmp, stamp)
+        _write_atomic(record, json.dumps(closures, sort_keys=True))
+        _write_atomic(stamp, digest + '\n')
         return bool(files)
     except OSError:
         return False
@@ -138,6 +244,22 @@ def load_cached(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any] | No
         return None
 
 
+@contextlib.contextmanager
+def compiling(dispatcher: Any) -> Iterator[None]:
+    """Around a call that compiles ``dispatcher`` (its disk cache had no entry): one line on
+    stderr before and one after, with the wall time, when ``CVJ_COMPILE_NOTICE=1`` - a cold
+    compile takes seconds to a minute and the user should know why nothing happens."""
+    if os.environ.get('CVJ_COMPILE_NOTICE', '') != '1':
+        yield
+        return
+    name = getattr(getattr(dispatcher, 'py_func', None), '__name__', None) or str(dispatcher)
+    print(f'cvj_ros: compiling the physics kernel: {name} (first use; cached afterwards)',
+          file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    yield
+    print(f'cvj_ros: compiled {name} in {time.perf_counter() - t0:.1f} s', file=sys.stderr, flush=True)
+
+
 def entry_point(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any]:
     """The compiled entry point of ``dispatcher`` for the types of ``args`` (loaded from the
     cache, or compiled by a first call through the dispatcher), or the dispatcher itself
@@ -147,7 +269,8 @@ def entry_point(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any]:
     entry = load_cached(dispatcher, args)
     if entry is not None:
         return entry
-    dispatcher(*args)
+    with compiling(dispatcher) if _will_compile(dispatcher) else contextlib.nullcontext():
+        dispatcher(*args)
     try:
         return dispatcher.overloads[tuple(dispatcher.typeof_pyval(a) for a in args)].entry_point
     except (KeyError, AttributeError, ValueError):
@@ -155,6 +278,15 @@ def entry_point(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any]:
 
 
 _ENTRIES: dict[Any, Callable[..., Any]] = {}
+
+
+def _will_compile(dispatcher: Any) -> bool:
+    """After :func:`load_cached` found nothing: whether calling ``dispatcher`` compiles
+    (no overload in memory and not ``CVJ_KERNEL_LOAD=numba``, under which numba's own load
+    may still hit the cache)."""
+    if os.environ.get('CVJ_KERNEL_LOAD', '').strip().lower() == 'numba':
+        return False
+    return not getattr(dispatcher, 'overloads', None)
 
 
 def entry_point_once(dispatcher: Any, args: Sequence[Any]) -> Callable[..., Any]:

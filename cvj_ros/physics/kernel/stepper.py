@@ -18,6 +18,7 @@ SolverOptionError('method', ...).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import time
@@ -26,7 +27,7 @@ import numpy as np
 
 from ...errors import SolverError
 from ..stepper_base import SolverOptionError, _StepperBase
-from . import load_cached, steppers_nb
+from . import _will_compile, compiling, load_cached, steppers_nb
 from . import steppers_nb as nb   # layout constants (FS_*, C_*, ST_*)
 
 _COPIES: dict = {}
@@ -211,7 +212,10 @@ class KernelStepper(_StepperBase):
             return entry(*args)
         misses = sum(fn.stats.cache_misses.values()) if hasattr(fn, 'stats') else 0
         c0 = time.perf_counter()
-        result = fn(*args)
+        # (the tests' private copies with caching off are not announced)
+        cached = type(getattr(fn, '_cache', None)).__name__ != 'NullCache'
+        with compiling(fn) if cached and _will_compile(fn) else contextlib.nullcontext():
+            result = fn(*args)
         if hasattr(fn, 'stats') and sum(fn.stats.cache_misses.values()) > misses:
             self.compile_seconds += time.perf_counter() - c0   # compiled, not loaded
             self.cache_path = fn.stats.cache_path

@@ -1,9 +1,9 @@
 """Compile (or load) every compiled stepper of the driveline kernel once: ``python -m
 cvj_ros.physics.kernel.warmup``.
 
-Run by ``make`` after installing (and by the test session), so the first user command
-or node does not pay the cold compile (measured here ~10-20 s per method family) inside
-a run whose peers are waiting for it. With a warm cache it only loads (~0.5 s).
+Run by ``make test`` and ``make bench`` (which use every method), so no test node pays a
+cold compile while its peers wait. ``make demo`` does not: a run compiles only the entry
+points it calls, on first use (docs/solvers.md "Cache"). With a warm cache it only loads.
 Prints one line per method with the wall time and whether it compiled or loaded.
 
 On a machine with two or more cores the cold compile runs in two processes sharing the

@@ -153,8 +153,12 @@ def test_errors_name_the_parameter() -> None:
         LeverHinge(math.pi / 2)
     with pytest.raises(GeometryError, match=r'^alpha:'):
         LeverHinge(float('nan'))
-    with pytest.raises(GeometryError, match=r'^delta_alpha:'):
+    # the sum out of range: named with both terms, blamed on the larger one
+    with pytest.raises(GeometryError, match=r'^alpha: the sum alpha \+ delta_alpha must be in '
+                                            r'\[0, 90\) deg, got 89 \+ 5\.72958 = 94\.7296 deg$'):
         LeverHinge(math.radians(89.0), delta_alpha=0.1)
+    with pytest.raises(GeometryError, match=r'^delta_alpha: the sum alpha \+ delta_alpha'):
+        LeverHinge(0.1, delta_alpha=1.6)
     with pytest.raises(GeometryError, match=r'^twist:'):
         LeverHinge(0.2, twist=float('inf'))
     with pytest.raises(GeometryError, match=r'^phi_in:'):

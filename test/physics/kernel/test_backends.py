@@ -160,6 +160,50 @@ def test_stale_cache_is_dropped_when_a_physics_source_changes(tmp_path: Path) ->
     assert sources_digest(phys) != sources_digest(Path(__file__).parent)
 
 
+def test_only_the_modules_that_reach_a_changed_file_lose_their_cache(tmp_path: Path) -> None:
+    """numba allows per-function recompilation; what a compiled function can inline is what
+    its module imports (transitively): an edit drops exactly those modules' cache files."""
+    phys = tmp_path / 'physics'
+    for d in ('kernel', 'joints'):
+        (phys / d / '__pycache__').mkdir(parents=True)
+    (phys / '__pycache__').mkdir()
+    (phys / '__init__.py').write_text('')
+    (phys / 'joints' / '__init__.py').write_text('')
+    (phys / 'kernel' / '__init__.py').write_text('')
+    (phys / 'joints' / 'hooke.py').write_text('A = 1\n')
+    (phys / 'joints' / 'tripod.py').write_text('B = 1\n')
+    (phys / 'kernel' / 'rhs_nb.py').write_text('from cvj_ros.physics.joints import hooke\n')
+    (phys / 'kernel' / 'steppers_nb.py').write_text('from . import rhs_nb\n')
+    (phys / 'simulate.py').write_text('from cvj_ros.physics.kernel import steppers_nb\n')
+    (phys / 'engine.py').write_text('def f():\n    from .joints.tripod import B\n')
+    cache = {name: phys / sub / '__pycache__' / f'{name}.f-1.py311.nbi'
+             for sub, name in (('joints', 'hooke'), ('joints', 'tripod'), ('kernel', 'rhs_nb'),
+                               ('kernel', 'steppers_nb'), ('.', 'engine'))}
+
+    def refill() -> None:
+        for f in cache.values():
+            f.write_bytes(b'x')
+
+    def kept() -> set[str]:
+        return {n for n, f in cache.items() if f.exists()}
+    refill()
+    assert drop_stale_cache(None, phys) is True and kept() == set()   # no record yet
+    refill()
+    (phys / 'simulate.py').write_text('from cvj_ros.physics.kernel import steppers_nb\nX = 2\n')
+    assert drop_stale_cache(None, phys) is False and kept() == set(cache)   # nothing imports it
+    (phys / 'joints' / 'hooke.py').write_text('A = 2\n')
+    assert drop_stale_cache(None, phys) is True
+    assert kept() == {'tripod', 'engine'}            # hooke, rhs_nb and steppers_nb recompile
+    refill()
+    (phys / 'joints' / 'tripod.py').write_text('B = 2\n')   # imported inside a function
+    assert drop_stale_cache(None, phys) is True and kept() == {'hooke', 'rhs_nb', 'steppers_nb'}
+    refill()
+    (phys / 'kernel' / 'gone_nb.py').write_text('')
+    orphan = phys / 'kernel' / '__pycache__' / 'old_nb.f-1.py311.nbi'   # module no longer there
+    orphan.write_bytes(b'x')
+    assert drop_stale_cache(None, phys) is True and not orphan.exists() and kept() == set(cache)
+
+
 DIGEST = r'''
 import hashlib, sys
 from cvj_ros.cli import main

@@ -78,7 +78,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cvj_ros.orchestrate import RunOptions, run as run_scene
-    result = run_scene(RunOptions(
+    from cvj_ros.orchestrate.report import command_started
+    result = run_scene(RunOptions(started=command_started(),
         scene=args.scene, out=args.out, duration=args.duration, seed=args.seed, storage=args.storage,
         mode=args.mode, scheme=args.scheme, exchange_step=args.exchange_step,
         load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout,

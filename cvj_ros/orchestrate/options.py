@@ -79,6 +79,9 @@ class RunOptions:
     composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
     executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
     intra_process: bool = True   # composed mode: loop topics through the in-process bus (nodes/intra.py)
+    # time.monotonic() when the command started (the report's wall time counts from it;
+    # None: from the start of the run's set-up)
+    started: float | None = None
 
 
 @dataclass

@@ -701,7 +701,8 @@ class CouplingNode(CvjNode):
         try:
             x = self.stepper.advance(t_next_ns / NS_PER_S, self.T_engine, self.T_load)
         except CvjError as exc:
-            self._stop_with_error(f'integration failed at t={self.t_ns / NS_PER_S:.9g} s: {exc}')
+            self._stop_with_error(f'integration failed at t={self.t_ns / NS_PER_S:.9g} s: {exc}; '
+                                  f'{self._step_torques()}')
             return
         self.integration_total += time.perf_counter() - c0
         self.x = np.asarray(x, dtype=float)
@@ -731,6 +732,13 @@ class CouplingNode(CvjNode):
                     f'max {st["lateness_us_max"]:.0f} us; drift {st["drift_s"] * 1e3:.3f} ms '
                     f'(max {st["drift_max_s"] * 1e3:.3f} ms)')
             self.finish()
+
+    def _step_torques(self) -> str:
+        """The torques a failed step integrated, each with the topic it came from, the largest
+        magnitude first (names the topic of an absurd torque that broke the step)."""
+        pairs = sorted(((ENGINE_WRENCH_TOPIC, float(self.T_engine)), (LOAD_WRENCH_TOPIC, float(self.T_load))),
+                       key=lambda tv: -abs(tv[1]) if math.isfinite(tv[1]) else -math.inf)
+        return 'torques of the step, largest first: ' + ', '.join(f'{t} {v:.6g} N m' for t, v in pairs)
 
     def _free_tick(self) -> None:
         """Free-run wake-up: run every due tick (catch-up policy of the scheduler), then

@@ -82,12 +82,21 @@ BAG_VERSION = 9
 # time passed since the last flush with messages pending. On disk is then everything up to
 # at most FLUSH_SIM_SPAN_S before the newest message the writer received; what `cvj-sim
 # reindex` recovers after a kill (measured: test/robustness/test_hard_kill.py).
-FLUSH_SIM_SPAN_S = 0.25
+FLUSH_SIM_SPAN_S = 0.1
 FLUSH_WALL_S = 0.5
-# Bounds on the cost when a run is much faster than real time: the file is fsynced (power
-# loss; a killed process loses nothing the OS already has) at most once per FLUSH_WALL_S,
-# a sqlite3 commit (which syncs) happens at most every SQLITE_MIN_COMMIT_S of wall time.
-SQLITE_MIN_COMMIT_S = 0.05
+# The file is fsynced (power loss; a killed process loses nothing the OS already has) at most
+# once per FLUSH_WALL_S. sqlite3 runs in write-ahead-log mode with synchronous=NORMAL (the
+# settings of rosbag2's own "resilient" sqlite3 preset): a commit appends to the -wal file
+# without an fsync, so it costs tens of us and can follow the flush span even when the run
+# is 10x faster than real time; a checkpoint every FLUSH_WALL_S syncs it, and the bag is
+# switched back to a rollback journal (one self-contained .db3 file) when it is closed.
+# Composed mode also bounds the writer's lag behind the loop (BatchingWriter, max_lag_s =
+# MAX_LAG_S): the loop waits for the writer rather than run more than MAX_LAG_S of simulated
+# time ahead of what is on disk; a recorder hands its messages over at least every
+# HANDOFF_SPAN_S of record time.
+MAX_LAG_S = 0.15
+HANDOFF_SPAN_S = 0.05
+_HANDOFF_SPAN_NS = int(HANDOFF_SPAN_S * 1e9)
 
 _TYPESTORE = None
 _monotonic = time.monotonic
@@ -173,6 +182,10 @@ class BagWriter:
         self._lock = threading.Lock()
         self._queue: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         self._error: BaseException | None = None
+        # the newest record stamp (ns) the writer thread has handed to the OS (chunk closed and
+        # written / transaction committed); -1 before the first flush
+        self.durable_ns = -1
+        self._durable = threading.Condition()
         self._opened = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(plugin,), name='bag-writer', daemon=True)
         self._thread.start()
@@ -194,6 +207,7 @@ class BagWriter:
         import queue
         import time
         flusher = _Flusher(writer)
+        flusher.on_durable = self._set_durable
         write_many = _mcap_batch_writer(writer) or (
             lambda items: [writer.write(c, ts, d) for c, ts, d in items])
         while True:
@@ -210,20 +224,44 @@ class BagWriter:
                     items = args[0]
                     write_many([(connections[topic], stamp, data) for topic, stamp, data in items])
                     flusher.wrote_span(min(it[1] for it in items), max(it[1] for it in items))
-                if op in ('write', 'batch', 'idle') and self._error is None:
+                if op == 'flush' and self._error is None:
+                    flusher.flush(time.monotonic())
+                elif op in ('write', 'batch', 'idle') and self._error is None:
                     flusher.maybe_flush(time.monotonic())
                 elif op == 'topic':
                     connections[args[0]] = writer.add_connection(args[0], args[1], typestore=typestore())
                 elif op == 'custom':
                     writer.set_custom_data(args[0], args[1])
                 elif op == 'close':
+                    flusher.finish()
                     writer.close()
                     return
             except Exception as exc:  # keep draining; close() reports the first error
                 if self._error is None:
                     self._error = exc
+                    self._set_durable(2**63 - 1)   # nobody waits for a writer that failed
                 if op == 'close':
                     return
+
+    def _set_durable(self, stamp_ns: int) -> None:
+        with self._durable:
+            if stamp_ns > self.durable_ns:
+                self.durable_ns = stamp_ns
+            self._durable.notify_all()
+
+    def wait_durable(self, stamp_ns: int, timeout: float) -> bool:
+        """Block until every message with a record stamp <= ``stamp_ns`` that was handed to the
+        writer is on the OS side (see FLUSH_SIM_SPAN_S), at most ``timeout`` s of wall time;
+        True if it is. Releases the GIL while it waits, so the writer thread runs."""
+        with self._durable:
+            return self._durable.wait_for(lambda: self.durable_ns >= stamp_ns
+                                          or not self._thread.is_alive(), timeout)
+
+    def request_flush(self) -> None:
+        """Ask the writer thread to put everything queued so far on disk now."""
+        with self._lock:
+            if not self.closed:
+                self._queue.put(('flush',))
 
     def _raise_error(self) -> None:
         """Raise the first storage error as BagError."""
@@ -415,6 +453,11 @@ class _Flusher:
         self.first_ns: int | None = None      # record time of the oldest unflushed message
         self.last_ns = 0
         self.last_flush = self.last_sync = time.monotonic()
+        self.on_durable: Any = None           # called with last_ns after each flush
+        if hasattr(self.storage, 'conn'):     # sqlite3: see FLUSH_WALL_S
+            self.storage.conn.commit()
+            self.storage.conn.execute('PRAGMA journal_mode=WAL')
+            self.storage.conn.execute('PRAGMA synchronous=NORMAL')
 
     def wrote(self, timestamp_ns: int) -> None:
         if self.first_ns is None:
@@ -444,12 +487,23 @@ class _Flusher:
             if now - self.last_sync >= FLUSH_WALL_S:
                 os.fsync(st.bio.fileno())
                 self.last_sync = now
-        elif hasattr(st, 'conn'):               # sqlite3: a commit syncs; rate-limited
-            if now - self.last_flush < SQLITE_MIN_COMMIT_S:
-                return
+        elif hasattr(st, 'conn'):               # sqlite3: a commit (WAL, no fsync); sync rate-limited
             st.conn.commit()
+            if now - self.last_sync >= FLUSH_WALL_S:
+                st.conn.execute('PRAGMA wal_checkpoint(PASSIVE)')
+                self.last_sync = now
         self.first_ns = None
         self.last_flush = now
+        if self.on_durable is not None:
+            self.on_durable(self.last_ns)
+
+    def finish(self) -> None:
+        """Before the storage closes: sqlite3 back to a rollback journal, so the finished bag
+        is one self-contained .db3 file (rosbags reads it immutable, ignoring a -wal file)."""
+        st = self.storage
+        if hasattr(st, 'conn'):
+            st.conn.commit()
+            st.conn.execute('PRAGMA journal_mode=DELETE')
 
 
 # --------------------------------------------------------------------------- reading
@@ -832,20 +886,35 @@ def _msg_class(msgtype: str) -> Any:
 
 class BatchingWriter:
     """Front of a :class:`BagWriter` for a recorder: messages are collected and handed to
-    the writer thread ``batch`` at a time (:meth:`BagWriter.write_batch`) or when
-    :meth:`flush` is called (composed mode: every spin tick, <= 0.25 s;
-    :meth:`BagRecorder.spin`: after every wake). Why: one queue hand-off per message woke
-    the writer thread ~6 times per exchange, and each wake-up made the recording thread wait
-    for the GIL (measured on this 2-core machine under load, composed mode: the recorder
-    callbacks took 1.3-2.5 ms per exchange, most of the exchange). ``counts`` include the
-    collected messages, so progress and the drain see every message at once.
+    the writer thread ``batch`` at a time (:meth:`BagWriter.write_batch`), when they span
+    :data:`HANDOFF_SPAN_S` of record time, or when :meth:`flush` is called (composed mode:
+    every spin tick; :meth:`BagRecorder.spin`: after every wake). Why: one queue hand-off
+    per message woke the writer thread ~6 times per exchange, and each wake-up made the
+    recording thread wait for the GIL (measured on this 2-core machine under load, composed
+    mode: the recorder callbacks took 1.3-2.5 ms per exchange, most of the exchange).
+    ``counts`` include the collected messages, so progress and the drain see every message
+    at once.
+
+    ``max_lag_s`` (composed mode, where the loop and the writer share one process): at each
+    hand-off, wait (at most ``wait_s`` of wall time) until the writer has everything older
+    than ``max_lag_s`` of record time before the newest message handed over on disk. The
+    loop then never runs further ahead of the disk than that: a SIGKILL of the process
+    loses at most ``HANDOFF_SPAN_S + max_lag_s`` of simulated time (plus a drain's worth of
+    messages in the recorder). Without it the writer thread, starved of the GIL by a loop 10x
+    faster than real time, fell seconds of simulated time behind.
     """
 
-    def __init__(self, writer: Any, *, batch: int = 1024) -> None:
+    def __init__(self, writer: Any, *, batch: int = 1024, max_lag_s: float | None = None,
+                 wait_s: float = 1.0) -> None:
         self.writer = writer
         self.batch = batch
         self.counts: dict[str, int] = {}
         self._items: list[tuple[str, int, bytes]] = []
+        self._first_ns: int | None = None
+        self.max_lag_ns = None if max_lag_s is None else int(max_lag_s * 1e9)
+        self.wait_s = wait_s
+        self.waits = 0            # hand-offs that waited for the writer
+        self.wait_total_s = 0.0   # wall time spent waiting
 
     def add_topic(self, topic: str, msgtype: str | None = None) -> None:
         self.writer.add_topic(topic, msgtype)
@@ -853,28 +922,43 @@ class BatchingWriter:
 
     def write_many(self, items: list[tuple[str, int, bytes]]) -> None:
         """Collect ``(topic, record time ns, bytes)`` messages of registered topics."""
+        if not items:
+            return
         self._items.extend(items)
         counts = self.counts
         for topic, _ts, _data in items:
             counts[topic] += 1
-        if len(self._items) >= self.batch:
+        if self._first_ns is None:
+            self._first_ns = items[0][1]
+        if len(self._items) >= self.batch or items[-1][1] - self._first_ns >= _HANDOFF_SPAN_NS:
             self.flush()
 
     def write(self, topic: str, timestamp_ns: int, data: Any) -> None:
         """Collect one raw CDR message (record time ns); hand over when ``batch`` are collected."""
-        self._items.append((topic, int(timestamp_ns), bytes(data)))
-        self.counts[topic] += 1
-        if len(self._items) >= self.batch:
-            self.flush()
+        self.write_many([(topic, int(timestamp_ns), bytes(data))])
 
     def set_custom_data(self, key: str, value: str) -> None:
         self.writer.set_custom_data(key, value)
 
     def flush(self) -> None:
-        """Hand everything collected to the writer thread."""
-        if self._items:
-            items, self._items = self._items, []
-            self.writer.write_batch(items)
+        """Hand everything collected to the writer thread (and, with ``max_lag_s``, wait
+        until the writer is no further behind than that)."""
+        if not self._items:
+            return
+        items, self._items = self._items, []
+        self._first_ns = None
+        self.writer.write_batch(items)
+        if self.max_lag_ns is None:
+            return
+        newest = max(items[-1][1], items[0][1])
+        need = newest - self.max_lag_ns
+        if self.writer.durable_ns >= need:
+            return
+        self.writer.request_flush()
+        t0 = _monotonic()
+        self.writer.wait_durable(need, self.wait_s)
+        self.waits += 1
+        self.wait_total_s += _monotonic() - t0
 
 
 class BagRecorder:

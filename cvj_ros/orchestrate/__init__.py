@@ -213,7 +213,11 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
             if 'coupling_node' in procs:
                 _stop_processes(procs, ['coupling_node'], options.grace)
-            recorder.drain(expected={}, idle=0.3, bound=2.0)
+            # the loop stopped at its last state: that state's answers and /clock are in flight
+            n_js = recorder.recorder.counts.get(bagmod.JOINT_STATES_TOPIC, 0) if recorder else 0
+            recorder.drain(expected={t: n_js for t in (bagmod.CLOCK_TOPIC, *PEER_TOPICS.values())}
+                           if n_js and options.mode == 'lockstep' and not options.external else {},
+                           idle=0.3, bound=1.0)
         else:
             rc = procs['coupling_node'].returncode
             lockstep_ok = rc == 0 and options.mode == 'lockstep'

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['BATCH', 'SeriesBuilder', 'batch_decodable', 'joint_state_layout', 'mcap_messages',
-           'wrench_layout']
+__all__ = ['BATCH', 'SeriesBuilder', 'as_bytes', 'batch_decodable', 'joint_state_layout',
+           'mcap_messages', 'wrench_layout']
 
 #: messages decoded at once per topic (a few MiB of raw bytes at most)
 BATCH = 8192
@@ -109,12 +109,23 @@ def batch_decodable(msgtype: str) -> bool:
     return msgtype in (JOINT_STATE, WRENCH, CLOCK)
 
 
+def as_bytes(segment: Any) -> list[bytes]:
+    """A segment of messages (list of bytes or (m, L) uint8 rows) as a list of bytes."""
+    return [r.tobytes() for r in segment] if isinstance(segment, np.ndarray) else segment
+
+
 def _rows(batch: Sequence[bytes], layout: Layout) -> np.ndarray | None:
     """The batch as an (m, size) uint8 array when every message has the layout, else None."""
     size = layout.size
     if any(len(d) != size for d in batch):
         return None
-    buf = np.frombuffer(b''.join(batch), dtype=np.uint8).reshape(len(batch), size)
+    return _check_rows(np.frombuffer(b''.join(batch), dtype=np.uint8).reshape(len(batch), size),
+                       layout)
+
+
+def _check_rows(buf: np.ndarray, layout: Layout) -> np.ndarray | None:
+    """``buf`` ((m, size) uint8) when every row has the layout (little endian, the fixed
+    byte ranges of the reference message), else None."""
     if np.any(buf[:, 1] != 1):
         return None
     ref = layout.ref
@@ -170,24 +181,24 @@ class SeriesBuilder:
         self.names: list[str] | None = None
         self.frame_id = ''
         self.width = 0
-        self._raw: list[bytes] = []
+        self._segments: list[Any] = []        # lists of bytes or (m, L) uint8 arrays
         self._rec: list[int] = []
+        self._pending = 0
         self._learned = False
 
     # --- collecting ---------------------------------------------------------------------
 
     def add(self, record_ns: int, raw: bytes | memoryview) -> None:
         """One message (record time ns, raw CDR)."""
-        self._raw.append(bytes(raw))
-        self._rec.append(record_ns)
-        if len(self._raw) >= self.batch:
-            self._decode()
+        self.add_many([record_ns], [bytes(raw)])
 
-    def add_many(self, record_ns: list[int], raws: list[bytes]) -> None:
-        """Messages (record times ns, raw CDR bytes) in order."""
-        self._raw.extend(raws)
+    def add_many(self, record_ns: list[int], raws: Any) -> None:
+        """Messages (record times ns, raw CDR) in order; ``raws`` a list of bytes or an (m, L)
+        uint8 array of m messages of L bytes each (:func:`mcap_messages`)."""
+        self._segments.append(raws)
         self._rec.extend(record_ns)
-        if len(self._raw) >= self.batch:
+        self._pending += len(raws)
+        if self._pending >= self.batch:
             self._decode()
 
     def _first(self, data: bytes) -> None:
@@ -227,18 +238,25 @@ class SeriesBuilder:
         self.capacity = cap
 
     def _decode(self) -> None:
-        raw, rec = self._raw, self._rec
-        if not raw:
+        segments, rec = self._segments, self._rec
+        if not segments:
             return
-        self._raw, self._rec = [], []
+        self._segments, self._rec, self._pending = [], [], 0
         if not self._learned:
-            self._first(raw[0])
+            first = segments[0]
+            self._first(first[0].tobytes() if isinstance(first, np.ndarray) else first[0])
             self._learned = True
-        m = len(raw)
+        m = len(rec)
         self._grow(self.n + m)
         lo, hi = self.n, self.n + m
         self.record_ns[lo:hi] = rec
-        buf = _rows(raw, self.layout) if self.layout is not None else None
+        buf = None
+        if self.layout is not None:
+            if all(isinstance(g, np.ndarray) and g.shape[1] == self.layout.size for g in segments):
+                buf = _check_rows(np.concatenate(segments) if len(segments) > 1 else segments[0],
+                                  self.layout)
+            else:
+                buf = _rows([r for g in segments for r in as_bytes(g)], self.layout)
         if buf is not None:
             self.stamp_ns[lo:hi] = _stamps_ns(buf)
             if self.msgtype == JOINT_STATE:
@@ -248,8 +266,11 @@ class SeriesBuilder:
             elif self.msgtype == WRENCH:
                 self.values['wrench'][lo:hi] = _values(buf, self.layout.starts[0], 6)
         else:
-            for i, data in enumerate(raw):
-                self._one(lo + i, data)
+            i = lo
+            for g in segments:
+                for data in as_bytes(g):
+                    self._one(i, data)
+                    i += 1
         self.n = hi
 
     def _one(self, i: int, data: bytes) -> None:
@@ -332,7 +353,12 @@ def mcap_messages(path: str, topics: set[str] | None = None) -> Any:
                 end = pos + struct.unpack_from('<Q', data, 32)[0]
                 if end > len(data) or end - pos != size:
                     raise NotPlain('chunk sizes disagree')
-                yield from _chunk_messages(data, pos, end, channels, topics)
+                indexes = _message_indexes(fh)
+                block = _indexed_messages(data, pos, end, indexes, channels)
+                if block is None:      # channels defined in the chunk, or no indexes
+                    yield from _chunk_messages(data, pos, end, channels, topics)
+                else:
+                    yield block
             elif op == 0x04:                                 # Channel (outside chunks)
                 data = fh.read(length)
                 _channel(data, 0, channels, topics)
@@ -348,6 +374,62 @@ def mcap_messages(path: str, topics: set[str] | None = None) -> Any:
                 return
             else:
                 fh.seek(length, 1)
+
+
+def _message_indexes(fh: Any) -> list[tuple[int, bytes]]:
+    """The MessageIndex records (0x07: channel id, then (log time, offset) pairs) that follow
+    a chunk, as (channel id, pairs bytes); the file is left at the next other record."""
+    out = []
+    while True:
+        head = fh.read(9)
+        if len(head) < 9:
+            fh.seek(-len(head), 1)
+            return out
+        op, length = _REC.unpack(head)
+        if op != 0x07:
+            fh.seek(-9, 1)
+            return out
+        body = fh.read(length)
+        if len(body) != length or length < 6:
+            raise NotPlain('message index cut short')
+        cid, n = struct.unpack_from('<HI', body, 0)
+        if 6 + n > length or n % 16:
+            raise NotPlain('message index sizes disagree')
+        out.append((cid, body[6:6 + n]))
+
+
+def _indexed_messages(data: bytes, pos: int, end: int, indexes: list[tuple[int, bytes]],
+                      channels: dict[int, str | None]) -> dict[str, Any] | None:
+    """The wanted messages of a chunk located through its message indexes, without
+    walking its records: per topic ``(log times, rows)`` where ``rows`` is an (m, L) uint8
+    array when the topic's messages in the chunk have one length L (the joint states,
+    answers and /clock of a run), else a list of bytes. None when a channel of the chunk is
+    not known yet (its Channel record is inside this chunk) or there are no indexes: the
+    caller walks the records."""
+    if not indexes or any(cid not in channels for cid, _pairs in indexes):
+        return None
+    buf = np.frombuffer(data, dtype=np.uint8)
+    out: dict[str, Any] = {}
+    head = np.arange(8)
+    for cid, pairs in indexes:
+        topic = channels[cid]
+        if topic is None or not pairs:
+            continue
+        tv = np.frombuffer(pairs, dtype='<u8').reshape(-1, 2)
+        order = np.argsort(tv[:, 1], kind='stable')          # file order
+        times, offs = tv[order, 0].astype(np.int64), tv[order, 1].astype(np.int64) + pos
+        if offs.max() + 31 > end or np.any(buf[offs] != 0x05):
+            raise NotPlain('message index points outside the chunk\'s messages')
+        lens = np.ascontiguousarray(buf[(offs + 1)[:, None] + head]).view('<u8')[:, 0].astype(np.int64)
+        if np.any(offs + 9 + lens > end) or np.any(lens < 22):
+            raise NotPlain('message record runs past its chunk')
+        if np.all(lens == lens[0]):
+            width = int(lens[0]) - 22
+            rows = buf[(offs + 31)[:, None] + np.arange(width)]
+            out[topic] = (times.tolist(), rows)
+        else:
+            out[topic] = (times.tolist(), [data[o + 31:o + 9 + n] for o, n in zip(offs.tolist(), lens.tolist())])
+    return out
 
 
 def _channel(data: bytes, pos: int, channels: dict[int, str | None], topics: set[str] | None) -> None:

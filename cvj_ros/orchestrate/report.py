@@ -51,20 +51,24 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
     n_msgs = sum(result.counts.values())
     print(f'cvj-sim run: bag closed ({n_msgs} messages); computing the report from it',
           file=stream, flush=True)
-    # the bag is read once for every figure below: speeds and torques only (no positions),
-    # joint states, wrenches and /clock decoded in batches (cvj_ros.bag_decode)
+    # every figure below from the bag in two streaming passes (memory independent of the
+    # run's length but 16 bytes per exchange: cvj_ros.orchestrate.report_stream); a bag
+    # that cannot be streamed is read once into arrays (speeds and torques, no positions)
+    from cvj_ros.orchestrate.report_stream import NotStreamable, stream_bag_metrics
+    data: dict[str, Any] | None = None
     try:
-        data = bagmod.read_bag(result.bag, None, columns=('velocity', 'effort'))
-    except CvjError as exc:
-        data, read_error = None, str(exc)
-    try:
-        if data is None:
-            raise CvjError(read_error)
-        result.metrics = bag_metrics(result.bag, data=data)
-    except CvjError as exc:
-        result.metrics = {'error': str(exc)}
-    diags = data.get('/diagnostics') if data is not None else None
-    diags_read = data is not None
+        result.metrics, side = stream_bag_metrics(result.bag)
+        diags, diags_read = side['diagnostics'], True
+        data = {bagmod.SCENE_TOPIC: bagmod.TextSeries(np.zeros(1), [side['scene']], np.zeros(1))
+                } if side['scene'] is not None else {}
+    except (NotStreamable, CvjError):
+        try:
+            data = bagmod.read_bag(result.bag, None, columns=('velocity', 'effort'))
+            result.metrics = bag_metrics(result.bag, data=data)
+        except CvjError as exc:
+            result.metrics = {'error': str(exc)}
+        diags = data.get('/diagnostics') if data is not None else None
+        diags_read = data is not None
     counters = loop_counters(result.bag, diags=diags)
     if counters:
         result.metrics['loop_counters'] = counters

@@ -25,6 +25,7 @@ left to the in-memory path (:class:`NotStreamable`).
 """
 from __future__ import annotations
 
+import struct
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -54,28 +55,85 @@ class DiagnosticsKeeper:
 
     def __init__(self) -> None:
         self.kept: list[tuple[int, float, list[dict[str, Any]]]] = []
-        self.loop: deque[tuple[int, float, list[dict[str, Any]]]] = deque(maxlen=KEEP_LOOP_MESSAGES)
+        # (index, time: s for decoded entries, ns for raw ones, statuses or raw bytes)
+        self.loop: deque[tuple[int, Any, Any]] = deque(maxlen=KEEP_LOOP_MESSAGES)
         self.seen = 0
 
     def add(self, block: list[tuple[int, bytes]]) -> None:
-        """Raw CDR DiagnosticArray messages with their record times (ns)."""
+        """Raw CDR DiagnosticArray messages with their record times (ns). A message of the
+        coupling loop's status alone (most of them) is only scanned for its statuses' levels
+        and names (:func:`_only_loop_status`) and kept as bytes until :meth:`series`."""
         for ts, data in block:
-            statuses = [{'name': name, 'level': int.from_bytes(level, 'little') if isinstance(
-                level, bytes) else int(level), 'message': message, 'hardware_id': hw,
-                'values': dict(values)} for level, name, message, hw, values in _statuses(data)]
-            entry = (self.seen, ts * 1e-9, statuses)
-            if any(st['name'] != LOOP_STATUS and st['level'] in (1, 2) for st in statuses):
-                self.kept.append(entry)
-            elif any(st['name'] == LOOP_STATUS for st in statuses):
-                self.loop.append(entry)
+            if _only_loop_status(data):
+                self.loop.append((self.seen, ts, data))
+            else:
+                statuses = _status_dicts(data)
+                entry = (self.seen, ts * 1e-9, statuses)
+                if any(st['name'] != LOOP_STATUS and st['level'] in (1, 2) for st in statuses):
+                    self.kept.append(entry)
+                elif any(st['name'] == LOOP_STATUS for st in statuses):
+                    self.loop.append(entry)
             self.seen += 1
 
     def series(self) -> bagmod.DiagnosticsSeries | None:
         if not self.seen:
             return None
-        rows = sorted(self.kept + list(self.loop), key=lambda e: e[0])
+        loop = [e if isinstance(e[2], list) else (e[0], e[1] * 1e-9, _status_dicts(e[2]))
+                for e in self.loop]
+        rows = sorted(self.kept + loop, key=lambda e: e[0])
         t = np.array([e[1] for e in rows], dtype=float)
         return bagmod.DiagnosticsSeries(t.copy(), [e[2] for e in rows], t)
+
+
+_LOOP_NAME = LOOP_STATUS.encode()
+
+
+def _only_loop_status(data: bytes) -> bool:
+    """Whether a little-endian CDR DiagnosticArray holds the coupling loop's status and no
+    other WARN/ERROR status: its statuses' levels and names read, every other string skipped
+    by its length (no decoding). False when unsure (other encodings, a cut message)."""
+    if _LOOP_NAME not in data or len(data) < 16 or data[1] != 1:
+        return False
+    u32 = struct.Struct('<I').unpack_from
+    try:
+        pos = 12
+
+        def skip() -> tuple[int, int]:
+            nonlocal pos
+            pos += -(pos - 4) % 4
+            n = u32(data, pos)[0]
+            start = pos + 4
+            pos = start + n
+            return start, n
+        skip()                                              # header.frame_id
+        pos += -(pos - 4) % 4
+        count = u32(data, pos)[0]
+        pos += 4
+        loop = False
+        for _ in range(count):
+            level = data[pos]
+            pos += 1
+            start, n = skip()
+            is_loop = data[start:start + max(n - 1, 0)] == _LOOP_NAME
+            loop = loop or is_loop
+            if not is_loop and level in (1, 2):
+                return False
+            skip(), skip()                                  # message, hardware_id
+            pos += -(pos - 4) % 4
+            kv = u32(data, pos)[0]
+            pos += 4
+            for _ in range(2 * kv):
+                skip()
+        return loop and pos <= len(data)
+    except (struct.error, IndexError):
+        return False
+
+
+def _status_dicts(data: bytes) -> list[dict[str, Any]]:
+    """The statuses of a DiagnosticArray as bag.DiagnosticsSeries holds them."""
+    return [{'name': name, 'level': int.from_bytes(level, 'little') if isinstance(level, bytes)
+             else int(level), 'message': message, 'hardware_id': hw, 'values': dict(values)}
+            for level, name, message, hw, values in _statuses(data)]
 
 
 def _statuses(data: bytes) -> list[tuple[Any, ...]]:

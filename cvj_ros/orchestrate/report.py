@@ -61,7 +61,7 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
         diags, diags_read = side['diagnostics'], True
         data = {bagmod.SCENE_TOPIC: bagmod.TextSeries(np.zeros(1), [side['scene']], np.zeros(1))
                 } if side['scene'] is not None else {}
-    except (NotStreamable, CvjError):
+    except (NotStreamable, CvjError, Exception):  # noqa: BLE001 (never lose the report to it)
         try:
             data = bagmod.read_bag(result.bag, None, columns=('velocity', 'effort'))
             result.metrics = bag_metrics(result.bag, data=data)

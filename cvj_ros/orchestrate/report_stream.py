@@ -219,26 +219,33 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         counts, types = info.counts, info.types
     out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
     extra: dict[str, Any] = {'diagnostics': None, 'scene': None}
-    # pass 1: times and the reference speed
-    ts_blocks, w_blocks, names = [], [], None
-    if counts.get(js_topic):
-        for _topic, _ty, d in bagmod.iter_blocks(path, [js_topic], columns=('velocity',)):
-            ts_blocks.append(d['stamp_ns'])
-            names = d['names']
-            w_blocks.append(np.ascontiguousarray(d['velocity'][:, 0]) if d['velocity'].shape[1]
-                            else np.full(d['stamp_ns'].size, np.nan))
-    ns = np.concatenate(ts_blocks) if ts_blocks else np.zeros(0, dtype=np.int64)
-    # sec + nanosec * 1e-9 as bag.read_bag computes it: the same float64 bits
-    t = (ns // 1_000_000_000).astype(float) + (ns % 1_000_000_000).astype(float) * 1e-9
-    del ns, ts_blocks
+    # pass 1: times and the reference speed, into arrays allocated once for the count the
+    # bag states (no concatenation, no int64 copy: 16 bytes per exchange at the peak)
+    n_js = int(counts.get(js_topic, 0))
+    t, w = np.empty(n_js), np.empty(n_js)
+    names, rows, speed_peak = None, 0, 0.0
+    for _topic, _ty, d in (bagmod.iter_blocks(path, [js_topic], columns=('velocity',))
+                           if n_js else ()):
+        sn, k = d['stamp_ns'], d['stamp_ns'].size
+        if rows + k > n_js:
+            raise NotStreamable(f'{js_topic}: more messages than the bag states')
+        # sec + nanosec * 1e-9 as bag.read_bag computes it: the same float64 bits
+        t[rows:rows + k] = (sn // 1_000_000_000).astype(float)
+        t[rows:rows + k] += (sn % 1_000_000_000).astype(float) * 1e-9
+        v0 = d['velocity'][:, 0] if d['velocity'].shape[1] else np.full(k, np.nan)
+        w[rows:rows + k] = v0
+        speed_peak = max(speed_peak, float(np.max(np.abs(v0)))) if k else speed_peak
+        names = d['names']
+        rows += k
+    if rows != n_js:
+        raise NotStreamable(f'{js_topic}: {rows} messages, the bag states {n_js}')
     wanted = [tp for tp, c in counts.items() if c and tp != bagmod.CLOCK_TOPIC and (
         tp in (bagmod.SCENE_TOPIC, '/diagnostics')
         or types.get(tp) == 'geometry_msgs/msg/WrenchStamped')]
     streaming = t.size >= 3 and bool(names)
-    if streaming and not np.all(np.diff(t) > 0):
+    if streaming and not all(np.all(t[i + 1:j + 1] > t[i:j]) for i, j in (
+            (i, min(i + 2**20, t.size - 1)) for i in range(0, t.size - 1, 2**20))):
         raise NotStreamable(f'{js_topic}: stamps not strictly increasing')
-    w = np.concatenate(w_blocks) if w_blocks else np.zeros(0)
-    del w_blocks
     n = t.size
     width = len(names or [])
     if streaming:
@@ -319,7 +326,7 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
                   for k, a in enumerate(lo)]
         w_spans = steady.slice_spans(w[:, None], lo)[:, 0]
         t_spans = eff.spans(groups)
-        stats = [(reference, w_spans, float(np.max(np.abs(w))), steady.SPEED_FLOOR)]
+        stats = [(reference, w_spans, speed_peak, steady.SPEED_FLOOR)]
         stats += [(f'{name} torque', t_spans[:, i], torque_peak, steady.TORQUE_FLOOR)
                   for i, name in enumerate(names)]
     means = None

@@ -60,11 +60,15 @@ class DiagnosticsKeeper:
         self.seen = 0
 
     def add(self, block: list[tuple[int, bytes]]) -> None:
-        """Raw CDR DiagnosticArray messages with their record times (ns). A message of the
-        coupling loop's status alone (most of them) is only scanned for its statuses' levels
-        and names (:func:`_only_loop_status`) and kept as bytes until :meth:`series`."""
+        """Raw CDR DiagnosticArray messages with their record times (ns). Each is first
+        scanned for its statuses' levels and names (:func:`_scan_statuses`): one without the
+        loop status and without WARN/ERROR is not needed, one with the loop status only (and
+        OK ones) is kept as bytes until :meth:`series`; the others are decoded."""
         for ts, data in block:
-            if _only_loop_status(data):
+            scan = _scan_statuses(data)
+            if scan == (False, False):           # OK statuses of other nodes: not read
+                pass
+            elif scan == (True, False):          # the loop's status (+ OK ones): raw for now
                 self.loop.append((self.seen, ts, data))
             else:
                 statuses = _status_dicts(data)
@@ -86,15 +90,17 @@ class DiagnosticsKeeper:
 
 
 _LOOP_NAME = LOOP_STATUS.encode()
+_U32 = struct.Struct('<I')
 
 
-def _only_loop_status(data: bytes) -> bool:
-    """Whether a little-endian CDR DiagnosticArray holds the coupling loop's status and no
-    other WARN/ERROR status: its statuses' levels and names read, every other string skipped
-    by its length (no decoding). False when unsure (other encodings, a cut message)."""
-    if _LOOP_NAME not in data or len(data) < 16 or data[1] != 1:
-        return False
-    u32 = struct.Struct('<I').unpack_from
+def _scan_statuses(data: bytes) -> tuple[bool, bool] | None:
+    """``(has the coupling loop's status, has a WARN/ERROR status of another node)`` of a
+    little-endian CDR DiagnosticArray, from its statuses' levels and names (every other
+    string skipped by its length, nothing decoded); None when unsure (other encodings, a
+    cut message): the caller decodes it."""
+    if len(data) < 16 or data[1] != 1:
+        return None
+    u32 = _U32.unpack_from
     try:
         pos = 12
 
@@ -109,24 +115,24 @@ def _only_loop_status(data: bytes) -> bool:
         pos += -(pos - 4) % 4
         count = u32(data, pos)[0]
         pos += 4
-        loop = False
+        loop = other = False
         for _ in range(count):
             level = data[pos]
             pos += 1
             start, n = skip()
-            is_loop = data[start:start + max(n - 1, 0)] == _LOOP_NAME
-            loop = loop or is_loop
-            if not is_loop and level in (1, 2):
-                return False
+            if data[start:start + max(n - 1, 0)] == _LOOP_NAME:
+                loop = True
+            elif level in (1, 2):
+                other = True
             skip(), skip()                                  # message, hardware_id
             pos += -(pos - 4) % 4
             kv = u32(data, pos)[0]
             pos += 4
             for _ in range(2 * kv):
                 skip()
-        return loop and pos <= len(data)
+        return (loop, other) if pos <= len(data) else None
     except (struct.error, IndexError):
-        return False
+        return None
 
 
 def _status_dicts(data: bytes) -> list[dict[str, Any]]:

@@ -93,11 +93,15 @@ def test_stream_equals_in_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert report.monitor_statuses(path, diags=side['diagnostics'])['warn'] == 4
 
 
-def test_report_memory_grows_by_the_times_and_reference_speed_only(tmp_path: Path) -> None:
+def test_report_memory_grows_by_the_times_and_reference_speed_only(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Traced peak (tracemalloc: Python objects and numpy arrays) of the streaming report on
     10 000 and 40 000 steps: the growth per step is bounded by the joint-state times and
-    reference speed it keeps (16 B) and their concatenation (x2) plus slack: 48 B. The
-    in-memory path holds ~200 B per step of arrays (speeds, torques, every answer)."""
+    reference speed it keeps (16 B) plus slack: 48 B. The in-memory path holds ~200 B per
+    step of arrays (speeds, torques, every answer). The read-ahead (chunks gathered at once,
+    messages decoded at once) is a constant, set small here so that both bags exceed it."""
+    monkeypatch.setattr(bag_decode, 'CHUNKS_AT_ONCE', 1)
+    monkeypatch.setattr(bag_decode, 'BATCH', 1024)
     peaks = {}
     for steps in (10_000, 40_000):
         path = write_run_bag(tmp_path / f'b{steps}', steps)

@@ -578,8 +578,8 @@ def _main(args: Sequence[str] | None) -> int:
                              intra_process=opts.intra_process)
 
     def on_signal(signum: int, _frame: Any) -> None:
-        stop.append(signum)
-        comp.wake()
+        stop.append(signum)              # flags only, as in run_composed
+        comp.wake_from_signal()
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     writer = None
     try:
@@ -593,10 +593,12 @@ def _main(args: Sequence[str] | None) -> int:
             if name in opts.without:
                 continue
             try:
-                comp.add_node(name)
+                node = comp.add_node(name)
             except CvjError as exc:
                 print(f'{PROG}: error: {name}: {exc}', file=sys.stderr)
                 return EXIT_PARAMETER
+            if name == 'coupling_node':       # stop at the exchange in progress on a signal
+                node.stop_signal = lambda: stop[0] if stop else 0
         done = comp.nodes.get('coupling_node')
         if done is None:   # no loop owner here: serve until Ctrl-C or a node fails
             while ctx.ok() and not stop and comp.failed() is None:

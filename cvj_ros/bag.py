@@ -29,7 +29,7 @@ import shutil
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -90,12 +90,21 @@ BAG_VERSION = 9
 # time passed since the last flush with messages pending. On disk is then everything up to
 # at most FLUSH_SIM_SPAN_S before the newest message the writer received; what `cvj-sim
 # reindex` recovers after a kill (measured: test/robustness/test_hard_kill.py).
-FLUSH_SIM_SPAN_S = 0.25
+FLUSH_SIM_SPAN_S = 0.1
 FLUSH_WALL_S = 0.5
-# Bounds on the cost when a run is much faster than real time: the file is fsynced (power
-# loss; a killed process loses nothing the OS already has) at most once per FLUSH_WALL_S,
-# a sqlite3 commit (which syncs) happens at most every SQLITE_MIN_COMMIT_S of wall time.
-SQLITE_MIN_COMMIT_S = 0.05
+# The file is fsynced (power loss; a killed process loses nothing the OS already has) at most
+# once per FLUSH_WALL_S. sqlite3 runs in write-ahead-log mode with synchronous=NORMAL (the
+# settings of rosbag2's own "resilient" sqlite3 preset): a commit appends to the -wal file
+# without an fsync, so it costs tens of us and can follow the flush span even when the run
+# is 10x faster than real time; a checkpoint every FLUSH_WALL_S syncs it, and the bag is
+# switched back to a rollback journal (one self-contained .db3 file) when it is closed.
+# Composed mode also bounds the writer's lag behind the loop (BatchingWriter, max_lag_s =
+# MAX_LAG_S): the loop waits for the writer rather than run more than MAX_LAG_S of simulated
+# time ahead of what is on disk; a recorder hands its messages over at least every
+# HANDOFF_SPAN_S of record time.
+MAX_LAG_S = 0.15
+HANDOFF_SPAN_S = 0.05
+_HANDOFF_SPAN_NS = int(HANDOFF_SPAN_S * 1e9)
 
 _TYPESTORE = None
 _monotonic = time.monotonic
@@ -181,6 +190,10 @@ class BagWriter:
         self._lock = threading.Lock()
         self._queue: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         self._error: BaseException | None = None
+        # the newest record stamp (ns) the writer thread has handed to the OS (chunk closed and
+        # written / transaction committed); -1 before the first flush
+        self.durable_ns = -1
+        self._durable = threading.Condition()
         self._opened = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(plugin,), name='bag-writer', daemon=True)
         self._thread.start()
@@ -203,6 +216,7 @@ class BagWriter:
         import queue
         import time
         flusher = _Flusher(writer)
+        flusher.on_durable = self._set_durable
         write_many = _mcap_batch_writer(writer) or (
             lambda items: [writer.write(c, ts, d) for c, ts, d in items])
         while True:
@@ -219,7 +233,9 @@ class BagWriter:
                     items = args[0]
                     write_many([(connections[topic], stamp, data) for topic, stamp, data in items])
                     flusher.wrote_span(min(it[1] for it in items), max(it[1] for it in items))
-                if op in ('write', 'batch', 'idle') and self._error is None:
+                if op == 'flush' and self._error is None:
+                    flusher.flush(time.monotonic())
+                elif op in ('write', 'batch', 'idle') and self._error is None:
                     flusher.maybe_flush(time.monotonic())
                 elif op == 'topic':
                     connections[args[0]] = writer.add_connection(
@@ -227,14 +243,36 @@ class BagWriter:
                 elif op == 'custom':
                     writer.set_custom_data(args[0], args[1])
                 elif op == 'close':
+                    flusher.finish()
                     writer.close()
                     fix_metadata_file(self.path)
                     return
             except Exception as exc:  # keep draining; close() reports the first error
                 if self._error is None:
                     self._error = exc
+                    self._set_durable(2**63 - 1)   # nobody waits for a writer that failed
                 if op == 'close':
                     return
+
+    def _set_durable(self, stamp_ns: int) -> None:
+        with self._durable:
+            if stamp_ns > self.durable_ns:
+                self.durable_ns = stamp_ns
+            self._durable.notify_all()
+
+    def wait_durable(self, stamp_ns: int, timeout: float) -> bool:
+        """Block until every message with a record stamp <= ``stamp_ns`` that was handed to the
+        writer is on the OS side (see FLUSH_SIM_SPAN_S), at most ``timeout`` s of wall time;
+        True if it is. Releases the GIL while it waits, so the writer thread runs."""
+        with self._durable:
+            return self._durable.wait_for(lambda: self.durable_ns >= stamp_ns
+                                          or not self._thread.is_alive(), timeout)
+
+    def request_flush(self) -> None:
+        """Ask the writer thread to put everything queued so far on disk now."""
+        with self._lock:
+            if not self.closed:
+                self._queue.put(('flush',))
 
     def _raise_error(self) -> None:
         """Raise the first storage error as BagError."""
@@ -426,6 +464,11 @@ class _Flusher:
         self.first_ns: int | None = None      # record time of the oldest unflushed message
         self.last_ns = 0
         self.last_flush = self.last_sync = time.monotonic()
+        self.on_durable: Any = None           # called with last_ns after each flush
+        if hasattr(self.storage, 'conn'):     # sqlite3: see FLUSH_WALL_S
+            self.storage.conn.commit()
+            self.storage.conn.execute('PRAGMA journal_mode=WAL')
+            self.storage.conn.execute('PRAGMA synchronous=NORMAL')
 
     def wrote(self, timestamp_ns: int) -> None:
         if self.first_ns is None:
@@ -455,12 +498,23 @@ class _Flusher:
             if now - self.last_sync >= FLUSH_WALL_S:
                 os.fsync(st.bio.fileno())
                 self.last_sync = now
-        elif hasattr(st, 'conn'):               # sqlite3: a commit syncs; rate-limited
-            if now - self.last_flush < SQLITE_MIN_COMMIT_S:
-                return
+        elif hasattr(st, 'conn'):               # sqlite3: a commit (WAL, no fsync); sync rate-limited
             st.conn.commit()
+            if now - self.last_sync >= FLUSH_WALL_S:
+                st.conn.execute('PRAGMA wal_checkpoint(PASSIVE)')
+                self.last_sync = now
         self.first_ns = None
         self.last_flush = now
+        if self.on_durable is not None:
+            self.on_durable(self.last_ns)
+
+    def finish(self) -> None:
+        """Before the storage closes: sqlite3 back to a rollback journal, so the finished bag
+        is one self-contained .db3 file (rosbags reads it immutable, ignoring a -wal file)."""
+        st = self.storage
+        if hasattr(st, 'conn'):
+            st.conn.commit()
+            st.conn.execute('PRAGMA journal_mode=DELETE')
 
 
 # --------------------------------------------------------------------------- reading
@@ -643,12 +697,18 @@ def _stamp_s(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str, Any]:
+def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
+             columns: Sequence[str] = ('position', 'velocity', 'effort')) -> dict[str, Any]:
     """Read a bag (mcap or sqlite3) into typed numpy series, one per topic.
+
+    Joint states, wrenches and /clock are decoded in batches straight into preallocated
+    arrays (:mod:`cvj_ros.bag_decode`); the other topics message by message through rosbags.
 
     Args:
         path: bag directory.
         topics: topic names or glob patterns (``'/coupling/*/wrench'``); ``None`` = all.
+        columns: the JointState arrays to read (others are left as zero-width arrays),
+            e.g. ``('velocity', 'effort')`` for the report's metrics (a third less memory).
 
     Returns:
         ``{topic: series}`` with :class:`JointStateSeries` (JointState),
@@ -659,24 +719,209 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
     Raises:
         BagError: missing bag, unreadable bag, or a requested topic absent (named).
     """
+    from cvj_ros import bag_decode
     reader = _open_reader(path)
     rows: dict[str, list[tuple[int, Any]]] = {}
+    builders: dict[str, Any] = {}
     types: dict[str, str] = {}
     try:
         selected = _select(reader, topics, path)
+        counts: dict[str, int] = {}
+        for conn in selected:
+            counts[conn.topic] = counts.get(conn.topic, 0) + int(conn.msgcount or 0)
+
+        def names_changed() -> None:
+            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+        deserialize = reader.deserialize
+        msgtypes = {c.topic: c.msgtype for c in selected}
+
+        def consume(blocks: Iterable[dict[str, tuple[list[int], list[Any]]]]) -> None:
+            for block in blocks:          # {topic: ([record ns], [raw CDR])}
+                for topic, (stamps, raws) in block.items():
+                    builder = builders.get(topic)
+                    if builder is None and topic not in rows:
+                        msgtype = types[topic] = msgtypes[topic]
+                        if bag_decode.batch_decodable(msgtype):
+                            builder = builders[topic] = bag_decode.SeriesBuilder(
+                                msgtype, counts.get(topic, 0), deserialize, names_changed,
+                                columns=columns)
+                    if builder is not None:
+                        builder.add_many(stamps, raws)
+                    else:
+                        rows.setdefault(topic, []).extend(
+                            (ts, deserialize(raw, types[topic]))
+                            for ts, raw in zip(stamps, bag_decode.as_bytes(raws)))
+        files = _plain_mcap_files(reader)
         with _damage_as_bag_error(path):
-            for conn, ts, raw in reader.messages(connections=selected):
-                rows.setdefault(conn.topic, []).append((ts, reader.deserialize(raw, conn.msgtype)))
-                types[conn.topic] = conn.msgtype
+            if files:
+                try:
+                    for f in files:
+                        consume(bag_decode.mcap_messages(str(f), set(msgtypes)))
+                except bag_decode.NotPlain:      # rosbags reads it (and names the damage)
+                    rows.clear(), builders.clear(), types.clear()
+                    files = None
+            if not files:
+                consume({c.topic: ([ts], [raw])}
+                        for c, ts, raw in reader.messages(connections=selected))
+            done = {topic: b.finish() for topic, b in builders.items()}
         for conn in reader.connections:  # topics with zero messages
             if topics is None or conn.topic in rows or any(
                     fnmatch.fnmatchcase(conn.topic, w) for w in topics):
                 types.setdefault(conn.topic, conn.msgtype)
-                rows.setdefault(conn.topic, [])
+                if conn.topic not in done:
+                    rows.setdefault(conn.topic, [])
     finally:
         _close_quietly(reader)
+    for msgs in rows.values():
+        msgs.sort(key=lambda row: row[0])      # record-time order (stable), as rosbags reads
     with _damage_as_bag_error(path):
-        return {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
+        out = {topic: _to_series(types[topic], msgs) for topic, msgs in rows.items()}
+        out.update({topic: _built_series(types[topic], d) for topic, d in done.items()})
+        return out
+
+
+#: messages per block of a topic decoded into objects by :func:`iter_blocks` (a deserialised
+#: DiagnosticArray holds ~10 kB of Python objects)
+OBJECT_BLOCK = 256
+
+
+def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
+                columns: Sequence[str] = ('position', 'velocity', 'effort'),
+                block: int | None = None,
+                raw: Iterable[str] = ()) -> Iterator[tuple[str, str, Any]]:
+    """Stream a bag: ``(topic, msgtype, block)`` with at most ``block`` (default
+    :data:`cvj_ros.bag_decode.BATCH`) messages of one topic at a time, in file order per
+    topic; memory holds one block per topic. Joint states, wrenches and /clock come as the
+    dict of :meth:`cvj_ros.bag_decode.SeriesBuilder.finish` (``record_ns``, ``stamp_ns``,
+    the ``columns`` or ``wrench`` arrays, ``names``, ``frame_id``), other types as a list of
+    ``(record ns, deserialised message)`` (of ``(record ns, raw CDR bytes)`` for the topics
+    in ``raw``). Plain mcap files are streamed without rosbags;
+    a damaged or compressed mcap file raises :class:`cvj_ros.bag_decode.NotPlain` when the
+    damage is reached (the caller reads the bag with :func:`read_bag` instead).
+
+    Raises:
+        BagError: as :func:`read_bag` (also when joint names change between blocks).
+    """
+    from cvj_ros import bag_decode
+    size = bag_decode.BATCH if block is None else block
+    raw_topics = frozenset(raw)
+    plain = plain_mcap_bag(path)
+    # a plain mcap bag is streamed without opening rosbags' reader, which reads every
+    # chunk's message index at open (~6.7 kB per 0.1 s chunk of a run: 240 MB an hour)
+    reader = None if plain is not None else _open_reader(path)
+    try:
+        if plain is not None:
+            files, topic_types = plain
+            msgtypes = _select_plain(topic_types, topics, path)
+            store = typestore()
+
+            def deserialize(raw: Any, msgtype: str) -> Any:
+                return store.deserialize_cdr(bytes(raw), msgtype)
+        else:
+            selected = _select(reader, topics, path)
+            msgtypes = {c.topic: c.msgtype for c in selected}
+            deserialize = reader.deserialize
+            files = _plain_mcap_files(reader)
+        first_names: dict[str, list[str]] = {}
+
+        def names_changed() -> None:
+            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+
+        def decoded(topic: str, stamps: list[int], segments: list[Any]) -> Any:
+            msgtype = msgtypes[topic]
+            if not bag_decode.batch_decodable(msgtype):
+                raws = [r for g in segments for r in bag_decode.as_bytes(g)]
+                if topic in raw_topics:
+                    return list(zip(stamps, raws))
+                return [(ts, deserialize(raw, msgtype)) for ts, raw in zip(stamps, raws)]
+            b = bag_decode.SeriesBuilder(msgtype, len(stamps), deserialize, names_changed,
+                                         columns=columns, batch=len(stamps) + 1)
+            i = 0
+            for g in segments:
+                b.add_many(stamps[i:i + len(g)], g)
+                i += len(g)
+            d = b.finish()
+            if msgtype == 'sensor_msgs/msg/JointState' and first_names.setdefault(topic, d['names']) != d['names']:
+                names_changed()
+            return d
+        source = (blk for f in files for blk in bag_decode.mcap_messages(str(f), set(msgtypes))) \
+            if files else ({c.topic: ([ts], [raw])} for c, ts, raw in reader.messages(connections=selected))
+        pending: dict[str, tuple[list[int], list[Any]]] = {}   # stamps, segments of raws
+        with _damage_as_bag_error(path):
+            for chunk in source:
+                for topic, (stamps, raws) in chunk.items():
+                    st, segs = pending.setdefault(topic, ([], []))
+                    st.extend(stamps)
+                    segs.append(raws)
+                    if len(st) >= (size if bag_decode.batch_decodable(msgtypes[topic])
+                                   else OBJECT_BLOCK):
+                        del pending[topic]
+                        yield topic, msgtypes[topic], decoded(topic, st, segs)
+            for topic, (st, segs) in list(pending.items()):
+                yield topic, msgtypes[topic], decoded(topic, st, segs)
+    finally:
+        if reader is not None:
+            _close_quietly(reader)
+
+
+def plain_mcap_bag(path: str | Path) -> tuple[list[Path], dict[str, tuple[str, int]]] | None:
+    """``(files, {topic: (msgtype, message count)})`` of a finished mcap bag without
+    bag-level compression, from its metadata.yaml alone (no rosbags reader), else None."""
+    p = Path(path)
+    try:
+        info = yaml.safe_load((p / 'metadata.yaml').read_text(encoding='utf-8'))
+        info = info['rosbag2_bagfile_information']
+        if info.get('storage_identifier') != 'mcap' or str(info.get('compression_mode') or '').lower() not in ('', 'none'):
+            return None
+        files = [p / Path(str(f)).name for f in info['relative_file_paths']]
+        topics = {str(x['topic_metadata']['name']): (str(x['topic_metadata']['type']), int(x['message_count']))
+                  for x in info['topics_with_message_count']}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, yaml.YAMLError):
+        return None
+    return (files, topics) if files and all(f.suffix == '.mcap' and f.is_file() for f in files) else None
+
+
+def _select_plain(topic_types: dict[str, tuple[str, int]], topics: Iterable[str] | None,
+                  path: str | Path) -> dict[str, str]:
+    """{topic: msgtype} of the wanted topics (names or patterns) as :func:`_select`."""
+    if topics is None:
+        return {t: ty for t, (ty, _n) in topic_types.items()}
+    wanted = list(topics)
+    for topic in wanted:
+        if not any(fnmatch.fnmatchcase(t, topic) for t in topic_types):
+            raise BagError(f'{topic}: topic not in bag {path}')
+    return {t: ty for t, (ty, _n) in topic_types.items()
+            if any(fnmatch.fnmatchcase(t, w) for w in wanted)}
+
+
+def _plain_mcap_files(reader: Any) -> list[Path] | None:
+    """The mcap files of a one-bag rosbags reader without bag-level compression (what
+    :func:`cvj_ros.bag_decode.mcap_messages` streams), else None."""
+    try:
+        (r2,) = reader.readers
+        r2 = getattr(r2, 'storage', r2)        # rosbags 0.11: Reader -> DirectoryReader
+        if getattr(r2.metadata, 'compression_mode', None) or not r2.storages:
+            return None
+        paths = [Path(st.path) for st in r2.storages]
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return paths if all(p.suffix == '.mcap' and p.is_file() for p in paths) else None
+
+
+def _built_series(msgtype: str, d: dict[str, Any]) -> Any:
+    """The series of a topic read by :class:`cvj_ros.bag_decode.SeriesBuilder`."""
+    rec = d['record_ns'] * 1e-9
+    ns = d['stamp_ns']
+    # sec + nanosec * 1e-9 as _stamp_s computes it per message: the same float64 bits
+    t = (ns // 1_000_000_000).astype(float) + (ns % 1_000_000_000).astype(float) * 1e-9
+    if msgtype == 'sensor_msgs/msg/JointState':
+        empty = np.zeros((t.size, 0))
+        return JointStateSeries(t, d['names'], d.get('position', empty), d.get('velocity', empty),
+                                d.get('effort', empty), rec)
+    if msgtype == 'geometry_msgs/msg/WrenchStamped':
+        w = d['wrench']
+        return WrenchSeries(t, w[:, :3], w[:, 3:], d['frame_id'], rec)
+    return ScalarSeries(t.copy(), t, rec)      # rosgraph_msgs/Clock
 
 
 def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
@@ -767,20 +1012,35 @@ def _msg_class(msgtype: str) -> Any:
 
 class BatchingWriter:
     """Front of a :class:`BagWriter` for a recorder: messages are collected and handed to
-    the writer thread ``batch`` at a time (:meth:`BagWriter.write_batch`) or when
-    :meth:`flush` is called (composed mode: every spin tick, <= 0.25 s;
-    :meth:`BagRecorder.spin`: after every wake). Why: one queue hand-off per message woke
-    the writer thread ~6 times per exchange, and each wake-up made the recording thread wait
-    for the GIL (measured on this 2-core machine under load, composed mode: the recorder
-    callbacks took 1.3-2.5 ms per exchange, most of the exchange). ``counts`` include the
-    collected messages, so progress and the drain see every message at once.
+    the writer thread ``batch`` at a time (:meth:`BagWriter.write_batch`), when they span
+    :data:`HANDOFF_SPAN_S` of record time, or when :meth:`flush` is called (composed mode:
+    every spin tick; :meth:`BagRecorder.spin`: after every wake). Why: one queue hand-off
+    per message woke the writer thread ~6 times per exchange, and each wake-up made the
+    recording thread wait for the GIL (measured on this 2-core machine under load, composed
+    mode: the recorder callbacks took 1.3-2.5 ms per exchange, most of the exchange).
+    ``counts`` include the collected messages, so progress and the drain see every message
+    at once.
+
+    ``max_lag_s`` (composed mode, where the loop and the writer share one process): at each
+    hand-off, wait (at most ``wait_s`` of wall time) until the writer has everything older
+    than ``max_lag_s`` of record time before the newest message handed over on disk. The
+    loop then never runs further ahead of the disk than that: a SIGKILL of the process
+    loses at most ``HANDOFF_SPAN_S + max_lag_s`` of simulated time (plus a drain's worth of
+    messages in the recorder). Without it the writer thread, starved of the GIL by a loop 10x
+    faster than real time, fell seconds of simulated time behind.
     """
 
-    def __init__(self, writer: Any, *, batch: int = 1024) -> None:
+    def __init__(self, writer: Any, *, batch: int = 1024, max_lag_s: float | None = None,
+                 wait_s: float = 1.0) -> None:
         self.writer = writer
         self.batch = batch
         self.counts: dict[str, int] = {}
         self._items: list[tuple[str, int, bytes]] = []
+        self._first_ns: int | None = None
+        self.max_lag_ns = None if max_lag_s is None else int(max_lag_s * 1e9)
+        self.wait_s = wait_s
+        self.waits = 0            # hand-offs that waited for the writer
+        self.wait_total_s = 0.0   # wall time spent waiting
 
     def add_topic(self, topic: str, msgtype: str | None = None) -> None:
         self.writer.add_topic(topic, msgtype)
@@ -788,28 +1048,43 @@ class BatchingWriter:
 
     def write_many(self, items: list[tuple[str, int, bytes]]) -> None:
         """Collect ``(topic, record time ns, bytes)`` messages of registered topics."""
+        if not items:
+            return
         self._items.extend(items)
         counts = self.counts
         for topic, _ts, _data in items:
             counts[topic] += 1
-        if len(self._items) >= self.batch:
+        if self._first_ns is None:
+            self._first_ns = items[0][1]
+        if len(self._items) >= self.batch or items[-1][1] - self._first_ns >= _HANDOFF_SPAN_NS:
             self.flush()
 
     def write(self, topic: str, timestamp_ns: int, data: Any) -> None:
         """Collect one raw CDR message (record time ns); hand over when ``batch`` are collected."""
-        self._items.append((topic, int(timestamp_ns), bytes(data)))
-        self.counts[topic] += 1
-        if len(self._items) >= self.batch:
-            self.flush()
+        self.write_many([(topic, int(timestamp_ns), bytes(data))])
 
     def set_custom_data(self, key: str, value: str) -> None:
         self.writer.set_custom_data(key, value)
 
     def flush(self) -> None:
-        """Hand everything collected to the writer thread."""
-        if self._items:
-            items, self._items = self._items, []
-            self.writer.write_batch(items)
+        """Hand everything collected to the writer thread (and, with ``max_lag_s``, wait
+        until the writer is no further behind than that)."""
+        if not self._items:
+            return
+        items, self._items = self._items, []
+        self._first_ns = None
+        self.writer.write_batch(items)
+        if self.max_lag_ns is None:
+            return
+        newest = max(items[-1][1], items[0][1])
+        need = newest - self.max_lag_ns
+        if self.writer.durable_ns >= need:
+            return
+        self.writer.request_flush()
+        t0 = _monotonic()
+        self.writer.wait_durable(need, self.wait_s)
+        self.waits += 1
+        self.wait_total_s += _monotonic() - t0
 
 
 class BagRecorder:

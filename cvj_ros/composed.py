@@ -47,6 +47,9 @@ PROG = 'driveline_composed'
 # last (it makes the peers talk), as in cvj_ros.orchestrate.NODE_ORDER.
 HOSTED_NODES = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')
 EXECUTORS = ('events', 'single')
+# wall s between checks of the signal flag by the container's timer (a loop that is running
+# stops at its next exchange anyway: CouplingNode.stop_signal)
+SIGNAL_POLL_S = 0.02
 
 
 def node_class(name: str) -> type:
@@ -113,6 +116,11 @@ class ComposedDriveline:
         # the container's own node (as rclcpp's component manager has one): its timers end
         # the timed spins, see _spin
         self._container = rclpy.create_node(PROG, context=context)
+        # a signal handler may not complete a Future (its lock may be held by the code it
+        # interrupted), and the EventsExecutor has no guard conditions: the handler sets a
+        # flag that this timer turns into a wake every SIGNAL_POLL_S
+        self._signalled = False
+        self._signal_timer = self._container.create_timer(SIGNAL_POLL_S, self._wake_if_signalled)
         self.executor.add_node(self._container)
         self.bus: Any = None
         if intra_process and hosted:
@@ -157,7 +165,8 @@ class ComposedDriveline:
         self._recorder_node = rclpy.create_node('cvj_recorder', context=self.context)
         if self.bus is not None:
             self.bus.register(self._recorder_node)
-        self.batching = bagmod.BatchingWriter(writer)
+        # the loop waits for the writer rather than run ahead of the disk (hard-kill bound)
+        self.batching = bagmod.BatchingWriter(writer, max_lag_s=bagmod.MAX_LAG_S)
         self.recorder = bagmod.BagRecorder(self._recorder_node, self.batching, topics=topics,
                                            run_only=run_only)
         self.recorder.hold = frozenset(hold)
@@ -177,8 +186,17 @@ class ComposedDriveline:
         sub = None if self.recorder is None else self.recorder._subs.get(topic)
         return 0 if sub is None else sub.get_publisher_count()
 
+    def wake_from_signal(self) -> None:
+        """End the current spin within :data:`SIGNAL_POLL_S`: safe in a signal handler (sets
+        a flag; a timer on the executor runs :meth:`wake`)."""
+        self._signalled = True
+
+    def _wake_if_signalled(self) -> None:
+        if self._signalled:
+            self.wake()
+
     def wake(self) -> None:
-        """End the current spin (safe from a signal handler and from callbacks)."""
+        """End the current spin (from callbacks; a signal handler calls :meth:`wake_from_signal`)."""
         wake = self._wake
         if wake is not None and not wake.done():
             wake.set_result(True)
@@ -359,15 +377,18 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
     comp: ComposedDriveline | None = None
 
     def on_signal(signum: int, _frame: Any) -> None:
+        # only flags here: the coupling node reads stop_signal at every exchange and stops at
+        # the one in progress (CouplingNode.stop_signal); the container's timer ends a spin that
+        # no exchange would end (peers not connected yet, a stalled loop)
         stop_signal.append(signum)
         if comp is not None:
-            comp.wake()
+            comp.wake_from_signal()
     in_main = threading.current_thread() is threading.main_thread()
     if in_main:
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
 
-    wall0 = time.monotonic()
+    wall0 = time.monotonic() if options.started is None else options.started
     phases: dict[str, float] = {}
 
     def mark(name: str) -> None:
@@ -415,9 +436,12 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                 comp.recorder.hold = frozenset()
             params = orch.node_parameters(prep, name, load_override=load_override)
             try:
-                comp.add_node(name, cli_args=orch._ros_args(params))
+                node = comp.add_node(name, cli_args=orch._ros_args(params))
             except CvjError as exc:   # bad parameter: the line the node's own process prints
                 error = f'{name}: error: {exc}'
+            else:
+                if name == 'coupling_node':   # stop at the exchange in progress on a signal
+                    node.stop_signal = lambda: stop_signal[0] if stop_signal else 0
         coupling = comp.nodes.get('coupling_node')
         js = bagmod.JOINT_STATES_TOPIC
 
@@ -438,6 +462,8 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             comp.spin_until_done(coupling, stop=lambda: bool(stop_signal), on_tick=on_tick)
         progress.close()
         mark('coupling_exited')
+        if 'loop_started' in phases:
+            print(orch.loop_ended_line(phases), file=stream, flush=True)
         if comp.recorder is not None:   # later /clock beyond our last state: another run's
             comp.recorder.loop_ended = True
         if error is None:
@@ -446,7 +472,11 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             if stop_signal:
                 stopped_by = {signal.SIGINT: 'SIGINT', signal.SIGTERM: 'SIGTERM'}.get(
                     stop_signal[0], str(stop_signal[0]))
-            _drain(comp, expected={}, idle=0.3, bound=2.0)
+            # the loop has stopped: the answers to its last state and its /clock, in flight
+            n_js = comp.recorder.counts.get(js, 0)
+            _drain(comp, expected={t: n_js for t in (bagmod.CLOCK_TOPIC, *orch.PEER_TOPICS.values())}
+                   if n_js and options.mode == 'lockstep' and coupling is not None
+                   and coupling.exit_code is not None else {}, idle=0.3, bound=1.0)
         else:
             lockstep_ok = coupling.exit_code == 0 and options.mode == 'lockstep'
             # lockstep: N+1 states and clocks, and the peers' answers to the final state
@@ -573,8 +603,8 @@ def _main(args: Sequence[str] | None) -> int:
                              intra_process=opts.intra_process)
 
     def on_signal(signum: int, _frame: Any) -> None:
-        stop.append(signum)
-        comp.wake()
+        stop.append(signum)              # flags only, as in run_composed
+        comp.wake_from_signal()
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     writer = None
     try:
@@ -588,11 +618,13 @@ def _main(args: Sequence[str] | None) -> int:
             if name in opts.without:
                 continue
             try:
-                comp.add_node(name, cli_args=_default_min_subscribers(argv, opts)
+                node = comp.add_node(name, cli_args=_default_min_subscribers(argv, opts)
                               if name == 'coupling_node' else None)
             except CvjError as exc:
                 print(f'{PROG}: error: {name}: {exc}', file=sys.stderr)
                 return EXIT_PARAMETER
+            if name == 'coupling_node':       # stop at the exchange in progress on a signal
+                node.stop_signal = lambda: stop[0] if stop else 0
         done = comp.nodes.get('coupling_node')
         if done is None:   # no loop owner here: serve until Ctrl-C or a node fails
             while ctx.ok() and not stop and comp.failed() is None:

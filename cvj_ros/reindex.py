@@ -10,7 +10,9 @@ message on disk and writes the bag again:
   cut short by the kill ends the scan; in a truncated *uncompressed* chunk (the cvj_ros
   default) the complete messages before the cut are kept too.
 * **sqlite3**: the committed rows of ``topics`` and ``messages`` (sqlite rolls back the
-  transaction the kill interrupted).
+  transaction the kill interrupted, and replays the write-ahead log cvj_ros records with);
+  a file SQLite refuses (cut short, damaged pages) is read page by page instead
+  (:func:`scan_sqlite3_pages`): every row of its intact pages.
 
 The salvaged messages are written with rosbags into a new storage file of the same storage
 (named ``<bag dir name>.mcap`` / ``.db3`` as rosbags names it) plus a new ``metadata.yaml``
@@ -190,7 +192,24 @@ def scan_mcap(path: Path) -> Salvage:
 
 
 def scan_sqlite3(path: Path) -> Salvage:
-    """The committed topics and messages of a rosbag2 sqlite3 file."""
+    """The committed topics and messages of a rosbag2 sqlite3 file (SQLite replays its
+    write-ahead log); when SQLite refuses the file (cut short, damaged pages) or stops early,
+    what its intact pages hold (:func:`scan_sqlite3_pages`), if that is more."""
+    try:
+        out = _scan_sqlite3_sql(path)
+    except BagError as exc:
+        pages = scan_sqlite3_pages(path)
+        if not pages.topics:
+            raise exc from None
+        return pages
+    if out.damage:                 # the SQL scan stopped early: the pages may hold more
+        pages = scan_sqlite3_pages(path)
+        if len(pages.messages) > len(out.messages):
+            return pages
+    return out
+
+
+def _scan_sqlite3_sql(path: Path) -> Salvage:
     out = Salvage('sqlite3')
     try:
         conn = sqlite3.connect(f'file:{path}', uri=True)
@@ -211,6 +230,154 @@ def scan_sqlite3(path: Path) -> Salvage:
         raise BagError(f'{path}: not a readable sqlite3 bag: {exc}') from None
     finally:
         conn.close()
+    return out
+
+
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    """SQLite varint at ``pos``: (value, position after it); 1-9 bytes, big-endian 7-bit
+    groups, the 9th byte whole."""
+    value = 0
+    for i in range(8):
+        b = buf[pos + i]
+        value = (value << 7) | (b & 0x7F)
+        if b < 0x80:
+            return value, pos + i + 1
+    return (value << 8) | buf[pos + 8], pos + 9
+
+
+def _record(payload: bytes) -> list[Any] | None:
+    """The values of an SQLite record (a header of serial types, then the values), or None
+    when it does not parse."""
+    try:
+        size, pos = _varint(payload, 0)
+        types = []
+        while pos < size:
+            st, pos = _varint(payload, pos)
+            types.append(st)
+        pos = size
+        values: list[Any] = []
+        for st in types:
+            if st == 0:
+                values.append(None)
+            elif 1 <= st <= 6:
+                n = (1, 2, 3, 4, 6, 8)[st - 1]
+                values.append(int.from_bytes(payload[pos:pos + n], 'big', signed=True))
+                pos += n
+            elif st == 7:
+                values.append(struct.unpack('>d', payload[pos:pos + 8])[0])
+                pos += 8
+            elif st in (8, 9):
+                values.append(st - 8)
+            elif st >= 12:
+                n = (st - 12) // 2
+                raw = payload[pos:pos + n]
+                if len(raw) != n:
+                    return None
+                values.append(raw if st % 2 == 0 else raw.decode('utf-8'))
+                pos += n
+            else:
+                return None
+        return values if pos <= len(payload) else None
+    except (IndexError, UnicodeDecodeError, struct.error):
+        return None
+
+
+def _leaf_rows(page: bytes, head: int, usable: int,
+               pages: dict[int, bytes]) -> list[tuple[int, list[Any]]]:
+    """(rowid, values) of the cells of a table b-tree leaf page whose b-tree header is at
+    ``head`` (100 on page 1). A payload that spills to overflow pages (``pages``: number ->
+    bytes of the pages read) is followed while they are there, else the row is skipped."""
+    rows = []
+    n_cells = struct.unpack_from('>H', page, head + 3)[0]
+    x = usable - 35
+    m = ((usable - 12) * 32 // 255) - 23
+    for i in range(n_cells):
+        try:
+            (off,) = struct.unpack_from('>H', page, head + 8 + 2 * i)
+            size, pos = _varint(page, off)
+            rowid, pos = _varint(page, pos)
+        except (IndexError, struct.error):
+            continue
+        if size <= x:
+            payload = page[pos:pos + size]
+        else:
+            k = m + (size - m) % (usable - 4)
+            local = k if k <= x else m
+            if pos + local + 4 > len(page):
+                continue
+            parts = [page[pos:pos + local]]
+            (nxt,) = struct.unpack_from('>I', page, pos + local)
+            got = local
+            while got < size and nxt in pages:
+                ov = pages[nxt]
+                (nxt,) = struct.unpack_from('>I', ov, 0)
+                take = min(usable - 4, size - got)
+                parts.append(ov[4:4 + take])
+                got += take
+            if got < size:
+                continue
+            payload = b''.join(parts)
+        if len(payload) == size:
+            values = _record(payload)
+            if values is not None:
+                rows.append((rowid, values))
+    return rows
+
+
+def scan_sqlite3_pages(path: Path) -> Salvage:
+    """What the intact pages of a rosbag2 sqlite3 file hold, read without SQLite (for a file
+    SQLite refuses: cut short, 'database disk image is malformed').
+
+    SQLite file format: page size at header offset 16 (1 = 65536), reserved bytes per page
+    at 20; every table b-tree leaf page (type byte 0x0D; page 1's header at offset 100)
+    holds cells (payload size and rowid varints, the record: a header of serial types, then
+    the values) behind its cell pointer array. Pages of the main file are read, then the
+    frames of its write-ahead log (``<file>-wal``: 32-byte header, frames of a 24-byte
+    header and one page; a later frame of a page replaces the earlier). Rows shaped like
+    the ``topics`` table (rowid, five texts) and the ``messages`` table (rowid, topic id,
+    timestamp, blob) are kept by rowid, in rowid order (the order of insertion); a page cut
+    short or damaged loses only its own rows. ``damage`` says what was done."""
+    data = _read(path)
+    out = Salvage('sqlite3')
+    if len(data) < 100 or not data.startswith(b'SQLite format 3\x00'):
+        out.damage = 'not an SQLite file (no header)'
+        return out
+    page_size = struct.unpack_from('>H', data, 16)[0]
+    page_size = 65536 if page_size == 1 else page_size
+    usable = page_size - data[20]
+    pages: dict[int, bytes] = {}
+    for k in range(len(data) // page_size):             # whole pages of the main file only
+        pages[k + 1] = data[k * page_size:(k + 1) * page_size]
+    cut = len(data) % page_size
+    wal = path.with_name(path.name + '-wal')
+    if wal.exists():
+        log = _read(wal)
+        pos = 32
+        while pos + 24 + page_size <= len(log):
+            (number,) = struct.unpack_from('>I', log, pos)
+            pages[number] = log[pos + 24:pos + 24 + page_size]
+            pos += 24 + page_size
+    topics: dict[int, tuple[str, str]] = {}
+    messages: dict[int, tuple[int, int, bytes]] = {}
+    for number, page in pages.items():
+        head = 100 if number == 1 else 0
+        if len(page) <= head + 8 or page[head] != 0x0D:
+            continue
+        for rowid, values in _leaf_rows(page, head, usable, pages):
+            if (len(values) == 6 and values[0] is None
+                    and all(isinstance(v, str) for v in values[1:])):
+                topics[rowid] = (values[1], values[2])
+            elif (len(values) == 4 and values[0] is None and isinstance(values[1], int)
+                  and isinstance(values[2], int) and isinstance(values[3], bytes)):
+                messages[rowid] = (values[1], values[2], values[3])
+    for tid in sorted(topics):
+        out.topics.setdefault(topics[tid][0], topics[tid][1])
+    names = {tid: name for tid, (name, _ty) in topics.items()}
+    out.messages = [(names[tid], ts, blob) for _rowid, (tid, ts, blob) in sorted(messages.items())
+                    if tid in names]
+    out.damage = (f'SQLite refused the file; {len(out.messages)} messages read from its intact '
+                  f'pages ({len(pages)} pages' + (f'; a partial page of {cut} bytes at the end '
+                                                  'dropped' if cut else '') + ')')
     return out
 
 
@@ -336,6 +503,10 @@ def reindex(path: str | os.PathLike[str]) -> ReindexResult:
                 backup, k = f.with_name(f'{f.name}.orig{k}'), k + 1
             f.rename(backup)
             kept.append(backup)
+            for side in ('-wal', '-shm'):         # SQLite's log stays with its database
+                log = f.with_name(f.name + side)
+                if log.exists():
+                    log.rename(backup.with_name(backup.name + side))
         for stale in ('metadata.yaml', *(f.name + '-journal' for f in files)):
             if (bag_dir / stale).exists():
                 (bag_dir / stale).unlink()

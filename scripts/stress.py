@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # compiles nothing timing-sensitive and takes minutes).
 STRESS_PATHS = ('test/nodes', 'test/e2e/test_run.py', 'test/robustness/test_faults_processes.py',
                 'test/robustness/test_fuzz_wrench_inputs.py', 'test/robustness/test_hard_kill.py',
+                'test/robustness/test_signal_stop.py',
                 'test/test_bag.py', 'test/test_bench_loop.py', 'test/e2e/test_vehicle_stack.py',
                 'test/commands/test_run_external_options.py', 'test/e2e/test_free_run_deadline.py',
                 'test/robustness/test_hostile_peers.py', 'test/robustness/test_hostile_runs.py')

@@ -77,7 +77,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -355,6 +355,10 @@ class CouplingNode(CvjNode):
         self.scheduler: FreeRunScheduler | None = None   # free-run only
         self.realtime_priority = 0                       # SCHED_FIFO priority in force (free-run)
         self._diag_k = 0                                 # k of the last periodic diagnostics
+        # the SIGINT/SIGTERM caught in this process (0: none), read at every exchange:
+        # run_node's handler here, the composed container's in `cvj-sim run --composed`
+        from cvj_ros.nodes.executor import stop_requested
+        self.stop_signal: Callable[[], int] = stop_requested
         self.get_logger().info(
             f'scene {scene.name!r}: {len(self.names)} shafts, {self.driveline.n_dof} DOF, '
             f'{self.n_steps} steps of {self.h_ns / NS_PER_S:g} s, mode {self.mode}, '
@@ -749,6 +753,9 @@ class CouplingNode(CvjNode):
         else:
             self.T_load, self._have_load = value, True
         if self._have_engine and self._have_load:
+            if self.stop_signal():           # Ctrl-C / SIGTERM: t_k and its answers are the last
+                self.stop_by_signal(self.stop_signal())
+                return
             now = time.monotonic()
             if now >= self._graph_due:        # a second joint-state publisher (not an answer)
                 self._graph_due = now + GRAPH_CHECK_S
@@ -780,7 +787,8 @@ class CouplingNode(CvjNode):
         try:
             x = self.stepper.advance(t_next_ns / NS_PER_S, self.T_engine, self.T_load)
         except CvjError as exc:
-            self._stop_with_error(f'integration failed at t={self.t_ns / NS_PER_S:.9g} s: {exc}')
+            self._stop_with_error(f'integration failed at t={self.t_ns / NS_PER_S:.9g} s: {exc}; '
+                                  f'{self._step_torques()}')
             return
         self.integration_total += time.perf_counter() - c0
         self.x = np.asarray(x, dtype=float)
@@ -811,6 +819,13 @@ class CouplingNode(CvjNode):
                     f'(max {st["drift_max_s"] * 1e3:.3f} ms)')
             self.finish()
 
+    def _step_torques(self) -> str:
+        """The torques a failed step integrated, each with the topic it came from, the largest
+        magnitude first (names the topic of an absurd torque that broke the step)."""
+        pairs = sorted(((ENGINE_WRENCH_TOPIC, float(self.T_engine)), (LOAD_WRENCH_TOPIC, float(self.T_load))),
+                       key=lambda tv: -abs(tv[1]) if math.isfinite(tv[1]) else -math.inf)
+        return 'torques of the step, largest first: ' + ', '.join(f'{t} {v:.6g} N m' for t, v in pairs)
+
     def _free_tick(self) -> None:
         """Free-run wake-up: run every due tick (catch-up policy of the scheduler), then
         re-arm the timer for the next due time (a wake-up before it runs nothing)."""
@@ -831,8 +846,29 @@ class CouplingNode(CvjNode):
         self._free_timer.timer_period_ns = max(delay_ns, 1_000)
         self._free_timer.reset()
 
+    def stop_by_signal(self, signum: int) -> None:
+        """End the loop at the exchange in progress (SIGINT/SIGTERM): the state t_k already
+        published and its answers are the run's last; an OK status 'stopped by <signal> at
+        step k' on /diagnostics; exit 0 (the signal's exit status is the caller's)."""
+        if self.exit_code is not None:
+            return
+        import signal as _signal
+        try:
+            name = _signal.Signals(signum).name
+        except ValueError:
+            name = f'signal {signum}'
+        self.waiting = False
+        self._cancel_timers()
+        line = f'stopped by {name} at step {self.k}, t={self.t_ns / NS_PER_S:.9g} s'
+        self.publish_diagnostics(self._level(), line)
+        self.get_logger().info(line)
+        self.finish()
+
     def _run_free_step(self, step: Step) -> bool:
         """One free-run exchange step of ``step.ticks`` exchange steps; False when the run ended."""
+        if self.stop_signal():
+            self.stop_by_signal(self.stop_signal())
+            return False
         now = time.perf_counter()
         self._step(step.ticks)
         self.exchange_total += time.perf_counter() - now

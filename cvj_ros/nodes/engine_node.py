@@ -32,7 +32,7 @@ PARAMS = (
     ParamSpec('throttle', -1.0, 'initial pedal position [0..1]; -1 keeps the engine spec setting',
               lo=-1.0, hi=1.0),
     ParamSpec('engine_spec', '', 'YAML mapping replacing the scene engine spec '
-              '(e.g. "{model: linear, M1: 600, K1: 12}"); empty = the scene engine'),
+              '(e.g. "{model: linear, m1: 600, k1: 12}"); empty = the scene engine'),
     ParamSpec('crank_shaft', '', 'JointState name of the crank shaft; empty = the scene first inertia'),
 )
 

@@ -151,6 +151,7 @@ def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pr
         code = node.exit_code  # a runtime error was already logged as one ERROR line
         return EXIT_OK if code is None else code
     finally:
+        stop['signal'] = 0     # not seen by a later node of this process (tests, composed)
         if node is not None:
             if ctx.ok():
                 flush_publishers(node)

@@ -63,7 +63,7 @@ from cvj_ros.orchestrate.processes import (  # noqa: F401  (re-exported)
     node_command, node_parameters, start_gated)
 from cvj_ros.orchestrate.report import (  # noqa: F401  (re-exported)
     FREE_RUN_KEYS, IDENTITY_COUNTERS, LOOP_COUNTERS, _jsonable, _recorded_fidelity, bag_metrics,
-    finish_result, free_run_timing, loop_counters, monitor_statuses, print_report,
+    finish_result, free_run_timing, loop_counters, loop_ended_line, monitor_statuses, print_report,
     result_from_recording)
 
 
@@ -116,7 +116,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
 
-    wall0 = time.monotonic()
+    wall0 = time.monotonic() if options.started is None else options.started
     phases: dict[str, float] = {}
 
     def mark(name: str) -> None:
@@ -203,6 +203,9 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             time.sleep(0.02)
         progress.close()
         mark('coupling_exited')
+        if 'loop_started' in phases:
+            progress.clear()
+            print(loop_ended_line(phases), file=stream, flush=True)
         if recorder is not None:
             recorder.recorder.loop_ended = True   # later /clock beyond our last state: not ours
         if stop_signal or error is not None:
@@ -210,7 +213,11 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 stop_signal[0], str(stop_signal[0])) if stop_signal else None
             if 'coupling_node' in procs:
                 _stop_processes(procs, ['coupling_node'], options.grace)
-            recorder.drain(expected={}, idle=0.3, bound=2.0)
+            # the loop stopped at its last state: that state's answers and /clock are in flight
+            n_js = recorder.recorder.counts.get(bagmod.JOINT_STATES_TOPIC, 0) if recorder else 0
+            recorder.drain(expected={t: n_js for t in (bagmod.CLOCK_TOPIC, *PEER_TOPICS.values())}
+                           if n_js and options.mode == 'lockstep' and not options.external else {},
+                           idle=0.3, bound=1.0)
         else:
             rc = procs['coupling_node'].returncode
             lockstep_ok = rc == 0 and options.mode == 'lockstep'

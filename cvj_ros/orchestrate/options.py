@@ -79,6 +79,9 @@ class RunOptions:
     composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
     executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
     intra_process: bool = True   # composed mode: loop topics through the in-process bus (nodes/intra.py)
+    # time.monotonic() when the command started (the report's wall time counts from it;
+    # None: from the start of the run's set-up)
+    started: float | None = None
 
 
 @dataclass
@@ -175,6 +178,7 @@ def prepare(options: RunOptions) -> _Prepared:
             raise CvjError(f'--load-from-bag: {exc}') from None
         if load_series[0].size < 2:
             raise CvjError(f'--load-from-bag: {options.load_from_bag}: needs >= 2 /load/wrench samples')
+        check_finite_series(options.load_from_bag, *load_series)
     joints = [el.name for el in scene.driveline if isinstance(el, Joint)]
     import importlib.util
     outside = {EXTERNAL_PEERS[e][0] for e in options.external}
@@ -185,8 +189,37 @@ def prepare(options: RunOptions) -> _Prepared:
             continue
         if required not in nodes:
             raise CvjError(f'{required}: module cvj_ros.nodes.{required} is not installed')
+    check_writable_out(out)   # last: a run refused for another reason creates nothing
     return _Prepared(options, scene, scene_path, duration, h, options.seed, load_series,
                      [f'/coupling/{j}/wrench' for j in joints], nodes)
+
+
+def check_finite_series(bag: Any, t: np.ndarray, torque: np.ndarray) -> None:
+    """Refuse a recorded load with a non-finite stamp or torque (the coupling node would stop
+    at its first use, after every process started): CvjError naming ``--load-from-bag``,
+    the bag, the first bad sample and its time."""
+    bad = ~(np.isfinite(t) & np.isfinite(torque))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise CvjError(f'--load-from-bag: {bag}: /load/wrench torque.z not finite ({torque[i]:g} N m) '
+                       f'at t = {t[i]:.9g} s (sample {i} of {t.size}, {int(bad.sum())} such); '
+                       'a recorded load must be finite')
+
+
+def check_writable_out(out: Path) -> None:
+    """Make sure the run directory ``out`` can be created and written (a read-only file
+    system, a parent that is a file, /proc, no permission): CvjError naming ``--out`` and the
+    reason, before any process starts. Creates ``out`` (the run would) and removes the probe."""
+    import errno
+    import tempfile
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or errno.errorcode.get(exc.errno or 0, type(exc).__name__)
+        where = f' ({exc.filename})' if exc.filename and str(exc.filename) != str(out) else ''
+        raise CvjError(f'--out: {out}: cannot write the run directory: {reason}{where}') from None
 
 
 def _domain_env() -> tuple[dict[str, str], int]:

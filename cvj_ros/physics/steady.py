@@ -5,7 +5,7 @@ steady state. A window of slices k0..last (to the end of the record) is *steady*
 slice in it agrees with the last slice:
 
 * **mean speed drift**: ``|mean_k - mean_last| / |mean over the window|`` of the reference
-  speed (rad/s; relative, -; slice means Hann-weighted, see :func:`_hann_mean`) is at most ``drift_tol`` (default :data:`DRIFT_TOL`);
+  speed (rad/s; relative, -; slice means Hann-weighted, see :func:`hann_mean`) is at most ``drift_tol`` (default :data:`DRIFT_TOL`);
 * **amplitude change**: ``|A_k - A_last| / max(A_k, A_last, floor)`` of every amplitude
   signal (the reference speed and each torque; ``A = (max - min)/2`` over the slice, seed
   004 section 3.3.2) is at most ``amplitude_tol`` (default :data:`AMPLITUDE_TOL`). ``floor``
@@ -121,7 +121,7 @@ class SteadyWindow:
         return d
 
 
-def _hann_mean(x: FloatArray) -> float:
+def hann_mean(x: FloatArray) -> float:
     """Hann-weighted mean of a slice (weights sin^2(pi (i + 1/2)/n), symmetric): exact for a
     linear trend (its value at the slice's centre), while a partial period of an oscillation
     of amplitude a and angular frequency w leaks only ~a/(w L)^3 into it instead of the plain
@@ -133,7 +133,7 @@ def _hann_mean(x: FloatArray) -> float:
 
 @functools.lru_cache(maxsize=64)
 def _hann_weights(n: int) -> tuple[FloatArray, np.float64]:
-    """Hann weights of :func:`_hann_mean` for a slice of n samples and their sum (cached:
+    """Hann weights of :func:`hann_mean` for a slice of n samples and their sum (cached:
     a record's slices have one or two lengths; the array is read-only)."""
     wts = np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 2
     wts.flags.writeable = False
@@ -197,34 +197,76 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
         amps.setdefault(name, (arr, torque_floor))
     torque_scale = max((float(np.max(np.abs(x))) for k, (x, _) in amps.items() if k != reference),
                        default=0.0)
-    edges = _slice_edges(tt, n_slices, slice_s)
+    edges, lo, hi = slice_bounds(tt, n_slices, slice_s)
     n = edges.size - 1
-    # slice k = [edges[k], edges[k+1]) (last one closed); index ranges by searchsorted
-    lo = np.searchsorted(tt, edges[:-1] - 1e-12 * max(1.0, abs(edges[-1])), side='left')
-    hi = np.searchsorted(tt, edges[1:] - 1e-12 * max(1.0, abs(edges[-1])), side='left')
-    hi[-1] = tt.size
-    usable = n >= min_slices and bool(np.all(hi - lo >= 2))
-    slice_len = float(edges[1] - edges[0]) if n >= 1 else float(tt[-1] - tt[0])
-
-    def fallback(drift: float, change: float, which: str) -> SteadyWindow:
-        start = float(tt[-1] - FALLBACK_FRACTION * (tt[-1] - tt[0]))
-        start = float(tt[np.searchsorted(tt, start - 1e-12 * max(1.0, abs(start)))])
-        return SteadyWindow(start, float(tt[-1]), False, drift, change, which, slice_len,
-                            0, reference, drift_tol, amplitude_tol, min_slices, list(amps))
-
-    if not usable:
-        return fallback(math.nan, math.nan, '')
-    means = np.array([_hann_mean(w[a:b]) for a, b in zip(lo, hi)])
-    # per slice k: relative amplitude difference from the last slice, worst signal.
+    if not (n >= min_slices and bool(np.all(hi - lo >= 2))):
+        return window_from_slices(tt, w, lo, hi, edges, None, reference=reference,
+                                  drift_tol=drift_tol, amplitude_tol=amplitude_tol,
+                                  min_slices=min_slices, signals=list(amps))
     # Slice extrema of all signals at once: the slices tile [lo[0], end) (hi[k] = lo[k+1]),
     # so reduceat at lo gives each slice's max / min (exact, as np.max of the slice)
     spans = slice_spans(np.stack([x for x, _ in amps.values()], axis=1), lo)
+    stats = [(name, spans[:, col], float(np.max(np.abs(x))) if name == reference else torque_scale,
+              rel_floor) for col, (name, (x, rel_floor)) in enumerate(amps.items())]
+    return window_from_slices(tt, w, lo, hi, edges, stats, reference=reference,
+                              drift_tol=drift_tol, amplitude_tol=amplitude_tol,
+                              min_slices=min_slices, signals=list(amps))
+
+
+def slice_bounds(t: FloatArray, n_slices: int | None = None,
+                 slice_s: float | None = None) -> tuple[FloatArray, NDArray[np.intp], NDArray[np.intp]]:
+    """``(edges, lo, hi)``: the slice boundaries (s, :func:`_slice_edges`) and each slice's
+    sample index range [lo[k], hi[k]) of the increasing times ``t`` (slice k = [edges[k],
+    edges[k+1]), the last one closed: hi[-1] = t.size)."""
+    edges = _slice_edges(t, n_slices, slice_s)
+    lo = np.searchsorted(t, edges[:-1] - 1e-12 * max(1.0, abs(edges[-1])), side='left')
+    hi = np.searchsorted(t, edges[1:] - 1e-12 * max(1.0, abs(edges[-1])), side='left')
+    hi[-1] = t.size
+    return edges, lo, hi
+
+
+def fallback_start(t: FloatArray) -> float:
+    """Start (s, a sample time) of the window of a record that never became steady: the last
+    :data:`FALLBACK_FRACTION` of it."""
+    start = float(t[-1] - FALLBACK_FRACTION * (t[-1] - t[0]))
+    return float(t[np.searchsorted(t, start - 1e-12 * max(1.0, abs(start)))])
+
+
+def window_from_slices(t: FloatArray, w: FloatArray, lo: NDArray[np.intp], hi: NDArray[np.intp],
+                       edges: FloatArray,
+                       stats: Sequence[tuple[str, FloatArray, float, float]] | None, *,
+                       reference: str, drift_tol: float = DRIFT_TOL,
+                       amplitude_tol: float = AMPLITUDE_TOL, min_slices: int = MIN_SLICES,
+                       signals: Sequence[str] = (),
+                       means: FloatArray | None = None) -> SteadyWindow:
+    """The criterion of :func:`find_steady_window` on per-slice statistics: ``t`` and the
+    reference speed ``w`` in full (the slices' Hann means and the window's mean speed come
+    from them), ``lo``/``hi``/``edges`` from :func:`slice_bounds`, and per amplitude signal
+    (the reference speed first) ``(name, spans, scale, rel_floor)``: its max - min over each
+    slice, its peak magnitude for the floor (the torques: the largest of them all) and the
+    relative floor. ``stats`` None: the slices are not usable (too few or too short) - the
+    fallback window. ``means``: the slices' Hann means of ``w`` when the caller computed them
+    (the dot product's rounding depends on the memory layout of ``w``). Shared by
+    :func:`find_steady_window` and the run report, which gathers the torque spans while
+    streaming a bag (cvj_ros.orchestrate.report_stream)."""
+    tt, n = t, edges.size - 1
+    slice_len = float(edges[1] - edges[0]) if n >= 1 else float(tt[-1] - tt[0])
+
+    def fallback(drift: float, change: float, which: str) -> SteadyWindow:
+        return SteadyWindow(fallback_start(tt), float(tt[-1]), False, drift, change, which,
+                            slice_len, 0, reference, drift_tol, amplitude_tol, min_slices,
+                            list(signals))
+
+    if stats is None:
+        return fallback(math.nan, math.nan, '')
+    if means is None:
+        means = np.array([hann_mean(w[a:b]) for a, b in zip(lo, hi)])
+    # per slice k: relative amplitude difference from the last slice, worst signal
     change = np.zeros(n)
     worst = [''] * n
-    for col, (name, (x, rel_floor)) in enumerate(amps.items()):
-        scale = float(np.max(np.abs(x))) if name == reference else torque_scale
+    for name, spans, scale, rel_floor in stats:
         floor = max(rel_floor * scale, 1e-300)
-        a = 0.5 * spans[:, col]
+        a = 0.5 * spans
         rel = np.abs(a - a[-1]) / np.maximum(np.maximum(a, a[-1]), floor)
         for k in np.flatnonzero(rel > change):
             change[k], worst[k] = rel[k], name
@@ -249,7 +291,7 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
         return fallback(drift, ch, which)
     drift, ch, which = window_stats(best)
     return SteadyWindow(float(tt[lo[best]]), float(tt[-1]), True, drift, ch, which, slice_len,
-                        n - best, reference, drift_tol, amplitude_tol, min_slices, list(amps))
+                        n - best, reference, drift_tol, amplitude_tol, min_slices, list(signals))
 
 
 def skip_window(t: ArrayLike, reference_speed: ArrayLike, skip_s: float, *,

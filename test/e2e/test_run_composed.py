@@ -130,7 +130,8 @@ def test_composed_run_reports_one_process(runs) -> None:
     assert r.returncode == 0, r.stdout + r.stderr
     assert 'loop running in one process' in r.stdout
     assert 'process composed, executor events' in r.stdout, r.stdout
-    assert 'loop per exchange: wall ' in r.stdout and 'against the composed target >= 10' in r.stdout
+    assert 'loop per exchange: wall ' in r.stdout and 'target' not in r.stdout   # bench's, not the run's
+    assert 's of loop (first to last joint state recorded)' in r.stdout
     assert f'/driveline/joint_states {N + 1}' in r.stdout
     report = yaml.safe_load((bag_path.parent / 'report.json').read_text())
     assert report['settings']['process'] == 'composed' and report['real_time_factor'] > 0

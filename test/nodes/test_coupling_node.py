@@ -151,6 +151,21 @@ def test_nan_torque_rejected_never_integrated(ctx, tmp_path):
     assert node.rejected_torques == 1
 
 
+def test_huge_torque_names_its_topic(ctx, tmp_path):
+    """A finite torque too large to integrate (1e300 N m) stops the run with one error that
+    names the topic it came from (the largest torque of the step first)."""
+    def behave(topic, k, stamp):
+        bad = topic == 'load' and k == 4
+        return [(stamp, 1e300 if bad else (T_ENGINE if topic == 'engine' else T_LOAD))]
+    node, peers, _ = run(ctx, tmp_path, behave=behave)
+    assert node.exit_code == 1
+    msg = node.error_message
+    assert msg.startswith('integration failed at t=0.004 s: '), msg
+    assert msg.endswith(f'; torques of the step, largest first: /load/wrench 1e+300 N m, '
+                        f'/engine/wrench {T_ENGINE:.6g} N m'), msg
+    assert node.k == 4 and all(math.isfinite(v) for m in peers.js for v in m.velocity)
+
+
 def test_duplicate_late_and_out_of_order_stamps_ignored_and_counted(ctx, tmp_path):
     from builtin_interfaces.msg import Time
 

@@ -189,3 +189,22 @@ def test_map_engine_answers_through_the_compiled_formula_with_the_same_bytes() -
         assert fast.describe() == engine.describe()
     linear = engine_from_spec({'model': 'linear'})
     assert answering_source(linear) is linear
+
+
+def test_engine_spec_examples_of_the_descriptor_and_the_docs_work(ctx, tmp_path):
+    """The ``engine_spec`` example in the parameter's descriptor and in docs/nodes.md, as
+    written, build a node whose engine is that spec (they showed M1/K1, which are rejected)."""
+    import re
+    from pathlib import Path
+
+    from cvj_ros.nodes.engine_node import PARAMS
+    desc = next(p for p in PARAMS if p.name == 'engine_spec').description
+    docs = (Path(__file__).resolve().parents[2] / 'docs' / 'nodes.md').read_text()
+    examples = [re.search(r'e\.g\. "(\{[^"]+\})"', desc).group(1),
+                re.search(r'engine_spec:="(\{[^"]+\})"', docs.replace('\n  ', ' ')).group(1)]
+    for spec in examples:
+        node = make_node(ctx, tmp_path, engine_spec=spec)
+        try:   # the linear characteristic M = m1 - k1 omega (Davidbaev et al. 2023, eq. 3.23)
+            assert node.engine.torque(0.0, 10.0) == pytest.approx(600.0 - 12.0 * 10.0)
+        finally:
+            node.destroy_node()

@@ -1,5 +1,6 @@
-"""The run report's per-exchange loop line (issue 10: the real-time targets shown in
-`cvj-sim run`'s report), on fabricated results; the e2e tests check it in real runs."""
+"""The run report's wall-time, real-time factor and per-exchange lines on fabricated results
+(facts: what the time went to and what the factor is computed on; no development targets,
+those are `cvj-sim bench`'s); the e2e tests check them in real runs."""
 from __future__ import annotations
 
 import io
@@ -23,33 +24,39 @@ def _result(*, process: str, rtf: float, h: float = 1e-3, mode: str = 'lockstep'
         settings={'mode': mode, 'process': process})
 
 
-@pytest.mark.parametrize(('process', 'rtf', 'verdict'), [
-    ('composed', 12.5, 'against the composed target >= 10: met'),
-    ('composed', 8.0, 'against the composed target >= 10: not met'),
-    ('separate, hosted monitor_node', 2.2, 'against the separate target >= 2: met'),
-    ('separate, hosted monitor_node', 1.6, 'against the separate target >= 2: not met'),
-])
-def test_loop_line_gives_the_split_and_the_target_of_the_layout(process: str, rtf: float,
-                                                                 verdict: str) -> None:
+@pytest.mark.parametrize(('process', 'rtf'), [('composed', 12.5), ('composed', 8.0),
+                                             ('separate, hosted monitor_node', 1.6)])
+def test_loop_line_gives_the_split_and_no_development_target(process: str, rtf: float) -> None:
     line = loop_line(_result(process=process, rtf=rtf))
-    assert line is not None and line.endswith(verdict)
+    assert line is not None
     assert f'wall {1e3 / rtf:.0f} us = integration 11 us + overhead {1e3 / rtf - 11:.0f} us' in line
-    assert '(lockstep wait 60 us, state evaluation + publication 9 us)' in line
-    assert REAL_TIME_TARGETS == {'composed': 10.0, 'separate': 2.0}
+    assert line.endswith('(lockstep wait 60 us, state evaluation + publication 9 us)')
+    assert 'target' not in line and 'met' not in line
+    assert REAL_TIME_TARGETS == {'composed': 10.0, 'separate': 2.0}   # cvj-sim bench's
 
 
-def test_loop_line_only_states_a_target_for_1_ms_steps_and_only_for_lockstep() -> None:
-    line = loop_line(_result(process='composed', rtf=30.0, h=5e-3))
-    assert line is not None and 'target' not in line
+def test_loop_line_only_for_lockstep_with_loop_diagnostics() -> None:
     assert loop_line(_result(process='composed', rtf=1.0, mode='free-run')) is None
     r = _result(process='composed', rtf=12.0)
     r.metrics = {}
     assert loop_line(r) is None
 
 
-def test_print_report_puts_the_loop_line_under_the_wall_time() -> None:
+def test_print_report_states_the_whole_command_and_the_rate_basis() -> None:
+    """Wall time of the whole command split into start-up, loop and the phases after it; the
+    real-time factor with the simulated span and the loop wall time it is computed on."""
+    r = _result(process='composed', rtf=12.5)
+    r.wall_time = 9.0
+    r.phases = {'loop_started': 1.5, 'coupling_exited': 1.9, 'drained': 2.2, 'bag_closed': 2.4,
+                'report_done': 9.0}
     out = io.StringIO()
-    print_report(_result(process='composed', rtf=12.5), out)
+    print_report(r, out)
     lines = out.getvalue().splitlines()
     i = next(k for k, ln in enumerate(lines) if ln.startswith('  wall time'))
-    assert lines[i + 1].startswith('  loop per exchange: wall 80 us')
+    assert lines[i] == ('  wall time 9.00 s: start-up 1.50 s, loop 0.400 s, after the loop 7.10 s '
+                        '(last messages 0.30 s, closing the bag 0.20 s, report 6.60 s)')
+    assert lines[i + 1] == ('  real-time factor 12.5 = 5 s simulated / 0.400 s of loop (first to '
+                            'last joint state recorded); 0.556 over the whole command; wall per '
+                            'exchange step 80 us')
+    assert lines[i + 2].startswith('  loop per exchange: wall 80 us')
+    assert 'target' not in out.getvalue()

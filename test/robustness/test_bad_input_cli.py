@@ -309,3 +309,52 @@ def test_analyze_damaged_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str],
     code = cli_main(['analyze', str(b)])
     out, err = capsys.readouterr()
     assert_one_error_line(code, out, err, str(b))
+
+
+def _bag_with_load(path: Path, torques: list[float]) -> Path:
+    """A bag with /load/wrench samples of ``torques`` at t = 0, 1, 2, ... ms."""
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import serialize_message
+    w = bagmod.BagWriter(path)
+    w.add_topic('/load/wrench')
+    for k, tz in enumerate(torques):
+        m = WrenchStamped()
+        m.header.stamp.nanosec = k * 1_000_000
+        m.wrench.torque.z = tz
+        w.write('/load/wrench', k * 1_000_000, serialize_message(m))
+    w.close()
+    return path
+
+
+def test_run_load_from_bag_with_non_finite_torque(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Refused before any process starts (was: every node started, then the coupling node
+    stopped at the sample), naming the bag, the sample and its time."""
+    pytest.importorskip('rclpy')
+    b = _bag_with_load(tmp_path / 'nan_load', [50.0, 50.0, 50.0, float('nan')] + [50.0] * 6)
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(VALID))
+    code = cli_main(['run', str(path), '--out', str(tmp_path / 'r'), '--load-from-bag', str(b)])
+    msg = assert_one_error_line(code, *capsys.readouterr(), '--load-from-bag')
+    assert msg == (f'{b}: /load/wrench torque.z not finite (nan N m) at t = 0.003 s (sample 3 of '
+                   '10, 1 such); a recorded load must be finite')
+    assert not (tmp_path / 'r').exists()
+
+
+@pytest.mark.parametrize('where', ['proc', 'file_parent'])
+def test_unwritable_out_names_out(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                  where: str) -> None:
+    """A run directory that cannot be written is one line naming --out, exit 2, before any
+    process starts (was `<scene>: OSError ... (unexpected ...)`, exit 1). Read-only
+    directories are covered by the same check (tempfile in OUT), but this machine's tests
+    run as root, which writes anyway; /proc and a file as parent fail for root too."""
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(VALID))
+    if where == 'proc':
+        out = Path('/proc/cvj_run')
+    else:
+        (tmp_path / 'plain_file').write_text('x')
+        out = tmp_path / 'plain_file' / 'run'
+    code = cli_main(['run', str(path), '--out', str(out)])
+    msg = assert_one_error_line(code, *capsys.readouterr(), '--out')
+    assert msg.startswith(f'{out}: cannot write the run directory: '), msg

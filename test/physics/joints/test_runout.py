@@ -212,3 +212,16 @@ def test_simulated_order_one_matches_the_linearised_response(k: float) -> None:
            'torque_out': _order1(tr, i_out, i_in, tr.effort[:, i_out])}
     for key, want in expect.items():
         assert abs(got[key] - want) <= 2.0 * k * k * abs(want), (key, got[key], want)
+
+
+def test_accuracy_target_drops_a_runout_below_it() -> None:
+    """The fidelity picker's speed error of the ideal level is the ratio's deviation,
+    max |ratio - 1| = k/(1 - k) ~ k: below the scene's target the runout is switched off."""
+    from cvj_ros.physics.fidelity import choose_fidelity
+    for e_mm, want in ((0.005, 'ideal'), (5.0, 'exact')):      # k = 1e-4, 0.1; target 1e-3
+        d = scene({'eccentricity_mm': e_mm, 'radius_mm': 50.0})
+        d['accuracy_target'] = 1e-3
+        (choice,) = choose_fidelity(parse_scene(d)).choices
+        assert choice.chosen == want, choice
+        k = e_mm / 50.0     # sampled on 2048 angles, which include x = pi (phase 0)
+        assert choice.candidates['ideal']['speed_error'] == pytest.approx(k / (1.0 - k), rel=1e-9)

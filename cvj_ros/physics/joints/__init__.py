@@ -9,7 +9,8 @@ from cvj_ros.physics.joints.base import FIDELITIES, JOINTS, JointEval, JointMode
 __all__ = ['FIDELITIES', 'JOINTS', 'JointEval', 'JointModel', 'make_joint']
 
 # Each module registers itself on import. Missing modules (not built yet) are skipped.
-for _name in ('ideal', 'gear', 'hooke', 'double_cardan', 'tripod', 'rzeppa', 'lever_hinge', 'chain'):
+for _name in ('ideal', 'gear', 'hooke', 'double_cardan', 'tripod', 'rzeppa', 'lever_hinge', 'chain',
+              'runout'):
     try:
         importlib.import_module(f'{__name__}.{_name}')
     except ModuleNotFoundError as _exc:

@@ -25,9 +25,10 @@ from cvj_ros.physics.joints.double_cardan import double_cardan_scalar
 from cvj_ros.physics.joints.hooke import hooke_phased_scalar, hooke_stage_scalar
 from cvj_ros.physics.joints.tripod import tripod_closed_scalar, tripod_series_scalar
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
+from cvj_ros.physics.joints.runout import runout_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_HOOKE_PHASED, OP_JOINT_IDENTITY,
                                           OP_LEVER_CLOSED, OP_LEVER_EXACT, OP_TRIPOD_CLOSED,
-                                          OP_TRIPOD_SERIES, OP_DOUBLE_CARDAN)
+                                          OP_TRIPOD_SERIES, OP_DOUBLE_CARDAN, OP_RUNOUT)
 
 
 hooke_stage_nb = njit(cache=True)(hooke_stage_scalar)
@@ -46,6 +47,7 @@ lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
 lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
 tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
 tripod_series_nb = njit(cache=True)(tripod_series_scalar)
+runout_nb = njit(cache=True)(runout_scalar)
 
 
 @njit(cache=True, inline='always')
@@ -78,4 +80,6 @@ def joint_eval(code, phi, fp, off):
         return phi, 1.0, 0.0
     if code == OP_HOOKE_PHASED:    # last: its code in the inlined rhs must not slow the others
         return hooke_phased_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3])
+    if code == OP_RUNOUT:          # after the others, for the same reason
+        return runout_nb(phi, fp[off], fp[off + 1])
     return phi, 1.0, 0.0   # unreachable: layout.build_model rejects unknown joints

@@ -19,6 +19,7 @@ ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any j
     OP_TRIPOD_CLOSED fp = [a]; OP_TRIPOD_SERIES fp = [n_coeff, b_1 .. b_n] (joints/tripod.py).
     OP_HOOKE_PHASED fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)] (a Hooke joint
     with a yoke phase, bend plane or cross angle: joints/hooke.py hooke_phased_scalar).
+    OP_RUNOUT fp = [k = e/r, phase rad] (an eccentric axis: joints/runout.py runout_scalar).
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
 input block (9 floats): t_k, Te, Te_rate, Ke, we, Tl, Tl_rate, Kl, wl (see set_torque_inputs).
@@ -36,7 +37,7 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     LOAD_TIME_SERIES fp = [outside_zero 0/1, n, t_0 .. t_n-1 s, T_0 .. T_n-1 N m] (bag replay).
 
 Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
-    Fourier table), Rzeppa (cage error), double cardan, chains (flattened into
+    Fourier table), Rzeppa (cage error), double cardan, runout, chains (flattened into
     their stages), gear, ideal CV, any joint whose 'ideal' fidelity is
     the identity (checked at build time), springs (linear,
 progressive, backlash), work integrals, linear engine, constant load, input-block torques.
@@ -68,6 +69,7 @@ OP_TRIPOD_CLOSED = 6
 OP_TRIPOD_SERIES = 7
 OP_DOUBLE_CARDAN = 8
 OP_HOOKE_PHASED = 9
+OP_RUNOUT = 10
 
 # torque source codes
 ENGINE_INPUTS = 0
@@ -138,6 +140,13 @@ def _joint_op(name: str, model: Any, fp: list[float]) -> tuple[int, int]:
         fp.append(float(len(model._coeff_list)))
         fp.extend(model._coeff_list)
         return OP_TRIPOD_SERIES, off
+    if model.kind == 'runout':
+        k, phase = model.kernel_params()
+        if k == 0.0:                    # no eccentricity: the identity, as Runout.scalar
+            return OP_JOINT_IDENTITY, 0
+        off = len(fp)
+        fp.extend([k, phase])
+        return OP_RUNOUT, off
     raise NotImplementedError(f'compiled kernel: joint {name!r} kind {model.kind!r} '
                               f'fidelity {fid!r} is not covered yet')
 

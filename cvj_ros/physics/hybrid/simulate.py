@@ -97,7 +97,8 @@ class HybridSimulation:
         schedule: the commands (throttle, clutch, gear, brake over time).
         duration: s. sample_dt: sample spacing (s).
         initial_speed: engine speed at t = 0 (rad/s); it carries through springs, clutches
-            and the gear commanded at t = 0 unless ``initial_speeds`` sets the speed of the
+            not fully open at t = 0 and the gear commanded at t = 0 (behind an open clutch or
+            neutral the chain starts at rest) unless ``initial_speeds`` sets the speed of the
             first shaft of a section (e.g. ``{'clutch_output': 0.0}``); angles start at 0.
         stall_speed: engine speed (rad/s) below which the engine counts as stalled (the run
             stops there); None: not checked.
@@ -341,6 +342,8 @@ class HybridSimulation:
                 phi_end, a_end, _b, _m, _c = section_kinematics(ch.sections[s - 1], float(q[s - 1]))
                 speed = a_end * v[s - 1]
                 q[s] = phi_end
+                if bd.kind == 'clutch' and self.schedule.value('clutch', 0.0) >= 1.0:
+                    speed = 0.0           # behind a clutch open at t = 0: at rest
                 if bd.kind == 'gearbox':
                     g = mode.gear[bd.name]
                     speed = 0.0 if g == 0 else speed / ch.gearboxes[bd.name][0].ratio(g)

@@ -102,3 +102,16 @@ def test_energy_closes_with_a_hooke_joint_through_lock_and_slip() -> None:
     assert r.count('clutch', 'stuck') >= 2
     assert [e.after for e in r.events if e.element == 'gearbox'] == ['gear 2']   # via neutral
     assert r.max_energy_residual < 1e-8
+
+
+def test_chain_behind_a_clutch_open_at_t0_starts_at_rest() -> None:
+    """Engine at 80 rad/s; pedal 1 at t = 0: the disc and everything behind it start at rest
+    (a standing start), the engine side at 80 rad/s."""
+    ch = _chain()
+    sched = CommandSchedule([(0.0, {'clutch': 1.0, 'gear': 1, 'brake': 1.0})])
+    sim = HybridSimulation(ch, engine=LinearEngine(m1=0.0, k1=0.0), load=ConstantLoad(torque=0.0),
+                           schedule=sched, duration=0.01, sample_dt=0.01, initial_speed=80.0)
+    r = sim.run()
+    assert r.column('engine_crank')[0] == 80.0 and r.column('clutch_input')[0] == 80.0
+    assert r.column('clutch_output')[0] == 0.0 and r.column('wheel')[0] == 0.0
+    assert r.final_mode.brake == STUCK

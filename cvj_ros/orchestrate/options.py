@@ -124,6 +124,10 @@ def prepare(options: RunOptions) -> _Prepared:
     from cvj_ros.physics.scene import Joint, find_scene, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
+    if scene.has_modes:          # clutch, gearbox, brake, commands: offline reference only
+        from cvj_ros.physics.hybrid.scene_keys import mode_gap
+        field, reason = mode_gap(scene)
+        raise CvjError(f'{field}: {reason}')
     if options.mode not in MODES:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
     if options.scheme not in SCHEMES:

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cvj_ros.errors import SceneError
 from cvj_ros.physics.fidelity import choose_fidelity
 from cvj_ros.physics.scene import Scene, Spring
 from cvj_ros.physics.sections import (  # noqa: F401  (SpringLaw, Shaft re-exported)
@@ -94,6 +95,10 @@ class Driveline:
         ``fidelity`` forces levels by element name (joints: ideal|closed|exact, springs:
         elastic|rigid); the rest follows the scene (auto -> accuracy_target rule).
         """
+        if scene.has_modes:
+            from cvj_ros.physics.hybrid.scene_keys import mode_gap
+            field, reason = mode_gap(scene)
+            raise SceneError(field, reason)
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report

@@ -24,14 +24,16 @@ from typing import Any
 from cvj_ros.errors import GeometryError, SceneError
 
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
-              'accuracy_target', 'solver', 'engine', 'load', 'initial', 'driveline')
+              'accuracy_target', 'solver', 'engine', 'load', 'initial', 'driveline', 'commands')
 SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
 INITIAL_KEYS = ('speed_rad_s', 'speed_rpm', 'angle_deg')
 INERTIA_KEYS = ('type', 'name', 'J', 'limits')
 SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_deg',
                'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits')
 JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
-ELEMENT_TYPES = ('inertia', 'spring', 'joint')
+ELEMENT_TYPES = ('inertia', 'spring', 'joint', 'clutch', 'gearbox', 'brake')
+# clutch, gearbox, brake: mode elements (cvj_ros.physics.hybrid, docs/clutch_gearbox.md)
+MODE_ELEMENT_TYPES = ('clutch', 'gearbox', 'brake')
 SPRING_LAWS = ('linear', 'progressive')
 JOINT_FIDELITIES = ('auto', 'ideal', 'closed', 'exact')
 SPRING_FIDELITIES = ('auto', 'elastic', 'rigid')
@@ -96,7 +98,7 @@ class Joint:
     type: str = 'joint'
 
 
-Element = Inertia | Spring | Joint
+Element = Inertia | Spring | Joint     # plus the mode elements of cvj_ros.physics.hybrid.elements
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,14 @@ class Scene:
     accuracy_target: float | None = None
     sample_step: float | None = None   # s, output sampling (default exchange_step)
     source: str = '<dict>'
+    commands: tuple[Mapping[str, float], ...] = ()   # rows {t, throttle|clutch|gear|brake}
+
+    @property
+    def has_modes(self) -> bool:
+        """The scene holds a clutch, gearbox or brake or a command schedule: it runs on the
+        mode-aware reference (cvj_ros.physics.hybrid), not on Driveline or the kernel."""
+        return bool(self.commands) or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                                          for el in self.driveline)
 
     def element(self, name: str) -> Element:
         """The driveline element called ``name`` (KeyError if absent)."""
@@ -172,13 +182,18 @@ class Scene:
                     e['initial_twist_deg'] = math.degrees(el.initial_twist)
                 if el.fidelity != 'auto':
                     e['fidelity'] = el.fidelity
-            else:
+            elif isinstance(el, Joint):
                 e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
                      'params': dict(el.params_file)}
-            if el.limits:
+            else:
+                from cvj_ros.physics.hybrid.scene_keys import mode_element_dict
+                e = mode_element_dict(el)
+            if getattr(el, 'limits', None):
                 e['limits'] = dict(el.limits)
             els.append(e)
         d['driveline'] = els
+        if self.commands:
+            d['commands'] = [dict(r) for r in self.commands]
         return d
 
     def to_yaml(self) -> str:
@@ -293,6 +308,9 @@ def _element(raw: Any, path: str) -> Element:
     name = _string(el['name'], f'{path}.name')
     if not name.replace('_', 'a').isalnum() or not name[0].isalpha():
         raise SceneError(f'{path}.name', f'must be an identifier (letters, digits, _), got {name!r}')
+    if etype in MODE_ELEMENT_TYPES:
+        from cvj_ros.physics.hybrid.scene_keys import mode_element
+        return mode_element(etype, el, name, path)
     limits = _limits(el['limits'], f'{path}.limits') if 'limits' in el else {}
     if etype == 'inertia':
         _check_keys(el, INERTIA_KEYS, path)
@@ -417,11 +435,19 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
                                                      f'(also driveline[{seen[el.name]}])')
         seen[el.name] = i
     check_layout(chain)
+    commands: tuple[Mapping[str, float], ...] = ()
+    if d.get('commands') is not None:
+        from cvj_ros.physics.hybrid.scene_keys import parse_commands
+        commands = parse_commands(d['commands'], chain)
+    if commands or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES for el in chain):
+        from cvj_ros.physics.hybrid.scene_keys import check_mode_scene
+        check_mode_scene(chain, solver.method)
     return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
                  exchange_step=exchange_step, solver=solver, engine=dict(engine),
                  load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
                  driveline=chain, initial_speed=speed, initial_angle=angle,
-                 accuracy_target=target, sample_step=sample_step, source=source)
+                 accuracy_target=target, sample_step=sample_step, source=source,
+                 commands=commands)
 
 
 def check_layout(chain: tuple[Element, ...]) -> None:
@@ -429,12 +455,24 @@ def check_layout(chain: tuple[Element, ...]) -> None:
 
     Rules: first and last element are inertias (engine and load act on them); every
     rigid section between two springs holds at least one inertia (a massless node
-    between springs would be an algebraic constraint).
+    between springs would be an algebraic constraint). Mode elements: a clutch or gearbox
+    brings an inertia on each side; a brake only as the last element, after an inertia
+    (it acts on the output shaft); at most one gearbox and one brake.
     """
     if not isinstance(chain[0], Inertia):
         raise SceneError('driveline[0].type', 'the first element must be an inertia '
                                               '(the engine acts on it)')
     last = len(chain) - 1
+    types = [getattr(el, 'type', '') for el in chain]
+    for i, t in enumerate(types):
+        if t == 'brake' and i != last:
+            raise SceneError(f'driveline[{i}].type', 'a brake must be the last element (it acts '
+                                                     'on the output shaft, the inertia before it)')
+        if t == 'gearbox' and 'gearbox' in types[:i]:
+            raise SceneError(f'driveline[{i}].type', 'at most one gearbox (the gear command drives it)')
+    if types[last] == 'brake':
+        last -= 1
+        chain = chain[:-1]
     if not isinstance(chain[last], Inertia):
         raise SceneError(f'driveline[{last}].type', 'the last element must be an inertia '
                                                     '(the load acts on it)')
@@ -445,7 +483,7 @@ def check_layout(chain: tuple[Element, ...]) -> None:
                 raise SceneError(f'driveline[{i}]', 'no inertia between this spring and the '
                                                     'previous one (massless node); add an inertia')
             has_inertia = False
-        elif isinstance(el, Inertia):
+        elif isinstance(el, Inertia) or getattr(el, 'type', '') in ('clutch', 'gearbox'):
             has_inertia = True
 
 

@@ -1,14 +1,24 @@
 """Mode elements (friction clutch, gearbox, brake) of a chain driveline, with stick and slip
 solved as modes and transitions located on the stepper's dense output (docs/clutch_gearbox.md).
-Pure Python reference; no ROS import."""
+Pure Python reference; no ROS import. Names load on first use (PEP 562), so parsing a scene
+does not import the solvers."""
 from __future__ import annotations
 
-from cvj_ros.physics.hybrid.chain import HybridChain, Mode, SectionState
-from cvj_ros.physics.hybrid.commands import CommandSchedule
-from cvj_ros.physics.hybrid.elements import Brake, Clutch, Gearbox
-from cvj_ros.physics.hybrid.friction import BACKWARD, FORWARD, STUCK, CoulombPack
-from cvj_ros.physics.hybrid.simulate import HybridResult, HybridSimulation, ModeEvent
+import importlib
+from typing import Any
 
-__all__ = ['BACKWARD', 'FORWARD', 'STUCK', 'Brake', 'Clutch', 'CommandSchedule', 'CoulombPack',
-           'Gearbox', 'HybridChain', 'HybridResult', 'HybridSimulation', 'Mode', 'ModeEvent',
-           'SectionState']
+_WHERE = {
+    'HybridChain': 'chain', 'Mode': 'chain', 'SectionState': 'chain',
+    'CommandSchedule': 'commands',
+    'Brake': 'elements', 'Clutch': 'elements', 'Gearbox': 'elements',
+    'BACKWARD': 'friction', 'FORWARD': 'friction', 'STUCK': 'friction', 'CoulombPack': 'friction',
+    'HybridResult': 'simulate', 'HybridSimulation': 'simulate', 'ModeEvent': 'simulate',
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    return getattr(importlib.import_module(f'{__name__}.{_WHERE[name]}'), name)

@@ -250,3 +250,23 @@ def test_gear_that_would_over_speed_the_engine_is_refused() -> None:
     assert [e.after for e in r.events if e.element == 'gearbox'] == ['gear 3']
     assert r.final_mode.gear['gearbox'] == 3
     assert r.max_energy_residual < ENERGY_BOUND
+
+
+def test_a_refused_gear_is_not_retried_until_commanded_anew() -> None:
+    """Neutral, output at 250 rad/s slowed by 200 N m on 1.02 kg m^2 (196.1 rad/s^2). 1st
+    (3.5, limit 650 rad/s) commanded at 0.1 s needs 806 rad/s: refused; a later row of another
+    channel at 0.35 s, when 1st would need 635 rad/s, does not retry it; neutral at 0.4 s and
+    1st again at 0.45 s (566 rad/s) engage it."""
+    gb = Gearbox('gearbox', 0.01, 0.02, (3.5, 2.1, 1.4), -3.3, max_input_speed=650.0)
+    chain = HybridChain([Inertia('engine_crank', 0.2), Clutch('clutch', 0.05, 0.02, CLUTCH), gb,
+                         Inertia('wheel', 1.0)])
+    sched = CommandSchedule([(0.0, {'clutch': 1.0, 'gear': 0}), (0.1, {'gear': 1}),
+                             (0.35, {'throttle': 0.0}), (0.4, {'gear': 0}), (0.45, {'gear': 1})])
+    sim = HybridSimulation(chain, engine=_const_engine(0.0), load=ConstantLoad(torque=200.0),
+                           schedule=sched, duration=0.5, initial_speed=100.0,
+                           initial_speeds={'gearbox_output': 250.0})
+    r = sim.run()
+    assert len(r.statuses) == 1 and r.statuses[0].startswith('t=0.100000 s: gear 1 refused')
+    gears = [(round(e.t, 12), e.after) for e in r.events if e.element == 'gearbox']
+    assert gears == [(0.45, 'gear 1')]
+    assert r.max_energy_residual < ENERGY_BOUND

@@ -67,6 +67,9 @@ def bases() -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     cheap, tripod = [copy.deepcopy(SMALL)], []
     for path in shipped_scenes().values():
         data = yaml.safe_load(path.read_text())
+        if any(isinstance(e, dict) and e.get('type') in ('clutch', 'gearbox', 'brake')
+               for e in data.get('driveline', [])):
+            continue     # Simulation does not take mode elements: test/physics/hybrid fuzzes them
         has_tripod = any(isinstance(e, dict) and e.get('kind') == 'tripod'
                          for e in data.get('driveline', []))
         (tripod if has_tripod else cheap).append(data)

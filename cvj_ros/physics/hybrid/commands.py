@@ -79,6 +79,12 @@ class CommandSchedule:
             raise SceneError(path, f'must be in 0..1, got {v!r}')
         return float(v)
 
+    def has(self, channel: str) -> bool:
+        """A row sets ``channel``."""
+        if channel == 'gear':
+            return bool(self._gear_times)
+        return bool(self.channels[channel].times)
+
     def value(self, channel: str, t: float) -> float:
         """Channel ``throttle``, ``clutch`` or ``brake`` at t (s)."""
         return self.channels[channel](t)

@@ -14,9 +14,9 @@ the witnesses of the present mode are checked (cvj_ros.physics.hybrid.events):
 
 The event time is the witness's zero on the dense output (Brent); the stepper restarts
 from there in the new mode. Command-row times are breakpoints: the stepper lands on them,
-the gear command is applied (neutral always; a gear only with no clutch stuck and when
-|i omega_out| <= the gearbox's max input speed, else refused with a status line; the
-engagement is a momentum-conserving lock, an ideal synchroniser) and stuck elements whose
+a new gear command is applied (neutral always; a gear only with no clutch stuck and when
+|i omega_out| <= the gearbox's max input speed, else refused with a status line and not
+retried until the command changes; the engagement is a momentum-conserving lock, an ideal synchroniser) and stuck elements whose
 capacity no longer holds are released. Every kinetic energy lost in a lock and every joule
 of friction work is booked, so the energy residual
 (E_kin + E_el - E0 - W_engine + W_load + W_damp + W_friction + W_lock) / scale stays at the
@@ -118,6 +118,8 @@ class HybridSimulation:
         self.sample_dt = float(sample_dt)
         self.stall_speed = stall_speed
         self.method, self.rtol, self.atol, self.max_step = method, rtol, atol, max_step
+        self._throttle = schedule.has('throttle')    # else the engine keeps its own throttle
+        self._gear_seen: int | None = None           # last gear command acted on (or refused)
         self.events: list[ModeEvent] = []
         self.statuses: list[str] = []
         self.initial_speed = float(initial_speed)
@@ -147,7 +149,8 @@ class HybridSimulation:
         return ck, cs, bk, bs
 
     def _eval(self, asm: Assembly, mode: Mode, t: float, y: FloatArray) -> Evaluation:
-        self.engine.set_throttle(self.schedule.value('throttle', t))
+        if self._throttle:
+            self.engine.set_throttle(self.schedule.value('throttle', t))
         ck, _cs, bk, _bs = self._capacities(t)
         return self.chain.evaluate(asm, mode, t, y, engine=self.engine, load=self.load,
                                    clutch_kinetic=ck, brake_kinetic=bk)
@@ -291,6 +294,9 @@ class HybridSimulation:
         for name, (gb, b) in self.chain.gearboxes.items():
             want = self.schedule.gear(t)
             have = mode.gear[name]
+            if want == self._gear_seen:
+                continue          # no new command (a refused gear is not retried)
+            self._gear_seen = want
             if want == have:
                 continue
             if not gb.valid_gear(want):

@@ -386,3 +386,22 @@ def test_random_command_schedules_keep_the_invariants(seed: int) -> None:
     r2 = run()
     assert r2.events == r.events
     np.testing.assert_array_equal(r2.speed, r.speed)
+
+
+def test_an_event_on_a_command_row_still_applies_the_row() -> None:
+    """Brake stepped from 1 to 0 at 0.5 s on the grade, with 1st commanded in the same row:
+    the stuck-brake witness jumps at the row, so the release is located on it (to Brent's
+    4 eps); the row's gear command must act all the same (it has no later row to wait for)."""
+    chain, road = _car(10.0)
+    sched = CommandSchedule([(0.0, {'clutch': 1.0, 'brake': 1.0, 'gear': 0}),
+                             (0.5, {'brake': 1.0}), (0.5, {'brake': 0.0, 'gear': 1})])
+    sim = HybridSimulation(chain, engine=LinearEngine(m1=20.0, k1=0.25), load=road,
+                           schedule=sched, duration=1.0, initial_speed=80.0, rtol=1e-10,
+                           atol=1e-12)
+    r = sim.run()
+    rel = [e for e in r.events if e.element == 'brake' and e.t > 0]
+    assert rel[0].after == 'slip-' and rel[0].t == pytest.approx(0.5, abs=1e-12)
+    gears = [(e.t, e.after) for e in r.events if e.element == 'gearbox']
+    assert len(gears) == 1 and gears[0][1] == 'gear 1' and gears[0][0] == pytest.approx(0.5, abs=1e-12)
+    assert r.final_mode.gear['gearbox'] == 1 and r.column('wheel')[-1] < 0.0   # rolls back
+    assert r.max_energy_residual < ENERGY_BOUND

@@ -401,6 +401,15 @@ class HybridSimulation:
         t = 0.0
         mode, st = self._shift(0.0, mode, st)
         while t < self.duration and stall is None:
+            t_stop = min(self.schedule.next_breakpoint(t), self.duration)
+            if t_stop - t <= 1e-12 * max(1.0, abs(t)):
+                # an event a rounding error before a command row: the row acts now (a step
+                # that short would trip the step-size floor)
+                t = t_stop
+                if t < self.duration:
+                    mode, st = self._shift(t, mode, st)
+                    mode, st = self._settle(t, mode, st)
+                continue
             asm = ch.assemble(mode)
             y0, _loss = ch.to_mode(asm, st)
             n = len(asm.groups)
@@ -408,7 +417,6 @@ class HybridSimulation:
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
                                    max_step=self.max_step)
             stats['restarts'] += 1
-            t_stop = min(self.schedule.next_breakpoint(t), self.duration)
             ws = self._witnesses(asm, mode)
             ev0 = self._eval(asm, mode, t, y0)
             g_old = [self._g(w, ev0, t, y0, n) for w in ws]
@@ -452,6 +460,9 @@ class HybridSimulation:
                     else:
                         mode = self._release(t, mode, kind, name, target, 'torque above static capacity')
                     mode, st = self._settle(t, mode, st, (name,))
+                    if t >= t_stop and t < self.duration:    # the event is on a command row
+                        mode, st = self._shift(t, mode, st)
+                        mode, st = self._settle(t, mode, st, (name,))
                     break
                 g_old = g_new
                 if stepper.t >= t_stop:

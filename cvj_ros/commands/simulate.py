@@ -143,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         if args.method not in OFFLINE_METHODS:
             raise SceneError('--method', f'must be one of {", ".join(OFFLINE_METHODS)}, got {args.method!r}')
     scene = load_scene(find_scene(args.scene))
+    if scene.has_modes:
+        return _run_modes(scene, args)
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                      fidelity=parse_fidelity(args.fidelity), backend=args.backend)
     import sys
@@ -182,6 +184,44 @@ def run(args: argparse.Namespace) -> int:
     else:
         summary['fidelity_text'] = str(sim.fidelity_report)
         print(format_summary(summary))
+    return 0
+
+
+def _run_modes(scene: Any, args: argparse.Namespace) -> int:
+    """A scene with clutch, gearbox, brake or commands: the Python reference with events
+    (cvj_ros.physics.hybrid, docs/clutch_gearbox.md); prints events per element."""
+    import sys
+
+    from cvj_ros.physics.hybrid.from_scene import (format_hybrid_summary, hybrid_summary,
+                                                   run_hybrid)
+    from cvj_ros.physics.hybrid.scene_keys import mode_gap
+    for opt in ('plots', 'bag', 'dense'):
+        if getattr(args, opt):
+            raise SceneError(f'--{opt}', 'not available yet for a scene with clutch, gearbox, brake '
+                                         'or commands (docs/clutch_gearbox.md)')
+    from cvj_ros.physics.hybrid.scene_keys import DENSE_METHODS
+    if args.method is not None and args.method not in DENSE_METHODS:
+        raise SceneError('--method', f'a scene with clutch, gearbox, brake or commands needs one of '
+                                     f'{", ".join(DENSE_METHODS)} (dense output), got {args.method!r}')
+    field, reason = mode_gap(scene)
+    note = f'compiled kernel: {field}: {reason.split(";")[0]}; running the Python reference'
+    if args.backend == 'kernel':
+        print(f'cvj-sim simulate: {note}', file=sys.stderr)
+    sim, result, wall = run_hybrid(scene, method=args.method, rtol=args.rtol, atol=args.atol,
+                                   fidelity=parse_fidelity(args.fidelity), duration=args.duration,
+                                   sample_dt=args.sample_dt)
+    summary = hybrid_summary(scene, sim, result, wall, note if args.backend == 'kernel' else '')
+    if result.stall:
+        print(f'cvj-sim simulate: {result.stall}', file=sys.stderr)
+    if args.csv:
+        import numpy as np
+        cols = ['t_s'] + [f'{n}_velocity_rad_s' for n in result.shafts] + ['gear', 'energy_residual']
+        data = np.column_stack([result.t, result.speed, result.gear, result.energy_residual])
+        np.savetxt(args.csv, data, delimiter=',', header=','.join(cols), comments='')
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        print(format_hybrid_summary(summary))
     return 0
 
 

@@ -125,6 +125,12 @@ def run(args: argparse.Namespace) -> int:
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)
     base = load_scene_data(path)
+    from cvj_ros.physics.scene import parse_scene
+    scene = parse_scene(base)
+    if scene.has_modes:         # clutch, gearbox, brake, commands: offline reference only
+        from cvj_ros.physics.hybrid.scene_keys import mode_gap
+        field, reason = mode_gap(scene)
+        raise SweepError(f'{field}: {reason}')
     sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
     if args.orders_shaft is not None:
         from cvj_ros.physics.driveline import build_driveline

@@ -130,6 +130,10 @@ def prepare(options: RunOptions) -> _Prepared:
     if scene.is_tree:
         raise CvjError(f'{scene_path.name}: a vehicle scene (wheels, differentials) runs offline '
                        f'only for now (cvj-sim simulate); the ROS loop carries one chain')
+    if scene.has_modes:          # clutch, gearbox, brake, commands: offline reference only
+        from cvj_ros.physics.hybrid.scene_keys import mode_gap
+        field, reason = mode_gap(scene)
+        raise CvjError(f'{field}: {reason}')
     if options.mode not in MODES:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
     if options.scheme not in SCHEMES:

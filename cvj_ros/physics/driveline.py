@@ -99,6 +99,10 @@ class Driveline:
         ``fidelity`` forces levels by element name (joints: ideal|closed|exact, springs:
         elastic|rigid); the rest follows the scene (auto -> accuracy_target rule).
         """
+        if scene.has_modes:
+            from cvj_ros.physics.hybrid.scene_keys import mode_gap
+            field, reason = mode_gap(scene)
+            raise SceneError(field, reason)
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report

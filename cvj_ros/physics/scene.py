@@ -24,7 +24,8 @@ from typing import Any
 from cvj_ros.errors import GeometryError, SceneError
 
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
-              'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline')
+              'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline',
+              'commands')
 SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
 # names users give joints that the registry calls otherwise (suggested, never accepted):
 # a single cardan / universal joint is a Hooke joint (double_cardan is two of them)
@@ -35,9 +36,12 @@ INERTIA_KEYS = ('type', 'name', 'J', 'limits')
 SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_deg',
                'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits')
 JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
-ELEMENT_TYPES = ('inertia', 'spring', 'joint')
+ELEMENT_TYPES = ('inertia', 'spring', 'joint', 'clutch', 'gearbox', 'brake')
+# clutch, gearbox, brake: mode elements (cvj_ros.physics.hybrid, docs/clutch_gearbox.md)
+MODE_ELEMENT_TYPES = ('clutch', 'gearbox', 'brake')
 # vehicle scenes (a ``vehicle:`` block) also take wheels and differentials
-TREE_TYPES = ELEMENT_TYPES + ('differential', 'wheel')
+# (no mode elements yet: the mode-aware reference is a chain's)
+TREE_TYPES = ('inertia', 'spring', 'joint', 'differential', 'wheel')
 WHEEL_KEYS = ('type', 'name', 'J', 'radius', 'mu', 'load_share', 'axle', 'tyre', 'limits')
 TYRE_KEYS = ('B', 'C', 'E', 'relaxation_length')
 DIFF_KEYS = ('type', 'name', 'kind', 'ratio', 'J_carrier', 'J_side', 'J_spider', 'spider_ratio',
@@ -175,7 +179,7 @@ class VehicleSpec:
     initial_speed: float | None = None
 
 
-Element = Inertia | Spring | Joint | Wheel | Differential
+Element = Inertia | Spring | Joint | Wheel | Differential   # plus cvj_ros.physics.hybrid's mode elements
 
 
 @dataclass(frozen=True)
@@ -214,6 +218,14 @@ class Scene:
     def is_tree(self) -> bool:
         """True for a vehicle scene (wheels, possibly differentials), False for a chain."""
         return self.vehicle is not None
+    commands: tuple[Mapping[str, float], ...] = ()   # rows {t, throttle|clutch|gear|brake}
+
+    @property
+    def has_modes(self) -> bool:
+        """The scene holds a clutch, gearbox or brake or a command schedule: it runs on the
+        mode-aware reference (cvj_ros.physics.hybrid), not on Driveline or the kernel."""
+        return bool(self.commands) or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                                          for el in self.driveline)
 
     def element(self, name: str) -> Element:
         """The driveline element called ``name``, in any branch (KeyError if absent)."""
@@ -247,6 +259,8 @@ class Scene:
         if self.vehicle is not None and self.vehicle.initial_speed is not None:
             del d['initial']['speed_rad_s']    # set by the vehicle's speed
         d['driveline'] = _chain_dicts(self.driveline)
+        if self.commands:
+            d['commands'] = [dict(r) for r in self.commands]
         return d
 
     def to_yaml(self) -> str:
@@ -311,10 +325,13 @@ def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
                 e['initial_twist_deg'] = math.degrees(el.initial_twist)
             if el.fidelity != 'auto':
                 e['fidelity'] = el.fidelity
-        else:
+        elif isinstance(el, Joint):
             e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
                  'params': dict(el.params_file)}
-        if el.limits:
+        else:
+            from cvj_ros.physics.hybrid.scene_keys import mode_element_dict
+            e = mode_element_dict(el)
+        if getattr(el, 'limits', None):
             e['limits'] = dict(el.limits)
         els.append(e)
     return els
@@ -435,6 +452,9 @@ def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Elem
     name = _string(el['name'], f'{path}.name')
     if not name.replace('_', 'a').isalnum() or not name[0].isalpha():
         raise SceneError(f'{path}.name', f'must be an identifier (letters, digits, _), got {name!r}')
+    if etype in MODE_ELEMENT_TYPES:
+        from cvj_ros.physics.hybrid.scene_keys import mode_element
+        return mode_element(etype, el, name, path)
     limits = _limits(el['limits'], f'{path}.limits') if 'limits' in el else {}
     if etype == 'wheel':
         return _wheel(el, path, name, limits)
@@ -677,12 +697,22 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
             seen[el.name] = i
         check_layout(chain)
     check_hooke_phasing(chain)
+    commands: tuple[Mapping[str, float], ...] = ()
+    if d.get('commands') is not None:
+        if tree:
+            raise SceneError('commands', 'a command schedule needs a chain scene for now (the '
+                                         'clutch, gearbox and brake modes are not in vehicle scenes yet)')
+        from cvj_ros.physics.hybrid.scene_keys import parse_commands
+        commands = parse_commands(d['commands'], chain)
+    if commands or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES for el in chain):
+        from cvj_ros.physics.hybrid.scene_keys import check_mode_scene
+        check_mode_scene(chain, solver.method)
     return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
                  exchange_step=exchange_step, solver=solver, engine=dict(engine),
                  load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
                  driveline=chain, initial_speed=speed, initial_angle=angle,
                  accuracy_target=target, sample_step=sample_step, source=source,
-                 vehicle=vehicle)
+                 vehicle=vehicle, commands=commands)
 
 
 def check_layout(chain: tuple[Element, ...]) -> None:
@@ -690,12 +720,24 @@ def check_layout(chain: tuple[Element, ...]) -> None:
 
     Rules: first and last element are inertias (engine and load act on them); every
     rigid section between two springs holds at least one inertia (a massless node
-    between springs would be an algebraic constraint).
+    between springs would be an algebraic constraint). Mode elements: a clutch or gearbox
+    brings an inertia on each side; a brake only as the last element, after an inertia
+    (it acts on the output shaft); at most one gearbox and one brake.
     """
     if not isinstance(chain[0], Inertia):
         raise SceneError('driveline[0].type', 'the first element must be an inertia '
                                               '(the engine acts on it)')
     last = len(chain) - 1
+    types = [getattr(el, 'type', '') for el in chain]
+    for i, t in enumerate(types):
+        if t == 'brake' and i != last:
+            raise SceneError(f'driveline[{i}].type', 'a brake must be the last element (it acts '
+                                                     'on the output shaft, the inertia before it)')
+        if t == 'gearbox' and 'gearbox' in types[:i]:
+            raise SceneError(f'driveline[{i}].type', 'at most one gearbox (the gear command drives it)')
+    if types[last] == 'brake':
+        last -= 1
+        chain = chain[:-1]
     if not isinstance(chain[last], Inertia):
         raise SceneError(f'driveline[{last}].type', 'the last element must be an inertia '
                                                     '(the load acts on it)')
@@ -706,7 +748,7 @@ def check_layout(chain: tuple[Element, ...]) -> None:
                 raise SceneError(f'driveline[{i}]', 'no inertia between this spring and the '
                                                     'previous one (massless node); add an inertia')
             has_inertia = False
-        elif isinstance(el, Inertia):
+        elif isinstance(el, Inertia) or getattr(el, 'type', '') in ('clutch', 'gearbox'):
             has_inertia = True
 
 

@@ -132,6 +132,10 @@ def build_sections(scene: Scene, levels: Mapping[str, str]) -> SectionChain:
                                      g, el.backlash_smoothing * g))
             sections.append([])
             names.append([])
+        else:       # a clutch, gearbox or brake: cvj_ros.physics.hybrid splits the chain there
+            raise SceneError(f'driveline[{i}]', f'{getattr(el, "type", type(el).__name__)} '
+                                                f'{el.name!r} needs the mode-aware driveline '
+                                                f'(cvj_ros.physics.hybrid)')
     origin: dict[str, int] = {}        # unique JointState names, by construction
     for sh, i in zip(shafts, made_by):
         j = origin.setdefault(sh.name, i)

@@ -29,7 +29,8 @@ from cvj_ros.physics.simulate import Simulation
 
 REL = 1e-9
 COUNTERS = ('naccept', 'nreject', 'nfev')
-SCENES = sorted(shipped_scenes())
+# scenes with clutch, gearbox or brake run on the Python mode reference only (physics/hybrid)
+SCENES = sorted(n for n, p in shipped_scenes().items() if not load_scene(p).has_modes)
 
 
 def _rel(a: np.ndarray, b: np.ndarray) -> float:

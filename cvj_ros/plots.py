@@ -133,10 +133,6 @@ def amplitude_groups(peak_to_peak: Sequence[float], *, ratio: float = AMPLITUDE_
     return [sorted(g) for g in groups]
 
 
-#: joint kind -> its internal member's joint-state suffix (``<joint>_<member>``): the Rzeppa
-#: cage, the tripod spider, the lever-hinge earring turn with the joint but carry no line
-#: torque of their own (effort 0 in the record).
-INTERNAL_MEMBERS = {'rzeppa': 'cage', 'tripod': 'spider', 'lever_hinge': 'earring'}
 #: a time series of more than 2 x ENVELOPE_BINS samples is drawn as its min/max envelope
 #: (band) with the bin mean (line) instead of every sample: at most ENVELOPE_BINS bins, about
 #: two pixels each on the ~650 px wide time axes, and no bin shorter than one revolution of
@@ -151,34 +147,16 @@ ZOOM_MIN_SAMPLES = 40
 
 
 def internal_members(sig: BagSignals) -> list[str]:
-    """Joint-state names of the joints' internal members (:data:`INTERNAL_MEMBERS`): from the
-    scene recorded in the bag (every ``joint`` element, branches included); without a scene,
-    every ``<joint>_<member>`` column whose ``<joint>_input`` or ``<joint>_output`` is recorded."""
-    names = set(sig.joint_names)
+    """Joint-state names of the joints' internal members: a ``<joint>_<member>`` column
+    between ``<joint>_input`` and ``<joint>_output`` (the order the driveline records them:
+    Rzeppa cage, tripod spider, lever-hinge earring, double-cardan yoke). They turn with the
+    joint and carry no line torque of their own (effort 0 in the record)."""
+    names = sig.joint_names
     found: list[str] = []
-    data: Any = None
-    if sig.scene_yaml:
-        import yaml
-        try:
-            data = yaml.safe_load(sig.scene_yaml)
-        except yaml.YAMLError:
-            data = None
-    if isinstance(data, dict):
-        stack: list[Any] = [data.get('driveline')]
-        while stack:
-            el = stack.pop()
-            if isinstance(el, list):
-                stack += el
-            elif isinstance(el, dict):
-                if el.get('type') == 'joint' and el.get('kind') in INTERNAL_MEMBERS and 'name' in el:
-                    found.append(f"{el['name']}_{INTERNAL_MEMBERS[el['kind']]}")
-                stack += [v for v in el.values() if isinstance(v, (list, dict))]
-    else:
-        for n in sig.joint_names:
-            joint, _, member = n.rpartition('_')
-            if member in INTERNAL_MEMBERS.values() and ({joint + '_input', joint + '_output'} & names):
-                found.append(n)
-    return [n for n in sig.joint_names if n in set(found)]
+    for joint, n_in, n_out in joint_pairs(names):
+        i, o = names.index(n_in), names.index(n_out)
+        found += [n for n in names[i + 1:o] if n.startswith(joint + '_') and n not in found]
+    return found
 
 
 def envelope(t: np.ndarray, y: np.ndarray, n_bins: int = ENVELOPE_BINS
@@ -508,9 +486,9 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
         if is_member:
             for a in (ax_t, ax_tz):
                 a.set_axis_off()
-            ax_t.text(0.5, 0.5, 'internal members of the joints (Rzeppa cage, tripod spider,\n'
-                      'lever-hinge earring): they turn with the joint and carry\n'
-                      'no line torque, so only their speed is drawn',
+            ax_t.text(0.5, 0.5, 'internal members of the joints (cage, spider, earring, yoke):\n'
+                      f'{", ".join(names_in_row)}\nturn with their joint and carry no line '
+                      'torque: speed only',
                       transform=ax_t.transAxes, ha='center', va='center', fontsize=9,
                       bbox={'boxstyle': 'round', 'fc': 'white', 'ec': '0.6', 'alpha': 0.9})
         else:

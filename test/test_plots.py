@@ -314,7 +314,7 @@ def test_envelope_of_a_dense_ripple_and_its_bins() -> None:
 
 def internal_signals() -> BagSignals:
     """A tripod (spider) and a Rzeppa (cage) between two ~100 rad/s shafts: the cage swings
-    +-3.4 rad/s, the shafts 0.05 rad/s; members carry no torque; the scene names the joints."""
+    +-3.4 rad/s, the shafts 0.05 rad/s; members carry no torque."""
     t = np.arange(0.0, 2.0, 1e-3)
     w = 100.0 + 0.05 * np.cos(200.0 * t)
     cage = 100.0 + 3.4 * np.cos(200.0 * t)
@@ -324,17 +324,12 @@ def internal_signals() -> BagSignals:
     vel = np.column_stack([w, w, w, w, cage, w])
     effort = np.column_stack([50 + np.sin(phi)] * 6)
     effort[:, 1] = effort[:, 4] = 0.0
-    sig = BagSignals(path=Path('members/bag'), joint_names=names, t=t,
-                     position=np.column_stack([phi] * 6), velocity=vel, effort=effort)
-    sig.scene_yaml = ('driveline:\n  - {type: joint, name: tripod, kind: tripod}\n'
-                      '  - {type: differential, branches: [[{type: joint, name: rzeppa, kind: rzeppa}]]}\n')
-    return sig
+    return BagSignals(path=Path('members/bag'), joint_names=names, t=t,
+                      position=np.column_stack([phi] * 6), velocity=vel, effort=effort)
 
 
 def test_internal_members_on_their_own_axes_not_on_the_torque_axis() -> None:
     sig = internal_signals()
-    assert plots.internal_members(sig) == ['tripod_spider', 'rzeppa_cage']    # branch found
-    sig.scene_yaml = None                                                       # by name alone
     assert plots.internal_members(sig) == ['tripod_spider', 'rzeppa_cage']
     fig = plots.speeds_torques_figure(sig, 0.5)
     try:
@@ -444,14 +439,25 @@ def test_small_deviation_gets_its_own_axis_at_the_same_speed() -> None:
         plt.close(fig)
 
 
-def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # `cvj-sim simulate --plots`: the analysis figures of an offline trace (no bag, no ROS)
+def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                monkeypatch: pytest.MonkeyPatch) -> None:
+    # `cvj-sim simulate --plots`: the analysis figures of an offline trace (no bag, no ROS);
+    # --no-internal-members reaches the figure (the lever-hinge's earring left out)
     import json
 
     from cvj_ros.cli import main
+    titles: list[str] = []
+    figure = plots.speeds_torques_figure
+
+    def spy(*a: Any, **k: Any) -> Any:
+        fig = figure(*a, **k)
+        titles.append(fig.get_suptitle())
+        return fig
+    monkeypatch.setattr(plots, 'speeds_torques_figure', spy)
     out = tmp_path / 'png'
     assert main(['simulate', 'kavz685_lever', '--duration', '0.6', '--backend', 'python',
-                 '--json', '--plots', str(out)]) == 0
+                 '--json', '--plots', str(out), '--no-internal-members']) == 0
+    assert len(titles) == 1 and 'not drawn (internal members): coupling_earring' in titles[0]
     summary = json.loads(capsys.readouterr().out)
     assert sorted(Path(p).name for p in summary['plots']) == \
         ['harmonics.png', 'nonuniformity.png', 'speeds_torques.png']

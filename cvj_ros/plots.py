@@ -414,6 +414,7 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
     shafts = [j for j in range(len(sig.joint_names)) if j not in member_cols]
     labels = shaft_labels(sig.joint_names)
     eng, load = engine_shaft(sig), load_shaft(sig)
+    wheels = [n for n in sig.joint_names if n.startswith('wheel')]
     steady = sig.t >= t0 if np.any(sig.t >= t0) else np.ones(sig.t.size, dtype=bool)
     rows: list[tuple[list[int], list[int], int, bool]] = []    # (level, shafts, parts, internal)
     for group, is_member in ((shafts, False), (member_cols if internal else [], True)):
@@ -426,9 +427,10 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
     z0, z1 = zoom_window(sig, means[shafts] if shafts else means)
     n_bins = envelope_bins(sig.t, means[shafts] if shafts else means)
     zoom = (sig.t >= z0) & (sig.t <= z1)
-    fig = plt.figure(figsize=(16, 2.6 * len(rows) + 1.2), layout='constrained')
-    gs = fig.add_gridspec(len(rows), 4, width_ratios=[3.0, 1.1, 3.0, 1.1])
+    fig = plt.figure(layout='constrained')
+    gs = fig.add_gridspec(len(rows), 5)
     first: dict[int, Any] = {}
+    legends: list[tuple[Any, list[Any], list[str]]] = []
     for row, (level, cols, parts, is_member) in enumerate(rows):
         ax = [fig.add_subplot(gs[row, c], sharex=first.get(c)) for c in range(4)]
         for c in range(4):
@@ -465,22 +467,22 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
                  {'color': '0.4', 'ls': (0, (1, 1.5)), 'lw': 1.2})):
             if is_member or not t_src.size or shaft not in names_in_row:
                 continue
+            if key == 'load torque' and len(wheels) > 1:
+                continue        # the tyres' load on all wheels, not one shaft's: each wheel's own torque is drawn
             label = f'{key} on {shaft}' + (' (resisting)' if key == 'load torque' else '')
             h = _draw_series(ax_t, t_src, tq_src, st, label, n_bins)
             z = (t_src >= z0) & (t_src <= z1)
             ax_tz.plot(t_src[z], tq_src[z], **st)
             handles.append(h)
             names.append(label)
-        for a in (ax_w, ax_t):
+        for a in (ax_w,) if is_member else (ax_w, ax_t):
             if t0 > sig.t[0]:
                 a.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0)
-        for a in (ax_w, ax_t):
             a.axvspan(z0, z1, color='tab:orange', alpha=0.12, lw=0)
         title = _level_title(means, level)
-        part = '' if parts == 1 else f', {row - next(r for r, x in enumerate(rows) if x[0] is level) + 1}' \
-                                     f' of {parts} by size of the swing'
-        what = 'internal members, ' if is_member else ''
-        ax_w.set_title(f'speed, {what}{title}{part}')
+        part = '' if parts == 1 else f' ({row - next(r for r, x in enumerate(rows) if x[0] is level) + 1}' \
+                                     f' of {parts} by swing)'
+        ax_w.set_title(f'{"internal member speed" if is_member else "speed"}, {title}{part}')
         ax_wz.set_title('speed, zoom')
         ax_w.set_ylabel('speed  [rad/s]')
         if is_member:
@@ -495,19 +497,43 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
             ax_t.set_title(f'torque, {title}{part}')
             ax_tz.set_title('torque, zoom')
             ax_t.set_ylabel('torque  [N m]')
-        _legend(ax_tz, handles, names)
+        legends.append((fig.add_subplot(gs[row, 4]), handles, names))
         for a in ax:        # read 99.98 rad/s, not 'offset +1e2' and -0.02
             if a.axison:
                 a.ticklabel_format(axis='y', useOffset=False)
+    _legend_column(fig, gs, legends)
     bottom = {c: a for a in fig.axes if a.axison for c in [a.get_subplotspec().colspan.start]}
     for a in bottom.values():
         a.set_xlabel('simulated time  [s]')
     skipped = f'; grey: skipped start transient t < {t0:.3g} s' if t0 > sig.t[0] else ''
     hidden = f'; not drawn (internal members): {", ".join(members)}' if members and not internal else ''
+    if len(wheels) > 1:
+        hidden += f'; load: the tyres of {len(wheels)} wheels (each wheel shaft\'s torque)'
     fig.suptitle(f'Shaft speeds and torques by speed level - {_bag_label(sig)}{skipped}; orange: zoom '
                  f't = {z0:.4g}-{z1:.4g} s{hidden}\nlong records: line = mean, band = min-max over each '
                  f'of {n_bins} time bins (about one revolution of the fastest shaft each)', fontsize=11)
     return fig
+
+
+def _legend_column(fig: Any, gs: Any, legends: list[tuple[Any, list[Any], list[str]]]) -> None:
+    """Legends in the last grid column (one per row, axes off, kept out of the layout), the
+    column as wide and each row as tall as its longest legend needs (8 pt text: ~0.068 in
+    per character, 0.16 in per entry), so a long legend never squeezes the plots."""
+    from matplotlib.legend_handler import HandlerTuple
+    width, heights = 1.0, []
+    for ax, handles, names in legends:
+        ax.set_axis_off()
+        ncol = 1 if len(names) <= 16 else 2
+        rows_needed = math.ceil(len(names) / ncol)
+        width = max(width, ncol * (0.068 * max((len(n) for n in names), default=0) + 0.7))
+        heights.append(max(2.6, 0.16 * rows_needed + 0.5))
+        leg = ax.legend(handles, names, loc='upper left', bbox_to_anchor=(0.0, 1.0), borderaxespad=0.0,
+                        framealpha=0.85, ncol=ncol, handler_map={tuple: HandlerTuple(ndivide=1)})
+        leg.set_in_layout(False)
+    plots_w = [3.6, 1.4, 3.6, 1.4]
+    gs.set_width_ratios(plots_w + [width])
+    gs.set_height_ratios(heights)
+    fig.set_size_inches(sum(plots_w) + width + 0.8, sum(heights) + 1.2)
 
 
 def _draw_folded(ax: Any, phi: np.ndarray, y: np.ndarray, *, scale: float, n_bins: int,
@@ -693,8 +719,8 @@ def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) 
     ax_b.set_xlabel('harmonic order k  [per shaft revolution]')
     ax_b.set_ylabel(r'amplitude $A_k$  [N m]')
     ax_b.set_title(r'Torque harmonics over shaft angle, $T=\bar T+\sum A_k\cos(k\varphi+p_k)$ '
-                   f'(Davidbaev et al. 2023, eqs. 4.1-4.3); each marker at its order k; amplitudes below '
-                   f'{HARMONIC_DECADES_FLOOR:g} x the largest not shown')
+                   '(Davidbaev et al. 2023, eqs. 4.1-4.3)\neach marker at its order k; '
+                   f'amplitudes below {HARMONIC_DECADES_FLOOR:.0e} x the largest not shown')
     all_orders = sorted({float(k) for s_ in series for k in s_[2]['orders']})
     ax_b.set_xticks(all_orders)
     ax_b.set_xlim(min(all_orders) - 0.5, max(all_orders) + 0.5)

@@ -142,14 +142,15 @@ def test_speeds_torques_one_row_per_level_and_complete_unique_legends(sig_report
     fig = plots.speeds_torques_figure(sig, report['window']['start_s'])
     try:
         axes = fig.axes
-        rows = [axes[i:i + 4] for i in range(0, len(axes), 4)]
-        assert len(axes) == 8 and len(rows) == 2          # engine level, wheel level
+        rows = [axes[i:i + 5] for i in range(0, len(axes), 5)]
+        assert len(axes) == 10 and len(rows) == 2         # engine level, wheel level
         all_labels: list[str] = []
         styles = set()
-        for ax_w, ax_wz, ax_t, ax_tz in rows:
+        for ax_w, ax_wz, ax_t, ax_tz, ax_leg in rows:
             means = [np.mean(line.get_ydata()) for line in ax_w.get_lines()]
             assert max(means) / min(means) < plots.LEVEL_RATIO    # nothing squashed
-            labels = _legend_labels(ax_tz)
+            labels = _legend_labels(ax_leg)
+            assert not ax_leg.axison
             assert ax_wz.get_title() == 'speed, zoom' and ax_tz.get_title() == 'torque, zoom'
             assert len(labels) == len(set(labels))
             # every line of the row (speed lines, + engine/load torque) in the legend, once
@@ -169,7 +170,7 @@ def test_speeds_torques_one_row_per_level_and_complete_unique_legends(sig_report
         assert len(all_labels) == n + 2 == len(set(all_labels))  # + engine and load torque
         assert {'dup [column 1]', 'dup [column 2]'} <= {_name(lb) for lb in all_labels}
         assert 'gear_input (= hooke_output)' in all_labels       # coincident curve says so
-        assert all(a.get_xlabel() == 'simulated time  [s]' for a in rows[1])
+        assert all(a.get_xlabel() == 'simulated time  [s]' for a in rows[1][:4])
         assert 'seed' not in fig.get_suptitle()
     finally:
         plt.close(fig)

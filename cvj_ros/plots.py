@@ -468,7 +468,7 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
             if is_member or not t_src.size or shaft not in names_in_row:
                 continue
             if key == 'load torque' and len(wheels) > 1:
-                continue        # the tyres' load on all wheels, not one shaft's: each wheel's own torque is drawn
+                continue        # the tyres' load on all wheels: each wheel's own torque is drawn
             label = f'{key} on {shaft}' + (' (resisting)' if key == 'load torque' else '')
             h = _draw_series(ax_t, t_src, tq_src, st, label, n_bins)
             z = (t_src >= z0) & (t_src <= z1)

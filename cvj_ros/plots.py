@@ -139,6 +139,9 @@ def amplitude_groups(peak_to_peak: Sequence[float], *, ratio: float = AMPLITUDE_
 #: the fastest shaft (:func:`envelope_bins`), so a ripple of any order of it fills each bin's
 #: min-max instead of beating against the bin width.
 ENVELOPE_BINS = 320
+#: records of fewer revolutions of the fastest shaft are drawn sample by sample: a 2nd-order
+#: ripple then has < 80 periods on the ~650 px axis, > 8 px each, readable as drawn.
+ENVELOPE_MIN_REVOLUTIONS = 40
 #: the zoom columns show the last ZOOM_REVOLUTIONS revolutions of the fastest shaft (the
 #: engine: 4 periods of a 4-cylinder's 2nd-order firing ripple), at least ZOOM_MIN_SAMPLES
 #: samples.
@@ -180,21 +183,21 @@ def envelope(t: np.ndarray, y: np.ndarray, n_bins: int = ENVELOPE_BINS
 
 
 def envelope_bins(t: np.ndarray, means: np.ndarray, cap: int = ENVELOPE_BINS) -> int:
-    """Number of envelope bins over ``t``: one per revolution of the fastest shaft (largest
-    finite |mean speed|), between 20 and ``cap``."""
+    """Number of envelope bins over ``t``: one per whole revolution of the fastest shaft
+    (largest finite |mean speed|), at most ``cap``; 0 (draw every sample) below
+    :data:`ENVELOPE_MIN_REVOLUTIONS` revolutions or without a turning shaft."""
     w = np.abs(means[np.isfinite(means)])
     top = float(np.max(w)) if w.size else 0.0
     dur = float(t[-1] - t[0]) if t.size > 1 else 0.0
-    if top <= 0 or dur <= 0:
-        return cap
-    return int(min(cap, max(20, dur * top / (2 * math.pi))))
+    revs = dur * top / (2 * math.pi)
+    return 0 if revs < ENVELOPE_MIN_REVOLUTIONS else int(min(cap, revs))
 
 
 def _draw_series(ax: Any, t: np.ndarray, y: np.ndarray, style: dict[str, Any], label: str,
                  n_bins: int = ENVELOPE_BINS) -> Any:
-    """Draw ``y`` over ``t``: every sample, or when dense its :func:`envelope` (band) with the
-    bin mean (line). Returns the legend handle (line, or (line, band))."""
-    tc, mean, lo, hi = envelope(t, y, n_bins)
+    """Draw ``y`` over ``t``: every sample (``n_bins`` 0, or few samples), or its
+    :func:`envelope` (band) with the bin mean (line). Returns the legend handle (line, or (line, band))."""
+    tc, mean, lo, hi = envelope(t, y, n_bins) if n_bins > 0 else (t, y, y, y)
     line, = ax.plot(tc, mean, label=label, **style)
     if tc.size == t.size:
         return line
@@ -479,10 +482,10 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
             if t0 > sig.t[0]:
                 a.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0)
             a.axvspan(z0, z1, color='tab:orange', alpha=0.12, lw=0)
-        title = _level_title(means, level)
+        title = _level_title(means, level).replace('mean speeds ', '').replace('mean speed ', '')
         part = '' if parts == 1 else f' ({row - next(r for r, x in enumerate(rows) if x[0] is level) + 1}' \
                                      f' of {parts} by swing)'
-        ax_w.set_title(f'{"internal member speed" if is_member else "speed"}, {title}{part}')
+        ax_w.set_title(f'{"member speed" if is_member else "speed"}, {title}{part}')
         ax_wz.set_title('speed, zoom')
         ax_w.set_ylabel('speed  [rad/s]')
         if is_member:
@@ -509,9 +512,10 @@ def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) 
     hidden = f'; not drawn (internal members): {", ".join(members)}' if members and not internal else ''
     if len(wheels) > 1:
         hidden += f'; load: the tyres of {len(wheels)} wheels (each wheel shaft\'s torque)'
+    dense = f'\nline = mean, band = min-max over each of {n_bins} time bins (one revolution of the ' \
+        'fastest shaft each)' if n_bins else ''
     fig.suptitle(f'Shaft speeds and torques by speed level - {_bag_label(sig)}{skipped}; orange: zoom '
-                 f't = {z0:.4g}-{z1:.4g} s{hidden}\nlong records: line = mean, band = min-max over each '
-                 f'of {n_bins} time bins (about one revolution of the fastest shaft each)', fontsize=11)
+                 f't = {z0:.4g}-{z1:.4g} s{hidden}{dense}', fontsize=11)
     return fig
 
 

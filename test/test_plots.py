@@ -308,10 +308,10 @@ def test_envelope_of_a_dense_ripple_and_its_bins() -> None:
     assert np.allclose(mean, 50.0, atol=0.1)
     assert plots.envelope(t[:30], y[:30], 20)[0].size == 30          # short: the samples
     # bins: one per whole revolution of the fastest shaft (3.999 s x 20 rev/s -> 79, each
-    # bin >= one revolution), capped; below ENVELOPE_MIN_REVOLUTIONS (3.999 s x 10 rev/s =
-    # 40 - 0.01) every sample is drawn
+    # bin >= one revolution), capped; below ENVELOPE_MIN_REVOLUTIONS (3.999 s x 5 rev/s =
+    # 20 - 0.005) every sample is drawn
     assert plots.envelope_bins(t, np.array([2 * math.pi * 20.0, 1.0])) == 79
-    assert plots.envelope_bins(t, np.array([2 * math.pi * 10.0, 1.0])) == 0
+    assert plots.envelope_bins(t, np.array([2 * math.pi * 5.0, 1.0])) == 0
     assert plots.envelope_bins(t, np.array([1e4])) == plots.ENVELOPE_BINS
 
 

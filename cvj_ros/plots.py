@@ -693,7 +693,10 @@ def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) 
     series: list[tuple[str, str, dict[str, Any], int]] = []   # (label, shaft, harmonics, style index)
     for j, (n, s) in enumerate(report['shafts'].items()):
         series.append((labels.get(n, n), n, s['torque_harmonics'], j))
+    wheels = [n for n in sig.joint_names if n.startswith('wheel')]
     for k, key in enumerate(('engine', 'load')):
+        if key == 'load' and len(wheels) > 1:
+            continue        # the tyres' load on all wheels: each wheel's own torque is drawn
         if key in report:
             series.append((f'{key} wrench on {report[key]["shaft"]}', report[key]['shaft'],
                            report[key]['torque_harmonics'], len(report['shafts']) + k))
@@ -703,7 +706,9 @@ def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) 
     means = _steady_means(sig, mask)
     levels = [lv for lv in speed_levels(means)
               if any(sig.joint_names[j] in {s[1] for s in series} for j in lv)]
-    fig = plt.figure(figsize=(13, 3.6 + 2.7 * len(levels) + 0.6), layout='constrained')
+    # legends of more than 14 entries take two columns (_legend): widen the figure for them
+    fig = plt.figure(figsize=(13 if len(series) <= 14 else 19, 3.6 + 2.7 * len(levels) + 0.6),
+                     layout='constrained')
     gs = fig.add_gridspec(1 + len(levels), 1, height_ratios=[1.35] + [1.0] * len(levels))
     ax_b = fig.add_subplot(gs[0])
     top = 0.0

@@ -496,3 +496,27 @@ def test_work_precision_key_names_methods_fidelities_and_runs_once(tmp_path, mon
         assert texts.count(want) == 1, (want, texts)
     assert 'closed' not in texts                  # no closed-fidelity series here
     assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1
+
+
+def test_two_wheels_draw_their_own_torques_not_the_summed_load_as_one_wheels() -> None:
+    # a vehicle's load is the tyres of every wheel: its sum (here 2 x 100 N m) is not drawn
+    # as "load torque on wheel_right"; each wheel's shaft torque is, and the title says so
+    t = np.arange(0.0, 1.0, 1e-3)
+    phi = 30.0 * t
+    sig = BagSignals(path=Path('axle/bag'), joint_names=['engine_crank', 'wheel_left', 'wheel_right'],
+                     t=t, position=np.column_stack([4 * phi, phi, phi]),
+                     velocity=np.column_stack([120.0 + 0 * t, 30.0 + 0 * t, 30.0 + 0 * t]),
+                     effort=np.column_stack([50 + 5 * np.cos(8 * phi), 100 + np.cos(phi), 100 + np.cos(phi)]))
+    sig.engine_t, sig.engine_torque = t, 50 + 5 * np.cos(8 * phi)
+    sig.load_t, sig.load_torque = t, 200 + 2 * np.cos(phi)
+    report = analyze_signals(sig, skip_fraction=0.25)
+    figs = [plots.speeds_torques_figure(sig, report['window']['start_s']),
+            plots.harmonics_figure(sig, report, t >= report['window']['start_s'])]
+    try:
+        labels = [lb for f in figs for ax in f.axes for lb in _legend_labels(ax)]
+        assert not [lb for lb in labels if lb.startswith(('load torque', 'load wrench'))]
+        assert {'wheel_left', 'wheel_right'} <= {_name(lb) for lb in labels}
+        assert 'the tyres of 2 wheels' in figs[0].get_suptitle()
+    finally:
+        for f in figs:
+            plt.close(f)

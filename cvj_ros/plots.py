@@ -3,10 +3,10 @@
 Analysis figures (:func:`write_analysis_plots`), one row per speed level (:func:`speed_levels`):
 ``speeds_torques.png`` (speed and torque of every shaft over time, the skipped start transient
 shaded), ``nonuniformity.png`` (speed deviation over the shaft's own angle relative to its
-revolution mean, joint geometric and kinematic nonuniformity over input angle, seed 002, all
+revolution mean, joint geometric and kinematic nonuniformity over input angle, Bugaru & Vasile 2021, all
 folded to one revolution: mean line and min-max band; peak-to-peak below a stated floor drawn
 flat and called "uniform"), ``harmonics.png`` (torque harmonic amplitudes per order, and the
-torque over one revolution with its truncated Fourier series, seed 004 eqs. 4.1-4.3).
+torque over one revolution with its truncated Fourier series, Davidbaev et al. 2023, eqs. 4.1-4.3).
 Each figure function returns the matplotlib Figure so tests can inspect it; docs/analysis.md
 describes what each panel shows.
 Benchmark figures: :func:`work_precision_plot` (log-log error vs cost, one line per solver).
@@ -37,6 +37,10 @@ _STYLE = {'figure.dpi': 110, 'axes.grid': True, 'grid.alpha': 0.3, 'axes.titlesi
 _COLORS = tuple(plt.get_cmap('tab10').colors)
 _LINESTYLES = ('-', '--', '-.', ':')
 _HATCHES = ('', '////', '....', 'xxxx')
+_MARKERS = ('o', 's', '^', 'D', 'v', 'P', 'X', '*', '<', '>')
+#: the harmonic chart (log amplitude) shows four decades below its largest amplitude: orders
+#: a joint does not excite sit at round-off or load noise below that.
+HARMONIC_DECADES_FLOOR = 1e-4
 #: peak-to-peak below which a deviation is drawn flat and called "uniform". Rounding noise of
 #: the recorded angles is eps * |phi| ~ 2.2e-16 * 1e3 rad = 2e-13 rad for a 1000 rad unwrapped
 #: angle (the shipped scenes reach ~700 rad), of a speed ratio ~1e-16 relative (seen: 1.1e-11
@@ -52,6 +56,11 @@ def series_style(i: int) -> dict[str, Any]:
     """Line style of series ``i``: ten colours x four line styles, unique for 40 series (then the
     width grows so pairs stay distinct up to 160)."""
     return {'color': _COLORS[i % 10], 'ls': _LINESTYLES[(i // 10) % 4], 'lw': 1.2 + 0.7 * (i // 40)}
+
+
+def marker_of(i: int) -> str:
+    """Marker of series ``i``: with its colour (:func:`series_style`) unique for 100 series."""
+    return _MARKERS[(i + i // 10) % len(_MARKERS)]
 
 
 def bar_style(i: int) -> dict[str, Any]:
@@ -122,6 +131,93 @@ def amplitude_groups(peak_to_peak: Sequence[float], *, ratio: float = AMPLITUDE_
         else:
             groups.append(flat)
     return [sorted(g) for g in groups]
+
+
+#: a time series of more than 2 x ENVELOPE_BINS samples is drawn as its min/max envelope
+#: (band) with the bin mean (line) instead of every sample: at most ENVELOPE_BINS bins, about
+#: two pixels each on the ~650 px wide time axes, and no bin shorter than one revolution of
+#: the fastest shaft (:func:`envelope_bins`), so a ripple of any order of it fills each bin's
+#: min-max instead of beating against the bin width.
+ENVELOPE_BINS = 320
+#: records of fewer revolutions of the fastest shaft are drawn sample by sample: a 3rd-order
+#: ripple then has < 60 periods on the ~650 px axis, > 10 px each, readable as drawn
+#: (kavz685_lever: 12 revolutions; tripod_seed000's 33 revolutions of 3rd order fill a band).
+ENVELOPE_MIN_REVOLUTIONS = 20
+#: the zoom columns show the last ZOOM_REVOLUTIONS revolutions of the fastest shaft (the
+#: engine: 4 periods of a 4-cylinder's 2nd-order firing ripple), at least ZOOM_MIN_SAMPLES
+#: samples.
+ZOOM_REVOLUTIONS = 2.0
+ZOOM_MIN_SAMPLES = 40
+
+
+def internal_members(sig: BagSignals) -> list[str]:
+    """Joint-state names of the joints' internal members: a ``<joint>_<member>`` column
+    between ``<joint>_input`` and ``<joint>_output`` (the order the driveline records them:
+    Rzeppa cage, tripod spider, lever-hinge earring, double-cardan yoke). They turn with the
+    joint and carry no line torque of their own (effort 0 in the record)."""
+    names = sig.joint_names
+    found: list[str] = []
+    for joint, n_in, n_out in joint_pairs(names):
+        i, o = names.index(n_in), names.index(n_out)
+        found += [n for n in names[i + 1:o] if n.startswith(joint + '_') and n not in found]
+    return found
+
+
+def envelope(t: np.ndarray, y: np.ndarray, n_bins: int = ENVELOPE_BINS
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Min/max envelope of ``y`` over ``t`` in ``n_bins`` bins of equal sample count: (bin
+    centre time, bin mean, bin min, bin max), NaN samples ignored. With at most 2 ``n_bins``
+    samples, the samples themselves (mean = min = max = y)."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.size <= 2 * n_bins:
+        return t, y, y, y
+    edges = np.linspace(0, t.size, n_bins + 1).round().astype(np.int64)
+    tc, mean, lo, hi = (np.empty(n_bins) for _ in range(4))
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)
+        for k in range(n_bins):
+            s = y[edges[k]:edges[k + 1]]
+            tc[k] = 0.5 * (t[edges[k]] + t[edges[k + 1] - 1])
+            mean[k], lo[k], hi[k] = np.nanmean(s), np.nanmin(s), np.nanmax(s)
+    return tc, mean, lo, hi
+
+
+def envelope_bins(t: np.ndarray, means: np.ndarray, cap: int = ENVELOPE_BINS) -> int:
+    """Number of envelope bins over ``t``: one per whole revolution of the fastest shaft
+    (largest finite |mean speed|), at most ``cap``; 0 (draw every sample) below
+    :data:`ENVELOPE_MIN_REVOLUTIONS` revolutions or without a turning shaft."""
+    w = np.abs(means[np.isfinite(means)])
+    top = float(np.max(w)) if w.size else 0.0
+    dur = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    revs = dur * top / (2 * math.pi)
+    return 0 if revs < ENVELOPE_MIN_REVOLUTIONS else int(min(cap, revs))
+
+
+def _draw_series(ax: Any, t: np.ndarray, y: np.ndarray, style: dict[str, Any], label: str,
+                 n_bins: int = ENVELOPE_BINS) -> Any:
+    """Draw ``y`` over ``t``: every sample (``n_bins`` 0, or few samples), or its
+    :func:`envelope` (band) with the bin mean (line). Returns the legend handle (line, or (line, band))."""
+    tc, mean, lo, hi = envelope(t, y, n_bins) if n_bins > 0 else (t, y, y, y)
+    line, = ax.plot(tc, mean, label=label, **style)
+    if tc.size == t.size:
+        return line
+    band = ax.fill_between(tc, lo, hi, color=style.get('color'), alpha=0.18, lw=0)
+    return (line, band)
+
+
+def zoom_window(sig: BagSignals, means: np.ndarray, *, revolutions: float = ZOOM_REVOLUTIONS,
+                min_samples: int = ZOOM_MIN_SAMPLES) -> tuple[float, float]:
+    """(start, end) [s] of the zoom columns: the last ``revolutions`` revolutions of the
+    fastest shaft, at least ``min_samples`` samples, at most the whole record."""
+    t = sig.t
+    w = np.abs(means[np.isfinite(means)]) if means.size else np.zeros(0)
+    top = float(np.max(w)) if w.size else 0.0
+    span = revolutions * 2 * math.pi / top if top > 0 else 0.0
+    if t.size > 1:
+        span = max(span, min_samples * float(np.median(np.diff(t))))
+    start = max(float(t[0]), float(t[-1]) - span) if t.size else 0.0
+    return start, float(t[-1]) if t.size else 0.0
 
 
 def _level_title(mean_speeds: np.ndarray, level: list[int]) -> str:
@@ -283,15 +379,17 @@ def _bag_label(sig: BagSignals) -> str:
 
 # -- figures ----------------------------------------------------------------------------------
 
-def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str | Path) -> list[Path]:
-    """Write the analysis PNGs of a bag to ``out_dir`` (created); returns the file paths."""
+def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str | Path, *,
+                         internal: bool = True) -> list[Path]:
+    """Write the analysis PNGs of a bag to ``out_dir`` (created); returns the file paths.
+    ``internal=False`` leaves the joints' internal members out of ``speeds_torques.png``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = report['window']['start_s']
     mask = sig.t >= t0
     paths = []
     with plt.rc_context(_STYLE):
-        figures = [('speeds_torques.png', speeds_torques_figure(sig, t0)),
+        figures = [('speeds_torques.png', speeds_torques_figure(sig, t0, internal=internal)),
                    ('nonuniformity.png', nonuniformity_figure(sig, mask)),
                    ('harmonics.png', harmonics_figure(sig, report, mask))]
         for name, fig in figures:
@@ -303,64 +401,144 @@ def write_analysis_plots(sig: BagSignals, report: dict[str, Any], out_dir: str |
     return paths
 
 
-def speeds_torques_figure(sig: BagSignals, t0: float) -> Any:
-    """Speed (left) and torque (right) over simulated time, one row per speed level
-    (:func:`speed_levels` of the means from ``t0`` on); engine and load wrench torques in the
-    row of the shaft they act on. A shaft whose curve covers an earlier one of its row is
-    labelled ``= <earlier>``. Returns the matplotlib Figure (caller saves and closes)."""
+def speeds_torques_figure(sig: BagSignals, t0: float, *, internal: bool = True) -> Any:
+    """Speed and torque over simulated time, one row per speed level (:func:`speed_levels` of
+    the means from ``t0`` on), split where one shaft's speed swing (peak-to-peak from ``t0``
+    on) is more than :data:`AMPLITUDE_RATIO` x another's (:func:`amplitude_groups`), so one
+    swing does not flatten the others. Columns: speed, speed zoomed on the last revolutions
+    (:func:`zoom_window`), torque, torque zoomed; dense series are drawn as their min/max
+    envelope (:func:`envelope`). Engine and load wrench torques sit in the row of the shaft
+    they act on. The joints' internal members (:func:`internal_members`, no line torque) get
+    a row of their own below, or none with ``internal=False`` (the title says so). A shaft
+    whose curve covers an earlier one of its row is labelled ``= <earlier>``. Returns the
+    matplotlib Figure (caller saves and closes)."""
     means = _steady_means(sig, sig.t >= t0)
-    levels = speed_levels(means)
+    members = internal_members(sig)
+    member_cols = [sig.column(n) for n in members]
+    shafts = [j for j in range(len(sig.joint_names)) if j not in member_cols]
     labels = shaft_labels(sig.joint_names)
     eng, load = engine_shaft(sig), load_shaft(sig)
-    fig, axes = plt.subplots(len(levels), 2, figsize=(13, 2.5 * len(levels) + 1.1), sharex=True,
-                             squeeze=False, layout='constrained')
-    for row, level in enumerate(levels):
-        ax_w, ax_t = axes[row]
+    wheels = [n for n in sig.joint_names if n.startswith('wheel')]
+    steady = sig.t >= t0 if np.any(sig.t >= t0) else np.ones(sig.t.size, dtype=bool)
+    rows: list[tuple[list[int], list[int], int, bool]] = []    # (level, shafts, parts, internal)
+    for group, is_member in ((shafts, False), (member_cols if internal else [], True)):
+        if not group:
+            continue
+        for level in speed_levels(means[group]):
+            level = [group[i] for i in level]
+            parts = amplitude_groups([_peak_to_peak(sig.velocity[steady, j]) for j in level])
+            rows += [(level, [level[i] for i in p], len(parts), is_member) for p in parts]
+    z0, z1 = zoom_window(sig, means[shafts] if shafts else means)
+    n_bins = envelope_bins(sig.t, means[shafts] if shafts else means)
+    zoom = (sig.t >= z0) & (sig.t <= z1)
+    fig = plt.figure(layout='constrained')
+    gs = fig.add_gridspec(len(rows), 5)
+    first: dict[int, Any] = {}
+    legends: list[tuple[Any, list[Any], list[str]]] = []
+    for row, (level, cols, parts, is_member) in enumerate(rows):
+        ax = [fig.add_subplot(gs[row, c], sharex=first.get(c)) for c in range(4)]
+        for c in range(4):
+            first.setdefault(c, ax[c])
+        ax_w, ax_wz, ax_t, ax_tz = ax
         handles, names = [], []
-        span_w = _span([sig.velocity[:, j] for j in level])
-        span_t = _span([sig.effort[:, j] for j in level])
+        span_w = _span([sig.velocity[:, j] for j in cols])
+        span_t = _span([sig.effort[:, j] for j in cols])
         seen_w: list[tuple[str, np.ndarray]] = []
         seen_t: list[tuple[str, np.ndarray]] = []
-        for j in level:
+        for j in cols:
             st = series_style(j)
             w, tq = sig.velocity[:, j], sig.effort[:, j]
-            line, = ax_w.plot(sig.t, w, label=labels[j], **st)
-            ax_t.plot(sig.t, tq, label=labels[j], **st)
-            same_w, same_t = _coincident(seen_w, w, span_w), _coincident(seen_t, tq, span_t)
+            h = _draw_series(ax_w, sig.t, w, st, labels[j], n_bins)
+            ax_wz.plot(sig.t[zoom], w[zoom], label=labels[j], **st)
+            same_w = _coincident(seen_w, w, span_w)
             seen_w.append((labels[j], w))
-            seen_t.append((labels[j], tq))
+            same_t = None
+            if not is_member:
+                _draw_series(ax_t, sig.t, tq, st, labels[j], n_bins)
+                ax_tz.plot(sig.t[zoom], tq[zoom], label=labels[j], **st)
+                same_t = _coincident(seen_t, tq, span_t)
+                seen_t.append((labels[j], tq))
             note = (f' (= {same_w})' if same_w == same_t else
                     ' (' + ', '.join(f'{q} = {o}' for q, o in (('speed', same_w), ('torque', same_t)) if o)
                     + ')') if (same_w or same_t) else ''
-            handles.append(line)
+            handles.append(h)
             names.append(labels[j] + note)
-        cols = [sig.joint_names[j] for j in level]
-        if sig.engine_t.size and eng in cols:
-            h, = ax_t.plot(sig.engine_t, sig.engine_torque, color='k', ls=(0, (5, 2)), lw=0.8, alpha=0.6,
-                           label=f'engine torque on {eng}')
+        names_in_row = [sig.joint_names[j] for j in cols]
+        for key, shaft, t_src, tq_src, st in (
+                ('engine torque', eng, sig.engine_t, sig.engine_torque,
+                 {'color': 'k', 'ls': (0, (5, 2)), 'lw': 0.8, 'alpha': 0.6}),
+                ('load torque', load, sig.load_t, sig.load_torque,
+                 {'color': '0.4', 'ls': (0, (1, 1.5)), 'lw': 1.2})):
+            if is_member or not t_src.size or shaft not in names_in_row:
+                continue
+            if key == 'load torque' and len(wheels) > 1:
+                continue        # the tyres' load on all wheels: each wheel's own torque is drawn
+            label = f'{key} on {shaft}' + (' (resisting)' if key == 'load torque' else '')
+            h = _draw_series(ax_t, t_src, tq_src, st, label, n_bins)
+            z = (t_src >= z0) & (t_src <= z1)
+            ax_tz.plot(t_src[z], tq_src[z], **st)
             handles.append(h)
-            names.append(h.get_label())
-        if sig.load_t.size and load in cols:
-            h, = ax_t.plot(sig.load_t, sig.load_torque, color='0.4', ls=(0, (1, 1.5)), lw=1.2,
-                           label=f'load torque on {load} (resisting)')
-            handles.append(h)
-            names.append(h.get_label())
-        for ax in (ax_w, ax_t):
+            names.append(label)
+        for a in (ax_w,) if is_member else (ax_w, ax_t):
             if t0 > sig.t[0]:
-                ax.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0)
-        title = _level_title(means, level)
-        ax_w.set_title(f'speed, {title}')
-        ax_t.set_title(f'torque, {title}')
+                a.axvspan(sig.t[0], t0, color='0.85', alpha=0.6, lw=0)
+            a.axvspan(z0, z1, color='tab:orange', alpha=0.12, lw=0)
+        title = _level_title(means, level).replace('mean speeds ', '').replace('mean speed ', '')
+        part = '' if parts == 1 else f' ({row - next(r for r, x in enumerate(rows) if x[0] is level) + 1}' \
+                                     f' of {parts} by swing)'
+        ax_w.set_title(f'{"member speed" if is_member else "speed"}, {title}{part}')
+        ax_wz.set_title('speed, zoom')
         ax_w.set_ylabel('speed  [rad/s]')
-        ax_t.set_ylabel('torque  [N m]')
-        for ax in (ax_w, ax_t):        # read 99.98 rad/s, not 'offset +1e2' and -0.02
-            ax.ticklabel_format(axis='y', useOffset=False)
-        _legend(ax_t, handles, names)
-    for ax in axes[-1]:
-        ax.set_xlabel('simulated time  [s]')
+        if is_member:
+            for a in (ax_t, ax_tz):
+                a.set_axis_off()
+            ax_t.text(0.5, 0.5, 'internal members of the joints (cage, spider, earring, yoke):\n'
+                      f'{", ".join(names_in_row)}\nturn with their joint and carry no line '
+                      'torque: speed only',
+                      transform=ax_t.transAxes, ha='center', va='center', fontsize=9,
+                      bbox={'boxstyle': 'round', 'fc': 'white', 'ec': '0.6', 'alpha': 0.9})
+        else:
+            ax_t.set_title(f'torque, {title}{part}')
+            ax_tz.set_title('torque, zoom')
+            ax_t.set_ylabel('torque  [N m]')
+        legends.append((fig.add_subplot(gs[row, 4]), handles, names))
+        for a in ax:        # read 99.98 rad/s, not 'offset +1e2' and -0.02
+            if a.axison:
+                a.ticklabel_format(axis='y', useOffset=False)
+    _legend_column(fig, gs, legends)
+    bottom = {c: a for a in fig.axes if a.axison for c in [a.get_subplotspec().colspan.start]}
+    for a in bottom.values():
+        a.set_xlabel('simulated time  [s]')
     skipped = f'; grey: skipped start transient t < {t0:.3g} s' if t0 > sig.t[0] else ''
-    fig.suptitle(f'Shaft speeds and torques by speed level - {_bag_label(sig)}{skipped}', fontsize=11)
+    hidden = f'; not drawn (internal members): {", ".join(members)}' if members and not internal else ''
+    if len(wheels) > 1:
+        hidden += f'; load: the tyres of {len(wheels)} wheels (each wheel shaft\'s torque)'
+    dense = f'\nline = mean, band = min-max over each of {n_bins} time bins (one revolution of the ' \
+        'fastest shaft each)' if n_bins else ''
+    fig.suptitle(f'Shaft speeds and torques by speed level - {_bag_label(sig)}{skipped}; orange: zoom '
+                 f't = {z0:.4g}-{z1:.4g} s{hidden}{dense}', fontsize=11)
     return fig
+
+
+def _legend_column(fig: Any, gs: Any, legends: list[tuple[Any, list[Any], list[str]]]) -> None:
+    """Legends in the last grid column (one per row, axes off, kept out of the layout), the
+    column as wide and each row as tall as its longest legend needs (8 pt text: ~0.068 in
+    per character, 0.16 in per entry), so a long legend never squeezes the plots."""
+    from matplotlib.legend_handler import HandlerTuple
+    width, heights = 1.0, []
+    for ax, handles, names in legends:
+        ax.set_axis_off()
+        ncol = 1 if len(names) <= 16 else 2
+        rows_needed = math.ceil(len(names) / ncol)
+        width = max(width, ncol * (0.068 * max((len(n) for n in names), default=0) + 0.7))
+        heights.append(max(2.6, 0.16 * rows_needed + 0.5))
+        leg = ax.legend(handles, names, loc='upper left', bbox_to_anchor=(0.0, 1.0), borderaxespad=0.0,
+                        framealpha=0.85, ncol=ncol, handler_map={tuple: HandlerTuple(ndivide=1)})
+        leg.set_in_layout(False)
+    plots_w = [3.6, 1.4, 3.6, 1.4]
+    gs.set_width_ratios(plots_w + [width])
+    gs.set_height_ratios(heights)
+    fig.set_size_inches(sum(plots_w) + width + 0.8, sum(heights) + 1.2)
 
 
 def _draw_folded(ax: Any, phi: np.ndarray, y: np.ndarray, *, scale: float, n_bins: int,
@@ -409,7 +587,7 @@ def _uniform_axis(ax: Any, p2p: float, unit: str, floor: float = UNIFORM_FLOOR, 
 def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
     """Speed deviation of every shaft over its own angle (one row per speed level), then one
     row per joint: geometric (mrad) and kinematic nonuniformity over the joint's input angle
-    (seed 002). The speed deviation is w / w_rev - 1 with w_rev the mean speed over the
+    (Bugaru & Vasile 2021). The speed deviation is w / w_rev - 1 with w_rev the mean speed over the
     revolution centred on the sample (:func:`revolution_mean_speed`), so a slow drift of the
     window does not smear it. Curves are folded over one revolution: line = mean over the
     revolutions of the steady window, band = min-max. A deviation whose peak-to-peak is below
@@ -490,9 +668,9 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
             ax.legend([h], [lab], loc='best', framealpha=0.85)
         ax_g.set_ylabel(r'$\varphi_{out}-i\,\varphi_{in}$  [mrad]')
         model = f', {fidelity[joint]} model' if joint in fidelity else ''
-        ax_g.set_title(f'{joint}: geometric nonuniformity (seed 002){model}')
+        ax_g.set_title(f'{joint}: geometric nonuniformity (Bugaru & Vasile 2021){model}')
         ax_k.set_ylabel(r'$\omega_{out}/(i\,\omega_{in}) - 1$  [-]')
-        ax_k.set_title(f'{joint}: kinematic nonuniformity (seed 002){model}')
+        ax_k.set_title(f'{joint}: kinematic nonuniformity (Bugaru & Vasile 2021){model}')
         for a in (ax_g, ax_k):
             a.set_xlabel('joint input angle mod 360  [deg]')
     for a in fig.axes:
@@ -506,15 +684,19 @@ def nonuniformity_figure(sig: BagSignals, mask: np.ndarray) -> Any:
 
 
 def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) -> Any | None:
-    """Torque harmonic amplitudes per order of every torque that oscillates (bars, top), then
+    """Torque harmonic amplitudes of every torque that oscillates (top: a marker on a stem at
+    each order k, log scale, four decades), then
     one row per speed level: the truncated Fourier series over one revolution (line) and the
-    recorded torque folded over the shaft angle (band: min-max over revolutions), seed 004
-    eqs. 4.1-4.3. None when no torque oscillates."""
+    recorded torque folded over the shaft angle (band: min-max over revolutions), Davidbaev et al.
+    2023, eqs. 4.1-4.3. None when no torque oscillates."""
     labels = dict(zip(sig.joint_names, shaft_labels(sig.joint_names)))
     series: list[tuple[str, str, dict[str, Any], int]] = []   # (label, shaft, harmonics, style index)
     for j, (n, s) in enumerate(report['shafts'].items()):
         series.append((labels.get(n, n), n, s['torque_harmonics'], j))
+    wheels = [n for n in sig.joint_names if n.startswith('wheel')]
     for k, key in enumerate(('engine', 'load')):
+        if key == 'load' and len(wheels) > 1:
+            continue        # the tyres' load on all wheels: each wheel's own torque is drawn
         if key in report:
             series.append((f'{key} wrench on {report[key]["shaft"]}', report[key]['shaft'],
                            report[key]['torque_harmonics'], len(report['shafts']) + k))
@@ -524,20 +706,34 @@ def harmonics_figure(sig: BagSignals, report: dict[str, Any], mask: np.ndarray) 
     means = _steady_means(sig, mask)
     levels = [lv for lv in speed_levels(means)
               if any(sig.joint_names[j] in {s[1] for s in series} for j in lv)]
-    fig = plt.figure(figsize=(13, 3.6 + 2.7 * len(levels) + 0.6), layout='constrained')
+    # legends of more than 14 entries take two columns (_legend): widen the figure for them
+    fig = plt.figure(figsize=(13 if len(series) <= 14 else 19, 3.6 + 2.7 * len(levels) + 0.6),
+                     layout='constrained')
     gs = fig.add_gridspec(1 + len(levels), 1, height_ratios=[1.35] + [1.0] * len(levels))
     ax_b = fig.add_subplot(gs[0])
-    n = len(series)
-    width = 0.8 / n
-    for i, (name, _, h, style_index) in enumerate(series):
+    top = 0.0
+    for name, _, h, style_index in series:
+        amps = np.asarray([a if a is not None else np.nan for a in h['amplitude']], dtype=float)
+        top = max(top, float(np.nanmax(amps, initial=0.0)))
+    floor = HARMONIC_DECADES_FLOOR * top
+    for name, _, h, style_index in series:
         orders = np.asarray(h['orders'], dtype=float)
-        amps = np.asarray([a if a is not None else np.nan for a in h['amplitude']])
-        ax_b.bar(orders - 0.4 + width * (i + 0.5), amps, width=width,
-                 label=f"{name} (mean {h['mean']:.4g} N m)", **bar_style(style_index))
+        amps = np.asarray([a if a is not None else np.nan for a in h['amplitude']], dtype=float)
+        st = series_style(style_index)
+        ax_b.vlines(orders, floor, np.maximum(amps, floor), color=st['color'], lw=1.0, alpha=0.45)
+        ax_b.plot(orders, np.where(amps >= floor, amps, np.nan), ls='none', color=st['color'],
+                  marker=marker_of(style_index), ms=6,
+                  label=f"{name} (mean {h['mean']:.4g} N m)")
+    ax_b.set_yscale('log')
+    ax_b.set_ylim(floor, 2.0 * top)
     ax_b.set_xlabel('harmonic order k  [per shaft revolution]')
     ax_b.set_ylabel(r'amplitude $A_k$  [N m]')
-    ax_b.set_title(r'Torque harmonics over shaft angle, $T=\bar T+\sum A_k\cos(k\varphi+p_k)$ (seed 004 eqs. 4.1-4.3)')
-    ax_b.set_xticks(np.asarray(series[0][2]['orders']))
+    ax_b.set_title(r'Torque harmonics over shaft angle, $T=\bar T+\sum A_k\cos(k\varphi+p_k)$ '
+                   '(Davidbaev et al. 2023, eqs. 4.1-4.3)\neach marker at its order k; '
+                   f'amplitudes below {HARMONIC_DECADES_FLOOR:.0e} x the largest not shown')
+    all_orders = sorted({float(k) for s_ in series for k in s_[2]['orders']})
+    ax_b.set_xticks(all_orders)
+    ax_b.set_xlim(min(all_orders) - 0.5, max(all_orders) + 0.5)
     _legend(ax_b, *ax_b.get_legend_handles_labels())
     phi1 = np.linspace(0.0, 2 * math.pi, 73)
     t_first = sig.t[mask][0] if np.any(mask) else -np.inf

@@ -142,14 +142,16 @@ def test_speeds_torques_one_row_per_level_and_complete_unique_legends(sig_report
     fig = plots.speeds_torques_figure(sig, report['window']['start_s'])
     try:
         axes = fig.axes
-        rows = [axes[i:i + 2] for i in range(0, len(axes), 2)]
-        assert len(axes) == 4 and len(rows) == 2          # engine level, wheel level
+        rows = [axes[i:i + 5] for i in range(0, len(axes), 5)]
+        assert len(axes) == 10 and len(rows) == 2         # engine level, wheel level
         all_labels: list[str] = []
         styles = set()
-        for ax_w, ax_t in rows:
+        for ax_w, ax_wz, ax_t, ax_tz, ax_leg in rows:
             means = [np.mean(line.get_ydata()) for line in ax_w.get_lines()]
             assert max(means) / min(means) < plots.LEVEL_RATIO    # nothing squashed
-            labels = _legend_labels(ax_t)
+            labels = _legend_labels(ax_leg)
+            assert not ax_leg.axison
+            assert ax_wz.get_title() == 'speed, zoom' and ax_tz.get_title() == 'torque, zoom'
             assert len(labels) == len(set(labels))
             # every line of the row (speed lines, + engine/load torque) in the legend, once
             shaft_lines = {ln.get_label() for ln in ax_w.get_lines()}
@@ -168,7 +170,8 @@ def test_speeds_torques_one_row_per_level_and_complete_unique_legends(sig_report
         assert len(all_labels) == n + 2 == len(set(all_labels))  # + engine and load torque
         assert {'dup [column 1]', 'dup [column 2]'} <= {_name(lb) for lb in all_labels}
         assert 'gear_input (= hooke_output)' in all_labels       # coincident curve says so
-        assert rows[1][1].get_xlabel() == 'simulated time  [s]'
+        assert all(a.get_xlabel() == 'simulated time  [s]' for a in rows[1][:4])
+        assert 'seed' not in fig.get_suptitle()
     finally:
         plt.close(fig)
 
@@ -260,23 +263,100 @@ def test_rounding_noise_is_drawn_flat_not_stretched() -> None:
         plt.close(fig)
 
 
-def test_harmonics_every_series_labelled_once(sig_report) -> None:
+def test_harmonics_every_series_labelled_once_and_centred_on_its_orders(sig_report) -> None:
     sig, report = sig_report
     fig = plots.harmonics_figure(sig, report, sig.t >= report['window']['start_s'])
     try:
         ax_b, *level_axes = fig.axes
-        bars = ax_b.containers
+        marks = [ln for ln in ax_b.get_lines() if not ln.get_label().startswith('_')]
         bar_labels = _legend_labels(ax_b)
-        assert len(bar_labels) == len(bars) == len(set(bar_labels)) > 10
-        faces = {(to_rgba(c.patches[0].get_facecolor()), c.patches[0].get_hatch()) for c in bars}
-        assert len(faces) == len(bars)                           # distinct beyond ten series
+        assert len(bar_labels) == len(marks) == len(set(bar_labels)) > 10
+        faces = {(to_rgba(m.get_color()), m.get_marker()) for m in marks}
+        assert len(faces) == len(marks)                          # distinct beyond ten series
+        # every amplitude sits exactly on its order (x = k), and its stem with it
+        orders = report['shafts']['engine_crank']['torque_harmonics']['orders']
+        for m in marks:
+            assert list(m.get_xdata()) == [float(k) for k in orders]
+        for coll in ax_b.collections:
+            xs = {float(seg[0][0]) for seg in coll.get_segments()} | \
+                {float(seg[1][0]) for seg in coll.get_segments()}
+            assert xs <= {float(k) for k in orders}
+        # the engine torque's 10 N m cos(2 phi): the order-2 marker at (2, 10)
+        crank = [m for m in marks if m.get_label().startswith('engine_crank (')][0]
+        assert crank.get_ydata()[orders.index(2)] == pytest.approx(10.0, rel=1e-2)
+        assert 'seed' not in ax_b.get_title() and 'Davidbaev et al. 2023' in ax_b.get_title()
         names = []
         for ax in level_axes:
             leg = _legend_labels(ax)
             assert len(leg) == len(ax.get_lines()) == len(set(leg))
             names += [ln.get_label() for ln in ax.get_lines()]
-        # every oscillating series of the bar chart has its revolution curve, once
+        # every oscillating series of the chart has its revolution curve, once
         assert sorted(names) == sorted(lb.split(' (mean')[0] for lb in bar_labels)
+    finally:
+        plt.close(fig)
+
+
+def test_envelope_of_a_dense_ripple_and_its_bins() -> None:
+    # 50 + 3 sin(2 pi 66 t) sampled at 1 kHz over 4 s: every bin of >= one period (20 bins
+    # here: 0.2 s each) spans the ripple, so min/max are 50 -+ 3 within the sampling's
+    # phase error 1 - cos(pi 66/1000) = 2 % of 3; the mean of whole periods is 50
+    t = np.arange(0.0, 4.0, 1e-3)
+    y = 50.0 + 3.0 * np.sin(2 * math.pi * 66.0 * t)
+    tc, mean, lo, hi = plots.envelope(t, y, 20)
+    assert tc.size == 20 and np.all(np.diff(tc) > 0)
+    assert np.allclose(lo, 47.0, atol=0.1) and np.allclose(hi, 53.0, atol=0.1)
+    assert np.allclose(mean, 50.0, atol=0.1)
+    assert plots.envelope(t[:30], y[:30], 20)[0].size == 30          # short: the samples
+    # bins: one per whole revolution of the fastest shaft (3.999 s x 20 rev/s -> 79, each
+    # bin >= one revolution), capped; below ENVELOPE_MIN_REVOLUTIONS (3.999 s x 5 rev/s =
+    # 20 - 0.005) every sample is drawn
+    assert plots.envelope_bins(t, np.array([2 * math.pi * 20.0, 1.0])) == 79
+    assert plots.envelope_bins(t, np.array([2 * math.pi * 5.0, 1.0])) == 0
+    assert plots.envelope_bins(t, np.array([1e4])) == plots.ENVELOPE_BINS
+
+
+def internal_signals() -> BagSignals:
+    """A tripod (spider) and a Rzeppa (cage) between two ~100 rad/s shafts: the cage swings
+    +-3.4 rad/s, the shafts 0.05 rad/s; members carry no torque."""
+    t = np.arange(0.0, 2.0, 1e-3)
+    w = 100.0 + 0.05 * np.cos(200.0 * t)
+    cage = 100.0 + 3.4 * np.cos(200.0 * t)
+    phi = np.cumsum(w) * 1e-3
+    names = ['tripod_input', 'tripod_spider', 'tripod_output', 'rzeppa_input', 'rzeppa_cage',
+             'rzeppa_output']
+    vel = np.column_stack([w, w, w, w, cage, w])
+    effort = np.column_stack([50 + np.sin(phi)] * 6)
+    effort[:, 1] = effort[:, 4] = 0.0
+    return BagSignals(path=Path('members/bag'), joint_names=names, t=t,
+                      position=np.column_stack([phi] * 6), velocity=vel, effort=effort)
+
+
+def test_internal_members_on_their_own_axes_not_on_the_torque_axis() -> None:
+    sig = internal_signals()
+    assert plots.internal_members(sig) == ['tripod_spider', 'rzeppa_cage']
+    fig = plots.speeds_torques_figure(sig, 0.5)
+    try:
+        torque_axes = [a for a in fig.axes if a.axison and a.get_ylabel() == 'torque  [N m]']
+        on_torque = {ln.get_label() for a in torque_axes for ln in a.get_lines()}
+        assert on_torque and not on_torque & {'tripod_spider', 'rzeppa_cage'}
+        speed_axes = [a for a in fig.axes if a.get_ylabel() == 'speed  [rad/s]']
+        by_axis = [{ln.get_label() for ln in a.get_lines()} for a in speed_axes]
+        # the members on axes of their own (the cage's swing 68x the spider's: one each)
+        assert {'tripod_spider'} in by_axis and {'rzeppa_cage'} in by_axis
+        shafts = [s for s in by_axis if 'tripod_input' in s][0]
+        assert not shafts & {'tripod_spider', 'rzeppa_cage'}
+        # the shafts' axis spans their own swing, not the cage's +-3.4 rad/s
+        ax = speed_axes[by_axis.index(shafts)]
+        assert np.ptp(ax.get_ylim()) < 0.5
+        labels = [lb for a in fig.axes for lb in _legend_labels(a)]
+        assert not [lb for lb in labels if 'torque =' in lb]
+    finally:
+        plt.close(fig)
+    fig = plots.speeds_torques_figure(sig, 0.5, internal=False)
+    try:
+        drawn = {ln.get_label() for a in fig.axes for ln in a.get_lines()}
+        assert not drawn & {'tripod_spider', 'rzeppa_cage'}
+        assert 'not drawn (internal members): tripod_spider, rzeppa_cage' in fig.get_suptitle()
     finally:
         plt.close(fig)
 
@@ -362,14 +442,25 @@ def test_small_deviation_gets_its_own_axis_at_the_same_speed() -> None:
         plt.close(fig)
 
 
-def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # `cvj-sim simulate --plots`: the analysis figures of an offline trace (no bag, no ROS)
+def test_simulate_plots_offline(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                monkeypatch: pytest.MonkeyPatch) -> None:
+    # `cvj-sim simulate --plots`: the analysis figures of an offline trace (no bag, no ROS);
+    # --no-internal-members reaches the figure (the lever-hinge's earring left out)
     import json
 
     from cvj_ros.cli import main
+    titles: list[str] = []
+    figure = plots.speeds_torques_figure
+
+    def spy(*a: Any, **k: Any) -> Any:
+        fig = figure(*a, **k)
+        titles.append(fig.get_suptitle())
+        return fig
+    monkeypatch.setattr(plots, 'speeds_torques_figure', spy)
     out = tmp_path / 'png'
     assert main(['simulate', 'kavz685_lever', '--duration', '0.6', '--backend', 'python',
-                 '--json', '--plots', str(out)]) == 0
+                 '--json', '--plots', str(out), '--no-internal-members']) == 0
+    assert len(titles) == 1 and 'not drawn (internal members): coupling_earring' in titles[0]
     summary = json.loads(capsys.readouterr().out)
     assert sorted(Path(p).name for p in summary['plots']) == \
         ['harmonics.png', 'nonuniformity.png', 'speeds_torques.png']
@@ -405,3 +496,27 @@ def test_work_precision_key_names_methods_fidelities_and_runs_once(tmp_path, mon
         assert texts.count(want) == 1, (want, texts)
     assert 'closed' not in texts                  # no closed-fidelity series here
     assert ax.get_legend().get_bbox_to_anchor().x0 > ax.get_window_extent().x1 - 1
+
+
+def test_two_wheels_draw_their_own_torques_not_the_summed_load_as_one_wheels() -> None:
+    # a vehicle's load is the tyres of every wheel: its sum (here 2 x 100 N m) is not drawn
+    # as "load torque on wheel_right"; each wheel's shaft torque is, and the title says so
+    t = np.arange(0.0, 1.0, 1e-3)
+    phi = 30.0 * t
+    sig = BagSignals(path=Path('axle/bag'), joint_names=['engine_crank', 'wheel_left', 'wheel_right'],
+                     t=t, position=np.column_stack([4 * phi, phi, phi]),
+                     velocity=np.column_stack([120.0 + 0 * t, 30.0 + 0 * t, 30.0 + 0 * t]),
+                     effort=np.column_stack([50 + 5 * np.cos(8 * phi), 100 + np.cos(phi), 100 + np.cos(phi)]))
+    sig.engine_t, sig.engine_torque = t, 50 + 5 * np.cos(8 * phi)
+    sig.load_t, sig.load_torque = t, 200 + 2 * np.cos(phi)
+    report = analyze_signals(sig, skip_fraction=0.25)
+    figs = [plots.speeds_torques_figure(sig, report['window']['start_s']),
+            plots.harmonics_figure(sig, report, t >= report['window']['start_s'])]
+    try:
+        labels = [lb for f in figs for ax in f.axes for lb in _legend_labels(ax)]
+        assert not [lb for lb in labels if lb.startswith(('load torque', 'load wrench'))]
+        assert {'wheel_left', 'wheel_right'} <= {_name(lb) for lb in labels}
+        assert 'the tyres of 2 wheels' in figs[0].get_suptitle()
+    finally:
+        for f in figs:
+            plt.close(f)

@@ -27,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bag', help='bag directory (or its .mcap/.db3 file)')
     parser.add_argument('--json', action='store_true', help='print the report as JSON')
     parser.add_argument('--plots', metavar='DIR', help='write PNG figures to DIR')
+    parser.add_argument('--no-internal-members', action='store_true',
+                        help="leave the joints' internal members (Rzeppa cage, tripod spider, lever-hinge "
+                             "earring: no line torque) out of speeds_torques.png of --plots")
     parser.add_argument('--skip', type=float, default=None, metavar='SECONDS',
                         help='start the window SECONDS after the first sample (default: the steady-window '
                              'criterion, docs/scenes.md)')
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
                                       samples_per_rev=max(72, 4 * args.harmonics))
     if args.plots:
         from cvj_ros.plots import write_analysis_plots
-        report['plots'] = [str(p) for p in write_analysis_plots(sig, report, args.plots)]
+        report['plots'] = [str(p) for p in write_analysis_plots(
+            sig, report, args.plots, internal=not args.no_internal_members)]
     if args.json:
         print(json.dumps(report, indent=1, default=str))
     else:

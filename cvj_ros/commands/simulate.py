@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--plots', metavar='DIR',
                         help='write the PNG figures of `cvj-sim analyze --plots` for this run '
                              '(speeds_torques, nonuniformity, harmonics) to DIR')
+    parser.add_argument('--no-internal-members', action='store_true',
+                        help="leave the joints' internal members (Rzeppa cage, tripod spider, lever-hinge "
+                             "earring: no line torque) out of speeds_torques.png of --plots")
     parser.add_argument('--bag', metavar='DIR',
                         help='write the sampled trace as a rosbag2 bag (joint states, engine and load '
                              'wrench, scene) that `cvj-sim analyze` reads')
@@ -240,7 +243,7 @@ def _write_plots(sim: Any, trace: Any, args: argparse.Namespace) -> list[Any]:
     sig = signals_from_trace(trace, scene_yaml=yaml.safe_dump(scene, sort_keys=False),
                              label=f'simulate {sim.scene.name}')
     report = analyze_signals(sig, skip_s=args.transient)
-    paths = write_analysis_plots(sig, report, args.plots)
+    paths = write_analysis_plots(sig, report, args.plots, internal=not args.no_internal_members)
     for p in paths:
         print(f'cvj-sim simulate: wrote {p}', file=sys.stderr)
     return paths

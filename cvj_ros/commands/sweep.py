@@ -185,8 +185,11 @@ def run(args: argparse.Namespace) -> int:
     print(f'results: {args.out}/results.csv (timing.csv, sweep.json)')
     if not args.no_plots:
         from cvj_ros.sweep.plots import write_sweep_plots
-        for p in write_sweep_plots(args.out, metric=args.metric):
+        notes: list[str] = []
+        for p in write_sweep_plots(args.out, metric=args.metric, notes=notes):
             print(f'plot: {p}')
+        for n in notes:
+            print(f'plot note: {n}')
     return 0
 
 
@@ -202,6 +205,9 @@ def load_scene_data(path) -> dict:
 
 def _replot(args: argparse.Namespace) -> int:
     from cvj_ros.sweep.plots import write_sweep_plots
-    for p in write_sweep_plots(args.replot, metric=args.metric, required=True):
+    notes: list[str] = []
+    for p in write_sweep_plots(args.replot, metric=args.metric, required=True, notes=notes):
         print(f'plot: {p}')
+    for n in notes:
+        print(f'plot note: {n}')
     return 0

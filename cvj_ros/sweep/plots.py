@@ -1,7 +1,8 @@
 """Maps of a finished sweep (PNG, matplotlib Agg), written to ``DIR/plots``.
 
 * ``line_<metric>.png`` - the metric over the first varied parameter, one line per value
-  of the second (at most 8 lines, evenly picked; the legend names the values);
+  of the second (at most 8 lines, evenly picked; the legend names the values, and the
+  title and ``notes`` of :func:`write_sweep_plots` name the values left out);
 * ``map_<metric>.png`` - the metric over the first two varied parameters: heat map (cells
   centred on the grid points) with labelled contour lines; for random samples a
   triangulated filled contour with the sample points;
@@ -86,9 +87,10 @@ def _fmt(v: float) -> str:
 
 
 def write_sweep_plots(out_dir: str | Path, *, metric: str | None = None,
-                      required: bool = False) -> list[Path]:
+                      required: bool = False, notes: list[str] | None = None) -> list[Path]:
     """Draw the plots of the sweep in ``out_dir``; returns the PNG paths. ``required``:
-    a missing sweep is an error (``--replot``) instead of no plots."""
+    a missing sweep is an error (``--replot``) instead of no plots. ``notes`` (if given)
+    receives one line per plot that leaves series out (``line_x.png: ...``)."""
     from cvj_ros.sweep.spec import SweepError
     out = Path(out_dir)
     if not (out / RESULTS).is_file() or not (out / MANIFEST).is_file():
@@ -120,7 +122,10 @@ def write_sweep_plots(out_dir: str | Path, *, metric: str | None = None,
     if not varied:
         return written
     with plt.rc_context(_STYLE):
-        written.append(_line_plot(rows, varied, axes, metric, scene, random, plots, logs))
+        path, dropped = _line_plot(rows, varied, axes, metric, scene, random, plots, logs)
+        written.append(path)
+        if dropped and notes is not None:
+            notes.append(f'{path.name}: {dropped}')
         if len(varied) >= 2:
             written.append(_map_plot(rows, varied, axes, metric, scene, random, plots, logs))
         res = _resonance_plot(rows, header, varied, axes, scene, random, plots)
@@ -147,8 +152,26 @@ def _values(rows: list[dict[str, str]], col: str) -> np.ndarray:
     return np.array([as_float(r[col]) if r.get('status') == 'ok' else math.nan for r in rows])
 
 
-def _line_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set[str]) -> Path:
+def dropped_note(column: str, values: Sequence[float], shown: Sequence[float],
+                 empty: Sequence[float] = ()) -> str:
+    """One line naming the values of ``column`` whose series a line plot does not draw:
+    those left out of ``shown`` (more than :data:`MAX_LINES`) and those in ``empty`` (no
+    variant ok); '' when every value is drawn."""
+    parts = []
+    left = [v for v in values if v not in shown]
+    if left:
+        parts.append(f'{len(shown)} of {len(values)} values of {column} drawn, not drawn: '
+                     + ', '.join(_fmt(v) for v in left))
+    if empty:
+        parts.append(f'no ok variant (no line) at {column} = ' + ', '.join(_fmt(v) for v in empty))
+    return '; '.join(parts)
+
+
+def _line_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set[str]
+               ) -> tuple[Path, str]:
+    """The line plot and the :func:`dropped_note` of its series ('' if none dropped)."""
     x_col = varied[0]
+    dropped = ''
     fig, ax = plt.subplots(figsize=(7.0, 4.4))
     if random:
         x = np.array([as_float(r[x_col]) for r in rows])
@@ -166,18 +189,26 @@ def _line_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set
         keep = varied[:2]
         sel, note = _held(rows, varied, axes, keep)
         if len(varied) >= 2:
-            groups = sorted({as_float(r[varied[1]]) for r in sel})
+            every = sorted({as_float(r[varied[1]]) for r in sel})
+            groups = every
             if len(groups) > MAX_LINES:
                 idx = np.unique(np.linspace(0, len(groups) - 1, MAX_LINES).round().astype(int))
                 groups = [groups[i] for i in idx]
             cmap = plt.get_cmap('viridis')
+            empty = []
             for k, g in enumerate(groups):
                 part = [r for r in sel if as_float(r[varied[1]]) == g]
                 x = np.array([as_float(r[x_col]) for r in part])
                 order = np.argsort(x)
-                ax.plot(x[order], _values(part, metric)[order], 'o-', ms=3, lw=1.4,
+                y = _values(part, metric)[order]
+                if not np.isfinite(y).any():
+                    empty.append(g)
+                ax.plot(x[order], y, 'o-', ms=3, lw=1.4,
                         color=cmap(k / max(1, len(groups) - 1)), label=_fmt(g))
             ax.legend(title=axis_label(varied[1]), loc='best', ncol=2 if len(groups) > 4 else 1)
+            dropped = dropped_note(varied[1], every, groups, empty)
+            if dropped:
+                note = (note + '; ' + dropped).lstrip('; ')
         else:
             x = np.array([as_float(r[x_col]) for r in sel])
             order = np.argsort(x)
@@ -187,12 +218,13 @@ def _line_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set
         _log_axis(ax.xaxis, ax.set_xscale)
     ax.set_xlabel(axis_label(x_col))
     ax.set_ylabel(metric_label(metric))
-    ax.set_title(f'{scene}: {metric_label(metric)}' + (f'\n{note}' if note else ''))
+    import textwrap
+    ax.set_title(f'{scene}: {metric_label(metric)}' + (f'\n{textwrap.fill(note, 95)}' if note else ''))
     fig.tight_layout()
     path = plots / f'line_{_slug(metric)}.png'
     fig.savefig(path)
     plt.close(fig)
-    return path
+    return path, dropped
 
 
 def _map_plot(rows, varied, axes, metric, scene, random, plots: Path, logs: set[str]) -> Path:

@@ -104,3 +104,42 @@ def test_sweep_progress_line_has_rate_and_eta() -> None:
     now[0] = 10.0
     p.update(700)                  # 500 new in 10 s: 50 variants/s, 300 left: 6 s
     assert stream.getvalue() == '\rcvj-sim sweep: 700/1000 variants (70%), 50 variants/s, ETA 6 s'
+
+
+def test_line_plot_that_drops_series_says_so(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """10 stiffness values and MAX_LINES = 8 lines: the 2 left out are named in the plot's
+    title and on the CLI (--replot), and a plot drawing every value says nothing."""
+    from cvj_ros.sweep import plots as sweep_plots
+    fake_sweep(tmp_path, ['driveline[coupling].params.alpha_deg=5:25:3',
+                          'driveline[bushings].stiffness=300:3000:10'])
+    kept: list = []
+    notes: list[str] = []
+    close = sweep_plots.plt.close
+    sweep_plots.plt.close = kept.append
+    try:
+        write_sweep_plots(tmp_path, notes=notes)
+    finally:
+        sweep_plots.plt.close = close
+    line_fig = kept[0]
+    title = line_fig.axes[0].get_title().replace('\n', ' ')
+    values = np.linspace(300, 3000, 10)
+    picked = np.unique(np.linspace(0, 9, sweep_plots.MAX_LINES).round().astype(int))
+    left = [f'{values[i]:.4g}' for i in range(10) if i not in picked]
+    assert len(left) == 2 and len(line_fig.axes[0].get_legend().get_texts()) == 8
+    assert f'8 of 10 values of driveline[bushings].stiffness drawn, not drawn: {", ".join(left)}' in title
+    assert notes == [f'line_driven_shaft_delta.png: 8 of 10 values of driveline[bushings].stiffness '
+                     f'drawn, not drawn: {", ".join(left)}']
+    for f in kept:
+        close(f)
+    assert main(['sweep', '--replot', str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f'plot note: {notes[0]}' in out.splitlines()
+    # every value drawn: no note
+    small = tmp_path / 'small'
+    fake_sweep(small, ['driveline[coupling].params.alpha_deg=5:25:3',
+                       'driveline[bushings].stiffness=300,600'])
+    notes = []
+    write_sweep_plots(small, notes=notes)
+    assert notes == []
+    assert sweep_plots.dropped_note('b', [1.0, 2.0], [1.0, 2.0], [2.0]) == \
+        'no ok variant (no line) at b = 2'

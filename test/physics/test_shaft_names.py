@@ -43,7 +43,7 @@ def test_fuzzed_name_sets_are_unique_or_rejected_naming_both() -> None:
     is rejected with the line above; both outcomes occur."""
     pool = ['a', 'b', 'a_input', 'a_output', 'a_cage', 'a_spider', 'b_input', 'b_output', 'c']
     kinds = [('gear', {'gear_ratio': 2.0}), ('rzeppa', {'delta_deg': 20.0}),
-             ('tripod', {'beta_deg': 10.0, 'r_m': 0.02, 'l_m': 0.2}), ('hooke', {'beta_deg': 10.0})]
+             ('tripod', {'beta_deg': 10.0, 'r_m': 0.02, 'l_m': 0.2}), ('hooke', {'beta_deg': 10.0, 'phase_deg': 0.0})]
     outcomes = {'built': 0, 'rejected': 0}
     for case in range(300):
         rng = random.Random(case)

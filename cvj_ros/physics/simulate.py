@@ -395,7 +395,7 @@ class Simulation:
         dt = float(sample_dt or sc.sample_step or sc.exchange_step)
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
-        if self.backend == 'kernel':
+        if self.backend == 'kernel' and not self.scene.is_tree:
             return self._run_kernel(dur, dt, sampling, progress, breakpoints)
         return self._run_python(dur, dt, sampling, progress, breakpoints)
 
@@ -588,7 +588,10 @@ class Simulation:
 
     def _run_python(self, dur: float, dt: float, sampling: str,
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
-        """:meth:`run` on the Python reference right-hand side and steppers."""
+        """:meth:`run` step by step with the outputs computed in Python: the Python
+        reference's run, and a vehicle scene's on the kernel (compiled stepper and right-hand
+        side, kernel/tree_nb.py; the joint states, wheel channels and energy from the same
+        Python code as the reference)."""
         dl = self.driveline
         x0 = dl.x0.copy()
         stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))

@@ -21,7 +21,7 @@ def test_vehicle_scene_parses_and_runs(name: str) -> None:
     assert sc.is_tree and sc.description
     assert parse_scene(sc.to_dict()) == parse_scene(load_scene(shipped_scenes()[name]).to_dict())
     sim = Simulation(sc)
-    assert sim.backend == 'python' and sim.backend_note.startswith('compiled kernel: ')
+    assert sim.backend == 'kernel' and sim.backend_note is None
     tr = sim.run(0.1, sample_dt=0.01)
     assert np.all(np.isfinite(tr.velocity)) and np.all(np.isfinite(tr.effort))
     assert tr.max_energy_residual < 1e-6

@@ -616,15 +616,24 @@ class Simulation:
                 for q in ('slip', 'fx', 'fz', 'status'):
                     channels[f'{w.name}.{q}'] = np.empty(times.size)
 
+        wheel_cols = [[channels[f'{w.name}.{q}'] for q in ('slip', 'fx', 'fz', 'status')]
+                      for w in dl.wheels] if channels else []
+        e_torque = self.engine.torque
+
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
             if not np.all(np.isfinite(x)):
                 raise SolverError(f'state became non-finite at t = {tk:g} s')
-            if channels:
+            if channels:    # a vehicle scene: one kinematics and force pass per sample
+                te[k], tl[k], pos[k], vel[k], eff[k], res[k], wheels = dl.sample_outputs(
+                    tk, x, e_torque, e0)
                 channels['vehicle_speed'][k] = dl.vehicle_speed(x)
-                for name, out in dl.wheel_outputs(x).items():
-                    for q in ('slip', 'fx', 'fz', 'status'):
-                        channels[f'{name}.{q}'][k] = out[q]
+                for cols, values in zip(wheel_cols, wheels):
+                    for col, value in zip(cols, values):
+                        col[k] = value
+                if progress is not None:
+                    progress(tk)
+                return
             te[k], tl[k] = self.torques(tk, x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan

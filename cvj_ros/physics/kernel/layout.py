@@ -230,11 +230,12 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
 
 def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
                 horizon: float | None = None) -> ModelData:
-    """Pack ``driveline`` (a Driveline) and its torque sources into kernel arrays.
+    """Pack ``driveline`` (a Driveline, or a vehicle scene's TreeDriveline: its engine must
+    be given, ``load`` is unused) and its torque sources into kernel arrays.
 
     engine/load None -> that port takes its torque from the input block
-    (:func:`set_torque_inputs`). ``horizon`` (s) is reserved for pre-generated source
-    sequences (seeded random load); unused by the models covered so far.
+    (:func:`set_torque_inputs`). ``horizon`` (s) bounds pre-generated source sequences
+    (the seeded random load's knots). NotImplementedError names an element not covered.
     """
     from cvj_ros.physics.scene import Inertia, Joint
     if getattr(driveline, 'is_tree', False):

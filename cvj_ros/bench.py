@@ -50,7 +50,8 @@ import numpy as np
 
 from cvj_ros.errors import CvjError, SceneError
 
-REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff')
+REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff',
+                    'fwd_axle')
 ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3')
 BASELINES = ('RK45', 'LSODA', 'Radau')
 FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto')
@@ -142,12 +143,12 @@ def forced_levels(scene: Any, mode: str) -> dict[str, str] | None:
     """Per-element overrides for fidelity ``mode``: every joint at ``mode`` where the joint
     has it (else its nearest richer level), every spring elastic; None for 'auto'."""
     from cvj_ros.physics.joints import JOINTS
-    from cvj_ros.physics.scene import Joint, Spring
+    from cvj_ros.physics.scene import Joint, Spring, iter_elements
     if mode == 'auto':
         return None
     order = ('ideal', 'closed', 'exact')
     out: dict[str, str] = {}
-    for el in scene.driveline:
+    for el in iter_elements(scene.driveline):     # a vehicle scene's branches too
         if isinstance(el, Joint):
             have = JOINTS[el.kind].fidelities
             level = next((lv for lv in order[order.index(mode):] if lv in have), have[-1])
@@ -416,9 +417,17 @@ def run_baseline(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfi
         if not sol.success:
             raise CvjError(f'solve_ivp {method}: {sol.message}')
         return sol, int(sol.nfev), int(sol.njev)
-    row = _finish(row, prob, once, cfg, output=lambda sol: (
-        np.array([dl.load_state(x)[1] for x in sol.y.T]), np.array([dl.load_state(x)[0] for x in sol.y.T])))
+    row = _finish(row, prob, once, cfg, output=lambda sol: _last_shaft(dl, sol.y.T))
     return row
+
+
+def _last_shaft(dl: Any, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Speed (rad/s) and angle (rad) of the last JointState shaft (the Trace's last column,
+    :func:`_output`) at each state: a chain's load shaft, a vehicle scene's last wheel."""
+    if getattr(dl, 'is_tree', False):
+        walked = [dl.joint_states_fast(x, 0.0) for x in states]
+        return np.array([w[1][-1] for w in walked]), np.array([w[0][-1] for w in walked])
+    return np.array([dl.load_state(x)[1] for x in states]), np.array([dl.load_state(x)[0] for x in states])
 
 
 def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
@@ -800,7 +809,7 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
         prob.rhs_cost = _rhs_cost_or_note(scene)
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
-        if scene.name in lock_names:
+        if scene.name in lock_names and not scene.is_tree:   # the lockstep loop carries chains
             lock_rows += lockstep_study(prob, cfg)
         # partial report after every scene: an interrupted long run keeps what it measured
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,

@@ -395,7 +395,7 @@ class Simulation:
         dt = float(sample_dt or sc.sample_step or sc.exchange_step)
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
-        if self.backend == 'kernel':
+        if self.backend == 'kernel' and not self.scene.is_tree:
             return self._run_kernel(dur, dt, sampling, progress, breakpoints)
         return self._run_python(dur, dt, sampling, progress, breakpoints)
 
@@ -588,7 +588,10 @@ class Simulation:
 
     def _run_python(self, dur: float, dt: float, sampling: str,
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
-        """:meth:`run` on the Python reference right-hand side and steppers."""
+        """:meth:`run` step by step with the outputs computed in Python: the Python
+        reference's run, and a vehicle scene's on the kernel (compiled stepper and right-hand
+        side, kernel/tree_nb.py; the joint states, wheel channels and energy from the same
+        Python code as the reference)."""
         dl = self.driveline
         x0 = dl.x0.copy()
         stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
@@ -613,15 +616,24 @@ class Simulation:
                 for q in ('slip', 'fx', 'fz', 'status'):
                     channels[f'{w.name}.{q}'] = np.empty(times.size)
 
+        wheel_cols = [[channels[f'{w.name}.{q}'] for q in ('slip', 'fx', 'fz', 'status')]
+                      for w in dl.wheels] if channels else []
+        e_torque = self.engine.torque
+
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
             if not np.all(np.isfinite(x)):
                 raise SolverError(f'state became non-finite at t = {tk:g} s')
-            if channels:
+            if channels:    # a vehicle scene: one kinematics and force pass per sample
+                te[k], tl[k], pos[k], vel[k], eff[k], res[k], wheels = dl.sample_outputs(
+                    tk, x, e_torque, e0)
                 channels['vehicle_speed'][k] = dl.vehicle_speed(x)
-                for name, out in dl.wheel_outputs(x).items():
-                    for q in ('slip', 'fx', 'fz', 'status'):
-                        channels[f'{name}.{q}'][k] = out[q]
+                for cols, values in zip(wheel_cols, wheels):
+                    for col, value in zip(cols, values):
+                        col[k] = value
+                if progress is not None:
+                    progress(tk)
+                return
             te[k], tl[k] = self.torques(tk, x)
             pos[k], vel[k], eff[k] = dl.joint_states_fast(x, te[k], tl[k])
             res[k] = dl.energy_residual(x, e0) if dl.track_energy else math.nan

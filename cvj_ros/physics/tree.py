@@ -537,9 +537,11 @@ class TreeDriveline:
         """v (m/s)."""
         return float(x[self._iv])
 
-    def energy(self, x: FloatArray) -> dict[str, float]:
-        """Kinetic (driveline and body) and elastic energy (J)."""
-        kin = self._kinematics(x)
+    def energy(self, x: FloatArray, kin: _Kin | None = None) -> dict[str, float]:
+        """Kinetic (driveline and body) and elastic energy (J); ``kin``: x's kinematics if
+        already computed."""
+        if kin is None:
+            kin = self._kinematics(x)
         ke = sum(0.5 * kin.ends[s][3] * kin.qd[s] * kin.qd[s] for s in range(len(self.sections)))
         n = self.n_dof
         for d in self.diffs:
@@ -553,11 +555,11 @@ class TreeDriveline:
             el += law.evaluate(kin.ends[left][0] - kin.q[right], 0.0)[3]
         return {'kinetic': ke, 'elastic': el}
 
-    def energy_residual(self, x: FloatArray, e0: float) -> float:
+    def energy_residual(self, x: FloatArray, e0: float, kin: _Kin | None = None) -> float:
         """(E_kin + E_el - E0 - W_engine + W_damp + W_slip + W_road) / max(energy scale)."""
         if not self.track_energy:
             raise ValueError('energy_residual needs a TreeDriveline built with track_energy=True')
-        e = self.energy(x)
+        e = self.energy(x, kin)
         tot = e['kinetic'] + e['elastic']
         we, wd, ws, wr = (float(v) for v in x[self._iv + 1:self._iv + 1 + N_WORK])
         scale = max(abs(tot), abs(e0), abs(we), abs(wd), abs(ws), abs(wr), 1e-12)
@@ -600,15 +602,35 @@ class TreeDriveline:
         from cvj_ros.physics.driveline import Driveline
         Driveline.fill_mid(self, position, velocity, members=members)  # type: ignore[arg-type]
 
-    def _walk(self, x: FloatArray, T_engine: float
-              ) -> tuple[FloatArray, FloatArray, FloatArray, list[float]]:
+    def sample_outputs(self, t: float, x: FloatArray, engine_fn: Callable[..., float], e0: float
+                       ) -> tuple[float, float, FloatArray, FloatArray, FloatArray, float, list[tuple]]:
+        """Everything a run records at one sample, from one kinematics and force pass:
+        (engine torque, sum F_x r (N m), shaft positions, speeds, torques (as
+        :meth:`joint_states_fast`), energy residual (NaN without work integrals), per wheel
+        (slip, F_x, F_z, status)). The same numbers as the separate methods."""
+        n = self.n_dof
+        kin = self._kinematics(x)
+        fo = self._forces(t, x, kin, engine_fn, 0.0)
+        tl = 0.0
+        for f, w in zip(fo.fx, self.wheels):
+            tl += f * w.tyre.radius
+        pos, vel, eff, _start = self._walk(x, fo.T_engine, kin=kin, fo=fo)
+        res = self.energy_residual(x, e0, kin) if self.track_energy else math.nan
+        wheels = [(float(x[2 * n + i]), fo.fx[i], fo.fz[i], fo.status[i])
+                  for i in range(self.n_wheel)]
+        return fo.T_engine, tl, pos, vel, eff, res, wheels
+
+    def _walk(self, x: FloatArray, T_engine: float, *, kin: _Kin | None = None,
+              fo: _Forces | None = None) -> tuple[FloatArray, FloatArray, FloatArray, list[float]]:
         """Shaft positions, speeds, torques; and each section's start torque (N m), from a
         backward walk of every section (deepest first) from its end torque: a wheel's F_x r,
         a spring's torque, or a differential's side torques summed (the carrier passes
-        T_L + T_R: along phi_c at fixed delta neither the spiders nor the coupling work)."""
-        n = self.n_dof
-        kin = self._kinematics(x)
-        fo = self._forces(0.0, x, kin, None, T_engine)
+        T_L + T_R: along phi_c at fixed delta neither the spiders nor the coupling work).
+        ``kin``, ``fo``: x's kinematics and forces at T_engine if already computed."""
+        if kin is None:
+            kin = self._kinematics(x)
+        if fo is None:
+            fo = self._forces(0.0, x, kin, None, T_engine)
         acc = self._accelerations(kin, fo)
         ns = len(self.sections)
         start_t = [0.0] * ns

@@ -227,3 +227,27 @@ def test_energy_matches_members_kinetic_energy() -> None:
     v = x[dl._iv]
     expect = 0.5 * 0.2 * x[n] ** 2 + ke_diff + 0.5 * 1500 * v * v
     assert dl.energy(x)['kinetic'] == pytest.approx(expect, rel=1e-13)
+
+
+def test_sample_outputs_equal_the_separate_methods() -> None:
+    """One kinematics and force pass per sample gives the numbers of engine.torque,
+    tyre_torque, joint_states_fast, energy_residual and wheel_outputs, bit for bit (the
+    kernel and the reference runs both record through it)."""
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    sc = load_scene(shipped_scenes()['fwd_axle_split_mu'])
+    dl = TreeDriveline.from_scene(sc, track_energy=True)
+    eng = engine_from_spec(sc.engine, field='engine')
+    rng = np.random.default_rng(3)
+    x = dl.x0.copy()
+    m = 2 * dl.n_dof + dl.n_wheel + 1
+    x[:m] += rng.normal(0.0, 0.3, m)
+    x[m:] = rng.normal(0.0, 50.0, x.size - m)     # work integrals
+    e0 = 123.0
+    te, tl, pos, vel, eff, res, wheels = dl.sample_outputs(0.2, x, eng.torque, e0)
+    assert te == eng.torque(0.2, dl.engine_omega(x), dl.engine_phi(x))
+    assert tl == dl.tyre_torque(x)
+    for got, ref in zip((pos, vel, eff), dl.joint_states_fast(x, te)):
+        assert np.array_equal(got, ref)
+    assert res == dl.energy_residual(x, e0)
+    ref_w = dl.wheel_outputs(x)
+    assert wheels == [(o['slip'], o['fx'], o['fz'], o['status']) for o in ref_w.values()]

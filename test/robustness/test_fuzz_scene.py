@@ -171,7 +171,7 @@ OVERFLOWS: list[str] = []     # accepted scenes whose numbers overflow (reported
 
 
 FUZZ_RHS_CAP = 200_000   # rhs evaluations for an accepted scene's smoke run
-# on the Python reference (vehicle scenes: the kernel does not cover them) an rhs costs
+# on the Python reference (an element the kernel does not evaluate) an rhs costs
 # ~100x the kernel's (0.1-0.3 ms), so its cap is a tenth: ~2-6 s at most per case
 FUZZ_RHS_CAP_PYTHON = 20_000
 

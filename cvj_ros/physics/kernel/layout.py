@@ -8,7 +8,8 @@ ip header (``H_*`` indices):
     H_NDOF n sections (DOF), H_NSTATE state length (2n or 2n+3), H_ENERGY 1 = work integrals,
     H_ENGINE engine code, H_LOAD load code, H_ENGINE_I / H_ENGINE_F engine ip/fp offsets,
     H_LOAD_I / H_LOAD_F load ip/fp offsets, H_SEC section table offset, H_SPRING_F spring
-    parameter offset (fp), H_INPUT_F input block offset (fp).
+    parameter offset (fp), H_INPUT_F input block offset (fp), H_TREE tree block offset
+    (0 for a chain).
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
@@ -36,11 +37,24 @@ load: LOAD_INPUTS (input block), LOAD_CONSTANT fp = [M_c, speed_scale (0 = none)
     LOAD_BRAKE_STEPS fp = [base N m, ramp s, speed_scale rad/s, n, (t_on, jump) per step],
     LOAD_TIME_SERIES fp = [outside_zero 0/1, n, t_0 .. t_n-1 s, T_0 .. T_n-1 N m] (bag replay).
 
+Vehicle scenes (cvj_ros.physics.tree, ``H_TREE`` > 0): the same op codes per section, and
+the tree as tables (``TB_*`` fields of the tree block give counts and offsets):
+    sections (SEC_STRIDE ints each: op start, op end, parent section (-1: group root), sign
+    (+1 left, -1 right), local index of the joining differential's delta in its group (-1:
+    none), coordinate (roots), the delta's global coordinate); springs (left, right section;
+    parameters at H_SPRING_F as for chains); differentials (left, right side-gear section, fp
+    offset of the viscous coefficient, 0 unless viscous); wheels (section, fp offset of
+    WHEEL_F floats); groups, each [k coordinates, n sections, n spiders, the coordinates, the
+    sections in tree order, (local index, fp offset of P = J_spider spider_ratio^2) per
+    spider]; the body's BODY_F floats. The compiled rhs (kernel/tree_nb.py) interprets them.
+
 Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (closed, exact
     Fourier table), Rzeppa (cage error), double cardan, runout, chains (flattened into
     their stages), gear, ideal CV, any joint whose 'ideal' fidelity is
     the identity (checked at build time), springs (linear,
-progressive, backlash), work integrals, linear engine, constant load, input-block torques.
+progressive, backlash), work integrals, linear engine, constant load, input-block torques;
+vehicle scenes (open, locked and viscous differentials, magic-formula tyres with relaxed slip,
+the body with load transfer) with an in-kernel engine.
 Anything else raises NotImplementedError naming the element (no silent fallback).
 """
 from __future__ import annotations
@@ -56,7 +70,8 @@ from numpy.typing import NDArray
 H_NDOF, H_NSTATE, H_ENERGY, H_ENGINE, H_LOAD = 0, 1, 2, 3, 4
 H_ENGINE_I, H_ENGINE_F, H_LOAD_I, H_LOAD_F = 5, 6, 7, 8
 H_SEC, H_SPRING_F, H_INPUT_F = 9, 10, 11
-N_HEADER = 12
+H_TREE = 12          # 0: a chain; else the ip offset of the tree block (vehicle scenes)
+N_HEADER = 13
 
 # op codes
 OP_INERTIA = 0
@@ -84,6 +99,14 @@ LOAD_BRAKE_STEPS = 5
 LOAD_TIME_SERIES = 6
 
 SPRING_STRIDE = 5
+
+# tree block (vehicle scenes) at ip[H_TREE]: counts and table offsets
+(TB_NS, TB_NG, TB_NSPR, TB_ND, TB_NW, TB_KMAX, TB_SEC, TB_OPS, TB_SPR, TB_DIFF, TB_WHEEL,
+ TB_GRP, TB_BODY_F) = range(13)
+N_TREE_BLOCK = 13
+SEC_STRIDE = 7       # op_start, op_end, parent, sign, local delta index, coord, delta coord
+WHEEL_F = 8          # mu, r, B, C, E, sigma, share, axle (+1 front, -1 rear, 0 none)
+BODY_F = 10          # m, m g cos(th), C_r, m g sin(th), rho C_d A / 2, v_s, transfer, f, h, L
 N_INPUT = 9
 IN_TK, IN_TE, IN_TE_RATE, IN_KE, IN_WE, IN_TL, IN_TL_RATE, IN_KL, IN_WL = range(N_INPUT)
 
@@ -221,16 +244,16 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
 
 def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
                 horizon: float | None = None) -> ModelData:
-    """Pack ``driveline`` (a Driveline) and its torque sources into kernel arrays.
+    """Pack ``driveline`` (a Driveline, or a vehicle scene's TreeDriveline: its engine must
+    be given, ``load`` is unused) and its torque sources into kernel arrays.
 
     engine/load None -> that port takes its torque from the input block
-    (:func:`set_torque_inputs`). ``horizon`` (s) is reserved for pre-generated source
-    sequences (seeded random load); unused by the models covered so far.
+    (:func:`set_torque_inputs`). ``horizon`` (s) bounds pre-generated source sequences
+    (the seeded random load's knots). NotImplementedError names an element not covered.
     """
     from cvj_ros.physics.scene import Inertia, Joint
     if getattr(driveline, 'is_tree', False):
-        raise NotImplementedError('compiled kernel: vehicle driveline (differentials, wheels, '
-                                  'tyres) is not compiled yet')
+        return _tree_model(driveline, engine)
     fp: list[float] = [0.0]          # fp[0] unused, so offset 0 never aliases a parameter
     ops: list[tuple[int, int]] = []
     sec_start = [0]
@@ -267,6 +290,88 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     return ModelData(np.asarray(ip, dtype=np.int64), np.asarray(fp, dtype=np.float64),
                      n, driveline._n_state, bool(driveline.track_energy),
                      np.array(driveline.x0, dtype=np.float64))
+
+
+def _tree_model(dl: Any, engine: Any) -> ModelData:
+    """Pack a vehicle scene's TreeDriveline (cvj_ros.physics.tree) and its engine (module
+    docstring, "Vehicle scenes"). The engine must be evaluated in the kernel: the tyres and
+    the body are the load, so there is no load port."""
+    from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES
+    if engine is None:
+        raise NotImplementedError('compiled kernel: a vehicle scene needs its engine in the '
+                                  'kernel (no torque input block)')
+    fp: list[float] = [0.0]
+    diff_ring = {d.name: d for d in dl.diffs}
+    ops: list[tuple[int, int]] = []
+    sec_rows: list[list[int]] = []
+    for s, sec in enumerate(dl.sections):
+        start = len(ops)
+        for (jv, fn), name in zip(sec.ops, sec.names):
+            if fn is None:
+                fp.append(float(jv))
+                ops.append((OP_INERTIA, len(fp) - 1))
+            elif name in diff_ring:                     # ring ratio: phi_c = phi_in / i
+                fp.append(1.0 / diff_ring[name].model.ratio)
+                ops.append((OP_GEAR, len(fp) - 1))
+            else:
+                model = dl.joint_models[name]
+                for stage in (model.joints if model.kind == 'chain' else [model]):
+                    ops.append(_joint_op(name, stage, fp))
+        dcoord = dl.diffs[sec.diff].coord if sec.parent >= 0 else -1
+        sec_rows.append([start, len(ops), sec.parent, sec.sign, dl._sec_local[s], sec.coord, dcoord])
+    spring_f = len(fp)
+    spr: list[int] = []
+    for law, left, right in dl.springs:
+        spr += [left, right]
+        fp.extend([law.c, law.d, law.k2, law.gap, law.width])
+    dif: list[int] = []
+    for d in dl.diffs:
+        dif += [d.left, d.right, len(fp)]
+        fp.append(float(d.model.viscous) if d.model.kind == 'viscous' else 0.0)
+    whl: list[int] = []
+    for w in dl.wheels:
+        t = w.tyre
+        whl += [w.section, len(fp)]
+        fp.extend([t.mu, t.radius, t.mf.B, t.mf.C, t.mf.E, t.sigma, w.share, float(w.axle)])
+    grp: list[int] = []
+    kmax = 1
+    for (coords, secs), spiders in zip(dl._groups, dl._group_spiders):
+        kmax = max(kmax, len(coords))
+        grp += [len(coords), len(secs), len(spiders), *coords, *secs]
+        for i, p in spiders:
+            grp += [i, len(fp)]
+            fp.append(float(p))
+    ns, nw = len(dl.sections), len(dl.wheels)
+    if (14 + ns + 2 * kmax) * max(ns, nw, kmax) > STACK_MAX_DOUBLES:
+        raise NotImplementedError(f'compiled kernel: vehicle driveline of {ns} sections exceeds '
+                                  "the kernel's scratch")
+    b = dl.body
+    body_f = len(fp)
+    transfer = not (b.cg_height is None or b.wheelbase is None or b.front_share is None)
+    fp.extend([b.mass, b.weight_normal, b.rolling_coeff, b.climbing(),
+               0.5 * b.air_density * b.drag_area, b.speed_scale, 1.0 if transfer else 0.0,
+               float(b.front_share or 0.0), float(b.cg_height or 0.0), float(b.wheelbase or 0.0)])
+    input_f = len(fp)
+    fp.extend([0.0] * N_INPUT)
+    e_code, e_f = _engine_block(engine, fp)
+    head = [0] * N_HEADER
+    head[H_NDOF], head[H_NSTATE] = dl.n_dof, dl._n_state
+    head[H_ENERGY] = 1 if dl.track_energy else 0
+    head[H_ENGINE], head[H_ENGINE_F] = e_code, e_f
+    head[H_LOAD], head[H_SPRING_F], head[H_INPUT_F] = LOAD_INPUTS, spring_f, input_f
+    tree = [0] * N_TREE_BLOCK
+    tree[TB_NS], tree[TB_NG], tree[TB_NSPR] = ns, len(dl._groups), len(dl.springs)
+    tree[TB_ND], tree[TB_NW], tree[TB_KMAX], tree[TB_BODY_F] = len(dl.diffs), nw, kmax, body_f
+    ip = head + tree
+    head_tree = N_HEADER
+    ip[H_TREE] = head_tree
+    for field, rows in ((TB_SEC, [v for r in sec_rows for v in r]), (TB_OPS, [v for o in ops for v in o]),
+                        (TB_SPR, spr), (TB_DIFF, dif), (TB_WHEEL, whl), (TB_GRP, grp)):
+        ip[head_tree + field] = len(ip)
+        ip += rows
+    return ModelData(np.asarray(ip, dtype=np.int64), np.asarray(fp, dtype=np.float64),
+                     dl.n_dof, dl._n_state, bool(dl.track_energy),
+                     np.array(dl.x0, dtype=np.float64))
 
 
 def set_torque_inputs(model: ModelData, *, t_k: float, Te: float, Te_rate: float = 0.0,

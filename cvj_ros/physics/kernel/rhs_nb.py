@@ -18,7 +18,7 @@ from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
     ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_INPUT_F, H_LOAD, H_LOAD_F, H_NDOF, H_SEC,
-    H_SPRING_F, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
+    H_SPRING_F, H_TREE, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
     LOAD_INPUTS, OP_INERTIA, SPRING_STRIDE)
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
 
@@ -116,7 +116,11 @@ def rhs(t, y, ip, fp, dy):
 
     One sweep engine -> load, no allocation: section g's generalised force is complete once
     the spring to its right is evaluated. The additions keep the oracle's order
-    (Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g)."""
+    (Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g). A vehicle scene (ip[H_TREE] > 0)
+    is kernel/tree_nb.py's."""
+    if ip[H_TREE] != 0:
+        _tree.tree_rhs(t, y, ip, fp, dy)
+        return
     n = ip[H_NDOF]
     sp0 = ip[H_SPRING_F]
     te, _dte, _dtep = engine_torque(t, y, ip, fp)
@@ -161,7 +165,11 @@ def rhs(t, y, ip, fp, dy):
 def jac(t, y, ip, fp, J):
     """Analytic d(rhs)/dy into J (n_state x n_state, overwritten). As the oracle
     Driveline.jacobian, only dC/dq (third derivative of the position functions, not in the
-    joint contract) is a central difference of C(q) with h = 1e-6 max(1, |q|)."""
+    joint contract) is a central difference of C(q) with h = 1e-6 max(1, |q|). A vehicle
+    scene's is kernel/tree_nb.py's (central differences, as its oracle)."""
+    if ip[H_TREE] != 0:
+        _tree.tree_jac(t, y, ip, fp, J)
+        return
     n = ip[H_NDOF]
     n2 = 2 * n
     ns = J.shape[0]
@@ -253,3 +261,7 @@ def jac(t, y, ip, fp, J):
         J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
         for j in range(n2):
             J[n2 + 2, j] = sc[8, j]
+
+
+# at the end: tree_nb uses this module's spring and engine functions (either import order works)
+from cvj_ros.physics.kernel import tree_nb as _tree  # noqa: E402

@@ -55,7 +55,8 @@ def test_simulation_kernel_matches_python_reference(name: str) -> None:
     # effort holds spring torques c * twist: a twist differing by rounding (dphi) moves them
     # by c * dphi, ill-conditioned for the stiff scene (c = 1e6 N m/rad: measured 3.6e-8 N m
     # from 3e-14 rad); bound 10x that conditioning on top of REL.
-    c_max = max((sp.c for sp in kern.driveline.springs), default=0.0)
+    laws = [sp[0] if isinstance(sp, tuple) else sp for sp in kern.driveline.springs]  # tree: (law, l, r)
+    c_max = max((law.c for law in laws), default=0.0)
     d_eff = float(np.max(np.abs(a.effort - b.effort)))
     d_pos = float(np.max(np.abs(a.position - b.position)))
     assert d_eff <= REL * max(1.0, float(np.max(np.abs(b.effort)))) + 10 * c_max * d_pos

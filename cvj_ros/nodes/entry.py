@@ -14,15 +14,16 @@ from __future__ import annotations
 import importlib
 import sys
 
-from cvj_ros.guard import caused_by_sigint
-
 
 def launch(module: str) -> None:
     """Import ``cvj_ros.nodes.<module>`` and run its ``main()`` (exit status 0 if a SIGINT
     interrupts the import, also inside a C extension's initialisation)."""
     try:
         node_module = importlib.import_module(f'cvj_ros.nodes.{module}')
+    except KeyboardInterrupt:
+        sys.exit(0)
     except BaseException as exc:  # noqa: BLE001 (re-raised unless a SIGINT caused it)
+        from cvj_ros.guard import caused_by_sigint   # not at module level: no import before the try
         if caused_by_sigint(exc):
             sys.exit(0)
         raise

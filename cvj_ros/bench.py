@@ -474,7 +474,8 @@ def run_expert(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig,
         x0 = np.ascontiguousarray(dl.x0, dtype=float)
         data = ex.expert_data(model.ip, model.fp, x0.size)
         breaks = np.asarray(sim.breakpoints(prob.horizon), dtype=float) if restart else None
-        ex.solve_expert(method, address, x0, np.array([0.0, 1e-9]), data, rtol=tol, atol=tol)  # dispatch compiled
+        ex.solve_expert(method, address, x0, np.array([0.0, 1e-6]), data, rtol=tol, atol=tol,
+                        breaks=breaks)   # numbalsoda and the segment loop compiled outside the timing
     except (CvjError, NotImplementedError, ValueError) as exc:
         return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
     ip, fp = model.ip, model.fp   # kept alive: data holds their addresses

@@ -92,6 +92,18 @@ def expert_data(ip: np.ndarray, fp: np.ndarray, n_state: int) -> np.ndarray:
     return p
 
 
+def _snapped(breaks: np.ndarray, t_eval: np.ndarray) -> np.ndarray:
+    """The breaks strictly inside t_eval's span, each within 1e-12 of the span of a sample
+    replaced by that sample (a knot at k x 10 ms and a sample at 50 ms differ by an ulp; a
+    segment that short stops LSODA: 'tout too close to t')."""
+    eps = 1e-12 * max(1.0, abs(float(t_eval[-1])))
+    b = np.asarray(breaks, dtype=float)
+    b = b[(b > t_eval[0] + eps) & (b < t_eval[-1] - eps)]
+    i = np.clip(np.searchsorted(t_eval, b), 1, t_eval.size - 1)
+    near = np.where(np.abs(t_eval[i - 1] - b) < np.abs(t_eval[i] - b), t_eval[i - 1], t_eval[i])
+    return np.unique(np.where(np.abs(near - b) <= eps, near, b))
+
+
 def solve_expert(method: str, address: int, x0: np.ndarray, t_eval: np.ndarray, data: np.ndarray,
                  *, rtol: float, atol: float, breaks: np.ndarray | None = None,
                  max_steps: int = 100_000) -> tuple[np.ndarray, int, bool]:
@@ -106,15 +118,47 @@ def solve_expert(method: str, address: int, x0: np.ndarray, t_eval: np.ndarray, 
         sol, ok = solver(address, x0, t_eval, data=data, rtol=rtol, atol=atol, mxstep=max_steps)
         return sol, int(data[P_COUNT]), bool(ok)
     out = np.empty((t_eval.size, x0.size))
-    out[0] = x0
-    edges = np.concatenate(([t_eval[0]], breaks[(breaks > t_eval[0]) & (breaks < t_eval[-1])], [t_eval[-1]]))
-    x = np.asarray(x0, dtype=float).copy()
-    for a, b in zip(edges[:-1], edges[1:]):
-        inside = np.flatnonzero((t_eval > a) & (t_eval <= b))
-        ts = np.concatenate(([a], t_eval[inside], [b] if (inside.size == 0 or t_eval[inside[-1]] < b) else []))
-        sol, ok = solver(address, x, ts, data=data, rtol=rtol, atol=atol, mxstep=max_steps)
-        if not ok:
-            return out, int(data[P_COUNT]), False
-        out[inside] = sol[1:1 + inside.size]
-        x = sol[-1].copy()
-    return out, int(data[P_COUNT]), True
+    edges = np.concatenate(([t_eval[0]], _snapped(breaks, t_eval), [t_eval[-1]]))
+    ok = _restart_kernel()(method == 'lsoda', address, np.asarray(x0, dtype=float), t_eval, edges, data,
+                           rtol, atol, max_steps, out)
+    return out, int(data[P_COUNT]), bool(ok)
+
+
+@functools.lru_cache(maxsize=1)
+def _restart_kernel() -> Any:
+    """The compiled segment loop of :func:`solve_expert` (numbalsoda's solvers are numba
+    functions: calling them per segment from Python would add its dispatch, ~10 us, per knot)."""
+    import numba as nb
+    import numbalsoda
+    lsoda, dop853 = numbalsoda.lsoda, numbalsoda.dop853
+
+    @nb.njit   # not cached: numba cannot pickle numbalsoda's ctypes bindings it closes over
+    def run(use_lsoda, address, x0, t_eval, edges, data, rtol, atol, mxstep, out):  # pragma: no cover
+        x = x0.copy()
+        out[0, :] = x0
+        j = 1                                   # next sample to fill
+        for seg in range(edges.size - 1):
+            a, b = edges[seg], edges[seg + 1]
+            k = j
+            while k < t_eval.size and t_eval[k] <= b:
+                k += 1
+            m = k - j                           # samples in (a, b]
+            extra = 1 if (m == 0 or t_eval[k - 1] < b) else 0
+            ts = np.empty(1 + m + extra)
+            ts[0] = a
+            for i in range(m):
+                ts[1 + i] = t_eval[j + i]
+            if extra:
+                ts[m + 1] = b
+            if use_lsoda:
+                sol, ok = lsoda(address, x, ts, data, rtol, atol, mxstep)
+            else:
+                sol, ok = dop853(address, x, ts, data, rtol, atol, mxstep)
+            if not ok:
+                return False
+            for i in range(m):
+                out[j + i, :] = sol[1 + i, :]
+            x = sol[ts.size - 1, :].copy()
+            j = k
+        return True
+    return run

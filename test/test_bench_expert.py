@@ -126,8 +126,20 @@ def test_restart_at_breakpoints_matches_one_call() -> None:
     cfg = _cfg(scenes=[parse_scene(scene)], tolerances=(1e-9,), horizon=0.1)
     prob = bench.prepare(cfg.scenes[0], cfg, reference_tol=1e-11)
     assert prob.has_breakpoints
-    one = bench.run_expert(prob, method='dop853', tol=1e-9, cfg=cfg, restart=False)
-    per = bench.run_expert(prob, method='dop853', tol=1e-9, cfg=cfg, restart=True)
-    assert one['ok'] and per['ok'] and per['breakpoints'] and not one['breakpoints']
-    assert per['err_speed_rel'] < 1e-6
-    assert per['label'].endswith('restart-at-breaks')
+    for method in bench_expert.EXPERT_METHODS:
+        one = bench.run_expert(prob, method=method, tol=1e-9, cfg=cfg, restart=False)
+        per = bench.run_expert(prob, method=method, tol=1e-9, cfg=cfg, restart=True)
+        assert one['ok'] and per['ok'] and per['breakpoints'] and not one['breakpoints'], (one, per)
+        assert per['err_speed_rel'] < 1e-6
+        assert per['label'].endswith('restart-at-breaks')
+
+
+def test_knots_an_ulp_from_a_sample_are_snapped_onto_it() -> None:
+    """Knots at k x 10 ms meet the 50 ms samples up to an ulp: such a knot becomes the sample
+    (no segment shorter than the span's 1e-12), knots at the span's ends are dropped."""
+    t = np.linspace(0.0, 1.0, 21)
+    knots = np.arange(0, 101) * 0.01
+    s = bench_expert._snapped(knots, t)
+    assert s.size == 99 and s[0] == 0.01 and s[-1] == 0.99
+    assert np.min(np.diff(np.unique(np.concatenate((s, t))))) > 1e-3
+    assert set(t[1:-1]) <= set(s)

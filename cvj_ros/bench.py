@@ -33,6 +33,7 @@ loop's overhead per exchange with the measured rclpy round trips, in one process
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import math
@@ -808,6 +809,14 @@ def expert_methods_run(cfg: BenchConfig) -> tuple[str, ...]:
     return () if unavailable_reason() else tuple(cfg.expert_methods)
 
 
+def _quiet_if(on: bool) -> Any:
+    """:func:`cvj_ros.bench_expert.quiet_stdout` when ``on`` (numbalsoda runs), else a no-op."""
+    if not on:
+        return contextlib.nullcontext()
+    from cvj_ros.bench_expert import quiet_stdout
+    return quiet_stdout()
+
+
 def _may_have_breakpoints(scene: Any) -> bool:
     """Whether the scene's load spec names a model that lists breakpoints (its class
     overrides ``Load.breakpoints``; a list is a sum), read from the spec without building
@@ -889,13 +898,14 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg, compiled=compiled))
                     if progress is not None:
                         progress(len(rows))
-        for method in experts:
-            for tol in cfg.tolerances:
-                for restart in ((False, True) if prob.has_breakpoints else (False,)):
-                    rows.append(run_expert(prob, method=method, tol=tol, cfg=cfg, restart=restart))
-                    if progress is not None:
-                        progress(len(rows))
-        retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
+        with _quiet_if(bool(experts)):
+            for method in experts:
+                for tol in cfg.tolerances:
+                    for restart in ((False, True) if prob.has_breakpoints else (False,)):
+                        rows.append(run_expert(prob, method=method, tol=tol, cfg=cfg, restart=restart))
+                        if progress is not None:
+                            progress(len(rows))
+            retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
         prob.rhs_cost = _rhs_cost_or_note(scene)
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names:

@@ -13,14 +13,18 @@ skipped when it is not importable.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Callable
+import os
+import sys
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
 __all__ = ['EXPERT_METHODS', 'P_COUNT', 'P_FP', 'P_IP', 'P_LEN', 'P_NFP', 'P_NIP', 'P_NSTATE',
-           'expert_cfunc', 'expert_data', 'skip_line', 'solve_expert', 'unavailable_reason']
+           'expert_cfunc', 'expert_data', 'quiet_stdout', 'skip_line', 'solve_expert',
+           'unavailable_reason']
 
 EXPERT_METHODS = ('lsoda', 'dop853')
 # layout of the parameter block p: addresses (exact in a double below 2**53) and lengths
@@ -37,6 +41,35 @@ def unavailable_reason() -> str | None:
         first = (str(exc).splitlines() or [type(exc).__name__])[0]
         return f'numbalsoda not importable ({first[:120]})'
     return None
+
+
+def _c_flush() -> None:
+    """fflush(NULL): every C stdio stream of the process."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+
+
+@contextlib.contextmanager
+def quiet_stdout() -> Iterator[None]:
+    """File descriptor 1 sent to /dev/null: numbalsoda's C and Fortran solvers print their
+    diagnostics ('the problem seems to become stiff', 'more than nmax steps') there, into
+    the bench's report on stdout; a failure is recorded in the row instead. The C library's
+    buffers are flushed at both ends (else they reach the restored stdout at exit)."""
+    sys.stdout.flush()
+    _c_flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, 'w') as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        _c_flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def skip_line(reason: str) -> str:

@@ -145,3 +145,23 @@ def test_knots_an_ulp_from_a_sample_are_snapped_onto_it() -> None:
     assert s.size == 99 and s[0] == 0.01 and s[-1] == 0.99
     assert np.min(np.diff(np.unique(np.concatenate((s, t))))) > 1e-3
     assert set(t[1:-1]) <= set(s)
+
+
+def test_quiet_stdout_silences_file_descriptor_1_and_restores_it(capfd: pytest.CaptureFixture[str]) -> None:
+    """numbalsoda's C and Fortran diagnostics go to fd 1, past sys.stdout: silenced during the
+    family's runs, and the report printed after them still reaches stdout."""
+    import os
+    with bench_expert.quiet_stdout():
+        os.write(1, b'the problem seems to become stiff\n')
+    os.write(1, b'after\n')
+    assert capfd.readouterr().out == 'after\n'
+
+
+def test_quiet_stdout_drops_buffered_c_output(capfd: pytest.CaptureFixture[str]) -> None:
+    """A C printf inside (buffered by libc, as numbalsoda's are) does not surface later."""
+    import ctypes
+    libc = ctypes.CDLL(None)
+    with bench_expert.quiet_stdout():
+        libc.printf(b'more than nmax = 250 steps are needed\n')
+    libc.fflush(None)
+    assert 'nmax' not in capfd.readouterr().out

@@ -377,29 +377,39 @@ def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
     return out
 
 
-def hand_written_rhs_cost(*, calls: int = 200_000, rounds: int = 5) -> dict[str, float]:
-    """ns per call of the kernel's rhs on :func:`hooke_2dof_scene` and of the same equations
-    written by hand (:mod:`cvj_ros.bench_handrhs`), both from a compiled loop, timed in
-    alternating rounds (this machine is shared: each round's pair shares its moment);
-    medians, min and max over the rounds, and the median of the per-round ratios."""
-    from cvj_ros.bench_handrhs import hooke_2dof_params, time_hooke_2dof_calls
+HAND_WRITTEN = ('hooke_2dof', 'stiff')
+
+
+def hand_written_rhs_cost(model_name: str = 'hooke_2dof', *, calls: int = 200_000,
+                          rounds: int = 5) -> dict[str, float]:
+    """ns per call of the kernel's rhs on ``model_name`` (:data:`HAND_WRITTEN`:
+    :func:`hooke_2dof_scene` or the shipped stiff scene) and of the same equations written
+    by hand (:mod:`cvj_ros.bench_handrhs`), both from the same compiled loop over 16 states
+    (:func:`cvj_ros.bench_handrhs.timing_states`), timed in alternating rounds (this machine
+    is shared: each round's pair shares its moment); medians, min and max over the rounds,
+    and the median of the per-round ratios."""
+    from cvj_ros import bench_handrhs as hw
     from cvj_ros.physics.kernel.layout import build_model
-    from cvj_ros.physics.kernel.outputs_nb import time_rhs_calls
     from cvj_ros.physics.simulate import Simulation
-    scene = hooke_2dof_scene()
+    if model_name == 'hooke_2dof':
+        scene, params, timer = hooke_2dof_scene(), hw.hooke_2dof_params, hw.time_hooke_2dof_calls
+    elif model_name == 'stiff':
+        scene, params, timer = resolve_scene('stiff'), hw.stiff_params, hw.time_stiff_calls
+    else:
+        raise ValueError(f'no hand-written rhs for {model_name!r} (have {", ".join(HAND_WRITTEN)})')
     sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))
     model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
-    y = model.x0.copy()
-    p = hooke_2dof_params(scene)
-    time_rhs_calls(10, 0.0, y, model.ip, model.fp)
-    time_hooke_2dof_calls(10, 0.0, y, p)
+    ys = hw.timing_states(model.x0)
+    p = params(scene)
+    hw.time_kernel_calls(10, 0.0, ys, model.ip, model.fp)
+    timer(10, 0.0, ys, p)
     kern, hand = [], []
     for _ in range(max(1, rounds)):
         t0 = time.perf_counter()
-        time_rhs_calls(calls, 0.001, y, model.ip, model.fp)
+        hw.time_kernel_calls(calls, 0.001, ys, model.ip, model.fp)
         kern.append((time.perf_counter() - t0) / calls * 1e9)
         t0 = time.perf_counter()
-        time_hooke_2dof_calls(calls, 0.001, y, p)
+        timer(calls, 0.001, ys, p)
         hand.append((time.perf_counter() - t0) / calls * 1e9)
     return {'kernel_ns': float(np.median(kern)), 'kernel_ns_min': min(kern), 'kernel_ns_max': max(kern),
             'hand_ns': float(np.median(hand)), 'hand_ns_min': min(hand), 'hand_ns_max': max(hand),
@@ -915,7 +925,7 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
     rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
     if 'compiled_ns' in rhs_reference:
-        rhs_reference['hand'] = hand_written_rhs_cost()
+        rhs_reference['hand'] = {name: hand_written_rhs_cost(name) for name in HAND_WRITTEN}
     studies = run_studies() if cfg.studies else None
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
@@ -1158,12 +1168,11 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
             md.append('2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
                       'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): '
                       + _rhs_cost_text(rhs_reference))
-            hand = rhs_reference.get('hand')
-            if hand:
-                md.append(f'The same equations written by hand (`cvj_ros.bench_handrhs`, no section '
-                          f'walk): {hand["hand_ns"]:.1f} ns per call against the kernel rhs\'s '
-                          f'{hand["kernel_ns"]:.1f} ns (medians of {hand["rounds"]} alternating rounds, '
-                          f'ranges {hand["hand_ns_min"]:.1f}-{hand["hand_ns_max"]:.1f} and '
+            for name, hand in (rhs_reference.get('hand') or {}).items():
+                md.append(f'- {name}, the same equations written by hand (`cvj_ros.bench_handrhs`, no '
+                          f'section walk): {hand["hand_ns"]:.1f} ns per call against the kernel '
+                          f'rhs\'s {hand["kernel_ns"]:.1f} ns (medians of {hand["rounds"]} alternating '
+                          f'rounds, ranges {hand["hand_ns_min"]:.1f}-{hand["hand_ns_max"]:.1f} and '
                           f'{hand["kernel_ns_min"]:.1f}-{hand["kernel_ns_max"]:.1f} ns): the kernel '
                           f'is {hand["ratio"]:.2f}x the hand-written rhs (aim within 1.5x).')
         else:

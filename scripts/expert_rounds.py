@@ -5,8 +5,8 @@ configuration and the cheapest baseline_expert configuration (numbalsoda on the 
 that reach it, then times each such pair again in ROUNDS alternating rounds (project, expert,
 project, expert ...; each timing the min over a few runs, as the bench times) and prints per
 pair the median cost of each and the median, min and max of the per-round ratios expert /
-project. Also the compiled rhs's ns per call per scene and the 2-DOF Hooke model's kernel rhs
-against its hand-written version, in the same alternating rounds. The machine may be shared:
+project. Also the compiled rhs's ns per call per scene and the kernel rhs of the 2-DOF Hooke
+model and of the stiff scene against their hand-written versions, in the same alternating rounds. The machine may be shared:
 a round's pair shares its moment, and the spread says how much the moments differ.
 
     PYTHONPATH=. python scripts/expert_rounds.py BENCH_CSV [ROUNDS] > rounds.md
@@ -74,11 +74,12 @@ def main() -> None:
     for name in scenes:
         ns = [bench.rhs_cost(bench.resolve_scene(name), calls=100_000)['compiled_ns'] for _ in range(rounds)]
         print(f'| {name} | {np.median(ns):.1f} ({min(ns):.1f}-{max(ns):.1f}) |', flush=True)
-    h = bench.hand_written_rhs_cost(rounds=max(rounds, 5))
     print()
-    print(f'2-DOF Hooke model: kernel rhs {h["kernel_ns"]:.1f} ns ({h["kernel_ns_min"]:.1f}-'
-          f'{h["kernel_ns_max"]:.1f}), hand-written {h["hand_ns"]:.1f} ns ({h["hand_ns_min"]:.1f}-'
-          f'{h["hand_ns_max"]:.1f}), ratio {h["ratio"]:.2f}x over {h["rounds"]} alternating rounds')
+    for model in bench.HAND_WRITTEN:
+        h = bench.hand_written_rhs_cost(model, rounds=max(rounds, 5))
+        print(f'{model}: kernel rhs {h["kernel_ns"]:.1f} ns ({h["kernel_ns_min"]:.1f}-'
+              f'{h["kernel_ns_max"]:.1f}), hand-written {h["hand_ns"]:.1f} ns ({h["hand_ns_min"]:.1f}-'
+              f'{h["hand_ns_max"]:.1f}), ratio {h["ratio"]:.2f}x over {h["rounds"]} alternating rounds')
 
 
 if __name__ == '__main__':

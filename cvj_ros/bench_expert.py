@@ -1,7 +1,7 @@
 """The expert baseline of `cvj-sim bench` (family ``baseline_expert``): the project's compiled
 right-hand side (kernel/rhs_nb.rhs, engine and load inside) handed to a compiled integrator,
-numbalsoda's LSODA (Petzold 1983, Hindmarsh's ODEPACK in Fortran) and DOP853 (Hairer,
-Norsett & Wanner 1993, in C), through one ``numba.cfunc`` of numbalsoda's signature
+numbalsoda's LSODA (Petzold 1983; a C++ rewrite of ODEPACK's) and DOP853 (Hairer, Norsett
+& Wanner 1993; in Fortran), through one ``numba.cfunc`` of numbalsoda's signature
 ``void f(double t, double *u, double *du, double *p)``.
 
 The cfunc is compiled once for every scene: ``p`` points at a small float64 block holding
@@ -44,19 +44,25 @@ def unavailable_reason() -> str | None:
 
 
 def _c_flush() -> None:
-    """fflush(NULL): every C stdio stream of the process."""
+    """fflush(NULL) (every C stdio stream) and, when libgfortran is loaded (numbalsoda's
+    DOP853 is Fortran), a flush of Fortran unit 6 (its stdout, buffered apart from C's)."""
+    import ctypes
     try:
-        import ctypes
         ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+    try:
+        gf = ctypes.CDLL('libgfortran.so.5', mode=os.RTLD_NOLOAD)   # only if already loaded
+        gf._gfortran_flush_i4(ctypes.byref(ctypes.c_int(6)))
     except (OSError, AttributeError):
         pass
 
 
 @contextlib.contextmanager
 def quiet_stdout() -> Iterator[None]:
-    """File descriptor 1 sent to /dev/null: numbalsoda's C and Fortran solvers print their
+    """File descriptor 1 sent to /dev/null: numbalsoda's C++ and Fortran solvers print their
     diagnostics ('the problem seems to become stiff', 'more than nmax steps') there, into
-    the bench's report on stdout; a failure is recorded in the row instead. The C library's
+    the bench's report on stdout; a failure is recorded in the row instead. The C and Fortran
     buffers are flushed at both ends (else they reach the restored stdout at exit)."""
     sys.stdout.flush()
     _c_flush()

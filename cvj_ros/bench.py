@@ -860,6 +860,15 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     if cfg.expert_methods and not experts:
         from cvj_ros.bench_expert import skip_line, unavailable_reason
         log(skip_line(unavailable_reason() or ''))
+    if experts:
+        from cvj_ros.bench_expert import expert_cfunc, skip_line
+        try:
+            expert_cfunc()
+        except Exception as exc:   # an optional baseline never stops the bench (numba/numbalsoda mismatch)
+            first = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+            log(skip_line(f'numbalsoda is installed but its cfunc did not compile ({first})',
+                          install_hint=False))
+            experts = ()
     # loop figures first (seconds), so partial reports of a long run carry them
     rt = measure_rclpy_round_trip(cfg.round_trip_n)
     lock_names = list(cfg.lockstep_scenes) if cfg.lockstep_scenes is not None else []

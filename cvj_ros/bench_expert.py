@@ -78,10 +78,12 @@ def quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
-def skip_line(reason: str) -> str:
-    """The one line the bench prints when the family is skipped."""
-    return (f'[bench] baseline_expert skipped: {reason}; `make bench` installs it '
-            f'(pip install -r requirements-bench.txt: builds from source, needs gfortran and cmake)')
+def skip_line(reason: str, *, install_hint: bool = True) -> str:
+    """The one line the bench prints when the family is skipped (with how to install
+    numbalsoda when it is missing)."""
+    hint = ('; `make bench` installs it (pip install -r requirements-bench.txt: builds from '
+            'source, needs gfortran and cmake)') if install_hint else ''
+    return f'[bench] baseline_expert skipped: {reason}{hint}'
 
 
 @functools.lru_cache(maxsize=1)

@@ -165,3 +165,18 @@ def test_quiet_stdout_drops_buffered_c_output(capfd: pytest.CaptureFixture[str])
         libc.printf(b'more than nmax = 250 steps are needed\n')
     libc.fflush(None)
     assert 'nmax' not in capfd.readouterr().out
+
+
+def test_a_cfunc_that_does_not_compile_skips_the_family_with_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip('numbalsoda')
+
+    def broken() -> None:
+        raise RuntimeError('typing failed\nsecond line')
+    monkeypatch.setattr(bench_expert, 'expert_cfunc', broken)
+    lines: list[str] = []
+    res = bench.run_bench(_cfg(tolerances=(1e-4,)), tmp_path, log=lines.append)
+    assert [ln for ln in lines if 'skipped' in ln] == [
+        '[bench] baseline_expert skipped: numbalsoda is installed but its cfunc did not compile '
+        '(typing failed)']
+    assert not [r for r in res['rows'] if r['family'] == 'baseline_expert']

@@ -33,6 +33,7 @@ loop's overhead per exchange with the measured rclpy round trips, in one process
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import math
@@ -87,6 +88,8 @@ class BenchConfig:
     studies: bool = False                # run `pytest -m slow` and append its summary
     startup: bool = False                # time the kernel's cold compile and a warm simulate
     compiled_baselines: bool = True      # also solve_ivp over the compiled rhs (expert baseline)
+    expert_methods: Sequence[str] = ('lsoda', 'dop853')   # numbalsoda on the compiled rhs ('baseline_expert';
+                                         # skipped with one line when numbalsoda is not installed)
 
     @classmethod
     def quick(cls) -> BenchConfig:
@@ -375,6 +378,45 @@ def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
     return out
 
 
+HAND_WRITTEN = ('hooke_2dof', 'stiff')
+
+
+def hand_written_rhs_cost(model_name: str = 'hooke_2dof', *, calls: int = 200_000,
+                          rounds: int = 5) -> dict[str, float]:
+    """ns per call of the kernel's rhs on ``model_name`` (:data:`HAND_WRITTEN`:
+    :func:`hooke_2dof_scene` or the shipped stiff scene) and of the same equations written
+    by hand (:mod:`cvj_ros.bench_handrhs`), both from the same compiled loop over 16 states
+    (:func:`cvj_ros.bench_handrhs.timing_states`), timed in alternating rounds (this machine
+    is shared: each round's pair shares its moment); medians, min and max over the rounds,
+    and the median of the per-round ratios."""
+    from cvj_ros import bench_handrhs as hw
+    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.simulate import Simulation
+    if model_name == 'hooke_2dof':
+        scene, params, timer = hooke_2dof_scene(), hw.hooke_2dof_params, hw.time_hooke_2dof_calls
+    elif model_name == 'stiff':
+        scene, params, timer = resolve_scene('stiff'), hw.stiff_params, hw.time_stiff_calls
+    else:
+        raise ValueError(f'no hand-written rhs for {model_name!r} (have {", ".join(HAND_WRITTEN)})')
+    sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+    ys = hw.timing_states(model.x0)
+    p = params(scene)
+    hw.time_kernel_calls(10, 0.0, ys, model.ip, model.fp)
+    timer(10, 0.0, ys, p)
+    kern, hand = [], []
+    for _ in range(max(1, rounds)):
+        t0 = time.perf_counter()
+        hw.time_kernel_calls(calls, 0.001, ys, model.ip, model.fp)
+        kern.append((time.perf_counter() - t0) / calls * 1e9)
+        t0 = time.perf_counter()
+        timer(calls, 0.001, ys, p)
+        hand.append((time.perf_counter() - t0) / calls * 1e9)
+    return {'kernel_ns': float(np.median(kern)), 'kernel_ns_min': min(kern), 'kernel_ns_max': max(kern),
+            'hand_ns': float(np.median(hand)), 'hand_ns_min': min(hand), 'hand_ns_max': max(hand),
+            'ratio': float(np.median(np.array(kern) / np.array(hand))), 'rounds': len(kern)}
+
+
 def _rhs_cost_or_note(scene: Any) -> dict[str, Any]:
     """:func:`rhs_cost`, or ``{'note': why}`` when the kernel cannot build the scene."""
     try:
@@ -430,6 +472,48 @@ def _last_shaft(dl: Any, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([dl.load_state(x)[1] for x in states]), np.array([dl.load_state(x)[0] for x in states])
 
 
+def run_expert(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig,
+               restart: bool = False) -> dict[str, Any]:
+    """Time the expert baseline (family 'baseline_expert', :mod:`cvj_ros.bench_expert`):
+    numbalsoda ``method`` ('lsoda' or 'dop853') on the compiled rhs (kernel/rhs_nb.rhs,
+    engine and load inside, exact fidelity) through one cfunc, one call over the horizon
+    with ``t_eval`` = the sample grid, rtol = atol = tol; ``restart``: one call per segment
+    between the load's breakpoints (what an expert does at a piecewise load's knots)."""
+    from cvj_ros import bench_expert as ex
+    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.simulate import Simulation
+    row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'baseline_expert', 'solver': method,
+                           'fidelity': 'exact', 'tol': tol, 'h': None, 'breakpoints': restart,
+                           'label': f'numbalsoda {method}' + (' restart-at-breaks' if restart else '')}
+    try:
+        sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
+        dl = sim.driveline
+        model = build_model(dl, engine=sim.engine, load=sim.load,
+                            horizon=max(prob.horizon, float(prob.scene.duration)))
+        address = ex.expert_cfunc().address   # compiled or loaded outside the timing
+        x0 = np.ascontiguousarray(dl.x0, dtype=float)
+        data = ex.expert_data(model.ip, model.fp, x0.size)
+        breaks = np.asarray(sim.breakpoints(prob.horizon), dtype=float) if restart else None
+        ex.solve_expert(method, address, x0, np.array([0.0, 1e-6]), data, rtol=tol, atol=tol,
+                        breaks=breaks)   # numbalsoda and the segment loop compiled outside the timing
+    except (CvjError, NotImplementedError, ValueError) as exc:
+        return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
+    ip, fp = model.ip, model.fp   # kept alive: data holds their addresses
+    t_eval = np.ascontiguousarray(prob.t_eval, dtype=float)
+    max_steps = max(1, cfg.max_rhs_evals // (12 if method == 'dop853' else 2))
+
+    def once() -> tuple[Any, int, int]:
+        _alive = (ip, fp)   # noqa: F841
+        sol, nfev, ok = ex.solve_expert(method, address, x0, t_eval, data, rtol=tol, atol=tol,
+                                        breaks=breaks, max_steps=max_steps)
+        if nfev > cfg.max_rhs_evals:
+            raise _BudgetExceeded
+        if not ok:
+            raise CvjError(f'numbalsoda {method}: integration failed (step limit or step size)')
+        return sol, nfev, 0
+    return _finish(row, prob, once, cfg, output=lambda sol: _last_shaft(dl, sol))
+
+
 def _finish(row: dict[str, Any], prob: SceneProblem, once: Callable[[], tuple[Any, int, int]],
             cfg: BenchConfig, *, output: Callable[[Any], tuple[np.ndarray, np.ndarray]] = None) -> dict[str, Any]:
     try:
@@ -467,16 +551,19 @@ def pareto_front(rows: Sequence[dict[str, Any]], *, error_key: str = 'err_speed_
 
 def best_at_levels(rows: Sequence[dict[str, Any]], *, levels: Sequence[float] = ERROR_LEVELS,
                    error_key: str = 'err_speed_rel') -> list[dict[str, Any]]:
-    """Per error level: the cheapest project row and the cheapest baseline row reaching it."""
+    """Per error level: the cheapest project row and the cheapest row of each baseline
+    family reaching it, and the speedups (baseline cost / project cost)."""
     out = []
     for lv in levels:
         entry: dict[str, Any] = {'level': lv}
-        for fam in ('project', 'baseline', 'baseline_compiled'):
+        for fam in ('project', 'baseline', 'baseline_compiled', 'baseline_expert'):
             cand = [r for r in rows if r.get('ok') and r['family'] == fam and r[error_key] <= lv]
             entry[fam] = min(cand, key=lambda r: r['wall_per_sim_s']) if cand else None
         p, b, bc = entry['project'], entry['baseline'], entry['baseline_compiled']
         entry['speedup'] = b['wall_per_sim_s'] / p['wall_per_sim_s'] if p and b else None
         entry['speedup_compiled'] = bc['wall_per_sim_s'] / p['wall_per_sim_s'] if p and bc else None
+        be = entry['baseline_expert']
+        entry['speedup_expert'] = be['wall_per_sim_s'] / p['wall_per_sim_s'] if p and be else None
         out.append(entry)
     return out
 
@@ -719,14 +806,33 @@ def planned_runs(cfg: BenchConfig) -> int:
     fixed = sum(len(cfg.rk4_steps) for s in cfg.solvers if s in ('rk4', 'ros2'))
     adaptive = sum(len(cfg.tolerances) for s in cfg.solvers if s not in ('rk4', 'ros2'))
     families = 2 if cfg.compiled_baselines else 1
+    experts = len(expert_methods_run(cfg))
     total = 0
     for scene in cfg.scenes:
         # adaptive runs: landing on the samples (and, on a load with breakpoints, once more
         # stepping across them) and dense sampling
         variants = 3 if _may_have_breakpoints(scene) else 2
         total += (len(cfg.fidelities) * (fixed + variants * adaptive)
-                  + families * len(cfg.baselines) * len(cfg.tolerances))
+                  + families * len(cfg.baselines) * len(cfg.tolerances)
+                  + experts * (variants - 1) * len(cfg.tolerances))
     return total
+
+
+def expert_methods_run(cfg: BenchConfig) -> tuple[str, ...]:
+    """The numbalsoda methods the run times: ``cfg.expert_methods``, or none when numbalsoda
+    is not importable (:func:`cvj_ros.bench_expert.unavailable_reason`)."""
+    if not cfg.expert_methods:
+        return ()
+    from cvj_ros.bench_expert import unavailable_reason
+    return () if unavailable_reason() else tuple(cfg.expert_methods)
+
+
+def _quiet_if(on: bool) -> Any:
+    """:func:`cvj_ros.bench_expert.quiet_stdout` when ``on`` (numbalsoda runs), else a no-op."""
+    if not on:
+        return contextlib.nullcontext()
+    from cvj_ros.bench_expert import quiet_stdout
+    return quiet_stdout()
 
 
 def _may_have_breakpoints(scene: Any) -> bool:
@@ -758,6 +864,19 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     rows: list[dict[str, Any]] = []
     lock_rows: list[dict[str, Any]] = []
     problems: dict[str, SceneProblem] = {}
+    experts = expert_methods_run(cfg)
+    if cfg.expert_methods and not experts:
+        from cvj_ros.bench_expert import skip_line, unavailable_reason
+        log(skip_line(unavailable_reason() or ''))
+    if experts:
+        from cvj_ros.bench_expert import expert_cfunc, skip_line
+        try:
+            expert_cfunc()
+        except Exception as exc:   # an optional baseline never stops the bench (numba/numbalsoda mismatch)
+            first = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+            log(skip_line(f'numbalsoda is installed but its cfunc did not compile ({first})',
+                          install_hint=False))
+            experts = ()
     # loop figures first (seconds), so partial reports of a long run carry them
     rt = measure_rclpy_round_trip(cfg.round_trip_n)
     lock_names = list(cfg.lockstep_scenes) if cfg.lockstep_scenes is not None else []
@@ -806,7 +925,14 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     rows.append(run_baseline(prob, method=method, tol=tol, cfg=cfg, compiled=compiled))
                     if progress is not None:
                         progress(len(rows))
-        retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
+        with _quiet_if(bool(experts)):
+            for method in experts:
+                for tol in cfg.tolerances:
+                    for restart in ((False, True) if prob.has_breakpoints else (False,)):
+                        rows.append(run_expert(prob, method=method, tol=tol, cfg=cfg, restart=restart))
+                        if progress is not None:
+                            progress(len(rows))
+            retime_passes([r for r in rows if r['scene'] == scene.name], cfg, horizon=prob.horizon)
         prob.rhs_cost = _rhs_cost_or_note(scene)
         log(f'[bench] {scene.name}: {sum(1 for r in rows if r["scene"] == scene.name)} runs')
         if scene.name in lock_names and not scene.is_tree:   # the lockstep loop carries chains
@@ -815,6 +941,8 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
     rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
+    if 'compiled_ns' in rhs_reference:
+        rhs_reference['hand'] = {name: hand_written_rhs_cost(name) for name in HAND_WRITTEN}
     studies = run_studies() if cfg.studies else None
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
@@ -887,6 +1015,9 @@ def _config_label(r: dict[str, Any] | None) -> str:
     if r is None:
         return '-'
     knob = f'h={_g(r["h"])}' if r.get('h') else f'tol={_g(r["tol"], ".0e")}'
+    if r['family'] == 'baseline_expert':
+        restart = r.get('breakpoints') in (True, 'True')
+        return f'numbalsoda {r["solver"]} {knob}' + (' restart-at-breaks' if restart else '')
     if r['family'] != 'project':
         return f'{r["solver"]} {knob}'
     return f'{r["solver"]} {r["fidelity"]} {knob}{_run_kind(r)}'
@@ -980,21 +1111,27 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
           f'{cfg.repeats} repeat(s) over {cfg.passes} pass(es) of each scene (min taken), reference dop853 rtol = atol = {ref_tol:g}, exact fidelity.', '',
           '## Machine', '']
     md += [f'- {k}: {v}' for k, v in machine_description().items()]
+    if cfg.expert_methods and not expert_methods_run(cfg):
+        from cvj_ros.bench_expert import skip_line, unavailable_reason
+        md += ['', skip_line(unavailable_reason() or '').removeprefix('[bench] ')]
     for name, prob in problems.items():
         srows = [r for r in rows if r['scene'] == name]
         md += ['', f'## {name}', '',
                f'Horizon {prob.horizon:g} s; reference took {prob.ref_wall:.2f} s. '
                f'Error = max relative error of the output-shaft speed; cost = wall s per simulated s.', '',
                '| error level | best project config | cost | best solve_ivp (Python rhs) | cost | speedup '
-               '| best solve_ivp (compiled rhs) | cost | speedup |',
-               '| --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+               '| best solve_ivp (compiled rhs) | cost | speedup | best numbalsoda (compiled rhs) | cost '
+               '| speedup |',
+               '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for e in best_at_levels(srows):
-            pr, bl, bc = e['project'], e['baseline'], e['baseline_compiled']
+            pr, bl, bc, be = e['project'], e['baseline'], e['baseline_compiled'], e['baseline_expert']
             md.append(f'| {e["level"]:.0e} | {_config_label(pr)} | {_g(pr and pr["wall_per_sim_s"])} | '
                       f'{_config_label(bl)} | {_g(bl and bl["wall_per_sim_s"])} | '
                       f'{_g(e["speedup"], ".2f") + "x" if e["speedup"] else "-"} | '
                       f'{_config_label(bc)} | {_g(bc and bc["wall_per_sim_s"])} | '
-                      f'{_g(e["speedup_compiled"], ".2f") + "x" if e["speedup_compiled"] else "-"} |')
+                      f'{_g(e["speedup_compiled"], ".2f") + "x" if e["speedup_compiled"] else "-"} | '
+                      f'{_config_label(be)} | {_g(be and be["wall_per_sim_s"])} | '
+                      f'{_g(e["speedup_expert"], ".2f") + "x" if e["speedup_expert"] else "-"} |')
         rc = getattr(prob, 'rhs_cost', None) or {}
         if 'compiled_ns' in rc:
             md += ['', 'Right-hand side (exact fidelity, engine and load inside): ' + _rhs_cost_text(rc)]
@@ -1048,6 +1185,13 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
             md.append('2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
                       'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): '
                       + _rhs_cost_text(rhs_reference))
+            for name, hand in (rhs_reference.get('hand') or {}).items():
+                md.append(f'- {name}, the same equations written by hand (`cvj_ros.bench_handrhs`, no '
+                          f'section walk): {hand["hand_ns"]:.1f} ns per call against the kernel '
+                          f'rhs\'s {hand["kernel_ns"]:.1f} ns (medians of {hand["rounds"]} alternating '
+                          f'rounds, ranges {hand["hand_ns_min"]:.1f}-{hand["hand_ns_max"]:.1f} and '
+                          f'{hand["kernel_ns_min"]:.1f}-{hand["kernel_ns_max"]:.1f} ns): the kernel '
+                          f'is {hand["ratio"]:.2f}x the hand-written rhs (aim within 1.5x).')
         else:
             md.append(f'Not measured ({rhs_reference.get("note", "")}).')
     if startup is not None:

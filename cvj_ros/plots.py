@@ -794,7 +794,8 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     configuration family (solver, fidelity, sampling variant) over its tolerances or steps.
     Colour = method, marker = fidelity, line = variant (project: landing on the samples
     solid, across the load's breakpoints dotted and hollow, dense sampling dash-dot;
-    solve_ivp: Python rhs dashed with squares, compiled rhs solid with squares). The key
+    solve_ivp: Python rhs dashed with squares, compiled rhs solid with squares; numbalsoda on
+    the compiled rhs: triangles, solid, dotted when restarted at the load's knots). The key
     names each of the three once, outside the axes, instead of one entry per line (a full
     run draws ~50 lines)."""
     from matplotlib.lines import Line2D
@@ -815,15 +816,22 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             return 'solve_ivp, Python rhs'
         if fam == 'baseline_compiled':
             return 'solve_ivp, compiled rhs'
+        if fam == 'baseline_expert':
+            restart = r.get('breakpoints') in (True, 'True')
+            return 'numbalsoda, restart at knots' if restart else 'numbalsoda, compiled rhs'
         if r.get('breakpoints', True) in (False, 'False'):
             return 'project, across breakpoints'
         return 'project, dense sampling' if r.get('sampling') == 'dense' else 'project, landing'
 
     lines = {'project, landing': '-', 'project, across breakpoints': ':',
              'project, dense sampling': '-.', 'solve_ivp, Python rhs': '--',
-             'solve_ivp, compiled rhs': '-'}
+             'solve_ivp, compiled rhs': '-', 'numbalsoda, compiled rhs': '-',
+             'numbalsoda, restart at knots': ':'}
+
+    def method(r: dict[str, Any]) -> str:
+        return f'numbalsoda {r["solver"]}' if r.get('family') == 'baseline_expert' else r['solver']
     markers = {'exact': 'o', 'auto': '*', 'closed': 'D', 'ideal': 'v'}
-    methods = sorted({rs[0]['solver'] for rs in groups.values()},
+    methods = sorted({method(rs[0]) for rs in groups.values()},
                      key=lambda m: (m[:1].isupper(), m))   # project methods, then solve_ivp's
     colors = {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(methods)}
     used_variants: list[str] = []
@@ -838,16 +846,17 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             # connect in order of the knob (tolerance, or fixed step for rk4): loose -> tight
             rs = sorted(rs, key=lambda r: -(r.get('tol') or r.get('h') or 0.0))
             v = variant(rs[0])
-            base = v.startswith('solve_ivp')
+            base = v.startswith(('solve_ivp', 'numbalsoda'))
             fid = 'baseline' if base else rs[0].get('fidelity', 'exact')
             used_variants += [v] if v not in used_variants else []
             used_fids += [fid] if not base and fid not in used_fids else []
             strong = base or fid in ('exact', 'auto') or not has_exact
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls=lines[v], marker='s' if base else markers.get(fid, 'o'),
+                      ls=lines[v], marker=('^' if v.startswith('numbalsoda') else 's') if base
+                      else markers.get(fid, 'o'),
                       mfc='none' if v == 'project, across breakpoints' else None,
                       ms=9 if fid == 'auto' else 5, lw=1.8 if base else 1.4,
-                      color=colors[rs[0]['solver']], alpha=0.95 if strong else 0.5)
+                      color=colors[method(rs[0])], alpha=0.95 if strong else 0.5)
         for lv in (1e-3, 1e-8):
             ax.axvline(lv, color='0.6', lw=0.8, ls=':')
         ax.set_xlabel('max relative error of output speed  [-]' if error_key == 'err_speed_rel'
@@ -864,6 +873,8 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         key += [Line2D([], [], ls='none', marker=markers[f], color='0.3', ms=9 if f == 'auto' else 6,
                        label=f) for f in ('exact', 'auto', 'closed', 'ideal') if f in used_fids]
         key += [Line2D([], [], ls='none', marker='s', color='0.3', ms=6, label='solve_ivp')]
+        if any(v.startswith('numbalsoda') for v in used_variants):
+            key += [Line2D([], [], ls='none', marker='^', color='0.3', ms=6, label='numbalsoda')]
         key += [Line2D([], [], ls='none', label=''), Line2D([], [], ls='none', label='line: run')]
         key += [Line2D([], [], ls=lines[v], color='0.3', lw=1.6,
                        marker='o' if 'across' in v else None,

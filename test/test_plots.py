@@ -520,3 +520,30 @@ def test_two_wheels_draw_their_own_torques_not_the_summed_load_as_one_wheels() -
     finally:
         for f in figs:
             plt.close(f)
+
+
+def test_work_precision_draws_the_numbalsoda_family_apart(tmp_path, monkeypatch) -> None:
+    """baseline_expert rows (numbalsoda on the compiled rhs) get their own colour per method
+    (not the project's dop853), triangles, and their two kinds of run in the key."""
+    from cvj_ros import plots
+    kept = []
+    monkeypatch.setattr(plots.plt, 'close', kept.append)
+    rows = []
+    for solver, fam, breaks in (('dop853', 'project', True), ('dop853', 'baseline_expert', False),
+                                ('dop853', 'baseline_expert', True)):
+        label = f'{solver} {fam} {breaks}'
+        for k, tol in enumerate((1e-3, 1e-6)):
+            rows.append({'scene': 's', 'family': fam, 'solver': solver, 'fidelity': 'exact', 'tol': tol,
+                         'h': None, 'breakpoints': breaks, 'sampling': 'land', 'label': label,
+                         'err_speed_rel': tol * (2 + k), 'wall_per_sim_s': 1e-3 / tol ** 0.1})
+    plots.work_precision_plot(rows, scene='s', path=tmp_path / 'wp.png')
+    (fig,) = kept
+    ax = fig.axes[0]
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    for want in ('dop853', 'numbalsoda dop853', 'numbalsoda', 'numbalsoda, compiled rhs',
+                 'numbalsoda, restart at knots', 'project, landing'):
+        assert texts.count(want) == 1, (want, texts)
+    series = ax.get_lines()[:3]
+    assert sorted(ln.get_marker() for ln in series) == ['^', '^', 'o']
+    colours = {ln.get_marker() + str(ln.get_linestyle()): ln.get_color() for ln in series}
+    assert len(set(colours.values())) == 2

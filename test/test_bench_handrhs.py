@@ -1,0 +1,89 @@
+"""The hand-written rhs of the bench's 2-DOF Hooke model and of the stiff scene are the
+kernel's rhs, bit for bit (so the ns-per-call ratio compares the same arithmetic), and their
+timing entries are well formed."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cvj_ros import bench
+import pytest
+
+from cvj_ros.bench_handrhs import (hooke_2dof_params, hooke_2dof_rhs, stiff_params, stiff_rhs,
+                                  time_hooke_2dof_calls, time_stiff_calls)
+from cvj_ros.physics.kernel.layout import build_model
+from cvj_ros.physics.kernel.rhs_nb import rhs
+from cvj_ros.physics.simulate import Simulation
+
+
+def test_hand_written_rhs_equals_the_kernel_rhs_and_the_closed_form() -> None:
+    scene = bench.hooke_2dof_scene()
+    sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+    p = hooke_2dof_params(scene)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        y = model.x0 + rng.normal(scale=2.0, size=model.x0.size)
+        want, got = np.empty_like(y), np.empty_like(y)
+        rhs(0.01, y, model.ip, model.fp, want)
+        hooke_2dof_rhs(0.01, y, p, got)
+        assert np.array_equal(got, want)
+    # at q1 = 0 the Hooke ratio is 1/cos(beta) and its slope 0 (closed form): w1' by hand
+    y = np.array([0.3, 0.0, 100.0, 99.0] + [0.0] * (model.x0.size - 4))
+    cb = math.cos(math.radians(20.0))
+    ts = 1000.0 * 0.3 + 1.0 * 1.0
+    r = 1.0 / cb
+    got = np.empty_like(y)
+    hooke_2dof_rhs(0.0, y, p, got)
+    assert math.isclose(got[3], (ts - 20.0 * r) / (0.2 * r * r), rel_tol=1e-14)
+    assert math.isclose(got[2], (100.0 - 0.5 * 100.0 - ts) / 0.1, rel_tol=1e-14)
+    assert math.isfinite(time_hooke_2dof_calls(100, 0.0, y[None, :], p))
+
+
+def test_hand_written_stiff_rhs_equals_the_kernel_rhs_and_the_closed_form() -> None:
+    scene = bench.resolve_scene('stiff')
+    sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+    p = stiff_params(scene)
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        y = model.x0 + rng.normal(scale=2.0, size=model.x0.size)
+        want, got = np.empty_like(y), np.empty_like(y)
+        rhs(0.01, y, model.ip, model.fp, want)
+        stiff_rhs(0.01, y, p, got)
+        assert np.array_equal(got, want)
+    # closed form at a 1 mrad twist: T = 1e6 x 1e-3 + 10 x 0.5 = 1005 N m
+    y = np.array([1e-3, 0.0, 100.5, 100.0] + [0.0] * (model.x0.size - 4))
+    got = np.empty_like(y)
+    stiff_rhs(0.0, y, p, got)
+    assert math.isclose(got[3], (1005.0 - 10.0) / 0.01, rel_tol=1e-14)
+    assert math.isclose(got[2], (50.0 - 0.4 * 100.5 - 1005.0) / 0.01, rel_tol=1e-14)
+    assert math.isfinite(time_stiff_calls(100, 0.0, y[None, :], p))
+
+
+@pytest.mark.parametrize('name', bench.HAND_WRITTEN)
+def test_hand_written_cost_entry(name: str) -> None:
+    out = bench.hand_written_rhs_cost(name, calls=2000, rounds=3)
+    assert out['rounds'] == 3
+    assert 0 < out['hand_ns_min'] <= out['hand_ns'] <= out['hand_ns_max']
+    assert 0 < out['kernel_ns_min'] <= out['kernel_ns'] <= out['kernel_ns_max']
+    assert out['ratio'] > 0
+
+
+def test_hand_written_cost_names_its_models() -> None:
+    with pytest.raises(ValueError, match='no hand-written rhs'):
+        bench.hand_written_rhs_cost('kavz685_lever', calls=10, rounds=1)
+
+
+def test_timing_loops_compute_the_same_sums() -> None:
+    """The kernel's and the hand-written loop return the same checksum over the same cycled
+    states (the same arithmetic is timed), and the states differ from row to row."""
+    from cvj_ros.bench_handrhs import time_kernel_calls, timing_states
+    for scene, params, timer in ((bench.hooke_2dof_scene(), hooke_2dof_params, time_hooke_2dof_calls),
+                                 (bench.resolve_scene('stiff'), stiff_params, time_stiff_calls)):
+        sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
+        model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+        ys = timing_states(model.x0)
+        assert ys.shape == (16, model.x0.size) and np.unique(ys[:, 0]).size == 16
+        assert time_kernel_calls(1000, 0.001, ys, model.ip, model.fp) == timer(1000, 0.001, ys, params(scene))

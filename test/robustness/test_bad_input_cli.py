@@ -357,4 +357,4 @@ def test_unwritable_out_names_out(tmp_path: Path, capsys: pytest.CaptureFixture[
         out = tmp_path / 'plain_file' / 'run'
     code = cli_main(['run', str(path), '--out', str(out)])
     msg = assert_one_error_line(code, *capsys.readouterr(), '--out')
-    assert msg.startswith(f'{out}: cannot write the run directory: '), msg
+    assert msg.startswith(f'cannot write to {out}: '), msg

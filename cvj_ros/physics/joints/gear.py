@@ -61,4 +61,4 @@ def _factory(*, fidelity: str = 'exact', gear_ratio: float = 1.0, **extra: float
 
 register(JointSpec(kind='gear', factory=_factory, fidelities=('exact',),
                    params={'gear_ratio': '-, omega_in/omega_out, nonzero (negative reverses), default 1'},
-                   source='constant ratio, power balance (DESIGN.md section 4)'))
+                   source='constant ratio, power balance'))

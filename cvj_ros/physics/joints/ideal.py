@@ -46,4 +46,4 @@ def _factory(*, fidelity: str = 'ideal', **_geometry: float) -> IdealCV:
 
 
 register(JointSpec(kind='ideal_cv', factory=_factory, fidelities=('ideal',), params={},
-                   source='DESIGN.md section 4 (cheapest fidelity)'))
+                   source='ideal constant-velocity joint, phi_out = phi_in (cheapest fidelity)'))

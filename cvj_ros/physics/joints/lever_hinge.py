@@ -261,4 +261,4 @@ register(JointSpec(
             'twist': 'rad, driven earring twist from the hinge bushing, asin(D2/l_c2) (Davidbaev et al. 2023 '
                      'eq. 3.13) = T/c_y; leave 0 when the series spring c_y is modelled, default 0'},
     source='Davidbaev et al. 2023, ch. 3 (eqs. 3.2, 3.13; geometry figs. 2.1, 3.1, 3.5); transfer function '
-           'derived in lever_hinge.py (eqs. 3.14/3.16 garbled, DESIGN.md section 5)'))
+           'derived in lever_hinge.py (eqs. 3.14/3.16 garbled, see README "Errors in the source documents")'))

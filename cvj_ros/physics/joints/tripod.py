@@ -38,7 +38,7 @@ With a fixed arm length the system would be overdetermined (9 conditions, 6 unkn
 Fidelities
 ----------
 * ``ideal``: phi_out = phi_in.
-* ``closed`` (Bugaru & Vasile 2021, eq. 19, Xiu et al. 2024, eq. 18, corrected per DESIGN.md section 5):
+* ``closed`` (Bugaru & Vasile 2021, eq. 19, Xiu et al. 2024, eq. 18, corrected: README "Errors in the source documents"):
   ``phi_out = phi_in - A sin(3 phi_in)``, ``A = (r / 2 l) tan(beta) tan^2(beta/2)``;
   ratio ``1 - 3 A cos(3 phi_in)``, slope ``9 A sin(3 phi_in)`` (differentiated here;
   Xiu et al. 2024, eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the
@@ -697,4 +697,4 @@ register(JointSpec(
             'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (Xiu et al. 2024)',
             'spider_mass': 'kg, spider (+ lumped shaft) mass orbiting at 3x speed (reactions, exact '
                            'fidelity), default 0 (Xiu et al. 2024 neglects it)'},
-    source='Bugaru & Vasile 2021, eq. 19; Xiu et al. 2024, eqs. 1-18, 20-34 (errata DESIGN.md section 5); exact: own geometry'))
+    source='Bugaru & Vasile 2021, eq. 19; Xiu et al. 2024, eqs. 1-18, 20-34 (with the errata listed in README "Errors in the source documents"); exact: own geometry'))

@@ -4,7 +4,7 @@ whose engine and load torques arrive only at exchange points t_k.
 The coupling node integrates every inertia and spring itself; the torque sources
 (engine node, load node) answer once per exchange step H with T_k = T(t_k,
 omega_k, phi_k) and optionally their slope K = dT/domega. Between exchanges the
-torque must be *modelled*; the schemes (DESIGN.md section 3):
+torque must be *modelled*; the schemes:
 
 ``zoh``
     T(t) = T_k, held over [t_k, t_k + H]. First order in H. It is an explicit

@@ -329,7 +329,7 @@ class Hooke:
 
 
 def hooke_ratio(phi_in: ArrayLike, beta: float) -> np.ndarray:
-    """Closed-form velocity ratio cos b / (1 - sin^2 b cos^2 phi) (-) (DESIGN.md section 4)."""
+    """Closed-form velocity ratio cos b / (1 - sin^2 b cos^2 phi) (-)."""
     phi = np.asarray(phi_in, dtype=float)
     return math.cos(beta) / (1.0 - math.sin(beta) ** 2 * np.cos(phi) ** 2)
 

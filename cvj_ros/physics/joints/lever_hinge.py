@@ -37,7 +37,7 @@ half is built the same way with its own angle a2 and angle phi_out. Closure p . 
   kinematic use may pass the static twist for a torque via :func:`twist_for_torque`.
 
 Small-deformation transfer function (derived here; Davidbaev et al. 2023, eqs. 3.14/3.16 are garbled,
-DESIGN.md section 5). Write phi_out = G(c + twist, alpha + delta_alpha) with
+README "Errors in the source documents"). Write phi_out = G(c + twist, alpha + delta_alpha) with
 G(c, a) = atan(cos a tan c) and c = H(phi_in) its inverse at a = alpha. To first order:
 
     dG/dc  = 1 / H'(phi_in) = (1 - sin^2(alpha) cos^2(phi_in)) / cos(alpha)
@@ -71,7 +71,7 @@ from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, c
 
 FloatArray = NDArray[np.float64]
 
-# KAVZ-685 machine unit (Davidbaev et al. 2023, section 3.3, parameter list; DESIGN.md section 6)
+# KAVZ-685 machine unit (Davidbaev et al. 2023, section 3.3, parameter list)
 KAVZ685_ALPHA = math.radians(15.0)      # rad, shaft divergence angle of the reference scene
 KAVZ685_C_Y = 715.4                     # N m/rad, torsional stiffness of the elastic elements
 KAVZ685_B_Y = 6.35                      # N m s/rad, their damping

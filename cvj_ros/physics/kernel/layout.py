@@ -1,4 +1,4 @@
-"""Scene -> data for the compiled kernel (issue 9). Pure Python, no numba import.
+"""Scene -> data for the compiled kernel. Pure Python, no numba import.
 
 A :class:`~cvj_ros.physics.driveline.Driveline` plus its torque sources become two flat
 arrays that ``kernel/rhs_nb.py`` interprets: ``ip`` (int64 codes and offsets) and ``fp``

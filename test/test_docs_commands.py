@@ -1,5 +1,5 @@
 """Every `cvj-sim ...` command line and every `make <target>` shown in README.md and docs/*.md
-agrees with the program: the subcommand exists, its flags exist, a complete command line
+(and every example in a subcommand's ``--help``) agrees with the program: the subcommand exists, its flags exist, a complete command line
 parses with the real argparse parser (choices and types included), a scene named on it is a
 shipped scene (``cvj-sim scenes``), and the make target is in the Makefile. Nothing is run.
 
@@ -65,6 +65,24 @@ def _doc_snippets() -> list[tuple[str, str, bool]]:
     return out
 
 
+def _help_snippets() -> list[tuple[str, str, bool]]:
+    """The example lines of every subcommand's ``--help`` text (its DESCRIPTION), as code."""
+    import importlib
+    from cvj_ros.commands import COMMANDS as NAMES
+    out: list[tuple[str, str, bool]] = []
+    for name in NAMES:
+        text = getattr(importlib.import_module(f'cvj_ros.commands.{name}'), 'DESCRIPTION', '')
+        pending = ''
+        for line in text.splitlines():
+            line = (pending + ' ' + line.strip()).strip() if pending else line.strip()
+            if line.endswith('\\'):
+                pending = line[:-1].strip()
+                continue
+            pending = ''
+            out.append((f'cvj-sim {name} --help', line, False))
+    return out
+
+
 def _shell_cut(text: str) -> str:
     """The command without a trailing comment, pipe, redirection or command list."""
     text = re.split(r'\s#', text, maxsplit=1)[0]
@@ -74,7 +92,8 @@ def _shell_cut(text: str) -> str:
 
 def _cvj_commands() -> list[tuple[str, str, bool]]:
     cmds = []
-    for where, text, inline in _doc_snippets():
+    for where, text, inline in _doc_snippets() + _help_snippets():
+        text = re.sub(r'^(?:[A-Z_][A-Z0-9_]*=\S*\s+)+', '', text)   # ROS_DOMAIN_ID=42 cvj-sim ...
         if not text.startswith('cvj-sim '):
             continue
         words = text.split()

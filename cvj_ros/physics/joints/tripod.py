@@ -38,7 +38,7 @@ With a fixed arm length the system would be overdetermined (9 conditions, 6 unkn
 Fidelities
 ----------
 * ``ideal``: phi_out = phi_in.
-* ``closed`` (Bugaru & Vasile 2021, eq. 19, Xiu et al. 2024, eq. 18, corrected: README "Errors in the source documents"):
+* ``closed`` (Bugaru & Vasile 2021, eq. 19; Xiu et al. 2024, eq. 18, corrected: README "Errors in the source documents"):
   ``phi_out = phi_in - A sin(3 phi_in)``, ``A = (r / 2 l) tan(beta) tan^2(beta/2)``;
   ratio ``1 - 3 A cos(3 phi_in)``, slope ``9 A sin(3 phi_in)`` (differentiated here;
   Xiu et al. 2024, eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the

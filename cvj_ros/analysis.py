@@ -2,9 +2,9 @@
 
 Reads a rosbag2 bag (mcap or sqlite3) through ``rosbags`` and reports, per shaft of
 ``/driveline/joint_states``: mean speed, speed nonuniformity delta, amplitudes ((max - min)/2,
-seed 004 ch. 4) of speed, acceleration and torque, and the harmonics of the shaft torque over
-the shaft angle (seed 004 eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<joint>_output``)
-the geometric and kinematic nonuniformity (seed 002 eqs. 20-23); engine and load torque;
+Davidbaev et al. 2023, ch. 4) of speed, acceleration and torque, and the harmonics of the shaft torque over
+the shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<joint>_output``)
+the geometric and kinematic nonuniformity (Bugaru & Vasile 2021, eqs. 20-23); engine and load torque;
 energy residual and wait times found on ``/diagnostics``; and lockstep statistics.
 
 Steady window: :mod:`cvj_ros.physics.steady`, the one definition shared with ``cvj-sim
@@ -327,7 +327,7 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append(f"  {name:<20} mean {_fmt(h['mean'])} over {h['revolutions']} rev  {parts}")
     if report['joints']:
         lines.append('')
-        lines.append('joint nonuniformity (seed 002): geometric phi_out - phi_in (rad), '
+        lines.append('joint nonuniformity (Bugaru & Vasile 2021): geometric phi_out - phi_in (rad), '
                      'kinematic w_out/w_in - 1:')
         for name, j in report['joints'].items():
             ratio = '' if j['nominal_ratio'] == 1.0 else f" (ratio {_fmt(j['nominal_ratio'])})"

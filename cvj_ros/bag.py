@@ -5,7 +5,7 @@ storage ``mcap`` by default or ``sqlite3``); reading through
 ``rosbags.highlevel.AnyReader``, which opens both storages.
 
 Record timestamps (the bag's time axis) are simulated time, so a lockstep run gives
-the same bag twice (DESIGN.md section 3, docs/contracts.md "Topics and bags"):
+the same bag twice (docs/contracts.md "Topics and bags"):
 
 * ``/clock`` (rosgraph_msgs/Clock): its ``clock`` field;
 * stamped data (sensor_msgs/JointState, geometry_msgs/WrenchStamped): ``header.stamp``;
@@ -44,7 +44,7 @@ SCENE_TOPIC = '/driveline/scene'
 CLOCK_TOPIC = '/clock'
 JOINT_STATES_TOPIC = '/driveline/joint_states'
 
-# Topic contract (DESIGN.md section 2): topic -> rosbags message type name.
+# Topic contract: topic -> rosbags message type name.
 TOPIC_TYPES: dict[str, str] = {
     CLOCK_TOPIC: 'rosgraph_msgs/msg/Clock',
     JOINT_STATES_TOPIC: 'sensor_msgs/msg/JointState',

@@ -1,4 +1,4 @@
-"""Work-precision benchmark (`cvj-sim bench`, DESIGN.md section 7).
+"""Work-precision benchmark (`cvj-sim bench`).
 
 For each reference scene, each project solver (cvj_ros.physics.solvers via
 cvj_ros.physics.simulate.Simulation: dopri5, dop853, rosenbrock adaptive over tolerances;
@@ -334,7 +334,7 @@ def compiled_rhs_function(sim: Any, horizon: float) -> Callable[[float, np.ndarr
 
 
 def hooke_2dof_scene() -> Any:
-    """The model of issue 9's hand-written rhs figure (25 ns): a 2-DOF engine-spring-Hooke-
+    """The model of the hand-written reference rhs figure (25 ns): a 2-DOF engine-spring-Hooke-
     load driveline - linear engine, linear spring with damping, exact Hooke joint at 20 deg,
     constant load."""
     from cvj_ros.physics.scene import parse_scene
@@ -955,7 +955,7 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
 
 
 def kernel_startup(*, warm_runs: int = 3, timeout: float = 1800.0) -> dict[str, Any]:
-    """The kernel's start-up in fresh interpreters (issue 9): the cold compile of every
+    """The kernel's start-up in fresh interpreters: the cold compile of every
     method and the outputs (``python -m cvj_ros.physics.kernel.warmup`` with an empty
     NUMBA_CACHE_DIR; what the first ``make`` pays), and the whole command
     ``cvj-sim simulate kavz685_lever --duration 2`` on the warm cache (target <= 1.5 s),
@@ -1180,10 +1180,10 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
     if studies:
         md.append(f'- slow studies (`pytest -m slow`): {studies["summary"]}')
     if rhs_reference:
-        md += ['', "## Right-hand side of issue 9's hand-written model", '']
+        md += ['', "## Right-hand side of a hand-written 2-DOF model", '']
         if 'compiled_ns' in rhs_reference:
             md.append('2-DOF engine-spring-Hooke(exact)-load (`bench.hooke_2dof_scene`; the '
-                      'hand-written compiled rhs of issue 9: 25 ns, aim within 2x): '
+                      'reference: a hand-written compiled rhs at 25 ns, aim within 2x): '
                       + _rhs_cost_text(rhs_reference))
             for name, hand in (rhs_reference.get('hand') or {}).items():
                 md.append(f'- {name}, the same equations written by hand (`cvj_ros.bench_handrhs`, no '

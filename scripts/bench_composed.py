@@ -1,5 +1,5 @@
 """Real-time factor of `cvj-sim run` composed vs separate processes, and the overhead per
-exchange against the round trip of the same topology (issue 10; results in docs/nodes.md).
+exchange against the round trip of the same topology (results in docs/nodes.md).
 
 For each scene and mode, ``--runs`` runs of ``cvj-sim run SCENE --duration D
 --exchange-step H [--composed]`` (each in a fresh process, as a user starts it); from each

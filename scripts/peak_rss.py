@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Peak resident set size (RSS) of a command, e.g. one of the slow studies (issue 9 (c)).
+"""Peak resident set size (RSS) of a command, e.g. one of the slow studies.
 
 Usage: ``python scripts/peak_rss.py -- python -m pytest -q -p no:cacheprovider -m slow
 test/hard_cases/test_long_run_6000rpm.py``

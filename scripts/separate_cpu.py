@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """CPU per exchange step of every process and thread of a separate-process `cvj-sim run`
-(issue 10; results in docs/nodes.md, "Separate processes: where the CPU goes").
+(results in docs/nodes.md, "Separate processes: where the CPU goes").
 
 Runs ``cvj-sim run SCENE --duration D`` in this process (``cvj_ros.orchestrate.run``: engine,
 load and coupling nodes as their own processes, the recorder and the hosted monitor - a

@@ -14,9 +14,9 @@ Analyse a rosbag2 bag (mcap or sqlite3) recorded by `cvj-sim run`.
 
 Per shaft of /driveline/joint_states: mean speed, speed nonuniformity
 delta = (w_max - w_min)/w_mean, amplitudes (max - min)/2 of speed, acceleration and
-torque (seed 004 ch. 4), torque harmonics over shaft angle (seed 004 eqs. 4.1-4.3).
+torque (Davidbaev et al. 2023, ch. 4), torque harmonics over shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3).
 Per joint (<joint>_input/<joint>_output): geometric and kinematic nonuniformity
-(seed 002). Engine/load torque, energy residual and wait times from /diagnostics,
+(Bugaru & Vasile 2021). Engine/load torque, energy residual and wait times from /diagnostics,
 lockstep statistics. All over the steady window (the slices that agree with the last slice
 in mean speed and amplitudes, the same criterion as `cvj-sim run` and `simulate`; its
 verdict is printed), or from --skip seconds on.

@@ -1,6 +1,6 @@
 """Hand-written CDR encoders/decoders for the hot-path messages (JointState, WrenchStamped, Clock).
 
-Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import struct
@@ -274,7 +274,7 @@ class JointStateDecoder:
     def decode(self, data: bytes) -> Any:
         """A :class:`JointStateView` (or, for a non-little-endian sample, the rclpy message).
 
-        Fast path (issue 10): a sample whose frame_id and name sequence have the bytes of the
+        Fast path: a sample whose frame_id and name sequence have the bytes of the
         previous one is read with one slice comparison each and one precompiled unpack per
         array (13 shafts, load average ~4.7: 18 us -> ~6 us)."""
         last = JointStateDecoder._last

@@ -19,7 +19,7 @@ skips rclpy's Python-to-C conversion; the bytes decode to the same messages. The
 and the reaction wrenches come from :mod:`cvj_ros.physics.state_outputs`: compiled when the
 stepper runs the kernel (a few us per exchange), else the Python reference.
 
-Lockstep (default, deterministic; DESIGN.md section 3). Simulated time is integer
+Lockstep (default, deterministic). Simulated time is integer
 nanoseconds t_k = k * h_ns. At step k the node publishes /clock and joint states
 stamped t_k; /engine/wrench and /load/wrench must answer with exactly that stamp. When
 both are in, the stepper integrates to t_{k+1} and the next state goes out - all inside
@@ -307,7 +307,7 @@ class CouplingNode(CvjNode):
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
         # per-exchange joint state (intermediate members filled) and reaction wrenches:
-        # compiled when the stepper runs the kernel (issue 10), else the Python reference
+        # compiled when the stepper runs the kernel, else the Python reference
         from cvj_ros.physics.state_outputs import make_state_outputs
         self.outputs = make_state_outputs(
             self.driveline, self.reaction_joints,

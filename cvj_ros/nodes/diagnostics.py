@@ -1,6 +1,6 @@
 """Stamps (integer ns of simulated time) and /diagnostics message helpers.
 
-Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import functools

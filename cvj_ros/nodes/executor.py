@@ -1,6 +1,6 @@
 """Executor plumbing: CvjNode base, executors, spin loop, run_node main wrapper, publisher flush.
 
-Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import sys

@@ -5,13 +5,13 @@ Subscribes /driveline/joint_states, /engine/wrench, /load/wrench, /driveline/sce
 samples it publishes one DiagnosticArray (stamp = latest joint-state stamp) with:
 
 * ``monitor: <shaft>`` per shaft: mean speed (rad/s), speed nonuniformity
-  delta = (w_max - w_min)/w_mean (seed 004 sec. 4) over the last ``window`` seconds,
+  delta = (w_max - w_min)/w_mean (Davidbaev et al. 2023, sec. 4) over the last ``window`` seconds,
   speed and torque (effort) amplitudes (max - min)/2; level from the
   ``nonuniformity_warn`` / ``nonuniformity_error`` thresholds;
 * ``monitor: torques``: engine and load torque mean and amplitude (N m);
 * ``monitor: joint <name>``: bend angle (deg) vs recommended limit (scene
-  ``limits.max_angle_deg``, else RECOMMENDED_MAX_ANGLE_DEG: tripod 25 deg seed 000,
-  Rzeppa 47 deg seed 002); WARN above the limit, ERROR above limit + 5 deg;
+  ``limits.max_angle_deg``, else RECOMMENDED_MAX_ANGLE_DEG: tripod 25 deg Xiu et al. 2024,
+  Rzeppa 47 deg Bugaru & Vasile 2021); WARN above the limit, ERROR above limit + 5 deg;
 * ``monitor: loop``: energy residual, real-time factor, lockstep wait (us) from the
   coupling node's diagnostics, with the ``energy_residual_*`` and ``real_time_factor_warn``
   thresholds.
@@ -50,7 +50,7 @@ LEVELS = (OK, WARN, ERROR)
 
 # Joint members that are not shafts: their angle follows the joint's kinematics (a Rzeppa
 # cage turns about the bisector-plane axis with a Hooke-like law, 1/cos a - cos a = 0.173 at
-# a = 23.5 deg), but they carry no drive torque to a machine; seed 004's nonuniformity
+# a = 23.5 deg), but they carry no drive torque to a machine; Davidbaev et al. 2023's nonuniformity
 # recommendations (sec. 4) concern drive and driven shafts. Their nonuniformity is reported
 # at level OK; a non-finite speed stays an ERROR. Intermediate shafts of a cardan chain and
 # a double cardan's centre yoke are shafts and keep the limits.
@@ -66,10 +66,10 @@ PARAMS = (
     ParamSpec('min_speed', 1.0, 'shafts slower than this mean speed get no nonuniformity [rad/s]',
               lo=0.0, hi=1e6, read_only=False),
     ParamSpec('nonuniformity_warn', DEFAULT_NONUNIFORMITY_WARN,
-              'speed nonuniformity WARN threshold [-] (seed 004 sec. 4); 0 = off',
+              'speed nonuniformity WARN threshold [-] (Davidbaev et al. 2023, sec. 4); 0 = off',
               lo=0.0, hi=10.0, read_only=False),
     ParamSpec('nonuniformity_error', DEFAULT_NONUNIFORMITY_ERROR,
-              'speed nonuniformity ERROR threshold [-] (seed 004 sec. 4); 0 = off',
+              'speed nonuniformity ERROR threshold [-] (Davidbaev et al. 2023, sec. 4); 0 = off',
               lo=0.0, hi=10.0, read_only=False),
     ParamSpec('energy_residual_warn', 1e-3, 'relative energy residual WARN threshold [-]; 0 = off',
               lo=0.0, hi=1.0, read_only=False),
@@ -404,7 +404,7 @@ class MonitorNode(CvjNode):
                 msg = ('standstill' if math.isnan(d) and lv == 0
                        else f'nonuniformity {d:.4g}')
                 if name in self.internal_members and math.isfinite(d):
-                    lv = 0   # the thresholds are for shafts (seed 004 sec. 4), not a cage
+                    lv = 0   # the thresholds are for shafts (Davidbaev et al. 2023, sec. 4), not a cage
                     msg += ' (internal member: no limit)'
                 out.append(plain_status(f'monitor: {name}', LEVELS[lv], msg, {
                     'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,

@@ -1,6 +1,6 @@
 """Node parameters: ParamSpec declaration/validation, --param parsing, scene loading helpers.
 
-Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import math

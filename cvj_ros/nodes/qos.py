@@ -54,7 +54,7 @@ LATCHED_QOS = QoSProfile(
     depth=1,
 )
 
-# Topic names (DESIGN.md section 2).
+# Topic names.
 CLOCK_TOPIC = '/clock'
 JOINT_STATES_TOPIC = '/driveline/joint_states'
 ENGINE_WRENCH_TOPIC = '/engine/wrench'

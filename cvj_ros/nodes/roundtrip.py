@@ -4,7 +4,7 @@ In-process (:func:`measure_round_trip`): two nodes in one process and one execut
 topic, ``pong`` answers it in its callback on a second topic, and ``ping``'s callback
 records the elapsed wall time and publishes the next ping. This is exactly the message
 path of one lockstep exchange (joint state out, wrench back), minus the physics, so it
-is the floor the lockstep overhead per exchange is judged against (DESIGN.md sec. 3).
+is the floor the lockstep overhead per exchange is judged against.
 
 Inter-process (:func:`measure_round_trip_ipc`): the lockstep runs its nodes in separate
 processes, so the fair floor is a round trip across processes: ``echoes`` echo nodes in
@@ -117,7 +117,7 @@ def measure_round_trip(n: int = 1000, executor: Literal['events', 'single'] = 'e
 def measure_round_trip_peers(n: int = 1000, peers: int = 2, *, warmup: int = 100,
                              timeout: float = 60.0) -> dict[str, float]:
     """In-process round trip with ``peers`` answering nodes on one EventsExecutor (us): the
-    composed loop's topology (engine + load answering the coupling node; issue 10 compares
+    composed loop's topology (engine + load answering the coupling node; the bench compares
     the composed overhead per exchange with it).
 
     The ping node publishes a Float64; each peer node answers on its own topic; the round

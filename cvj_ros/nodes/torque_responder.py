@@ -1,6 +1,6 @@
 """TorqueResponder: the node that answers each joint state with a stamped torque (engine, load).
 
-Moved out of nodes/common.py (issue 10 layout split); common.py re-exports these names.
+Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import math

@@ -234,7 +234,7 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
             if name in outside and now > t0 + external_timeout:
                 return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
                         f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s; '
-                        f'start it on that domain (e.g. ROS_DOMAIN_ID={domain} python3 '
+                        f'start it on that domain (e.g. ROS_DOMAIN_ID={domain} .venv/bin/python '
                         f'examples/vehicle_stack.py --ros-args -p use_sim_time:=true)')
         if now > deadline and any(name not in outside for name in missing):
             name = next(n for n in missing if n not in outside)

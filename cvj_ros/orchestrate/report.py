@@ -201,9 +201,9 @@ def bag_metrics(bag: Path, *, transient: float | None = None,
     ``window_s``: [start, end] (s); ``window``: the window's evidence
     (:meth:`SteadyWindow.to_dict`) and ``window_text`` its one-line description;
     ``shafts``: per JointState name ``mean_speed`` (rad/s), ``delta`` = speed nonuniformity
-    (w_max - w_min)/w_mean (-, seed 004), ``speed_amplitude`` (rad/s),
+    (w_max - w_min)/w_mean (-, Davidbaev et al. 2023), ``speed_amplitude`` (rad/s),
     ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
-    (max - min)/2 (N m, seed 004 section 3.3.2) of the shaft torque; ``wrenches``: per
+    (max - min)/2 (N m, Davidbaev et al. 2023, section 3.3.2) of the shaft torque; ``wrenches``: per
     WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m) over the
     same time window. ``data``: the bag already read (:func:`cvj_ros.bag.read_bag`).
     """

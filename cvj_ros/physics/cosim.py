@@ -4,7 +4,7 @@ whose engine and load torques arrive only at exchange points t_k.
 The coupling node integrates every inertia and spring itself; the torque sources
 (engine node, load node) answer once per exchange step H with T_k = T(t_k,
 omega_k, phi_k) and optionally their slope K = dT/domega. Between exchanges the
-torque must be *modelled*; the schemes (DESIGN.md section 3):
+torque must be *modelled*; the schemes:
 
 ``zoh``
     T(t) = T_k, held over [t_k, t_k + H]. First order in H. It is an explicit
@@ -24,7 +24,7 @@ torque must be *modelled*; the schemes (DESIGN.md section 3):
     T(omega) = T_k + K (omega - omega_k) inside the step, with omega the speed
     where the torque acts, integrated by the stepper together with the
     driveline, so the slope part of the feedback is implicit: exact for a
-    linear torque-speed characteristic (seed 004 eq. 3.23: M = M1 - K1 omega)
+    linear torque-speed characteristic (Davidbaev et al. 2023, eq. 3.23: M = M1 - K1 omega)
     and stable for any H when K is damping. K comes from the source's reported
     slope (``slope='reported'``: the slope_engine / slope_load arguments) or is
     estimated by least squares from the recent (omega_k, T_k) samples

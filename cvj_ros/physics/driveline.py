@@ -1,4 +1,4 @@
-"""Driveline equations of motion (Lagrange, second kind; seed 004 eq. 3.17).
+"""Driveline equations of motion (Lagrange, second kind; Davidbaev et al. 2023, eq. 3.17).
 
 A scene's chain (engine -> elements -> load) is split at its elastic springs into
 *rigid sections*. Each section is one degree of freedom q (rad): the angle of the
@@ -10,15 +10,14 @@ from each joint's ``scalar()`` (phi_out, ratio, ratio_slope):
     a <- ratio * a,   b <- ratio_slope * a^2 + ratio * b.
 
 Kinetic energy T = 1/2 M(q) qdot^2 with M(q) = sum J_i a_i^2, so Lagrange gives
-(DESIGN.md section 4)
 
     M(q) qddot + C(q) qdot^2 = Q,     C(q) = sum J_i a_i b_i  (= M'(q)/2).
 
 Springs act between neighbouring sections on a *bounded* twist
 theta = phi_end(q_left) - q_right, where phi_end is the angle of the last shaft of the
 left section (through any joints that sit between its last inertia and the spring).
-This replaces seed 004's 1/2 c (phi1 - U12 phi2)^2, which grows with every revolution
-(DESIGN.md section 5). Spring torque T_s = dV/dtheta + damping; it acts with -T_s a_end
+This replaces Davidbaev et al. 2023's 1/2 c (phi1 - U12 phi2)^2, which grows with every revolution
+(README "Errors in the source documents"). Spring torque T_s = dV/dtheta + damping; it acts with -T_s a_end
 on the left section and +T_s on the right one.
 
 External torques: the engine torque acts on the first inertia (positive drives), the

@@ -13,8 +13,8 @@ carry their unit in the name where it is not SI (``idle_rpm``, ``full_load_rpm``
 
 Models (``engine_from_spec(spec, *, field='engine')``, ``spec['model']``):
 
-``linear``  seed 004 eq. 3.23, the working zone AB of the engine characteristic
-            M = x M1 - K1 omega (x = throttle, 1 by default: the seed's line).
+``linear``  Davidbaev et al. 2023, eq. 3.23, the working zone AB of the engine characteristic
+            M = x M1 - K1 omega (x = throttle, 1 by default: the paper's line).
 ``map``     full-load curve (PCHIP over a table), part-load law, motoring friction, idle
             governor, rev limiter and optional firing-pulse ripple (see :class:`MapEngine`).
 
@@ -36,13 +36,13 @@ from cvj_ros.errors import SceneError
 TWO_PI = 2.0 * math.pi
 RPM = TWO_PI / 60.0          # rad/s per rpm
 
-# KAVZ-685 machine unit, seed 004 section 3.3.1 (after eq. 3.30) and 3.3.2.
+# KAVZ-685 machine unit, Davidbaev et al. 2023, section 3.3.1 (after eq. 3.30) and 3.3.2.
 KAVZ685_M1 = 623.0                      # N m, initial moment of eq. 3.23
 KAVZ685_OMEGA0 = 39.0                   # rad/s, initial drive-shaft speed (3.3.2)
 KAVZ685_LOAD_MEAN = 107.5               # N m, M_m of eq. 3.30
 KAVZ685_LOAD_DELTA = 8.8                # N m, delta M_m of eq. 3.30
-# K1 is not printed in the seed (only K1 = tan(alpha1) = M1/delta omega). We take the
-# slope that makes omega0 the steady speed under the seed's mean load:
+# K1 is not printed in the paper (only K1 = tan(alpha1) = M1/delta omega). We take the
+# slope that makes omega0 the steady speed under the paper's mean load:
 # (M1 - M_m)/K1 = omega0  ->  K1 = (623 - 107.5)/39 = 13.218 N m s/rad.
 KAVZ685_K1 = (KAVZ685_M1 - KAVZ685_LOAD_MEAN) / KAVZ685_OMEGA0
 
@@ -314,17 +314,17 @@ class Engine:
 
 
 class LinearEngine(Engine):
-    """Linear working zone of the engine characteristic, seed 004 eq. 3.23.
+    """Linear working zone of the engine characteristic, Davidbaev et al. 2023, eq. 3.23.
 
-    ``M = x * M1 - K1 * omega``  (N m), x = throttle (default 1: exactly the seed's line).
+    ``M = x * M1 - K1 * omega``  (N m), x = throttle (default 1: exactly the paper's line).
     The throttle shifts the line, the slope -K1 stays.
 
     Spec keys (``model: linear``):
 
-    * ``m1``        N m, initial moment M1 (default 623, KAVZ-685, seed 004 after eq. 3.30)
+    * ``m1``        N m, initial moment M1 (default 623, KAVZ-685, Davidbaev et al. 2023 after eq. 3.30)
     * ``k1``        N m s/rad, slope coefficient K1 > 0 (default (623 - 107.5)/39 = 13.218:
-                    makes omega0 = 39 rad/s, the seed's initial speed, the steady speed
-                    (M1 - M_c)/K1 under its mean load M_c = 107.5 N m; the seed gives no
+                    makes omega0 = 39 rad/s, the paper's initial speed, the steady speed
+                    (M1 - M_c)/K1 under its mean load M_c = 107.5 N m; the paper gives no
                     number for K1). Alternatively give
     * ``no_load_speed`` rad/s, omega at which M = 0 with x = 1 (K1 = M1/no_load_speed).
     * ``throttle``  -, initial pedal position 0..1 (default 1)
@@ -340,7 +340,7 @@ class LinearEngine(Engine):
         self.k1 = float(k1)
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
-        """M = x M1 - K1 omega (N m), seed 004 eq. 3.23."""
+        """M = x M1 - K1 omega (N m), Davidbaev et al. 2023, eq. 3.23."""
         return self.throttle * self.m1 - self.k1 * omega
 
     def slope(self, t: float, omega: float, phi: float = 0.0) -> float:
@@ -353,7 +353,7 @@ class LinearEngine(Engine):
 
     def describe(self) -> str:
         return (f'linear engine M = {self.throttle:g}*{self.m1:g} - {self.k1:.4g}*omega N m '
-                f'(seed 004 eq. 3.23), no-load speed {self.m1 / self.k1:.4g} rad/s')
+                f'(Davidbaev et al. 2023, eq. 3.23), no-load speed {self.m1 / self.k1:.4g} rad/s')
 
     @classmethod
     def from_reader(cls, r: SpecReader) -> LinearEngine:
@@ -403,7 +403,7 @@ class MapEngine(Engine):
     rev limiter, firing-pulse ripple. All terms are pure functions of (omega, phi) and the
     throttle; every piece is C1 in omega so dT/domega is continuous and analytic.
 
-    Source: none of the seeds gives an engine map (seed 004 fig. 3.9 only sketches the static
+    Source: none of the papers gives an engine map (Davidbaev et al. 2023, fig. 3.9 only sketches the static
     characteristic: idle speed, nominal speed, starting and nominal moment); the pieces
     below are the usual mean-value engine model, stated here in full. PCHIP: Fritsch and
     Carlson 1980, as in scipy.interpolate.PchipInterpolator.

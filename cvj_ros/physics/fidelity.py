@@ -1,4 +1,4 @@
-"""Model only what a scene needs (DESIGN.md section 4): per-element fidelity choice.
+"""Model only what a scene needs: per-element fidelity choice.
 
 Joints. Each cheaper fidelity is sampled over one input revolution (N points) against
 the joint's exact model: e_phi = max |phi_out_cheap - phi_out_exact| (rad) and

@@ -15,8 +15,8 @@ Units: t in s, omega in rad/s, phi in rad (unwrapped output-shaft angle), torque
 a list of such mappings whose torques are summed (e.g. road + brake_steps + random);
 errors name ``f'{field}.<key>'`` or ``f'{field}[i].<key>'`` for list items.
 
-Models: ``constant`` (seed 004 eq. 3.21, M2 = -M_c), ``random`` (seed 004 eq. 3.30,
-M_c = M_m +- delta M_m), ``fourier`` (seed 004 eqs. 4.1-4.5, table 4.12), ``road``,
+Models: ``constant`` (Davidbaev et al. 2023, eq. 3.21, M2 = -M_c), ``random`` (Davidbaev et al. 2023, eq. 3.30,
+M_c = M_m +- delta M_m), ``fourier`` (Davidbaev et al. 2023, eqs. 4.1-4.5, table 4.12), ``road``,
 ``brake_steps``, ``time_series``.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ from cvj_ros.errors import SceneError
 from cvj_ros.physics.engine import (KAVZ685_LOAD_DELTA, KAVZ685_LOAD_MEAN, SpecReader,
                                     check_array, check_increasing, did_you_mean, smoothstep)
 
-GRAVITY = 9.81   # m/s^2 (seed 004 uses g = 9.81)
+GRAVITY = 9.81   # m/s^2 (Davidbaev et al. 2023 uses g = 9.81)
 
 
 class Load:
@@ -72,14 +72,14 @@ def _inside(times: ArrayLike, t0: float, t1: float) -> np.ndarray:
 # --- constant ------------------------------------------------------------------------------
 
 class ConstantLoad(Load):
-    """Constant resisting torque M_c, seed 004 eq. 3.21 (M2 = -M_c).
+    """Constant resisting torque M_c, Davidbaev et al. 2023, eq. 3.21 (M2 = -M_c).
 
     Spec keys (``model: constant``):
 
     * ``torque``       N m, any finite value (negative = the load drives) [107.5, KAVZ-685 M_m]
     * ``speed_scale``  rad/s, > 0, optional: T = M_c tanh(omega / speed_scale), i.e. a
                        friction-like load whose sign follows the speed, smooth at standstill.
-                       Absent: T = M_c at every speed (the seed's model).
+                       Absent: T = M_c at every speed (the paper's model).
     """
 
     model = 'constant'
@@ -129,10 +129,10 @@ def _uniform_block(seed: int, stream: int, b: int, size: int) -> np.ndarray:
 
 
 class RandomLoad(Load):
-    """Technological load M_c = M_m + delta(t), seed 004 eq. 3.30 (KAVZ-685: 107.5 +- 8.8 N m).
+    """Technological load M_c = M_m + delta(t), Davidbaev et al. 2023, eq. 3.30 (KAVZ-685: 107.5 +- 8.8 N m).
 
     The random part is a pure function of t: knot values u_k, independent and uniform on
-    [-A, A] (A = ``amplitude``, the seed's delta M_m read as a bound), sit on the fixed grid
+    [-A, A] (A = ``amplitude``, the paper's delta M_m read as a bound), sit on the fixed grid
     t_k = k * dt (dt = ``sample_interval``) for every integer k. Knots are drawn in blocks of
     256 from ``numpy.random.default_rng([seed, stream, zigzag(block)])``, so any t can be
     evaluated in any order and reruns are bit-identical; ``stream`` is the component's index
@@ -151,7 +151,7 @@ class RandomLoad(Load):
 
     * ``mean``             N m, M_m [107.5]
     * ``amplitude``        N m, >= 0, bound A of the random part [8.8]
-    * ``sample_interval``  s, > 0, knot spacing dt [0.01: about 50 Hz bandwidth; the seed gives
+    * ``sample_interval``  s, > 0, knot spacing dt [0.01: about 50 Hz bandwidth; the paper gives
                            no correlation time, its oscillograms show 415-425 1/s components]
     """
 
@@ -226,7 +226,7 @@ class RandomLoad(Load):
         return self.mean + self.random_part(t)
 
     def describe(self) -> str:
-        return (f'random load {self.mean:g} +- {self.amplitude:g} N m (seed 004 eq. 3.30), '
+        return (f'random load {self.mean:g} +- {self.amplitude:g} N m (Davidbaev et al. 2023, eq. 3.30), '
                 f'knots every {self.dt:g} s, seed {self.seed}/{self.stream}')
 
     @classmethod
@@ -238,12 +238,12 @@ class RandomLoad(Load):
 
 # --- Fourier over angle --------------------------------------------------------------------
 
-# Seed 004 table 4.12 (measured KAVZ-685 torques, 12 ordinates per revolution, eqs. 4.2-4.3):
+# Davidbaev et al. 2023, table 4.12 (measured KAVZ-685 torques, 12 ordinates per revolution, eqs. 4.2-4.3):
 # per shaft and cycle: (mean N m, cos coefficients a_1..a_6 N m, sin coefficients b_1..b_5 N m).
 # The table has no b_6, so b_6 = 0 (as in eq. 4.5). Transcription notes:
 # * eq. 4.5 (cycle 1) prints "+ 1.772 cos 4phi1 + 1.169 cos 5phi1" for the sin terms, and
 #   with the opposite sign for b_4; the table (b_4 = -1.772, b_5 = 1.169) is used.
-# * the seed's amplitudes A_1 = 8.124 and A'_1 = 19.29 do not follow from its own coefficients
+# * the paper's amplitudes A_1 = 8.124 and A'_1 = 19.29 do not follow from its own coefficients
 #   (sqrt(a^2 + b^2) = 8.146 and 19.316); tan(phi_21) = a'_1/b'_1 is +3.29, printed -3.29.
 # * eq. 4.1 writes the constant as M_cp/2 with M_cp the mean of eq. 4.3; the constant term of
 #   a Fourier series is the mean itself (eq. 4.4), which is what is used here.
@@ -269,7 +269,7 @@ TABLE_4_12: dict[str, list[tuple[float, tuple[float, ...], tuple[float, ...]]]] 
 
 
 class FourierLoad(Load):
-    """Load as a Fourier series over the shaft angle, seed 004 eqs. 4.1 and 4.4:
+    """Load as a Fourier series over the shaft angle, Davidbaev et al. 2023, eqs. 4.1 and 4.4:
 
     ``T(phi) = mean + sum_n a_n cos(n (phi - phi0)) + b_n sin(n (phi - phi0))``  (N m)
 
@@ -283,10 +283,10 @@ class FourierLoad(Load):
     * ``cos``        N m, list a_1, a_2, ... (may be empty / absent)
     * ``sin``        N m, list b_1, b_2, ... (may be empty / absent)
 
-    or the shipped measurement (seed 004 table 4.12, KAVZ-685):
+    or the shipped measurement (Davidbaev et al. 2023, table 4.12, KAVZ-685):
 
     * ``table_4_12`` mapping ``{shaft: 'driven' | 'driving', cycle: 1..6}`` [driven, 1]
-                     (driven cycle 1 is the seed's eq. 4.5 M_2)
+                     (driven cycle 1 is the paper's eq. 4.5 M_2)
 
     and in both cases
 
@@ -311,10 +311,10 @@ class FourierLoad(Load):
 
     @classmethod
     def table_4_12(cls, *, shaft: str = 'driven', cycle: int = 1, phase_rad: float = 0.0) -> FourierLoad:
-        """Seed 004 table 4.12, KAVZ-685, ``shaft`` 'driven' (M_2) or 'driving' (M_1), cycle 1..6."""
+        """Davidbaev et al. 2023, table 4.12, KAVZ-685, ``shaft`` 'driven' (M_2) or 'driving' (M_1), cycle 1..6."""
         mean, a, b = TABLE_4_12[shaft][cycle - 1]
         return cls(mean=mean, cos=a, sin=b, phase_rad=phase_rad,
-                   source=f'seed 004 table 4.12 {shaft} cycle {cycle}')
+                   source=f'Davidbaev et al. 2023, table 4.12 {shaft} cycle {cycle}')
 
     def torque(self, t: float, omega: float, phi: float = 0.0) -> float:
         x = phi - self.phase
@@ -331,7 +331,7 @@ class FourierLoad(Load):
     def describe(self) -> str:
         amps = ', '.join(f'{a:.3g}' for _, a, _ in self.harmonics())
         return (f'Fourier load over shaft angle ({self.source}), mean {self.mean:g} N m, '
-                f'harmonic amplitudes [{amps}] N m (seed 004 eq. 4.4)')
+                f'harmonic amplitudes [{amps}] N m (Davidbaev et al. 2023, eq. 4.4)')
 
     @classmethod
     def from_reader(cls, r: SpecReader, *, seed: int, stream: int) -> FourierLoad:
@@ -357,8 +357,8 @@ class FourierLoad(Load):
 
 class RoadLoad(Load):
     """Vehicle road load referred to the shaft where the load acts (standard longitudinal
-    vehicle resistance: rolling, aerodynamic drag, grade; not from the seeds, which give
-    only the measured technological load of seed 004).
+    vehicle resistance: rolling, aerodynamic drag, grade; not from the papers, which give
+    only the measured technological load of Davidbaev et al. 2023).
 
     Vehicle speed v = omega r / i (m/s); with theta = atan(grade_percent / 100)::
 

@@ -1,8 +1,8 @@
 """Steady-state metrics of a sampled run (units follow the inputs: rad/s, rad/s^2, N m).
 
 * speed nonuniformity delta = (omega_max - omega_min) / omega_mean per shaft
-  (seed 004, coefficient of unevenness of rotation; dimensionless),
-* amplitude A = (max - min) / 2 of speed, acceleration and torque (seed 004 section
+  (Davidbaev et al. 2023, coefficient of unevenness of rotation; dimensionless),
+* amplitude A = (max - min) / 2 of speed, acceleration and torque (Davidbaev et al. 2023, section
   3.3.2 compares these amplitudes of drive and driven shafts, figs. 3.11-3.18).
 
 All are taken over the *steady window* of :mod:`cvj_ros.physics.steady` (the one

@@ -1,6 +1,6 @@
 """Rolling-window metrics of the monitor node (pure numpy, no ROS).
 
-* Speed nonuniformity (coefficient of unevenness), seed 004 section 4 (unevenness of the
+* Speed nonuniformity (coefficient of unevenness), Davidbaev et al. 2023, section 4 (unevenness of the
   drive and driven shafts delta_1, delta_2)::
 
       delta = (omega_max - omega_min) / omega_mean          (-)
@@ -10,7 +10,7 @@
 * Amplitude of any signal (speed rad/s, torque N m): (x_max - x_min) / 2.
 * Recommended joint angles: :data:`RECOMMENDED_MAX_ANGLE_DEG` (seed references below).
 
-Seed 004 (section 4, after fig. 4.9) recommends delta_1 <= 0.075..0.11 for the drive
+Davidbaev et al. 2023 (section 4, after fig. 4.9) recommends delta_1 <= 0.075..0.11 for the drive
 shaft and delta_2 <= 0.12..0.15 for the driven shaft of the KAVZ-685 lever-hinge
 coupling; the monitor uses 0.11 / 0.15 as default WARN / ERROR thresholds.
 """
@@ -24,12 +24,12 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-# Recommended maximum working angle per joint kind (deg): tripod seed 000 ("beta <= 25 deg"),
-# fixed ball (Rzeppa / bowl-ball) seed 002 (beta2 up to 47 deg).
+# Recommended maximum working angle per joint kind (deg): tripod Xiu et al. 2024 ("beta <= 25 deg"),
+# fixed ball (Rzeppa / bowl-ball) Bugaru & Vasile 2021 (beta2 up to 47 deg).
 RECOMMENDED_MAX_ANGLE_DEG: dict[str, float] = {'tripod': 25.0, 'rzeppa': 47.0}
 
-DEFAULT_NONUNIFORMITY_WARN = 0.11    # seed 004 sec. 4, drive shaft upper recommendation
-DEFAULT_NONUNIFORMITY_ERROR = 0.15   # seed 004 sec. 4, driven shaft upper recommendation
+DEFAULT_NONUNIFORMITY_WARN = 0.11    # Davidbaev et al. 2023, sec. 4, drive shaft upper recommendation
+DEFAULT_NONUNIFORMITY_ERROR = 0.15   # Davidbaev et al. 2023, sec. 4, driven shaft upper recommendation
 
 
 class RollingWindow:
@@ -125,7 +125,7 @@ def column_stats(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
 
 def nonuniformity_from_stats(mean: FloatArray, lo: FloatArray, hi: FloatArray, *,
                              min_speed: float = 1e-3) -> FloatArray:
-    """delta = (hi - lo)/|mean| (seed 004 sec. 4) from :func:`column_stats`; nan where
+    """delta = (hi - lo)/|mean| (Davidbaev et al. 2023, sec. 4) from :func:`column_stats`; nan where
     |mean| < ``min_speed`` (rad/s) or the window was empty."""
     out = np.full(mean.shape, np.nan)
     with np.errstate(invalid='ignore'):
@@ -135,7 +135,7 @@ def nonuniformity_from_stats(mean: FloatArray, lo: FloatArray, hi: FloatArray, *
 
 
 def speed_nonuniformity(omega: FloatArray, *, min_speed: float = 1e-3) -> FloatArray:
-    """delta = (omega_max - omega_min)/omega_mean per column of ``omega`` (rad/s), seed 004
+    """delta = (omega_max - omega_min)/omega_mean per column of ``omega`` (rad/s), Davidbaev et al. 2023
     sec. 4; nan for columns whose |mean| < ``min_speed`` (rad/s) or for an empty window."""
     mean, lo, hi = column_stats(omega)
     return nonuniformity_from_stats(mean, lo, hi, min_speed=min_speed)

@@ -1,7 +1,7 @@
 """Rigid sections of a scene's chain: element list -> per-section op lists, and the
 section kinematics (phi_end, a, b, M, C) at a section angle q. Shared by
 cvj_ros.physics.driveline (equations of motion) and cvj_ros.physics.fidelity (the spring
-rule's adjacent inertias), so neither imports the other at module level (issue 9).
+rule's adjacent inertias), so neither imports the other at module level.
 See driveline.py's module docstring for the equations.
 """
 from __future__ import annotations

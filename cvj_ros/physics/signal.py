@@ -3,16 +3,16 @@
 Definitions used throughout (SI units: rad, rad/s, rad/s^2, N m, s):
 
 * amplitude of a signal = (max - min) / 2 over the analysed window
-  (seed 004 ch. 4, "amplitude of oscillations A_M", read from oscillograms);
+  (Davidbaev et al. 2023, ch. 4, "amplitude of oscillations A_M", read from oscillograms);
 * speed nonuniformity delta = (omega_max - omega_min) / omega_mean (the "unevenness of the
-  angular velocities" delta_1, delta_2 of seed 004 sections 3.3 and 4, fig. 4.9);
-* harmonic analysis over shaft angle (seed 004 eqs. 4.1-4.3): the signal is resampled on a
+  angular velocities" delta_1, delta_2 of Davidbaev et al. 2023, sections 3.3 and 4, fig. 4.9);
+* harmonic analysis over shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3): the signal is resampled on a
   uniform grid of m points per revolution over whole revolutions and
   a_k = (2/M) sum_i T_i cos(k phi_i), b_k = (2/M) sum_i T_i sin(k phi_i), mean = (1/M) sum_i T_i,
   M = m * revolutions. Written as T = mean + sum A_k cos(k phi + p_k):
   A_k = sqrt(a_k^2 + b_k^2), p_k = atan2(-b_k, a_k). (The seed's own phase convention,
   T = mean + sum A_k sin(k phi + psi_k), is psi_k = atan2(a_k, b_k) = p_k + pi/2.)
-* joint nonuniformity (seed 002 eqs. 20-23): geometric Delta phi = phi_out - phi_in (rad),
+* joint nonuniformity (Bugaru & Vasile 2021, eqs. 20-23): geometric Delta phi = phi_out - phi_in (rad),
   kinematic = omega_out / omega_in - 1 (-).
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ FloatArray = NDArray[np.float64]
 
 
 def half_range(values: ArrayLike) -> float:
-    """Amplitude (max - min) / 2 of a signal, same unit as ``values`` (seed 004 ch. 4)."""
+    """Amplitude (max - min) / 2 of a signal, same unit as ``values`` (Davidbaev et al. 2023, ch. 4)."""
     arr = np.asarray(values, dtype=float)
     if arr.size == 0:
         raise ValueError('values: empty signal')
@@ -35,7 +35,7 @@ def half_range(values: ArrayLike) -> float:
 
 
 def speed_nonuniformity(omega: ArrayLike) -> float:
-    """Speed unevenness delta = (w_max - w_min) / w_mean (-), seed 004 fig. 4.9 (delta_1, delta_2).
+    """Speed unevenness delta = (w_max - w_min) / w_mean (-), Davidbaev et al. 2023, fig. 4.9 (delta_1, delta_2).
 
     ``omega`` in rad/s. Returns ``nan`` when the mean speed is zero (standstill).
     """
@@ -59,7 +59,7 @@ def time_derivative(t: ArrayLike, values: ArrayLike) -> FloatArray:
 
 @dataclass(frozen=True)
 class AngleHarmonics:
-    """Fourier analysis of a signal over shaft angle (seed 004 eqs. 4.1-4.3).
+    """Fourier analysis of a signal over shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3).
 
     ``orders`` k = 1..n; ``cos_coeffs`` a_k, ``sin_coeffs`` b_k, ``amplitudes`` A_k in the unit of
     the signal; ``phases`` p_k (rad, in (-pi, pi]) of T = mean + sum A_k cos(k phi + p_k);
@@ -87,7 +87,7 @@ def harmonics_over_angle(phi: ArrayLike, values: ArrayLike, *, n_harmonics: int 
                          samples_per_rev: int = 72) -> AngleHarmonics:
     """Harmonics of ``values`` (e.g. torque, N m) as a function of shaft angle ``phi`` (rad).
 
-    Seed 004 eqs. 4.1-4.3 with m = ``samples_per_rev`` ordinates per revolution (the seed uses
+    Davidbaev et al. 2023, eqs. 4.1-4.3 with m = ``samples_per_rev`` ordinates per revolution (the paper uses
     m = 12; a finer grid keeps aliasing of high orders out of the first harmonics). The
     signal is linearly interpolated on phi_i = phi_start + 2 pi i / m over the largest whole
     number of revolutions in the record, phi_start being the first multiple of 2 pi/m reached,
@@ -129,7 +129,7 @@ def harmonics_over_angle(phi: ArrayLike, values: ArrayLike, *, n_harmonics: int 
 
 @dataclass(frozen=True)
 class JointNonuniformity:
-    """Geometric and kinematic nonuniformity of one joint (seed 002 eqs. 20-23).
+    """Geometric and kinematic nonuniformity of one joint (Bugaru & Vasile 2021, eqs. 20-23).
 
     ``nominal_ratio`` i (-): 1 for a constant-velocity or cardan joint, the mean transmission
     ratio for a gear or chain stage. ``geometric_min``/``geometric_max``: range of

@@ -1,4 +1,4 @@
-"""Per-exchange outputs of one driveline state (issue 10): the joint state (every named
+"""Per-exchange outputs of one driveline state: the joint state (every named
 shaft's angle rad, speed rad/s, torque N m, intermediate members filled) and the reaction
 wrench of every joint that has one (housing frame, ``cvj_ros/physics/joints/wrench.py``).
 

@@ -7,8 +7,8 @@ slice in it agrees with the last slice:
 * **mean speed drift**: ``|mean_k - mean_last| / |mean over the window|`` of the reference
   speed (rad/s; relative, -; slice means Hann-weighted, see :func:`hann_mean`) is at most ``drift_tol`` (default :data:`DRIFT_TOL`);
 * **amplitude change**: ``|A_k - A_last| / max(A_k, A_last, floor)`` of every amplitude
-  signal (the reference speed and each torque; ``A = (max - min)/2`` over the slice, seed
-  004 section 3.3.2) is at most ``amplitude_tol`` (default :data:`AMPLITUDE_TOL`). ``floor``
+  signal (the reference speed and each torque; ``A = (max - min)/2`` over the slice, Davidbaev
+  et al. 2023, section 3.3.2) is at most ``amplitude_tol`` (default :data:`AMPLITUDE_TOL`). ``floor``
   = :data:`SPEED_FLOOR` x the speed's peak magnitude over the record, or
   :data:`TORQUE_FLOOR` x the largest peak magnitude of all the torques (the record's torque
   scale), so amplitudes that small count as zero, not as noise: an ideal joint's speed

@@ -126,7 +126,7 @@ def order_amplitudes(trace: Any, orders: int, transient: float | None,
     """Amplitudes (N m) of engine orders 1..``orders`` of the torque of ``shaft`` (default
     the first shaft: the torque the engine shaft passes on) over the first shaft's angle, in
     the steady window of the summary's metrics (:func:`cvj_ros.physics.metrics.steady_window`)
-    (:func:`cvj_ros.physics.signal.harmonics_over_angle`, seed 004 eqs. 4.1-4.3, 72 points
+    (:func:`cvj_ros.physics.signal.harmonics_over_angle`, Davidbaev et al. 2023, eqs. 4.1-4.3, 72 points
     per revolution). NaN when the window holds less than one whole revolution or the
     angle is not monotonic (the engine stopped or reversed)."""
     from cvj_ros.physics.metrics import steady_window

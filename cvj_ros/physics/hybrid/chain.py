@@ -5,7 +5,7 @@ cvj_ros.physics.driveline, and also at every clutch and gearbox. Between two sec
 a *boundary*: a spring (elastic torque), a clutch or a gearbox. A mode (:class:`Mode`) says
 per clutch STUCK / FORWARD / BACKWARD, per gearbox the engaged gear (0 neutral) and for
 the brake STUCK / FORWARD / BACKWARD. A stuck clutch or engaged gearbox *locks* its boundary:
-the sections on both sides merge into one rigid group, as a joint does (DESIGN.md section 4),
+the sections on both sides merge into one rigid group, as a joint does,
 through the coupling phi_out = k phi_in + offset (k = 1 clutch, k = 1/i gear; the offset
 keeps the angles continuous at the lock). Each group is one degree of freedom q (the angle of
 its first shaft) with M(q) qddot + C(q) qdot^2 = Q, M = sum J_i a_i^2, C = sum J_i a_i b_i.

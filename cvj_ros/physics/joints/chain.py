@@ -6,10 +6,10 @@ For two stages (chain rule; the general case is applied stage by stage)::
     ratio       = f2'(f1(phi)) f1'(phi)                          (-)
     ratio_slope = f2''(f1(phi)) f1'(phi)^2 + f2'(f1(phi)) f1''(phi)   (1/rad)
 
-Used e.g. for seed 002's driveshaft (eqs. 20-22): tulip-tripod, rigid midshaft,
-fixed ball joint, composed exactly rather than by seed 002's truncated eq. 22 and
-its eq. 23 (which carries a spurious factor 1.5 in the second term, DESIGN.md
-section 5). Any object meeting the :class:`~cvj_ros.physics.joints.base.JointModel`
+Used e.g. for Bugaru & Vasile 2021's driveshaft (eqs. 20-22): tulip-tripod, rigid midshaft,
+fixed ball joint, composed exactly rather than by Bugaru & Vasile 2021's truncated eq. 22 and
+its eq. 23 (which carries a spurious factor 1.5 in the second term, README "Errors in
+the source documents"). Any object meeting the :class:`~cvj_ros.physics.joints.base.JointModel`
 contract can be a stage. Each stage's input is the previous stage's output, so
 each stage's own zero-position convention applies to the shaft in front of it.
 ``phi_mid`` is the angle of the shaft after the first stage (the midshaft of a
@@ -146,4 +146,4 @@ def _factory(*, fidelity: str = 'exact', joints: Sequence[Any] = (), **extra: An
 
 register(JointSpec(kind='chain', factory=_factory, fidelities=FIDELITIES,
                    params={'joints': "list of JointModel or {'kind': ..., 'fidelity'?: ..., params}"},
-                   source='chain rule; seed 002 eqs. 20-22 (composition, eq. 23 not copied)'))
+                   source='chain rule; Bugaru & Vasile 2021, eqs. 20-22 (composition, eq. 23 not copied)'))

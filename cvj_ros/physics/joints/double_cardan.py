@@ -16,7 +16,7 @@ The intermediate yokes carry a phase ``phase`` (psi, rad): 0 = in phase, both fo
 planes of the intermediate shaft coincide (the correct assembly).
 
 Kinematics. Each joint obeys the Hooke law tan(theta_out) = tan(theta)/cos(beta)
-(seed 002 eq. 10) with theta the driving-yoke angle from *its own* bend plane.
+(Bugaru & Vasile 2021, eq. 10) with theta the driving-yoke angle from *its own* bend plane.
 Joint 1: phi_mid = H(phi_in; beta1), phi_mid = intermediate shaft angle (rad). At
 joint 2 the driving yoke (on the intermediate shaft) is normal to bend plane 1 at
 phi_mid = 0, so its angle from bend plane 2 is u = phi_mid + psi - gamma + pi/2;
@@ -123,7 +123,7 @@ class DoubleCardan:
     def reactions(self, phi_in: float, omega_in: float, torque_in: float) -> dict[str, float]:
         """Quasi-static torques and secondary-couple magnitudes (N m), massless crosses.
 
-        ``torque_mid`` = T1/r1 and ``torque_out`` = T1/ratio (power balance, seed 003
+        ``torque_mid`` = T1/r1 and ``torque_out`` = T1/ratio (power balance, Dziopa
         eq. 20 analogue); secondary couples per yoke from :meth:`hooke.Hooke.reactions`:
         ``secondary_in`` = T1 tan b1 |sin phi_in|, ``secondary_mid1`` = T_mid tan b1 |cos phi_mid|,
         ``secondary_mid2`` = T_mid tan b2 |sin u|, ``secondary_out`` = T_out tan b2 |cos H(u)|.
@@ -176,4 +176,4 @@ register(JointSpec(
             'phase': 'rad, intermediate-yoke phase, 0 = in phase, default 0',
             'layout': "Z (output parallel to input) or W (axes intersect), default Z",
             'bend_plane': 'rad, angle between the two bend planes, default 0 (coplanar)'},
-    source='seed 002 eq. 10 applied twice; layouts and phase in double_cardan.py'))
+    source='Bugaru & Vasile 2021, eq. 10 applied twice; layouts and phase in double_cardan.py'))

@@ -3,7 +3,7 @@
 Convention: gear ratio i = omega_in / omega_out (-), so phi_out = phi_in / i (rad),
 ratio dphi_out/dphi_in = 1/i, slope 0; both shafts at zero together. A negative i
 reverses the sense of rotation (an external gear pair without idler). Lossless:
-power balance gives torque_out = i torque_in (N m). (DESIGN.md section 4, contracts.md.)
+power balance gives torque_out = i torque_in (N m). (docs/contracts.md.)
 """
 from __future__ import annotations
 
@@ -61,4 +61,4 @@ def _factory(*, fidelity: str = 'exact', gear_ratio: float = 1.0, **extra: float
 
 register(JointSpec(kind='gear', factory=_factory, fidelities=('exact',),
                    params={'gear_ratio': '-, omega_in/omega_out, nonzero (negative reverses), default 1'},
-                   source='constant ratio, power balance (DESIGN.md section 4)'))
+                   source='constant ratio, power balance'))

@@ -11,7 +11,7 @@ Zero positions: phi_in = 0 when the driving yoke (cross arm p1 = R_y(phi1) e_z =
 when the driven yoke arm p2 = R_x(b) R_y(phi2) e_x is normal to the bend plane.
 The cross holds p1 . p2 = 0, i.e. sin phi1 cos phi2 - cos phi1 cos b sin phi2 = 0:
 
-    tan(phi_out) = tan(phi_in) / cos(beta)            (seed 002 eq. 10 with delta = 90 deg)
+    tan(phi_out) = tan(phi_in) / cos(beta)            (Bugaru & Vasile 2021, eq. 10 with delta = 90 deg)
 
 written without branch cuts as phi_out = phi_in + d(phi_in) with the bounded deviation
 
@@ -100,7 +100,7 @@ def check_cross(name: str, value: float, beta: float) -> float:
 
 
 def hooke_deviation(phi: FloatArray, cos_beta: float) -> FloatArray:
-    """phi_out - phi_in (rad) of a Hooke joint, bounded by pi/2; vectorised (seed 002 eq. 10)."""
+    """phi_out - phi_in (rad) of a Hooke joint, bounded by pi/2; vectorised (Bugaru & Vasile 2021, eq. 10)."""
     s, co = np.sin(phi), np.cos(phi)
     return np.arctan2(s * co * (1.0 - cos_beta), cos_beta * co * co + s * s)
 
@@ -108,7 +108,7 @@ def hooke_deviation(phi: FloatArray, cos_beta: float) -> FloatArray:
 def hooke_stage(phi: FloatArray, cos_beta: float) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(phi_out, ratio, ratio_slope) of tan(phi_out) = tan(phi)/cos_beta, vectorised.
 
-    Units: rad, -, 1/rad. Source: seed 002 eq. 10; derivatives differentiated by hand.
+    Units: rad, -, 1/rad. Source: Bugaru & Vasile 2021, eq. 10; derivatives differentiated by hand.
     """
     s, co = np.sin(phi), np.cos(phi)
     den = cos_beta * cos_beta * co * co + s * s
@@ -329,7 +329,7 @@ class Hooke:
 
 
 def hooke_ratio(phi_in: ArrayLike, beta: float) -> np.ndarray:
-    """Closed-form velocity ratio cos b / (1 - sin^2 b cos^2 phi) (-) (DESIGN.md section 4)."""
+    """Closed-form velocity ratio cos b / (1 - sin^2 b cos^2 phi) (-)."""
     phi = np.asarray(phi_in, dtype=float)
     return math.cos(beta) / (1.0 - math.sin(beta) ** 2 * np.cos(phi) ** 2)
 
@@ -352,5 +352,5 @@ register(JointSpec(kind='hooke', factory=_factory, fidelities=HOOKE_FIDELITIES,
                                          'default 0',
                            'cross_angle': 'rad, angle between the cross arms, '
                                           'beta < delta < pi - beta, default pi/2'},
-                   source='seed 002 eqs. 9-10 (cross relation, any cross angle); phase, bend '
+                   source='Bugaru & Vasile 2021, eqs. 9-10 (cross relation, any cross angle); phase, bend '
                           'plane and reactions derived in hooke.py'))

@@ -1,7 +1,7 @@
 """Ideal constant-velocity joint: phi_out = phi_in. The cheapest fidelity of every CV joint.
 
-Conventions: phi_out (rad) equals phi_in (rad) at every angle; ratio 1, slope 0
-(DESIGN.md section 4). No intermediate member, no secondary couple.
+Conventions: phi_out (rad) equals phi_in (rad) at every angle; ratio 1, slope 0.
+No intermediate member, no secondary couple.
 """
 from __future__ import annotations
 
@@ -46,4 +46,4 @@ def _factory(*, fidelity: str = 'ideal', **_geometry: float) -> IdealCV:
 
 
 register(JointSpec(kind='ideal_cv', factory=_factory, fidelities=('ideal',), params={},
-                   source='DESIGN.md section 4 (cheapest fidelity)'))
+                   source='ideal constant-velocity joint, phi_out = phi_in (cheapest fidelity)'))

@@ -1,6 +1,6 @@
-"""Lever-hinge (articulated-lever) coupling with elastic elements (seed 004, chapter 3).
+"""Lever-hinge (articulated-lever) coupling with elastic elements (Davidbaev et al. 2023, chapter 3).
 
-Link geometry (seed 004 sections 2.1 and 3.1, figs. 2.1, 3.1, 3.5)
+Link geometry (Davidbaev et al. 2023, sections 2.1 and 3.1, figs. 2.1, 3.1, 3.5)
 ------------------------------------------------------------------
 Each shaft carries a fork; an earring (shackle) is pivoted in the fork on the fork's
 pin axis p; the earring's second hinge axis q (normal to p) carries the connecting
@@ -20,24 +20,24 @@ fork pin p1 = cos(phi_in) b1 + sin(phi_in) z with b1 = (-sin a, cos a, 0) (phi_i
 pin in the bend plane). Earring rod-hinge axis q(c) = (0, -sin c, cos c). The output
 half is built the same way with its own angle a2 and angle phi_out. Closure p . q = 0:
 
-    tan(c) = tan(phi_in) / cos(alpha)                    (input half, seed 002 eq. 10)
+    tan(c) = tan(phi_in) / cos(alpha)                    (input half, Bugaru & Vasile 2021, eq. 10)
     tan(phi_out) = cos(alpha2) tan(c + twist)            (output half)
 
-* Rigid (seed 004 ch. 3 opening): alpha2 = alpha, twist = 0 gives phi_out = phi_in
+* Rigid (Davidbaev et al. 2023, ch. 3 opening): alpha2 = alpha, twist = 0 gives phi_out = phi_in
   exactly: the coupling is synchronous.
 * Elastic support of the driven shaft (bushing deflection D2' at shaft length l2)
   tilts the driven shaft: alpha2 = alpha + delta_alpha, delta_alpha = asin(D2'/l2)
-  (seed 004 eq. 3.13).
+  (Davidbaev et al. 2023, eq. 3.13).
 * Elastic bushing in the hinge earring-rod of the driven half (deflection D2 at
   earring length l_c2) turns the driven earring against the rods by
-  twist = asin(D2/l_c2) (seed 004 eq. 3.13). This deformation grows with the
+  twist = asin(D2/l_c2) (Davidbaev et al. 2023, eq. 3.13). This deformation grows with the
   transmitted torque (twist ~ T/c_y): it *is* the series torsional spring c_y, b_y
-  of the machine unit (seed 004 eqs. 3.17-3.22). A driveline that models that spring
+  of the machine unit (Davidbaev et al. 2023, eqs. 3.17-3.22). A driveline that models that spring
   as its own element must leave ``twist = 0`` here (else it counts twice); a purely
   kinematic use may pass the static twist for a torque via :func:`twist_for_torque`.
 
-Small-deformation transfer function (derived here; seed 004 eqs. 3.14/3.16 are garbled,
-DESIGN.md section 5). Write phi_out = G(c + twist, alpha + delta_alpha) with
+Small-deformation transfer function (derived here; Davidbaev et al. 2023, eqs. 3.14/3.16 are garbled,
+README "Errors in the source documents"). Write phi_out = G(c + twist, alpha + delta_alpha) with
 G(c, a) = atan(cos a tan c) and c = H(phi_in) its inverse at a = alpha. To first order:
 
     dG/dc  = 1 / H'(phi_in) = (1 - sin^2(alpha) cos^2(phi_in)) / cos(alpha)
@@ -71,20 +71,20 @@ from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, c
 
 FloatArray = NDArray[np.float64]
 
-# KAVZ-685 machine unit (seed 004 section 3.3, parameter list; DESIGN.md section 6)
+# KAVZ-685 machine unit (Davidbaev et al. 2023, section 3.3, parameter list)
 KAVZ685_ALPHA = math.radians(15.0)      # rad, shaft divergence angle of the reference scene
 KAVZ685_C_Y = 715.4                     # N m/rad, torsional stiffness of the elastic elements
 KAVZ685_B_Y = 6.35                      # N m s/rad, their damping
 KAVZ685_I1 = 0.128                      # kg m^2, driving shaft
 KAVZ685_I2 = 0.161                      # kg m^2, driven shaft
-RECOMMENDED_ALPHA = (math.radians(10.0), math.radians(25.0))   # seed 004 section 3.3 conclusion
+RECOMMENDED_ALPHA = (math.radians(10.0), math.radians(25.0))   # Davidbaev et al. 2023, section 3.3 conclusion
 _FIDELITIES = ('ideal', 'closed', 'exact')
 
 
 def deformation_angles(*, support_deflection: float = 0.0, shaft_length: float = 1.0,
                        hinge_deflection: float = 0.0, earring_length: float = 1.0) -> tuple[float, float]:
     """(delta_alpha, twist) in rad from bushing deflections (m) and lengths (m):
-    delta_alpha = asin(D2'/l2), twist = asin(D2/l_c2) (seed 004 eq. 3.13)."""
+    delta_alpha = asin(D2'/l2), twist = asin(D2/l_c2) (Davidbaev et al. 2023, eq. 3.13)."""
     l2 = check_range('shaft_length', shaft_length, lo=0.0, lo_open=True, hi=None, unit=' m')
     lc = check_range('earring_length', earring_length, lo=0.0, lo_open=True, hi=None, unit=' m')
     d_s = check_range('support_deflection', support_deflection, lo=-l2, hi=l2, hi_open=True, unit=' m')
@@ -94,7 +94,7 @@ def deformation_angles(*, support_deflection: float = 0.0, shaft_length: float =
 
 def twist_for_torque(torque: float, *, stiffness: float = KAVZ685_C_Y) -> float:
     """Static earring twist (rad) under a transmitted torque (N m) for a bushing torsional
-    stiffness (N m/rad): torque / stiffness (linear bushing, seed 004 eq. 3.19 spring)."""
+    stiffness (N m/rad): torque / stiffness (linear bushing, Davidbaev et al. 2023, eq. 3.19 spring)."""
     t = check_finite('torque', torque)
     c = check_range('stiffness', stiffness, lo=0.0, lo_open=True, hi=None, unit=' N m/rad')
     return t / c
@@ -255,10 +255,10 @@ def _factory(*, fidelity: str = 'exact', alpha: float = KAVZ685_ALPHA, delta_alp
 register(JointSpec(
     kind='lever_hinge', factory=_factory, fidelities=_FIDELITIES,
     params={'alpha': 'rad, shaft divergence angle, 0 <= alpha < pi/2 (recommended 10-25 deg), '
-                     'default 15 deg (KAVZ-685, seed 004 section 3.3)',
+                     'default 15 deg (KAVZ-685, Davidbaev et al. 2023, section 3.3)',
             'delta_alpha': 'rad, driven-shaft tilt from the support bushing, asin(D2\'/l2) '
-                           '(seed 004 eq. 3.13), default 0',
-            'twist': 'rad, driven earring twist from the hinge bushing, asin(D2/l_c2) (seed 004 '
+                           '(Davidbaev et al. 2023, eq. 3.13), default 0',
+            'twist': 'rad, driven earring twist from the hinge bushing, asin(D2/l_c2) (Davidbaev et al. 2023 '
                      'eq. 3.13) = T/c_y; leave 0 when the series spring c_y is modelled, default 0'},
-    source='seed 004 ch. 3 (eqs. 3.2, 3.13; geometry figs. 2.1, 3.1, 3.5); transfer function '
-           'derived in lever_hinge.py (eqs. 3.14/3.16 garbled, DESIGN.md section 5)'))
+    source='Davidbaev et al. 2023, ch. 3 (eqs. 3.2, 3.13; geometry figs. 2.1, 3.1, 3.5); transfer function '
+           'derived in lever_hinge.py (eqs. 3.14/3.16 garbled, see README "Errors in the source documents")'))

@@ -1,6 +1,6 @@
-"""Rzeppa / Birfield fixed ball joint (seed 003, Dziopa).
+"""Rzeppa / Birfield fixed ball joint (Dziopa).
 
-Geometry and conventions (seed 003 section 2, checked against a rotation-matrix
+Geometry and conventions (Dziopa section 2, checked against a rotation-matrix
 construction in the tests). Frame 0x1y1z1: y1 along the input shaft [1], z1 in the
 input fork (groove) plane at phi1 = 0, bend plane = y1-z1. The output shaft [2] axis
 is R_x(delta) e_y = (0, cos d, sin d); shaft k turns right-handed about its own axis
@@ -9,7 +9,7 @@ pi_1: cos(phi1) x - sin(phi1) z = 0 (eq. 4) and pi_2 (eq. 5) both contain the be
 plane at zero. The cage plane pi has normal R_x(alpha) e_y = (0, cos a, sin a)
 (eq. 9); the ball centre A lies on the line pi_1 & pi_2 & pi (eqs. 7-8).
 
-Position function (seed 003 eq. 10, re-derived: r3 = r1 x r2 in pi gives it)::
+Position function (Dziopa eq. 10, re-derived: r3 = r1 x r2 in pi gives it)::
 
     tan(phi2) = tan(phi1) / K,   K = tan(a) sin(d) + cos(d) = cos(d - a) / cos(a) > 0
 
@@ -18,7 +18,7 @@ cos(beta) -> K, so the bounded-deviation form of :mod:`hooke` keeps phi_out
 continuous over any number of turns.
 
 Cage / ball angle phi3 = phi_mid (rad): the ball direction R_x(a) R_y(phi3) e_z must
-lie in pi_1, so tan(phi3) = cos(a) tan(phi1), which is seed 003 eq. 25 for
+lie in pi_1, so tan(phi3) = cos(a) tan(phi1), which is Dziopa eq. 25 for
 a = d/2; transmission f' = cos(a) / (1 - sin^2(a) sin^2 phi1) (eq. 29) and second
 position function f'' = cos(a) sin^2(a) sin(2 phi1) / (1 - sin^2(a) sin^2 phi1)^2
 (eq. 34). Torque relation: M_s2 = K cos^2(phi1)/cos^2(phi2) M_s1 = M_s1 / ratio
@@ -83,7 +83,7 @@ class Rzeppa:
 
     def cage(self, phi_in: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Cage/ball angle phi3 (rad), transmission f' (-) and second position function
-        f'' (1/rad) against phi1 (seed 003 eqs. 26, 29, 34 with delta/2 -> alpha)."""
+        f'' (1/rad) against phi1 (Dziopa eqs. 26, 29, 34 with delta/2 -> alpha)."""
         phi = as_angle_array(phi_in)
         if self.fidelity == 'ideal':
             return phi.copy(), np.ones_like(phi), np.zeros_like(phi)
@@ -91,7 +91,7 @@ class Rzeppa:
 
     def ball_point(self, phi_in: ArrayLike, omega_in: ArrayLike, domega_in: ArrayLike = 0.0, *,
                    radius: float | None = None) -> dict[str, FloatArray]:
-        """Position, velocity and accelerations of ball centre A (seed 003 eqs. 35-41).
+        """Position, velocity and accelerations of ball centre A (Dziopa eqs. 35-41).
 
         Frame 0x1y1z1 (fixed, input shaft at zero). The ball turns with the cage about
         the fixed cage axis n = (0, cos a, sin a) at phi3' = f' omega, phi3'' = f'' omega^2
@@ -100,7 +100,7 @@ class Rzeppa:
             r_A = R e,  v_A = phi3' R de/dphi3 (eq. 37),  a_t = phi3'' R de/dphi3 (eq. 39),
             a_n = -phi3'^2 R e (eq. 41)
 
-        For a = d/2 these are the seed's expressions, except that seed 003 eq. 37 prints
+        For a = d/2 these are the paper's expressions, except that Dziopa eq. 37 prints
         V_Az with a + sign; d(r_Az)/dt = -omega R cos^3(d/2) sin(phi1)/(...)^(3/2) < 0 for
         small phi1 > 0 (checked numerically in the tests).
 
@@ -136,7 +136,7 @@ class Rzeppa:
         return math.atan(abs(1.0 - self.k) / (2.0 * math.sqrt(self.k)))
 
     def reactions(self, phi_in: float, omega_in: float, torque_in: float) -> dict[str, float]:
-        """Output torque (N m) by seed 003 eq. 20, M_s2 = M_s1 / ratio, written through the
+        """Output torque (N m) by Dziopa eq. 20, M_s2 = M_s1 / ratio, written through the
         ratio so it stays finite where cos(phi2) = 0. ``omega_in`` (rad/s) does not enter."""
         check_finite('omega_in', omega_in)
         t1 = check_finite('torque_in', torque_in)
@@ -158,4 +158,4 @@ register(JointSpec(
     params={'delta': 'rad, bend angle, [0, pi/2), default 0 (alias beta)',
             'alpha': 'rad, cage-plane angle, default delta/2 (homokinetic)',
             'r': 'm, ball pitch radius (ball_point only), default 0'},
-    source='seed 003 eqs. 10, 20, 25-41 (eq. 37 V_Az sign corrected)'))
+    source='Dziopa eqs. 10, 20, 25-41 (eq. 37 V_Az sign corrected)'))

@@ -5,16 +5,16 @@ Geometry and conventions (all lengths m, angles rad)
 Fixed frame: z along the housing (tulip, input shaft) axis, the joint opening towards
 +z; the bend plane is x-z. The output shaft (the shaft that carries the spider,
 e.g. a half-shaft) is held at a fixed point P at distance ``l`` from the spider
-centre S (the centre of the other joint or of a self-aligning bearing, seed 000
+centre S (the centre of the other joint or of a self-aligning bearing, Xiu et al. 2024
 section 2): ``P = l n0``, ``n0 = (sin beta, 0, cos beta)``; beta is the bend angle.
 
 * Housing tracks: three lines parallel to z at radius ``r``, at angles
-  ``psi_j = phi_in + 2 pi j/3`` (j = 0, 1, 2) (seed 000 eq. 1).
+  ``psi_j = phi_in + 2 pi j/3`` (j = 0, 1, 2) (Xiu et al. 2024, eq. 1).
 * Spider: three trunnion axes ``e_j`` through S, perpendicular to the output shaft axis
   ``n = (P - S)/l`` and 120 deg apart, at angles ``phi_out + 2 pi j/3`` in the shaft
   frame (u, v, n). The roller centre R_j = S + h_j e_j slides along its trunnion
   (h_j ~ r varies) and along its track: R_j lies on track j.
-* Output-shaft frame (seed 000 eqs. 6-8: O''Y'' always perpendicular to ox):
+* Output-shaft frame (Xiu et al. 2024, eqs. 6-8: O''Y'' always perpendicular to ox):
   ``v = n x u0 / |n x u0|``, ``u = v x n`` with ``u0 = (cos beta, 0, -sin beta)``.
   This is a convention for the angle of a shaft whose axis wobbles (by ~rho/l); its
   own twist makes d phi_out/dt differ from the spin Omega . n by O((rho/l)^2)
@@ -31,17 +31,17 @@ to the track point minus S:  ``(r cos psi_j - S_x) e_jy - (r sin psi_j - S_y) e_
 (three equations; h_j then follows). Assumptions: rigid parts, no clearance, point
 roller centres, tracks exactly axial, the fixed point P does not move; the plunge
 (axial sliding) S_z and the spider orbit (s_u, s_v) are outputs, not inputs.
-This is the tripode geometry behind seed 002 eq. 19 (after Duditza-Diaconescu) and
-seed 000 eqs. 1-17 (where the rod-to-ball distance h_i also varies, seed 000 eq. 21).
+This is the tripode geometry behind Bugaru & Vasile 2021, eq. 19 (after Duditza-Diaconescu) and
+Xiu et al. 2024, eqs. 1-17 (where the rod-to-ball distance h_i also varies, Xiu et al. 2024, eq. 21).
 With a fixed arm length the system would be overdetermined (9 conditions, 6 unknowns).
 
 Fidelities
 ----------
 * ``ideal``: phi_out = phi_in.
-* ``closed`` (seed 002 eq. 19, seed 000 eq. 18, corrected per DESIGN.md section 5):
+* ``closed`` (Bugaru & Vasile 2021, eq. 19; Xiu et al. 2024, eq. 18, corrected: README "Errors in the source documents"):
   ``phi_out = phi_in - A sin(3 phi_in)``, ``A = (r / 2 l) tan(beta) tan^2(beta/2)``;
   ratio ``1 - 3 A cos(3 phi_in)``, slope ``9 A sin(3 phi_in)`` (differentiated here;
-  seed 000 eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the
+  Xiu et al. 2024, eq. 19 is wrong). The sign (lag at small positive phi_in) is that of the
   exact model in this convention (test_tripod.py checks it).
 * ``exact``: the three constraint equations solved by Newton (warm-started from
   Fourier tables of the solution, themselves built from a continuation in beta and
@@ -53,7 +53,7 @@ Fidelities
   Fourier sine series in phi_in (period 2 pi/3) of the exact deviation, built at
   construction and converged to <= 1e-12 rad against Newton.
 
-Working angle: seed 000 recommends beta <= 25 deg (:data:`RECOMMENDED_MAX_BETA`).
+Working angle: Xiu et al. 2024 recommends beta <= 25 deg (:data:`RECOMMENDED_MAX_BETA`).
 The exact model needs beta < 90 deg; it is built and verified up to
 :data:`PRACTICAL_MAX_BETA` = 70 deg (the orbit radius r (1/cos beta - 1)/2 grows
 without bound as beta -> 90 deg, 41 Fourier terms at 70 deg; at 80 deg and r/l = 0.1
@@ -74,17 +74,17 @@ from cvj_ros.physics.joints.base import (JointEval, JointSpec, as_angle_array, c
 
 FloatArray = NDArray[np.float64]
 
-RECOMMENDED_MAX_BETA = math.radians(25.0)   # seed 000 abstract and conclusion (4)
+RECOMMENDED_MAX_BETA = math.radians(25.0)   # Xiu et al. 2024 abstract and conclusion (4)
 PRACTICAL_MAX_BETA = math.radians(70.0)     # limit of the exact model's verified range
-SEED000_ROLLER_MASS = 0.2                   # kg, seed 000 section 4 example
+SEED000_ROLLER_MASS = 0.2                   # kg, Xiu et al. 2024, section 4 example
 NEWTON_TOL = 1e-12                          # residual tolerance / r (~ rad) of the exact model
 TWO_PI_3 = 2.0 * math.pi / 3.0
 _FIDELITIES = ('ideal', 'closed', 'exact')
 
 
 def closed_form_amplitude(beta: float, r: float, l: float) -> float:
-    """Deviation amplitude (rad) (r / 2 l) tan(beta) tan^2(beta/2): seed 002 eq. 19,
-    seed 000 eq. 18 ((1 - cos b)/(1 + cos b) = tan^2(b/2)). beta in rad, r and l in m."""
+    """Deviation amplitude (rad) (r / 2 l) tan(beta) tan^2(beta/2): Bugaru & Vasile 2021, eq. 19,
+    Xiu et al. 2024, eq. 18 ((1 - cos b)/(1 + cos b) = tan^2(b/2)). beta in rad, r and l in m."""
     return r / (2.0 * l) * math.tan(beta) * math.tan(beta / 2.0) ** 2
 
 
@@ -184,9 +184,9 @@ class Tripod:
     """Tripod joint with bend angle ``beta`` (rad), track radius ``r`` (m) and shaft
     length ``l`` (m) from the spider centre to the output shaft's fixed point.
 
-    ``roller_mass`` (kg) is the axially sliding mass per track (seed 000: plunger,
+    ``roller_mass`` (kg) is the axially sliding mass per track (Xiu et al. 2024: plunger,
     0.2 kg); ``spider_mass`` (kg) the spider with the part of its shaft lumped at the
-    spider centre (orbiting at three times the shaft speed; seed 000 neglects it,
+    spider centre (orbiting at three times the shaft speed; Xiu et al. 2024 neglects it,
     default 0). Both are used by :meth:`reactions` only. See the module docstring for the model.
     """
 
@@ -545,7 +545,7 @@ class Tripod:
     # --- reactions ---------------------------------------------------------------------
 
     def reactions(self, phi_in: float, omega_in: float, torque_in: float) -> dict[str, float]:
-        """Quasi-static reactions at constant speed (seed 000 section 4, from this model).
+        """Quasi-static reactions at constant speed (Xiu et al. 2024, section 4, from this model).
 
         Inputs: phi_in (rad), omega_in (rad/s), torque_in (N m, delivered by the housing).
         Frictionless contacts: the track pushes a roller only across its track (no axial
@@ -558,7 +558,7 @@ class Tripod:
         Checked by virtual work and by the energy balance (test_tripod.py).
 
         Returns (N, N m, m/s^2): ``axial_force`` generated axial force on the output
-        shaft at P along n (seed 000 R_z''); ``output_force_x/y/z`` bearing force at P on
+        shaft at P along n (Xiu et al. 2024 R_z''); ``output_force_x/y/z`` bearing force at P on
         the output shaft (fixed frame); ``input_force_x/y`` and ``input_moment_x/y``
         reaction force and moment (about the joint centre O) the housing's bearing must
         supply, -sum F_j and -sum R_j x F_j plus (exact fidelity) the rate of the plungers'
@@ -567,9 +567,9 @@ class Tripod:
         ``roller_force_0..2`` (N) and ``roller_arm_0..2`` (m): per-roller trunnion force
         and arm (:meth:`_solve_reactions`); ``torque_out`` (N m) torque about the output
         axis n (power torque_out * Omega . n, see ``spin_ratio`` in :meth:`solve`);
-        ``roller_accel_0..2``, ``roller_accel_sum`` (m/s^2, seed 000 eq. 20).
+        ``roller_accel_0..2``, ``roller_accel_sum`` (m/s^2, Xiu et al. 2024, eq. 20).
 
-        Seed 000 example (m = 0.2 kg, 2000 rpm, r = 26 mm, l = 700 mm, beta = 25 deg): the
+        Xiu et al. 2024 example (m = 0.2 kg, 2000 rpm, r = 26 mm, l = 700 mm, beta = 25 deg): the
         peak generated axial force is 3.5 N, each plunger needs m a_j ~ 109 N, the input
         bearing about 8 N and 5 N m; not "8000 kilonewtons" (eq. 30). The exact sum of
         the plunger accelerations is second order in rho/l (0.03 m/s^2 there), not
@@ -692,9 +692,9 @@ def _factory(*, fidelity: str = 'exact', beta: float = 0.0, r: float = 0.026, l:
 register(JointSpec(
     kind='tripod', factory=_factory, fidelities=_FIDELITIES,
     params={'beta': 'rad, bend angle, 0 <= beta < pi/2 (exact: <= 70 deg; recommended <= 25 deg), default 0',
-            'r': 'm, track radius (tulip radius), 0 < r < l, default 0.026 (seed 000)',
-            'l': 'm, spider centre to the output shaft fixed point, default 0.7 (seed 000)',
-            'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (seed 000)',
+            'r': 'm, track radius (tulip radius), 0 < r < l, default 0.026 (Xiu et al. 2024)',
+            'l': 'm, spider centre to the output shaft fixed point, default 0.7 (Xiu et al. 2024)',
+            'roller_mass': 'kg, axially sliding mass per track (reactions), default 0.2 (Xiu et al. 2024)',
             'spider_mass': 'kg, spider (+ lumped shaft) mass orbiting at 3x speed (reactions, exact '
-                           'fidelity), default 0 (seed 000 neglects it)'},
-    source='seed 002 eq. 19; seed 000 eqs. 1-18, 20-34 (errata DESIGN.md section 5); exact: own geometry'))
+                           'fidelity), default 0 (Xiu et al. 2024 neglects it)'},
+    source='Bugaru & Vasile 2021, eq. 19; Xiu et al. 2024, eqs. 1-18, 20-34 (with the errata listed in README "Errors in the source documents"); exact: own geometry'))

@@ -5,14 +5,14 @@ Housing frame (REP-103 right-handed, frame_id ``<joint>_housing``): z along the 
 One convention for every joint:
 
 * ``torque.z`` (N m): torque the joint delivers to its output shaft (``torque_out`` of
-  the model: power balance through the instantaneous ratio, seed 003 eq. 20 for the
+  the model: power balance through the instantaneous ratio, Dziopa eq. 20 for the
   Rzeppa, i torque_in for a gear stage).
 * ``torque.x``, ``torque.y`` (N m): bending moment the joint puts on the housing side,
   reacted by its support bearings: the Hooke secondary couple C1 on the input yoke,
-  the tripod input-bearing moment (seed 000 section 4, recomputed); 0 where the model
+  the tripod input-bearing moment (Xiu et al. 2024, section 4, recomputed); 0 where the model
   gives none.
 * ``force.x``, ``force.y`` (N): force the housing bearing must supply (tripod);
-  ``force.z`` (N): tripod generated axial force, along the output shaft axis (seed 000
+  ``force.z`` (N): tripod generated axial force, along the output shaft axis (Xiu et al. 2024
   R_z'', recomputed from the exact kinematics; the housing tracks themselves take no
   axial load in the frictionless model). 0 for joints without these forces.
 

@@ -1,4 +1,4 @@
-"""Compiled physics core (issue 9): scene as data, numba kernels, compiled steppers.
+"""Compiled physics core: scene as data, numba kernels, compiled steppers.
 
 Importing this package does not import numba; ``steppers_nb`` (and core-A's
 ``rhs_nb``) do. Before that, :func:`configure_cache` points numba's on-disk cache

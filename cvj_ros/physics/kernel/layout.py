@@ -1,4 +1,4 @@
-"""Scene -> data for the compiled kernel (issue 9). Pure Python, no numba import.
+"""Scene -> data for the compiled kernel. Pure Python, no numba import.
 
 A :class:`~cvj_ros.physics.driveline.Driveline` plus its torque sources become two flat
 arrays that ``kernel/rhs_nb.py`` interprets: ``ip`` (int64 codes and offsets) and ``fp``
@@ -24,7 +24,7 @@ ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any j
 springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
     half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
 input block (9 floats): t_k, Te, Te_rate, Ke, we, Tl, Tl_rate, Kl, wl (see set_torque_inputs).
-engine: ENGINE_INPUTS (input block), ENGINE_LINEAR fp = [throttle, m1, k1] (seed 004 eq. 3.23),
+engine: ENGINE_INPUTS (input block), ENGINE_LINEAR fp = [throttle, m1, k1] (Davidbaev et al. 2023, eq. 3.23),
     ENGINE_MAP fp = [throttle, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm,
     cutoff_band, stall_rpm, ripple_amplitude, ripple_order, ripple_phase, n, w[n], T[n], d[n]]
     (engine.map_engine_eval's arguments; MapEngine.kernel_params).

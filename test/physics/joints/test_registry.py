@@ -133,7 +133,7 @@ def test_registry_entries_describe_themselves() -> None:
         assert spec.kind == kind and spec.source and spec.fidelities
         for name, desc in spec.params.items():
             assert name and desc
-    assert 'seed 003' in JOINTS['rzeppa'].source and 'seed 002' in JOINTS['hooke'].source
+    assert 'Dziopa' in JOINTS['rzeppa'].source and 'Bugaru & Vasile 2021' in JOINTS['hooke'].source
 
 
 @pytest.mark.parametrize('kind,fidelity', [('hooke', 'closed'), ('rzeppa', 'fast'), ('gear', 'ideal'),

@@ -9,8 +9,10 @@ every exchange, so it stops at k_s or, if the signal came while it integrated th
 step, at k_s + 1.
 
 Separate processes (a real `cvj-sim run` child): the test follows /clock from its own
-process and sends the signal; the latency is the wall time from the signal to the arrival
-of the last /clock sample (an upper bound: it includes the DDS delivery to this process).
+process and sends the signal; the latency is the wall time from the signal to the
+publication of the last /clock sample (its DDS source timestamp, system clock on both
+sides), so a test reader that falls behind the 1 kHz stream on a busy machine does not add
+its own backlog to the loop's stop time; the arrival time is printed beside it.
 
 Bounds from the issue: one exchange, 0.1 s of wall time, exit within 2 s (which includes
 the report of the few seconds recorded).
@@ -105,10 +107,11 @@ def test_separate_run_stops_within_a_tenth_of_a_second(tmp_path: Path, sig: int)
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ctx = Context()
     rclpy.init(context=ctx)
-    last = {'wall': 0.0, 't': -1.0}
+    last = {'wall': 0.0, 't': -1.0, 'sent': 0.0}
 
-    def on_clock(m: Clock) -> None:
+    def on_clock(m: Clock, info) -> None:      # rclpy passes the MessageInfo to a 2-argument callback
         last['wall'], last['t'] = time.monotonic(), m.clock.sec + 1e-9 * m.clock.nanosec
+        last['sent'] = 1e-9 * info['source_timestamp']
     try:
         line = proc.stdout.readline()
         assert 'loop running' in line, line + proc.stderr.read()
@@ -120,7 +123,7 @@ def test_separate_run_stops_within_a_tenth_of_a_second(tmp_path: Path, sig: int)
         while last['t'] < K_SIGNAL * 1e-3:
             assert time.monotonic() < deadline and proc.poll() is None, 'the loop did not run'
             ex.spin_once(timeout_sec=0.05)
-        t_sent = time.monotonic()
+        t_sent, t_sent_rt = time.monotonic(), time.time()
         proc.send_signal(sig)
         while proc.poll() is None and time.monotonic() < t_sent + 30:
             ex.spin_once(timeout_sec=0.01)
@@ -132,11 +135,12 @@ def test_separate_run_stops_within_a_tenth_of_a_second(tmp_path: Path, sig: int)
         if proc.poll() is None:
             proc.kill()
         stdout, stderr = proc.communicate()
-    print(f'\nseparate {signal.Signals(sig).name}: last /clock {1e3 * (last["wall"] - t_sent):.1f} ms '
-          f'after the signal (t = {last["t"]:.3f} s); exit {proc.returncode} '
-          f'{exited - t_sent:.2f} s after it')
+    print(f'\nseparate {signal.Signals(sig).name}: last /clock published '
+          f'{1e3 * (last["sent"] - t_sent_rt):.1f} ms after the signal, received '
+          f'{1e3 * (last["wall"] - t_sent):.1f} ms after it (t = {last["t"]:.3f} s); exit '
+          f'{proc.returncode} {exited - t_sent:.2f} s after it')
     assert proc.returncode == 128 + int(sig), stdout + stderr
-    assert last['wall'] - t_sent <= STOP_WALL_S
+    assert last['sent'] - t_sent_rt <= STOP_WALL_S
     assert exited - t_sent <= EXIT_WALL_S
     report = yaml.safe_load((out / 'report.json').read_text())
     n = report['counts']['/driveline/joint_states']

@@ -696,26 +696,25 @@ class CouplingNode(CvjNode):
         return False
 
     def _on_engine(self, data: bytes) -> None:
-        try:
-            stamp_ns, value = decode_wrench_stamp_torque_z(data)
-        except CdrError as exc:
-            self._drop_malformed(ENGINE_WRENCH_TOPIC, str(exc))
-            return
-        if self.started and self._dds_engine and self.engine_sub.get_publisher_count() > 1:
-            self._stop_with_error(self._intruder_line(ENGINE_WRENCH_TOPIC))
-            return
-        self._on_wrench(stamp_ns, value, ENGINE_WRENCH_TOPIC, engine=True)
+        self._on_answer(data, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
+        self._on_answer(data, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _on_answer(self, data: bytes, topic: str, *, engine: bool) -> None:
+        """A raw wrench answer on ``topic``: checked decode (malformed: dropped and counted),
+        a second publisher on the topic once the loop runs stops it naming the intruder, else
+        the torque goes to :meth:`_on_wrench`."""
         try:
             stamp_ns, value = decode_wrench_stamp_torque_z(data)
         except CdrError as exc:
-            self._drop_malformed(LOAD_WRENCH_TOPIC, str(exc))
+            self._drop_malformed(topic, str(exc))
             return
-        if self.started and self._dds_load and self.load_sub.get_publisher_count() > 1:
-            self._stop_with_error(self._intruder_line(LOAD_WRENCH_TOPIC))
+        dds, sub = (self._dds_engine, self.engine_sub) if engine else (self._dds_load, self.load_sub)
+        if self.started and dds and sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(topic))
             return
-        self._on_wrench(stamp_ns, value, LOAD_WRENCH_TOPIC, engine=False)
+        self._on_wrench(stamp_ns, value, topic, engine=engine)
 
     def _drop_malformed(self, topic: str, reason: str) -> None:
         """A message on ``topic`` the checked decoder refused: never integrated, counted

@@ -17,8 +17,7 @@ the pause length changes is only the number of those lines.
 """
 from __future__ import annotations
 
-import os
-import signal
+import importlib.util
 import subprocess
 import sys
 import time
@@ -29,37 +28,17 @@ import yaml
 
 pytestmark = pytest.mark.e2e
 
+# the complete-bag check, the process start/stop and the scene of the launch-equivalent run
+_spec = importlib.util.spec_from_file_location(
+    '_launch_processes', Path(__file__).parents[1] / 'launch' / 'test_launch_processes.py')
+_launch = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_launch)
+check_complete_bag = _launch.check_complete_bag
+
 BIN = Path(sys.executable).parent
 PAUSE_S = 3.0
-H = 1e-3
-DURATION = 0.3
-N = int(round(DURATION / H))
-SCENE = {
-    'name': 'hand_start', 'description': 'hand-started nodes', 'seed': 4,
-    'duration': DURATION, 'exchange_step': H,
-    'solver': {'method': 'dopri5', 'rtol': 1e-8, 'atol': 1e-10},
-    'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': 20.0},
-    'initial': {'speed_rpm': 300.0},
-    'driveline': [
-        {'type': 'inertia', 'name': 'crank', 'J': 0.128},
-        {'type': 'spring', 'name': 'bush', 'stiffness': 715.4, 'damping': 6.35},
-        {'type': 'joint', 'name': 'cpl', 'kind': 'hooke', 'params': {'beta_deg': 15.0}},
-        {'type': 'inertia', 'name': 'wheel', 'J': 0.5},
-    ],
-}
-def check_complete_bag(bag_path: Path, n_steps: int) -> dict[str, int]:
-    """Every exchange is in the bag: n_steps + 1 joint states and clocks from t = 0,
-    n_steps engine and load answers, the scene message; returns counts per topic."""
-    from cvj_ros import bag
-    data = bag.read_bag(bag_path)
-    js = data[bag.JOINT_STATES_TOPIC]
-    assert len(js.t) == n_steps + 1, f'{len(js.t)} of {n_steps + 1} joint states'
-    assert js.t[0] == 0.0
-    counts = {topic: len(getattr(series, 't', ())) for topic, series in data.items()}
-    assert counts.get('/clock', 0) >= n_steps + 1, counts
-    assert counts['/engine/wrench'] >= n_steps and counts['/load/wrench'] >= n_steps, counts
-    assert bag.SCENE_TOPIC in data
-    return counts
+N = _launch.N       # exchange steps of the shared scene (0.3 s at 1 ms)
+SCENE = {**_launch.SCENE, 'name': 'hand_start', 'description': 'hand-started nodes', 'seed': 4}
 
 
 README_ORDER = ('coupling_node', 'engine_node', 'load_node', 'monitor_node', 'record')
@@ -87,23 +66,13 @@ def test_recipe_in_any_order_records_a_complete_bag(tmp_path: Path, order: tuple
         for i, name in enumerate(order):
             if i:
                 time.sleep(PAUSE_S)
-            procs[name] = subprocess.Popen(
-                cmds[name], stdout=open(tmp_path / f'{name}.log', 'wb'), stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL, env=dict(os.environ), start_new_session=True)
+            procs[name] = _launch._start(cmds[name], tmp_path / f'{name}.log')
         deadline = time.monotonic() + 300
         for name in ('coupling_node', 'record'):
             rc = procs[name].wait(timeout=max(1.0, deadline - time.monotonic()))
             assert rc == 0, (name, (tmp_path / f'{name}.log').read_text()[-3000:])
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
+        _launch._stop_all(procs)
     counts = check_complete_bag(tmp_path / 'out' / 'bag', N)
     print(f'{"/".join(order)}: {counts}')
     # the waiting line (when the wait outlasted START_REPORT_S) names who was missing

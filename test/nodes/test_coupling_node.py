@@ -28,9 +28,12 @@ T_ENGINE, T_LOAD = 150.0, 100.0
 W0 = 30.0                      # rad/s initial speed
 
 
-def scene_file(tmp_path, duration=0.02, h=0.001) -> str:
+def scene_file(tmp_path, duration=0.02, h=0.001, *, name: str = 'two_mass_test') -> str:
+    """The two-mass test scene (J1, spring, J2; linear engine, constant load T_LOAD, initial
+    speed W0) as a YAML file in ``tmp_path``; also the scene of test_peers and
+    test_hostile_peers, whose closed forms use these constants."""
     data = {
-        'name': 'two_mass_test', 'duration': duration, 'exchange_step': h,
+        'name': name, 'duration': duration, 'exchange_step': h,
         'solver': {'method': 'dopri5', 'rtol': 1e-10, 'atol': 1e-12},
         'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': T_LOAD},
         'initial': {'speed_rad_s': W0},

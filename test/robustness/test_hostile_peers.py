@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
@@ -36,26 +35,19 @@ hostile_peer = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(hostile_peer)
 HostilePeer, malformed_samples = hostile_peer.HostilePeer, hostile_peer.malformed_samples
 
-J1, J2 = 0.128, 0.161            # kg m^2 (Davidbaev et al. 2023, KAVZ-685)
-T_ENGINE, T_LOAD = 150.0, 100.0  # N m
-W0 = 30.0                        # rad/s
+# the two-mass scene and its constants (one definition: test/nodes/test_coupling_node.py)
+_tm_spec = importlib.util.spec_from_file_location(
+    '_two_mass', Path(__file__).resolve().parents[1] / 'nodes' / 'test_coupling_node.py')
+_two_mass = importlib.util.module_from_spec(_tm_spec)
+_tm_spec.loader.exec_module(_two_mass)
+J1, J2, T_LOAD, W0 = _two_mass.J1, _two_mass.J2, _two_mass.T_LOAD, _two_mass.W0
+T_ENGINE = 150.0                 # N m (the answerers' constant engine torque)
 DURATION, H = 0.02, 0.001        # s
 N_STEPS = round(DURATION / H)
 
 
 def scene_file(tmp_path: Path) -> str:
-    data = {
-        'name': 'two_mass_hostile', 'duration': DURATION, 'exchange_step': H,
-        'solver': {'method': 'dopri5', 'rtol': 1e-10, 'atol': 1e-12},
-        'engine': {'model': 'linear'}, 'load': {'model': 'constant', 'torque': T_LOAD},
-        'initial': {'speed_rad_s': W0},
-        'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': J1},
-                      {'type': 'spring', 'name': 'shaft', 'stiffness': 715.4, 'damping': 6.35},
-                      {'type': 'inertia', 'name': 'wheel', 'J': J2}],
-    }
-    path = tmp_path / 'scene.yaml'
-    path.write_text(yaml.safe_dump(data))
-    return str(path)
+    return _two_mass.scene_file(tmp_path, DURATION, H, name='two_mass_hostile')
 
 
 class HonestPeers:

@@ -445,13 +445,18 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         coupling = comp.nodes.get('coupling_node')
         js = bagmod.JOINT_STATES_TOPIC
 
+        def loop_started() -> None:
+            # step 0 is out (the hosted recorder takes it through the in-process bus): the
+            # loop's start, marked when it happens rather than at the next progress tick
+            mark('loop_started')
+            print(f'cvj-sim run: loop running in one process (domain {domain}, '
+                  f'{comp.executor_kind} executor), recording to {out / "bag"}',
+                  file=stream, flush=True)
+        if coupling is not None:
+            coupling.on_started = loop_started
+
         def on_tick() -> None:
             states = comp.recorder.counts.get(js, 0)
-            if 'loop_started' not in phases and states:
-                mark('loop_started')
-                print(f'cvj-sim run: loop running in one process (domain {domain}, '
-                      f'{comp.executor_kind} executor), recording to {out / "bag"}',
-                      file=stream, flush=True)
             if states:
                 progress.update((states - 1) * prep.exchange_step)
         if comp.executor_note:

@@ -359,6 +359,8 @@ class CouplingNode(CvjNode):
         # run_node's handler here, the composed container's in `cvj-sim run --composed`
         from cvj_ros.nodes.executor import stop_requested
         self.stop_signal: Callable[[], int] = stop_requested
+        # called once, right after step 0 is published (the composed run's "loop running")
+        self.on_started: Callable[[], None] | None = None
         self.get_logger().info(
             f'scene {scene.name!r}: {len(self.names)} shafts, {self.driveline.n_dof} DOF, '
             f'{self.n_steps} steps of {self.h_ns / NS_PER_S:g} s, mode {self.mode}, '
@@ -550,6 +552,8 @@ class CouplingNode(CvjNode):
         self._t_wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
         self._publish_state()
+        if self.on_started is not None:
+            self.on_started()
         if self.mode == 'lockstep':
             period = min(max(self.params['peer_timeout'] / 10.0, 0.005), 0.25)
             self._watchdog = self.create_timer(period, self._check_peers)

@@ -137,9 +137,7 @@ def hard_kill_run(out: str | Path, scene: str, t_kill: float, *, storage: str = 
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-        # (no 'loop running' check: that progress line comes from the spin's tick, which a
-        # short fast loop can outrun; the bag read below shows the loop ran)
-        assert proc.returncode == -signal.SIGKILL, out_text + err_text
+        assert 'loop running' in out_text and proc.returncode == -signal.SIGKILL, out_text + err_text
         return {'t_seen': t_kill}
     proc = subprocess.Popen([CVJ_SIM, *args], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)

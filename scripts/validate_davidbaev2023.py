@@ -9,7 +9,9 @@ predicted mean and order amplitudes and the prediction error per order (docs/fit
 
 ``--runout`` adds an eccentric axis behind the coupling (the ``runout`` joint,
 docs/imperfections.md: k = e/r at r = 50 mm, phase 0) and fits its eccentricity too, with
-the first order in the residuals.
+the first order in the residuals. ``--varying`` instead gives the bushings a stiffness
+varying once per revolution of the coupling (``stiffness_variation``, docs/imperfections.md:
+c (1 + eps cos phi)) and fits eps (0..0.9), with the first order in the residuals.
 """
 from __future__ import annotations
 
@@ -39,6 +41,8 @@ ENGINE_K1 = 11.0
 RUNOUT = {'type': 'joint', 'name': 'runout', 'kind': 'runout',
           'params': {'eccentricity_mm': 0.0, 'radius_mm': 50.0, 'phase_deg': 0.0}}
 RUNOUT_FIT = 'driveline[runout].params.eccentricity_mm=0:20'
+VARYING = [{'order': 1, 'amplitude': 0.0, 'phase_deg': 0.0}]
+VARYING_FIT = 'driveline[bushings].stiffness_variation[0].amplitude=0:0.9'
 
 
 def problem_for(base: dict, name: str, orders: int, fits: tuple[str, ...] = FITS
@@ -62,8 +66,12 @@ def main() -> None:
                          f'stiffness are predicted')
     ap.add_argument('--runout', action='store_true',
                     help='add an eccentric axis behind the coupling and fit its eccentricity')
+    ap.add_argument('--varying', action='store_true',
+                    help='give the bushings a once-per-revolution stiffness variation and fit it')
     args = ap.parse_args()
     fits = FITS + (RUNOUT_FIT,) if args.runout else FITS
+    if args.varying:
+        fits += (VARYING_FIT,)
     train_names = tuple(args.train.split(','))
     held_names = tuple(n for n in TRAIN + HELD_OUT if n not in train_names)
     base = load_scene_data(find_scene('kavz685_lever'))
@@ -71,6 +79,8 @@ def main() -> None:
     if args.runout:
         i = next(i for i, el in enumerate(base['driveline']) if el['name'] == 'coupling')
         base['driveline'].insert(i + 1, copy.deepcopy(RUNOUT))
+    if args.varying:
+        base['driveline'][1]['stiffness_variation'] = copy.deepcopy(VARYING)
     train = [problem_for(base, n, args.orders, fits) for n in train_names]
     combined = CombinedProblem([p for p, _ in train])
     # the residuals hold the mean and the even orders of every training table: the ideal
@@ -78,7 +88,7 @@ def main() -> None:
     # a runout makes order 1 (its order 3 is k^3/3, negligible), so with it order 1 is held
     n = args.orders + 1
     use = [i * n + k for i in range(len(train)) for k in range(n)
-           if k % 2 == 0 or (args.runout and k == 1)]
+           if k % 2 == 0 or ((args.runout or args.varying) and k == 1)]
     result = solve_fit(combined, np.concatenate([m for _, m in train]), use=use,
                        starts=args.starts)
     rows = []

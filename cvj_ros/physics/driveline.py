@@ -23,6 +23,11 @@ on the left section and +T_s on the right one.
 External torques: the engine torque acts on the first inertia (positive drives), the
 load torque on the last inertia (positive resists), each times that shaft's a.
 
+Imperfections (docs/imperfections.md): a spring with ``stiffness_variation`` has the
+potential s(phi) V(theta) over the angle phi = q_right of the section to its right, which
+also gets -s'(phi) V; an inertia with ``imbalance`` adds the potential m g e sin(phi_i +
+angle), i.e. -m g e cos(phi_i + angle) a_i to its section's force (section_imbalance).
+
 State ``x = [q_0..q_{n-1}, qdot_0..qdot_{n-1}]`` (rad, rad/s), optionally followed by the
 work integrals ``[W_engine, W_load, W_damp]`` (J) when built with
 ``track_energy=True``: then ``energy_residual(x, E0)`` closes the balance
@@ -34,6 +39,7 @@ cage, spider, yoke, earring) and ``<joint>_output``.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -44,7 +50,7 @@ from cvj_ros.errors import SceneError
 from cvj_ros.physics.fidelity import choose_fidelity
 from cvj_ros.physics.scene import Scene, Spring
 from cvj_ros.physics.sections import (  # noqa: F401  (SpringLaw, Shaft re-exported)
-    ScalarFn, Shaft, SpringLaw, build_sections, section_kinematics)
+    ScalarFn, Shaft, SpringLaw, build_sections, section_imbalance, section_kinematics)
 
 FloatArray = NDArray[np.float64]
 
@@ -69,6 +75,7 @@ class Driveline:
         sections, names, springs, shafts = chain.ops, chain.names, chain.springs, chain.shafts
         self._ops = sections
         self._section_names = names
+        self._imbalances = chain.imbalances      # per section: (op index, m g e, angle)
         self.springs = springs
         self.shafts = shafts
         self.shaft_names = [s.name for s in shafts]
@@ -85,7 +92,9 @@ class Driveline:
         the compiled kernel never calls it, and generating it (``compile``) costs ~0.3 ms
         per driveline, a few per cent of a sweep variant."""
         if self._fast_rhs is None:
-            self._fast_rhs = self._generate_rhs()
+            # a spring with varying stiffness: the readable reference (not generated)
+            plain = not any(sp.variation for sp in self.springs) and not any(self._imbalances)
+            self._fast_rhs = self._generate_rhs() if plain else self._rhs
         return self._fast_rhs
 
     # --- construction -------------------------------------------------------------------
@@ -215,19 +224,27 @@ class Driveline:
             T_load = load_fn(t, a_load * xl[2 * n - 1], ends[-1][0])
         q_force[0] += T_engine
         q_force[-1] -= T_load * a_load
+        for g, imbs in enumerate(self._imbalances):
+            if imbs:
+                q_force[g] += section_imbalance(self._ops[g], imbs, xl[g])[0]
         p_damp = 0.0
         for k, sp in enumerate(self.springs):
             phi_l, a_l = ends[k][0], ends[k][1]
             th = phi_l - xl[k + 1]
             thd = a_l * xl[n + k] - xl[n + k + 1]
-            if sp.gap == 0.0:
+            extra = 0.0
+            if sp.variation:
+                vs = sp.evaluate_varying(th, thd, xl[k + 1])
+                ts, extra = vs.torque, vs.extra
+                p_damp += vs.p_damp
+            elif sp.gap == 0.0:
                 ts = sp.c * (th + sp.k2 * th * th * th) + sp.d * thd
                 p_damp += sp.d * thd * thd
             else:
                 ts, _k, _kd, _v, pd = sp.evaluate(th, thd)
                 p_damp += pd
             q_force[k] -= ts * a_l
-            q_force[k + 1] += ts
+            q_force[k + 1] += ts + extra
         for g in range(n):
             v = xl[n + g]
             out[g] = v
@@ -281,17 +298,31 @@ class Driveline:
         qf[-1] -= T_load * al
         dq[n - 1][n - 1] += -T_load * bl - dTl_domega * bl * vl * al - dTl_dphi * al * al
         dq[n - 1][n2 - 1] += -dTl_domega * al * al
+        for g, imbs in enumerate(self._imbalances):
+            if imbs:
+                qi, dqi, _v = section_imbalance(self._ops[g], imbs, xl[g])
+                qf[g] += qi
+                dq[g][g] += dqi
         dpd = [0.0] * n2                         # d(p_damp)/d[q, v]
         for k, sp in enumerate(self.springs):
             phi_l, a_l, b_l = sec[k][0], sec[k][1], sec[k][2]
             th = phi_l - xl[k + 1]
             thd = a_l * xl[n + k] - xl[n + k + 1]
-            ts, k_th, k_d, _v, _pd = sp.evaluate(th, thd)
             # partials: dtheta/dq_k = a_l, dtheta/dq_k+1 = -1; dthetadot/dq_k = b_l v_k,
             # dthetadot/dv_k = a_l, dthetadot/dv_k+1 = -1
             dthd_qk = b_l * xl[n + k]
+            if sp.variation:     # stiffness over phi = q_k+1, extra torque on the right only
+                vs = sp.evaluate_varying(th, thd, xl[k + 1])
+                ts, k_th, k_d = vs.torque, vs.dt_dth, vs.dt_dthd
+                qf[k + 1] += vs.extra
+                dq[k + 1][k] += vs.dx_dth * a_l
+                dq[k + 1][k + 1] += vs.dx_dphi - vs.dx_dth
+                explicit = vs.dt_dphi
+            else:
+                ts, k_th, k_d, _v, _pd = sp.evaluate(th, thd)
+                explicit = 0.0
             d_qk = k_th * a_l + k_d * dthd_qk
-            d_qk1 = -k_th
+            d_qk1 = explicit - k_th
             d_vk = k_d * a_l
             d_vk1 = -k_d
             qf[k] -= ts * a_l
@@ -379,11 +410,31 @@ class Driveline:
             phi_l, a_l, _b, _m, _c = self._section(k, float(x[k]))
             th = phi_l - float(x[k + 1])
             thd = a_l * float(x[n + k]) - float(x[n + k + 1])
-            out[sp.name] = (th, thd, sp.evaluate(th, thd)[0])
+            if sp.variation:
+                out[sp.name] = (th, thd, sp.evaluate_varying(th, thd, float(x[k + 1])).torque)
+            else:
+                out[sp.name] = (th, thd, sp.evaluate(th, thd)[0])
+        return out
+
+    def spring_torques_right(self, x: FloatArray) -> list[float]:
+        """Per elastic spring: the torque it puts on the section to its right (N m): the
+        spring torque, plus -ds/dphi V for a spring with varying stiffness."""
+        n = self.n_dof
+        out = []
+        for k, sp in enumerate(self.springs):
+            phi_l, a_l, _b, _m, _c = self._section(k, float(x[k]))
+            th = phi_l - float(x[k + 1])
+            thd = a_l * float(x[n + k]) - float(x[n + k + 1])
+            if sp.variation:
+                vs = sp.evaluate_varying(th, thd, float(x[k + 1]))
+                out.append(vs.torque + vs.extra)
+            else:
+                out.append(sp.evaluate(th, thd)[0])
         return out
 
     def energy(self, x: FloatArray) -> dict[str, float]:
-        """Kinetic and elastic energy (J)."""
+        """Kinetic and potential energy (J): 'elastic' holds the springs' and the
+        imbalances' gravity potential."""
         n = self.n_dof
         kin = 0.0
         for g in range(n):
@@ -391,9 +442,15 @@ class Driveline:
             v = float(x[n + g])
             kin += 0.5 * m * v * v    # v * v gives inf on overflow; float ** 2 would raise
         el = 0.0
+        for g, imbs in enumerate(self._imbalances):   # imbalances' gravity potential
+            if imbs:
+                el += section_imbalance(self._ops[g], imbs, float(x[g]))[2]
         for k, sp in enumerate(self.springs):
             phi_l = self._section(k, float(x[k]))[0]
-            el += sp.evaluate(phi_l - float(x[k + 1]), 0.0)[3]
+            if sp.variation:
+                el += sp.evaluate_varying(phi_l - float(x[k + 1]), 0.0, float(x[k + 1])).potential
+            else:
+                el += sp.evaluate(phi_l - float(x[k + 1]), 0.0)[3]
         return {'kinetic': kin, 'elastic': el}
 
     def energy_residual(self, x: FloatArray, e0: float) -> float:
@@ -462,7 +519,7 @@ class Driveline:
               ) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, dict[str, float]]]:
         n = self.n_dof
         xdot = self.rhs(0.0, x, T_engine, T_load)
-        spring_t = [v[2] for v in self.spring_twists(x).values()]
+        spring_t = self.spring_torques_right(x)
         pos = np.zeros(len(self.shafts))
         vel = np.zeros(len(self.shafts))
         eff = np.zeros(len(self.shafts))
@@ -474,10 +531,13 @@ class Driveline:
             phi, a, b = q, 1.0, 0.0
             torque = T_engine if g == 0 else spring_t[g - 1]
             st = []
+            imb = {k: (mge, ang) for k, mge, ang in self._imbalances[g]}
             for k, (jv, fn) in enumerate(self._ops[g]):
                 before = (phi, a * v, torque)
                 if fn is None:
                     torque -= jv * (a * acc + b * v * v)
+                    if k in imb:        # the weight of the unbalanced mass resists
+                        torque -= imb[k][0] * math.cos(phi + imb[k][1])
                 else:
                     name = self._section_names[g][k]
                     model = self.joint_models[name]

@@ -32,9 +32,14 @@ SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
 KIND_ALIASES = {'cardan': 'hooke', 'universal': 'hooke', 'u_joint': 'hooke', 'ujoint': 'hooke',
                 'single_cardan': 'hooke'}
 INITIAL_KEYS = ('speed_rad_s', 'speed_rpm', 'angle_deg')
-INERTIA_KEYS = ('type', 'name', 'J', 'limits')
+INERTIA_KEYS = ('type', 'name', 'J', 'limits', 'imbalance')
+IMBALANCE_KEYS = ('mass_kg', 'radius_m', 'angle_deg')
+GRAVITY = 9.81        # m/s^2
 SPRING_KEYS = ('type', 'name', 'stiffness', 'damping', 'law', 'k2', 'backlash_deg',
-               'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits')
+               'backlash_smoothing', 'initial_twist_deg', 'fidelity', 'limits',
+               'stiffness_variation')
+VARIATION_KEYS = ('order', 'amplitude', 'phase_deg')
+MAX_VARIATION_ORDER = 64
 JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
 ELEMENT_TYPES = ('inertia', 'spring', 'joint', 'clutch', 'gearbox', 'brake')
 # clutch, gearbox, brake: mode elements (cvj_ros.physics.hybrid, docs/clutch_gearbox.md)
@@ -71,12 +76,15 @@ _SUFFIX_TO_SI = {'_deg': ('rad', math.pi / 180.0), '_rad': ('rad', 1.0),
 
 @dataclass(frozen=True)
 class Inertia:
-    """Rigid rotating mass ``J`` (kg m^2)."""
+    """Rigid rotating mass ``J`` (kg m^2). ``imbalance``: (m kg, e m, angle rad) of an
+    unbalanced mass on a horizontal shaft, whose weight resists with m g e cos(phi + angle)
+    (docs/imperfections.md); None = balanced. J includes the mass's m e^2."""
 
     name: str
     J: float
     limits: Mapping[str, float] = field(default_factory=dict)
     type: str = 'inertia'
+    imbalance: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,9 @@ class Spring:
     backlash (total free play, rad) regularised by a softplus dead zone of relative
     width ``backlash_smoothing`` (fraction of the half gap). ``initial_twist`` (rad)
     is the twist at t = 0; ``fidelity`` 'auto' | 'elastic' | 'rigid'.
+    ``variation``: circumferentially varying stiffness, (order n, amplitude eps, phase psi
+    rad) terms of c(phi) = c (1 + sum eps cos(n phi + psi)) over the angle phi of the shaft
+    right of the spring (docs/imperfections.md); empty = uniform.
     """
 
     name: str
@@ -101,6 +112,7 @@ class Spring:
     fidelity: str = 'auto'
     limits: Mapping[str, float] = field(default_factory=dict)
     type: str = 'spring'
+    variation: tuple[tuple[int, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -313,6 +325,9 @@ def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
             e['right'] = _chain_dicts(el.right)
         elif isinstance(el, Inertia):
             e = {'type': 'inertia', 'name': el.name, 'J': el.J}
+            if el.imbalance is not None:
+                m, r, ang = el.imbalance
+                e['imbalance'] = {'mass_kg': m, 'radius_m': r, 'angle_deg': math.degrees(ang)}
         elif isinstance(el, Spring):
             e = {'type': 'spring', 'name': el.name, 'stiffness': el.stiffness,
                  'damping': el.damping, 'law': el.law}
@@ -325,6 +340,10 @@ def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
                 e['initial_twist_deg'] = math.degrees(el.initial_twist)
             if el.fidelity != 'auto':
                 e['fidelity'] = el.fidelity
+            if el.variation:
+                e['stiffness_variation'] = [{'order': n, 'amplitude': eps,
+                                             'phase_deg': math.degrees(psi)}
+                                            for n, eps, psi in el.variation]
         elif isinstance(el, Joint):
             e = {'type': 'joint', 'name': el.name, 'kind': el.kind, 'fidelity': el.fidelity,
                  'params': dict(el.params_file)}
@@ -380,6 +399,35 @@ def _number(value: Any, path: str, *, positive: bool = False, nonneg: bool = Fal
     if hi is not None and (v > hi or (hi_open and v == hi)):
         raise SceneError(path, f'must be {"<" if hi_open else "<="} {hi}, got {value}')
     return v
+
+
+def _variation(raw: Any, path: str) -> tuple[tuple[int, float, float], ...]:
+    """A spring's ``stiffness_variation`` list -> ((order, amplitude, phase rad), ...); the
+    amplitudes sum to < 1 so the stiffness stays positive all round."""
+    if not isinstance(raw, list):
+        raise SceneError(path, 'must be a list of {order, amplitude, phase_deg}, got '
+                               f'{type(raw).__name__}')
+    out: list[tuple[int, float, float]] = []
+    for i, term in enumerate(raw):
+        p = f'{path}[{i}]'
+        t = _mapping(term, p)
+        _check_keys(t, VARIATION_KEYS, p)
+        for key in ('order', 'amplitude'):
+            if key not in t:
+                raise SceneError(f'{p}.{key}', 'missing')
+        order = t['order']
+        if isinstance(order, bool) or not isinstance(order, int) or \
+                not 1 <= order <= MAX_VARIATION_ORDER:
+            raise SceneError(f'{p}.order', f'must be an integer 1..{MAX_VARIATION_ORDER} '
+                                           f'(cycles per revolution), got {order!r}')
+        amp = _number(t['amplitude'], f'{p}.amplitude', nonneg=True, hi=1.0, hi_open=True)
+        phase = math.radians(_number(t.get('phase_deg', 0.0), f'{p}.phase_deg'))
+        out.append((order, amp, phase))
+    total = sum(a for _n, a, _p in out)
+    if total >= 1.0:
+        raise SceneError(path, f'the amplitudes sum to {total:g}; they must sum to < 1 so the '
+                               'stiffness stays positive all round')
+    return tuple(out)
 
 
 def _string(value: Any, path: str, *, choices: tuple[str, ...] | None = None) -> str:
@@ -464,7 +512,21 @@ def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Elem
         _check_keys(el, INERTIA_KEYS, path)
         if 'J' not in el:
             raise SceneError(f'{path}.J', 'missing (kg m^2)')
-        return Inertia(name=name, J=_number(el['J'], f'{path}.J', positive=True), limits=limits)
+        imb = None
+        if 'imbalance' in el:
+            raw = _mapping(el['imbalance'], f'{path}.imbalance')
+            _check_keys(raw, IMBALANCE_KEYS, f'{path}.imbalance')
+            for key in ('mass_kg', 'radius_m'):
+                if key not in raw:
+                    raise SceneError(f'{path}.imbalance.{key}', 'missing')
+            imb = (_number(raw['mass_kg'], f'{path}.imbalance.mass_kg', nonneg=True),
+                   _number(raw['radius_m'], f'{path}.imbalance.radius_m', nonneg=True, hi=10.0),
+                   math.radians(_number(raw.get('angle_deg', 0.0), f'{path}.imbalance.angle_deg')))
+            if tree:
+                raise SceneError(f'{path}.imbalance', 'not available in a vehicle scene yet '
+                                                      '(chain scenes only)')
+        return Inertia(name=name, J=_number(el['J'], f'{path}.J', positive=True), limits=limits,
+                       imbalance=imb)
     if etype == 'spring':
         _check_keys(el, SPRING_KEYS, path)
         if 'stiffness' not in el:
@@ -485,7 +547,9 @@ def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Elem
                                                f'{path}.initial_twist_deg', lo=-90.0, hi=90.0)),
             fidelity=_string(el.get('fidelity', 'auto'), f'{path}.fidelity',
                              choices=SPRING_FIDELITIES),
-            limits=limits)
+            limits=limits,
+            variation=_variation(el.get('stiffness_variation', []) or [],
+                                 f'{path}.stiffness_variation'))
     _check_keys(el, JOINT_KEYS, path)
     if 'kind' not in el:
         raise SceneError(f'{path}.kind', f'missing; one of {", ".join(sorted(JOINTS))}')

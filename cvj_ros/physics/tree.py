@@ -223,6 +223,9 @@ class TreeDriveline:
             elif isinstance(el, Spring):
                 if self.levels.get(el.name, 'elastic') == 'rigid':
                     continue
+                if el.variation:
+                    raise SceneError(f'{p}.stiffness_variation', 'not available in a vehicle '
+                                                                 'scene yet (chain scenes only)')
                 g = 0.5 * el.backlash
                 law = SpringLaw(el.name, el.stiffness, el.damping,
                                 el.k2 if el.law == 'progressive' else 0.0, g, el.backlash_smoothing * g)

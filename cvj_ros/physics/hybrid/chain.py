@@ -146,6 +146,12 @@ class HybridChain:
                 segments.append([Inertia(f'{el.name}_output', el.J_output)])
                 cuts.append(el)
             else:
+                if getattr(el, 'variation', ()):
+                    raise SceneError(f'driveline[{i}].stiffness_variation',
+                                     'not available with a clutch, gearbox or brake yet')
+                if getattr(el, 'imbalance', None) is not None:
+                    raise SceneError(f'driveline[{i}].imbalance',
+                                     'not available with a clutch, gearbox or brake yet')
                 segments[-1].append(el)
         self.sections: list[tuple[Op, ...]] = []
         self.boundaries: list[Boundary] = []

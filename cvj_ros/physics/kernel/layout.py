@@ -9,7 +9,9 @@ ip header (``H_*`` indices):
     H_ENGINE engine code, H_LOAD load code, H_ENGINE_I / H_ENGINE_F engine ip/fp offsets,
     H_LOAD_I / H_LOAD_F load ip/fp offsets, H_SEC section table offset, H_SPRING_F spring
     parameter offset (fp), H_INPUT_F input block offset (fp), H_TREE tree block offset
-    (0 for a chain).
+    (0 for a chain), H_IMBALANCE imbalance table offset (0: none).
+imbalance table at ip[H_IMBALANCE]: count, then per unbalanced inertia (section, op index in
+    the op list, fp offset of [m g e N m, angle rad]) (sections.section_imbalance).
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
@@ -21,8 +23,10 @@ ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any j
     OP_HOOKE_PHASED fp = [cos(beta), psi - gamma, cos(delta), asin(cos delta)] (a Hooke joint
     with a yoke phase, bend plane or cross angle: joints/hooke.py hooke_phased_scalar).
     OP_RUNOUT fp = [k = e/r, phase rad] (an eccentric axis: joints/runout.py runout_scalar).
-springs (one per section boundary, 5 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
-    half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw.
+springs (one per section boundary, 6 floats each): c (N m/rad), d (N m s/rad), k2 (1/rad^2),
+    half gap g (rad), smoothing width w (rad) - the fields of driveline.SpringLaw - and the fp
+    offset of its stiffness variation (0: uniform), a block [n_terms, (order, eps, psi rad) per
+    term] (SpringLaw.variation; vehicle scenes: always 0).
 input block (9 floats): t_k, Te, Te_rate, Ke, we, Tl, Tl_rate, Kl, wl (see set_torque_inputs).
 engine: ENGINE_INPUTS (input block), ENGINE_LINEAR fp = [throttle, m1, k1] (Davidbaev et al. 2023, eq. 3.23),
     ENGINE_MAP fp = [throttle, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm,
@@ -71,7 +75,8 @@ H_NDOF, H_NSTATE, H_ENERGY, H_ENGINE, H_LOAD = 0, 1, 2, 3, 4
 H_ENGINE_I, H_ENGINE_F, H_LOAD_I, H_LOAD_F = 5, 6, 7, 8
 H_SEC, H_SPRING_F, H_INPUT_F = 9, 10, 11
 H_TREE = 12          # 0: a chain; else the ip offset of the tree block (vehicle scenes)
-N_HEADER = 13
+H_IMBALANCE = 13     # 0: no imbalance; else the ip offset of the imbalance table
+N_HEADER = 14
 
 # op codes
 OP_INERTIA = 0
@@ -98,7 +103,7 @@ LOAD_FOURIER = 4
 LOAD_BRAKE_STEPS = 5
 LOAD_TIME_SERIES = 6
 
-SPRING_STRIDE = 5
+SPRING_STRIDE = 6
 
 # tree block (vehicle scenes) at ip[H_TREE]: counts and table offsets
 (TB_NS, TB_NG, TB_NSPR, TB_ND, TB_NW, TB_KMAX, TB_SEC, TB_OPS, TB_SPR, TB_DIFF, TB_WHEEL,
@@ -257,6 +262,7 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     fp: list[float] = [0.0]          # fp[0] unused, so offset 0 never aliases a parameter
     ops: list[tuple[int, int]] = []
     sec_start = [0]
+    imb: list[int] = []         # (section, op index, fp offset) per unbalanced inertia
     by_name = {el.name: el for el in driveline.scene.driveline}
     for g, names in enumerate(driveline._section_names):
         for name in names:
@@ -264,6 +270,10 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
             if isinstance(el, Inertia):
                 fp.append(float(el.J))
                 ops.append((OP_INERTIA, len(fp) - 1))
+                for k, mge, ang in driveline._imbalances[g]:
+                    if driveline._section_names[g][k] == name:
+                        imb += [g, len(ops) - 1, len(fp)]
+                        fp.extend([mge, ang])
             elif isinstance(el, Joint):
                 model = driveline.joint_models[name]
                 stages = model.joints if model.kind == 'chain' else [model]
@@ -272,7 +282,13 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
         sec_start.append(len(ops))
     spring_f = len(fp)
     for sp in driveline.springs:
-        fp.extend([sp.c, sp.d, sp.k2, sp.gap, sp.width])
+        fp.extend([sp.c, sp.d, sp.k2, sp.gap, sp.width, 0.0])
+    for k, sp in enumerate(driveline.springs):
+        if sp.variation:        # its block after the spring table; the offset as a float
+            fp[spring_f + SPRING_STRIDE * k + 5] = float(len(fp))
+            fp.append(float(len(sp.variation)))
+            for order, eps, psi in sp.variation:
+                fp.extend([float(order), float(eps), float(psi)])
     input_f = len(fp)
     fp.extend([0.0] * N_INPUT)
     e_code, e_f = _engine_block(engine, fp)
@@ -287,6 +303,9 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     head[H_LOAD], head[H_LOAD_F], head[H_LOAD_I] = l_code, l_f, 0
     head[H_SEC], head[H_SPRING_F], head[H_INPUT_F] = N_HEADER, spring_f, input_f
     ip = head + sec_start + [v for op in ops for v in op]
+    if imb:
+        ip[H_IMBALANCE] = len(ip)
+        ip += [len(imb) // 3] + imb
     return ModelData(np.asarray(ip, dtype=np.int64), np.asarray(fp, dtype=np.float64),
                      n, driveline._n_state, bool(driveline.track_energy),
                      np.array(driveline.x0, dtype=np.float64))
@@ -323,7 +342,7 @@ def _tree_model(dl: Any, engine: Any) -> ModelData:
     spr: list[int] = []
     for law, left, right in dl.springs:
         spr += [left, right]
-        fp.extend([law.c, law.d, law.k2, law.gap, law.width])
+        fp.extend([law.c, law.d, law.k2, law.gap, law.width, 0.0])
     dif: list[int] = []
     for d in dl.diffs:
         dif += [d.left, d.right, len(fp)]

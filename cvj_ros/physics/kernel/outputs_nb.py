@@ -23,11 +23,13 @@ from numba import njit
 from cvj_ros.physics.kernel.borrow_nb import borrowed_all
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
-from cvj_ros.physics.kernel.layout import (H_ENERGY, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
+from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
                                           OP_INERTIA, OP_JOINT_IDENTITY, OP_LEVER_EXACT,
                                           SPRING_STRIDE)
 from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs, section,
-                                          spring_deflection, spring_eval)
+                                          spring_deflection, spring_eval,
+                                          spring_vary_eval, imbalance_force,
+                                          imbalance_torque)
 
 
 def shaft_table(driveline: Any) -> np.ndarray:
@@ -198,6 +200,7 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
             off = ip[ops + 2 * kk + 1]
             if code == OP_INERTIA:
                 torque -= fp[off] * (a * acc + b * v * v)
+                torque -= imbalance_torque(kk, phi, ip, fp)
             else:
                 po, r, s = joint_eval(code, phi, fp, off)
                 b = s * a * a + r * b
@@ -208,13 +211,20 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
             st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
         m = section(g, q, ip, fp)[3]
         kin += 0.5 * m * v * v
+        if ip[H_IMBALANCE] != 0:
+            el += imbalance_force(g, q, ip, fp)[2]
         if g < n - 1:       # the spring to the right carries the next section's torque
             off = sp0 + SPRING_STRIDE * g
             th = phi - y[g + 1]
             thd = a * v - y[n + g + 1]
-            carry = spring_eval(th, thd, fp, off)[0]
-            e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
-            el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
+            if fp[off + 5] != 0.0:      # varying stiffness: the right side's torque and s V
+                vs = spring_vary_eval(th, thd, y[g + 1], fp, off)
+                carry = vs[0] + vs[1]
+                el += vs[7]
+            else:
+                carry = spring_eval(th, thd, fp, off)[0]
+                e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
+                el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
         else:
             phi_l, a_l = phi, a
     return tk_e, kin, el, phi_l, a_l

@@ -17,7 +17,8 @@ from numba import njit
 from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
-    ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_INPUT_F, H_LOAD, H_LOAD_F, H_NDOF, H_SEC,
+    ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_IMBALANCE, H_INPUT_F, H_LOAD, H_LOAD_F,
+    H_NDOF, H_SEC,
     H_SPRING_F, H_TREE, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
     LOAD_INPUTS, OP_INERTIA, SPRING_STRIDE)
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
@@ -47,6 +48,51 @@ def section(g, q, ip, fp):
             a = r * a
             phi = po
     return phi, a, b, m, c, mp, has_joint
+
+
+@njit(cache=True)
+def imbalance_force(g, q, ip, fp):
+    """(Q N m, dQ/dq N m/rad, V J) of section g's unbalanced inertias at q (table at
+    ip[H_IMBALANCE]; sections.section_imbalance): V = sum m g e sin(phi_i + angle)."""
+    n = ip[H_NDOF]
+    tab = ip[H_SEC]
+    ops = tab + n + 1
+    it = ip[H_IMBALANCE]
+    cnt = ip[it]
+    phi, a, b = q, 1.0, 0.0
+    qf, dq, v = 0.0, 0.0, 0.0
+    for k in range(ip[tab + g], ip[tab + g + 1]):
+        code = ip[ops + 2 * k]
+        off = ip[ops + 2 * k + 1]
+        if code == OP_INERTIA:
+            for i in range(cnt):
+                if ip[it + 1 + 3 * i + 1] == k:
+                    fo = ip[it + 1 + 3 * i + 2]
+                    mge = fp[fo]
+                    c = math.cos(phi + fp[fo + 1])
+                    sn = math.sin(phi + fp[fo + 1])
+                    qf -= mge * c * a
+                    dq += mge * (sn * a * a - c * b)
+                    v += mge * sn
+        else:
+            po, r, s = joint_eval(code, phi, fp, off)
+            b = s * a * a + r * b
+            a = r * a
+            phi = po
+    return qf, dq, v
+
+
+@njit(cache=True)
+def imbalance_torque(k, phi, ip, fp):
+    """Resisting weight torque m g e cos(phi + angle) (N m) of op k, 0 if balanced."""
+    it = ip[H_IMBALANCE]
+    if it == 0:
+        return 0.0
+    for i in range(ip[it]):
+        if ip[it + 1 + 3 * i + 1] == k:
+            fo = ip[it + 1 + 3 * i + 2]
+            return fp[fo] * math.cos(phi + fp[fo + 1])
+    return 0.0
 
 
 @njit(cache=True, inline='always')
@@ -82,6 +128,35 @@ def spring_eval(th, thd, fp, off):
     t = f_el * de + d * de * thd
     k_th = c * (1.0 + 3.0 * k2 * e * e) * de * de + f_el * dde + d * dde * thd
     return t, k_th, d * de, d * de * thd * thd
+
+
+@njit(cache=True)
+def spring_vary_eval(th, thd, phi, fp, off):
+    """A spring with circumferentially varying stiffness (SpringLaw.evaluate_varying): the
+    potential s(phi) V(theta), s = 1 + sum eps cos(n phi + psi) from the block at
+    fp[fp[off + 5]]. Returns (torque on both sides, extra -s' V on the right side, dT/dtheta,
+    dT/dthetadot, dT/dphi, dextra/dtheta, dextra/dphi, potential s V, dissipated power)."""
+    c = fp[off]
+    d = fp[off + 1]
+    k2 = fp[off + 2]
+    e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
+    f_el = c * (e + k2 * e * e * e)
+    el = f_el * de
+    k_el = c * (1.0 + 3.0 * k2 * e * e) * de * de + f_el * dde
+    v0 = c * (0.5 * e * e + 0.25 * k2 * e ** 4)
+    vb = int(fp[off + 5])
+    s, s1, s2 = 1.0, 0.0, 0.0
+    for i in range(int(fp[vb])):
+        n = fp[vb + 1 + 3 * i]
+        eps = fp[vb + 2 + 3 * i]
+        x = n * phi + fp[vb + 3 + 3 * i]
+        cx = math.cos(x)
+        sx = math.sin(x)
+        s += eps * cx
+        s1 -= eps * n * sx
+        s2 -= eps * n * n * cx
+    return (s * el + d * de * thd, -s1 * v0, s * k_el + d * dde * thd, d * de, s1 * el,
+            -s1 * el, -s2 * v0, s * v0, d * de * thd * thd)
 
 
 @njit(cache=True, inline='always')
@@ -137,13 +212,21 @@ def rhs(t, y, ip, fp, dy):
             a_load = a
             tl, _dtl, _dtlp = load_torque(t, y, ip, fp, phi, a)
             qf -= tl * a
+        if ip[H_IMBALANCE] != 0:
+            qf += imbalance_force(g, y[g], ip, fp)[0]
         if g > 0:
             qf += carry
         if g < n - 1:
             off = sp0 + SPRING_STRIDE * g
             th = phi - y[g + 1]
             thd = a * y[n + g] - y[n + g + 1]
-            if fp[off + 3] == 0.0:
+            extra = 0.0
+            if fp[off + 5] != 0.0:      # varying stiffness: extra torque on the right side
+                vs = spring_vary_eval(th, thd, y[g + 1], fp, off)
+                ts = vs[0]
+                extra = vs[1]
+                p_damp += vs[8]
+            elif fp[off + 3] == 0.0:
                 d = fp[off + 1]
                 ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
                 p_damp += d * thd * thd
@@ -151,7 +234,7 @@ def rhs(t, y, ip, fp, dy):
                 ts, _k, _kd, pd = spring_eval(th, thd, fp, off)
                 p_damp += pd
             qf -= ts * a
-            carry = ts
+            carry = ts + extra
         v = y[n + g]
         dy[g] = v
         dy[n + g] = (qf - c * v * v) / m
@@ -213,16 +296,32 @@ def jac(t, y, ip, fp, J):
     sc[7, n - 1] -= tl * al
     sc[9 + n - 1, n - 1] += -tl * bl - dtl * bl * vl * al - dtlp * al * al
     sc[9 + n - 1, n2 - 1] += -dtl * al * al
+    if ip[H_IMBALANCE] != 0:
+        for g in range(n):
+            qi, dqi, _vi = imbalance_force(g, y[g], ip, fp)
+            sc[7, g] += qi
+            sc[9 + g, g] += dqi
     for k in range(n - 1):
         off = sp0 + SPRING_STRIDE * k
         a_l = sc[1, k]
         b_l = sc[2, k]
         th = sc[0, k] - y[k + 1]
         thd = a_l * y[n + k] - y[n + k + 1]
-        ts, k_th, k_d, _pd = spring_eval(th, thd, fp, off)
         dthd_qk = b_l * y[n + k]
+        explicit = 0.0
+        if fp[off + 5] != 0.0:      # varying stiffness over phi = q_k+1
+            vs = spring_vary_eval(th, thd, y[k + 1], fp, off)
+            ts = vs[0]
+            k_th = vs[2]
+            k_d = vs[3]
+            explicit = vs[4]
+            sc[7, k + 1] += vs[1]
+            sc[9 + k + 1, k] += vs[5] * a_l
+            sc[9 + k + 1, k + 1] += vs[6] - vs[5]
+        else:
+            ts, k_th, k_d, _pd = spring_eval(th, thd, fp, off)
         d_qk = k_th * a_l + k_d * dthd_qk
-        d_qk1 = -k_th
+        d_qk1 = explicit - k_th
         d_vk = k_d * a_l
         d_vk1 = -k_d
         sc[7, k] -= ts * a_l

@@ -11,7 +11,7 @@ predicted mean and order amplitudes and the prediction error per order (docs/fit
 docs/imperfections.md: k = e/r at r = 50 mm, phase 0) and fits its eccentricity too, with
 the first order in the residuals. ``--varying`` instead gives the bushings a stiffness
 varying once per revolution of the coupling (``stiffness_variation``, docs/imperfections.md:
-c (1 + eps cos phi)) and fits eps (0..0.9), with the first order in the residuals.
+c (1 + eps cos phi)) and fits eps (0..0.6), with the first order in the residuals.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ RUNOUT = {'type': 'joint', 'name': 'runout', 'kind': 'runout',
           'params': {'eccentricity_mm': 0.0, 'radius_mm': 50.0, 'phase_deg': 0.0}}
 RUNOUT_FIT = 'driveline[runout].params.eccentricity_mm=0:20'
 VARYING = [{'order': 1, 'amplitude': 0.0, 'phase_deg': 0.0}]
-VARYING_FIT = 'driveline[bushings].stiffness_variation[0].amplitude=0:0.9'
+VARYING_FIT = 'driveline[bushings].stiffness_variation[0].amplitude=0:0.6'
 
 
 def problem_for(base: dict, name: str, orders: int, fits: tuple[str, ...] = FITS

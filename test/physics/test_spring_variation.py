@@ -225,9 +225,10 @@ def linear_response(eps: float, n: int, psi: float) -> dict[str, complex]:
 @pytest.mark.parametrize('eps,n', [(0.01, 1), (0.03, 1), (0.02, 2)])
 def test_simulated_order_matches_the_linearised_response(eps: float, n: int) -> None:
     """Steady run on the compiled kernel; harmonic analysis of its last revolutions over the
-    driven shaft's angle against :func:`linear_response`: within 3 eps relative (the
-    neglected terms are O(eps^2); measured in docs/imperfections.md), other orders at most
-    eps^2 of the mean torque."""
+    driven shaft's angle against :func:`linear_response`: within 2 eps^2 relative, plus
+    2e-5 for the harmonic analysis of interpolated samples (the neglected terms are
+    O(eps^2) relative; measured 0.3-1.0 eps^2 for eps = 0.01-0.3, docs/imperfections.md);
+    the other order at most eps^2 of the mean torque (measured 0.5 eps^2 MC for n = 1)."""
     from cvj_ros.physics.simulate import Simulation
     psi = 0.7
     sc = parse_scene(scene([{'order': n, 'amplitude': eps, 'phase_deg': math.degrees(psi)}]))
@@ -239,6 +240,6 @@ def test_simulated_order_matches_the_linearised_response(eps: float, n: int) -> 
            'torque': _order(tr, n, i_out, tr.effort[:, i_in]),
            'twist': _order(tr, n, i_out, tr.position[:, i_in] - tr.position[:, i_out])}
     for key, w in want.items():
-        assert abs(got[key] - w) <= 3.0 * eps * abs(w), (key, got[key], w)
+        assert abs(got[key] - w) <= (2.0 * eps * eps + 2e-5) * abs(w), (key, got[key], w)
     other = 3 - n                                   # order 2 for n = 1, order 1 for n = 2
     assert abs(_order(tr, other, i_out, tr.effort[:, i_in])) <= eps * eps * MC

@@ -9,7 +9,7 @@ import pytest
 from cvj_ros.physics.load import (BrakeStepsLoad, ConstantLoad, RandomLoad, SumLoad,
                                   TimeSeriesLoad)
 from cvj_ros.physics.scene import find_scene, load_scene
-from cvj_ros.physics.simulate import Simulation, dopri5_segments, landing_grid
+from cvj_ros.physics.simulate import Simulation, dense_segments, dopri5_segments, landing_grid
 
 
 def test_random_load_breakpoints_are_its_knots():
@@ -156,3 +156,21 @@ def test_dopri5_segments_drop_only_the_landings_that_would_underflow():
     assert len(plan.segments) == 200
     raw = [(k, k_end, b) for k, k_end, b in plan.segments]
     assert dopri5_segments(plan.times, raw) == raw
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_dense_segments_match_their_definition(seed):
+    """dense_segments (one searchsorted) against the loop it replaced, one breakpoint at a
+    time: the same rows and breakpoints, so dense runs keep their steps and bytes."""
+    rng = np.random.default_rng(2000 + seed)
+    times = np.arange(int(rng.integers(2, 60))) * rng.choice([0.001, 0.05, 0.1])
+    cand = np.concatenate((rng.uniform(0.0, times[-1] * 1.1, int(rng.integers(0, 30))),
+                           times[rng.integers(0, times.size, 3)]))   # some on samples
+    g, r = landing_grid(times[[0, -1]], cand)
+    breaks = np.delete(g, r)
+    expected, k = [], 1
+    for b in (*breaks.tolist(), None):
+        k_end = times.size if b is None else int(np.searchsorted(times, b, 'right'))
+        expected.append((k, k_end, b))
+        k = max(k, k_end)
+    assert dense_segments(times, breaks) == expected

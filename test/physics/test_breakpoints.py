@@ -9,7 +9,7 @@ import pytest
 from cvj_ros.physics.load import (BrakeStepsLoad, ConstantLoad, RandomLoad, SumLoad,
                                   TimeSeriesLoad)
 from cvj_ros.physics.scene import find_scene, load_scene
-from cvj_ros.physics.simulate import Simulation, landing_grid
+from cvj_ros.physics.simulate import Simulation, dense_segments, dopri5_segments, landing_grid
 
 
 def test_random_load_breakpoints_are_its_knots():
@@ -125,3 +125,52 @@ def test_compiled_landing_grid_is_the_numpy_one(seed):
     g_ref, r_ref = landing_grid(times, breaks)
     np.testing.assert_array_equal(grid, g_ref)
     np.testing.assert_array_equal(rows, r_ref)
+
+
+def test_dopri5_dense_survives_a_knot_an_ulp_from_a_sample():
+    """A random-load knot an ulp before a sample (15 x 0.01 = 0.15 < 3 x 0.05): dense
+    dopri5 landed on the knot, then clipped its next step at that sample, an ulp ahead, and
+    failed with a step size underflow at t = 0.15 s. Samples every 50 ms land on every
+    knot-aligned sample, so the dense run is the landing run, bit for bit."""
+    sim = _kavz(method='dopri5', rtol=1e-3, atol=1e-3)
+    assert 15 * 0.01 < 3 * 0.05      # the premise: the knot precedes the sample by an ulp
+    dense = sim.run(1.0, sample_dt=0.05, sampling='dense')
+    land = sim.run(1.0, sample_dt=0.05, sampling='land')
+    np.testing.assert_array_equal(dense.velocity, land.velocity)
+    assert int(dense.solver['nfev']) == int(land.solver['nfev'])
+
+
+def test_dopri5_segments_drop_only_the_landings_that_would_underflow():
+    """A landing an ulp before a segment of samples is dropped (the segment joins the one
+    before it), as is one an ulp after a segment's last sample; every other list is kept
+    as it is - the kavz685_lever sweep's 1 ms samples (every knot on a sample) run as
+    before."""
+    times = np.arange(5) * 0.05       # 0.15000000000000002
+    segs = [(1, 3, 0.15), (3, 4, 0.16), (4, 5, None)]
+    assert dopri5_segments(times, segs) == [(1, 4, 0.16), (4, 5, None)]
+    times2 = np.array([0.0, 0.3, 0.6])
+    b = 0.1 + 0.2                     # 0.30000000000000004: an ulp after sample 0.3
+    assert dopri5_segments(times2, [(1, 2, b), (2, 3, None)]) == [(1, 2, None), (2, 3, None)]
+    sim = _kavz(method='dopri5')
+    plan = sim._kernel_plan(2.0, 0.001, 'dense', True)
+    assert len(plan.segments) == 200
+    raw = [(k, k_end, b) for k, k_end, b in plan.segments]
+    assert dopri5_segments(plan.times, raw) == raw
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_dense_segments_match_their_definition(seed):
+    """dense_segments (one searchsorted) against the loop it replaced, one breakpoint at a
+    time: the same rows and breakpoints, so dense runs keep their steps and bytes."""
+    rng = np.random.default_rng(2000 + seed)
+    times = np.arange(int(rng.integers(2, 60))) * rng.choice([0.001, 0.05, 0.1])
+    cand = np.concatenate((rng.uniform(0.0, times[-1] * 1.1, int(rng.integers(0, 30))),
+                           times[rng.integers(0, times.size, 3)]))   # some on samples
+    g, r = landing_grid(times[[0, -1]], cand)
+    breaks = np.delete(g, r)
+    expected, k = [], 1
+    for b in (*breaks.tolist(), None):
+        k_end = times.size if b is None else int(np.searchsorted(times, b, 'right'))
+        expected.append((k, k_end, b))
+        k = max(k, k_end)
+    assert dense_segments(times, breaks) == expected

@@ -259,8 +259,9 @@ class CouplingNode(CvjNode):
         self.x = np.array(self.stepper_state(), dtype=float)
         self.names = list(self.driveline.shaft_names)
         self.energy0 = self._energy_total(self.x)
+        # a vehicle scene's tree gives no reactions yet (no TreeDriveline.reactions)
         self.reaction_joints = [name for name, m in self.driveline.joint_models.items()
-                                if hasattr(m, 'reactions')]
+                                if hasattr(m, 'reactions')] if hasattr(self.driveline, 'reactions') else []
         if p['start_gate'] == 'stdin':
             wait_for_go(self.get_logger())
 
@@ -372,9 +373,12 @@ class CouplingNode(CvjNode):
     def _build_physics(self, scene: Any, forced: dict[str, str], p: dict[str, Any]) -> tuple[Any, Any]:
         from cvj_ros.physics.cosim import CoupledStepper
         from cvj_ros.physics.driveline import Driveline
+        from cvj_ros.physics.tree import TreeDriveline
+        # a vehicle scene: tyres and body inside the equations, /load/wrench unused
+        model = TreeDriveline if scene.is_tree else Driveline
         try:
-            driveline = Driveline.from_scene(scene, fidelity=forced or None,
-                                             track_energy=p['track_energy'])
+            driveline = model.from_scene(scene, fidelity=forced or None,
+                                         track_energy=p['track_energy'])
         except CvjError as exc:
             field = 'fidelity' if forced and str(exc).split(':')[0] in forced else 'scene'
             raise ParameterError(field, str(exc)) from None

@@ -533,6 +533,11 @@ class TreeDriveline:
         """Angle of the first inertia (rad)."""
         return float(x[self.sections[0].coord])
 
+    def load_omega(self, x: FloatArray) -> float:
+        """0.0: a vehicle scene has no load port (the tyres and the body are in the equations,
+        ``T_load`` is unused), so a load slope acts on nothing (cvj_ros.physics.cosim)."""
+        return 0.0
+
     def vehicle_speed(self, x: FloatArray) -> float:
         """v (m/s)."""
         return float(x[self._iv])

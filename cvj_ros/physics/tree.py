@@ -35,8 +35,9 @@ with W_damp the springs' and viscous couplings' dissipation, W_slip = int sum F_
 dt (tyre slip work) and W_road = int (F_roll + F_grade + F_aero) v dt.
 
 JointState names: as driveline.py per branch, in depth-first order (a differential's
-``<diff>_input``, ``<diff>_carrier``, then the left branch from ``<diff>_left`` (side gear)
-to its wheel, then the right branch); a wheel shaft carries the wheel's name.
+``<diff>_input``, ``<diff>_carrier``, ``<diff>_left`` and ``<diff>_right`` (side gears), then
+the left branch's shafts to its wheel, then the right branch's); a wheel shaft carries the
+wheel's name.
 """
 from __future__ import annotations
 

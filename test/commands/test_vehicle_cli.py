@@ -1,5 +1,6 @@
 """cvj-sim on vehicle scenes: simulate runs them (compiled kernel, no fallback note) and
-prints the vehicle table; run refuses them in one line, exit 2, nothing started."""
+prints the vehicle table; run refuses the options that replace a chain's load torque in one
+line, exit 2, nothing started (the runs themselves: test/e2e/test_run_vehicle.py)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,12 +10,16 @@ import pytest
 from cvj_ros.cli import main
 
 
-def test_run_refuses_a_vehicle_scene(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize('option, prefix', [
+    (['--external', 'load'], 'cvj-sim: error: --external: load: fwd_axle.yaml is a vehicle scene'),
+    (['--load-from-bag', 'nowhere'], 'cvj-sim: error: --load-from-bag: fwd_axle.yaml is a vehicle scene')])
+def test_run_refuses_load_options_on_a_vehicle_scene(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     option: list[str], prefix: str) -> None:
     out = tmp_path / 'run'
-    assert main(['run', 'fwd_axle', '--out', str(out)]) == 2
+    assert main(['run', 'fwd_axle', '--out', str(out), *option]) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1
-    assert err.startswith('cvj-sim: error: fwd_axle.yaml: a vehicle scene') and 'simulate' in err
+    assert err.startswith(prefix) and 'tyres' in err
     assert not out.exists()
 
 

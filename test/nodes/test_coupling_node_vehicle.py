@@ -1,0 +1,103 @@
+"""coupling_node and load_node in-process (fresh Context) on a vehicle scene (fwd_axle):
+joint-state names of every branch, the tyres and body integrated inside (a /load/wrench
+answer changes nothing), the states equal the offline exchange loop on the same
+TreeDriveline, and load_node's 0 N m answer on the last wheel."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter  # noqa: E402
+
+from cvj_ros.nodes.coupling_node import CouplingNode  # noqa: E402
+from cvj_ros.physics.scene import find_scene, load_scene  # noqa: E402
+from test.nodes.test_coupling_node import T_ENGINE, FakePeers, ns  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+H = 1e-3
+N = 20
+
+
+def _run(ctx, load_torque: float) -> tuple[CouplingNode, FakePeers]:
+    """fwd_axle for N exchanges; the fake peers answer T_ENGINE and ``load_torque``."""
+    import time
+
+    from cvj_ros.nodes.common import make_executor
+    overrides = [Parameter('scene', value='fwd_axle'), Parameter('min_subscribers', value=1),
+                 Parameter('duration', value=N * H), Parameter('exchange_step', value=H)]
+    peers = FakePeers(ctx, lambda topic, k, stamp: [(stamp, T_ENGINE if topic == 'engine' else load_torque)])
+    node = CouplingNode(context=ctx, parameter_overrides=overrides)
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while node.exit_code is None:
+            assert time.monotonic() - t0 < 120, 'coupling node did not finish'
+            ex.spin_once(timeout_sec=0.05)
+        for _ in range(5):
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    return node, peers
+
+
+def _offline(load_torque: float) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Names, positions and speeds at t_k of the exchange loop without ROS (the coupling
+    node's stepper and joint-state walk, engine torque held at T_ENGINE)."""
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.tree import TreeDriveline
+    sc = load_scene(find_scene('fwd_axle'))
+    dl = TreeDriveline.from_scene(sc, track_energy=True)
+    st = CoupledStepper(dl, scheme='zoh', method=sc.solver.method, rtol=sc.solver.rtol,
+                        atol=sc.solver.atol, h=sc.solver.h)
+    x = np.array(dl.x0)
+    pos, vel = [], []
+    for k in range(N + 1):
+        names, p, v, _e = dl.joint_states(x, T_ENGINE, load_torque)
+        pos.append(p)
+        vel.append(v)
+        if k < N:
+            x = st.advance((k + 1) * 1_000_000 / 1e9, T_ENGINE, load_torque)   # the node's t_(k+1)
+    return names, np.array(pos), np.array(vel)
+
+
+def test_vehicle_scene_publishes_every_branch_and_equals_the_offline_exchange_loop(ctx):
+    node, peers = _run(ctx, load_torque=5000.0)      # a load answer is unused: tyres inside
+    assert node.exit_code == 0
+    assert len(peers.js) == N + 1
+    assert [ns(m.header.stamp) for m in peers.js] == [k * 1_000_000 for k in range(N + 1)]
+    names, pos, vel = _offline(load_torque=0.0)
+    assert list(peers.js[0].name) == names
+    for shaft in ('engine_crank', 'differential_carrier', 'differential_left', 'differential_right',
+                  'tripod_left_spider', 'rzeppa_right_cage', 'wheel_left', 'wheel_right'):
+        assert shaft in names
+    # depth first: the differential's four shafts, then the left branch, then the right one
+    order = ['differential_input', 'differential_carrier', 'differential_left', 'differential_right',
+             'tripod_left_input', 'wheel_left', 'tripod_right_input', 'wheel_right']
+    assert [names.index(n) for n in order] == sorted(names.index(n) for n in order)
+    assert names[-1] == 'wheel_right' and names.index('wheel_left') + 1 == names.index('tripod_right_input')
+    got_p = np.array([m.position for m in peers.js])
+    got_v = np.array([m.velocity for m in peers.js])
+    # same stepper and walk on the same torques: only serialisation (float64, exact) between
+    np.testing.assert_array_equal(got_v, vel)
+    np.testing.assert_array_equal(got_p, pos)
+    # compiled stepper (tree kernel, engine torque from the input block); no reaction wrenches
+    assert node.stepper.backend == 'kernel' and node.reaction_joints == [] and node.reaction_pubs == {}
+
+
+def test_load_node_answers_zero_on_the_last_wheel_of_a_vehicle_scene(ctx):
+    from cvj_ros.nodes.load_node import LoadNode
+    node = LoadNode(context=ctx, parameter_overrides=[Parameter('scene', value='awd_4x4')])
+    try:
+        from cvj_ros.physics.scene import Wheel, iter_elements
+        sc = load_scene(find_scene('awd_4x4'))
+        wheels = [el.name for el in iter_elements(sc.driveline) if isinstance(el, Wheel)]
+        assert node.shaft == wheels[-1]
+        assert node.load.torque(0.3, 50.0, 1.0) == 0.0 and node.load.slope(0.3, 50.0, 1.0) == 0.0
+    finally:
+        node.destroy_node()

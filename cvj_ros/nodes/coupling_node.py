@@ -92,6 +92,7 @@ from cvj_ros.errors import CvjError, StartCancelled
 from cvj_ros.nodes.cdr import CdrError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.vehicle_diagnostics import vehicle_values
 from cvj_ros.nodes.peers import (describe, named_publisher_endpoints, publisher_endpoints,
                                  strangers)
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
@@ -974,6 +975,8 @@ class CouplingNode(CvjNode):
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())
             stats['realtime_priority'] = self.realtime_priority
+        # a vehicle scene: vehicle speed and per-wheel slip, tyre and normal force
+        stats.update(vehicle_values(self.driveline, self.x))
         if getattr(self.driveline, 'track_energy', False):
             try:
                 stats['energy_residual'] = float(self.driveline.energy_residual(self.x, self.energy0))

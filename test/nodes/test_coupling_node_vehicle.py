@@ -86,6 +86,16 @@ def test_vehicle_scene_publishes_every_branch_and_equals_the_offline_exchange_lo
     # same stepper and walk on the same torques: only serialisation (float64, exact) between
     np.testing.assert_array_equal(got_v, vel)
     np.testing.assert_array_equal(got_p, pos)
+    # the loop diagnostics carry what JointState cannot: vehicle speed, per-wheel tyre values
+    from cvj_ros.physics.tree import TreeDriveline
+    dl = TreeDriveline.from_scene(load_scene(find_scene('fwd_axle')))
+    stats = node.loop_stats()
+    assert stats['vehicle_speed_m_s'] == float(node.x[dl._iv])
+    assert 13.0 < stats['vehicle_speed_m_s'] < 14.5          # 50 km/h = 13.9 m/s start, 20 ms
+    wheels = dl.wheel_outputs(node.x)
+    for w in ('wheel_left', 'wheel_right'):
+        assert stats[f'{w}.fx_N'] == wheels[w]['fx'] and stats[f'{w}.slip'] == wheels[w]['slip']
+        assert stats[f'{w}.fz_N'] > 0 and stats[f'{w}.status'] == 0
     # compiled stepper (tree kernel, engine torque from the input block); no reaction wrenches
     assert node.stepper.backend == 'kernel' and node.reaction_joints == [] and node.reaction_pubs == {}
 

@@ -298,6 +298,9 @@ def _tree_model(dl: Any, engine: Any) -> ModelData:
     block (the lockstep loop's /engine/wrench answer, :func:`set_torque_inputs`; its load
     entries are unused: the tyres and the body are the load, so there is no load port)."""
     from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES
+    if getattr(dl, 'wheel_torques', None) is not None:
+        raise NotImplementedError('compiled kernel: outside wheel loads (/load/<wheel>/wrench) '
+                                  'have no kernel input yet')
     fp: list[float] = [0.0]
     diff_ring = {d.name: d for d in dl.diffs}
     ops: list[tuple[int, int]] = []

@@ -120,6 +120,8 @@ class _Prepared:
     load_series: tuple[np.ndarray, np.ndarray] | None
     coupling_topics: list[str]
     nodes: tuple[str, ...]
+    # vehicle scene with --external load: the start wait's peers (orchestrate.vehicle)
+    peers: tuple[dict[str, str], dict[str, str]] | None = None
 
 
 def prepare(options: RunOptions) -> _Prepared:
@@ -185,6 +187,10 @@ def prepare(options: RunOptions) -> _Prepared:
         check_finite_series(options.load_from_bag, *load_series)
     # reaction wrench topics (none yet for a vehicle scene: coupling_node publishes none)
     joints = [] if scene.is_tree else [el.name for el in scene.driveline if isinstance(el, Joint)]
+    peers = None
+    if scene.is_tree:
+        from cvj_ros.orchestrate.vehicle import vehicle_peers
+        peers = vehicle_peers(scene, options.external)
     import importlib.util
     outside = {EXTERNAL_PEERS[e][0] for e in options.external}
     nodes = tuple(n for n in NODE_ORDER if n not in outside
@@ -195,8 +201,12 @@ def prepare(options: RunOptions) -> _Prepared:
         if required not in nodes:
             raise CvjError(f'{required}: module cvj_ros.nodes.{required} is not installed')
     check_writable_out(out)   # last: a run refused for another reason creates nothing
+    # the recorder's topics beyond the loop's: reaction wrenches, outside wheel loads
+    extra = [f'/coupling/{j}/wrench' for j in joints]
+    if peers is not None:
+        extra += [t for t in peers[0].values() if t.startswith('/load/')]
     return _Prepared(options, scene, scene_path, duration, h, options.seed, load_series,
-                     [f'/coupling/{j}/wrench' for j in joints], nodes)
+                     extra, nodes, peers)
 
 
 def check_finite_series(bag: Any, t: np.ndarray, torque: np.ndarray) -> None:

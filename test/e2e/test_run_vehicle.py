@@ -155,3 +155,65 @@ def test_every_vehicle_scene_runs_briefly(work: Path, scene: str) -> None:
               if isinstance(el, Wheel)]
     assert set(wheels) <= set(js.names) and len(wheels) >= 2
     assert np.all(np.isfinite(js.velocity)) and js.t.size == 21
+
+
+C_ROAD = 3.0        # N m s/rad: the tiny responder's wheel load T_w = C_ROAD omega_w
+N_EXT = 50          # 0.05 s: the outside-wheel mode runs the Python stepper (no kernel input)
+
+
+def _offline_with_wheel_rule(scene) -> np.ndarray:
+    """The exchange loop without ROS with the responder's rule as the wheel loads."""
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.tree import TreeDriveline
+    dl = TreeDriveline.from_scene(scene, track_energy=True)
+    dl.set_wheel_torques([0.0] * dl.n_wheel)
+    eng = engine_from_spec(dict(scene.engine))
+    st = CoupledStepper(dl, scheme='zoh', method=scene.solver.method, rtol=scene.solver.rtol,
+                        atol=scene.solver.atol, h=scene.solver.h)
+    x = np.array(dl.x0, dtype=float)
+    out = []
+    for k in range(N_EXT + 1):
+        te = eng.torque(k * 1_000_000 / 1e9, dl.engine_omega(x), dl.engine_phi(x))
+        names, _p, v, _e = dl.joint_states(x, te)
+        out.append(v)
+        if k < N_EXT:
+            dl.set_wheel_torques([C_ROAD * v[names.index(w)] for w in dl.wheel_names])
+            x = st.advance((k + 1) * 1_000_000 / 1e9, te, 0.0)
+    return np.array(out)
+
+
+@pytest.mark.parametrize('mode', ['composed', 'separate'])
+def test_external_per_wheel_loads_answered_by_a_tiny_responder(work: Path, mode: str) -> None:
+    """--external load on a vehicle scene: no load_node, one /load/<wheel>/wrench per wheel
+    from an outside process (test/e2e/wheel_responder.py), recorded, integrated."""
+    import os
+    responder = subprocess.Popen([sys.executable, str(Path(__file__).with_name('wheel_responder.py')),
+                                  str(C_ROAD), 'wheel_left', 'wheel_right'], env=dict(os.environ),
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        out = work / f'ext_{mode}'
+        r = _cli(['run', 'fwd_axle', '--out', str(out), '--duration', str(N_EXT * H), '--external', 'load',
+                  *(['--composed'] if mode == 'composed' else [])])
+    finally:
+        responder.terminate()
+        responder.wait(timeout=30)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert '/load/wheel_left/wrench, /load/wheel_right/wrench (each wheel' in r.stdout
+    assert 'external=load' in r.stdout
+    data = bag.read_bag(out / 'bag')
+    assert '/load/wrench' not in data                    # no load_node
+    js = data['/driveline/joint_states']
+    assert js.t.size == N_EXT + 1
+    for wheel in ('wheel_left', 'wheel_right'):
+        answers = data[f'/load/{wheel}/wrench']
+        assert answers.frame_id == wheel
+        order = np.argsort(answers.t)
+        np.testing.assert_array_equal(answers.t[order][:N_EXT], js.t[:N_EXT])   # stamps echoed
+        i = js.names.index(wheel)
+        np.testing.assert_array_equal(answers.torque_z[order][:N_EXT], C_ROAD * js.velocity[:N_EXT, i])
+        assert f'\n    /load/{wheel}/wrench' in r.stdout
+    # the run is the offline exchange loop with the same wheel answers (same Python stepper)
+    from cvj_ros.physics.scene import find_scene, load_scene
+    ref = _offline_with_wheel_rule(load_scene(find_scene('fwd_axle')))
+    assert np.max(np.abs(js.velocity - ref)) <= 1e-9 * np.max(np.abs(ref))

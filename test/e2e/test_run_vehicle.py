@@ -98,6 +98,15 @@ def test_vehicle_run_writes_every_branch_and_the_report_shows_the_wheels(runs, m
     assert np.sort(load.t)[:N].tolist() == js.t[:N].tolist()
     for shaft in ('wheel_left', 'wheel_right', 'differential_left', 'differential_right'):
         assert f'\n    {shaft} ' in r.stdout, r.stdout            # per-wheel row of the report
+    # analyze: per shaft (the wheels included) and the vehicle's loop values
+    from cvj_ros import analysis
+    rep = analysis.analyze_bag(bag_path)
+    assert {'wheel_left', 'wheel_right'} <= set(rep['shafts'])
+    figs = rep['diagnostics']['figures']
+    assert 13.0 < figs['coupling_node: loop/vehicle_speed_m_s']['last'] < 14.5   # from 50 km/h
+    for w in ('wheel_left', 'wheel_right'):
+        assert figs[f'coupling_node: loop/{w}.fz_N']['last'] > 0
+        assert figs[f'coupling_node: loop/{w}.status']['max_abs'] == 0
 
 
 def test_vehicle_lockstep_matches_offline_within_exchange_error(runs) -> None:

@@ -37,7 +37,9 @@ SCENE = '/driveline/scene'
 # Diagnostic keys reported as loop / energy figures (case-insensitive substring match).
 _DIAG_PATTERNS = {'energy': re.compile('energy', re.I), 'wait': re.compile('wait', re.I),
                   'loop': re.compile('overhead|round_trip|rtf|real_time|exchange|integration|ignored|rejected',
-                                     re.I)}
+                                     re.I),
+                  # a vehicle scene's loop values (cvj_ros.nodes.vehicle_diagnostics)
+                  'vehicle': re.compile(r'vehicle_speed|\.(slip|fx_N|fz_N|status)$')}
 
 
 @dataclass

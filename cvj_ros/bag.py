@@ -54,9 +54,10 @@ TOPIC_TYPES: dict[str, str] = {
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     SCENE_TOPIC: 'std_msgs/msg/String',
 }
-# Pattern topics: `/coupling/<joint>/wrench`.
+# Pattern topics: `/coupling/<joint>/wrench`, `/load/<wheel>/wrench` (outside wheel loads).
 PATTERN_TYPES: dict[str, str] = {
     '/coupling/*/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/load/*/wrench': 'geometry_msgs/msg/WrenchStamped',
 }
 # Types that start with a std_msgs/Header.
 HEADER_TYPES = frozenset({
@@ -76,8 +77,10 @@ RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench
 
 
 def _one_publisher_topic(topic: str) -> bool:
-    """A topic with exactly one publisher in a run (RUN_ONLY_TOPICS, /coupling/*/wrench)."""
-    return topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
+    """A topic with exactly one publisher in a run (RUN_ONLY_TOPICS, /coupling/*/wrench,
+    /load/*/wrench)."""
+    return (topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
+            or fnmatch.fnmatchcase(topic, '/load/*/wrench'))
 STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9
 

@@ -286,26 +286,29 @@ class ComposedDriveline:
 
 def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeout: float,
                     lockstep: bool, domain: int, external: Sequence[str],
-                    external_timeout: float) -> str | None:
+                    external_timeout: float,
+                    peers: tuple[dict[str, str], dict[str, str]] | None = None) -> str | None:
     """Spin until the recorder sees one engine and one load publisher (ours or the outside
     node's) and, in lockstep, no other run's publishers for DISCOVERY_SETTLE_S; an error line
     otherwise (same rules and wording as cvj_ros.orchestrate._wait_for_peers)."""
     from cvj_ros import bag as bagmod
     from cvj_ros.orchestrate import DISCOVERY_SETTLE_S, EXTERNAL_PEERS, PEER_TOPICS
     t0 = time.monotonic()
-    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    # a vehicle scene with --external load: its engine and per-wheel peers (orchestrate.vehicle)
+    topics, outside = peers if peers is not None else (
+        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external})
     settled_since: float | None = None
     while not stop():
         comp.spin_for(0.02)
         n_js = comp.publisher_count(bagmod.JOINT_STATES_TOPIC)
         extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
-            [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+            [f'{topic} has {n} publishers' for topic in topics.values()
              if (n := comp.publisher_count(topic)) > 1]
         if extra and lockstep:
             return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
                     f'{domain} before the loop started: another run or node shares this domain; '
                     'give each run its own ROS_DOMAIN_ID')
-        missing = [n for n, topic in PEER_TOPICS.items() if comp.publisher_count(topic) < 1]
+        missing = [n for n, topic in topics.items() if comp.publisher_count(topic) < 1]
         now = time.monotonic()
         if not missing:
             settled_since = now if settled_since is None else settled_since
@@ -315,11 +318,11 @@ def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeou
         settled_since = None
         for name in missing:
             if name in outside and now > t0 + external_timeout:
-                return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
+                return (f'--external {outside[name]}: no outside node published {topics[name]} '
                         f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s')
         if now > t0 + timeout and any(n not in outside for n in missing):
             name = next(n for n in missing if n not in outside)
-            return f'{name}: {PEER_TOPICS[name]} not connected within {timeout:g} s'
+            return f'{name}: {topics[name]} not connected within {timeout:g} s'
     return None
 
 
@@ -424,12 +427,13 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             if name == 'coupling_node':
                 if options.external:
                     progress.clear()
-                    print(orch.external_wait_line(options.external, domain, options.external_timeout),
+                    print(orch.external_wait_line(options.external, domain, options.external_timeout,
+                                                  prep.peers),
                           file=stream, flush=True)
                 error = _wait_for_peers(comp, lambda: bool(stop_signal), timeout=options.start_timeout,
                                         lockstep=options.mode == 'lockstep', domain=domain,
                                         external=options.external,
-                                        external_timeout=options.external_timeout)
+                                        external_timeout=options.external_timeout, peers=prep.peers)
                 mark('peers_connected')
                 if error is not None or stop_signal:
                     break

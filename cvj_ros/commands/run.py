@@ -51,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='lockstep wait bound for engine/load answers in s (default 5)')
     parser.add_argument('--external', choices=('load', 'engine', 'both'), default=None,
                         help='do not start that peer: an outside node (your vehicle stack) answers '
-                             'on /load/wrench and/or /engine/wrench instead; recorded as usual')
+                             'on /load/wrench (a vehicle scene: /load/<wheel>/wrench for every '
+                             'wheel) and/or /engine/wrench instead; recorded as usual')
     parser.add_argument('--external-timeout', type=float, default=30.0, metavar='S',
                         help='longest wait for the outside node to publish, s (default 30)')
     parser.add_argument('--nonfinite-torque', choices=('stop', 'hold'), default='stop',

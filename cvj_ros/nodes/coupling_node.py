@@ -92,6 +92,8 @@ from cvj_ros.errors import CvjError, StartCancelled
 from cvj_ros.nodes.cdr import CdrError
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
+from cvj_ros.nodes.vehicle_diagnostics import vehicle_values
+from cvj_ros.nodes.wheel_loads import WHEEL_LOAD_MODES, WheelAnswers
 from cvj_ros.nodes.peers import (describe, named_publisher_endpoints, publisher_endpoints,
                                  strangers)
 from cvj_ros.nodes.freerun import CATCH_UP_POLICIES, FreeRunScheduler, Step, run_wakeup
@@ -182,6 +184,9 @@ PARAMS = (
     ParamSpec('diagnostics_every', 100, 'publish loop diagnostics every N exchange steps',
               lo=1, hi=10**9),
     ParamSpec('track_energy', True, 'integrate work integrals and report the energy residual'),
+    ParamSpec('wheel_load', 'internal', 'vehicle scene: internal = the built-in tyres (load_node '
+              'answers /load/wrench, unused); external = outside nodes answer /load/<wheel>/wrench '
+              'for every wheel instead of the tyres and load_node', choices=WHEEL_LOAD_MODES),
     ParamSpec('nonfinite_torque', 'stop', 'lockstep: a NaN/inf torque.z answer stops the run '
               '(stop) or is replaced by the last finite torque of that topic, counted as '
               'held_torques with WARN (hold)', choices=NONFINITE_POLICIES),
@@ -259,8 +264,9 @@ class CouplingNode(CvjNode):
         self.x = np.array(self.stepper_state(), dtype=float)
         self.names = list(self.driveline.shaft_names)
         self.energy0 = self._energy_total(self.x)
+        # a vehicle scene's tree gives no reactions yet (no TreeDriveline.reactions)
         self.reaction_joints = [name for name, m in self.driveline.joint_models.items()
-                                if hasattr(m, 'reactions')]
+                                if hasattr(m, 'reactions')] if hasattr(self.driveline, 'reactions') else []
         if p['start_gate'] == 'stdin':
             wait_for_go(self.get_logger())
 
@@ -282,6 +288,15 @@ class CouplingNode(CvjNode):
         # the in-process bus (composed mode) only hosted nodes' answers come at all
         self._dds_engine = not hasattr(self.engine_sub, 'bus')
         self._dds_load = not hasattr(self.load_sub, 'bus')
+        # wheel_load=external: one answer per wheel completes the load port (wheel_loads.py)
+        self.wheel_answers: WheelAnswers | None = None
+        self.wheel_subs: list[Any] = []
+        if p['wheel_load'] == 'external':
+            self.wheel_answers = WheelAnswers(self.driveline.wheel_names)
+            self.wheel_subs = [
+                loop_subscription(self, WrenchStamped, topic,
+                                  lambda data, i=i: self._on_wheel(data, i), DATA_QOS)
+                for i, topic in enumerate(self.wheel_answers.topics)]
         self._peer_gids: dict[str, frozenset[str]] = {}
         self._graph_due = 0.0         # monotonic s of the next graph check inside the loop
         # Reused message objects: one builtin_interfaces/Time shared by every header and
@@ -372,12 +387,20 @@ class CouplingNode(CvjNode):
     def _build_physics(self, scene: Any, forced: dict[str, str], p: dict[str, Any]) -> tuple[Any, Any]:
         from cvj_ros.physics.cosim import CoupledStepper
         from cvj_ros.physics.driveline import Driveline
+        from cvj_ros.physics.tree import TreeDriveline
+        # a vehicle scene: tyres and body inside the equations, /load/wrench unused
+        model = TreeDriveline if scene.is_tree else Driveline
         try:
-            driveline = Driveline.from_scene(scene, fidelity=forced or None,
-                                             track_energy=p['track_energy'])
+            driveline = model.from_scene(scene, fidelity=forced or None,
+                                         track_energy=p['track_energy'])
         except CvjError as exc:
             field = 'fidelity' if forced and str(exc).split(':')[0] in forced else 'scene'
             raise ParameterError(field, str(exc)) from None
+        if p['wheel_load'] == 'external':
+            if not scene.is_tree:
+                raise ParameterError('wheel_load', 'external needs a vehicle scene (wheels); '
+                                     'a chain takes its outside load on /load/wrench')
+            driveline.set_wheel_torques([0.0] * driveline.n_wheel)   # Python stepper
         method = p['solver'] or scene.solver.method
         rtol = p['rtol'] or scene.solver.rtol
         atol = p['atol'] or scene.solver.atol
@@ -436,13 +459,20 @@ class CouplingNode(CvjNode):
         if n_sub < self.params['min_subscribers']:
             missing.append(f'{JOINT_STATES_TOPIC} ({n_sub} of {self.params["min_subscribers"]} '
                            f'subscribers{self._subscriber_names()})')
-        for topic, sub in ((ENGINE_WRENCH_TOPIC, self.engine_sub), (LOAD_WRENCH_TOPIC, self.load_sub)):
+        for topic, sub in self._answer_subs():
             if sub.get_publisher_count() < 1:
                 missing.append(f'{topic} (no publisher)')
         bus = bus_for(self.context)
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
         return missing
+
+    def _answer_subs(self) -> list[tuple[str, Any]]:
+        """(topic, subscription) of every answer the loop waits for: /engine/wrench and
+        /load/wrench, or with wheel_load=external /engine/wrench and each /load/<wheel>/wrench."""
+        if self.wheel_answers is None:
+            return [(ENGINE_WRENCH_TOPIC, self.engine_sub), (LOAD_WRENCH_TOPIC, self.load_sub)]
+        return [(ENGINE_WRENCH_TOPIC, self.engine_sub), *zip(self.wheel_answers.topics, self.wheel_subs)]
 
     def _subscriber_names(self) -> str:
         """': a, b; not yet: c' - the nodes subscribed to the joint states and the
@@ -476,8 +506,7 @@ class CouplingNode(CvjNode):
         not carry (composed mode hears only its hosted publishers there)."""
         topics: list[tuple[str, Any]] = [
             (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
-            (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count),
-            (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count)]
+            *((topic, sub.get_publisher_count) for topic, sub in self._answer_subs())]
         bus = bus_for(self.context)
         if self.started and bus is not None:
             topics = [(t, n) for t, n in topics if not bus.carries(t)]
@@ -640,10 +669,14 @@ class CouplingNode(CvjNode):
                     return
             missing = [t for t, have in ((ENGINE_WRENCH_TOPIC, self._have_engine),
                                          (LOAD_WRENCH_TOPIC, self._have_load)) if not have]
+            who = 'engine_node' if ENGINE_WRENCH_TOPIC in missing else 'load_node'
+            if self.wheel_answers is not None and LOAD_WRENCH_TOPIC in missing:
+                missing = [t for t in missing if t != LOAD_WRENCH_TOPIC] + self.wheel_answers.missing(self.t_ns)
+                who = 'engine_node' if ENGINE_WRENCH_TOPIC in missing else 'the outside wheel-load node'
             self._stop_with_error(
                 f'lockstep: no answer on {" and ".join(missing)} for t={self.t_ns / NS_PER_S:.9g} s '
                 f'(step {self.k}) within peer_timeout={self.params["peer_timeout"]} s; '
-                f'is {"engine_node" if ENGINE_WRENCH_TOPIC in missing else "load_node"} running?')
+                f'is {who} running?')
 
     def _stop_with_error(self, message: str) -> None:
         self.waiting = False
@@ -677,7 +710,7 @@ class CouplingNode(CvjNode):
     def _hold_nonfinite(self, value: float, stamp_ns: int, topic: str) -> float:
         """nonfinite_torque=hold: the last finite torque of ``topic`` (0 N m before the
         first); counted in ``held_torques`` (WARN); the first one is logged in one line."""
-        held = self._last_finite[topic]
+        held = self._last_finite.get(topic, 0.0)
         self.held_torques += 1
         if self.held_torques == 1:
             self.get_logger().warning(
@@ -703,7 +736,48 @@ class CouplingNode(CvjNode):
         self._on_answer(data, ENGINE_WRENCH_TOPIC, engine=True)
 
     def _on_load(self, data: bytes) -> None:
+        if self.wheel_answers is not None:      # wheel_load=external: the wheels answer instead
+            return
         self._on_answer(data, LOAD_WRENCH_TOPIC, engine=False)
+
+    def _on_wheel(self, data: bytes, i: int) -> None:
+        """A raw /load/<wheel>/wrench answer (wheel_load=external), checked as /load/wrench's
+        (malformed: dropped and counted; a second publisher once running: stop; non-finite:
+        the nonfinite_torque policy). Free-run: the wheel's torque is held from now on.
+        Lockstep: taken once per wheel for t_k; the last wheel's answer completes the load
+        port, which then goes the /load/wrench way (:meth:`_on_wrench`)."""
+        wheels = self.wheel_answers
+        topic = wheels.topics[i]
+        try:
+            stamp_ns, value = decode_wrench_stamp_torque_z(data)
+        except CdrError as exc:
+            self._drop_malformed(topic, str(exc))
+            return
+        if self.exit_code is not None:
+            return
+        sub = self.wheel_subs[i]
+        if self.started and not hasattr(sub, 'bus') and sub.get_publisher_count() > 1:
+            self._stop_with_error(self._intruder_line(topic))
+            return
+        if self.mode == 'lockstep' and self.params['nonfinite_torque'] == 'hold':
+            if math.isfinite(value):
+                self._last_finite[topic] = value
+            else:
+                value = self._hold_nonfinite(value, stamp_ns, topic)
+        if not self._torque_ok(value, stamp_ns, topic):
+            return
+        if self.mode != 'lockstep':
+            wheels.values[i] = value
+            self.driveline.set_wheel_torques(wheels.values)
+            return
+        if not self.waiting or self._have_load or stamp_ns != self.t_ns or wheels.answered(i, stamp_ns):
+            self.ignored_stamps += 1     # late, duplicate or out-of-order answer
+            if self.waiting and not self._have_load and stamp_ns != self.t_ns:
+                self._note_wrong_stamp(topic, stamp_ns)
+            return
+        if wheels.offer(i, stamp_ns, value):
+            self.driveline.set_wheel_torques(wheels.values)
+            self._on_wrench(stamp_ns, 0.0, LOAD_WRENCH_TOPIC, engine=False)
 
     def _on_answer(self, data: bytes, topic: str, *, engine: bool) -> None:
         """A raw wrench answer on ``topic``: checked decode (malformed: dropped and counted),
@@ -970,6 +1044,8 @@ class CouplingNode(CvjNode):
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())
             stats['realtime_priority'] = self.realtime_priority
+        # a vehicle scene: vehicle speed and per-wheel slip, tyre and normal force
+        stats.update(vehicle_values(self.driveline, self.x))
         if getattr(self.driveline, 'track_energy', False):
             try:
                 stats['energy_residual'] = float(self.driveline.energy_residual(self.x, self.energy0))

@@ -35,10 +35,13 @@ PARAMS = (
 
 
 def build_load(scene: Any, p: dict[str, Any]) -> Any:
-    """The load model the parameters ask for (scene load, ``load_spec`` or ``load_override``)."""
+    """The load model the parameters ask for (scene load, ``load_spec`` or ``load_override``;
+    a vehicle scene without either: 0 N m, :func:`vehicle_scene_load`)."""
     import yaml
 
     from cvj_ros.physics import load as load_mod
+    if getattr(scene, 'is_tree', False) and not (p['load_override'] or p['load_spec'].strip()):
+        return vehicle_scene_load()
     seed = scene_seed(scene, p['seed'])
     if p['load_override']:
         t, torque = load_torque_series_file('load_override', p['load_override'])
@@ -60,6 +63,23 @@ def build_load(scene: Any, p: dict[str, Any]) -> Any:
         raise ParameterError(field if field == 'load_spec' else 'scene', str(exc)) from None
 
 
+def vehicle_scene_load() -> Any:
+    """A vehicle scene's /load/wrench source: 0 N m. Its tyres and vehicle body are part of the
+    tree's equations, which coupling_node integrates; the answer keeps the lockstep protocol
+    the chains' one (same peers, same gate, a recorded /load/wrench per step)."""
+    from cvj_ros.physics.load import ConstantLoad
+    return ConstantLoad(torque=0.0)
+
+
+def output_shaft(scene: Any) -> str:
+    """JointState name the load answer reads: a chain's last inertia, a vehicle scene's last
+    wheel (cvj_ros.physics.tree names a wheel shaft after its wheel)."""
+    if getattr(scene, 'is_tree', False):
+        from cvj_ros.physics.scene import Wheel, iter_elements
+        return [el.name for el in iter_elements(scene.driveline) if isinstance(el, Wheel)][-1]
+    return inertia_names(scene)[-1]
+
+
 class LoadNode(TorqueResponder):
     """Load torque responder (see module docstring). Parameters: :data:`PARAMS`."""
 
@@ -69,7 +89,7 @@ class LoadNode(TorqueResponder):
         scene = load_scene_param(p['scene'])
         self.scene = scene
         self.load = build_load(scene, p)
-        shaft = p['output_shaft'] or inertia_names(scene)[-1]
+        shaft = p['output_shaft'] or output_shaft(scene)
         self.start_answering(source=self.load, shaft=shaft, wrench_topic=LOAD_WRENCH_TOPIC)
         describe = getattr(self.load, 'describe', None)
         self.get_logger().info(f'load {describe() if describe else type(self.load).__name__} on '

@@ -37,6 +37,7 @@ from cvj_ros.nodes.diagnostics import Status, plain_status, publish_statuses
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
 from cvj_ros.nodes.malformed import MalformedInputs
+from cvj_ros.nodes.parameters import scene_elements
 from cvj_ros.nodes.cdr import (CdrError, JointStateDecoder, decode_string, decode_wrench_header_torque_z,
                                decode_diagnostic_array, read_joint_state_block,
                                read_wrench_torque_z_block)
@@ -153,8 +154,8 @@ class MonitorNode(CvjNode):
         joints' internal members (INTERNAL_MEMBERS)."""
         limits: dict[str, tuple[float, float]] = {}
         members: set[str] = set()
-        for el in scene.get('driveline', []) or []:
-            if not isinstance(el, dict) or el.get('type') != 'joint':
+        for el in scene_elements(scene.get('driveline')):    # a vehicle scene's branches too
+            if el.get('type') != 'joint':
                 continue
             if el.get('kind') in INTERNAL_MEMBERS and 'name' in el:
                 members.add(f"{el['name']}_{INTERNAL_MEMBERS[el['kind']]}")

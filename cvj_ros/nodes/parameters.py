@@ -4,7 +4,7 @@ Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -212,6 +212,18 @@ def load_scene_param(value: str) -> Any:
 def scene_dict(scene: Any) -> dict[str, Any]:
     """The scene as a plain dict (``Scene.to_dict()``)."""
     return scene.to_dict() if hasattr(scene, 'to_dict') else dict(scene)
+
+
+def scene_elements(driveline: Any) -> Iterator[Mapping[str, Any]]:
+    """Every element mapping of a scene dict's ``driveline`` list, depth first: a
+    differential, then its ``left`` and its ``right`` branch (a vehicle scene)."""
+    for el in driveline or []:
+        if not isinstance(el, Mapping):
+            continue
+        yield el
+        if el.get('type') == 'differential':
+            yield from scene_elements(el.get('left'))
+            yield from scene_elements(el.get('right'))
 
 
 def inertia_names(scene: Any) -> list[str]:

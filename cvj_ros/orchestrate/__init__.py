@@ -172,12 +172,12 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             # peers' publishers and no other run's
             if options.external:
                 progress.clear()
-                print(external_wait_line(options.external, domain, options.external_timeout),
+                print(external_wait_line(options.external, domain, options.external_timeout, prep.peers),
                       file=stream, flush=True)
             error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout,
                                     lockstep=options.mode == 'lockstep', domain=domain,
                                     external=options.external,
-                                    external_timeout=options.external_timeout)
+                                    external_timeout=options.external_timeout, peers=prep.peers)
             mark('peers_connected')
             if error is None and not stop_signal:
                 recorder.recorder.hold = frozenset()

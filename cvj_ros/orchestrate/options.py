@@ -120,6 +120,8 @@ class _Prepared:
     load_series: tuple[np.ndarray, np.ndarray] | None
     coupling_topics: list[str]
     nodes: tuple[str, ...]
+    # vehicle scene with --external load: the start wait's peers (orchestrate.vehicle)
+    peers: tuple[dict[str, str], dict[str, str]] | None = None
 
 
 def prepare(options: RunOptions) -> _Prepared:
@@ -127,9 +129,6 @@ def prepare(options: RunOptions) -> _Prepared:
     from cvj_ros.physics.scene import Joint, find_scene, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
-    if scene.is_tree:
-        raise CvjError(f'{scene_path.name}: a vehicle scene (wheels, differentials) runs offline '
-                       f'only for now (cvj-sim simulate); the ROS loop carries one chain')
     if scene.has_modes:          # clutch, gearbox, brake, commands: offline reference only
         from cvj_ros.physics.hybrid.scene_keys import mode_gap
         field, reason = mode_gap(scene)
@@ -157,6 +156,9 @@ def prepare(options: RunOptions) -> _Prepared:
     unknown = [e for e in options.external if e not in EXTERNAL_PEERS]
     if unknown:
         raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)} or both, got {unknown[0]!r}')
+    if scene.is_tree:
+        from cvj_ros.orchestrate.vehicle import check_vehicle_options
+        check_vehicle_options(scene_path, options)
     if options.load_from_bag is not None and 'load' in options.external:
         raise CvjError('--load-from-bag: cannot be combined with --external load (no load_node '
                        'is started to play the recorded load)')
@@ -183,7 +185,12 @@ def prepare(options: RunOptions) -> _Prepared:
         if load_series[0].size < 2:
             raise CvjError(f'--load-from-bag: {options.load_from_bag}: needs >= 2 /load/wrench samples')
         check_finite_series(options.load_from_bag, *load_series)
-    joints = [el.name for el in scene.driveline if isinstance(el, Joint)]
+    # reaction wrench topics (none yet for a vehicle scene: coupling_node publishes none)
+    joints = [] if scene.is_tree else [el.name for el in scene.driveline if isinstance(el, Joint)]
+    peers = None
+    if scene.is_tree:
+        from cvj_ros.orchestrate.vehicle import vehicle_peers
+        peers = vehicle_peers(scene, options.external)
     import importlib.util
     outside = {EXTERNAL_PEERS[e][0] for e in options.external}
     nodes = tuple(n for n in NODE_ORDER if n not in outside
@@ -194,8 +201,12 @@ def prepare(options: RunOptions) -> _Prepared:
         if required not in nodes:
             raise CvjError(f'{required}: module cvj_ros.nodes.{required} is not installed')
     check_writable_out(out)   # last: a run refused for another reason creates nothing
+    # the recorder's topics beyond the loop's: reaction wrenches, outside wheel loads
+    extra = [f'/coupling/{j}/wrench' for j in joints]
+    if peers is not None:
+        extra += [t for t in peers[0].values() if t.startswith('/load/')]
     return _Prepared(options, scene, scene_path, duration, h, options.seed, load_series,
-                     [f'/coupling/{j}/wrench' for j in joints], nodes)
+                     extra, nodes, peers)
 
 
 def check_finite_series(bag: Any, t: np.ndarray, torque: np.ndarray) -> None:

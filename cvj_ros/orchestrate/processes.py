@@ -44,6 +44,8 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
                       min_subscribers=3 + ('monitor_node' in prep.nodes),
                       # after "go" the peers are there: a bounded wait, as the run's own
                       start_timeout=float(o.start_timeout))
+        if getattr(prep, 'peers', None) is not None:      # a vehicle scene, --external load
+            params['wheel_load'] = 'external'
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

@@ -179,9 +179,15 @@ LOOP_TOPICS = (bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, bagmod.SCENE_TOPIC
 # --external NAME: (the node it replaces, what the outside node must publish)
 
 
-def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> str:
-    """The one line printed while a run waits for outside peers: which topic, what to publish."""
-    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
+def external_wait_line(external: Sequence[str], domain: int, timeout: float,
+                       peers: tuple[dict[str, str], dict[str, str]] | None = None) -> str:
+    """The one line printed while a run waits for outside peers: which topic, what to publish
+    (``peers``: a vehicle scene's, orchestrate.vehicle.vehicle_peers)."""
+    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external
+             if peers is None or e != 'load']
+    if peers is not None:
+        parts.append(f'{", ".join(t for n, t in peers[0].items() if peers[1].get(n) == "load")} '
+                     '(each wheel\'s resisting torque, torque.z in N m (positive opposes positive rotation))')
     return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
             f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
             f'every message with a geometry_msgs/WrenchStamped whose header.stamp '
@@ -191,12 +197,15 @@ def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> 
 def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
                     stop_signal: list[int], timeout: float, *, lockstep: bool = True,
                     domain: int | None = None, external: Sequence[str] = (),
-                    external_timeout: float = 30.0) -> str | None:
-    """Wait until the recorder matched engine/load publishers; an error line if a peer died or
-    ``timeout`` (s; ``external_timeout`` for outside peers) passed, else None."""
+                    external_timeout: float = 30.0,
+                    peers: tuple[dict[str, str], dict[str, str]] | None = None) -> str | None:
+    """Wait until the recorder matched engine/load publishers (``peers``: a vehicle scene's
+    engine and per-wheel outside loads, orchestrate.vehicle.vehicle_peers); an error line if a
+    peer died or ``timeout`` (s; ``external_timeout`` for outside peers) passed, else None."""
     t0 = time.monotonic()
     deadline = t0 + timeout
-    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    topics, outside = peers if peers is not None else (
+        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external})
     settled_since: float | None = None
     dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
     while not stop_signal:
@@ -212,13 +221,13 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
         # started and mixed into the first one's bag).
         n_js = recorder.publisher_count(bagmod.JOINT_STATES_TOPIC)
         extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
-            [f'{topic} has {n} publishers' for topic in PEER_TOPICS.values()
+            [f'{topic} has {n} publishers' for topic in topics.values()
              if (n := recorder.publisher_count(topic)) > 1]
         if extra and lockstep:
             return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
                     f'{dom} before the loop started: another run or '
                     'node shares this domain; give each run its own ROS_DOMAIN_ID')
-        missing = [n for n, topic in PEER_TOPICS.items() if recorder.publisher_count(topic) < 1]
+        missing = [n for n, topic in topics.items() if recorder.publisher_count(topic) < 1]
         if not missing:
             # hold the all-clear for DISCOVERY_SETTLE_S: endpoints of another run on the
             # domain may still be arriving
@@ -232,13 +241,13 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
         now = time.monotonic()
         for name in missing:
             if name in outside and now > t0 + external_timeout:
-                return (f'--external {outside[name]}: no outside node published {PEER_TOPICS[name]} '
+                return (f'--external {outside[name]}: no outside node published {topics[name]} '
                         f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s; '
                         f'start it on that domain (e.g. ROS_DOMAIN_ID={domain} .venv/bin/python '
                         f'examples/vehicle_stack.py --ros-args -p use_sim_time:=true)')
         if now > deadline and any(name not in outside for name in missing):
             name = next(n for n in missing if n not in outside)
-            return f'{name}: {PEER_TOPICS[name]} not connected within {timeout:g} s'
+            return f'{name}: {topics[name]} not connected within {timeout:g} s'
         time.sleep(0.02)
     return None
 

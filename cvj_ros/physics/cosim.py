@@ -179,7 +179,8 @@ class CoupledStepper:
         if backend == 'python':
             return None
         from cvj_ros.physics.driveline import Driveline
-        if not isinstance(driveline, Driveline):
+        # a vehicle scene's TreeDriveline: engine torque from the input block, tyres inside
+        if not (isinstance(driveline, Driveline) or getattr(driveline, 'is_tree', False)):
             if backend == 'kernel':
                 raise SolverOptionError('backend', 'the compiled kernel needs a Driveline')
             self.backend_fallback = f'{type(driveline).__name__} is not a Driveline'

@@ -183,8 +183,9 @@ class KernelStateOutputs:
 
 def make_state_outputs(driveline: Any, joints: list[str], *, compiled: bool) -> StateOutputs:
     """:class:`KernelStateOutputs` when ``compiled`` (the stepper runs the kernel) and the
-    driveline packs into kernel data, else :class:`PythonStateOutputs`."""
-    if compiled:
+    driveline packs into kernel data, else :class:`PythonStateOutputs` (always for a vehicle
+    scene's TreeDriveline: its walk over the branches has no compiled form yet)."""
+    if compiled and not getattr(driveline, 'is_tree', False):
         try:
             return KernelStateOutputs(driveline, joints)
         except NotImplementedError:

@@ -35,8 +35,9 @@ with W_damp the springs' and viscous couplings' dissipation, W_slip = int sum F_
 dt (tyre slip work) and W_road = int (F_roll + F_grade + F_aero) v dt.
 
 JointState names: as driveline.py per branch, in depth-first order (a differential's
-``<diff>_input``, ``<diff>_carrier``, then the left branch from ``<diff>_left`` (side gear)
-to its wheel, then the right branch); a wheel shaft carries the wheel's name.
+``<diff>_input``, ``<diff>_carrier``, ``<diff>_left`` and ``<diff>_right`` (side gears), then
+the left branch's shafts to its wheel, then the right branch's); a wheel shaft carries the
+wheel's name.
 """
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ from cvj_ros.physics.differential import Differential as DiffModel
 from cvj_ros.physics.joints import JOINTS, make_joint
 from cvj_ros.physics.scene import Differential, Inertia, Joint, Scene, Spring, Wheel
 from cvj_ros.physics.sections import Op, Shaft, SpringLaw, section_kinematics
-from cvj_ros.physics.tyre import TYRE_NO_LOAD, MagicFormula, Tyre
+from cvj_ros.physics.tyre import TYRE_NO_LOAD, TYRE_OK, MagicFormula, Tyre
 from cvj_ros.physics.vehicle import VehicleBody
 
 __all__ = ['TreeDriveline', 'TreeSection']
@@ -170,6 +171,8 @@ class TreeDriveline:
                                 speed_scale=v.speed_scale, cg_height=v.cg_height,
                                 wheelbase=v.wheelbase, front_share=v.front_share)
         self.n_wheel = len(self.wheels)
+        # outside wheel loads (:meth:`set_wheel_torques`): None = the tyres give F_x
+        self.wheel_torques: list[float] | None = None
         self._iv = 2 * self.n_dof + self.n_wheel          # index of v in x
         self._n_state = self._iv + 1 + (N_WORK if track_energy else 0)
         self._groups = self._make_groups()
@@ -416,8 +419,12 @@ class TreeDriveline:
                                     grips, v)
         fx, status, omega = [], [], []
         p_slip = 0.0
-        for w, k, f_z in zip(self.wheels, kappa, fz):
-            f, st = w.tyre.force(k, f_z)
+        outside = self.wheel_torques
+        for i, (w, k, f_z) in enumerate(zip(self.wheels, kappa, fz)):
+            if outside is None:
+                f, st = w.tyre.force(k, f_z)
+            else:           # an outside node's resisting torque T_w: F_x = T_w / r
+                f, st = outside[i] / w.tyre.radius, TYRE_OK
             a_w = kin.ends[w.section][1]
             om = a_w * kin.qd[w.section]
             fx.append(f)
@@ -535,6 +542,26 @@ class TreeDriveline:
     def engine_phi(self, x: FloatArray) -> float:
         """Angle of the first inertia (rad)."""
         return float(x[self.sections[0].coord])
+
+    def set_wheel_torques(self, torques: list[float] | None) -> None:
+        """Outside wheel loads: ``torques[i]`` (N m, resisting, wheel order of
+        :attr:`wheel_names`) replaces wheel i's tyre, F_x = T_i / r_i on the wheel shaft
+        (-F_x r) and on the body (+F_x), so the body, the slip work and the energy balance
+        stay as with tyres; None restores the tyres. The relaxed slip keeps integrating
+        (unused). The compiled kernel has no input for them: build_model refuses."""
+        if torques is not None and len(torques) != self.n_wheel:
+            raise ValueError(f'wheel torques: {self.n_wheel} needed, got {len(torques)}')
+        self.wheel_torques = None if torques is None else [float(v) for v in torques]
+
+    @property
+    def wheel_names(self) -> list[str]:
+        """The wheels' names (their shafts' JointState names), depth first."""
+        return [w.name for w in self.wheels]
+
+    def load_omega(self, x: FloatArray) -> float:
+        """0.0: a vehicle scene has no load port (the tyres and the body are in the equations,
+        ``T_load`` is unused), so a load slope acts on nothing (cvj_ros.physics.cosim)."""
+        return 0.0
 
     def vehicle_speed(self, x: FloatArray) -> float:
         """v (m/s)."""

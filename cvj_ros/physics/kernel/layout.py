@@ -58,7 +58,7 @@ Covered so far: Hooke (exact, ideal), lever hinge (closed, exact), tripod (close
     the identity (checked at build time), springs (linear,
 progressive, backlash), work integrals, linear engine, constant load, input-block torques;
 vehicle scenes (open, locked and viscous differentials, magic-formula tyres with relaxed slip,
-the body with load transfer) with an in-kernel engine.
+the body with load transfer) with an in-kernel engine or the input block's engine torque.
 Anything else raises NotImplementedError naming the element (no silent fallback).
 """
 from __future__ import annotations
@@ -313,12 +313,13 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
 
 def _tree_model(dl: Any, engine: Any) -> ModelData:
     """Pack a vehicle scene's TreeDriveline (cvj_ros.physics.tree) and its engine (module
-    docstring, "Vehicle scenes"). The engine must be evaluated in the kernel: the tyres and
-    the body are the load, so there is no load port."""
+    docstring, "Vehicle scenes"). ``engine`` None: the engine torque comes from the input
+    block (the lockstep loop's /engine/wrench answer, :func:`set_torque_inputs`; its load
+    entries are unused: the tyres and the body are the load, so there is no load port)."""
     from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES
-    if engine is None:
-        raise NotImplementedError('compiled kernel: a vehicle scene needs its engine in the '
-                                  'kernel (no torque input block)')
+    if getattr(dl, 'wheel_torques', None) is not None:
+        raise NotImplementedError('compiled kernel: outside wheel loads (/load/<wheel>/wrench) '
+                                  'have no kernel input yet')
     fp: list[float] = [0.0]
     diff_ring = {d.name: d for d in dl.diffs}
     ops: list[tuple[int, int]] = []

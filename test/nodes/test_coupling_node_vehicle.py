@@ -1,0 +1,220 @@
+"""coupling_node and load_node in-process (fresh Context) on a vehicle scene (fwd_axle):
+joint-state names of every branch, the tyres and body integrated inside (a /load/wrench
+answer changes nothing), the states equal the offline exchange loop on the same
+TreeDriveline, and load_node's 0 N m answer on the last wheel."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from rclpy.parameter import Parameter  # noqa: E402
+
+from cvj_ros.nodes.coupling_node import CouplingNode  # noqa: E402
+from cvj_ros.physics.scene import find_scene, load_scene  # noqa: E402
+from test.nodes.test_coupling_node import T_ENGINE, FakePeers, ns  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+H = 1e-3
+N = 20
+
+
+def _run(ctx, load_torque: float) -> tuple[CouplingNode, FakePeers]:
+    """fwd_axle for N exchanges; the fake peers answer T_ENGINE and ``load_torque``."""
+    import time
+
+    from cvj_ros.nodes.common import make_executor
+    overrides = [Parameter('scene', value='fwd_axle'), Parameter('min_subscribers', value=1),
+                 Parameter('duration', value=N * H), Parameter('exchange_step', value=H)]
+    peers = FakePeers(ctx, lambda topic, k, stamp: [(stamp, T_ENGINE if topic == 'engine' else load_torque)])
+    node = CouplingNode(context=ctx, parameter_overrides=overrides)
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while node.exit_code is None:
+            assert time.monotonic() - t0 < 120, 'coupling node did not finish'
+            ex.spin_once(timeout_sec=0.05)
+        for _ in range(5):
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    return node, peers
+
+
+def _offline(load_torque: float) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Names, positions and speeds at t_k of the exchange loop without ROS (the coupling
+    node's stepper and joint-state walk, engine torque held at T_ENGINE)."""
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.tree import TreeDriveline
+    sc = load_scene(find_scene('fwd_axle'))
+    dl = TreeDriveline.from_scene(sc, track_energy=True)
+    st = CoupledStepper(dl, scheme='zoh', method=sc.solver.method, rtol=sc.solver.rtol,
+                        atol=sc.solver.atol, h=sc.solver.h)
+    x = np.array(dl.x0)
+    pos, vel = [], []
+    for k in range(N + 1):
+        names, p, v, _e = dl.joint_states(x, T_ENGINE, load_torque)
+        pos.append(p)
+        vel.append(v)
+        if k < N:
+            x = st.advance((k + 1) * 1_000_000 / 1e9, T_ENGINE, load_torque)   # the node's t_(k+1)
+    return names, np.array(pos), np.array(vel)
+
+
+def test_vehicle_scene_publishes_every_branch_and_equals_the_offline_exchange_loop(ctx):
+    node, peers = _run(ctx, load_torque=5000.0)      # a load answer is unused: tyres inside
+    assert node.exit_code == 0
+    assert len(peers.js) == N + 1
+    assert [ns(m.header.stamp) for m in peers.js] == [k * 1_000_000 for k in range(N + 1)]
+    names, pos, vel = _offline(load_torque=0.0)
+    assert list(peers.js[0].name) == names
+    for shaft in ('engine_crank', 'differential_carrier', 'differential_left', 'differential_right',
+                  'tripod_left_spider', 'rzeppa_right_cage', 'wheel_left', 'wheel_right'):
+        assert shaft in names
+    # depth first: the differential's four shafts, then the left branch, then the right one
+    order = ['differential_input', 'differential_carrier', 'differential_left', 'differential_right',
+             'tripod_left_input', 'wheel_left', 'tripod_right_input', 'wheel_right']
+    assert [names.index(n) for n in order] == sorted(names.index(n) for n in order)
+    assert names[-1] == 'wheel_right' and names.index('wheel_left') + 1 == names.index('tripod_right_input')
+    got_p = np.array([m.position for m in peers.js])
+    got_v = np.array([m.velocity for m in peers.js])
+    # same stepper and walk on the same torques: only serialisation (float64, exact) between
+    np.testing.assert_array_equal(got_v, vel)
+    np.testing.assert_array_equal(got_p, pos)
+    # the loop diagnostics carry what JointState cannot: vehicle speed, per-wheel tyre values
+    from cvj_ros.physics.tree import TreeDriveline
+    dl = TreeDriveline.from_scene(load_scene(find_scene('fwd_axle')))
+    stats = node.loop_stats()
+    assert stats['vehicle_speed_m_s'] == float(node.x[dl._iv])
+    assert 13.0 < stats['vehicle_speed_m_s'] < 14.5          # 50 km/h = 13.9 m/s start, 20 ms
+    wheels = dl.wheel_outputs(node.x)
+    for w in ('wheel_left', 'wheel_right'):
+        assert stats[f'{w}.fx_N'] == wheels[w]['fx'] and stats[f'{w}.slip'] == wheels[w]['slip']
+        assert stats[f'{w}.fz_N'] > 0 and stats[f'{w}.status'] == 0
+    # compiled stepper (tree kernel, engine torque from the input block); no reaction wrenches
+    assert node.stepper.backend == 'kernel' and node.reaction_joints == [] and node.reaction_pubs == {}
+
+
+def test_load_node_answers_zero_on_the_last_wheel_of_a_vehicle_scene(ctx):
+    from cvj_ros.nodes.load_node import LoadNode
+    node = LoadNode(context=ctx, parameter_overrides=[Parameter('scene', value='awd_4x4')])
+    try:
+        from cvj_ros.physics.scene import Wheel, iter_elements
+        sc = load_scene(find_scene('awd_4x4'))
+        wheels = [el.name for el in iter_elements(sc.driveline) if isinstance(el, Wheel)]
+        assert node.shaft == wheels[-1]
+        assert node.load.torque(0.3, 50.0, 1.0) == 0.0 and node.load.slope(0.3, 50.0, 1.0) == 0.0
+    finally:
+        node.destroy_node()
+
+
+# --- wheel_load=external: one /load/<wheel>/wrench answer per wheel -------------------------
+
+C_ROAD = 3.0        # N m s/rad: the tiny responder's wheel load T_w = C_ROAD omega_w
+
+
+class WheelPeers:
+    """A tiny outside road: answers /engine/wrench with T_ENGINE and every
+    /load/<wheel>/wrench with C_ROAD times that wheel's speed, stamps echoed; ``skip`` wheels
+    have a publisher (so the loop starts) but never answer."""
+
+    def __init__(self, ctx, wheels: list[str], skip: tuple[str, ...] = ()) -> None:
+        from geometry_msgs.msg import WrenchStamped
+        from sensor_msgs.msg import JointState
+
+        from cvj_ros.nodes.qos import DATA_QOS
+        from cvj_ros.nodes.wheel_loads import wheel_wrench_topic
+        self.node = rclpy.create_node('wheel_peers', context=ctx)
+        self.engine_pub = self.node.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+        pubs = {w: self.node.create_publisher(WrenchStamped, wheel_wrench_topic(w), DATA_QOS)
+                for w in wheels}
+        self.wheel_pubs = {w: pub for w, pub in pubs.items() if w not in skip}
+        self.js: list = []
+        self._msg = WrenchStamped
+        self.node.create_subscription(JointState, '/driveline/joint_states', self._on_js, DATA_QOS)
+
+    def _on_js(self, msg) -> None:
+        self.js.append(msg)
+        names = list(msg.name)
+        for pub, torque in [(self.engine_pub, T_ENGINE)] + [
+                (pub, C_ROAD * msg.velocity[names.index(w)]) for w, pub in self.wheel_pubs.items()]:
+            w = self._msg()
+            w.header.stamp = msg.header.stamp
+            w.wrench.torque.z = torque
+            pub.publish(w)
+
+
+def _run_wheels(ctx, skip: tuple[str, ...] = (), **params):
+    import time
+
+    from cvj_ros.nodes.common import make_executor
+    overrides = [Parameter('scene', value='fwd_axle'), Parameter('min_subscribers', value=1),
+                 Parameter('duration', value=N * H), Parameter('exchange_step', value=H),
+                 Parameter('wheel_load', value='external')]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    peers = WheelPeers(ctx, ['wheel_left', 'wheel_right'], skip)
+    node = CouplingNode(context=ctx, parameter_overrides=overrides)
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while node.exit_code is None:
+            assert time.monotonic() - t0 < 120, 'coupling node did not finish'
+            ex.spin_once(timeout_sec=0.05)
+        for _ in range(5):
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    return node, peers
+
+
+def test_outside_wheel_loads_are_integrated_as_the_offline_loop_with_the_same_answers(ctx):
+    node, peers = _run_wheels(ctx)
+    assert node.exit_code == 0 and len(peers.js) == N + 1
+    assert node.stepper.backend == 'python'          # the kernel has no wheel-torque input
+    # offline: the same stepper on the same TreeDriveline, each wheel's torque the
+    # responder's rule at t_k, engine torque T_ENGINE
+    from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.physics.tree import TreeDriveline
+    sc = load_scene(find_scene('fwd_axle'))
+    dl = TreeDriveline.from_scene(sc, track_energy=True)
+    dl.set_wheel_torques([0.0, 0.0])
+    st = CoupledStepper(dl, scheme='zoh', method=sc.solver.method, rtol=sc.solver.rtol,
+                        atol=sc.solver.atol, h=sc.solver.h)
+    x = np.array(dl.x0)
+    vel = []
+    for k in range(N + 1):
+        names, _p, v, _e = dl.joint_states(x, T_ENGINE)
+        vel.append(v)
+        if k < N:
+            dl.set_wheel_torques([C_ROAD * v[names.index(w)] for w in ('wheel_left', 'wheel_right')])
+            x = st.advance((k + 1) * 1_000_000 / 1e9, T_ENGINE, 0.0)
+    np.testing.assert_array_equal(np.array([m.velocity for m in peers.js]), np.array(vel))
+    # and the wheels' effort is the answered torque (~C_ROAD * 46 rad/s = 139 N m), not the
+    # tyres' (which would carry the car's 1500 kg)
+    last = peers.js[-1]
+    i = list(last.name).index('wheel_left')
+    assert last.effort[i] == pytest.approx(C_ROAD * last.velocity[i], rel=1e-2)
+
+
+def test_a_wheel_that_never_answers_ends_the_loop_naming_its_topic(ctx):
+    node, _peers = _run_wheels(ctx, skip=('wheel_right',), peer_timeout=0.5)
+    assert node.exit_code == 1
+    assert ('lockstep: no answer on /load/wheel_right/wrench for t=0 s (step 0) within '
+            'peer_timeout=0.5 s; is the outside wheel-load node running?') in node.error_message
+
+
+def test_external_wheel_load_needs_a_vehicle_scene(ctx, tmp_path):
+    from cvj_ros.nodes.common import ParameterError
+    from test.nodes.test_coupling_node import scene_file
+    with pytest.raises(ParameterError, match='wheel_load: external needs a vehicle scene'):
+        CouplingNode(context=ctx, parameter_overrides=[
+            Parameter('scene', value=scene_file(tmp_path)), Parameter('wheel_load', value='external')])

@@ -10,8 +10,10 @@ Brent location on the dense output, same mode choice) on the tree's equations pe
 * slipping wheel brake: the wheel speed crossing zero -> try STUCK (the wheel's section is
   pinned: its speed is exactly 0.0 from then on); stuck: the margin to T_hold -> slip;
 * engine speed below the stall speed -> the run stops with one status line;
-* with a shift schedule (cvj_ros.physics.hybrid.shift): the synchronous input speed
-  crossing an up- or down-shift speed starts a shift sequence (an event ``shift``).
+* with a shift schedule (cvj_ros.physics.hybrid.shift), while every clutch is locked (not
+  during a launch or a shift): the synchronous input speed crossing an up- or down-shift
+  speed starts a shift sequence (an event ``shift``); already past it when the clutch
+  locks, the shift starts at the lock.
 
 Command rows and the shift sequence's steps are breakpoints; a gear command is applied
 there (refused with a status when a clutch is stuck or the engine would over-speed, as on
@@ -151,7 +153,8 @@ class HybridTreeSimulation:
                 ws.append(Witness(('brake', name, STUCK), -1 if m == FORWARD else 1))
         if self.stall_speed is not None:
             ws.append(Witness(('stall', 'engine', 0), -1))
-        if self.auto is not None:
+        locked = all(m == STUCK for m in mode.clutch.values())
+        if self.auto is not None and locked:
             for name, g in mode.gear.items():
                 if g >= 1 and not self.auto.busy(self._t_now):
                     if self.auto.schedule.up(g) is not None:
@@ -438,6 +441,17 @@ class HybridTreeSimulation:
             need_t = any(w.key[0] == 'clutch' and w.key[2] != STUCK for w in ws)
             ev0 = self._eval(mt, t, y0, need_t)
             g_old = [self._g(w, ev0, t, mode) for w in ws]
+            late = [w for w, g in zip(ws, g_old) if w.key[0] == 'shift' and g * w.direction >= 0.0]
+            if late:
+                # the clutch has just locked (or a shift ended) with the synchronous speed
+                # already past a shift speed: the shift starts now
+                _k, name, target = late[0].key
+                g = mode.gear[name]
+                self.auto.start(t, target)
+                stats['events'] += 1
+                self._log(t, name, f'gear {g}', f'shift to {target}',
+                          'up-shift speed' if target > g else 'down-shift speed')
+                continue
             if self.stall_speed is not None and ev0.engine_speed < self.stall_speed:
                 stall = (f'engine stalled at t={t:.6f} s: {ev0.engine_speed:.2f} rad/s below the '
                          f'stall speed {self.stall_speed:.2f} rad/s')

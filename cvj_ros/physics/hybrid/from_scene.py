@@ -113,7 +113,9 @@ def hybrid_summary(scene: Scene, sim: HybridSimulation, result: HybridResult, wa
             'statuses': list(result.statuses), 'stall': result.stall,
             'final_modes': final_modes,
             'final_speeds': {n: float(result.speed[-1, i]) for i, n in enumerate(result.shafts)}
-            if result.t.size else {}}
+            if result.t.size else {},
+            **({'final_vehicle_speed_m_s': float(result.vehicle_speed[-1])}
+               if getattr(result, 'vehicle_speed', None) is not None and result.t.size else {})}
 
 
 def format_hybrid_summary(s: dict[str, Any]) -> str:
@@ -130,6 +132,9 @@ def format_hybrid_summary(s: dict[str, Any]) -> str:
     for el, c in s['events'].items():
         lines.append(f"events {el}: " + ', '.join(f'{n} -> {m}' for m, n in sorted(c.items())))
     lines.append('final: ' + ', '.join(f'{k} {v}' for k, v in s['final_modes'].items()))
+    if 'final_vehicle_speed_m_s' in s:
+        v = s['final_vehicle_speed_m_s']
+        lines.append(f'vehicle speed {v:.4g} m/s ({v * 3.6:.4g} km/h)')
     for line in s['statuses']:
         lines.append(f'status {line}')
     lines.append(f"{'shaft':<24}{'final rad/s':>14}")

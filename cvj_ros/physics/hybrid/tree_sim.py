@@ -92,7 +92,7 @@ class HybridTreeSimulation:
         self._clutch_pack = next(iter(self.clutches.values())).pack if self.clutches else None
         if len(packs) > 1:
             raise SceneError('driveline', 'one clutch pedal drives every clutch: give one clutch')
-        self.chain = None        # the summary's chain-only brake field
+        self.chain = None        # no chain (hybrid_summary reads the chain's output brake there)
         probe = Mode(clutch={c: FORWARD for c in self.clutches}, gear={g: 0 for g in self.gearboxes},
                      brakes={b: FORWARD for b in self.brake_els})
         self.probe = self.tree(probe)
@@ -375,10 +375,8 @@ class HybridTreeSimulation:
         n = mt.n_dof
         x[mt._iv] = v0
         if v0 == 0.0:
-            speeds = mt.evaluate(0.0, x, self.engine, 0.0, {b: 0.0 for b in self.brake_els},
-                                 torques=False)
             kin = mt._kinematics(x)
-            if all(kin.qd[w.section] == 0.0 for w in mt.wheels) and speeds is not None:
+            if all(kin.qd[w.section] == 0.0 for w in mt.wheels):
                 x[2 * n:2 * n + mt.n_wheel] = mt.equilibrium_slip()
         return mode, mt, x
 
@@ -388,12 +386,10 @@ class HybridTreeSimulation:
         self._t_now = 0.0
         mode, mt, x = self._initial()
         st = mt.to_state(x, 0.0)
+        om = mt.evaluate(0.0, x, self.engine, 0.0, {b: 0.0 for b in self.brake_els},
+                         torques=False).wheel_speed
         for name in self.brake_els:
-            w = mt.wheels[mt.brakes[name][1]]
-            om = mt.evaluate(0.0, x, self.engine, 0.0, {b: 0.0 for b in self.brake_els},
-                             torques=False).wheel_speed[name]
-            mode.brakes[name] = BACKWARD if om < 0 else FORWARD
-            del w
+            mode.brakes[name] = BACKWARD if om[name] < 0 else FORWARD   # equal: settle may stick
         mode, st = self._settle(0.0, mode, st)
         mt = self.tree(mode)
         x0, _l = mt.from_state(st, False)
@@ -518,7 +514,6 @@ class HybridTreeSimulation:
         if stall is not None:
             self.statuses.append(stall)
         keep = k_sample
-        mt = self.tree(mode)
         res = HybridResult(times[:keep], list(names), speed[:keep], resid[:keep], gears[:keep],
                            list(self.events), list(self.statuses), stall, st, mode, t, stats)
         res.vehicle_speed = vel[:keep]          # type: ignore[attr-defined]

@@ -125,3 +125,52 @@ def test_round_trip() -> None:
                          source=str(shipped_scenes()[name]))
         assert sc.has_modes and sc.is_tree
         assert parse_scene(sc.to_dict(), source=sc.source) == sc
+
+
+def test_gear_lock_is_the_plastic_impact_of_the_kinetic_metric() -> None:
+    """Engaging 2nd between two spinning sides (ModeTree.from_state) against an independent
+    construction: the section and spider speeds as a linear map R of the locked mode's
+    coordinate speeds (columns from the kinematics at unit speeds), the post-lock speeds as
+    the least-squares projection of the old speeds in the kinetic-energy metric W (numpy's
+    lstsq on sqrt(W) R), and the energy lost equal to the squared metric distance / 2
+    (Pythagoras: the projection error is orthogonal to the remaining motion)."""
+    from cvj_ros.physics.hybrid.chain import Mode
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.sections import section_kinematics
+    d = _variant(duration=0.1, commands=[{'t': 0.0, 'clutch': 1.0, 'gear': 0}])
+    del d['shift_schedule']
+    sim = hybrid_simulation(parse_scene(d))
+    brakes = {b: 1 for b in sim.brake_els}
+    open_mode = Mode(clutch={'clutch': 1}, gear={'gearbox': 0}, brakes=brakes)
+    mt0 = sim.tree(open_mode)
+    rng = np.random.default_rng(3)
+    x = np.zeros(mt0._n_state)
+    n0 = mt0.n_dof
+    x[:n0] = rng.uniform(-0.3, 0.3, n0)
+    x[n0:2 * n0] = rng.uniform(-50.0, 150.0, n0)
+    st = mt0.to_state(x, 0.0)
+    idx = mt0.gearbox_link['gearbox']
+    lock = Mode(clutch={'clutch': 1}, gear={'gearbox': 2}, brakes=brakes,
+                offsets={idx: mt0.lock_offset(idx, st, 1.0 / 2.1)})
+    mt = sim.tree(lock)
+    x_new, loss = mt.from_state(st, True)
+    n = mt.n_dof
+    assert n == n0 - 1                                    # the output side lost its coordinate
+    ns = len(mt.sections)
+    spiders = [(k, dd) for k, dd in enumerate(mt.diffs) if dd.coord >= 0]
+    cols = []
+    for j in range(n):
+        xj = x_new.copy()
+        xj[n:2 * n] = 0.0
+        xj[n + j] = 1.0
+        qd = mt._kinematics(xj).qd
+        cols.append(list(qd) + [xj[n + dd.coord] for _k, dd in spiders])
+    r = np.array(cols).T
+    w_diag = [section_kinematics(mt._sec_ops[s], st.q[s])[3] for s in range(ns)]
+    w_diag += [dd.model.spider_inertia for _k, dd in spiders]
+    old = np.array(list(st.qd) + [st.ddelta[k] for k, _dd in spiders])
+    sq = np.sqrt(np.array(w_diag))
+    u, *_ = np.linalg.lstsq(sq[:, None] * r, sq * old, rcond=None)
+    np.testing.assert_allclose(x_new[n:2 * n], u, rtol=1e-10, atol=1e-9)
+    dist = 0.5 * float(np.sum(np.array(w_diag) * (r @ u - old) ** 2))
+    assert loss > 0.0 and loss == pytest.approx(dist, rel=1e-9)

@@ -183,6 +183,9 @@ class TreeDriveline:
                    track_energy: bool = False) -> TreeDriveline:
         """Resolve fidelity (cvj_ros.physics.fidelity) and build; as Driveline.from_scene."""
         from cvj_ros.physics.fidelity import choose_fidelity
+        if scene.has_modes:      # clutch, gearbox, brakes, commands: cvj_ros.physics.hybrid
+            from cvj_ros.physics.hybrid.scene_keys import mode_gap
+            raise SceneError(*mode_gap(scene))
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report

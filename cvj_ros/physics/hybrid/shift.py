@@ -5,8 +5,8 @@ engine speed the gear imposes when the clutch is locked; independent of clutch s
 slipping launch does not trigger it) is watched as a witness on the dense output: crossing
 the up-shift speed U_g upwards starts g -> g+1 (g < N), crossing the down-shift speed D_g
 downwards starts g -> g-1 (g > 1). The schedule is refused when it would hunt: after an
-up-shift at U_g the new synchronous speed U_g i_{g+1}/i_g must lie above D_{g+1}, after a
-down-shift at D_g the new one D_g i_{g-1}/i_g below U_{g-1}.
+up-shift at U_g the new synchronous speed U_g i_{g+1}/i_g must lie above D_{g+1} (the same
+inequality puts the speed after a down-shift at D_{g+1}, D_{g+1} i_g/i_{g+1}, below U_g).
 
 Sequence from the trigger time t_s (open clutch -> neutral -> new ratio -> close clutch):
 an envelope e(t) rises linearly 0 -> 1 over ``open_time``, holds 1 for ``neutral_time`` and
@@ -104,12 +104,8 @@ def parse_shift_schedule(raw: Any, gearbox: Any) -> ShiftSchedule:
                              f'gear hunting: the up-shift {g} -> {g + 1} at {up[g - 1] / RPM:.0f} rpm '
                              f'lands at {after_up / RPM:.0f} rpm, not above gear {g + 1}\'s down-shift '
                              f'speed {down[g - 1] / RPM:.0f} rpm')
-        after_down = down[g - 1] * ratios[g - 1] / ratios[g]  # g+1 -> g at D_{g+1}
-        if not after_down < up[g - 1]:
-            raise SceneError('shift_schedule.upshift_rpm',
-                             f'gear hunting: the down-shift {g + 1} -> {g} at {down[g - 1] / RPM:.0f} '
-                             f'rpm lands at {after_down / RPM:.0f} rpm, not below gear {g}\'s up-shift '
-                             f'speed {up[g - 1] / RPM:.0f} rpm')
+        # (the down-shift g+1 -> g at D_{g+1} then lands at D_{g+1} i_g/i_{g+1} < U_g: the
+        # same inequality)
     return ShiftSchedule(up, down, times['open_s'], times['neutral_s'], times['close_s'], start)
 
 

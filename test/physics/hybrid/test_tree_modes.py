@@ -174,3 +174,18 @@ def test_gear_lock_is_the_plastic_impact_of_the_kinetic_metric() -> None:
     np.testing.assert_allclose(x_new[n:2 * n], u, rtol=1e-10, atol=1e-9)
     dist = 0.5 * float(np.sum(np.array(w_diag) * (r @ u - old) ** 2))
     assert loss > 0.0 and loss == pytest.approx(dist, rel=1e-9)
+
+
+def test_same_scene_same_numbers() -> None:
+    """Two runs of one scene give the same samples, events and final state to the bit."""
+    d = _variant(duration=1.0, commands=[{'t': 0.0, 'brake': 1.0, 'clutch': 1.0, 'throttle': 0.0,
+                                          'gear': 1}, {'t': 0.5, 'brake': 0.0, 'clutch': 0.7,
+                                                       'throttle': 0.5}])
+    del d['shift_schedule']
+    scene = parse_scene(d)
+    _s1, r1, _w1 = run_hybrid(scene)
+    _s2, r2, _w2 = run_hybrid(scene)
+    assert r1.events == r2.events and len(r1.events) >= 3
+    np.testing.assert_array_equal(r1.speed, r2.speed)
+    np.testing.assert_array_equal(r1.vehicle_speed, r2.vehicle_speed)
+    np.testing.assert_array_equal(r1.energy_residual, r2.energy_residual)

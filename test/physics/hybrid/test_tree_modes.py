@@ -189,3 +189,28 @@ def test_same_scene_same_numbers() -> None:
     np.testing.assert_array_equal(r1.speed, r2.speed)
     np.testing.assert_array_equal(r1.vehicle_speed, r2.vehicle_speed)
     np.testing.assert_array_equal(r1.energy_residual, r2.energy_residual)
+
+
+def test_gear_commands_refused_on_the_tree() -> None:
+    """fwd_axle_manual at 60 km/h in 3rd: 4th commanded with the clutch locked is refused
+    (a gear changes only with the clutch open); with the clutch open, 1st is refused because
+    the input would turn at 3.5 x 4.06 x 55.6 rad/s = 7.5e3 rpm > 6500 rpm (over-speed), and
+    the gearbox keeps 3rd; neutral is always taken."""
+    with open(shipped_scenes()['fwd_axle_manual'], encoding='utf-8') as f:
+        d = yaml.safe_load(f)
+    d['duration'] = 0.25
+    d['vehicle']['initial_speed_kmh'] = 60.0
+    d['engine'] = {'model': 'map', 'throttle': 0.3}
+    d['commands'] = [{'t': 0.0, 'gear': 3, 'clutch': 0.0, 'throttle': 0.3},
+                     {'t': 0.05, 'gear': 4},
+                     {'t': 0.1, 'clutch': 0.0}, {'t': 0.1, 'clutch': 1.0},
+                     {'t': 0.15, 'gear': 1},
+                     {'t': 0.2, 'gear': 0}]
+    _sim, r, _w = run_hybrid(parse_scene(d))
+    assert len(r.statuses) == 2
+    assert r.statuses[0].startswith('t=0.050000 s: gear 4 refused: clutch clutch is not open')
+    assert r.statuses[1].startswith('t=0.150000 s: gear 1 refused: input speed')
+    w_out = 60 / 3.6 / 0.3 * 4.06                      # gearbox output at rolling speed, rad/s
+    assert 'exceed 680.7 rad/s' in r.statuses[1] and 3.5 * w_out > 680.7
+    assert [(e.t, e.after) for e in r.events if e.element == 'gearbox'] == [(0.2, 'gear 0')]
+    assert r.gear[r.t < 0.2].tolist() == [3] * int(np.sum(r.t < 0.2))

@@ -186,6 +186,9 @@ class TreeDriveline:
                    track_energy: bool = False) -> TreeDriveline:
         """Resolve fidelity (cvj_ros.physics.fidelity) and build; as Driveline.from_scene."""
         from cvj_ros.physics.fidelity import choose_fidelity
+        if scene.has_modes:      # clutch, gearbox, brakes, commands: cvj_ros.physics.hybrid
+            from cvj_ros.physics.hybrid.scene_keys import mode_gap
+            raise SceneError(*mode_gap(scene))
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report
@@ -244,6 +247,8 @@ class TreeDriveline:
                 axle = {'front': 1, 'rear': -1}.get(el.axle or '', 0)
                 self.sections[s].end = ('wheel', len(self.wheels))
                 self.wheels.append(_WheelInfo(el.name, s, tyre, el.load_share, axle))
+            elif getattr(el, 'type', '') in ('clutch', 'gearbox', 'brake'):
+                s = self._add_mode_element(el, s, p)
             elif isinstance(el, Differential):
                 model = DiffModel(kind=el.kind, ratio=el.ratio, J_carrier=el.J_carrier,
                                   J_spider=el.J_spider, spider_ratio=el.spider_ratio,
@@ -268,6 +273,12 @@ class TreeDriveline:
                 for c, branch, bp in sides:
                     self._add_chain(branch, c, bp)
 
+    def _add_mode_element(self, el: Any, s: int, path: str) -> int:
+        """A clutch, gearbox or brake in section ``s``; returns the section the chain goes
+        on in. Only the mode-aware tree (cvj_ros.physics.hybrid.tree) takes them."""
+        raise SceneError(path, f'{el.type} {el.name!r}: stick/slip and gear modes run on the '
+                               'mode-aware reference (`cvj-sim simulate`), not here')
+
     def _make_groups(self) -> list[tuple[list[int], list[int]]]:
         """Per group: (its coordinates, its sections), sections in tree order."""
         group_of: list[int] = []
@@ -280,7 +291,7 @@ class TreeDriveline:
                 g = group_of[sec.parent]
                 group_of.append(g)
                 groups[g][1].append(s)
-                c = self.diffs[sec.diff].coord
+                c = self.diffs[sec.diff].coord if sec.diff >= 0 else -1
                 if c >= 0 and c not in groups[g][0]:
                     groups[g][0].append(c)
         self._group_of = group_of
@@ -298,7 +309,7 @@ class TreeDriveline:
                 local[c] = i
         self._sec_local = []
         for sec in self.sections:
-            if sec.parent < 0:
+            if sec.parent < 0 or sec.diff < 0:     # a root, or a locked link's output side
                 self._sec_local.append(-1)
             else:
                 c = self.diffs[sec.diff].coord
@@ -672,6 +683,10 @@ class TreeDriveline:
             kind, idx = sec.end
             if kind == 'wheel':
                 t_end = fo.fx[idx] * self.wheels[idx].tyre.radius
+                if fo.wheel_extra:
+                    t_end += fo.wheel_extra[idx]
+            elif kind == 'link':
+                t_end = self._link_end_torque(idx, start_t, fo)
             elif kind == 'spring':
                 t_end = fo.spring_t[idx]
             elif kind == 'diff':
@@ -713,6 +728,10 @@ class TreeDriveline:
             pos[i], vel[i], eff[i] = phi, om, (0.0 if sh.role == 'mid' else tq)
         return pos, vel, eff, start_t
 
+    def _link_end_torque(self, idx: int, start_t: list[float], fo: _Forces) -> float:
+        """Torque at the end of a section ending in a mode link (mode-aware tree only)."""
+        raise NotImplementedError
+
     def section_start_torques(self, x: FloatArray, T_engine: float) -> list[float]:
         """Torque entering each section at its first shaft (N m), from the backward walk;
         the root's equals T_engine and a spring's right section's that spring's torque when
@@ -741,6 +760,7 @@ class _Forces:
     omega: list[float]
     p_damp: float
     p_slip: float
+    wheel_extra: list[float] = field(default_factory=list)   # brake torque per wheel (N m)
 
 
 def _iter(chain: tuple[Any, ...]) -> Any:

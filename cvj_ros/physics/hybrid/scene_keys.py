@@ -122,12 +122,14 @@ def mode_gap(scene: Any) -> tuple[str, str]:
                         'until the driver node exists')
 
 
-def check_mode_scene(chain: Sequence[Any], method: str) -> None:
+def check_mode_scene(chain: Sequence[Any], method: str, *, tree: bool = False) -> None:
     """A scene with mode elements or commands: its chain splits into valid segments
-    (HybridChain) and its solver has dense output (SceneError naming the field)."""
+    (HybridChain; a vehicle tree's layout is checked by check_tree and ModeTree) and its
+    solver has dense output (SceneError naming the field)."""
     from cvj_ros.physics.hybrid.chain import HybridChain
     if method not in DENSE_METHODS:
         raise SceneError('solver.method', f'a scene with clutch, gearbox, brake or commands needs an '
                                           f'adaptive method with dense output ({", ".join(DENSE_METHODS)}), '
                                           f'got {method!r}')
-    HybridChain(chain)
+    if not tree:
+        HybridChain(chain)

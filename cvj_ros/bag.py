@@ -530,6 +530,8 @@ class JointStateSeries:
     velocity: np.ndarray
     effort: np.ndarray
     record_t: np.ndarray
+    #: messages of the topic left out as not the run's (other joint names, undecodable)
+    foreign: int = 0
 
     def shaft(self, name: str) -> int:
         """Column index of shaft ``name``."""
@@ -547,6 +549,8 @@ class WrenchSeries:
     torque: np.ndarray
     frame_id: str
     record_t: np.ndarray
+    #: messages of the topic left out as undecodable (another publisher's)
+    foreign: int = 0
 
     @property
     def torque_z(self) -> np.ndarray:
@@ -560,6 +564,8 @@ class ScalarSeries:
     t: np.ndarray
     value: np.ndarray
     record_t: np.ndarray
+    #: messages of the topic left out as undecodable (/clock of another publisher)
+    foreign: int = 0
 
 
 @dataclass
@@ -697,8 +703,24 @@ def _stamp_s(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def run_joint_names(path: str | Path) -> list[str] | None:
+    """The run's joint names of a bag: ``shaft_names`` of the scene message the recorder
+    stored in metadata.yaml ``custom_data['cvj_ros.scene']`` (the run's ``/driveline/scene``),
+    else None (no such entry, unreadable)."""
+    try:
+        info = yaml.safe_load((Path(path) / 'metadata.yaml').read_text(encoding='utf-8'))
+        text = info['rosbag2_bagfile_information']['custom_data']['cvj_ros.scene']
+        names = yaml.safe_load(text).get('shaft_names')
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, yaml.YAMLError):
+        return None
+    if isinstance(names, list) and names and all(isinstance(n, str) for n in names):
+        return names
+    return None
+
+
 def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
-             columns: Sequence[str] = ('position', 'velocity', 'effort')) -> dict[str, Any]:
+             columns: Sequence[str] = ('position', 'velocity', 'effort'),
+             joint_names: Sequence[str] | None = None) -> dict[str, Any]:
     """Read a bag (mcap or sqlite3) into typed numpy series, one per topic.
 
     Joint states, wrenches and /clock are decoded in batches straight into preallocated
@@ -709,6 +731,10 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
         topics: topic names or glob patterns (``'/coupling/*/wrench'``); ``None`` = all.
         columns: the JointState arrays to read (others are left as zero-width arrays),
             e.g. ``('velocity', 'effort')`` for the report's metrics (a third less memory).
+        joint_names: the run's joint names; default :func:`run_joint_names` (else the first
+            joint state's). Joint states with other names and messages that do not decode
+            are left out, counted in the series' ``foreign`` (another publisher's messages
+            recorded by ``cvj-sim record``): never a reason to refuse the bag.
 
     Returns:
         ``{topic: series}`` with :class:`JointStateSeries` (JointState),
@@ -729,9 +755,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
         counts: dict[str, int] = {}
         for conn in selected:
             counts[conn.topic] = counts.get(conn.topic, 0) + int(conn.msgcount or 0)
-
-        def names_changed() -> None:
-            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+        names = list(joint_names) if joint_names else run_joint_names(path)
         deserialize = reader.deserialize
         msgtypes = {c.topic: c.msgtype for c in selected}
 
@@ -743,7 +767,8 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
                         msgtype = types[topic] = msgtypes[topic]
                         if bag_decode.batch_decodable(msgtype):
                             builder = builders[topic] = bag_decode.SeriesBuilder(
-                                msgtype, counts.get(topic, 0), deserialize, names_changed,
+                                msgtype, counts.get(topic, 0), deserialize,
+                                names=names if topic == JOINT_STATES_TOPIC else None,
                                 columns=columns)
                     if builder is not None:
                         builder.add_many(stamps, raws)
@@ -788,7 +813,8 @@ OBJECT_BLOCK = 256
 def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
                 columns: Sequence[str] = ('position', 'velocity', 'effort'),
                 block: int | None = None,
-                raw: Iterable[str] = ()) -> Iterator[tuple[str, str, Any]]:
+                raw: Iterable[str] = (),
+                joint_names: Sequence[str] | None = None) -> Iterator[tuple[str, str, Any]]:
     """Stream a bag: ``(topic, msgtype, block)`` with at most ``block`` (default
     :data:`cvj_ros.bag_decode.BATCH`) messages of one topic at a time, in file order per
     topic; memory holds one block per topic. Joint states, wrenches and /clock come as the
@@ -799,8 +825,12 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
     a damaged or compressed mcap file raises :class:`cvj_ros.bag_decode.NotPlain` when the
     damage is reached (the caller reads the bag with :func:`read_bag` instead).
 
+    Joint states not of the run's names (``joint_names``, default :func:`run_joint_names`,
+    else the first block's) and undecodable messages are left out, counted in the block's
+    ``foreign``.
+
     Raises:
-        BagError: as :func:`read_bag` (also when joint names change between blocks).
+        BagError: as :func:`read_bag`.
     """
     from cvj_ros import bag_decode
     size = bag_decode.BATCH if block is None else block
@@ -822,10 +852,8 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
             msgtypes = {c.topic: c.msgtype for c in selected}
             deserialize = reader.deserialize
             files = _plain_mcap_files(reader)
-        first_names: dict[str, list[str]] = {}
-
-        def names_changed() -> None:
-            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+        names0 = list(joint_names) if joint_names else run_joint_names(path)
+        first_names: dict[str, list[str] | None] = {}
 
         def decoded(topic: str, stamps: list[int], segments: list[Any]) -> Any:
             msgtype = msgtypes[topic]
@@ -834,15 +862,17 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
                 if topic in raw_topics:
                     return list(zip(stamps, raws))
                 return [(ts, deserialize(raw, msgtype)) for ts, raw in zip(stamps, raws)]
-            b = bag_decode.SeriesBuilder(msgtype, len(stamps), deserialize, names_changed,
+            js = msgtype == 'sensor_msgs/msg/JointState'
+            b = bag_decode.SeriesBuilder(msgtype, len(stamps), deserialize,
+                                         names=first_names.get(topic, names0) if js else None,
                                          columns=columns, batch=len(stamps) + 1)
             i = 0
             for g in segments:
                 b.add_many(stamps[i:i + len(g)], g)
                 i += len(g)
             d = b.finish()
-            if msgtype == 'sensor_msgs/msg/JointState' and first_names.setdefault(topic, d['names']) != d['names']:
-                names_changed()
+            if js and d['names'] and first_names.get(topic) is None:
+                first_names[topic] = d['names']     # later blocks: the same names
             return d
         source = (blk for f in files for blk in bag_decode.mcap_messages(str(f), set(msgtypes))) \
             if files else ({c.topic: ([ts], [raw])} for c, ts, raw in reader.messages(connections=selected))
@@ -917,11 +947,11 @@ def _built_series(msgtype: str, d: dict[str, Any]) -> Any:
     if msgtype == 'sensor_msgs/msg/JointState':
         empty = np.zeros((t.size, 0))
         return JointStateSeries(t, d['names'], d.get('position', empty), d.get('velocity', empty),
-                                d.get('effort', empty), rec)
+                                d.get('effort', empty), rec, d.get('foreign', 0))
     if msgtype == 'geometry_msgs/msg/WrenchStamped':
-        w = d['wrench']
-        return WrenchSeries(t, w[:, :3], w[:, 3:], d['frame_id'], rec)
-    return ScalarSeries(t.copy(), t, rec)      # rosgraph_msgs/Clock
+        w = d.get('wrench', np.zeros((t.size, 6)))
+        return WrenchSeries(t, w[:, :3], w[:, 3:], d['frame_id'], rec, d.get('foreign', 0))
+    return ScalarSeries(t.copy(), t, rec, d.get('foreign', 0))      # rosgraph_msgs/Clock
 
 
 def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
@@ -929,18 +959,20 @@ def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
     if msgtype == 'sensor_msgs/msg/JointState':
         names = list(msgs[0][1].name) if msgs else []
         n = len(names)
+        n_all = len(msgs)
+        msgs = [(ts, m) for ts, m in msgs if list(m.name) == names]   # the others: not the run's
+        rec = np.array([ts * 1e-9 for ts, _ in msgs], dtype=float)
 
         def col(attr: str) -> np.ndarray:
             out = np.full((len(msgs), n), np.nan)
             for i, (_, m) in enumerate(msgs):
                 v = np.asarray(getattr(m, attr), dtype=float)
-                if list(m.name) != names:
-                    raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
                 if v.size == n:
                     out[i] = v
             return out
         t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
-        return JointStateSeries(t, names, col('position'), col('velocity'), col('effort'), rec)
+        return JointStateSeries(t, names, col('position'), col('velocity'), col('effort'), rec,
+                                n_all - len(msgs))
     if msgtype == 'geometry_msgs/msg/WrenchStamped':
         t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
         force = np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for _, m in msgs],

@@ -1063,8 +1063,13 @@ class BatchingWriter:
     """
 
     def __init__(self, writer: Any, *, batch: int = 1024, max_lag_s: float | None = None,
-                 wait_s: float = 1.0) -> None:
+                 wait_s: float = 1.0, flush_lag_s: float | None = None) -> None:
         self.writer = writer
+        # flush_lag_s (separate processes, whose loop waits for /driveline/recorded): at a
+        # hand-off whose newest message is that far ahead of what is on disk, ask the writer
+        # to flush now instead of at its own span (FLUSH_SIM_SPAN_S after the oldest pending
+        # message: with an exchange step above 25 ms the held loop would wait FLUSH_WALL_S)
+        self.flush_lag_ns = None if flush_lag_s is None else int(flush_lag_s * 1e9)
         self.batch = batch
         self.counts: dict[str, int] = {}
         self._items: list[tuple[str, int, bytes]] = []
@@ -1106,9 +1111,11 @@ class BatchingWriter:
         items, self._items = self._items, []
         self._first_ns = None
         self.writer.write_batch(items)
+        newest = max(items[-1][1], items[0][1])
+        if self.flush_lag_ns is not None and newest - self.writer.durable_ns >= self.flush_lag_ns:
+            self.writer.request_flush()
         if self.max_lag_ns is None:
             return
-        newest = max(items[-1][1], items[0][1])
         need = newest - self.max_lag_ns
         if self.writer.durable_ns >= need:
             return

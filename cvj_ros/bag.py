@@ -193,6 +193,9 @@ class BagWriter:
         # the newest record stamp (ns) the writer thread has handed to the OS (chunk closed and
         # written / transaction committed); -1 before the first flush
         self.durable_ns = -1
+        # per topic, the newest record stamp (ns) on the OS side (a copy made at each flush)
+        self.durable_topics: dict[str, int] = {}
+        self._written_topics: dict[str, int] = {}     # writer thread: newest stamp per topic
         self._durable = threading.Condition()
         self._opened = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(plugin,), name='bag-writer', daemon=True)
@@ -229,10 +232,12 @@ class BagWriter:
                     if self._error is None:
                         write_many(((connections[args[0]], args[1], args[2]),))
                         flusher.wrote(args[1])
+                        self._note_written(((args[0], args[1], None),))
                 elif op == 'batch' and self._error is None:
                     items = args[0]
                     write_many([(connections[topic], stamp, data) for topic, stamp, data in items])
                     flusher.wrote_span(min(it[1] for it in items), max(it[1] for it in items))
+                    self._note_written(items)
                 if op == 'flush' and self._error is None:
                     flusher.flush(time.monotonic())
                 elif op in ('write', 'batch', 'idle') and self._error is None:
@@ -254,10 +259,18 @@ class BagWriter:
                 if op == 'close':
                     return
 
+    def _note_written(self, items: Iterable[tuple[str, int, Any]]) -> None:
+        """Writer thread: the newest record stamp per topic handed to the storage."""
+        last = self._written_topics
+        for topic, stamp, _data in items:
+            if stamp > last.get(topic, -1):
+                last[topic] = stamp
+
     def _set_durable(self, stamp_ns: int) -> None:
         with self._durable:
             if stamp_ns > self.durable_ns:
                 self.durable_ns = stamp_ns
+            self.durable_topics = dict(self._written_topics)
             self._durable.notify_all()
 
     def wait_durable(self, stamp_ns: int, timeout: float) -> bool:
@@ -1063,8 +1076,12 @@ class BatchingWriter:
     """
 
     def __init__(self, writer: Any, *, batch: int = 1024, max_lag_s: float | None = None,
-                 wait_s: float = 1.0, flush_lag_s: float | None = None) -> None:
+                 wait_s: float = 1.0, flush_lag_s: float | None = None,
+                 lag_topics: Iterable[str] = ()) -> None:
         self.writer = writer
+        # flush_lag_s measures from the oldest of these topics' newest flushed stamps
+        # (BagWriter.durable_topics; none given: the newest flushed stamp of any topic)
+        self.lag_topics = frozenset(lag_topics)
         # flush_lag_s (separate processes, whose loop waits for /driveline/recorded): at a
         # hand-off whose newest message is that far ahead of what is on disk, ask the writer
         # to flush now instead of at its own span (FLUSH_SIM_SPAN_S after the oldest pending
@@ -1112,8 +1129,10 @@ class BatchingWriter:
         self._first_ns = None
         self.writer.write_batch(items)
         newest = max(items[-1][1], items[0][1])
-        if self.flush_lag_ns is not None and newest - self.writer.durable_ns >= self.flush_lag_ns:
-            self.writer.request_flush()
+        if self.flush_lag_ns is not None:
+            durable = [v for t, v in self.writer.durable_topics.items() if t in self.lag_topics]
+            if newest - (min(durable) if durable else self.writer.durable_ns) >= self.flush_lag_ns:
+                self.writer.request_flush()
         if self.max_lag_ns is None:
             return
         need = newest - self.max_lag_ns

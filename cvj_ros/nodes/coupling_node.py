@@ -152,6 +152,8 @@ WRONG_STAMP_STALL_S = 1.0
 # watchdog; free-run at a wake-up;
 # three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
 GRAPH_CHECK_S = 0.01
+# While a step waits for the recorder (record_lag_max), SIGINT/SIGTERM is looked for this often (s).
+HOLD_SIGNAL_CHECK_S = 0.02
 # While waiting for its peers before step 0, the node says who is there and who is missing
 # this often (s): a person starting nodes by hand sees what the loop waits for.
 START_REPORT_S = 5.0
@@ -301,6 +303,12 @@ class CouplingNode(CvjNode):
         self.recorded_sub = (self.create_subscription(Clock, RECORDED_TOPIC, self._on_recorded,
                                                       LATCHED_QOS, raw=True)
                              if self.record_lag_ns > 0 else None)
+        # while held: looks for SIGINT/SIGTERM every HOLD_SIGNAL_CHECK_S (the watchdog's period
+        # can be 0.25 s; a stop must come within 0.1 s)
+        self._hold_timer = (self.create_timer(HOLD_SIGNAL_CHECK_S, self._check_hold)
+                            if self.record_lag_ns > 0 else None)
+        if self._hold_timer is not None:
+            self._hold_timer.cancel()
         # run identity by publisher (cvj_ros.nodes.peers): answers that come through DDS are
         # taken only while their topic has one publisher, the one matched at step 0; from
         # the in-process bus (composed mode) only hosted nodes' answers come at all
@@ -688,7 +696,7 @@ class CouplingNode(CvjNode):
         self._cancel_timers()
 
     def _cancel_timers(self) -> None:
-        for tm in (self._watchdog, self._free_timer, self._start_timer):
+        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer):
             if tm is not None:
                 tm.cancel()
 
@@ -808,6 +816,7 @@ class CouplingNode(CvjNode):
                 self._record_held = True         # _on_recorded goes on (module docstring)
                 self._record_hold_start = time.perf_counter()
                 self._recorded_mono = time.monotonic()
+                self._hold_timer.reset()
                 return
             self._advance()
 
@@ -824,6 +833,13 @@ class CouplingNode(CvjNode):
             self.exchange_total += self._wait_start - sent
             self.exchanges += 1
             self._begin_wait()
+
+    def _check_hold(self) -> None:
+        """While the step waits for the recorder: a SIGINT/SIGTERM ends the loop now."""
+        if self._record_held and self.exit_code is None and self.stop_signal():
+            self._record_held = False
+            self._hold_timer.cancel()
+            self.stop_by_signal(self.stop_signal())
 
     def _on_recorded(self, data: bytes) -> None:
         """``/driveline/recorded``: the record time the run's bag holds on disk (raw Clock);
@@ -842,6 +858,7 @@ class CouplingNode(CvjNode):
         if self._record_held and self.exit_code is None and (
                 self.t_ns + self.h_ns - stamp_ns <= self.record_lag_ns):
             self._record_held = False
+            self._hold_timer.cancel()
             self.record_waits += 1
             self.record_wait_total += time.perf_counter() - self._record_hold_start
             if self.stop_signal():

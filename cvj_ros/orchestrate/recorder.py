@@ -37,6 +37,12 @@ RECORDER_COALESCE_S = 0.02
 HOSTED_IN_RUN = ('monitor_node',)
 
 
+# The topics whose flushed record time /driveline/recorded reports (the oldest of them): the
+# loop's own, one message per exchange each.
+GATE_TOPICS = frozenset({bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, '/engine/wrench',
+                         '/load/wrench'})
+
+
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
@@ -50,7 +56,7 @@ class _Recorder:
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         # one hand-off to the writer thread per wake of the take loop, not one per message
         self.batching = bagmod.BatchingWriter(
-            writer, flush_lag_s=bagmod.MAX_LAG_S - bagmod.HANDOFF_SPAN_S)
+            writer, flush_lag_s=bagmod.MAX_LAG_S - bagmod.HANDOFF_SPAN_S, lag_topics=GATE_TOPICS)
         self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_only=run_only)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
@@ -78,9 +84,12 @@ class _Recorder:
 
     def _report_recorded(self) -> None:
         """Publish on ``/driveline/recorded`` the record time (ns, as a Clock) up to which the
-        bag is on the OS side (:attr:`BagWriter.durable_ns`), each time it advances: the
-        coupling node's recorder gate (``record_lag_max``) waits for it. Woken by the writer
-        thread's flush (no polling delay on the loop's critical path)."""
+        bag is on the OS side, each time it advances: the coupling node's recorder gate
+        (``record_lag_max``) waits for it. The time is the oldest of the loop topics' newest
+        flushed stamps (:data:`GATE_TOPICS`, :attr:`BagWriter.durable_topics`): a topic whose
+        samples reach the recorder late (a repaired joint state) holds it back, not the
+        newest /clock. Woken by the writer thread's flush (no polling delay on the loop's
+        critical path)."""
         from rosgraph_msgs.msg import Clock
         sent = -1
         msg = Clock()
@@ -91,6 +100,8 @@ class _Recorder:
             now = self.writer.durable_ns
             if now >= 2**63 - 1:
                 return             # the writer failed: nothing more reaches the disk
+            loop = [v for t, v in self.writer.durable_topics.items() if t in GATE_TOPICS]
+            now = min(loop) if loop else -1
             if now <= sent:
                 continue
             msg.clock.sec, msg.clock.nanosec = divmod(now, 1_000_000_000)

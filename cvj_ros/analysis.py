@@ -60,6 +60,8 @@ class BagSignals:
     diagnostics: list[tuple[float, str, int, str, dict[str, str]]] = field(default_factory=list)
     scene_yaml: str | None = None
     message_counts: dict[str, int] = field(default_factory=dict)
+    # messages left out per topic as not the run's (other joint names, undecodable)
+    foreign: dict[str, int] = field(default_factory=dict)
 
     def column(self, name: str) -> int:
         return self.joint_names.index(name)
@@ -83,7 +85,8 @@ def read_bag_signals(path: str | Path) -> BagSignals:
     js = data[JOINT_STATES]
     sig = BagSignals(path=Path(path), joint_names=list(js.names), t=js.t, position=js.position,
                      velocity=js.velocity, effort=js.effort,
-                     message_counts={t: int(n) for t, n in info.counts.items() if n})
+                     message_counts={t: int(n) for t, n in info.counts.items() if n},
+                     foreign={t: int(x.foreign) for t, x in data.items() if getattr(x, 'foreign', 0)})
     if ENGINE_WRENCH in data:
         sig.engine_t, sig.engine_torque = data[ENGINE_WRENCH].t, data[ENGINE_WRENCH].torque_z
     if LOAD_WRENCH in data:
@@ -210,6 +213,7 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
                    'amplitude_signal': win.amplitude_signal, 'slice_s': _f(win.slice_s),
                    'slices': win.slices, 'criterion': win.criterion(), 'text': win.describe()},
         'topics': dict(sig.message_counts), 'shafts': {}, 'joints': {},
+        'foreign_messages': dict(sig.foreign),
     }
     for j, name in enumerate(sig.joint_names):
         phi, w, tq = sig.position[mask, j], sig.velocity[mask, j], sig.effort[mask, j]
@@ -300,6 +304,13 @@ def _fmt(x: Any, unit: str = '', digits: int = 4) -> str:
     return f'{x:.{digits}g}{unit}'
 
 
+def foreign_line(foreign: dict[str, int]) -> str:
+    """One line naming the messages left out as not the run's, per topic."""
+    parts = ', '.join(f'{n} on {t}' for t, n in sorted(foreign.items()))
+    return (f'left out as not the run\'s (other joint names, undecodable): {parts} '
+            f'({sum(foreign.values())} messages)')
+
+
 def format_report(report: dict[str, Any]) -> str:
     """Human-readable text of an :func:`analyze_signals` report."""
     w = report['window']
@@ -309,6 +320,8 @@ def format_report(report: dict[str, Any]) -> str:
              f"  {w.get('text', '')}", f"  ({w.get('criterion', '')})", '',
              f"{'shaft':<22}{'mean w rad/s':>13}{'delta':>10}{'A_w rad/s':>11}"
              f"{'A_acc rad/s2':>13}{'mean T N m':>12}{'A_T N m':>10}"]
+    if report.get('foreign_messages'):
+        lines.insert(1, foreign_line(report['foreign_messages']))
     for name, s in report['shafts'].items():
         lines.append(f"{name:<22}{_fmt(s['mean_speed_rad_s']):>13}{_fmt(s['speed_nonuniformity']):>10}"
                      f"{_fmt(s['speed_amplitude_rad_s']):>11}{_fmt(s['acceleration_amplitude_rad_s2']):>13}"

@@ -196,6 +196,9 @@ class BagWriter:
         # the newest record stamp (ns) the writer thread has handed to the OS (chunk closed and
         # written / transaction committed); -1 before the first flush
         self.durable_ns = -1
+        # per topic, the newest record stamp (ns) on the OS side (a copy made at each flush)
+        self.durable_topics: dict[str, int] = {}
+        self._written_topics: dict[str, int] = {}     # writer thread: newest stamp per topic
         self._durable = threading.Condition()
         self._opened = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(plugin,), name='bag-writer', daemon=True)
@@ -232,10 +235,12 @@ class BagWriter:
                     if self._error is None:
                         write_many(((connections[args[0]], args[1], args[2]),))
                         flusher.wrote(args[1])
+                        self._note_written(((args[0], args[1], None),))
                 elif op == 'batch' and self._error is None:
                     items = args[0]
                     write_many([(connections[topic], stamp, data) for topic, stamp, data in items])
                     flusher.wrote_span(min(it[1] for it in items), max(it[1] for it in items))
+                    self._note_written(items)
                 if op == 'flush' and self._error is None:
                     flusher.flush(time.monotonic())
                 elif op in ('write', 'batch', 'idle') and self._error is None:
@@ -257,10 +262,18 @@ class BagWriter:
                 if op == 'close':
                     return
 
+    def _note_written(self, items: Iterable[tuple[str, int, Any]]) -> None:
+        """Writer thread: the newest record stamp per topic handed to the storage."""
+        last = self._written_topics
+        for topic, stamp, _data in items:
+            if stamp > last.get(topic, -1):
+                last[topic] = stamp
+
     def _set_durable(self, stamp_ns: int) -> None:
         with self._durable:
             if stamp_ns > self.durable_ns:
                 self.durable_ns = stamp_ns
+            self.durable_topics = dict(self._written_topics)
             self._durable.notify_all()
 
     def wait_durable(self, stamp_ns: int, timeout: float) -> bool:
@@ -533,6 +546,8 @@ class JointStateSeries:
     velocity: np.ndarray
     effort: np.ndarray
     record_t: np.ndarray
+    #: messages of the topic left out as not the run's (other joint names, undecodable)
+    foreign: int = 0
 
     def shaft(self, name: str) -> int:
         """Column index of shaft ``name``."""
@@ -550,6 +565,8 @@ class WrenchSeries:
     torque: np.ndarray
     frame_id: str
     record_t: np.ndarray
+    #: messages of the topic left out as undecodable (another publisher's)
+    foreign: int = 0
 
     @property
     def torque_z(self) -> np.ndarray:
@@ -563,6 +580,8 @@ class ScalarSeries:
     t: np.ndarray
     value: np.ndarray
     record_t: np.ndarray
+    #: messages of the topic left out as undecodable (/clock of another publisher)
+    foreign: int = 0
 
 
 @dataclass
@@ -700,8 +719,24 @@ def _stamp_s(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def run_joint_names(path: str | Path) -> list[str] | None:
+    """The run's joint names of a bag: ``shaft_names`` of the scene message the recorder
+    stored in metadata.yaml ``custom_data['cvj_ros.scene']`` (the run's ``/driveline/scene``),
+    else None (no such entry, unreadable)."""
+    try:
+        info = yaml.safe_load((Path(path) / 'metadata.yaml').read_text(encoding='utf-8'))
+        text = info['rosbag2_bagfile_information']['custom_data']['cvj_ros.scene']
+        names = yaml.safe_load(text).get('shaft_names')
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, yaml.YAMLError):
+        return None
+    if isinstance(names, list) and names and all(isinstance(n, str) for n in names):
+        return names
+    return None
+
+
 def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
-             columns: Sequence[str] = ('position', 'velocity', 'effort')) -> dict[str, Any]:
+             columns: Sequence[str] = ('position', 'velocity', 'effort'),
+             joint_names: Sequence[str] | None = None) -> dict[str, Any]:
     """Read a bag (mcap or sqlite3) into typed numpy series, one per topic.
 
     Joint states, wrenches and /clock are decoded in batches straight into preallocated
@@ -712,6 +747,10 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
         topics: topic names or glob patterns (``'/coupling/*/wrench'``); ``None`` = all.
         columns: the JointState arrays to read (others are left as zero-width arrays),
             e.g. ``('velocity', 'effort')`` for the report's metrics (a third less memory).
+        joint_names: the run's joint names; default :func:`run_joint_names` (else the first
+            joint state's). Joint states with other names and messages that do not decode
+            are left out, counted in the series' ``foreign`` (another publisher's messages
+            recorded by ``cvj-sim record``): never a reason to refuse the bag.
 
     Returns:
         ``{topic: series}`` with :class:`JointStateSeries` (JointState),
@@ -732,9 +771,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
         counts: dict[str, int] = {}
         for conn in selected:
             counts[conn.topic] = counts.get(conn.topic, 0) + int(conn.msgcount or 0)
-
-        def names_changed() -> None:
-            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+        names = list(joint_names) if joint_names else run_joint_names(path)
         deserialize = reader.deserialize
         msgtypes = {c.topic: c.msgtype for c in selected}
 
@@ -746,7 +783,8 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
                         msgtype = types[topic] = msgtypes[topic]
                         if bag_decode.batch_decodable(msgtype):
                             builder = builders[topic] = bag_decode.SeriesBuilder(
-                                msgtype, counts.get(topic, 0), deserialize, names_changed,
+                                msgtype, counts.get(topic, 0), deserialize,
+                                names=names if topic == JOINT_STATES_TOPIC else None,
                                 columns=columns)
                     if builder is not None:
                         builder.add_many(stamps, raws)
@@ -791,7 +829,8 @@ OBJECT_BLOCK = 256
 def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
                 columns: Sequence[str] = ('position', 'velocity', 'effort'),
                 block: int | None = None,
-                raw: Iterable[str] = ()) -> Iterator[tuple[str, str, Any]]:
+                raw: Iterable[str] = (),
+                joint_names: Sequence[str] | None = None) -> Iterator[tuple[str, str, Any]]:
     """Stream a bag: ``(topic, msgtype, block)`` with at most ``block`` (default
     :data:`cvj_ros.bag_decode.BATCH`) messages of one topic at a time, in file order per
     topic; memory holds one block per topic. Joint states, wrenches and /clock come as the
@@ -802,8 +841,12 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
     a damaged or compressed mcap file raises :class:`cvj_ros.bag_decode.NotPlain` when the
     damage is reached (the caller reads the bag with :func:`read_bag` instead).
 
+    Joint states not of the run's names (``joint_names``, default :func:`run_joint_names`,
+    else the first block's) and undecodable messages are left out, counted in the block's
+    ``foreign``.
+
     Raises:
-        BagError: as :func:`read_bag` (also when joint names change between blocks).
+        BagError: as :func:`read_bag`.
     """
     from cvj_ros import bag_decode
     size = bag_decode.BATCH if block is None else block
@@ -825,10 +868,8 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
             msgtypes = {c.topic: c.msgtype for c in selected}
             deserialize = reader.deserialize
             files = _plain_mcap_files(reader)
-        first_names: dict[str, list[str]] = {}
-
-        def names_changed() -> None:
-            raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
+        names0 = list(joint_names) if joint_names else run_joint_names(path)
+        first_names: dict[str, list[str] | None] = {}
 
         def decoded(topic: str, stamps: list[int], segments: list[Any]) -> Any:
             msgtype = msgtypes[topic]
@@ -837,15 +878,17 @@ def iter_blocks(path: str | Path, topics: Iterable[str] | None = None, *,
                 if topic in raw_topics:
                     return list(zip(stamps, raws))
                 return [(ts, deserialize(raw, msgtype)) for ts, raw in zip(stamps, raws)]
-            b = bag_decode.SeriesBuilder(msgtype, len(stamps), deserialize, names_changed,
+            js = msgtype == 'sensor_msgs/msg/JointState'
+            b = bag_decode.SeriesBuilder(msgtype, len(stamps), deserialize,
+                                         names=first_names.get(topic, names0) if js else None,
                                          columns=columns, batch=len(stamps) + 1)
             i = 0
             for g in segments:
                 b.add_many(stamps[i:i + len(g)], g)
                 i += len(g)
             d = b.finish()
-            if msgtype == 'sensor_msgs/msg/JointState' and first_names.setdefault(topic, d['names']) != d['names']:
-                names_changed()
+            if js and d['names'] and first_names.get(topic) is None:
+                first_names[topic] = d['names']     # later blocks: the same names
             return d
         source = (blk for f in files for blk in bag_decode.mcap_messages(str(f), set(msgtypes))) \
             if files else ({c.topic: ([ts], [raw])} for c, ts, raw in reader.messages(connections=selected))
@@ -920,11 +963,11 @@ def _built_series(msgtype: str, d: dict[str, Any]) -> Any:
     if msgtype == 'sensor_msgs/msg/JointState':
         empty = np.zeros((t.size, 0))
         return JointStateSeries(t, d['names'], d.get('position', empty), d.get('velocity', empty),
-                                d.get('effort', empty), rec)
+                                d.get('effort', empty), rec, d.get('foreign', 0))
     if msgtype == 'geometry_msgs/msg/WrenchStamped':
-        w = d['wrench']
-        return WrenchSeries(t, w[:, :3], w[:, 3:], d['frame_id'], rec)
-    return ScalarSeries(t.copy(), t, rec)      # rosgraph_msgs/Clock
+        w = d.get('wrench', np.zeros((t.size, 6)))
+        return WrenchSeries(t, w[:, :3], w[:, 3:], d['frame_id'], rec, d.get('foreign', 0))
+    return ScalarSeries(t.copy(), t, rec, d.get('foreign', 0))      # rosgraph_msgs/Clock
 
 
 def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
@@ -932,18 +975,20 @@ def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
     if msgtype == 'sensor_msgs/msg/JointState':
         names = list(msgs[0][1].name) if msgs else []
         n = len(names)
+        n_all = len(msgs)
+        msgs = [(ts, m) for ts, m in msgs if list(m.name) == names]   # the others: not the run's
+        rec = np.array([ts * 1e-9 for ts, _ in msgs], dtype=float)
 
         def col(attr: str) -> np.ndarray:
             out = np.full((len(msgs), n), np.nan)
             for i, (_, m) in enumerate(msgs):
                 v = np.asarray(getattr(m, attr), dtype=float)
-                if list(m.name) != names:
-                    raise BagError(f'{JOINT_STATES_TOPIC}: joint names change within the bag')
                 if v.size == n:
                     out[i] = v
             return out
         t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
-        return JointStateSeries(t, names, col('position'), col('velocity'), col('effort'), rec)
+        return JointStateSeries(t, names, col('position'), col('velocity'), col('effort'), rec,
+                                n_all - len(msgs))
     if msgtype == 'geometry_msgs/msg/WrenchStamped':
         t = np.array([_stamp_s(m.header.stamp) for _, m in msgs], dtype=float)
         force = np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for _, m in msgs],
@@ -1034,8 +1079,17 @@ class BatchingWriter:
     """
 
     def __init__(self, writer: Any, *, batch: int = 1024, max_lag_s: float | None = None,
-                 wait_s: float = 1.0) -> None:
+                 wait_s: float = 1.0, flush_lag_s: float | None = None,
+                 lag_topics: Iterable[str] = ()) -> None:
         self.writer = writer
+        # flush_lag_s measures from the oldest of these topics' newest flushed stamps
+        # (BagWriter.durable_topics; none given: the newest flushed stamp of any topic)
+        self.lag_topics = frozenset(lag_topics)
+        # flush_lag_s (separate processes, whose loop waits for /driveline/recorded): at a
+        # hand-off whose newest message is that far ahead of what is on disk, ask the writer
+        # to flush now instead of at its own span (FLUSH_SIM_SPAN_S after the oldest pending
+        # message: with an exchange step above 25 ms the held loop would wait FLUSH_WALL_S)
+        self.flush_lag_ns = None if flush_lag_s is None else int(flush_lag_s * 1e9)
         self.batch = batch
         self.counts: dict[str, int] = {}
         self._items: list[tuple[str, int, bytes]] = []
@@ -1077,9 +1131,13 @@ class BatchingWriter:
         items, self._items = self._items, []
         self._first_ns = None
         self.writer.write_batch(items)
+        newest = max(items[-1][1], items[0][1])
+        if self.flush_lag_ns is not None:
+            durable = [v for t, v in self.writer.durable_topics.items() if t in self.lag_topics]
+            if newest - (min(durable) if durable else self.writer.durable_ns) >= self.flush_lag_ns:
+                self.writer.request_flush()
         if self.max_lag_ns is None:
             return
-        newest = max(items[-1][1], items[0][1])
         need = newest - self.max_lag_ns
         if self.writer.durable_ns >= need:
             return

@@ -11,6 +11,11 @@ through rosbags, with the same rules as before (``cvj_ros.bag._to_series``). Res
 arrays allocated once for the topic's message count, so reading a bag holds its raw bytes
 for at most one batch per topic.
 
+Messages that are not the run's are left out and counted (:attr:`SeriesBuilder.foreign`),
+never a reason to refuse the bag: a joint state whose names differ from the run's (the
+``shaft_names`` of the bag's ``/driveline/scene``, else the first joint state's), and any
+message that does not decode (another publisher's bytes recorded by ``cvj-sim record``).
+
 Layouts (OMG CDR little endian, encapsulation ``00 01 00 00``; offsets are from the start of
 the message, alignment relative to byte 4):
 * ``std_msgs/Header``: ``int32 sec`` at 4, ``uint32 nanosec`` at 8, frame_id (uint32 length
@@ -22,6 +27,7 @@ the message, alignment relative to byte 4):
 """
 from __future__ import annotations
 
+import itertools
 import struct
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -160,20 +166,23 @@ class SeriesBuilder:
         capacity: expected message count (the bag's count for the topic); the arrays grow
             if more come.
         deserialize: ``(raw, msgtype) -> message`` for messages outside the layout (rosbags).
-        on_names_change: raised (called) when a joint state's names differ from the first's.
+        names: the run's joint names (JointState); None = the first decodable joint state's.
+            Joint states with other names are left out and counted in :attr:`foreign`.
         columns: JointState arrays to keep (subset of position, velocity, effort).
         batch: messages decoded at once (default :data:`BATCH`).
     """
 
-    def __init__(self, msgtype: str, capacity: int, deserialize: Callable[[bytes, str], Any],
-                 on_names_change: Callable[[], None], *,
+    def __init__(self, msgtype: str, capacity: int, deserialize: Callable[[bytes, str], Any], *,
+                 names: Sequence[str] | None = None,
                  columns: Sequence[str] = ('position', 'velocity', 'effort'),
                  batch: int | None = None) -> None:
         if not batch_decodable(msgtype):
             raise ValueError(f'{msgtype}: not batch decodable')
         self.msgtype = msgtype
         self.deserialize = deserialize
-        self.on_names_change = on_names_change
+        #: messages left out: not the run's joint names, or not decodable
+        self.foreign = 0
+        self._expected = list(names) if names else None
         self.columns = tuple(columns)
         self.batch = BATCH if batch is None else batch
         self.capacity = max(int(capacity), 1)
@@ -189,6 +198,10 @@ class SeriesBuilder:
         self._rec: list[int] = []
         self._pending = 0
         self._learned = False
+        if self._expected is not None and msgtype == JOINT_STATE:
+            self.names, self.width = list(self._expected), len(self._expected)
+            for c in self.columns:
+                self.values[c] = np.full((self.capacity, self.width), np.nan)
 
     # --- collecting ---------------------------------------------------------------------
 
@@ -205,11 +218,27 @@ class SeriesBuilder:
         if self._pending >= self.batch:
             self._decode()
 
-    def _first(self, data: bytes) -> None:
-        """Learn the topic's reference message: layout, names/frame, array widths."""
-        msg = self.deserialize(data, self.msgtype)
+    def _decode_one(self, data: bytes) -> Any:
+        """The message through rosbags, or None when it does not decode (counted foreign)."""
+        try:
+            return self.deserialize(data, self.msgtype)
+        except Exception:  # noqa: BLE001 (rosbags raises several types for bad CDR)
+            self.foreign += 1
+            return None
+
+    def _first(self, data: bytes) -> bool:
+        """Learn the topic's reference message: layout, names/frame, array widths; False
+        (and counted foreign) when ``data`` is not the run's (does not decode; a joint state
+        with other names than the expected ones)."""
+        msg = self._decode_one(data)
+        if msg is None:
+            return False
         if self.msgtype == JOINT_STATE:
-            self.names = list(msg.name)
+            names = list(msg.name)
+            if self._expected is not None and names != self._expected:
+                self.foreign += 1
+                return False
+            self.names = names
             self.frame_id = str(msg.header.frame_id)
             self.width = len(self.names)
             self.layout = joint_state_layout(data)
@@ -225,6 +254,7 @@ class SeriesBuilder:
         else:
             self.width = 0
             self.layout = None if len(data) != 12 or data[1] != 1 else Layout(data, [], [], 0)
+        return True
 
     def _grow(self, need: int) -> None:
         if need <= self.capacity:
@@ -246,22 +276,26 @@ class SeriesBuilder:
         if not segments:
             return
         self._segments, self._rec, self._pending = [], [], 0
+        skip = 0                   # leading messages already refused (counted) by _first
         if not self._learned:
-            first = segments[0]
-            self._first(first[0].tobytes() if isinstance(first, np.ndarray) else first[0])
-            self._learned = True
+            rows = (r.tobytes() if isinstance(r, np.ndarray) else r for g in segments for r in g)
+            for data in itertools.islice(rows, 64):
+                self._learned = self._first(data)
+                if self._learned:
+                    break
+                skip += 1
         m = len(rec)
         self._grow(self.n + m)
         lo, hi = self.n, self.n + m
-        self.record_ns[lo:hi] = rec
         buf = None
-        if self.layout is not None:
+        if self.layout is not None and skip == 0:
             if all(isinstance(g, np.ndarray) and g.shape[1] == self.layout.size for g in segments):
                 buf = _check_rows(np.concatenate(segments) if len(segments) > 1 else segments[0],
                                   self.layout)
             else:
                 buf = _rows([r for g in segments for r in as_bytes(g)], self.layout)
         if buf is not None:
+            self.record_ns[lo:hi] = rec
             self.stamp_ns[lo:hi] = _stamps_ns(buf)
             if self.msgtype == JOINT_STATE:
                 for c, start in zip(('position', 'velocity', 'effort'), self.layout.starts):
@@ -269,41 +303,59 @@ class SeriesBuilder:
                         self.values[c][lo:hi] = _values(buf, start, self.width)
             elif self.msgtype == WRENCH:
                 self.values['wrench'][lo:hi] = _values(buf, self.layout.starts[0], 6)
-        else:
-            i = lo
-            for g in segments:
-                for data in as_bytes(g):
-                    self._one(i, data)
+            self.n = hi
+            return
+        i = lo
+        j = 0
+        for g in segments:
+            for data in as_bytes(g):
+                if j < skip:
+                    j += 1
+                    continue
+                if not self._learned:
+                    self._learned = self._first(data)
+                    if not self._learned:
+                        j += 1
+                        continue
+                if self._one(i, data):
+                    self.record_ns[i] = rec[j]
                     i += 1
-        self.n = hi
+                j += 1
+        self.n = i
 
-    def _one(self, i: int, data: bytes) -> None:
-        """Row ``i`` from one message decoded by rosbags (the rules of bag._to_series)."""
-        msg = self.deserialize(data, self.msgtype)
+    def _one(self, i: int, data: bytes) -> bool:
+        """Row ``i`` from one message decoded by rosbags (the rules of bag._to_series); False
+        (counted foreign) when it does not decode or is a joint state with other names."""
+        msg = self._decode_one(data)
+        if msg is None:
+            return False
         if self.msgtype == CLOCK:
             self.stamp_ns[i] = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-            return
+            return True
+        if self.msgtype == JOINT_STATE and list(msg.name) != self.names:
+            self.foreign += 1
+            return False
         self.stamp_ns[i] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if self.msgtype == WRENCH:
             w = msg.wrench
             self.values['wrench'][i] = (w.force.x, w.force.y, w.force.z,
                                         w.torque.x, w.torque.y, w.torque.z)
-            return
-        if list(msg.name) != self.names:
-            self.on_names_change()
+            return True
         for c in self.columns:
             v = np.asarray(getattr(msg, c), dtype=float)
             self.values[c][i] = v if v.size == self.width else np.nan
+        return True
 
     # --- result -------------------------------------------------------------------------
 
     def finish(self) -> dict[str, Any]:
-        """``{'record_ns', 'stamp_ns', <columns> or 'wrench', 'names', 'frame_id'}`` trimmed
-        to the messages read (views, no copies)."""
+        """``{'record_ns', 'stamp_ns', <columns> or 'wrench', 'names', 'frame_id', 'foreign'}``
+        trimmed to the messages read (views, no copies); ``foreign``: messages left out."""
         self._decode()
         n = self.n
         out: dict[str, Any] = {'record_ns': self.record_ns[:n], 'stamp_ns': self.stamp_ns[:n],
-                               'names': list(self.names or []), 'frame_id': self.frame_id}
+                               'names': list(self.names or self._expected or []),
+                               'frame_id': self.frame_id, 'foreign': self.foreign}
         for key, arr in self.values.items():
             out[key] = arr[:n]
         if n > 1 and np.any(out['record_ns'][1:] < out['record_ns'][:-1]):

@@ -39,8 +39,11 @@ def crank_torque(phi: np.ndarray) -> np.ndarray:
 
 
 def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = DURATION,
-                        diagnostics: bool = True, joint_states: bool = True) -> Path:
-    """Write a lockstep-like bag with the signals of the module docstring; returns ``path``."""
+                        diagnostics: bool = True, joint_states: bool = True,
+                        foreign_every: int = 0) -> Path:
+    """Write a lockstep-like bag with the signals of the module docstring; returns ``path``.
+    ``foreign_every`` > 0: after every that many joint states another publisher's JointState
+    (other names, other sizes) on the same topic, as `cvj-sim record` keeps them."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -75,6 +78,11 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
                     velocity=np.array([w_c[i], W0, w_out[i], w_out[i]]),
                     effort=np.array([tq_c[i], 50.0, 50.0, 40.0]))
                 w.write(cj, ns, ts.serialize_cdr(js, 'sensor_msgs/msg/JointState'))
+                if foreign_every and i % foreign_every == foreign_every - 1:
+                    other = T['sensor_msgs/msg/JointState'](
+                        header=hdr, name=['intruder_a', 'intruder_b'], position=np.zeros(2),
+                        velocity=np.ones(1), effort=np.zeros(0))
+                    w.write(cj, ns, ts.serialize_cdr(other, 'sensor_msgs/msg/JointState'))
             for conn, tz in ((ce, tq_c[i]), (cl, 40.0 + 3.0 * math.cos(2 * phi_out[i]))):
                 v = T['geometry_msgs/msg/Vector3']
                 wr = T['geometry_msgs/msg/WrenchStamped'](

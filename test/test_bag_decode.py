@@ -121,14 +121,71 @@ def test_batch_read_equals_message_by_message(tmp_path: Path, monkeypatch: pytes
     np.testing.assert_array_equal(cols['/driveline/joint_states'].velocity, js.velocity)
 
 
-def test_names_changing_within_the_bag_is_still_refused(tmp_path: Path) -> None:
-    w = bag.BagWriter(tmp_path / 'b')
+def _foreign_js(k: int) -> bytes:
+    """Another publisher's JointState (the hostile peer's kinds): other names, at k = 5 1e5
+    entries with a velocity array one short."""
+    m = JointState()
+    m.header.stamp.nanosec = k * 1_000_000
+    m.header.frame_id = 'driveline'
+    n = 100_000 if k == 5 else 3
+    m.name = [f'intruder_{j}' for j in range(n)]
+    m.position = [0.0] * n
+    m.velocity = [1.0] * (n - 1)
+    return bytes(serialize_message(m))
+
+
+def _mixed_bag(path: Path, storage: str, n: int, *, scene: bool, foreign_first: bool) -> int:
+    """The run's joint states 0..n-1 with foreign ones interleaved (every 37th step, and one
+    undecodable message); returns how many foreign messages were written."""
+    import yaml
+    w = bag.BagWriter(path, storage=storage)
     w.add_topic('/driveline/joint_states')
-    for k in range(20):
-        w.write('/driveline/joint_states', k, _js(k, names=NAMES if k < 10 else NAMES[::-1]))
+    if scene:
+        w.set_custom_data('cvj_ros.scene', yaml.safe_dump({'seed': 1, 'shaft_names': NAMES}))
+    items, n_foreign = [], 0
+    if foreign_first:
+        items.append(('/driveline/joint_states', 0, _foreign_js(0)))
+        n_foreign += 1
+    for k in range(n):
+        items.append(('/driveline/joint_states', k * 1_000_000, _js(k)))
+        if k % 37 == 5:
+            items.append(('/driveline/joint_states', k * 1_000_000, _foreign_js(k)))
+            n_foreign += 1
+        if k == 50:        # a length field pointing past the end: does not decode
+            items.append(('/driveline/joint_states', k * 1_000_000, b'\x00\x01\x00\x00' + b'\xff' * 40))
+            n_foreign += 1
+    for i in range(0, len(items), 97):
+        w.write_batch(items[i:i + 97])
     w.close()
-    with pytest.raises(BagError, match='joint names change within the bag'):
-        bag.read_bag(tmp_path / 'b')
+    return n_foreign
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('foreign_first', [False, True], ids=['run_first', 'foreign_first'])
+def test_foreign_joint_states_are_left_out_and_counted(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       storage: str, foreign_first: bool) -> None:
+    """A bag holding joint states of two layouts (another publisher's recorded by `cvj-sim
+    record`) reads as the bag of the run's messages alone; the others are counted. With the
+    run's names in the bag's scene a foreign message may come first."""
+    n = 3000
+    mixed = _mixed_bag(tmp_path / 'mixed', storage, n, scene=True, foreign_first=foreign_first)
+    _write(tmp_path / 'clean', storage, n, False)
+    monkeypatch.setattr(bag_decode, 'BATCH', 1024)
+    got = bag.read_bag(tmp_path / 'mixed')['/driveline/joint_states']
+    want = bag.read_bag(tmp_path / 'clean', ['/driveline/joint_states'])['/driveline/joint_states']
+    assert got.foreign == mixed and want.foreign == 0
+    assert got.names == NAMES and got.t.size == n
+    for f in ('t', 'record_t', 'position', 'velocity', 'effort'):
+        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    blocks = list(bag.iter_blocks(tmp_path / 'mixed', ['/driveline/joint_states'], block=500))
+    assert sum(d['foreign'] for _t, _ty, d in blocks) == mixed
+    assert np.array_equal(np.concatenate([d['velocity'] for _t, _ty, d in blocks]), want.velocity)
+
+
+def test_without_the_scene_the_first_joint_state_names_the_run(tmp_path: Path) -> None:
+    mixed = _mixed_bag(tmp_path / 'b', 'mcap', 200, scene=False, foreign_first=False)
+    js = bag.read_bag(tmp_path / 'b')['/driveline/joint_states']
+    assert js.names == NAMES and js.t.size == 200 and js.foreign == mixed
 
 
 def test_layouts_of_the_project_messages() -> None:

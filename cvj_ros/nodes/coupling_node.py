@@ -70,11 +70,19 @@ the previous value is kept.
 
 Effort in a joint state at t_k uses the torques most recently received (zero before the
 first answer).
+
+Recorder gate (lockstep, ``record_lag_max`` > 0; `cvj-sim run` sets it for separate
+processes): the run's recorder publishes on ``/driveline/recorded`` (rosgraph_msgs/Clock,
+latched) the record time up to which its bag is on the OS side; the loop does not integrate
+to t_(k+1) while t_(k+1) is more than ``record_lag_max`` ahead of it, so a SIGKILL of the
+whole run loses at most that much simulated time (docs/robustness.md "Hard kill"). A held
+loop that sees no progress for ``peer_timeout`` stops with one line naming the topic.
 """
 from __future__ import annotations
 
 import math
 import os
+import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -89,7 +97,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from cvj_ros.errors import CvjError, StartCancelled
-from cvj_ros.nodes.cdr import CdrError
+from cvj_ros.nodes.cdr import CdrError, checked_length
 from cvj_ros.nodes.intra import bus_for, loop_publisher, loop_subscription
 from cvj_ros.nodes.malformed import MALFORMED_KEY, MalformedInputs
 from cvj_ros.nodes.vehicle_diagnostics import vehicle_values
@@ -105,9 +113,11 @@ from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNo
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
-                               JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC,
-                               coupling_wrench_topic)
+                               JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC,
+                               RECORDED_TOPIC, SCENE_TOPIC, coupling_wrench_topic)
 
+_CLOCK_STAMP = struct.Struct('<iI')    # rosgraph_msgs/Clock: int32 sec, uint32 nanosec at byte 4
+_CLOCK_STAMP_BE = struct.Struct('>iI')
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
@@ -144,6 +154,8 @@ WRONG_STAMP_STALL_S = 1.0
 # watchdog; free-run at a wake-up;
 # three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
 GRAPH_CHECK_S = 0.01
+# While a step waits for the recorder (record_lag_max), SIGINT/SIGTERM is looked for this often (s).
+HOLD_SIGNAL_CHECK_S = 0.02
 # While waiting for its peers before step 0, the node says who is there and who is missing
 # this often (s): a person starting nodes by hand sees what the loop waits for.
 START_REPORT_S = 5.0
@@ -195,6 +207,9 @@ PARAMS = (
               choices=CATCH_UP_POLICIES),
     ParamSpec('burst_max', 10, 'free-run, catch_up=burst: most ticks run back to back in one '
               'wake-up', lo=1, hi=10**6),
+    ParamSpec('record_lag_max', 0.0, 'lockstep: most simulated time the loop runs ahead of what '
+              'the run\'s recorder reports on disk (/driveline/recorded) [s]; 0 = no gate '
+              '(no recorder reports; composed mode bounds its writer itself)', lo=0.0, hi=1e6),
     ParamSpec('realtime_priority', 0, 'free-run: SCHED_FIFO priority of the threads of this '
               'process (1..99; '
               'needs CAP_SYS_NICE, else a WARN and normal scheduling); 0 = normal scheduling',
@@ -283,6 +298,23 @@ class CouplingNode(CvjNode):
                                             self._on_engine, DATA_QOS)
         self.load_sub = loop_subscription(self, WrenchStamped, LOAD_WRENCH_TOPIC,
                                           self._on_load, DATA_QOS)
+        # recorder gate (module docstring): record time (ns) the recorder has on disk
+        self.record_lag_ns = int(round(p['record_lag_max'] * NS_PER_S)) if self.mode == 'lockstep' else 0
+        self.recorded_ns = 0
+        self._record_held = False           # both answers in, the step waits for the recorder
+        self._record_hold_start = 0.0       # perf_counter s of the current hold
+        self._recorded_mono = 0.0           # monotonic s of the last progress of recorded_ns
+        self.record_waits = 0
+        self.record_wait_total = 0.0        # s
+        self.recorded_sub = (self.create_subscription(Clock, RECORDED_TOPIC, self._on_recorded,
+                                                      LATCHED_QOS, raw=True)
+                             if self.record_lag_ns > 0 else None)
+        # while held: looks for SIGINT/SIGTERM every HOLD_SIGNAL_CHECK_S (the watchdog's period
+        # can be 0.25 s; a stop must come within 0.1 s)
+        self._hold_timer = (self.create_timer(HOLD_SIGNAL_CHECK_S, self._check_hold)
+                            if self.record_lag_ns > 0 else None)
+        if self._hold_timer is not None:
+            self._hold_timer.cancel()
         # run identity by publisher (cvj_ros.nodes.peers): answers that come through DDS are
         # taken only while their topic has one publisher, the one matched at step 0; from
         # the in-process bus (composed mode) only hosted nodes' answers come at all
@@ -644,6 +676,18 @@ class CouplingNode(CvjNode):
         if foreign:
             self._stop_with_error(foreign)
             return
+        if self._record_held:
+            if self.stop_signal():        # Ctrl-C / SIGTERM while the recorder catches up
+                self._record_held = False
+                self.stop_by_signal(self.stop_signal())
+            elif time.monotonic() - self._recorded_mono > self.params['peer_timeout']:
+                self._stop_with_error(
+                    f'lockstep: the run\'s recorder reported {self.recorded_ns / NS_PER_S:.9g} s on '
+                    f'disk on {RECORDED_TOPIC}, the loop waits to go past '
+                    f'{(self.t_ns + self.h_ns) / NS_PER_S:.9g} s (record_lag_max='
+                    f'{self.params["record_lag_max"]:g} s): no progress within peer_timeout='
+                    f'{self.params["peer_timeout"]} s; is the recorder (cvj-sim) running?')
+            return
         if not self.waiting:
             return
         waited = time.monotonic() - self._wait_start_mono
@@ -685,7 +729,7 @@ class CouplingNode(CvjNode):
         self._cancel_timers()
 
     def _cancel_timers(self) -> None:
-        for tm in (self._watchdog, self._free_timer, self._start_timer):
+        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer):
             if tm is not None:
                 tm.cancel()
 
@@ -841,18 +885,60 @@ class CouplingNode(CvjNode):
                     self._stop_with_error(foreign)
                     return
             self.waiting = False
-            sent = self._wait_start
-            self.wait_total += time.perf_counter() - sent
-            # /clock t_(k+1) goes out now, before the integration: the longest head start
-            # over the joint state t_(k+1) an outside node's executor can get (both answers
-            # for t_k are in, so nobody in the loop works at t_k any more)
-            self._publish_clock(self.t_ns + self.h_ns)
-            self._step()   # publishes the next state: sets _wait_start
-            if self.exit_code is None:
-                # one exchange = joint-state publication to the next one
-                self.exchange_total += self._wait_start - sent
-                self.exchanges += 1
-                self._begin_wait()
+            self.wait_total += time.perf_counter() - self._wait_start
+            if self.record_lag_ns and self.t_ns + self.h_ns - self.recorded_ns > self.record_lag_ns:
+                self._record_held = True         # _on_recorded goes on (module docstring)
+                self._record_hold_start = time.perf_counter()
+                self._recorded_mono = time.monotonic()
+                self._hold_timer.reset()
+                return
+            self._advance()
+
+    def _advance(self) -> None:
+        """Both answers for t_k are in: /clock t_(k+1), integrate, publish the state t_(k+1)."""
+        sent = self._wait_start
+        # /clock t_(k+1) goes out now, before the integration: the longest head start
+        # over the joint state t_(k+1) an outside node's executor can get (both answers
+        # for t_k are in, so nobody in the loop works at t_k any more)
+        self._publish_clock(self.t_ns + self.h_ns)
+        self._step()   # publishes the next state: sets _wait_start
+        if self.exit_code is None:
+            # one exchange = joint-state publication to the next one
+            self.exchange_total += self._wait_start - sent
+            self.exchanges += 1
+            self._begin_wait()
+
+    def _check_hold(self) -> None:
+        """While the step waits for the recorder: a SIGINT/SIGTERM ends the loop now."""
+        if self._record_held and self.exit_code is None and self.stop_signal():
+            self._record_held = False
+            self._hold_timer.cancel()
+            self.stop_by_signal(self.stop_signal())
+
+    def _on_recorded(self, data: bytes) -> None:
+        """``/driveline/recorded``: the record time the run's bag holds on disk (raw Clock);
+        a held step goes on once it is within ``record_lag_max``."""
+        try:
+            checked_length('rosgraph_msgs/msg/Clock', data)
+            sec, nanosec = (_CLOCK_STAMP if data[1] == 1 else _CLOCK_STAMP_BE).unpack_from(data, 4)
+            stamp_ns = sec * NS_PER_S + nanosec
+        except (CdrError, struct.error, IndexError) as exc:
+            self._drop_malformed(RECORDED_TOPIC, str(exc))
+            return
+        if stamp_ns <= self.recorded_ns:
+            return
+        self.recorded_ns = stamp_ns
+        self._recorded_mono = time.monotonic()
+        if self._record_held and self.exit_code is None and (
+                self.t_ns + self.h_ns - stamp_ns <= self.record_lag_ns):
+            self._record_held = False
+            self._hold_timer.cancel()
+            self.record_waits += 1
+            self.record_wait_total += time.perf_counter() - self._record_hold_start
+            if self.stop_signal():
+                self.stop_by_signal(self.stop_signal())
+                return
+            self._advance()
 
     # --- stepping ---------------------------------------------------------------------------
 
@@ -1041,6 +1127,10 @@ class CouplingNode(CvjNode):
             'ignored_stamps': self.ignored_stamps, 'rejected_torques': self.rejected_torques,
             'held_torques': self.held_torques, MALFORMED_KEY: self.malformed.total,
         }
+        if self.record_lag_ns:
+            # the recorder gate: steps held for the bag, their wall time per exchange
+            stats['record_waits'] = self.record_waits
+            stats['record_wait_us_mean'] = 1e6 * self.record_wait_total / n
         if self.scheduler is not None:
             stats.update(self.scheduler.stats())
             stats['realtime_priority'] = self.realtime_priority

@@ -62,6 +62,8 @@ ENGINE_THROTTLE_TOPIC = '/engine/throttle'
 LOAD_WRENCH_TOPIC = '/load/wrench'
 SCENE_TOPIC = '/driveline/scene'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+# the run's recorder: record time (rosgraph_msgs/Clock) of what its bag holds on disk
+RECORDED_TOPIC = '/driveline/recorded'
 
 
 def coupling_wrench_topic(joint: str) -> str:

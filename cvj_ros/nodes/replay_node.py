@@ -16,6 +16,11 @@ Parameters: ``bag`` (path), ``rate`` (playback speed factor, > 0), ``loop`` (boo
 ``topics`` (list of topics or glob patterns; empty = all), ``start_delay`` (s of wall
 time before the first message, for discovery), ``publish_clock`` (bool).
 
+Only the run's messages are replayed: a joint state whose names are not the run's (the
+``shaft_names`` of the bag's scene, else the first joint state's) and any message that does
+not decode (:func:`cvj_ros.nodes.cdr.check_message`) are left out - another publisher's,
+recorded by ``cvj-sim record`` on a busy domain - and counted in one line at the start.
+
 Run alone: ``replay_node --ros-args -p bag:=runs/demo/bag -p rate:=2.0``.
 """
 from __future__ import annotations
@@ -53,6 +58,41 @@ Parameters:
 """ + ''.join(f'  {p.name:14s} {p.description} (default {p.default!r})\n' for p in PARAMS)
 
 
+def run_messages(messages: list[tuple[str, str, int, bytes]], names: Sequence[str] | None
+                 ) -> tuple[list[tuple[str, str, int, bytes]], dict[str, int]]:
+    """The run's messages of ``(topic, msgtype, record ns, CDR)`` and the count of the others
+    per topic: undecodable ones (:func:`~cvj_ros.nodes.cdr.check_message`) and joint states
+    whose names are not ``names`` (None: the first decodable joint state's)."""
+    from cvj_ros.nodes.cdr import CdrError, JointStateDecoder, checked_length
+    dec = JointStateDecoder()
+    run_names = list(names) if names else None
+    keep: list[tuple[str, str, int, bytes]] = []
+    foreign: dict[str, int] = {}
+    for item in messages:
+        topic, msgtype, _ts, data = item
+        try:
+            checked_length(msgtype, data, dec)
+            ok = True
+            if msgtype == 'sensor_msgs/msg/JointState':
+                got = list(dec.decode(data).name)
+                run_names = got if run_names is None else run_names
+                ok = got == run_names
+        except CdrError:
+            ok = False
+        if ok:
+            keep.append(item)
+        else:
+            foreign[topic] = foreign.get(topic, 0) + 1
+    return keep, foreign
+
+
+def foreign_line(foreign: dict[str, int]) -> str:
+    """One line naming the messages left out of the replay, per topic."""
+    parts = ', '.join(f'{n} on {t}' for t, n in sorted(foreign.items()))
+    return (f"replay: left out {sum(foreign.values())} messages not the run's (other joint "
+            f'names, undecodable): {parts}')
+
+
 class ReplayNode(CvjNode):
     """Replays a bag (module docstring). ``messages_published`` counts data messages, ``loops``
     completed passes; :meth:`stop` ends the playback early."""
@@ -77,9 +117,12 @@ class ReplayNode(CvjNode):
                     if not any(fnmatch.fnmatchcase(t, w) for t in info.types):
                         raise ParameterError('topics', f'{w}: topic not in bag {p["bag"]}')
                 selected = [t for t in selected if any(fnmatch.fnmatchcase(t, w) for w in wanted)]
-            self.messages = bagmod.read_raw(p['bag'], selected) if selected else []
+            messages = bagmod.read_raw(p['bag'], selected) if selected else []
         except BagError as exc:
             raise ParameterError('bag', str(exc)) from None
+        self.messages, self.foreign = run_messages(messages, bagmod.run_joint_names(p['bag']))
+        if self.foreign:
+            self.get_logger().warning(foreign_line(self.foreign))
         self.publishers_by_topic: dict[str, Any] = {}
         for topic in selected:
             cls = bagmod._msg_class(info.types[topic])
@@ -130,6 +173,8 @@ class ReplayNode(CvjNode):
                 f'bag time in {wall:.3g} s wall (rate {self.rate:g}x'
                 + (', /clock from the bag stamps' if self.publish_clock else '') + ')')
         width = max((len(t) for t in self.published_by_topic), default=0)
+        if self.foreign:
+            head += '\n' + foreign_line(self.foreign)
         return '\n'.join([head] + [f'  {t:<{width}}  {n}' for t, n in
                                     sorted(self.published_by_topic.items())])
 

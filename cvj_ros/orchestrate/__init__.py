@@ -158,6 +158,10 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             gated = name == 'coupling_node'
             if gated:
                 params['start_gate'] = 'stdin'
+                if options.mode == 'lockstep':
+                    # the loop runs at most MAX_LAG_S ahead of what the bag holds on disk, as
+                    # composed mode's writer does (docs/robustness.md "Hard kill")
+                    params['record_lag_max'] = bagmod.MAX_LAG_S
                 # a fed hosted node has no joint-state reader of its own
                 params['min_subscribers'] -= sum(
                     1 for feed in recorder.feeds.values() if feed.carries(bagmod.JOINT_STATES_TOPIC))

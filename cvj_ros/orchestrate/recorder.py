@@ -37,6 +37,12 @@ RECORDER_COALESCE_S = 0.02
 HOSTED_IN_RUN = ('monitor_node',)
 
 
+# The topics whose flushed record time /driveline/recorded reports (the oldest of them): the
+# loop's own, one message per exchange each.
+GATE_TOPICS = frozenset({bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, '/engine/wrench',
+                         '/load/wrench'})
+
+
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
@@ -49,10 +55,20 @@ class _Recorder:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         # one hand-off to the writer thread per wake of the take loop, not one per message
-        self.batching = bagmod.BatchingWriter(writer)
+        self.batching = bagmod.BatchingWriter(
+            writer, flush_lag_s=bagmod.MAX_LAG_S - bagmod.HANDOFF_SPAN_S, lag_topics=GATE_TOPICS)
         self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_only=run_only)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
+        # what the bag holds on disk, for the coupling node's recorder gate (record_lag_max)
+        from rosgraph_msgs.msg import Clock
+
+        from cvj_ros.nodes.qos import LATCHED_QOS, RECORDED_TOPIC
+        self.writer = writer
+        self.recorded_pub = self.node.create_publisher(Clock, RECORDED_TOPIC, LATCHED_QOS)
+        self.recorded_thread = threading.Thread(target=self._report_recorded, name='recorded',
+                                                daemon=True)
+        self.recorded_thread.start()
         self.hosted: dict[str, tuple[Any, Any]] = {}     # name -> (node, executor): see host()
         self.host_errors: dict[str, str] = {}
         self.feeds: dict[str, Any] = {}       # name -> its subscriptions' intra.RecorderFeed
@@ -65,6 +81,35 @@ class _Recorder:
         # or lossy here: SingleThreadedExecutor fell ~0.7 s behind a 200-step run, and
         # rclpy.experimental.EventsExecutor left samples unread (24 of 101 joint states).
         self.recorder.spin(self._stop, coalesce=RECORDER_COALESCE_S)
+
+    def _report_recorded(self) -> None:
+        """Publish on ``/driveline/recorded`` the record time (ns, as a Clock) up to which the
+        bag is on the OS side, each time it advances: the coupling node's recorder gate
+        (``record_lag_max``) waits for it. The time is the oldest of the loop topics' newest
+        flushed stamps (:data:`GATE_TOPICS`, :attr:`BagWriter.durable_topics`): a topic whose
+        samples reach the recorder late (a repaired joint state) holds it back, not the
+        newest /clock. Woken by the writer thread's flush (no polling delay on the loop's
+        critical path)."""
+        from rosgraph_msgs.msg import Clock
+        sent = -1
+        msg = Clock()
+        while not self._stop.is_set() and self.ctx.ok():
+            self.writer.wait_durable(sent + 1, 0.1)
+            if not self.writer._thread.is_alive():
+                return             # closed
+            now = self.writer.durable_ns
+            if now >= 2**63 - 1:
+                return             # the writer failed: nothing more reaches the disk
+            loop = [v for t, v in self.writer.durable_topics.items() if t in GATE_TOPICS]
+            now = min(loop) if loop else -1
+            if now <= sent:
+                continue
+            msg.clock.sec, msg.clock.nanosec = divmod(now, 1_000_000_000)
+            try:
+                self.recorded_pub.publish(msg)
+            except Exception:  # noqa: BLE001 (context shut down while closing)
+                return
+            sent = now
 
     def host(self, name: str, cli_args: Sequence[str], *, log: Path | None = None) -> None:
         """Create node ``name`` (:func:`cvj_ros.composed.node_class`, its own ``--ros-args``)
@@ -149,6 +194,7 @@ class _Recorder:
         for thread in self._hosted_threads:
             thread.join(2.0)
         self.thread.join(2.0)
+        self.recorded_thread.join(2.0)
         for (node, executor), thread in zip(self.hosted.values(), self._hosted_threads):
             # bounded: a CI run (OPENBLAS_CORETYPE=Haswell, two refused runs started together)
             # left one cvj-sim hanging after the refusal, where is not known; this wait and

@@ -229,10 +229,11 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     # bag states (no concatenation, no int64 copy: 16 bytes per exchange at the peak)
     n_js = int(counts.get(js_topic, 0))
     t, w = np.empty(n_js), np.empty(n_js)
-    names, rows, speed_peak = None, 0, 0.0
+    names, rows, speed_peak, foreign = None, 0, 0.0, 0
     for _topic, _ty, d in (bagmod.iter_blocks(path, [js_topic], columns=('velocity',))
                            if n_js else ()):
         sn, k = d['stamp_ns'], d['stamp_ns'].size
+        foreign += d.get('foreign', 0)      # not the run's (bag.iter_blocks): left out
         if rows + k > n_js:
             raise NotStreamable(f'{js_topic}: more messages than the bag states')
         # sec + nanosec * 1e-9 as bag.read_bag computes it: the same float64 bits
@@ -243,8 +244,9 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         speed_peak = max(speed_peak, float(np.max(np.abs(v0)))) if k else speed_peak
         names = d['names']
         rows += k
-    if rows != n_js:
+    if rows + foreign != n_js:
         raise NotStreamable(f'{js_topic}: {rows} messages, the bag states {n_js}')
+    t, w = t[:rows], w[:rows]
     wanted = [tp for tp, c in counts.items() if c and tp != bagmod.CLOCK_TOPIC and (
         tp in (bagmod.SCENE_TOPIC, '/diagnostics')
         or types.get(tp) == 'geometry_msgs/msg/WrenchStamped')]

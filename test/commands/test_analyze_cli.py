@@ -54,3 +54,22 @@ def test_missing_bag_exits_2_with_one_line(tmp_path: Path) -> None:
 def test_bad_option_exits_2(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(['analyze', str(bag), '--skip', '-1']) == 2
     assert capsys.readouterr().err.startswith('cvj-sim: error: --skip:')
+
+
+def test_analyze_leaves_out_another_publishers_joint_states(bag: Path, tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """Joint states of another layout interleaved in the run's topic (a `cvj-sim record` on a
+    busy domain): analyze reports the run's own figures, the same as without them, and names
+    the rest in one line."""
+    mixed = _synth.write_synthetic_bag(tmp_path / 'mixed', duration=2.0, foreign_every=100)
+    assert main(['analyze', str(mixed), '--json']) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert main(['analyze', str(bag), '--json']) == 0
+    want = json.loads(capsys.readouterr().out)
+    assert got['shafts'] == want['shafts'] and got['joints'] == want['joints']
+    assert got['foreign_messages'] == {'/driveline/joint_states': 20} and not want['foreign_messages']
+    assert main(['analyze', str(mixed)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line for line in out if 'not the run' in line] == [
+        "left out as not the run's (other joint names, undecodable): 20 on /driveline/joint_states "
+        '(20 messages)']

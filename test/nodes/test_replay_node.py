@@ -18,7 +18,9 @@ N = 20
 H_NS = 10_000_000  # 10 ms of simulated time per sample
 
 
-def _make_bag(path: Path) -> dict[str, list[bytes]]:
+def _make_bag(path: Path, *, foreign: bool = False) -> dict[str, list[bytes]]:
+    """A bag of N steps; ``foreign``: another publisher's joint states (other names and sizes,
+    one undecodable) interleaved on /driveline/joint_states, 4 in all (not in the result)."""
     ts = bag.typestore()
     Time = ts.types['builtin_interfaces/msg/Time']
     Header = ts.types['std_msgs/msg/Header']
@@ -45,6 +47,11 @@ def _make_bag(path: Path) -> dict[str, list[bytes]]:
                 data = bytes(ts.serialize_cdr(m, bag.topic_type(topic)))
                 sent[topic].append(data)
                 w.write(topic, k * H_NS, data)
+            if foreign and k % 5 == 2:
+                other = JS(header=h, name=['intruder_0', 'intruder_1', 'intruder_2'],
+                           position=np.zeros(3), velocity=np.ones(2), effort=np.zeros(0))
+                data = bytes(ts.serialize_cdr(other, 'sensor_msgs/msg/JointState'))
+                w.write('/driveline/joint_states', k * H_NS, data if k != 12 else data[:20] + b'\xff' * 8)
     return sent
 
 
@@ -102,6 +109,18 @@ def test_replay_publishes_raw_bytes_with_own_clock(tmp_path: Path) -> None:
     # below what a pacing bug of 2x would give (0.38 s).
     span = got['/load/wrench'][-1][0] - got['/load/wrench'][0][0]
     assert 0.8 * (N - 1) * H_NS * 1e-9 < span < 0.19 + 0.1
+
+
+def test_replay_leaves_out_another_publishers_joint_states(tmp_path: Path) -> None:
+    """A bag with joint states of another layout interleaved (`cvj-sim record` on a busy
+    domain) replays the run's messages only and names the rest in one line."""
+    sent = _make_bag(tmp_path / 'b', foreign=True)
+    got, node = _replay(tmp_path / 'b', {'rate': 4.0}, until=N)
+    assert [d for _, d in got['/driveline/joint_states']] == sent['/driveline/joint_states']
+    assert node.exit_code == 0 and node.foreign == {'/driveline/joint_states': 4}
+    lines = [line for line in node.summary().splitlines() if 'not the run' in line]
+    assert lines == ["replay: left out 4 messages not the run's (other joint names, undecodable): "
+                     '4 on /driveline/joint_states']
 
 
 def test_rate_and_topic_selection(tmp_path: Path) -> None:

@@ -51,7 +51,7 @@ import numpy as np
 
 from cvj_ros.errors import CvjError, SceneError
 
-REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff',
+REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xiu2024', 'stiff',
                     'fwd_axle')
 ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3')
 BASELINES = ('RK45', 'LSODA', 'Radau')

@@ -142,7 +142,9 @@ def wall_line(r: RunResult) -> str:
     ph = r.phases
     parts = []
     if 'loop_started' in ph:
-        parts.append(f'start-up {ph["loop_started"]:.2f} s')
+        parts.append(f'start-up {ph["loop_started"]:.2f} s' + (
+            f' (compiling the physics kernel {ph["kernel_compile_s"]:.2f} s)'
+            if ph.get('kernel_compile_s') else ''))
     if r.loop_wall_time is not None:
         parts.append(f'loop {r.loop_wall_time:.3f} s')
     after = [(name, ph[b] - ph[a]) for name, a, b in (

@@ -4,7 +4,7 @@ A lockstep run calls, in its coupling node, the scene method's stepper (``<metho
 of kernel/steppers_nb.py) and the per-exchange outputs (``joint_state_one``, ``wrenches_one``
 of kernel/outputs_nb.py); its engine node the map engine (a ``model: map`` scene), its monitor
 the window statistics (kernel/window_nb.py). Cold, the stepper half (stepper, engine map,
-windows) and the outputs half take about the same compile time (docs/solvers.md "Cache").
+windows) and the outputs half take about the same compile time (docs/solvers.md "First run").
 
 numba compiles under one process-wide lock (``numba.core.compiler_lock.global_compiler_lock``,
 taken around every compilation), so two threads compile one function after the other: the
@@ -12,9 +12,11 @@ halves compile in parallel only in two processes. :func:`prepare_run` probes num
 index of each entry point (no compile, no load); when both halves miss it starts
 ``python -m cvj_ros.physics.kernel.prepare SCENE`` for the outputs half and compiles the
 stepper half itself, each from the run's own scene (the same argument types as the run's
-calls, so the run then only loads). numba writes a cache entry through a temporary file and
-a rename; the two halves share no entry point. One half cold: compiled here. Nothing cold:
-nothing happens (two index reads).
+calls, so the run then only loads). numba writes a cache file through a temporary file and
+a rename; the halves share no entry point, only callees both may save (``rhs``), where the
+worst case of the race is a lost index entry, recompiled at that function's first call from
+Python, never a wrong result (kernel/warmup.py runs two processes on one cache the same
+way). One half cold: compiled here. Nothing cold: nothing happens (a few index reads).
 
 What the user sees (stderr): one line naming what is compiled where, on a terminal a progress
 line with the elapsed time rewritten every second, and one line with the times. In the

@@ -30,13 +30,13 @@ $(STAMP): setup.py setup.cfg package.xml requirements.txt requirements-ros.txt
 setup: $(STAMP)
 
 # Compile every method of the numba kernel once (or load it when the cache is warm), for the
-# test suite and the benchmark, which use them all (cold compile time: docs/solvers.md "Cache").
+# test suite and the benchmark, which use them all (cold compile time: docs/solvers.md "First run").
 kernel: $(STAMP)
 	$(PY) -m cvj_ros.physics.kernel.warmup
 
-# The demo compiles only what its run calls, on first use (one method's stepper, the outputs,
-# the monitor's windows, the engine map), printing a line per compiled function; a warm demo
-# loads only those.
+# The demo compiles only what its run calls (one method's stepper, the engine map and the
+# monitor's windows in cvj-sim, the outputs in a second process at the same time) before the
+# run starts, with a progress line; a warm demo loads only those (docs/solvers.md "First run").
 demo: $(STAMP)
 	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) $(DEMO_MODE) --overwrite
 

@@ -141,7 +141,7 @@ def amplitude_groups(peak_to_peak: Sequence[float], *, ratio: float = AMPLITUDE_
 ENVELOPE_BINS = 320
 #: records of fewer revolutions of the fastest shaft are drawn sample by sample: a 3rd-order
 #: ripple then has < 60 periods on the ~650 px axis, > 10 px each, readable as drawn
-#: (kavz685_lever: 12 revolutions; tripod_seed000's 33 revolutions of 3rd order fill a band).
+#: (kavz685_lever: 12 revolutions; tripod_xiu2024's 33 revolutions of 3rd order fill a band).
 ENVELOPE_MIN_REVOLUTIONS = 20
 #: the zoom columns show the last ZOOM_REVOLUTIONS revolutions of the fastest shaft (the
 #: engine: 4 periods of a 4-cylinder's 2nd-order firing ripple), at least ZOOM_MIN_SAMPLES

@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--studies', action='store_true', help='run `pytest -m slow` and append its summary')
     parser.add_argument('--startup', action='store_true',
                         help="time the kernel's cold compile of every method (empty cache; "
-                             'docs/solvers.md "Cache") and a warm '
+                             'docs/solvers.md "First run") and a warm '
                              '`cvj-sim simulate kavz685_lever --duration 2`')
     parser.add_argument('--sweep', type=int, metavar='N',
                         help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '

@@ -103,9 +103,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def degenerate_notes(result: Any) -> list[str]:
-    """After a run: the exchange step too coarse for the scene's fastest mode, a stall
-    (:mod:`cvj_ros.physics.degenerate`; the joint angle limits are the monitor's in a ROS
-    run). Empty when the run recorded nothing to judge."""
+    """After a run: the exchange step too coarse for the scene's fastest mode, a stall, else a
+    speed trend that dominates the window's speed nonuniformity (the report's
+    ``speed_trend``) (:mod:`cvj_ros.physics.degenerate`; the joint angle limits are the
+    monitor's in a ROS run). Empty when the run recorded nothing to judge."""
     shafts = (result.metrics or {}).get('shafts') or {}
     if not shafts or not result.scene_path:
         return []
@@ -125,4 +126,6 @@ def degenerate_notes(result: Any) -> list[str]:
                           float(scene.initial_speed))
     if stall:
         notes.append(stall)
+    elif (result.metrics or {}).get('speed_trend'):
+        notes.append(result.metrics['speed_trend'])
     return notes

@@ -124,6 +124,20 @@ class _Prepared:
     peers: tuple[dict[str, str], dict[str, str]] | None = None
 
 
+def prepare_kernel(prep: _Prepared, options: RunOptions) -> float:
+    """Compile the run's cold kernel entry points before anything starts
+    (:func:`cvj_ros.physics.kernel.prepare.prepare_run`: both halves in two processes, lines
+    on stderr); returns the wall seconds it took, 0.0 when everything was cached."""
+    import time
+
+    from cvj_ros.physics.kernel.prepare import prepare_run
+    t0 = time.monotonic()
+    if not prepare_run(prep.scene_path, prep.scene, scheme=options.scheme,
+                       exchange_step=prep.exchange_step):
+        return 0.0
+    return round(time.monotonic() - t0, 4)
+
+
 def prepare(options: RunOptions) -> _Prepared:
     """Validate the scene and every option; raises a CvjError naming the field, starts nothing."""
     from cvj_ros.physics.scene import Joint, find_scene, load_scene

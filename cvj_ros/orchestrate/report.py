@@ -142,7 +142,9 @@ def wall_line(r: RunResult) -> str:
     ph = r.phases
     parts = []
     if 'loop_started' in ph:
-        parts.append(f'start-up {ph["loop_started"]:.2f} s')
+        parts.append(f'start-up {ph["loop_started"]:.2f} s' + (
+            f' (compiling the physics kernel {ph["kernel_compile_s"]:.2f} s)'
+            if ph.get('kernel_compile_s') else ''))
     if r.loop_wall_time is not None:
         parts.append(f'loop {r.loop_wall_time:.3f} s')
     after = [(name, ph[b] - ph[a]) for name, a, b in (
@@ -205,7 +207,9 @@ def bag_metrics(bag: Path, *, transient: float | None = None,
     ``acceleration_amplitude`` (rad/s^2), ``mean_torque`` and ``torque_amplitude`` =
     (max - min)/2 (N m, Davidbaev et al. 2023, section 3.3.2) of the shaft torque; ``wrenches``: per
     WrenchStamped topic ``mean_torque`` and ``torque_amplitude`` of torque.z (N m) over the
-    same time window. ``data``: the bag already read (:func:`cvj_ros.bag.read_bag`).
+    same time window; ``speed_trend``: the line naming a speed trend that dominates a shaft's
+    max - min in the window (:func:`cvj_ros.physics.degenerate.trend_line`), else None.
+    ``data``: the bag already read (:func:`cvj_ros.bag.read_bag`).
     """
     from cvj_ros.physics import metrics
     if data is None:
@@ -220,6 +224,8 @@ def bag_metrics(bag: Path, *, transient: float | None = None,
     out['window'] = win.to_dict()
     out['window_text'] = win.describe()
     out['shafts'] = metrics.shaft_metrics(js.t, js.names, js.velocity, js.effort, window=win)
+    from cvj_ros.physics.degenerate import trend_line
+    out['speed_trend'] = trend_line(js.t[mask], {n: js.velocity[mask, i] for i, n in enumerate(js.names)})
     for topic, series in data.items():
         if isinstance(series, bagmod.WrenchSeries) and series.t.size >= 3:
             m = (series.t >= out['window_s'][0]) & (series.t <= out['window_s'][1])

@@ -266,6 +266,8 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         vel = _Segments(starts, n, width)
         eff = _Segments(starts, n, width)
         acc = _Segments(starts, n, width)
+        # sums of (t - t[0]) * speed per segment: the window's least-squares speed trend
+        tvel = _Segments(starts, n, width)
     torque_peak = 0.0
     wrench: dict[str, dict[str, Any]] = {}
     diags = DiagnosticsKeeper()
@@ -280,6 +282,7 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
             k = v.shape[0]
             vel.add(row, v)
             eff.add(row, e)
+            tvel.add(row, (t[row:row + k] - t[0])[:, None] * v)
             if e.size:
                 torque_peak = max(torque_peak, float(np.max(np.abs(e))))
             # acceleration, np.gradient(edge_order=2) block by block: the last three rows
@@ -368,6 +371,14 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
                                'acceleration_amplitude': 0.5 * float(a_mx[i] - a_mn[i]),
                                'mean_torque': float(e_sum[i] / count),
                                'torque_amplitude': 0.5 * float(e_mx[i] - e_mn[i])}
+    from cvj_ros.physics.degenerate import slope_from_sums, trend_line_of
+    tw_sum = tvel.window(j0)[2]
+    tr = t[first_row:] - t[0]
+    st, stt = float(tr.sum()), float(tr @ tr)
+    out['speed_trend'] = trend_line_of(
+        {name: (slope_from_sums(count, st, stt, float(v_sum[i]), float(tw_sum[i])),
+                float(v_mx[i] - v_mn[i])) for i, name in enumerate(names)},
+        float(t[-1] - t[first_row]))
     for topic in [tp for tp in wanted if tp in wrench]:   # bag order, as read_bag gives it
         agg = wrench[topic]
         seg = agg['seg']

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 __all__ = ['Mode', 'fastest_mode', 'coarse_step_line', 'stall_line', 'trend_line',
+           'trend_line_of', 'slope_from_sums',
            'angle_limit_lines', 'STALL_FRACTION', 'STALL_RAD_S', 'TREND_SHARE']
 
 #: a mean speed below this fraction of the initial speed counts as a stall
@@ -85,18 +86,39 @@ def stall_line(mean_speeds: Mapping[str, float], initial_speed: float) -> str | 
 def trend_line(t: Any, speeds: Mapping[str, Any]) -> str | None:
     """One line naming the speed trend inside the window samples ``t`` (s) of ``speeds``
     (shaft -> rad/s) when it makes up more than :data:`TREND_SHARE` of a shaft's
-    max - min (the shaft where the share is largest), else None."""
+    max - min (the shaft where the share is largest), else None. The trend is the
+    least-squares line's slope (:func:`trend_line_of`)."""
     tt = np.asarray(t, dtype=float)
     if tt.size < 3 or not tt[-1] > tt[0]:
         return None
-    worst: tuple[float, str, float, float] | None = None
+    fits: dict[str, tuple[float, float]] = {}
     for name, w in speeds.items():
         ww = np.asarray(w, dtype=float)
         if ww.shape != tt.shape or not np.all(np.isfinite(ww)):
             continue
-        span = float(ww.max() - ww.min())
-        slope = float(np.polyfit(tt, ww, 1)[0])
-        change = slope * float(tt[-1] - tt[0])
+        fits[name] = (float(np.polyfit(tt, ww, 1)[0]), float(ww.max() - ww.min()))
+    return trend_line_of(fits, float(tt[-1] - tt[0]))
+
+
+def slope_from_sums(n: int, sum_t: float, sum_tt: float, sum_w: float, sum_tw: float) -> float:
+    """Least-squares slope of w over t from running sums (for a report that streams its
+    samples): (n sum(t w) - sum(t) sum(w)) / (n sum(t^2) - sum(t)^2); NaN when the times
+    do not spread."""
+    den = n * sum_tt - sum_t * sum_t
+    return (n * sum_tw - sum_t * sum_w) / den if n >= 2 and den > 0 else float('nan')
+
+
+def trend_line_of(fits: Mapping[str, tuple[float, float]], duration: float) -> str | None:
+    """:func:`trend_line` from per shaft (slope (rad/s^2), max - min (rad/s)) over a window
+    of ``duration`` s: the line's change slope * duration is named when it exceeds
+    :data:`TREND_SHARE` of max - min (the shaft where the share is largest)."""
+    if not duration > 0:
+        return None
+    worst: tuple[float, str, float, float] | None = None
+    for name, (slope, span) in fits.items():
+        if not (math.isfinite(slope) and math.isfinite(span)):
+            continue
+        change = slope * duration
         if span > 0 and abs(change) > TREND_SHARE * span and (worst is None or abs(change) / span > worst[0]):
             worst = (abs(change) / span, name, slope, change)
     if worst is None:

@@ -1004,8 +1004,15 @@ def shipped_scenes() -> dict[str, Path]:
     return out
 
 
+#: old shipped scene name -> its current name; the old name still works, with one line on stderr
+DEPRECATED_SCENES: dict[str, str] = {'tripod_seed000': 'tripod_xiu2024'}
+
+
 def find_scene(name_or_path: str | os.PathLike[str]) -> Path:
-    """A scene file by path, or by shipped name (``kavz685_lever``). SceneError if neither."""
+    """A scene file by path, or by shipped name (``kavz685_lever``). SceneError if neither.
+
+    A deprecated shipped name (:data:`DEPRECATED_SCENES`) finds the renamed scene and prints
+    one line on stderr naming the new name."""
     p = Path(name_or_path)
     if p.is_file():
         return p
@@ -1013,6 +1020,11 @@ def find_scene(name_or_path: str | os.PathLike[str]) -> Path:
     stem = p.name[:-5] if p.name.endswith('.yaml') else p.name
     if stem in shipped:
         return shipped[stem]
+    if DEPRECATED_SCENES.get(stem) in shipped:
+        import sys
+        print(f"cvj_ros: scene name '{stem}' is deprecated; it is now "
+              f"'{DEPRECATED_SCENES[stem]}'", file=sys.stderr, flush=True)
+        return shipped[DEPRECATED_SCENES[stem]]
     near = difflib.get_close_matches(stem, list(shipped), n=1)
     hint = f"; did you mean '{near[0]}'?" if near else f'; shipped: {", ".join(shipped)}'
     raise SceneError('scene', f'no scene file or shipped scene {str(name_or_path)!r}{hint}')

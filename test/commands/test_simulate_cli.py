@@ -12,7 +12,7 @@ from cvj_ros.cli import main
 def test_scenes_lists_shipped(capsys) -> None:
     assert main(['scenes']) == 0
     out = capsys.readouterr().out
-    for name in ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff'):
+    for name in ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xiu2024', 'stiff'):
         assert name in out
 
 
@@ -82,17 +82,17 @@ def test_simulate_bag_is_read_by_analyze_with_the_same_window(tmp_path, capsys) 
     """--bag writes the trace; analyze prints the same window line; an existing bag
     without --overwrite is one error line, exit 2."""
     bag = tmp_path / 'bag'
-    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag)]) == 0
+    assert main(['simulate', 'tripod_xiu2024', '--duration', '0.3', '--bag', str(bag)]) == 0
     cap = capsys.readouterr()
     window = next(line for line in cap.out.splitlines() if line.startswith('steady window '))
     assert 'wrote 301 samples to bag' in cap.err
     assert main(['analyze', str(bag)]) == 0
     out = capsys.readouterr().out
     assert '  ' + window[len('steady window '):] in out.splitlines()
-    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag)]) == 2
+    assert main(['simulate', 'tripod_xiu2024', '--duration', '0.3', '--bag', str(bag)]) == 2
     err = capsys.readouterr().err
     assert err.startswith('cvj-sim: error: ') and 'Traceback' not in err and err.count('\n') == 1
-    assert main(['simulate', 'tripod_seed000', '--duration', '0.3', '--bag', str(bag), '--overwrite']) == 0
+    assert main(['simulate', 'tripod_xiu2024', '--duration', '0.3', '--bag', str(bag), '--overwrite']) == 0
 
 
 def test_simulate_says_what_makes_a_run_degenerate(tmp_path, capsys) -> None:

@@ -60,3 +60,23 @@ def test_print_report_states_the_whole_command_and_the_rate_basis() -> None:
                             'exchange step 80 us')
     assert lines[i + 2].startswith('  loop per exchange: wall 80 us')
     assert 'target' not in out.getvalue()
+
+
+def test_run_notes_name_a_speed_trend_unless_the_line_stalled() -> None:
+    """`cvj-sim run`'s notes after the report carry the report's speed trend (computed from
+    the bag, test_report_stream.py) as `simulate` does; a stall line replaces it (the trend
+    of a stalled line is not the point)."""
+    from cvj_ros.commands.run import degenerate_notes
+    from cvj_ros.physics.scene import find_scene
+    trend = ('speed trend: wheel accelerates by +8 rad/s over the window (+8 rad/s^2), 100% of '
+             'its max - min speed: the speed nonuniformity there measures that trend, not a fluctuation')
+    r = _result(process='composed', rtf=10.0)
+    r.scene_path = str(find_scene('kavz685_lever'))
+    r.metrics = {'shafts': {'engine_crank': {'mean_speed': 150.0}, 'wheel': {'mean_speed': 150.0}},
+                 'speed_trend': trend}
+    assert degenerate_notes(r) == [trend]
+    r.metrics['speed_trend'] = None
+    assert degenerate_notes(r) == []
+    r.metrics.update(speed_trend=trend, shafts={'engine_crank': {'mean_speed': 1e-3}})
+    notes = degenerate_notes(r)
+    assert len(notes) == 1 and notes[0].startswith('stall: ')

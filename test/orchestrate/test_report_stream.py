@@ -68,6 +68,7 @@ def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = '
 def _same(a: dict, b: dict) -> None:
     assert a.keys() == b.keys()
     assert a.get('window_text') == b.get('window_text') and a.get('window_s') == b.get('window_s')
+    assert a.get('speed_trend') == b.get('speed_trend')
     assert list(a['wrenches']) == list(b['wrenches'])
     for group in ('shafts', 'wrenches'):
         for name, figures in a[group].items():
@@ -87,6 +88,13 @@ def test_stream_equals_in_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     streamed, side = stream_bag_metrics(path)
     _same(full, streamed)
     assert streamed['window']['steady'] is (ramp == 0.0)
+    # the ramp (8 rad/s^2) dominates the window's max - min (2 x 0.4 rad/s ripple): named
+    assert (streamed['speed_trend'] is None) is (ramp == 0.0)
+    if ramp:
+        import re
+        slope = re.search(r'accelerates by \S+ rad/s over the window \(\+(\S+) rad/s\^2\)',
+                          streamed['speed_trend'])
+        assert slope and float(slope.group(1)) == pytest.approx(8.0, rel=1e-3)   # ripple: 7.997
     diags = bag.read_bag(path, ['/diagnostics'])['/diagnostics']
     for fn in (report.loop_counters, report.loop_timing, report.monitor_statuses):
         assert fn(path, diags=side['diagnostics']) == fn(path, diags=diags), fn.__name__

@@ -9,7 +9,7 @@ import pytest
 from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes
 from cvj_ros.physics.simulate import Simulation
 
-EXPECTED = {'kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff'}
+EXPECTED = {'kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xiu2024', 'stiff'}
 
 
 def test_all_reference_scenes_shipped() -> None:

@@ -133,6 +133,21 @@ def test_find_scene_by_path_and_name(tmp_path) -> None:
         find_scene('definitely_not_a_scene')
 
 
+def test_deprecated_scene_name_finds_the_renamed_scene_with_one_line(capsys) -> None:
+    """tripod_seed000 (a label) was renamed tripod_xiu2024 (its source paper); the old name
+    still resolves to the same file and says so in one line on stderr."""
+    from cvj_ros.physics.scene import DEPRECATED_SCENES, shipped_scenes
+    assert DEPRECATED_SCENES['tripod_seed000'] == 'tripod_xiu2024'
+    assert 'tripod_seed000' not in shipped_scenes()
+    new = find_scene('tripod_xiu2024')
+    assert capsys.readouterr().err == ''
+    assert find_scene('tripod_seed000') == new
+    assert find_scene('tripod_seed000.yaml') == new
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["cvj_ros: scene name 'tripod_seed000' is deprecated; it is now 'tripod_xiu2024'"] * 2
+    assert load_scene(new).name == 'tripod_xiu2024'
+
+
 def test_documented_example_is_a_valid_scene() -> None:
     """The annotated example in docs/scenes.md parses (keeps the documentation honest)."""
     import pathlib

@@ -1,4 +1,4 @@
-"""Reference-count-free array views for the compiled hot loops (issue 9).
+"""Reference-count-free array views for the compiled hot loops.
 
 numba hands an array to a function it does not inline together with its NRT meminfo, and
 the callee increments and decrements that reference count around its body: two ``lock``

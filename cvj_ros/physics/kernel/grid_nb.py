@@ -1,4 +1,4 @@
-"""Compiled landing grid of an offline run (issue 9: a run's fixed cost).
+"""Compiled landing grid of an offline run (part of a run's fixed cost).
 
 ``landing_grid`` is :func:`cvj_ros.physics.simulate.landing_grid` (the readable numpy
 definition, its test oracle) in one pass: the sample times with the load's breakpoints

@@ -1,7 +1,7 @@
-"""Compiled joint position functions (issue 9): (phi_out, ratio, ratio_slope) per op code.
+"""Compiled joint position functions: (phi_out, ratio, ratio_slope) per op code.
 
 Each joint formula is written once, as a plain float function in its joint module
-(``cvj_ros/physics/joints/*.py``, seed equation in that docstring); this module compiles
+(``cvj_ros/physics/joints/*.py``, source paper and equation in that docstring); this module compiles
 that same function with numba, so the numpy/Python API and the kernel cannot drift apart.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Compiled sampling outputs (issue 9): joint states, torques and energy residual of many
+"""Compiled sampling outputs: joint states, torques and energy residual of many
 states at once, so an offline run does not spend ~0.15 ms of Python per sample.
 
 ``shaft_table(driveline)`` (pure Python) maps every named shaft to (section g, position p)
@@ -279,7 +279,7 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
 
 @njit(cache=True)
 def joint_state_one(y, ip, fp, tab, mtab, mfp, pos, vel, eff):
-    """Issue 10, the coupling node's per-exchange joint state: shaft positions (rad),
+    """The coupling node's per-exchange joint state: shaft positions (rad),
     speeds (rad/s) and torques (N m) of one state y into pos/vel/eff (rows of ``tab``), with
     the torques of the model's input block (``layout.set_torque_inputs``, t = 0), and the
     intermediate members of ``mtab`` filled as ``Driveline.fill_mid`` does. Returns False

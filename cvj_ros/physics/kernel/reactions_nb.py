@@ -1,4 +1,4 @@
-"""Compiled joint reactions and intermediate members (issue 10): the coupling node's
+"""Compiled joint reactions and intermediate members: the coupling node's
 reaction wrenches without Python, one sample at a time.
 
 Every function here is a line-by-line port of the readable Python in

@@ -1,4 +1,4 @@
-"""Compiled driveline right-hand side and analytic Jacobian (issue 9).
+"""Compiled driveline right-hand side and analytic Jacobian.
 
 Same equations as the readable oracle ``Driveline._rhs`` / ``Driveline.jacobian``
 (see cvj_ros/physics/driveline.py module docstring: M(q) qddot + C(q) qdot^2 = Q per rigid

@@ -1,4 +1,4 @@
-"""A whole offline run in one compiled call (issue 9): start the stepper, integrate over the
+"""A whole offline run in one compiled call: start the stepper, integrate over the
 samples, then every sample's outputs.
 
 ``Simulation.run`` without a progress callback used to make three compiled calls per run

@@ -1,12 +1,12 @@
-"""Compiled engine / load torque models (issue 9).
+"""Compiled engine / load torque models.
 
 ``engine_eval(t, omega, phi, ip, fp, ioff, foff) -> (T, dT/domega, dT/dphi)`` (N m,
 N m s/rad, N m/rad); ``load_eval`` likewise (positive load torque resists). Codes and
-parameter layout: ``kernel/layout.py``. Covered: linear engine (seed 004 eq. 3.23,
+parameter layout: ``kernel/layout.py``. Covered: linear engine (Davidbaev et al. 2023, eq. 3.23,
 M = x M1 - K1 omega), map engine (engine.map_engine_eval: full-load table, throttle, idle
-governor, motoring, rev limiter, stall fade, firing ripple), constant load (seed 004 eq. 3.21, optional tanh(omega/s) sign), road
-load (load.RoadLoad), seeded random load (seed 004 eq. 3.30, load.RandomLoad: PCHIP
-Hermite between pre-generated knots), Fourier load over shaft angle (seed 004 eq. 4.4), brake steps, time series (bag replay).
+governor, motoring, rev limiter, stall fade, firing ripple), constant load (Davidbaev et al. 2023, eq. 3.21, optional tanh(omega/s) sign), road
+load (load.RoadLoad), seeded random load (Davidbaev et al. 2023, eq. 3.30, load.RandomLoad: PCHIP
+Hermite between pre-generated knots), Fourier load over shaft angle (Davidbaev et al. 2023, eq. 4.4), brake steps, time series (bag replay).
 """
 from __future__ import annotations
 
@@ -153,7 +153,7 @@ def load_eval(t, omega, phi, ip, fp, ioff, foff):
     if code == LOAD_TIME_SERIES:
         return time_series_load(t, fp, foff), 0.0, 0.0
     if code == LOAD_FOURIER:
-        # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (seed 004 eq. 4.4);
+        # T = mean + sum a_n cos(n x) + b_n sin(n x), x = phi - phase (Davidbaev et al. 2023, eq. 4.4);
         # dT/dphi = sum n (b_n cos(n x) - a_n sin(n x)); same summation order as FourierLoad
         x = phi - fp[foff + 1]
         total = fp[foff]

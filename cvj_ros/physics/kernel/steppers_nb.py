@@ -1,6 +1,6 @@
 """Compiled (numba) steppers over a right-hand side ``RHS(t, y, ip, fp, dy)``.
 
-Issue 9. Every function here is ``@njit(cache=True)`` without fastmath, and
+Every function here is ``@njit(cache=True)`` without fastmath, and
 every sum is a hand-written loop in a fixed order (no BLAS, no numpy reductions
 whose order could depend on the CPU), so the bytes of a trajectory do not
 depend on ``OPENBLAS_CORETYPE`` or the machine.

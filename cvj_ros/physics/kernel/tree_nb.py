@@ -1,4 +1,4 @@
-"""Compiled right-hand side of a vehicle scene's branching driveline (issue 30).
+"""Compiled right-hand side of a vehicle scene's branching driveline.
 
 The equations of the readable oracle ``TreeDriveline._rhs`` (cvj_ros/physics/tree.py module
 docstring), evaluated from the tree tables of ``kernel/layout.py`` (``H_TREE``): per section

@@ -3,7 +3,7 @@ cvj_ros.physics.kernel.warmup``.
 
 Run by ``make test`` and ``make bench`` (which use every method), so no test node pays a
 cold compile while its peers wait. ``make demo`` does not: a run compiles only the entry
-points it calls, on first use (docs/solvers.md "Cache"). With a warm cache it only loads.
+points it calls, on first use (docs/solvers.md "First run"). With a warm cache it only loads.
 Prints one line per method with the wall time and whether it compiled or loaded.
 
 On a machine with two or more cores the cold compile runs in two processes sharing the

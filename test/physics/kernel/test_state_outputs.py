@@ -25,7 +25,7 @@ from cvj_ros.physics.scene import Joint, find_scene, load_scene
 from cvj_ros.physics.state_outputs import (KernelStateOutputs, PythonStateOutputs,
                                            make_state_outputs)
 
-SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_seed000', 'stiff')
+SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xiu2024', 'stiff')
 REL = 1e-12
 
 
@@ -89,7 +89,7 @@ def test_exact_tripod_reactions_at_many_angles():
     """The compiled Newton + implicit derivatives + 10 x 10 balance of the exact tripod
     (fwd_halfshaft's, beta 15 deg, and seed 000's) over a revolution and at 1e4 rad, where the
     angle reduction modulo 2 pi/3 renumbers the rollers."""
-    for name in ('fwd_halfshaft', 'tripod_seed000'):
+    for name in ('fwd_halfshaft', 'tripod_xiu2024'):
         dl = Driveline.from_scene(load_scene(find_scene(name)))
         joint = next(j for j, m in dl.joint_models.items() if m.kind == 'tripod')
         comp = KernelStateOutputs(dl, [joint])

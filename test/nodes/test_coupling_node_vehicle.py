@@ -218,3 +218,18 @@ def test_external_wheel_load_needs_a_vehicle_scene(ctx, tmp_path):
     with pytest.raises(ParameterError, match='wheel_load: external needs a vehicle scene'):
         CouplingNode(context=ctx, parameter_overrides=[
             Parameter('scene', value=scene_file(tmp_path)), Parameter('wheel_load', value='external')])
+
+
+def test_monitor_reads_joints_inside_the_branches(ctx):
+    """The monitor's joint angle limits and internal members (tripod spider, Rzeppa cage:
+    no shaft limit) come from every branch of a vehicle scene, not only the main chain."""
+    from cvj_ros.nodes.monitor_node import MonitorNode
+    node = MonitorNode(context=ctx, parameter_overrides=[Parameter('scene', value='fwd_axle')])
+    try:
+        assert {'tripod_left_spider', 'tripod_right_spider', 'rzeppa_left_cage',
+                'rzeppa_right_cage'} <= node.internal_members
+        assert node.joint_limits['tripod_left'][0] == 6.0       # beta_deg of the left tripod
+        assert node.joint_limits['rzeppa_left'][0] == 8.0       # delta_deg of the left Rzeppa
+        assert node.joint_limits['tripod_right'][0] == 3.0
+    finally:
+        node.destroy_node()

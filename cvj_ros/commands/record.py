@@ -1,8 +1,8 @@
 """`cvj-sim record OUT`: the run recorder standalone, for nodes started by hand or by a launch file.
 
 The same recorder ``cvj-sim run`` uses (:class:`cvj_ros.bag.BagRecorder`: raw CDR, record
-time = the message's simulated stamp, every contract topic plus ``/coupling/*/wrench`` as
-they appear, the latched ``/driveline/scene`` message stored in the bag and in its
+time = the message's simulated stamp, every contract topic plus ``/coupling/*/wrench`` and
+``/load/*/wrench`` as they appear, the latched ``/driveline/scene`` message stored in the bag and in its
 metadata). It records on the current ``ROS_DOMAIN_ID`` until Ctrl-C / SIGTERM, until
 ``--duration`` wall seconds have passed, or (``--until-idle S``) until nothing arrived for
 S seconds after the first message; on every one of these paths the bag is finalised
@@ -51,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'default: every well-formed message')
     parser.add_argument('--topics', nargs='+', default=[], metavar='T',
                         help='extra topics to record at once (contract types); '
-                             '/coupling/*/wrench are found by themselves')
+                             '/coupling/*/wrench and /load/*/wrench (outside wheel loads) are '
+                             'found by themselves')
 
 
 def _check(args: argparse.Namespace) -> None:

@@ -123,7 +123,7 @@ class WheelPeers:
     /load/<wheel>/wrench with C_ROAD times that wheel's speed, stamps echoed; ``skip`` wheels
     have a publisher (so the loop starts) but never answer."""
 
-    def __init__(self, ctx, wheels: list[str], skip: tuple[str, ...] = ()) -> None:
+    def __init__(self, ctx, wheels: list[str], skip: tuple[str, ...] = (), before=None) -> None:
         from geometry_msgs.msg import WrenchStamped
         from sensor_msgs.msg import JointState
 
@@ -136,11 +136,20 @@ class WheelPeers:
         self.wheel_pubs = {w: pub for w, pub in pubs.items() if w not in skip}
         self.js: list = []
         self._msg = WrenchStamped
+        # before(wheel, k, stamp) -> [(stamp, torque)]: sent on that wheel ahead of its answer
+        self.before = before or (lambda wheel, k, stamp: [])
         self.node.create_subscription(JointState, '/driveline/joint_states', self._on_js, DATA_QOS)
 
     def _on_js(self, msg) -> None:
+        from builtin_interfaces.msg import Time
         self.js.append(msg)
         names = list(msg.name)
+        for w, pub in self.wheel_pubs.items():
+            for (sec, nsec), torque in self.before(w, len(self.js) - 1, msg.header.stamp):
+                extra = self._msg()
+                extra.header.stamp = Time(sec=sec, nanosec=nsec)
+                extra.wrench.torque.z = torque
+                pub.publish(extra)
         for pub, torque in [(self.engine_pub, T_ENGINE)] + [
                 (pub, C_ROAD * msg.velocity[names.index(w)]) for w, pub in self.wheel_pubs.items()]:
             w = self._msg()
@@ -149,7 +158,7 @@ class WheelPeers:
             pub.publish(w)
 
 
-def _run_wheels(ctx, skip: tuple[str, ...] = (), **params):
+def _run_wheels(ctx, skip: tuple[str, ...] = (), before=None, **params):
     import time
 
     from cvj_ros.nodes.common import make_executor
@@ -157,7 +166,7 @@ def _run_wheels(ctx, skip: tuple[str, ...] = (), **params):
                  Parameter('duration', value=N * H), Parameter('exchange_step', value=H),
                  Parameter('wheel_load', value='external')]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
-    peers = WheelPeers(ctx, ['wheel_left', 'wheel_right'], skip)
+    peers = WheelPeers(ctx, ['wheel_left', 'wheel_right'], skip, before)
     node = CouplingNode(context=ctx, parameter_overrides=overrides)
     ex = make_executor('events', ctx)
     ex.add_node(peers.node)
@@ -218,3 +227,45 @@ def test_external_wheel_load_needs_a_vehicle_scene(ctx, tmp_path):
     with pytest.raises(ParameterError, match='wheel_load: external needs a vehicle scene'):
         CouplingNode(context=ctx, parameter_overrides=[
             Parameter('scene', value=scene_file(tmp_path)), Parameter('wheel_load', value='external')])
+
+
+def test_monitor_reads_joints_inside_the_branches(ctx):
+    """The monitor's joint angle limits and internal members (tripod spider, Rzeppa cage:
+    no shaft limit) come from every branch of a vehicle scene, not only the main chain."""
+    from cvj_ros.nodes.monitor_node import MonitorNode
+    node = MonitorNode(context=ctx, parameter_overrides=[Parameter('scene', value='fwd_axle')])
+    try:
+        assert {'tripod_left_spider', 'tripod_right_spider', 'rzeppa_left_cage',
+                'rzeppa_right_cage'} <= node.internal_members
+        assert node.joint_limits['tripod_left'][0] == 6.0       # beta_deg of the left tripod
+        assert node.joint_limits['rzeppa_left'][0] == 8.0       # delta_deg of the left Rzeppa
+        assert node.joint_limits['tripod_right'][0] == 3.0
+    finally:
+        node.destroy_node()
+
+
+def test_wrong_stamps_and_duplicates_on_a_wheel_are_ignored_and_counted(ctx):
+    """From step 1 on, each wheel first gets an absurd answer stamped one step late (the
+    previous stamp, a duplicate of the answer already taken): all ignored and counted, the
+    run equals the clean one (the same answers for t_k are integrated)."""
+    def before(wheel, k, stamp):
+        if k == 0:
+            return []
+        prev = stamp.sec * 10**9 + stamp.nanosec - 1_000_000
+        return [(divmod(prev, 10**9), 1e4 if wheel == 'wheel_left' else -1e4)]
+    node, peers = _run_wheels(ctx, before=before)
+    clean, clean_peers = _run_wheels(ctx)
+    assert node.exit_code == 0 and clean.exit_code == 0
+    # steps 1..N-1, two wheels; the extras for the final state t_N arrive after the loop ended
+    assert node.ignored_stamps == 2 * (N - 1) and clean.ignored_stamps == 0
+    assert '/load/wheel_left/wrench' in node.wrong_stamp
+    np.testing.assert_array_equal(np.array([m.velocity for m in peers.js]),
+                                  np.array([m.velocity for m in clean_peers.js]))
+
+
+def test_nonfinite_wheel_torque_is_rejected_naming_its_topic(ctx):
+    def before(wheel, k, stamp):
+        return [((stamp.sec, stamp.nanosec), float('nan'))] if (wheel, k) == ('wheel_right', 3) else []
+    node, _peers = _run_wheels(ctx, before=before)
+    assert node.exit_code == 1 and node.rejected_torques == 1
+    assert node.error_message.startswith('/load/wheel_right/wrench: torque.z not finite (nan) at stamp 0.003 s')

@@ -50,8 +50,10 @@ TREE_TYPES = ('inertia', 'spring', 'joint', 'differential', 'wheel', 'clutch', '
 WHEEL_KEYS = ('type', 'name', 'J', 'radius', 'mu', 'load_share', 'axle', 'tyre', 'limits')
 TYRE_KEYS = ('B', 'C', 'E', 'relaxation_length')
 DIFF_KEYS = ('type', 'name', 'kind', 'ratio', 'J_carrier', 'J_side', 'J_spider', 'spider_ratio',
-             'viscous', 'left', 'right', 'limits')
-DIFF_KINDS = ('open', 'locked', 'viscous')
+             'viscous', 'preload_nm', 'torque_bias', 'static_ratio', 'left', 'right', 'limits')
+# clutch_pack: limited slip with stick/slip modes (cvj_ros.physics.hybrid.tree, Python reference)
+DIFF_KINDS = ('open', 'locked', 'viscous', 'clutch_pack')
+PACK_DIFF_KEYS = ('preload_nm', 'torque_bias', 'static_ratio')
 AXLES = ('front', 'rear')
 VEHICLE_KEYS = ('mass', 'grade_percent', 'rolling_coeff', 'drag_coeff', 'frontal_area',
                 'air_density', 'speed_scale', 'cg_height', 'wheelbase', 'front_share',
@@ -168,6 +170,9 @@ class Differential:
     spider_ratio: float = 1.0
     viscous: float = 0.0
     limits: Mapping[str, float] = field(default_factory=dict)
+    preload: float = 0.0               # clutch_pack: N m
+    torque_bias: float = 0.0           # clutch_pack: capacity per N m of carrier torque (-)
+    static_ratio: float = 1.0          # clutch_pack: static / kinetic capacity (-)
     type: str = 'differential'
 
 
@@ -239,6 +244,7 @@ class Scene:
         mode-aware reference (cvj_ros.physics.hybrid), not on Driveline or the kernel."""
         return (bool(self.commands) or self.shift_schedule is not None
                 or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                       or getattr(el, 'kind', '') == 'clutch_pack'
                        for el in iter_elements(self.driveline)))
 
     def element(self, name: str) -> Element:
@@ -326,6 +332,9 @@ def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
                  'spider_ratio': el.spider_ratio}
             if el.kind == 'viscous':
                 e['viscous'] = el.viscous
+            if el.kind == 'clutch_pack':
+                e.update(preload_nm=el.preload, torque_bias=el.torque_bias,
+                         static_ratio=el.static_ratio)
             e['left'] = _chain_dicts(el.left)
             e['right'] = _chain_dicts(el.right)
         elif isinstance(el, Inertia):
@@ -623,6 +632,12 @@ def _differential(el: Mapping[str, Any], path: str, name: str, limits: dict[str,
         raise SceneError(f'{path}.viscous', "only for kind 'viscous'")
     if kind == 'viscous' and 'viscous' not in el:
         raise SceneError(f'{path}.viscous', 'missing (N m s/rad, the coupling coefficient c_v)')
+    for key in PACK_DIFF_KEYS:
+        if key in el and kind != 'clutch_pack':
+            raise SceneError(f'{path}.{key}', "only for kind 'clutch_pack'")
+    if kind == 'clutch_pack' and 'preload_nm' not in el:
+        raise SceneError(f'{path}.preload_nm', 'missing (N m, the pack\'s kinetic torque at zero '
+                                               'carrier torque)')
     ratio = _number(el.get('ratio', 1.0), f'{path}.ratio')
     if not 1e-3 <= abs(ratio) <= 1e3:
         raise SceneError(f'{path}.ratio', f'must satisfy 1e-3 <= |ratio| <= 1e3 '
@@ -641,7 +656,10 @@ def _differential(el: Mapping[str, Any], path: str, name: str, limits: dict[str,
         left=branches[0], right=branches[1],
         J_spider=_number(el.get('J_spider', 0.0), f'{path}.J_spider', nonneg=True),
         spider_ratio=_number(el.get('spider_ratio', 1.0), f'{path}.spider_ratio', positive=True),
-        viscous=_number(el.get('viscous', 0.0), f'{path}.viscous', nonneg=True), limits=limits)
+        viscous=_number(el.get('viscous', 0.0), f'{path}.viscous', nonneg=True), limits=limits,
+        preload=_number(el.get('preload_nm', 0.0), f'{path}.preload_nm', nonneg=True, hi=1e6),
+        torque_bias=_number(el.get('torque_bias', 0.0), f'{path}.torque_bias', nonneg=True, hi=0.9),
+        static_ratio=_number(el.get('static_ratio', 1.0), f'{path}.static_ratio', lo=1.0, hi=10.0))
 
 
 def _vehicle(raw: Any) -> VehicleSpec:
@@ -782,6 +800,7 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
                                           None))
         check_no_gear_rows(commands)
     if commands or shift is not None or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                                            or getattr(el, 'kind', '') == 'clutch_pack'
                                             for el in flat):
         from cvj_ros.physics.hybrid.scene_keys import check_mode_scene
         check_mode_scene(chain, solver.method, tree=tree)

@@ -152,6 +152,7 @@ class TreeDriveline:
         self.wheels: list[_WheelInfo] = []
         self.shafts: list[Shaft] = []
         self.joint_models: dict[str, Any] = {}
+        self._lock_delta: dict[int, float] = {}     # locked differential -> its fixed delta (rad)
         self._n_coord = 0
         root = self._new_section(-1, -1, 0)
         self._add_chain(scene.driveline, root, 'driveline')
@@ -250,9 +251,7 @@ class TreeDriveline:
             elif getattr(el, 'type', '') in ('clutch', 'gearbox', 'brake'):
                 s = self._add_mode_element(el, s, p)
             elif isinstance(el, Differential):
-                model = DiffModel(kind=el.kind, ratio=el.ratio, J_carrier=el.J_carrier,
-                                  J_spider=el.J_spider, spider_ratio=el.spider_ratio,
-                                  viscous=el.viscous)
+                model = self._diff_model(el)
                 k = self._add_op(s, (0.0, _ratio_fn(1.0 / el.ratio)), el.name)
                 self.shafts.append(Shaft(f'{el.name}_input', s, k, 'input'))
                 k = self._add_op(s, (el.J_carrier, None), f'{el.name}_carrier')
@@ -278,6 +277,11 @@ class TreeDriveline:
         on in. Only the mode-aware tree (cvj_ros.physics.hybrid.tree) takes them."""
         raise SceneError(path, f'{el.type} {el.name!r}: stick/slip and gear modes run on the '
                                'mode-aware reference (`cvj-sim simulate`), not here')
+
+    def _diff_model(self, el: Differential) -> DiffModel:
+        """The differential's model (the mode-aware tree maps a clutch pack to locked or open)."""
+        return DiffModel(kind=el.kind, ratio=el.ratio, J_carrier=el.J_carrier,
+                         J_spider=el.J_spider, spider_ratio=el.spider_ratio, viscous=el.viscous)
 
     def _make_groups(self) -> list[tuple[list[int], list[int]]]:
         """Per group: (its coordinates, its sections), sections in tree order."""
@@ -388,6 +392,8 @@ class TreeDriveline:
                     q[s] += sec.sign * xl[c]
                     qd[s] += sec.sign * xl[n + c]
                     row[i] += sec.sign
+                elif self._lock_delta and sec.diff in self._lock_delta:
+                    q[s] += sec.sign * self._lock_delta[sec.diff]   # a pack stuck at delta != 0
                 bias[s] = a_p * bias[p] + b_p * qd[p] * qd[p]
             rows[s] = row
             ends[s] = section_kinematics(ops[s], q[s])

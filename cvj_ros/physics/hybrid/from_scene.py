@@ -101,6 +101,7 @@ def hybrid_summary(scene: Scene, sim: HybridSimulation, result: HybridResult, wa
     if sim.chain is not None and sim.chain.brake is not None and mode.brake is not None:
         final_modes[sim.chain.brake.name] = mode_name(mode.brake)
     final_modes.update({b: mode_name(m) for b, m in mode.brakes.items()})
+    final_modes.update({p: mode_name(m) for p, m in mode.packs.items()})
     sim_time = result.t_end or 1.0
     return {'scene': scene.name, 'duration': result.t_end,
             'wall_time': wall, 'wall_per_sim_second': wall / sim_time,

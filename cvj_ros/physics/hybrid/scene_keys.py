@@ -114,10 +114,15 @@ def parse_commands(raw: Any, chain: Sequence[Any]) -> tuple[dict[str, float], ..
 def mode_gap(scene: Any) -> tuple[str, str]:
     """(field, one-line reason) why ``scene`` (``has_modes``) cannot run on the compiled
     kernel, Driveline, a sweep or a ROS run yet."""
-    for i, el in enumerate(scene.driveline):
-        if getattr(el, 'type', '') in MODE_TYPES:
-            return (f'driveline[{i}]', f'{el.type} {el.name!r}: stick/slip modes are not compiled and '
+    from cvj_ros.physics.scene import _paths
+    for path, el in _paths(scene.driveline):
+        if getattr(el, 'type', '') in MODE_TYPES or getattr(el, 'kind', '') == 'clutch_pack':
+            what = 'clutch-pack differential' if getattr(el, 'kind', '') == 'clutch_pack' else el.type
+            return (path, f'{what} {el.name!r}: stick/slip modes are not compiled and '
                     f'have no ROS nodes yet; run it offline with `cvj-sim simulate` (Python reference)')
+    if getattr(scene, 'shift_schedule', None) is not None:
+        return ('shift_schedule', 'a shift schedule runs offline only (`cvj-sim simulate`, Python '
+                                  'reference) until the driver node exists')
     return ('commands', 'a command schedule runs offline only (`cvj-sim simulate`, Python reference) '
                         'until the driver node exists')
 

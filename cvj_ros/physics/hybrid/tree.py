@@ -27,7 +27,7 @@ the offsets of the locked links (by link index). State x per mode: as TreeDrivel
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -39,6 +39,7 @@ from cvj_ros.physics.hybrid.elements import Brake, Clutch, Gearbox
 from cvj_ros.physics.hybrid.friction import STUCK
 from cvj_ros.physics.scene import Scene
 from cvj_ros.physics.sections import Shaft, section_kinematics
+from cvj_ros.physics.differential import Differential as DiffModel
 from cvj_ros.physics.tree import TreeDriveline, _cholesky_solve, _Forces, _Kin
 
 __all__ = ['Link', 'ModeTree', 'TreeEvaluation', 'TreeState']
@@ -85,6 +86,9 @@ class TreeEvaluation:
     wheel_speed: dict[str, float]       # brake -> its wheel's speed (rad/s)
     gearbox_output: dict[str, float]    # gearbox -> output-shaft speed (rad/s)
     engine_speed: float
+    pack_slip: dict[str, float] = field(default_factory=dict)     # omega_L - omega_R (rad/s)
+    pack_stuck: dict[str, float] = field(default_factory=dict)    # (T_R - T_L)/2 needed (N m)
+    pack_static: dict[str, float] = field(default_factory=dict)   # static capacity (N m)
 
 
 def _coupling(k: float, off: float) -> Callable[[float], tuple[float, float, float]]:
@@ -100,7 +104,11 @@ class ModeTree(TreeDriveline):
         self.mode = mode
         self.links: list[Link] = []
         self.brakes: dict[str, tuple[Brake, int]] = {}     # name -> (brake, wheel index)
+        self.packs: dict[str, tuple[Any, int]] = {}         # clutch-pack diff -> (element, index)
         super().__init__(scene, levels, track_energy=True)
+        if len(self.packs) > 1:
+            raise SceneError(sorted(self.packs)[1], 'one clutch-pack differential per scene (the '
+                                                    "reference solves one pack's torque sensing)")
         self._n_state += 1                                  # W_friction
         self.pinned: dict[str, int] = {}                    # stuck brake -> its coordinate
         for name, (br, w) in self.brakes.items():
@@ -123,6 +131,17 @@ class ModeTree(TreeDriveline):
 
     def _initial_state(self) -> FloatArray:
         return np.zeros(self._n_state)        # the simulation sets the start (hybrid.tree_sim)
+
+    def _diff_model(self, el: Any) -> DiffModel:
+        if el.kind != 'clutch_pack':
+            return super()._diff_model(el)
+        d = len(self.diffs)
+        self.packs[el.name] = (el, d)
+        stuck = self.mode.packs.get(el.name) == STUCK
+        if stuck:
+            self._lock_delta[d] = self.mode.offsets[-(d + 1)]
+        return DiffModel(kind='locked' if stuck else 'open', ratio=el.ratio, J_carrier=el.J_carrier,
+                         J_spider=el.J_spider, spider_ratio=el.spider_ratio)
 
     def _add_mode_element(self, el: Any, s: int, path: str) -> int:
         if isinstance(el, Brake):
@@ -222,6 +241,23 @@ class ModeTree(TreeDriveline):
             hold[name] = th
             extra[w] += th
         fo.wheel_extra = extra
+        pack_slip: dict[str, float] = {}
+        pack_stuck: dict[str, float] = {}
+        pack_static: dict[str, float] = {}
+        for name, (el, d) in self.packs.items():
+            di = self.diffs[d]
+            if di.coord < 0:                                  # stuck: torque needed, capacity
+                st_t = self._walk(x, fo.T_engine, kin=kin, fo=fo)[3]
+                t_l, t_r = st_t[di.left], st_t[di.right]
+                pack_stuck[name] = 0.5 * (t_r - t_l)
+                pack_static[name] = el.static_ratio * (el.preload + el.torque_bias * abs(t_l + t_r))
+                continue
+            s_lr = kin.qd[di.left] - kin.qd[di.right]
+            pack_slip[name] = s_lr
+            tb = self._pack_bias(x, kin, fo, el, di, self.mode.packs[name])
+            qf[di.left] -= tb
+            qf[di.right] += tb
+            p_fric += tb * s_lr
         acc = self._accelerations(kin, fo)
         xl = x.tolist()
         out = [0.0] * self._n_state
@@ -246,7 +282,35 @@ class ModeTree(TreeDriveline):
                     stuck[lk.element.name] = start_t[lk.right]
         gb_out = {lk.element.name: kin.qd[lk.right] for lk in self.links
                   if isinstance(lk.element, Gearbox)}
-        return TreeEvaluation(np.array(out), fo.T_engine, slip, stuck, hold, wheel_speed, gb_out, w_e)
+        return TreeEvaluation(np.array(out), fo.T_engine, slip, stuck, hold, wheel_speed, gb_out, w_e,
+                              pack_slip, pack_stuck, pack_static)
+
+    def _pack_bias(self, x: FloatArray, kin: _Kin, fo: _Forces, el: Any, di: Any, m: int) -> float:
+        """Bias torque T_b (N m) of a slipping clutch pack: T_b = m (T_p + k |T_c|) with T_c
+        = T_L + T_R the carrier torque, itself affine in T_b through the dynamics:
+        T_c = T_c0 + B T_b (two backward walks, at T_b = 0 and 1). With s = sign(T_c):
+        T_b = m (T_p + k s T_c0) / (1 - m k s B), the s that is consistent."""
+        if el.torque_bias == 0.0:
+            return m * el.preload
+        qf = fo.q
+
+        q_l, q_r = qf[di.left], qf[di.right]
+
+        def carrier(tb: float) -> float:
+            qf[di.left], qf[di.right] = q_l - tb, q_r + tb
+            st_t = self._walk(x, fo.T_engine, kin=kin, fo=fo)[3]
+            qf[di.left], qf[di.right] = q_l, q_r
+            return st_t[di.left] + st_t[di.right]
+
+        tc0 = carrier(0.0)
+        b = carrier(1.0) - tc0
+        k, tp = el.torque_bias, el.preload
+        first = 1.0 if tc0 >= 0.0 else -1.0
+        for s in (first, -first):
+            tb = m * (tp + k * s * tc0) / (1.0 - m * k * s * b)
+            if s * (tc0 + b * tb) >= 0.0:
+                return tb
+        return m * (tp + k * abs(tc0))
 
     # --- state maps ---------------------------------------------------------------------
 
@@ -254,7 +318,8 @@ class ModeTree(TreeDriveline):
         """Mode state x -> TreeState."""
         kin = self._kinematics(x)
         n = self.n_dof
-        delta = [float(x[d.coord]) if d.coord >= 0 else 0.0 for d in self.diffs]
+        delta = [float(x[d.coord]) if d.coord >= 0 else self._lock_delta.get(i, 0.0)
+                 for i, d in enumerate(self.diffs)]
         ddelta = [float(x[n + d.coord]) if d.coord >= 0 else 0.0 for d in self.diffs]
         return TreeState(list(kin.q), list(kin.qd), delta, ddelta,
                          np.array(x[2 * n:], dtype=float), lock_loss)

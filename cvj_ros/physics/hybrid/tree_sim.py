@@ -93,8 +93,9 @@ class HybridTreeSimulation:
         if len(packs) > 1:
             raise SceneError('driveline', 'one clutch pedal drives every clutch: give one clutch')
         self.chain = None        # no chain (hybrid_summary reads the chain's output brake there)
+        self.packs = [el.name for el in els if getattr(el, 'kind', '') == 'clutch_pack']
         probe = Mode(clutch={c: FORWARD for c in self.clutches}, gear={g: 0 for g in self.gearboxes},
-                     brakes={b: FORWARD for b in self.brake_els})
+                     brakes={b: FORWARD for b in self.brake_els}, packs={p: FORWARD for p in self.packs})
         self.probe = self.tree(probe)
         self.shaft_names = list(self.probe.shaft_names)
 
@@ -104,7 +105,7 @@ class HybridTreeSimulation:
         """The ModeTree of ``mode`` (cached by mode and offsets)."""
         key = (tuple(sorted(mode.clutch.items())), tuple(sorted(mode.gear.items())),
                tuple(sorted((k, v == STUCK) for k, v in mode.brakes.items())),
-               tuple(sorted(mode.offsets.items())))
+               tuple(sorted(mode.packs.items())), tuple(sorted(mode.offsets.items())))
         mt = self._cache.get(key)
         if mt is None:
             if len(self._cache) > 256:
@@ -151,6 +152,11 @@ class HybridTreeSimulation:
                 ws += [Witness(('brake', name, FORWARD), -1), Witness(('brake', name, BACKWARD), -1)]
             else:
                 ws.append(Witness(('brake', name, STUCK), -1 if m == FORWARD else 1))
+        for name, m in mode.packs.items():
+            if m == STUCK:
+                ws += [Witness(('pack', name, FORWARD), -1), Witness(('pack', name, BACKWARD), -1)]
+            else:
+                ws.append(Witness(('pack', name, STUCK), -1 if m == FORWARD else 1))
         if self.stall_speed is not None:
             ws.append(Witness(('stall', 'engine', 0), -1))
         locked = all(m == STUCK for m in mode.clutch.values())
@@ -172,6 +178,12 @@ class HybridTreeSimulation:
             sync = self.gearboxes[name].ratio(g) * ev.gearbox_output[name]
             lim = self.auto.schedule.up(g) if target > g else self.auto.schedule.down(g)
             return sync - lim
+        if kind == 'pack':
+            if target == STUCK:
+                return ev.pack_slip[name]
+            tst = ev.pack_stuck[name]
+            cap = ev.pack_static[name]
+            return cap - tst if target == FORWARD else cap + tst
         _ck, cs, _bk, bs = self._capacities(t)
         if kind == 'clutch':
             if target == STUCK:
@@ -203,13 +215,21 @@ class HybridTreeSimulation:
             idx = self.probe.clutch_link[name]
             cand.offsets[idx] = self.tree(mode).lock_offset(idx, st, 1.0)
             cap = cs
+        elif kind == 'pack':
+            before = mode.packs[name]
+            cand.packs[name] = STUCK
+            d = self.probe.packs[name][1]
+            cand.offsets[-(d + 1)] = st.delta[d]
         else:
             before = mode.brakes[name]
             cand.brakes[name] = STUCK
             cap = bs[name]
         mt, x, st2 = self._apply(cand, st, True)
         ev = self._eval(mt, t, x)
-        torque = ev.stuck_torque[name] if kind == 'clutch' else ev.hold[name]
+        if kind == 'pack':
+            torque, cap = ev.pack_stuck[name], ev.pack_static[name]
+        else:
+            torque = ev.stuck_torque[name] if kind == 'clutch' else ev.hold[name]
         new = decide_mode(0.0, torque, cap)
         if new == STUCK:
             self._log(t, name, mode_name(before), 'stuck', cause)
@@ -217,6 +237,8 @@ class HybridTreeSimulation:
         out = mode.copy()
         if kind == 'clutch':
             out.clutch[name] = new
+        elif kind == 'pack':
+            out.packs[name] = new
         else:
             out.brakes[name] = new
         if new != before:
@@ -228,6 +250,9 @@ class HybridTreeSimulation:
         if kind == 'clutch':
             out.clutch[name] = new
             out.offsets.pop(self.probe.clutch_link[name], None)
+        elif kind == 'pack':
+            out.packs[name] = new
+            out.offsets.pop(-(self.probe.packs[name][1] + 1), None)
         else:
             out.brakes[name] = new
         self._log(t, name, 'stuck', mode_name(new), cause)
@@ -266,6 +291,20 @@ class HybridTreeSimulation:
                 elif ev.wheel_speed[name] == 0.0 and bs[name] > 0.0 and name not in fresh:
                     m2, st2 = self._try_stick(t, mode, st, 'brake', name, 'zero speed')
                     if m2.brakes[name] != m:
+                        mode, st, changed = m2, st2, True
+                        break
+            if changed:
+                continue
+            for name, m in mode.packs.items():
+                if m == STUCK:
+                    new = decide_mode(0.0, ev.pack_stuck[name], ev.pack_static[name])
+                    if new != STUCK:
+                        mode = self._release(t, mode, 'pack', name, new, 'capacity below torque')
+                        changed = True
+                        break
+                elif ev.pack_slip[name] == 0.0 and name not in fresh:
+                    m2, st2 = self._try_stick(t, mode, st, 'pack', name, 'zero slip')
+                    if m2.packs[name] != m:
                         mode, st, changed = m2, st2, True
                         break
             if not changed:
@@ -347,7 +386,7 @@ class HybridTreeSimulation:
         pedal0 = self.schedule.value('clutch', 0.0) if self.clutches else 1.0
         mode = Mode(clutch={c: (STUCK if pedal0 < 1.0 else FORWARD) for c in self.clutches},
                     gear={g: gear0 for g in self.gearboxes},
-                    brakes={b: FORWARD for b in self.brake_els})
+                    brakes={b: FORWARD for b in self.brake_els}, packs={p: FORWARD for p in self.packs})
         for name, i in self.probe.clutch_link.items():
             if mode.clutch[name] == STUCK:
                 mode.offsets[i] = 0.0
@@ -493,7 +532,7 @@ class HybridTreeSimulation:
                         break
                     if target == STUCK:
                         mode, st = self._try_stick(t, mode, st, kind, name,
-                                                   'zero slip' if kind == 'clutch' else 'zero speed')
+                                                   'zero speed' if kind == 'brake' else 'zero slip')
                     else:
                         mode = self._release(t, mode, kind, name, target, 'torque above static capacity')
                     mode, st = self._settle(t, mode, st, (name,))

@@ -243,3 +243,21 @@ def test_simulated_order_matches_the_linearised_response(eps: float, n: int) -> 
         assert abs(got[key] - w) <= (2.0 * eps * eps + 2e-5) * abs(w), (key, got[key], w)
     other = 3 - n                                   # order 2 for n = 1, order 1 for n = 2
     assert abs(_order(tr, other, i_out, tr.effort[:, i_in])) <= eps * eps * MC
+
+
+@pytest.mark.parametrize('name,index,key,value', [
+    ('fwd_axle', 1, 'stiffness_variation', [{'order': 1, 'amplitude': 0.2}]),
+    ('fwd_axle', 0, 'imbalance', {'mass_kg': 1.0, 'radius_m': 0.01}),
+    ('launch_clutch_chain', 2, 'stiffness_variation', [{'order': 1, 'amplitude': 0.2}]),
+    ('launch_clutch_chain', 0, 'imbalance', {'mass_kg': 1.0, 'radius_m': 0.01}),
+])
+def test_scenes_without_the_imperfections_name_the_field(name: str, index: int, key: str,
+                                                          value: Any) -> None:
+    """Vehicle and clutch scenes do not carry them yet: one line naming the field."""
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene
+    from cvj_ros.physics.simulate import Simulation
+    raw = load_scene_data(find_scene(name))
+    raw['driveline'][index][key] = value
+    with pytest.raises(SceneError, match=rf'^driveline\[{index}\]\.{key}: not available'):
+        Simulation(parse_scene(raw))

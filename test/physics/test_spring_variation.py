@@ -134,7 +134,7 @@ def test_kernel_matches_the_python_reference() -> None:
     """Same fixed rk4 steps on both backends (rounding only: 1e-12), rhs at random states to
     1e-12 and the Jacobian to 1e-8 (its dC/dq central differences, as test_runout.py)."""
     from cvj_ros.physics.engine import engine_from_spec
-    from cvj_ros.physics.kernel.layout import SPRING_STRIDE, build_model
+    from cvj_ros.physics.kernel.layout import H_SPRING_F, SPRING_STRIDE, build_model
     from cvj_ros.physics.kernel.rhs_nb import jac as kernel_jac
     from cvj_ros.physics.kernel.rhs_nb import rhs as kernel_rhs
     from cvj_ros.physics.load import load_from_spec
@@ -152,7 +152,7 @@ def test_kernel_matches_the_python_reference() -> None:
         engine = engine_from_spec(sc.engine)
         load = load_from_spec(sc.load, seed=sc.seed, field='load')
         model = build_model(dl, engine=engine, load=load, horizon=sc.duration)
-        assert model.fp[int(model.ip[10]) + 5] > 0.0   # H_SPRING_F: the block is packed
+        assert model.fp[int(model.ip[H_SPRING_F]) + 5] > 0.0   # the variation block's offset
         assert SPRING_STRIDE == 6
         rng = np.random.default_rng(3)
         n, ns = dl.n_dof, model.n_state
@@ -178,11 +178,11 @@ def test_kernel_matches_the_python_reference() -> None:
 def test_uniform_spring_packs_and_runs_as_before() -> None:
     """No variation: offset 0 in the spring table, the generated Python rhs."""
     from cvj_ros.physics.driveline import Driveline
-    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.kernel.layout import H_SPRING_F, build_model
     dl = Driveline.from_scene(parse_scene(scene([])), fidelity={'bushings': 'elastic'})
     assert dl._fast != dl._rhs
     model = build_model(dl)
-    assert model.fp[int(model.ip[10]) + 5] == 0.0
+    assert model.fp[int(model.ip[H_SPRING_F]) + 5] == 0.0
 
 
 def _order(tr: Any, n: int, angle_col: int, values: np.ndarray, revs: int = 4,

@@ -92,7 +92,7 @@ class Driveline:
         the compiled kernel never calls it, and generating it (``compile``) costs ~0.3 ms
         per driveline, a few per cent of a sweep variant."""
         if self._fast_rhs is None:
-            # a spring with varying stiffness: the readable reference (not generated)
+            # varying spring stiffness or an imbalance: the readable reference (not generated)
             plain = not any(sp.variation for sp in self.springs) and not any(self._imbalances)
             self._fast_rhs = self._generate_rhs() if plain else self._rhs
         return self._fast_rhs

@@ -134,7 +134,7 @@ def test_kernel_matches_the_python_reference() -> None:
     """Same fixed rk4 steps on both backends (rounding only: 1e-12), rhs at random states to
     1e-12 and the Jacobian to 1e-8 (its dC/dq central differences, as test_runout.py)."""
     from cvj_ros.physics.engine import engine_from_spec
-    from cvj_ros.physics.kernel.layout import SPRING_STRIDE, build_model
+    from cvj_ros.physics.kernel.layout import H_SPRING_F, SPRING_STRIDE, build_model
     from cvj_ros.physics.kernel.rhs_nb import jac as kernel_jac
     from cvj_ros.physics.kernel.rhs_nb import rhs as kernel_rhs
     from cvj_ros.physics.load import load_from_spec
@@ -152,7 +152,7 @@ def test_kernel_matches_the_python_reference() -> None:
         engine = engine_from_spec(sc.engine)
         load = load_from_spec(sc.load, seed=sc.seed, field='load')
         model = build_model(dl, engine=engine, load=load, horizon=sc.duration)
-        assert model.fp[int(model.ip[10]) + 5] > 0.0   # H_SPRING_F: the block is packed
+        assert model.fp[int(model.ip[H_SPRING_F]) + 5] > 0.0   # the variation block's offset
         assert SPRING_STRIDE == 6
         rng = np.random.default_rng(3)
         n, ns = dl.n_dof, model.n_state
@@ -178,11 +178,11 @@ def test_kernel_matches_the_python_reference() -> None:
 def test_uniform_spring_packs_and_runs_as_before() -> None:
     """No variation: offset 0 in the spring table, the generated Python rhs."""
     from cvj_ros.physics.driveline import Driveline
-    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.kernel.layout import H_SPRING_F, build_model
     dl = Driveline.from_scene(parse_scene(scene([])), fidelity={'bushings': 'elastic'})
     assert dl._fast != dl._rhs
     model = build_model(dl)
-    assert model.fp[int(model.ip[10]) + 5] == 0.0
+    assert model.fp[int(model.ip[H_SPRING_F]) + 5] == 0.0
 
 
 def _order(tr: Any, n: int, angle_col: int, values: np.ndarray, revs: int = 4,
@@ -243,3 +243,21 @@ def test_simulated_order_matches_the_linearised_response(eps: float, n: int) -> 
         assert abs(got[key] - w) <= (2.0 * eps * eps + 2e-5) * abs(w), (key, got[key], w)
     other = 3 - n                                   # order 2 for n = 1, order 1 for n = 2
     assert abs(_order(tr, other, i_out, tr.effort[:, i_in])) <= eps * eps * MC
+
+
+@pytest.mark.parametrize('name,index,key,value', [
+    ('fwd_axle', 1, 'stiffness_variation', [{'order': 1, 'amplitude': 0.2}]),
+    ('fwd_axle', 0, 'imbalance', {'mass_kg': 1.0, 'radius_m': 0.01}),
+    ('launch_clutch_chain', 2, 'stiffness_variation', [{'order': 1, 'amplitude': 0.2}]),
+    ('launch_clutch_chain', 0, 'imbalance', {'mass_kg': 1.0, 'radius_m': 0.01}),
+])
+def test_scenes_without_the_imperfections_name_the_field(name: str, index: int, key: str,
+                                                          value: Any) -> None:
+    """Vehicle and clutch scenes do not carry them yet: one line naming the field."""
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene
+    from cvj_ros.physics.simulate import Simulation
+    raw = load_scene_data(find_scene(name))
+    raw['driveline'][index][key] = value
+    with pytest.raises(SceneError, match=rf'^driveline\[{index}\]\.{key}: not available'):
+        Simulation(parse_scene(raw))

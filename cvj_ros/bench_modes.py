@@ -79,7 +79,8 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
                log: Callable[[str], None] = print) -> dict[str, Any]:
     """Runs of both families at each tolerance (rtol = tol, atol = tol / 100) over the
     scene's duration (or ``duration`` s) with ``samples`` samples, best of ``repeats`` walls
-    (the baseline's stop repeating after ``baseline_budget_s``); returns
+    (the kernel's: of at least 10; the baseline's stop repeating after
+    ``baseline_budget_s``); returns
     {'scene', 'duration', 'reference', 'rows', 'levels'}."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
@@ -100,7 +101,8 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
         for tol in tolerances:
             walls: list[float] = []
             r = sim = None
-            for _ in range(repeats):
+            # the kernel's runs are short: more repeats (their minimum) at little cost
+            for _ in range(max(repeats, 10) if family == 'project' else repeats):
                 sim = cls.from_reference(hybrid_simulation(scene, method='dopri5', rtol=tol,
                                                            atol=tol * 1e-2, sample_dt=sample_dt,
                                                            duration=horizon))

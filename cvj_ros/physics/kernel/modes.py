@@ -194,7 +194,7 @@ class KernelHybridSimulation(HybridSimulation):
         """Integrate one mode from (t, y0) towards t_stop up to its earliest witness
         crossing: (state at the end, end time, witness index or -1, next sample index,
         the sampled states from ``k_sample`` on). Counters go to ``self.stats``."""
-        from cvj_ros.physics.kernel import modes_nb
+        from cvj_ros.physics.kernel import entry_point_once, modes_nb
         ip, fp, ns = self.mode_arrays(asm, mode)
         y = np.array(y0, dtype=np.float64)
         atol = np.full(ns, float(self.atol)) if np.ndim(self.atol) == 0 else \
@@ -204,9 +204,10 @@ class KernelHybridSimulation(HybridSimulation):
         hlog = np.zeros(self._hlog_size if self.step_log is not None else 0)
         out_f = np.zeros(2)
         h_in = self._h_carry if self.carry_step else 0.0
-        modes_nb.dopri5_segment(t, t_stop, y, ip, fp, float(self.rtol), atol,
-                                float(self.max_step), h_in,
-                                times, k_sample, Y, hlog, out_i, out_f)
+        args = (float(t), float(t_stop), y, ip, fp, float(self.rtol), atol, float(self.max_step),
+                float(h_in), times, int(k_sample), Y, hlog, out_i, out_f)
+        # the cached entry point without numba's full start-up (kernel.load_cached)
+        entry_point_once(modes_nb.dopri5_segment, args)(*args)
         if out_i[0] != 0:
             raise RuntimeError(f'compiled kernel: integration failed near t={t:.6f} s: '
                                f'{_STATUS.get(int(out_i[0]), "status " + str(int(out_i[0])))}')

@@ -3,9 +3,9 @@
 :class:`KernelHybridSimulation` is :class:`cvj_ros.physics.hybrid.HybridSimulation` (the
 Python reference, the oracle) with the continuous part compiled: each mode becomes
 ``ip``/``fp`` arrays (``kernel/modes_nb.py`` layout, no per-scene or per-mode compile) and
-:func:`modes_nb.dopri5_segment` integrates it, checks the witnesses after every step and
-locates the earliest crossing on the dense output (Brent), all in one compiled call per
-mode. The discrete decisions at an event (stick or slip, release, gear commands and their
+:func:`modes_nb.mode_segment` integrates it (dopri5 or dop853), checks the witnesses after
+every step and locates the earliest crossing on the dense output (Brent), all in one
+compiled call per mode. The discrete decisions at an event (stick or slip, release, gear commands and their
 refusals, the momentum-conserving locks, the stall) are the oracle's own methods, so the
 two backends differ only by the rounding of the compiled arithmetic.
 
@@ -27,7 +27,7 @@ from cvj_ros.physics.kernel import layout as L
 
 __all__ = ['KERNEL_MODE_METHODS', 'KernelHybridSimulation']
 
-KERNEL_MODE_METHODS = ('dopri5',)
+KERNEL_MODE_METHODS = ('dopri5', 'dop853')
 
 # codes of kernel/modes_nb.py (repeated here so building the arrays does not import numba)
 OP_COUPLING = -1
@@ -41,8 +41,22 @@ N_CHAN = 12
 _STATUS = {1: 'a state or derivative is not finite', 2: 'the step size underflowed'}
 
 
+_ENTRY: list[Any] = []
+
+
+def _segment_entry(args: tuple) -> Any:
+    """modes_nb.mode_segment's compiled entry point, found once per process from the disk
+    cache without numba's full start-up (kernel.entry_point). A compile on a cache miss runs
+    the function once: it gets copies of the arrays, which the segment overwrites."""
+    if not _ENTRY:
+        from cvj_ros.physics.kernel import entry_point, modes_nb
+        spare = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
+        _ENTRY.append(entry_point(modes_nb.mode_segment, spare))
+    return _ENTRY[0]
+
+
 class KernelHybridSimulation(HybridSimulation):
-    """:class:`HybridSimulation` integrated by the compiled kernel (dopri5); same arguments,
+    """:class:`HybridSimulation` integrated by the compiled kernel (dopri5, dop853); same arguments,
     plus ``carry_step`` (module docstring) and ``step_log`` (keep every accepted step size
     per mode segment in ``self.step_log``, to replay the run's mesh in the reference)."""
 
@@ -194,7 +208,7 @@ class KernelHybridSimulation(HybridSimulation):
         """Integrate one mode from (t, y0) towards t_stop up to its earliest witness
         crossing: (state at the end, end time, witness index or -1, next sample index,
         the sampled states from ``k_sample`` on). Counters go to ``self.stats``."""
-        from cvj_ros.physics.kernel import entry_point_once, modes_nb
+        from cvj_ros.physics.kernel.stepper import _dop853_args
         ip, fp, ns = self.mode_arrays(asm, mode)
         y = np.array(y0, dtype=np.float64)
         atol = np.full(ns, float(self.atol)) if np.ndim(self.atol) == 0 else \
@@ -204,10 +218,11 @@ class KernelHybridSimulation(HybridSimulation):
         hlog = np.zeros(self._hlog_size if self.step_log is not None else 0)
         out_f = np.zeros(2)
         h_in = self._h_carry if self.carry_step else 0.0
-        args = (float(t), float(t_stop), y, ip, fp, float(self.rtol), atol, float(self.max_step),
-                float(h_in), times, int(k_sample), Y, hlog, out_i, out_f)
-        # the cached entry point without numba's full start-up (kernel.load_cached)
-        entry_point_once(modes_nb.dopri5_segment, args)(*args)
+        (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
+        args = (0 if self.method == 'dopri5' else 1, float(t), float(t_stop), y, ip, fp,
+                float(self.rtol), atol, float(self.max_step), float(h_in), times, int(k_sample),
+                Y, hlog, out_i, out_f, c8, a8, b8, e5, e3, d8, ax, cx)
+        _segment_entry(args)(*args)
         if out_i[0] != 0:
             raise RuntimeError(f'compiled kernel: integration failed near t={t:.6f} s: '
                                f'{_STATUS.get(int(out_i[0]), "status " + str(int(out_i[0])))}')

@@ -10,9 +10,10 @@ order of additions): per group M(q) q'' + C(q) q'^2 = Q; Q = (T_e [first] - T_l 
 a stuck brake pins the last group (q' = q'' = 0). Work integrals W_engine, W_load, W_damp,
 W_friction follow the groups' states.
 
-:func:`dopri5_segment` integrates one mode from t0 towards t_stop with Dormand-Prince 5(4)
-(the same step control as ``steppers_nb.dopri5_step``, whose right-hand side is fixed to the
-event-free driveline: the steppers bind their rhs as a module global), checks the mode's
+:func:`mode_segment` integrates one mode from t0 towards t_stop with Dormand-Prince 5(4) or
+8(5,3) (the step control and dense output of ``steppers_nb.dopri5_step`` / ``dop853_step``,
+whose right-hand side is fixed to the event-free driveline: the steppers bind their rhs as
+a module global), checks the mode's
 witnesses after every accepted step (a crossing in the witness's direction, scipy's
 ``find_active_events``), locates the earliest by Brent's method (scipy's ``brentq``, Brent
 1973, xtol = rtol = 4 eps) on the dense output and stops there; the discrete transition is
@@ -38,13 +39,16 @@ from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import OP_INERTIA
 from cvj_ros.physics.kernel.rhs_nb import spring_eval
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
-from cvj_ros.physics.kernel.steppers_nb import (BETA, C_HAVEF, C_LASTREJ, C_NACC, C_NFEV,
-                                                C_NREJ, DP_A, DP_B, DP_C, DP_E, DP_ORDER,
-                                                FAC_MAX, FAC_MIN, FS_ERROLD, FS_H, FS_HLAST,
-                                                FS_T, FS_TOLD, NCNT, NFS, SAFETY, ST_NONFINITE,
-                                                ST_OK, ST_UNDERFLOW, _proposal, dopri5_dense)
+from cvj_ros.physics.kernel.steppers_nb import (BETA, C_DENSE, C_LASTREJ, C_NACC, C_NFEV,
+                                                C_NREJ, D8_FAC_MAX, D8_FAC_MIN, D8_ORDER, DP_A,
+                                                DP_B, DP_C, DP_E, DP_ORDER, FAC_MAX, FAC_MIN,
+                                                FS_ERROLD, FS_H, FS_HLAST, FS_T, FS_TOLD, NCNT,
+                                                NFS, SAFETY, ST_NONFINITE, ST_OK, ST_UNDERFLOW,
+                                                _proposal, _proposal_nobeta, dopri5_dense)
 
-__all__ = ['dopri5_segment', 'mode_eval', 'witness_values']
+__all__ = ['M_DOP853', 'M_DOPRI5', 'mode_eval', 'mode_segment', 'witness_values']
+
+M_DOPRI5, M_DOP853 = 0, 1
 
 OP_COUPLING = -1
 LINK_SPRING, LINK_CLUTCH, LINK_OPEN = 0, 1, 2
@@ -59,8 +63,8 @@ N_MHEADER = 17
  CH_BCGEO, CH_BFN, CH_STALL) = range(12)
 N_CHAN = 12
 N_WORK = 4
-N_SCRATCH_EXTRA = 6
-FS_HUSED = 7            # fs slot: the size of the last accepted attempt (s), for the step log     # sc[n..]: hold torque, omega_last, cs, bs, ck, bk
+N_SCRATCH_EXTRA = 6     # sc[n..]: hold torque, omega_last, cs, bs, ck, bk
+FS_HUSED = 7            # fs slot: the size of the last accepted attempt (s), for the step log
 _EPS = np.finfo(float).eps
 _XTOL = 4 * _EPS
 
@@ -282,15 +286,25 @@ def _witness_at(t, y, ip, fp, dy, sc, wv):
 
 
 @njit(cache=True)
-def _dense_witness(tau, i, y_old, fs, K, ip, fp, yy, dy, sc, wv):
+def _dense(method, tau, y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX, out):
+    """The method's dense output at tau inside the last accepted step."""
+    if method == M_DOPRI5:
+        dopri5_dense(tau, y_old, fs, K, out)
+    else:
+        _d8_dense(tau, y, y_old, ip, fp, fs, cnt, D8, AX, CX, K, out, sc)
+
+
+@njit(cache=True)
+def _dense_witness(method, tau, i, y, y_old, fs, cnt, K, ip, fp, yy, dy, sc, wv, D8, AX, CX):
     """Witness i on the dense output at tau."""
-    dopri5_dense(tau, y_old, fs, K, yy)
+    _dense(method, tau, y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX, yy)
     _witness_at(tau, yy, ip, fp, dy, sc, wv)
     return wv[i]
 
 
 @njit(cache=True)
-def brent_root(xa, xb, fa, fb, i, y_old, fs, K, ip, fp, yy, dy, sc, wv):
+def brent_root(xa, xb, fa, fb, i, method, y, y_old, fs, cnt, K, ip, fp, yy, dy, sc, wv, D8,
+               AX, CX):
     """Zero of witness i on the dense output in [xa, xb]: scipy's brentq (zeros.c, Brent
     1973, "Algorithms for minimization without derivatives", ch. 4) with xtol = rtol =
     4 eps, maxiter 100; fa, fb: the witness at the ends (opposite signs)."""
@@ -345,12 +359,13 @@ def brent_root(xa, xb, fa, fb, i, y_old, fs, K, ip, fp, yy, dy, sc, wv):
             xcur += scur
         else:
             xcur += delta if sbis > 0 else -delta
-        fcur = _dense_witness(xcur, i, y_old, fs, K, ip, fp, yy, dy, sc, wv)
+        fcur = _dense_witness(method, xcur, i, y, y_old, fs, cnt, K, ip, fp, yy, dy, sc, wv,
+                              D8, AX, CX)
     return xcur
 
 
 @njit(cache=True)
-def _initial_step(y, f0, t, ip, fp, sc, rtol, atol, max_step, tmp, f1):
+def _initial_step(y, f0, t, ip, fp, sc, rtol, atol, max_step, order, tmp, f1):
     """Hairer's HINIT (steppers_nb._initial_step) on the mode's rhs; h0 (s) or -1.0."""
     n = y.shape[0]
     s0 = 0.0
@@ -379,7 +394,7 @@ def _initial_step(y, f0, t, ip, fp, sc, rtol, atol, max_step, tmp, f1):
     if dmax <= 1e-15:
         h1 = max(1e-6, h0 * 1e-3)
     else:
-        h1 = (0.01 / dmax) ** (1.0 / (DP_ORDER + 1))
+        h1 = (0.01 / dmax) ** (1.0 / (order + 1))
     return min(100 * h0, h1, max_step)
 
 
@@ -408,7 +423,7 @@ def _attempt(h, y, ip, fp, fs, cnt, rtol, atol, K, work, sc):
             kj = K[j]
             for i in range(n):
                 ynew[i] += c * kj[i]
-    mode_eval(t + h, ynew, ip, fp, K[6], sc, False)
+    mode_eval(t + h, ynew, ip, fp, K[6], sc, True)      # also the witnesses' scratch
     cnt[C_NFEV] += 6
     ss = 0.0
     for i in range(n):
@@ -461,9 +476,126 @@ def _step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, sc)
 
 
 @njit(cache=True)
-def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0, Y, hlog,
-                   out_i, out_f):
-    """Integrate the mode from t0 towards t_stop until the earliest witness crossing.
+def _d8_step(t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C, A, B, E5, E3, K,
+             work, sc):
+    """One accepted DOP853 step (steppers_nb.dop853_step on the mode's rhs); K[0] =
+    f(t, y) on entry. Returns ST_*."""
+    n = y.shape[0]
+    ns = B.shape[0]
+    expo = 1.0 / (D8_ORDER + 1)
+    t = fs[FS_T]
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    arg = work[0]
+    ynew = work[1]
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_UNDERFLOW
+        for s in range(1, ns):
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A[s, j] * K[j, i]
+                arg[i] = y[i] + h * acc
+            mode_eval(t + C[s] * h, arg, ip, fp, K[s], sc, False)
+        for i in range(n):
+            acc = 0.0
+            for j in range(ns):
+                acc += B[j] * K[j, i]
+            ynew[i] = y[i] + h * acc
+        mode_eval(t + h, ynew, ip, fp, K[ns], sc, True)
+        cnt[C_NFEV] += ns
+        e5n = 0.0
+        e3n = 0.0
+        for i in range(n):
+            e5 = 0.0
+            e3 = 0.0
+            for j in range(ns + 1):
+                e5 += E5[j] * K[j, i]
+                e3 += E3[j] * K[j, i]
+            scl = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            e5n += (e5 / scl) ** 2
+            e3n += (e3 / scl) ** 2
+        if e5n == 0.0 and e3n == 0.0:
+            err = 0.0
+        else:
+            err = abs(h) * e5n / math.sqrt((e5n + 0.01 * e3n) * n)
+        if err <= 1.0:
+            h_new = _proposal_nobeta(h, err, D8_FAC_MIN, D8_FAC_MAX, expo)
+            fs[FS_ERROLD] = max(err, 1e-4)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            t_new = t_bound if clipped else t + h
+            for i in range(n):
+                y_old[i] = y[i]
+                y[i] = ynew[i]
+            fs[FS_TOLD] = t
+            fs[FS_T] = t_new
+            fs[FS_HLAST] = t_new - t
+            fs[FS_HUSED] = h
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_DENSE] = 0
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if not math.isfinite(err):
+            return ST_NONFINITE
+        h = h / min(1.0 / D8_FAC_MIN, err ** expo / SAFETY)
+
+
+@njit(cache=True)
+def _d8_dense(t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out, sc):
+    """7th-order dense output of DOP853 (steppers_nb.dop853_dense on the mode's rhs): the
+    three extra stages and the coefficients once per step."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    t_old = fs[FS_TOLD]
+    if h == 0.0:
+        for i in range(n):
+            out[i] = y_old[i]
+        return
+    if cnt[C_DENSE] == 0:
+        arg = np.empty(n)
+        for r in range(3):
+            s = 13 + r
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += A_EXTRA[r, j] * K[j, i]
+                arg[i] = y_old[i] + h * acc
+            mode_eval(t_old + C_EXTRA[r] * h, arg, ip, fp, K[s], sc, False)
+        cnt[C_NFEV] += 3
+        for i in range(n):
+            dy = y[i] - y_old[i]
+            K[16, i] = dy
+            K[17, i] = h * K[0, i] - dy
+            K[18, i] = 2 * dy - h * (K[12, i] + K[0, i])
+            for r in range(4):
+                acc = 0.0
+                for j in range(16):
+                    acc += D[r, j] * K[j, i]
+                K[19 + r, i] = h * acc
+        cnt[C_DENSE] = 1
+    x = (t - t_old) / h
+    for i in range(n):
+        acc = 0.0
+        for q in range(7):
+            acc += K[22 - q, i]
+            acc *= x if q % 2 == 0 else 1.0 - x
+        out[i] = acc + y_old[i]
+
+
+@njit(cache=True)
+def mode_segment(method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0, Y,
+                 hlog, out_i, out_f, C8, A8, B8, E5, E3, D8, AX, CX):
+    """Integrate the mode from t0 towards t_stop until the earliest witness crossing, with
+    method M_DOPRI5 or M_DOP853 (its coefficients C8 .. CX: scipy's DOP853 tableau, as
+    steppers_nb.dop853_step takes them; unused by dopri5).
 
     y: the mode state at t0, overwritten with the state at the end (event or t_stop).
     h_in: first step (s), 0: Hairer's estimate. Samples t_samp[k] (ascending, k >= k0) up to
@@ -476,7 +608,8 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
     n = ip[MH_N]
     nw = ip[MH_NWIT]
     w0 = ip[MH_WIT]
-    K = np.zeros((7, ns))
+    K = np.zeros((7 if method == M_DOPRI5 else 23, ns))
+    fsal = 6 if method == M_DOPRI5 else B8.shape[0]
     work = np.zeros((4, ns))
     y_old = np.zeros(ns)
     yy = np.zeros(ns)
@@ -496,7 +629,8 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
     if h_in > 0.0:
         fs[FS_H] = min(h_in, max_step)
     else:
-        h0 = _initial_step(y, K[0], t0, ip, fp, sc, rtol, atol, max_step, work[0], work[2])
+        h0 = _initial_step(y, K[0], t0, ip, fp, sc, rtol, atol, max_step,
+                           DP_ORDER if method == M_DOPRI5 else D8_ORDER, work[0], work[2])
         cnt[C_NFEV] += 1
         if h0 < 0.0:
             out_i[0] = ST_NONFINITE
@@ -508,7 +642,11 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
     steps = 0
     while True:
         t_old = fs[FS_T]
-        st = _step(t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, sc)
+        if method == M_DOPRI5:
+            st = _step(t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, K, work, sc)
+        else:
+            st = _d8_step(t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C8, A8, B8,
+                          E5, E3, K, work, sc)
         if st != ST_OK:
             out_i[0] = st
             break
@@ -516,7 +654,11 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
             hlog[steps] = fs[FS_HUSED]
         steps += 1
         t_new = fs[FS_T]
-        _witness_at(t_new, y, ip, fp, dy, sc, g_new)
+        if t_new == fs[FS_TOLD] + fs[FS_HUSED]:
+            # the step's FSAL evaluation was at (t_new, y): its derivative and scratch
+            witness_values(t_new, y, ip, fp, K[fsal], sc, g_new)
+        else:
+            _witness_at(t_new, y, ip, fp, dy, sc, g_new)
         best_t = math.inf
         best_i = -1
         for i in range(nw):
@@ -530,10 +672,12 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
                     t_i = t_new
                 else:
                     # as scipy's brentq: both ends from the function (the dense output)
-                    f_a = _dense_witness(t_old, i, y_old, fs, K, ip, fp, yy, dy, sc, wv)
-                    f_b = _dense_witness(t_new, i, y_old, fs, K, ip, fp, yy, dy, sc, wv)
-                    t_i = brent_root(t_old, t_new, f_a, f_b, i, y_old, fs, K, ip, fp,
-                                     yy, dy, sc, wv)
+                    f_a = _dense_witness(method, t_old, i, y, y_old, fs, cnt, K, ip, fp, yy,
+                                         dy, sc, wv, D8, AX, CX)
+                    f_b = _dense_witness(method, t_new, i, y, y_old, fs, cnt, K, ip, fp, yy,
+                                         dy, sc, wv, D8, AX, CX)
+                    t_i = brent_root(t_old, t_new, f_a, f_b, i, method, y, y_old, fs, cnt, K,
+                                     ip, fp, yy, dy, sc, wv, D8, AX, CX)
                 if t_i < best_t:
                     best_t = t_i
                     best_i = i
@@ -544,11 +688,12 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
                 for j in range(ns):
                     Y[k, j] = y[j]
             else:
-                dopri5_dense(max(ts, t_old), y_old, fs, K, Y[k])
+                _dense(method, max(ts, t_old), y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX,
+                       Y[k])
             k += 1
         if best_i >= 0:
             if best_t != t_new:
-                dopri5_dense(best_t, y_old, fs, K, yy)
+                _dense(method, best_t, y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX, yy)
                 for j in range(ns):
                     y[j] = yy[j]
             out_i[1] = best_i
@@ -560,7 +705,7 @@ def dopri5_segment(t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in, t_samp, k0
             out_f[0] = t_stop
             break
         for j in range(ns):        # FSAL
-            K[0, j] = K[6, j]
+            K[0, j] = K[fsal, j]
     out_i[2] = k
     out_i[3] = steps
     out_i[4] = cnt[C_NFEV]

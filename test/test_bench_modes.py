@@ -40,3 +40,37 @@ def test_mode_study_rows_and_levels() -> None:
     table = bench_modes.format_mode_table(s)
     assert '| 0.001 |' in table and 'solve_ivp RK45 + events' in table
     assert any('mode reference' in line for line in lines)
+
+
+def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
+    """run_bench with mode scenes: their study (here a stub with two rows) goes to modes.csv
+    and modes.md and into the result; the report stays the last path."""
+    from cvj_ros import bench
+    from cvj_ros.physics.scene import parse_scene
+    rows = [{'scene': 'launch_clutch_chain', 'family': f, 'label': f, 'tol': 1e-6, 'ok': True,
+             'err_speed_rel': 1e-5, 'wall_s': w, 'wall_per_sim_s': w / 10, 'repeats': 1,
+             'steps': 1, 'nfev': 7, 'events': 14, 'energy_residual': 1e-9}
+            for f, w in (('project', 0.01), ('baseline', 0.5))]
+    calls = []
+
+    def study(name, **kw):
+        calls.append((name, kw['tolerances']))
+        return {'scene': name, 'duration': 10.0, 'reference': {}, 'rows': rows,
+                'levels': bench_modes.mode_levels(rows)}
+    monkeypatch.setattr(bench_modes, 'mode_study', study)
+    scene = {'name': 'mini', 'duration': 1.0, 'engine': {'model': 'linear'},
+             'load': {'model': 'constant', 'torque': 10.0}, 'initial': {'speed_rad_s': 30.0},
+             'driveline': [{'type': 'inertia', 'name': 'engine_crank', 'J': 0.1},
+                           {'type': 'spring', 'name': 'bush', 'stiffness': 700.0, 'damping': 6.0},
+                           {'type': 'inertia', 'name': 'wheel', 'J': 0.2}]}
+    cfg = bench.BenchConfig(scenes=[parse_scene(scene)], solvers=('dopri5',), tolerances=(1e-4,),
+                            fidelities=('exact',), baselines=('RK45',), horizon=0.1, samples=5,
+                            repeats=1, min_timed_s=0.0, exchange_steps=(1e-3,),
+                            lockstep_scenes=None, round_trip_n=0, compiled_baselines=False,
+                            expert_methods=(), mode_scenes=('launch_clutch_chain',))
+    res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
+    assert calls == [('launch_clutch_chain', (1e-4, 1e-11))]
+    assert res['modes'][0]['levels'][0]['speedup'] == 50.0
+    assert (tmp_path / 'modes.csv').read_text().count('\n') == 3
+    assert '| 0.001 | 1e-06 | 10.0 | 1e-06 | 500.0 | 50.0x |' in (tmp_path / 'modes.md').read_text()
+    assert res['paths'][-1].name == 'bench.md'

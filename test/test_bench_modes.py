@@ -74,3 +74,24 @@ def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
     assert (tmp_path / 'modes.csv').read_text().count('\n') == 3
     assert '| 0.001 | 1e-06 | 10.0 | 1e-06 | 500.0 | 50.0x |' in (tmp_path / 'modes.md').read_text()
     assert res['paths'][-1].name == 'bench.md'
+
+
+def test_cli_mode_scene_selection() -> None:
+    """`cvj-sim bench` times launch_clutch_chain by default, not with --quick or --scenes
+    (unless --mode-scenes names it); --mode-scenes refuses a scene without modes."""
+    import argparse
+
+    from cvj_ros.commands import bench as cli_bench
+    from cvj_ros.errors import SceneError
+    p = argparse.ArgumentParser()
+    cli_bench.add_arguments(p)
+
+    def modes(*argv: str) -> tuple:
+        return tuple(cli_bench.config_from_args(p.parse_args(list(argv))).mode_scenes)
+    assert modes() == ('launch_clutch_chain',)
+    assert modes('--quick') == () and modes('--scenes', 'cardan_truck') == ()
+    assert modes('--mode-scenes') == ()
+    assert modes('--scenes', 'cardan_truck', '--mode-scenes', 'launch_clutch_chain') == \
+        ('launch_clutch_chain',)
+    with pytest.raises(SceneError, match='--mode-scenes'):
+        modes('--mode-scenes', 'cardan_truck')

@@ -19,6 +19,7 @@ backend its own mesh) the two find the same events.
 from __future__ import annotations
 
 import importlib.util
+import math
 from pathlib import Path
 
 import numpy as np
@@ -197,6 +198,58 @@ def test_launch_clutch_chain_on_dop853_matches_the_reference(monkeypatch) -> Non
     # (final state); the bounds are these with a margin, not the 1e-12 of the hard cases
     assert_same_run(rp, rk, tol_t=5e-9, tol_x=5e-6)
     assert rk.max_energy_residual < 1e-7
+
+
+def _random_chain_sim(seed: int):
+    """A random chain (inertias, packs, ratios, optional damper, Hooke joint and brake, map
+    engine, road load on a random grade) under 20 random command rows over 3 s; returns a
+    maker of fresh simulations of it."""
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.hybrid import Brake, Clutch, CommandSchedule, CoulombPack, Gearbox, HybridChain
+    from cvj_ros.physics.load import RoadLoad
+    from cvj_ros.physics.scene import Inertia, Joint, Spring
+    rng = np.random.default_rng(1000 + seed)
+    els = [Inertia('engine_crank', rng.uniform(0.1, 0.3)),
+           Clutch('clutch', rng.uniform(0.02, 0.1), rng.uniform(0.005, 0.03),
+                  CoulombPack(mu_s=0.4, mu_k=rng.uniform(0.2, 0.4), cgeo=0.2,
+                              fn_max=rng.uniform(2000, 6000)))]
+    if rng.uniform() < 0.5:
+        els += [Spring('damper', rng.uniform(500, 3000), rng.uniform(0.0, 3.0)),
+                Inertia('input_shaft', rng.uniform(0.005, 0.02))]
+    els.append(Gearbox('gearbox', 0.01, 0.02, tuple(sorted(rng.uniform(4, 15, 3))[::-1]), -12.0,
+                       max_input_speed=650.0))
+    if rng.uniform() < 0.5:
+        els += [Joint('cardan', 'hooke', {'beta_deg': float(rng.uniform(5, 25))}),
+                Inertia('shaft', 0.05)]
+    els += [Spring('halfshaft', rng.uniform(3000, 9000), rng.uniform(2, 20)),
+            Inertia('wheel', rng.uniform(100, 150))]
+    if rng.uniform() < 0.8:
+        els.append(Brake('brake', CoulombPack(mu_s=0.5, mu_k=0.4, cgeo=0.25, fn_max=40000.0)))
+    chain = HybridChain(els)
+    rows = [(0.0, {'clutch': 1.0, 'gear': 1, 'throttle': 0.0,
+                   **({'brake': 1.0} if chain.brake else {})})]
+    for t in np.sort(rng.uniform(0.05, 3.0, 20)):
+        ch = rng.choice(['clutch', 'throttle', 'gear'] + (['brake'] if chain.brake else []))
+        rows.append((float(t), {ch: int(rng.integers(-1, 4)) if ch == 'gear'
+                                else float(rng.choice([0.0, 1.0, rng.uniform()]))}))
+    grade = float(rng.uniform(-5, 10))
+    return lambda: HybridSimulation(
+        chain, engine=engine_from_spec({'model': 'map', 'throttle': 0.0, 'stall_rpm': 400.0}),
+        load=RoadLoad(mass=1500.0, wheel_radius=0.3, final_drive_ratio=4.0, grade_percent=grade),
+        schedule=CommandSchedule(rows), duration=3.0, sample_dt=0.01, initial_speed=85.0,
+        stall_speed=400 * math.pi / 30, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_random_chains_and_schedules_match_the_reference(seed: int, monkeypatch) -> None:
+    """Fuzz over structure and commands. Measured: event times <= 6.3e-14, speeds and final
+    states <= 3.7e-12 in 11 of 12, 1.0e-7 / 4.5e-9 in seed 7 (a stability-bound stretch as
+    in launch_clutch_chain); the bound for states is that with a margin."""
+    mk = _random_chain_sim(seed)
+    k = KernelHybridSimulation.from_reference(mk(), step_log=True)
+    rk = k.run()
+    rp = replay(mk(), k.step_log, monkeypatch)
+    assert_same_run(rp, rk, tol_x=1e-6)
 
 
 def test_unsupported_method_is_refused_in_one_line() -> None:

@@ -88,6 +88,8 @@ class BenchConfig:
     studies: bool = False                # run `pytest -m slow` and append its summary
     startup: bool = False                # time the kernel's cold compile and a warm simulate
     compiled_baselines: bool = True      # also solve_ivp over the compiled rhs (expert baseline)
+    mode_scenes: Sequence[str] = ()      # clutch/gearbox/brake scenes (cvj_ros.bench_modes:
+                                         # kernel vs solve_ivp + events; `cvj-sim bench` sets them)
     expert_methods: Sequence[str] = ('lsoda', 'dop853')   # numbalsoda on the compiled rhs ('baseline_expert';
                                          # skipped with one line when numbalsoda is not installed)
 
@@ -940,6 +942,16 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         # partial report after every scene: an interrupted long run keeps what it measured
         _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, None,
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
+    modes: list[dict[str, Any]] = []
+    if cfg.mode_scenes:
+        from cvj_ros.bench_modes import mode_study, write_mode_outputs
+        for name in cfg.mode_scenes:
+            modes.append(mode_study(name, tolerances=tuple(cfg.tolerances) + (1e-11,),
+                                    samples=cfg.samples, log=log))
+            for e in modes[-1]['levels']:
+                sp = f"{e['speedup']:.1f}x" if e['speedup'] else 'not reached by both'
+                log(f"[bench] {name}: error level {e['level']:g}: kernel vs solve_ivp + events {sp}")
+        mode_paths = write_mode_outputs(modes, out)
     rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
     if 'compiled_ns' in rhs_reference:
         rhs_reference['hand'] = {name: hand_written_rhs_cost(name) for name in HAND_WRITTEN}
@@ -948,8 +960,10 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
                            work_precision_plot, startup=startup, rhs_reference=rhs_reference)
+    if modes:
+        paths = [*mode_paths, *paths]     # the report (bench.md) stays last
     log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
-    return {'rows': rows, 'lockstep': lock_rows, 'round_trip': rt, 'real_lockstep': real,
+    return {'modes': modes, 'rows': rows, 'lockstep': lock_rows, 'round_trip': rt, 'real_lockstep': real,
             'startup': startup, 'rhs_reference': rhs_reference, 'duration_s': duration, 'paths': paths, 'reference_tol': ref_tol,
             'tables': {name: best_at_levels([r for r in rows if r['scene'] == name]) for name in problems}}
 

@@ -45,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--repeats', type=int, metavar='N', help='timing repeats (min is reported)')
     parser.add_argument('--passes', type=int, metavar='N',
                         help="spread each configuration's repeats over N passes of its scene [2]")
+    parser.add_argument('--mode-scenes', nargs='*', metavar='SCENE',
+                        help='scenes with clutch, gearbox or brake, timed as the kernel against '
+                             'solve_ivp with event functions (default: launch_clutch_chain; '
+                             'none with --quick or --scenes; give no name to skip)')
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
     parser.add_argument('--real-lockstep', action='store_true',
                         help='also time real `cvj-sim run` lockstep runs (5 s simulated) of the '
@@ -80,6 +84,14 @@ def config_from_args(args: argparse.Namespace) -> object:
         cfg.lockstep_scenes = None     # the first given scene
     if args.no_ros:
         cfg.round_trip_n = 0
+    from cvj_ros.bench_modes import MODE_SCENES
+    modes = getattr(args, 'mode_scenes', None)
+    cfg.mode_scenes = tuple(modes) if modes is not None else \
+        (() if args.quick or args.scenes else MODE_SCENES)
+    for name in cfg.mode_scenes:
+        from cvj_ros.physics.scene import find_scene, load_scene
+        if not load_scene(find_scene(name)).has_modes:
+            raise SceneError('--mode-scenes', f'{name}: no clutch, gearbox, brake or commands')
     cfg.real_lockstep = bool(args.real_lockstep)
     if args.real_lockstep_runs is not None:
         if not 1 <= args.real_lockstep_runs <= 100:

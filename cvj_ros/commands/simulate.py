@@ -191,13 +191,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_modes(scene: Any, args: argparse.Namespace) -> int:
-    """A scene with clutch, gearbox, brake or commands: the Python reference with events
-    (cvj_ros.physics.hybrid, docs/clutch_gearbox.md); prints events per element."""
+    """A scene with clutch, gearbox, brake or commands: stick/slip modes with events
+    (docs/clutch_gearbox.md) on the compiled kernel (dopri5; ``--backend python`` or another
+    method runs the Python reference); prints events per element."""
     import sys
+    import time
 
-    from cvj_ros.physics.hybrid.from_scene import (format_hybrid_summary, hybrid_summary,
-                                                   run_hybrid)
-    from cvj_ros.physics.hybrid.scene_keys import mode_gap
+    from cvj_ros.physics.hybrid.from_scene import (format_hybrid_summary, hybrid_simulation,
+                                                   hybrid_summary)
     for opt in ('plots', 'bag', 'dense'):
         if getattr(args, opt):
             raise SceneError(f'--{opt}', 'not available yet for a scene with clutch, gearbox, brake '
@@ -206,14 +207,25 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
     if args.method is not None and args.method not in DENSE_METHODS:
         raise SceneError('--method', f'a scene with clutch, gearbox, brake or commands needs one of '
                                      f'{", ".join(DENSE_METHODS)} (dense output), got {args.method!r}')
-    field, reason = mode_gap(scene)
-    note = f'compiled kernel: {field}: {reason.split(";")[0]}; running the Python reference'
+    sim = hybrid_simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
+                            fidelity=parse_fidelity(args.fidelity), duration=args.duration,
+                            sample_dt=args.sample_dt)
+    note = ''
+    backend = 'python'
     if args.backend == 'kernel':
-        print(f'cvj-sim simulate: {note}', file=sys.stderr)
-    sim, result, wall = run_hybrid(scene, method=args.method, rtol=args.rtol, atol=args.atol,
-                                   fidelity=parse_fidelity(args.fidelity), duration=args.duration,
-                                   sample_dt=args.sample_dt)
-    summary = hybrid_summary(scene, sim, result, wall, note if args.backend == 'kernel' else '')
+        from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
+        if sim.method in KERNEL_MODE_METHODS:
+            sim = KernelHybridSimulation.from_reference(sim)
+            backend = 'kernel'
+        else:
+            note = (f'compiled kernel: mode scenes run with {", ".join(KERNEL_MODE_METHODS)}, '
+                    f'not {sim.method}; running the Python reference')
+            print(f'cvj-sim simulate: {note}', file=sys.stderr)
+    t0 = time.perf_counter()
+    result = sim.run()
+    wall = time.perf_counter() - t0
+    summary = hybrid_summary(scene, sim, result, wall, note)
+    summary['solver']['backend'] = backend
     if result.stall:
         print(f'cvj-sim simulate: {result.stall}', file=sys.stderr)
     if args.csv:

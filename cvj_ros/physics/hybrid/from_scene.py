@@ -127,7 +127,8 @@ def format_hybrid_summary(s: dict[str, Any]) -> str:
              f"solver {sol['method']} rtol {sol['rtol']:g} atol {sol['atol']:g}: {sol['steps']} steps, "
              f"{sol['nfev']} rhs evaluations, {sol['events']} located events, "
              f"{sol['restarts']} restarts",
-             'backend python' + (f" ({sol['backend_fallback']})" if sol['backend_fallback'] else ''),
+             f"backend {sol.get('backend', 'python')}"
+             + (f" ({sol['backend_fallback']})" if sol['backend_fallback'] else ''),
              f"energy balance residual {s['energy_residual']:.3e} (relative, friction and lock "
              f"losses booked)"]
     for el, c in s['events'].items():

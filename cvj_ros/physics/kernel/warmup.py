@@ -4,7 +4,8 @@ cvj_ros.physics.kernel.warmup``.
 Run by ``make test`` and ``make bench`` (which use every method), so no test node pays a
 cold compile while its peers wait. ``make demo`` does not: a run compiles only the entry
 points it calls, on first use (docs/solvers.md "First run"). With a warm cache it only loads.
-Prints one line per method with the wall time and whether it compiled or loaded.
+Prints one line per method with the wall time and whether it compiled or loaded. The
+clutch/gearbox/brake mode segment (kernel/modes_nb.py) is warmed after the outputs.
 
 On a machine with two or more cores the cold compile runs in two processes sharing the
 cache: this one compiles dopri5, dop853, rk4 and the outputs, a child (``--methods``) the
@@ -120,6 +121,20 @@ def warm_outputs(*, out=sys.stdout) -> float:
     return dt
 
 
+def warm_modes(*, out=sys.stdout) -> float:
+    """Compile or load the clutch/gearbox/brake mode segment (kernel/modes_nb.py) by a
+    0.05 s run of the shipped launch_clutch_chain; returns the wall time (s)."""
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.kernel.modes import KernelHybridSimulation
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    t0 = time.perf_counter()
+    scene = load_scene(shipped_scenes()['launch_clutch_chain'])
+    KernelHybridSimulation.from_reference(hybrid_simulation(scene, duration=0.05)).run()
+    dt = time.perf_counter() - t0
+    print(f'kernel modes: {dt:.2f} s', file=out)
+    return dt
+
+
 def main(argv: list[str] | None = None) -> int:
     """``warmup`` (everything; two processes on >= 2 cores) or ``warmup --methods a,b``
     (those methods only: the child of the two-process warm-up). Exit status 1 when the
@@ -150,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         mine = KERNEL_METHODS
     warm(mine)
     warm_outputs()
+    warm_modes()
     status = 0 if child is None else child.wait()
     how = 'one process' if child is None else 'two processes'
     if status != 0:

@@ -1,5 +1,6 @@
 """The shipped chain launch scene: hill start, shifts 1 -> 2 -> 3, through `cvj-sim simulate`
-(Python reference with events) and refused by `cvj-sim run` until the ROS part exists."""
+(compiled kernel by default, the Python reference with --backend python) and refused by
+`cvj-sim run` until the ROS part exists."""
 from __future__ import annotations
 
 import json
@@ -62,11 +63,22 @@ def test_cli_simulate_reports_events(capsys) -> None:
     s = json.loads(cap.out)
     assert s['events']['brake'] == {'stuck': 1, 'slip+': 1}
     assert s['events']['clutch']['stuck'] >= 1
-    assert s['solver']['backend'] == 'python' and s['solver']['events'] >= 2
-    assert 'compiled kernel: driveline[1]' in cap.err and 'Python reference' in cap.err
+    assert s['solver']['backend'] == 'kernel' and s['solver']['events'] >= 2
+    assert s['solver']['backend_fallback'] == ''
+    assert main(['simulate', 'launch_clutch_chain', '--duration', '4', '--json',
+                 '--backend', 'python']) == 0
+    cap_p = capsys.readouterr()
+    s_p = json.loads(cap_p.out)
+    assert s_p['solver']['backend'] == 'python' and s_p['events'] == s['events']
+    assert cap_p.err == ''
     assert main(['simulate', 'launch_clutch_chain', '--duration', '0.5']) == 0
     out = capsys.readouterr().out
     assert 'events brake: 1 -> stuck' in out and 'final: clutch' in out
+    assert 'backend kernel' in out
+    # a method the kernel does not run modes with: the reference, said in one line
+    assert main(['simulate', 'launch_clutch_chain', '--duration', '0.5', '--method', 'rodas4']) == 0
+    cap = capsys.readouterr()
+    assert 'running the Python reference' in cap.err and 'backend python' in cap.out
 
 
 def test_cli_refusals(tmp_path, capsys) -> None:

@@ -23,6 +23,7 @@ def fake(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setattr(warmup, 'warm', lambda methods=KERNEL_METHODS, **kw: calls['warm'].append(
         tuple(methods)) or 0.0)
     monkeypatch.setattr(warmup, 'warm_outputs', lambda **kw: calls['outputs'].append(1) or 0.0)
+    monkeypatch.setattr(warmup, 'warm_modes', lambda **kw: calls['outputs'].append(2) or 0.0)
     monkeypatch.delenv('CVJ_WARMUP_SERIAL', raising=False)
     monkeypatch.setattr(warmup.os, 'cpu_count', lambda: 2)
 
@@ -43,7 +44,7 @@ def test_two_cores_split_every_method_between_this_process_and_one_child(fake, c
     (mine,) = fake['warm']
     assert sorted(mine + warmup.CHILD_METHODS) == sorted(KERNEL_METHODS)   # each once, all
     assert not set(mine) & set(warmup.CHILD_METHODS)
-    assert fake['outputs'] == [1]                                          # outputs here
+    assert fake['outputs'] == [1, 2]                          # outputs and the mode segment here
     assert 'kernel ready' in capsys.readouterr().out
 
 

@@ -1,0 +1,177 @@
+"""Work-precision of scenes with clutch, gearbox and brake (stick/slip modes with events).
+
+Project: the compiled kernel (:class:`cvj_ros.physics.kernel.modes.KernelHybridSimulation`,
+dopri5, each mode one compiled call with its witnesses and Brent on the dense output).
+Baseline: plain ``scipy.integrate.solve_ivp`` (RK45) on the same mode equations, its event
+functions the same witnesses (terminal, with their directions), restarted at every event and
+command row: what a user of scipy writes (:class:`SolveIvpHybridSimulation`). Both share
+the discrete decisions (the reference's code), the sampling and the recording. Reference:
+the Python reference with dop853 at rtol 1e-12. Error: the largest sampled shaft speed
+error over the run relative to the largest reference shaft speed (as ``cvj_ros.bench``'s
+``err_speed_rel``). At each error level 1e-3..1e-8 the cheapest run of each family reaching
+it is taken; the speedup is baseline wall / project wall.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cvj_ros.physics.kernel.modes import KernelHybridSimulation
+
+__all__ = ['MODE_SCENES', 'SolveIvpHybridSimulation', 'format_mode_table', 'mode_levels',
+           'mode_study']
+
+MODE_SCENES = ('launch_clutch_chain',)
+LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
+TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+
+
+class SolveIvpHybridSimulation(KernelHybridSimulation):
+    """The mode loop with each mode integrated by plain solve_ivp (RK45, Python rhs, the
+    witnesses as terminal event functions, dense output for the samples)."""
+
+    def _segment(self, asm, mode, t, t_stop, y0, times, k_sample):
+        from scipy.integrate import solve_ivp
+        n = len(asm.groups)
+        ws = self._witnesses(asm, mode)
+
+        def fun(tt: float, yy: np.ndarray) -> np.ndarray:
+            return self._eval(asm, mode, tt, yy).ydot
+        events = []
+        for w in ws:
+            def ev(tt: float, yy: np.ndarray, w=w) -> float:
+                return self._g(w, self._eval(asm, mode, tt, yy), tt, yy, n)
+            ev.terminal = True
+            ev.direction = w.direction
+            events.append(ev)
+        sol = solve_ivp(fun, (t, t_stop), np.asarray(y0, dtype=float), method='RK45',
+                        rtol=self.rtol, atol=self.atol, events=events or None,
+                        dense_output=True)
+        if sol.status < 0:
+            raise RuntimeError(f'solve_ivp: {sol.message}')
+        self.stats['steps'] += len(sol.t) - 1
+        self.stats['nfev'] += int(sol.nfev)
+        ev_i, t_end, y = -1, t_stop, sol.y[:, -1]
+        if sol.status == 1:
+            hits = [(float(te[0]), i) for i, te in enumerate(sol.t_events) if len(te)]
+            t_end, ev_i = min(hits)
+            y = sol.y_events[ev_i][0]
+        k_new = k_sample
+        while k_new < times.size and times[k_new] <= t_end:
+            k_new += 1
+        Y = np.array([y if ts == t_end else sol.sol(ts) for ts in times[k_sample:k_new]])
+        return np.array(y), t_end, ev_i, k_new, Y.reshape(k_new - k_sample, y.size)
+
+
+def _speed_error(r: Any, ref: Any) -> float:
+    if r.speed.shape != ref.speed.shape or r.stall is not None:
+        return float('inf')
+    return float(np.max(np.abs(r.speed - ref.speed)) / max(1e-300, float(np.max(np.abs(ref.speed)))))
+
+
+def mode_study(scene_name: str = 'launch_clutch_chain', *,
+               tolerances: Sequence[float] = TOLERANCES, samples: int = 20, repeats: int = 3,
+               baseline_budget_s: float = 60.0, duration: float | None = None,
+               log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Runs of both families at each tolerance (rtol = tol, atol = tol / 100) over the
+    scene's duration (or ``duration`` s) with ``samples`` samples, best of ``repeats`` walls
+    (the kernel's: of at least 10; the baseline's stop repeating after
+    ``baseline_budget_s``); returns
+    {'scene', 'duration', 'reference', 'rows', 'levels'}."""
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.scene import find_scene, load_scene
+    scene = load_scene(find_scene(scene_name))
+    horizon = float(duration or scene.duration)
+    sample_dt = horizon / samples
+    t0 = time.perf_counter()
+    ref = hybrid_simulation(scene, method='dop853', rtol=1e-12, atol=1e-14,
+                            sample_dt=sample_dt, duration=horizon).run()
+    ref_wall = time.perf_counter() - t0
+    log(f'[bench] {scene.name}: mode reference (Python, dop853, rtol 1e-12) in {ref_wall:.1f} s, '
+        f'{len(ref.events)} events')
+    # one untimed kernel run: loads (or compiles) the compiled mode code
+    KernelHybridSimulation.from_reference(hybrid_simulation(scene, sample_dt=sample_dt,
+                                                            duration=horizon)).run()
+    rows: list[dict[str, Any]] = []
+    for family, cls in (('project', KernelHybridSimulation), ('baseline', SolveIvpHybridSimulation)):
+        for tol in tolerances:
+            walls: list[float] = []
+            r = sim = None
+            # the kernel's runs are short: more repeats (their minimum) at little cost
+            for _ in range(max(repeats, 10) if family == 'project' else repeats):
+                sim = cls.from_reference(hybrid_simulation(scene, method='dopri5', rtol=tol,
+                                                           atol=tol * 1e-2, sample_dt=sample_dt,
+                                                           duration=horizon))
+                w0 = time.perf_counter()
+                try:
+                    r = sim.run()
+                except Exception as exc:     # a failing configuration is a row, not a stop
+                    r = None
+                    log(f'[bench] {scene.name}: {family} rtol {tol:g} failed: {str(exc)[:100]}')
+                    break
+                walls.append(time.perf_counter() - w0)
+                if family == 'baseline' and sum(walls) > baseline_budget_s:
+                    break
+            row = {'scene': scene.name, 'family': family, 'tol': tol, 'ok': r is not None}
+            if r is not None:
+                row.update(wall_s=min(walls), wall_per_sim_s=min(walls) / horizon,
+                           repeats=len(walls), err_speed_rel=_speed_error(r, ref),
+                           events=len(r.events), steps=r.stats['steps'], nfev=r.stats['nfev'],
+                           energy_residual=r.max_energy_residual,
+                           label='kernel dopri5' if family == 'project' else 'solve_ivp RK45 + events')
+                log(f"[bench] {scene.name}: {row['label']} rtol {tol:g}: err {row['err_speed_rel']:.2e}, "
+                    f"{row['wall_s'] * 1e3:.1f} ms, {row['steps']} steps, {row['events']} events")
+            rows.append(row)
+    return {'scene': scene.name, 'duration': horizon, 'reference': {'method': 'dop853', 'rtol': 1e-12,
+                                               'wall_s': ref_wall, 'events': len(ref.events)},
+            'rows': rows, 'levels': mode_levels(rows)}
+
+
+def mode_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = LEVELS
+                ) -> list[dict[str, Any]]:
+    """Per error level the cheapest row of each family reaching it and the speedup."""
+    out = []
+    for lv in levels:
+        entry: dict[str, Any] = {'level': lv}
+        for fam in ('project', 'baseline'):
+            cand = [r for r in rows if r.get('ok') and r['family'] == fam and r['err_speed_rel'] <= lv]
+            entry[fam] = min(cand, key=lambda r: r['wall_s']) if cand else None
+        p, b = entry['project'], entry['baseline']
+        entry['speedup'] = b['wall_s'] / p['wall_s'] if p and b else None
+        out.append(entry)
+    return out
+
+
+def format_mode_table(study: dict[str, Any]) -> str:
+    """Markdown table of :func:`mode_study`'s levels."""
+    lines = [f"### {study['scene']} ({study['duration']:g} s): stick/slip modes with events "
+             f"(kernel vs solve_ivp + events)",
+             '',
+             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms | speedup |',
+             '| --- | --- | --- | --- | --- | --- |']
+    for e in study['levels']:
+        p, b = e['project'], e['baseline']
+        cell = (lambda r: (f"{r['tol']:g}", f"{r['wall_s'] * 1e3:.1f}") if r else ('-', '-'))
+        sp = f"{e['speedup']:.1f}x" if e['speedup'] else '-'
+        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {sp} |")
+    return '\n'.join(lines) + '\n'
+
+
+def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Path]:
+    """modes.csv (every run) and modes.md (the level tables) in ``out``."""
+    import csv
+    keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'wall_per_sim_s',
+            'repeats', 'steps', 'nfev', 'events', 'energy_residual']
+    p_csv = out / 'modes.csv'
+    with p_csv.open('w', newline='') as fh:
+        w = csv.DictWriter(fh, fieldnames=keys, extrasaction='ignore')
+        w.writeheader()
+        for s in studies:
+            w.writerows(s['rows'])
+    p_md = out / 'modes.md'
+    p_md.write_text('\n'.join(format_mode_table(s) for s in studies))
+    return [p_csv, p_md]

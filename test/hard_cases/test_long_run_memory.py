@@ -3,8 +3,9 @@
 revolutions (2.04e7 f-evals) in one fresh interpreter. The persistent stepper keeps its
 state in fixed arrays and the trace holds only the samples, so the second, 100x longer run
 must not raise the process's peak RSS. Measured (docs/benchmark.md, "Peak memory"): 1 and
-1e5 revolutions 141.3 / 141.5 MiB in separate processes; the bound, 4 MiB, is 20x that
-difference and about what 1e5 revolutions would add at 40 bytes per step kept."""
+1e5 revolutions 141.3 / 141.5 MiB in separate processes, 145.0 MiB after both runs in one;
+the bound, 4 MiB, is 20x the first difference, while anything kept per step (~1.7e6
+dop853 steps, 16 bytes or more each) would add tens of MiB."""
 from __future__ import annotations
 
 import os

@@ -24,7 +24,7 @@ from cvj_ros.physics.kernel.borrow_nb import borrowed_all
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
-                                          OP_INERTIA, OP_JOINT_IDENTITY, OP_LEVER_EXACT,
+                                          OP_INERTIA, OP_JOINT_IDENTITY,
                                           SPRING_STRIDE)
 from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs, section,
                                           spring_deflection, spring_eval,
@@ -59,6 +59,32 @@ def shaft_table(driveline: Any) -> np.ndarray:
     return np.asarray(rows, dtype=np.int64).reshape(-1, 3)
 
 
+#: mid-table code of the lever hinge's earring (not a kernel op: fill_mid_one only)
+MID_EARRING = -1
+
+
+@njit(cache=True, inline='always')
+def earring_angle(phi, ca):
+    """The lever hinge's earring angle c (rad) at input angle phi: phi_out of
+    ``lever_hinge_exact_scalar(phi, ca, sa2, 0, 1, 0)`` (twist 0, identity output stage), the
+    same operations without the ratio, the slope and the output stage, whose atan2 term is
+    +-0 there: (phi + atan2(s c (1 - cos a), cos a c^2 + s^2)) + 0.0, the first stage's
+    tan(c) = tan(phi) / cos a (``lever_hinge._hooke_dev``). Bit-identical to it
+    (test/physics/kernel/test_outputs_nb.py): the ``+ 0.0`` is the twist's, and adding the
+    output stage's +-0 to a value that is never -0.0 changes no bit. Half its transcendental
+    calls."""
+    s, c = math.sin(phi), math.cos(phi)
+    return phi + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + 0.0
+
+
+@njit(cache=True, inline='always')
+def _mid_angle(code, phi, mfp, off):
+    """phi_mid of a mid-table row: joint_eval(code, phi)[0], or the earring angle."""
+    if code == MID_EARRING:
+        return earring_angle(phi, mfp[off])
+    return joint_eval(code, phi, mfp, off)[0]
+
+
 def _mid_op(model: Any, mfp: list[float]) -> tuple[int, int]:
     """(op code, mfp offset) whose joint_eval phi_out is ``model.evaluate(phi).phi_mid``;
     NotImplementedError when the member has no compiled form (it stays on the Python path)."""
@@ -67,7 +93,7 @@ def _mid_op(model: Any, mfp: list[float]) -> tuple[int, int]:
     if kind == 'lever_hinge':       # earring c = tan^-1(tan(phi) / cos a): the exact law's
         off = len(mfp)              # first stage (twist 0, output stage cos = 1 -> identity)
         mfp.extend([model._ca, model._sa2, 0.0, 1.0, 0.0])
-        return OP_LEVER_EXACT, off
+        return MID_EARRING, off     # that law's phi_out, computed alone (earring_angle)
     if kind in ('rzeppa', 'double_cardan') and fid == 'ideal':
         return OP_JOINT_IDENTITY, 0
     if kind == 'rzeppa':            # cage: tan(phi3) = cos(alpha) tan(phi1)
@@ -310,17 +336,17 @@ def fill_mid_samples(pos, vel, mtab, mfp):
 @njit(cache=True)
 def fill_mid_one(pos, vel, mtab, mfp):
     """``Driveline.fill_mid`` for one sample: per row (mid column, input column, op code,
-    mfp offset) the member angle phi_mid = joint_eval(op, phi_in)[0] and its speed by the
+    mfp offset) the member angle phi_mid = _mid_angle(op, phi_in) and its speed by the
     same Richardson-extrapolated central difference (h = 1e-3 rad) times omega_in."""
     h = 1e-3
     for i in range(mtab.shape[0]):
         i_mid, i_in, code, off = mtab[i, 0], mtab[i, 1], mtab[i, 2], mtab[i, 3]
         phi = pos[i_in]
-        m0 = joint_eval(code, phi, mfp, off)[0]
-        mp = joint_eval(code, phi + h, mfp, off)[0]
-        mm = joint_eval(code, phi - h, mfp, off)[0]
-        mp2 = joint_eval(code, phi + h / 2, mfp, off)[0]
-        mm2 = joint_eval(code, phi - h / 2, mfp, off)[0]
+        m0 = _mid_angle(code, phi, mfp, off)
+        mp = _mid_angle(code, phi + h, mfp, off)
+        mm = _mid_angle(code, phi - h, mfp, off)
+        mp2 = _mid_angle(code, phi + h / 2, mfp, off)
+        mm2 = _mid_angle(code, phi - h / 2, mfp, off)
         d_h = (mp - mm) / (2 * h)
         d_h2 = (mp2 - mm2) / h
         pos[i_mid] = m0

@@ -51,6 +51,9 @@ TOPIC_TYPES: dict[str, str] = {
     '/engine/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/load/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/engine/throttle': 'std_msgs/msg/Float64',
+    '/driveline/clutch': 'std_msgs/msg/Float64',
+    '/driveline/gear': 'std_msgs/msg/Int8',
+    '/driveline/brake': 'std_msgs/msg/Float64',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     SCENE_TOPIC: 'std_msgs/msg/String',
 }
@@ -952,7 +955,7 @@ def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
     if msgtype == 'rosgraph_msgs/msg/Clock':
         value = np.array([_stamp_s(m.clock) for _, m in msgs], dtype=float)
         return ScalarSeries(value.copy(), value, rec)
-    if msgtype == 'std_msgs/msg/Float64':
+    if msgtype in ('std_msgs/msg/Float64', 'std_msgs/msg/Int8'):
         return ScalarSeries(rec.copy(), np.array([m.data for _, m in msgs], dtype=float), rec)
     if msgtype == 'std_msgs/msg/String':
         return TextSeries(rec.copy(), [m.data for _, m in msgs], rec)

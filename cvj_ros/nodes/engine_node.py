@@ -23,6 +23,7 @@ from cvj_ros.nodes.cdr import CdrError, decode_float64
 from cvj_ros.nodes.common import (ERROR, OK, ParameterError, ParamSpec, TorqueResponder,
                                   declare_parameters, inertia_names, load_scene_param,
                                   load_yaml_mapping, run_node, scene_dict)
+from cvj_ros.nodes.intra import loop_subscription
 from cvj_ros.nodes.qos import DATA_QOS, ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC
 
 PARAMS = (
@@ -76,8 +77,9 @@ class EngineNode(TorqueResponder):
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
-        self.throttle_sub = self.create_subscription(Float64, ENGINE_THROTTLE_TOPIC,
-                                                     self._on_throttle_raw, DATA_QOS, raw=True)
+        # (composed with driver_node: from the in-process bus, in order with the joint states)
+        self.throttle_sub = loop_subscription(self, Float64, ENGINE_THROTTLE_TOPIC,
+                                              self._on_throttle_raw, DATA_QOS)
         describe = getattr(engine, 'describe', None)
         self.get_logger().info(f'engine {describe() if describe else type(engine).__name__} on shaft '
                                f'{shaft!r}; waiting for /driveline/joint_states')

@@ -1302,6 +1302,10 @@ class BagRecorder:
             if hold and topic in hold:
                 self.held += 1
                 continue
+            if self._types[topic] not in STAMPED_TYPES:    # a hosted driver's commands:
+                out.append((topic, self.clock_ns if clock_ns is None else max(self.clock_ns, clock_ns),
+                            data))        # at the latest /clock, in publication order
+                continue
             if data[1] != 1:       # not little-endian CDR: the general path
                 self._write(topic, self._types[topic], data, stamped=True,
                             is_clock=topic == CLOCK_TOPIC, wall=wall)

@@ -32,6 +32,8 @@ __all__ = ['DriverNode', 'main']
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. launch_clutch_chain) or scene YAML path; its '
               'commands: schedule is played'),
+    ParamSpec('seed', -1, 'random seed (unused: a schedule is deterministic; accepted as every '
+              'node of a run takes it)', lo=-1, hi=2**31 - 1),
     ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s]; 0 = the scene exchange_step',
               lo=0.0, hi=3600.0),
     ParamSpec('duration', 0.0, 'simulated time to play [s]; 0 = the scene duration',

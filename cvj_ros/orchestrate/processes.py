@@ -44,6 +44,11 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
                       min_subscribers=3 + ('monitor_node' in prep.nodes),
                       # after "go" the peers are there: a bounded wait, as the run's own
                       start_timeout=float(o.start_timeout))
+    if name == 'coupling_node' and prep.scene.has_modes:
+        # the driver's samples gate each state (lockstep), or an outside stack's are taken as they come
+        params['commands'] = 'external' if 'driver' in o.external else 'driver'
+    if name == 'driver_node':
+        params.update(exchange_step=float(prep.exchange_step), duration=float(prep.duration))
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

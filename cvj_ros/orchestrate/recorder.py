@@ -181,7 +181,11 @@ LOOP_TOPICS = (bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, bagmod.SCENE_TOPIC
 
 def external_wait_line(external: Sequence[str], domain: int, timeout: float) -> str:
     """The one line printed while a run waits for outside peers: which topic, what to publish."""
-    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external]
+    parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external
+             if e in EXTERNAL_PEERS]
+    if len(parts) < len(external):      # --external driver: the commands are not awaited
+        parts.append('(when it likes) /engine/throttle, /driveline/clutch, /driveline/gear, '
+                     '/driveline/brake (the commands; docs/ros.md, "Commands")')
     return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
             f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
             f'every message with a geometry_msgs/WrenchStamped whose header.stamp '
@@ -196,7 +200,7 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
     ``timeout`` (s; ``external_timeout`` for outside peers) passed, else None."""
     t0 = time.monotonic()
     deadline = t0 + timeout
-    outside = {EXTERNAL_PEERS[e][0]: e for e in external}
+    outside = {EXTERNAL_PEERS[e][0]: e for e in external if e in EXTERNAL_PEERS}
     settled_since: float | None = None
     dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
     while not stop_signal:

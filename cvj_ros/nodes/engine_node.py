@@ -26,6 +26,9 @@ from cvj_ros.nodes.common import (ERROR, OK, ParameterError, ParamSpec, TorqueRe
 from cvj_ros.nodes.intra import loop_subscription
 from cvj_ros.nodes.qos import DATA_QOS, ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC
 
+#: a throttle change this large (or the first sample) is said on /diagnostics
+THROTTLE_REPORT_STEP = 0.05
+
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
     ParamSpec('seed', -1, 'random seed; -1 = the scene seed (the engine models are deterministic)',
@@ -74,6 +77,7 @@ class EngineNode(TorqueResponder):
         self.engine = engine
         self.throttle = p['throttle'] if p['throttle'] >= 0.0 else float('nan')
         self.throttle_rejected = 0
+        self._throttle_said = float('nan')      # the throttle last said on /diagnostics
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
@@ -107,7 +111,11 @@ class EngineNode(TorqueResponder):
             self.report(ERROR, f'/engine/throttle: {exc}; not applied', {'rejected': self.throttle_rejected})
             return
         self.throttle = x
-        self.report(OK, f'throttle set to {x:g}', {'throttle': x})
+        # a driver plays ramps as one sample per exchange step: say a change of >= 0.05 (and
+        # the first), not every sample (1000 OK statuses a second swamped /diagnostics)
+        if not abs(x - self._throttle_said) < THROTTLE_REPORT_STEP:
+            self._throttle_said = x
+            self.report(OK, f'throttle set to {x:g}', {'throttle': x})
 
 
 def main(args: Sequence[str] | None = None) -> None:

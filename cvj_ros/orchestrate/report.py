@@ -283,7 +283,18 @@ def loop_modes(bag: Path, *, diags: Any = _READ) -> dict[str, str]:
     """A mode scene's last recorded modes (engaged gear, clutch and brake slip+ / stuck /
     slip-), its mode-event and refused-command counts, the last refused command and the stall
     line, from the coupling node's last loop status; {} for other scenes."""
-    vals = _last_loop_values(bag, diags, 'mode_events')
+    if diags is _READ:
+        diags = read_diagnostics(bag)
+    if diags is None:
+        return {}
+    vals, last = None, (-1.0, False)
+    for statuses in diags.statuses:   # the latest by step (a DDS copy may come late in bag order)
+        for st in statuses:
+            v = st['values']
+            if st['name'] == 'coupling_node: loop' and 'mode_events' in v:
+                key = (float(v.get('steps', 0)), st['message'] == 'finished')
+                if key >= last:
+                    vals, last = v, key
     if vals is None:
         return {}
     return {k: v for k, v in vals.items() if k.startswith(MODE_PREFIXES) or k in MODE_KEYS}

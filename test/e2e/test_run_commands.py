@@ -65,8 +65,11 @@ def test_runs_finish_and_report_the_modes(runs) -> None:
 
 
 def test_every_bag_carries_the_commands_and_the_same_messages(runs) -> None:
-    """Separate, composed and a second composed run: every message on the loop and command
-    topics the same (record stamp and canonical CDR, the commands at their step's /clock)."""
+    """A second composed run: every message on the loop and command topics the same (record
+    stamp and canonical CDR; the commands at their step's /clock, in order on the in-process
+    bus). Separate processes: the loop topics the same, the commands the same values in the
+    same order; their record stamps follow arrival at the recorder (the latest /clock it had
+    taken), which is not deterministic across processes (docs/ros.md, "Commands")."""
     bags = {name: raw_messages(b) for name, (_r, b) in runs.items()}
     sep = bags['separate']
     from cvj_ros.nodes.command_plan import CHANNEL_TOPICS, CommandPlan
@@ -74,16 +77,23 @@ def test_every_bag_carries_the_commands_and_the_same_messages(runs) -> None:
     plan = CommandPlan.from_scene(load_scene(find_scene('launch_clutch_chain')), 1_000_000, N)
     for channel, topic in CHANNEL_TOPICS.items():
         assert len(sep[topic]) == sum(1 for _k, row in plan for c, _v in row if c == channel), topic
-    topics = ('/clock', '/driveline/joint_states', '/driveline/scene', '/engine/wrench',
-              '/load/wrench', *COMMAND_TOPICS)
-    _same(bags['composed'], bags['composed_again'], topics)
-    _same(sep, bags['composed'], topics)
+    loop = ('/clock', '/driveline/joint_states', '/driveline/scene', '/engine/wrench',
+            '/load/wrench')
+    _same(bags['composed'], bags['composed_again'], loop + COMMAND_TOPICS)
+    _same(sep, bags['composed'], loop)
+    values = {name: bag.read_bag(b, list(COMMAND_TOPICS)) for name, (_r, b) in runs.items()
+              if name != 'composed_again'}
+    for topic in COMMAND_TOPICS:
+        np.testing.assert_array_equal(values['separate'][topic].value,
+                                      values['composed'][topic].value, err_msg=topic)
 
 
 def test_joint_states_follow_the_offline_reference(runs) -> None:
     """Against `cvj-sim simulate` (the engine and road load evaluated continuously, the
-    commands ramped): the loop holds torques and commands over each 1 ms step. Bound: 1 %
-    of each shaft's speed scale plus 0.05 rad/s (measured: see docs/ros.md, "Commands")."""
+    commands ramped): the loop holds torques and commands over each 1 ms step. Measured
+    over these 2 s: 0.23 rad/s on the engine (of 304), 0.058 on the clutch disc (of 19.4)
+    while it slips, 0.003 on the wheel; bound 0.5 % of each shaft's largest speed plus
+    0.02 rad/s (2x the disc's error)."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
     scene = load_scene(find_scene('launch_clutch_chain'))
@@ -95,7 +105,7 @@ def test_joint_states_follow_the_offline_reference(runs) -> None:
         ros = np.interp(off.t, t, js.velocity[:, i])
         ref = off.column(name)
         err = np.max(np.abs(ros - ref))
-        assert err <= 0.01 * np.max(np.abs(ref)) + 0.05, (name, err)
+        assert err <= 0.005 * np.max(np.abs(ref)) + 0.02, (name, err)
     wheel = js.velocity[:, list(js.names).index('wheel')]
     assert np.all(wheel[t < 1.7] == 0.0)      # held by the stuck brake, exactly
 
@@ -117,24 +127,27 @@ sent = set()
 def on_clock(m):
     t = m.clock.sec + m.clock.nanosec * 1e-9
     if t >= 0.1 and 'gear' not in sent:
-        gear.publish(Int8(data=2)); sent.add('gear')
+        gear.publish(Int8(data=2)); sent.add('gear'); print('gear', t, flush=True)
     if t >= 0.2 and 'brake' not in sent:
-        brake.publish(Float64(data=0.0)); sent.add('brake')
+        brake.publish(Float64(data=0.0)); sent.add('brake'); print('brake', t, flush=True)
 n.create_subscription(Clock, '/clock', on_clock, DATA_QOS)
 try:
     rclpy.spin(n)
 except Exception:
     pass
 ''')
-    proc = subprocess.Popen([sys.executable, str(stack)])
+    log = open(tmp_path / 'stack.log', 'w')
+    proc = subprocess.Popen([sys.executable, str(stack)], stdout=log, stderr=subprocess.STDOUT)
     try:
         r = _cli(['run', 'launch_clutch_chain', '--out', str(tmp_path / 'run'), '--duration', '0.4',
                   '--composed', '--external', 'driver'])
     finally:
         proc.terminate()
         proc.wait(timeout=10)
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    assert 'gearbox gear 2' in r.stdout, r.stdout
+        log.close()
+    said = (tmp_path / 'stack.log').read_text()
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:] + said
+    assert 'gearbox gear 2' in r.stdout and 'brake slip-' in r.stdout, r.stdout + said
     counts = bag.bag_info(tmp_path / 'run' / 'bag').counts
-    assert counts.get('/driveline/gear') == 1 and counts.get('/driveline/brake') == 1
+    assert counts.get('/driveline/gear') == 1 and counts.get('/driveline/brake') == 1, (counts, said)
     assert not counts.get('/driveline/clutch')         # no driver_node played the schedule

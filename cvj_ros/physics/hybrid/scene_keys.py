@@ -113,13 +113,13 @@ def parse_commands(raw: Any, chain: Sequence[Any]) -> tuple[dict[str, float], ..
 
 def mode_gap(scene: Any) -> tuple[str, str]:
     """(field, one-line reason) why ``scene`` (``has_modes``) cannot run on the compiled
-    kernel, Driveline, a sweep or a ROS run yet."""
+    kernel, Driveline or a sweep yet."""
     for i, el in enumerate(scene.driveline):
         if getattr(el, 'type', '') in MODE_TYPES:
-            return (f'driveline[{i}]', f'{el.type} {el.name!r}: stick/slip modes are not compiled and '
-                    f'have no ROS nodes yet; run it offline with `cvj-sim simulate` (Python reference)')
-    return ('commands', 'a command schedule runs offline only (`cvj-sim simulate`, Python reference) '
-                        'until the driver node exists')
+            return (f'driveline[{i}]', f'{el.type} {el.name!r}: stick/slip modes are not compiled; '
+                    f'run it with `cvj-sim simulate` or `cvj-sim run` (Python reference)')
+    return ('commands', 'a command schedule runs on the Python reference only (`cvj-sim simulate`, '
+                        '`cvj-sim run`)')
 
 
 def check_mode_scene(chain: Sequence[Any], method: str) -> None:

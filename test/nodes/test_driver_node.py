@@ -62,7 +62,8 @@ class FakePeers:
     """Constant engine and load answers; records joint states, command samples and
     diagnostics; ``on_state(k, node)`` may publish more (an outside stack, an intruder)."""
 
-    def __init__(self, ctx, on_state=None):
+    def __init__(self, ctx, on_state=None, torques=(T_ENGINE, T_LOAD)):
+        self.torques = torques
         self.node = rclpy.create_node('fake_peers', context=ctx)
         self.engine_pub = self.node.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
         self.load_pub = self.node.create_publisher(WrenchStamped, '/load/wrench', DATA_QOS)
@@ -81,17 +82,18 @@ class FakePeers:
         self.js.append(msg)
         if self.on_state is not None:
             self.on_state(k, self.node)
-        for pub, torque in ((self.engine_pub, T_ENGINE), (self.load_pub, T_LOAD)):
+        for pub, torque in zip((self.engine_pub, self.load_pub), self.torques):
             w = WrenchStamped()
             w.header.stamp = msg.header.stamp
             w.wrench.torque.z = torque
             pub.publish(w)
 
 
-def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float = 60.0, **params):
+def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float = 60.0,
+        torques=(T_ENGINE, T_LOAD), **params):
     overrides = [Parameter('scene', value=scene), Parameter('min_subscribers', value=1)]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
-    peers = FakePeers(ctx, on_state)
+    peers = FakePeers(ctx, on_state, torques)
     drv = DriverNode(context=ctx, parameter_overrides=[Parameter('scene', value=scene)]) if driver else None
     node = CouplingNode(context=ctx, parameter_overrides=overrides)
     ex = make_executor('events', ctx)
@@ -218,3 +220,24 @@ def test_mode_scene_refuses_other_coupling_schemes(ctx, tmp_path):
         CouplingNode(context=ctx, parameter_overrides=[
             Parameter('scene', value=mode_scene(tmp_path)),
             Parameter('coupling_scheme', value='extrapolate')])
+
+
+def test_a_stall_ends_the_loop_with_its_line(ctx, tmp_path):
+    """Clutch open, the engine answering -100 N m: the crank group (0.25 kg m^2) decelerates at
+    400 rad/s^2 from 83.78 rad/s (800 rpm) and crosses the stall speed 52.36 rad/s (500 rpm) at
+    (83.78 - 52.36) / 400 = 78.5 ms: the loop stops there, the line on /diagnostics, exit 0."""
+    path = mode_scene(tmp_path, duration=0.2, commands=[{'t': 0.0, 'clutch': 1.0, 'brake': 1.0,
+                                                         'gear': 1}])
+    data = yaml.safe_load(open(path))
+    data['engine'] = {'model': 'map', 'stall_rpm': 500.0}
+    data['initial'] = {'speed_rpm': 800.0}
+    with open(path, 'w') as fh:
+        yaml.safe_dump(data, fh)
+    node, peers, _ = run(ctx, path, torques=(-100.0, T_LOAD))
+    assert node.exit_code == 0
+    t_stall = (800.0 - 500.0) * np.pi / 30.0 / 400.0
+    assert node.hybrid.stall.startswith('engine stalled at t=') and 'below the stall speed 52.36' in node.hybrid.stall
+    t_line = float(node.hybrid.stall.split('t=')[1].split(' s')[0])
+    assert t_line == pytest.approx(t_stall, abs=1e-6)
+    assert len(peers.js) == int(t_stall / H) + 2          # states t_0 .. the step holding the stall
+    assert node.loop_stats()['stall'] == node.hybrid.stall

@@ -469,6 +469,11 @@ class CouplingNode(CvjNode):
         if self.exit_code is not None:
             return
         topic = CHANNEL_TOPICS[channel]
+        sub = self.command_subs[topic]
+        if (self.gated_commands and self.started and not hasattr(sub, 'bus')
+                and sub.get_publisher_count() > 1):      # a second publisher beside the driver
+            self._stop_with_error(self._intruder_line(topic))
+            return
         try:
             self.commands.offer(channel, data)
         except CommandError as exc:
@@ -582,6 +587,8 @@ class CouplingNode(CvjNode):
             (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
             (ENGINE_WRENCH_TOPIC, self.engine_sub.get_publisher_count),
             (LOAD_WRENCH_TOPIC, self.load_sub.get_publisher_count)]
+        if self.gated_commands:      # the driver's command topics (commands=driver)
+            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()]
         bus = bus_for(self.context)
         if self.started and bus is not None:
             topics = [(t, n) for t, n in topics if not bus.carries(t)]

@@ -161,24 +161,43 @@ def test_driver_plays_the_schedule_and_each_step_uses_its_own_samples(ctx, tmp_p
 
 
 def test_malformed_and_out_of_range_commands_are_dropped_and_named_once(ctx, tmp_path):
-    """An intruder's junk on /driveline/clutch (not CDR) and an out-of-range brake never reach
-    the model nor the step count: the run equals the undisturbed one."""
-    scene = mode_scene(tmp_path, duration=0.03)
+    """A stack (commands=external) sending junk on /driveline/clutch (not CDR) and an
+    out-of-range brake beside valid samples: the junk never reaches the model, each topic is
+    named once (malformed: WARN, counted; out of range: ERROR, refused_commands)."""
+    scene = mode_scene(tmp_path, duration=0.03, commands=[{'t': 0.0, 'clutch': 1.0, 'brake': 1.0,
+                                                           'gear': 1}])
     pubs = {}
 
-    def intrude(k, node):
+    def stack(k, node):
         if not pubs:
             pubs['clutch'] = node.create_publisher(Float64, '/driveline/clutch', DATA_QOS)
             pubs['brake'] = node.create_publisher(Float64, '/driveline/brake', DATA_QOS)
         if k in (3, 4, 5):
             pubs['clutch'].publish(b'\x07junk')
             pubs['brake'].publish(Float64(data=7.5))
-    node, peers, _ = run(ctx, scene, on_state=intrude)
+        if k == 6:
+            pubs['brake'].publish(Float64(data=0.0))
+    node, peers, _ = run(ctx, scene, driver=False, on_state=stack, commands='external')
     assert node.exit_code == 0 and len(peers.js) == 31
     assert node.malformed.counts == {'/driveline/clutch': 3}
     assert node.commands.refused['brake'] == 3 and node.loop_stats()['refused_commands'] == 3
-    ref = by_hand(scene, 30)
-    np.testing.assert_array_equal(np.array(peers.js[-1].velocity), ref[-1])
+    assert node.hybrid.commands.now.brake == 0.0 and node.hybrid.commands.now.clutch == 1.0
+
+
+def test_a_second_command_publisher_beside_the_driver_stops_the_run_naming_it(ctx, tmp_path):
+    """commands=driver: samples from two publishers on one topic cannot be told apart, so a
+    second publisher stops the loop with one line naming it (as on the wrench topics)."""
+    scene = mode_scene(tmp_path, duration=0.03)
+    pubs = {}
+
+    def intrude(k, node):
+        if not pubs:
+            pubs['clutch'] = node.create_publisher(Float64, '/driveline/clutch', DATA_QOS)
+        if k >= 3:
+            pubs['clutch'].publish(Float64(data=1.0))
+    node, peers, _ = run(ctx, scene, on_state=intrude)
+    assert node.exit_code == 1
+    assert '/driveline/clutch: intruder' in node.error_message and 'fake_peers' in node.error_message
 
 
 def test_an_outside_stack_sends_the_commands(ctx, tmp_path):

@@ -74,7 +74,8 @@ class HybridOutputs:
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.hybrid.joint_states()
 
-    def wrenches(self, x: np.ndarray, T_engine: float, T_load: float, joint_state: Any) -> dict:
+    def wrenches(self, x: np.ndarray, T_engine: float, T_load: float, joint_state: Any
+                 ) -> dict[str, Any]:
         return {}
 
 

@@ -22,15 +22,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cvj_ros.errors import CvjError
-from cvj_ros.physics.hybrid.events import crossed, locate
+from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import STUCK, mode_name
-from cvj_ros.physics.hybrid.simulate import HybridSimulation, ModeEvent
+from cvj_ros.physics.hybrid.simulate import HybridSimulation
 from cvj_ros.physics.sections import section_kinematics
 from cvj_ros.physics.solvers import make_stepper
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
+    from cvj_ros.physics.hybrid.chain import HybridChain, SectionState
     from cvj_ros.physics.scene import Scene
 
 __all__ = ['Commands', 'HeldCommands', 'HeldTorque', 'HybridLockstep', 'hybrid_lockstep']
@@ -89,7 +90,7 @@ class HybridLockstep(HybridSimulation):
     ``duration``; ``commands``: the commands at t = 0.
     """
 
-    def __init__(self, chain, *, commands: Commands, initial_speed: float = 0.0,  # noqa: ANN001
+    def __init__(self, chain: HybridChain, *, commands: Commands, initial_speed: float = 0.0,
                  initial_speeds: Mapping[str, float] | None = None,
                  stall_speed: float | None = None, method: str = 'dopri5', rtol: float = 1e-8,
                  atol: float = 1e-10, max_step: float = math.inf) -> None:
@@ -125,7 +126,7 @@ class HybridLockstep(HybridSimulation):
 
     # --- stepping ----------------------------------------------------------------------
 
-    def advance(self, t_next: float, T_engine: float, T_load: float) -> SectionState:  # noqa: F821
+    def advance(self, t_next: float, T_engine: float, T_load: float) -> SectionState:
         """Integrate t -> ``t_next`` (s) with the torques (N m) and commands held; stops early
         at a stall (``self.stall`` holds its line). Returns the section state at the end."""
         if not (math.isfinite(T_engine) and math.isfinite(T_load)):
@@ -173,7 +174,7 @@ class HybridLockstep(HybridSimulation):
                 hits = []
                 for i, w in enumerate(ws):
                     if crossed(w.direction, g_old[i], g_new[i]):
-                        def g_of(tau: float, w=w) -> float:  # noqa: ANN001
+                        def g_of(tau: float, w: Witness = w) -> float:
                             yy = stepper.dense(tau)
                             return self._g(w, self._eval(asm, mode, tau, yy), tau, yy, n)
                         hits.append((locate(g_of, t_old, stepper.t, g_new[i]), i))
@@ -279,10 +280,6 @@ class HybridLockstep(HybridSimulation):
             if i is not None:                     # a joint output at the group's end
                 pos[i], vel[i], eff[i] = phi, a * v, torque
         return pos, vel, eff
-
-    def new_events(self, since: int) -> list[ModeEvent]:
-        """Events logged after the first ``since``."""
-        return self.events[since:]
 
 
 def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | None = None,

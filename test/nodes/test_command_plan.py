@@ -76,3 +76,25 @@ def test_inbox_without_a_plan_keeps_the_latest_value_until_taken() -> None:
     box.offer('brake', LE + struct.pack('<d', 0.2))
     box.offer('brake', LE + struct.pack('<d', 0.4))
     assert box.take(7) == {'brake': 0.4} and box.take(8) == {}
+
+
+def test_random_bytes_decode_or_raise_command_error_only() -> None:
+    """2000 seeded byte strings (0..40 bytes, half of them with a valid CDR header): every
+    decoder returns a number or raises CommandError, never anything else."""
+    import random
+    rng = random.Random(6)
+    for _ in range(2000):
+        n = rng.randrange(0, 41)
+        data = bytes(rng.randrange(256) for _ in range(n))
+        if rng.random() < 0.5 and n >= 4:
+            data = rng.choice((LE, BE)) + data[4:]
+        for channel in ('clutch', 'gear'):
+            try:
+                value = decode_command(channel, data)
+            except CommandError:
+                continue
+            assert isinstance(value, float)
+        try:
+            decode_clock_ns(data)
+        except CommandError:
+            pass

@@ -111,26 +111,33 @@ def test_joint_states_follow_the_offline_reference(runs) -> None:
 
 
 def test_an_outside_stack_sends_the_commands(tmp_path: Path) -> None:
-    """--external driver: no driver_node; a stack (rclpy, here a subprocess) publishes the
-    brake release and the gear on the command topics; the run takes them as they come."""
+    """--external driver --external load: no driver_node, no load_node; a stack (rclpy, here a
+    subprocess) answers the load and, in its callback of the joint state, sends the gear and
+    the brake release before answering; the run takes them as they come."""
     stack = tmp_path / 'stack.py'
     stack.write_text('''
-import rclpy, sys
-from rosgraph_msgs.msg import Clock
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int8
 from cvj_ros.nodes.qos import DATA_QOS
 rclpy.init()
 n = rclpy.create_node('my_stack')
 brake = n.create_publisher(Float64, '/driveline/brake', DATA_QOS)
 gear = n.create_publisher(Int8, '/driveline/gear', DATA_QOS)
+load = n.create_publisher(WrenchStamped, '/load/wrench', DATA_QOS)
 sent = set()
-def on_clock(m):
-    t = m.clock.sec + m.clock.nanosec * 1e-9
+def on_state(m):
+    t = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
     if t >= 0.1 and 'gear' not in sent:
         gear.publish(Int8(data=2)); sent.add('gear'); print('gear', t, flush=True)
     if t >= 0.2 and 'brake' not in sent:
         brake.publish(Float64(data=0.0)); sent.add('brake'); print('brake', t, flush=True)
-n.create_subscription(Clock, '/clock', on_clock, DATA_QOS)
+    w = WrenchStamped()
+    w.header.stamp = m.header.stamp
+    w.wrench.torque.z = 439.26          # the grade torque at rest (docs of the scene)
+    load.publish(w)
+n.create_subscription(JointState, '/driveline/joint_states', on_state, DATA_QOS)
 try:
     rclpy.spin(n)
 except Exception:
@@ -140,7 +147,7 @@ except Exception:
     proc = subprocess.Popen([sys.executable, str(stack)], stdout=log, stderr=subprocess.STDOUT)
     try:
         r = _cli(['run', 'launch_clutch_chain', '--out', str(tmp_path / 'run'), '--duration', '0.4',
-                  '--composed', '--external', 'driver'])
+                  '--composed', '--external', 'driver', '--external', 'load'])
     finally:
         proc.terminate()
         try:

@@ -10,7 +10,7 @@ from setuptools import find_packages, setup
 
 package_name = 'cvj_ros'
 
-NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node']
+NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node', 'driver_node']
 
 setup(
     name=package_name,

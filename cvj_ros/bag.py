@@ -51,6 +51,9 @@ TOPIC_TYPES: dict[str, str] = {
     '/engine/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/load/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/engine/throttle': 'std_msgs/msg/Float64',
+    '/driveline/clutch': 'std_msgs/msg/Float64',
+    '/driveline/gear': 'std_msgs/msg/Int8',
+    '/driveline/brake': 'std_msgs/msg/Float64',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     SCENE_TOPIC: 'std_msgs/msg/String',
 }
@@ -1000,7 +1003,7 @@ def _to_series(msgtype: str, msgs: list[tuple[int, Any]]) -> Any:
     if msgtype == 'rosgraph_msgs/msg/Clock':
         value = np.array([_stamp_s(m.clock) for _, m in msgs], dtype=float)
         return ScalarSeries(value.copy(), value, rec)
-    if msgtype == 'std_msgs/msg/Float64':
+    if msgtype in ('std_msgs/msg/Float64', 'std_msgs/msg/Int8'):
         return ScalarSeries(rec.copy(), np.array([m.data for _, m in msgs], dtype=float), rec)
     if msgtype == 'std_msgs/msg/String':
         return TextSeries(rec.copy(), [m.data for _, m in msgs], rec)
@@ -1359,6 +1362,10 @@ class BagRecorder:
         for topic, data in pending:
             if hold and topic in hold:
                 self.held += 1
+                continue
+            if self._types[topic] not in STAMPED_TYPES:    # a hosted driver's commands:
+                out.append((topic, self.clock_ns if clock_ns is None else max(self.clock_ns, clock_ns),
+                            data))        # at the latest /clock, in publication order
                 continue
             if data[1] != 1:       # not little-endian CDR: the general path
                 self._write(topic, self._types[topic], data, stamped=True,

@@ -66,6 +66,9 @@ def node_class(name: str) -> type:
     if name == 'coupling_node':
         from cvj_ros.nodes.coupling_node import CouplingNode
         return CouplingNode
+    if name == 'driver_node':
+        from cvj_ros.nodes.driver_node import DriverNode
+        return DriverNode
     raise CvjError(f'node: must be one of {", ".join(HOSTED_NODES)}, got {name!r}')
 
 
@@ -296,7 +299,7 @@ def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeou
     t0 = time.monotonic()
     # a vehicle scene with --external load: its engine and per-wheel peers (orchestrate.vehicle)
     topics, outside = peers if peers is not None else (
-        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external})
+        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external if e in EXTERNAL_PEERS})
     settled_since: float | None = None
     while not stop():
         comp.spin_for(0.02)

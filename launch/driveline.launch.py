@@ -3,13 +3,16 @@
     ros2 launch cvj_ros driveline.launch.py scene:=fwd_halfshaft duration:=5.0
     ros2 launch cvj_ros driveline.launch.py scene:=kavz685_lever mode:=free-run record:=false
     ros2 launch cvj_ros driveline.launch.py external:=load out:=runs/stack   # your stack answers /load/wrench
+    ros2 launch cvj_ros driveline.launch.py scene:=launch_clutch_chain driver:=true   # plays its commands
 
 Arguments (see ``ARGUMENTS``): ``scene`` (name or YAML path), ``mode`` (lockstep |
 free-run), ``coupling_scheme`` (zoh | extrapolate | linear_implicit), ``duration`` (s, 0 =
 the scene's), ``seed`` (-1 = the scene's), ``external`` (none | load | engine | both: those
 peers are NOT started; an outside node must answer, see docs/ros.md), ``record`` (true |
 false: ``cvj-sim record OUT`` records every topic to OUT/bag and stops 2 s after the run
-goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false),
+goes quiet), ``out``, ``storage`` (mcap | sqlite3), ``monitor`` (true | false), ``driver`` (true | false:
+driver_node plays the scene's ``commands:`` schedule, else a stack sends the commands,
+docs/ros.md "Commands"),
 ``nonfinite_torque`` (stop | hold: the coupling node's NaN/inf torque policy),
 ``catch_up`` (skip | burst) and ``realtime_priority`` (0..99) for free-run (docs/ros.md
 "Free-run"). The recorder records the run's publishers only (``cvj-sim record --run-only``,
@@ -38,6 +41,9 @@ ARGUMENTS: dict[str, tuple[str, str]] = {
     'out': ('runs/launch', 'output directory of the recording (bag in OUT/bag)'),
     'storage': ('mcap', 'bag storage: mcap | sqlite3'),
     'monitor': ('true', 'start monitor_node: true | false'),
+    'driver': ('false', 'start driver_node, which plays the scene\'s commands: schedule on '
+                        '/engine/throttle, /driveline/clutch, /driveline/gear, /driveline/brake '
+                        '(true), or a vehicle stack sends them (false): true | false'),
     'nonfinite_torque': ('stop', 'a NaN/inf torque answer stops the run (stop) or the last finite '
                                  'torque is held and counted (hold)'),
     'catch_up': ('skip', 'free-run: missed ticks are dropped, simulated time jumping to wall time '
@@ -53,11 +59,12 @@ CHOICES: dict[str, tuple[str, ...]] = {
     'record': ('true', 'false'),
     'storage': ('mcap', 'sqlite3'),
     'monitor': ('true', 'false'),
+    'driver': ('true', 'false'),
     'nonfinite_torque': ('stop', 'hold'),
     'catch_up': ('skip', 'burst'),
 }
 
-NODE_EXECUTABLES = ('engine_node', 'coupling_node', 'load_node', 'monitor_node')
+NODE_EXECUTABLES = ('engine_node', 'coupling_node', 'load_node', 'monitor_node', 'driver_node')
 RECORDER_EXECUTABLE = 'cvj-sim'
 
 
@@ -91,6 +98,8 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
         started.append('load_node')
     if _flag(args['monitor']):
         started.append('monitor_node')
+    if _flag(args['driver']):
+        started.append('driver_node')
     common: dict[str, Any] = {'scene': args['scene'], 'seed': seed}
     # subscribers of /driveline/joint_states before step 0: engine + load (ours or outside),
     # monitor, recorder: no message is lost to a late match
@@ -99,11 +108,14 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
         'coupling_node': dict(common, mode=args['mode'], coupling_scheme=args['coupling_scheme'],
                               duration=duration, min_subscribers=min_subs,
                               nonfinite_torque=args['nonfinite_torque'],
+                              # a scene with modes: wait for the driver's samples or take a stack's
+                              commands='driver' if _flag(args['driver']) else 'external',
                               **({'catch_up': args['catch_up'], 'realtime_priority': rt_priority}
                                  if args['mode'] == 'free-run' else {})),
         'engine_node': dict(common),
         'load_node': dict(common),
         'monitor_node': {'scene': args['scene']},
+        'driver_node': dict(common, duration=duration),
     }
     return {name: params[name] for name in NODE_EXECUTABLES if name in started}
 

@@ -27,6 +27,7 @@ examples:
   cvj-sim run fwd_halfshaft --out runs/fwd --scheme linear_implicit --storage sqlite3
   cvj-sim run fwd_halfshaft --out runs/replay_load --load-from-bag runs/fwd/bag
   cvj-sim run fwd_halfshaft --out runs/stack --external load   # + your stack answering /load/wrench
+  cvj-sim run launch_clutch_chain --out runs/launch --external driver   # + your stack sending the commands
 
 On a terminal, stderr shows a progress line (simulated time, real-time factor, ETA) at
 most once a second; nothing when stderr is not a terminal.
@@ -49,10 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="use a bag's recorded /load/wrench torque as this run's load")
     parser.add_argument('--peer-timeout', type=float, default=5.0, metavar='S',
                         help='lockstep wait bound for engine/load answers in s (default 5)')
-    parser.add_argument('--external', choices=('load', 'engine', 'both'), default=None,
+    parser.add_argument('--external', choices=('load', 'engine', 'both', 'driver'), default=None,
+                        action='append',
                         help='do not start that peer: an outside node (your vehicle stack) answers '
                              'on /load/wrench (a vehicle scene: /load/<wheel>/wrench for every '
-                             'wheel) and/or /engine/wrench instead; recorded as usual')
+                             'wheel) and/or /engine/wrench instead; driver: it sends the '
+                             'commands (/engine/throttle, /driveline/clutch, /driveline/gear, '
+                             '/driveline/brake) instead of driver_node; repeatable; recorded as usual')
     parser.add_argument('--external-timeout', type=float, default=30.0, metavar='S',
                         help='longest wait for the outside node to publish, s (default 30)')
     parser.add_argument('--nonfinite-torque', choices=('stop', 'hold'), default='stop',
@@ -89,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
         scene=args.scene, out=args.out, duration=args.duration, seed=args.seed, storage=args.storage,
         mode=args.mode, scheme=args.scheme, exchange_step=args.exchange_step,
         load_from_bag=args.load_from_bag, overwrite=args.overwrite, peer_timeout=args.peer_timeout,
-        external={None: (), 'both': ('engine', 'load')}.get(args.external, (args.external,)),
+        external=tuple(dict.fromkeys(p for e in (args.external or ())
+                                     for p in (('engine', 'load') if e == 'both' else (e,)))),
         external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
         fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
         rt_priority=args.rt_priority, composed=args.composed, executor=args.executor,

@@ -688,6 +688,10 @@ def checked_length(type_name: str, data: bytes | memoryview,
     types (strings UTF-8, as rosbags wants them), the CDR encapsulation and size limit for
     others. What the recorder checks before it writes a message. ``js_decoder``: a decoder
     kept by the caller (its name cache makes the loop's joint states a slice comparison)."""
+    if type_name == 'std_msgs/msg/Int8':      # 5 bytes (+ padding): under _cdr_kind's minimum
+        if len(data) > 64 or len(data) < 5 or data[0] != 0 or data[1] > 1:
+            raise CdrError(f'not a CDR Int8: {len(data)} bytes starting {bytes(data[:4]).hex() or "(empty)"}')
+        return 5 if len(data) > 8 else len(data)
     big = _cdr_kind(data)
     end: int | None = None
     if type_name == 'sensor_msgs/msg/JointState':

@@ -214,6 +214,11 @@ PARAMS = (
               'process (1..99; '
               'needs CAP_SYS_NICE, else a WARN and normal scheduling); 0 = normal scheduling',
               lo=0, hi=99),
+    ParamSpec('commands', 'driver', 'scenes with clutch, gearbox, brake or commands, lockstep: '
+              'driver = driver_node plays the scene schedule and each state t_k waits for the '
+              'samples of step k (docs/ros.md, "Commands"); external = a vehicle stack sends '
+              'them, each in force from the next state published after it arrived',
+              choices=('driver', 'external')),
 )
 
 
@@ -356,9 +361,17 @@ class CouplingNode(CvjNode):
         # per-exchange joint state (intermediate members filled) and reaction wrenches:
         # compiled when the stepper runs the kernel, else the Python reference
         from cvj_ros.physics.state_outputs import make_state_outputs
-        self.outputs = make_state_outputs(
+        self.outputs = getattr(self.driveline, 'state_outputs', None) or make_state_outputs(
             self.driveline, self.reaction_joints,
             compiled=getattr(self.stepper, 'backend', 'python') == 'kernel')
+        # commands (clutch, gear, brake, throttle) of a mode scene: cvj_ros.nodes.command_inbox
+        self.hybrid = getattr(self.driveline, 'hybrid', None)
+        self.commands: Any = None
+        self.command_subs: dict[str, Any] = {}
+        self.gated_commands = False
+        self._state_pending = False
+        if self.hybrid is not None:
+            self._subscribe_commands(scene, p)
 
         # loop state
         self.k = 0
@@ -417,6 +430,20 @@ class CouplingNode(CvjNode):
     # --- physics set-up ---------------------------------------------------------------------
 
     def _build_physics(self, scene: Any, forced: dict[str, str], p: dict[str, Any]) -> tuple[Any, Any]:
+        if scene.has_modes:      # clutch, gearbox, brake, commands: cvj_ros.nodes.hybrid_backend
+            from cvj_ros.nodes.hybrid_backend import build_hybrid
+            if self.scheme != 'zoh':
+                raise ParameterError('coupling_scheme', f'a scene with clutch, gearbox, brake or '
+                                                        f'commands runs with zoh, got {self.scheme!r}')
+            try:
+                driveline, stepper = build_hybrid(scene, method=p['solver'] or None,
+                                                  rtol=p['rtol'] or None, atol=p['atol'] or None,
+                                                  fidelity=forced or None)
+            except CvjError as exc:
+                raise ParameterError('scene', str(exc)) from None
+            h = driveline.hybrid
+            self.method, self.rtol, self.atol = h.method, h.rtol, h.atol
+            return driveline, stepper
         from cvj_ros.physics.cosim import CoupledStepper
         from cvj_ros.physics.driveline import Driveline
         from cvj_ros.physics.tree import TreeDriveline
@@ -467,6 +494,85 @@ class CouplingNode(CvjNode):
                 return getattr(report, attr)()
         return {'levels': dict(getattr(report, 'levels', {}))}
 
+    # --- commands (mode scenes) ---------------------------------------------------------
+
+    def _subscribe_commands(self, scene: Any, p: dict[str, Any]) -> None:
+        """Subscribe the command topics; with ``commands=driver`` in lockstep and a scene
+        schedule, each state t_k waits for the driver's samples of step k (CommandPlan)."""
+        from std_msgs.msg import Float64, Int8
+
+        from cvj_ros.nodes.command_inbox import CommandInbox
+        from cvj_ros.nodes.command_plan import CHANNEL_TOPICS, CommandPlan
+        from cvj_ros.nodes.hybrid_backend import gear_count
+        plan = None
+        if p['commands'] == 'driver' and self.mode == 'lockstep' and scene.commands:
+            plan = CommandPlan.from_scene(scene, self.h_ns, self.n_steps)
+        self.gated_commands = plan is not None
+        self.commands = CommandInbox(plan, n_gears=gear_count(self.hybrid))
+        self._refused_said: set[str] = set()
+        for channel, topic in CHANNEL_TOPICS.items():
+            if channel == 'throttle' and (plan is None or 'throttle' not in plan.channels):
+                continue           # the engine node applies the throttle; counted only when played
+            self.command_subs[topic] = loop_subscription(
+                self, Int8 if channel == 'gear' else Float64, topic,
+                lambda data, c=channel: self._on_command(c, data), DATA_QOS)
+
+    def _on_command(self, channel: str, data: bytes) -> None:
+        """A raw command sample: checked (malformed: dropped, named once per topic; out of
+        range: refused, ERROR once per topic), kept; releases a state waiting for it."""
+        from cvj_ros.nodes.command_plan import CHANNEL_TOPICS, CommandError
+        if self.exit_code is not None:
+            return
+        topic = CHANNEL_TOPICS[channel]
+        sub = self.command_subs[topic]
+        if (self.gated_commands and self.started and not hasattr(sub, 'bus')
+                and sub.get_publisher_count() > 1):      # a second publisher beside the driver
+            self._stop_with_error(self._intruder_line(topic))
+            return
+        try:
+            self.commands.offer(channel, data)
+        except CommandError as exc:
+            if exc.malformed:
+                self._drop_malformed(topic, str(exc))
+            elif topic not in self._refused_said:
+                self._refused_said.add(topic)
+                line = f'{topic}: {exc}; not applied (further ones counted as refused_commands)'
+                self.get_logger().error(line)
+                self.publish_diagnostics(ERROR, line)
+            return
+        if self._state_pending and self.commands.ready(self.k):
+            self._state_pending = False
+            if self._emit_state():
+                self._after_state()
+
+    def _apply_commands(self) -> bool:
+        """Put the commands of step k in force over [t_k, t_(k+1)]; False when the run stopped."""
+        from cvj_ros.nodes.command_plan import CommandError
+        try:
+            vals = self.commands.take(self.k)
+        except CommandError as exc:
+            self._stop_with_error(f'lockstep: {exc}')
+            return False
+        if vals:
+            self.hybrid.set_commands(clutch=vals.get('clutch'), brake=vals.get('brake'),
+                                     gear=None if 'gear' not in vals else int(vals['gear']))
+        return True
+
+    def _emit_state(self) -> bool:
+        """Publish the state t_k, once the command samples of step k are in (mode scenes);
+        False while they are awaited (/clock t_k is out: the driver plays on it) or when the
+        run stopped."""
+        if self.commands is not None:
+            if not self.commands.ready(self.k):
+                self._publish_clock(self.t_ns)
+                self._state_pending = True
+                self._wait_start = time.perf_counter()
+                return False
+            if not self._apply_commands():
+                return False
+        self._publish_state()
+        return True
+
     def _publish_scene(self) -> None:
         scene = scene_dict(self.scene)
         if self.params['load_override']:
@@ -494,6 +600,9 @@ class CouplingNode(CvjNode):
         for topic, sub in self._answer_subs():
             if sub.get_publisher_count() < 1:
                 missing.append(f'{topic} (no publisher)')
+        if self.gated_commands:      # the driver's command publishers (commands=driver)
+            missing += [f'{topic} (no publisher: driver_node)' for topic, sub in self.command_subs.items()
+                        if sub.get_publisher_count() < 1]
         bus = bus_for(self.context)
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
@@ -539,6 +648,8 @@ class CouplingNode(CvjNode):
         topics: list[tuple[str, Any]] = [
             (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
             *((topic, sub.get_publisher_count) for topic, sub in self._answer_subs())]
+        if self.gated_commands:      # the driver's command topics (commands=driver)
+            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()]
         bus = bus_for(self.context)
         if self.started and bus is not None:
             topics = [(t, n) for t, n in topics if not bus.carries(t)]
@@ -612,7 +723,7 @@ class CouplingNode(CvjNode):
         self.started = True
         self._t_wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
-        self._publish_state()
+        self._emit_state()
         if self.on_started is not None:
             self.on_started()
         if self.mode == 'lockstep':
@@ -700,6 +811,12 @@ class CouplingNode(CvjNode):
                 f'lockstep: no answer stamped t={self.t_ns / NS_PER_S:.9g} s (step {self.k}) '
                 f'on {stall[0]} within {stall_bound:g} s, only wrongly stamped ones; '
                 + self.wrong_stamp_line(stall[0], *self._wrong_in_wait[stall[0]]))
+            return
+        if self._state_pending and waited > self.params['peer_timeout']:
+            self._stop_with_error(
+                f'lockstep: no command sample on {" and ".join(self.commands.missing(self.k))} for '
+                f't={self.t_ns / NS_PER_S:.9g} s (step {self.k}) within peer_timeout='
+                f'{self.params["peer_timeout"]} s; is driver_node running?')
             return
         if waited > self.params['peer_timeout']:
             if self.k == 0 and not (self._have_engine or self._have_load):
@@ -957,7 +1074,25 @@ class CouplingNode(CvjNode):
         self.x = np.asarray(x, dtype=float)
         self.k += ticks
         self.t_ns = t_next_ns
-        self._publish_state()
+        if self.hybrid is not None and self.hybrid.stall is not None:
+            self._publish_state()
+            self._end_stalled()
+            return
+        if self._emit_state():
+            self._after_state()
+
+    def _end_stalled(self) -> None:
+        """A mode scene's engine stalled: the state at the stall is the last; its line on
+        /diagnostics (WARN) and in the log; exit 0 (the run's outcome, not an error)."""
+        self.waiting = False
+        self._cancel_timers()
+        line = self.hybrid.stall
+        self.get_logger().warning(line)
+        self.publish_diagnostics(WARN, line)
+        self.finish()
+
+    def _after_state(self) -> None:
+        """After the state t_k went out: periodic diagnostics, the end of the run at t_N."""
         every = self.params['diagnostics_every']
         if self.k // every != self._diag_k // every:
             self._diag_k = self.k
@@ -1136,6 +1271,11 @@ class CouplingNode(CvjNode):
             stats['realtime_priority'] = self.realtime_priority
         # a vehicle scene: vehicle speed and per-wheel slip, tyre and normal force
         stats.update(vehicle_values(self.driveline, self.x))
+        if self.hybrid is not None:       # engaged gear, clutch/brake modes, stall
+            from cvj_ros.nodes.hybrid_backend import mode_values
+            stats.update(mode_values(self.hybrid))
+            stats['refused_commands'] = (stats['refused_commands']
+                                         + sum(self.commands.refused.values()))
         if getattr(self.driveline, 'track_energy', False):
             try:
                 stats['energy_residual'] = float(self.driveline.energy_residual(self.x, self.energy0))

@@ -23,7 +23,11 @@ from cvj_ros.nodes.cdr import CdrError, decode_float64
 from cvj_ros.nodes.common import (ERROR, OK, ParameterError, ParamSpec, TorqueResponder,
                                   declare_parameters, inertia_names, load_scene_param,
                                   load_yaml_mapping, run_node, scene_dict)
+from cvj_ros.nodes.intra import loop_subscription
 from cvj_ros.nodes.qos import DATA_QOS, ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC
+
+#: a throttle change this large (or the first sample) is said on /diagnostics
+THROTTLE_REPORT_STEP = 0.05
 
 PARAMS = (
     ParamSpec('scene', '', 'scene name (e.g. kavz685_lever) or scene YAML path'),
@@ -73,11 +77,13 @@ class EngineNode(TorqueResponder):
         self.engine = engine
         self.throttle = p['throttle'] if p['throttle'] >= 0.0 else float('nan')
         self.throttle_rejected = 0
+        self._throttle_said = float('nan')      # the throttle last said on /diagnostics
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
-        self.throttle_sub = self.create_subscription(Float64, ENGINE_THROTTLE_TOPIC,
-                                                     self._on_throttle_raw, DATA_QOS, raw=True)
+        # (composed with driver_node: from the in-process bus, in order with the joint states)
+        self.throttle_sub = loop_subscription(self, Float64, ENGINE_THROTTLE_TOPIC,
+                                              self._on_throttle_raw, DATA_QOS)
         describe = getattr(engine, 'describe', None)
         self.get_logger().info(f'engine {describe() if describe else type(engine).__name__} on shaft '
                                f'{shaft!r}; waiting for /driveline/joint_states')
@@ -105,7 +111,11 @@ class EngineNode(TorqueResponder):
             self.report(ERROR, f'/engine/throttle: {exc}; not applied', {'rejected': self.throttle_rejected})
             return
         self.throttle = x
-        self.report(OK, f'throttle set to {x:g}', {'throttle': x})
+        # a driver plays ramps as one sample per exchange step: say a change of >= 0.05 (and
+        # the first), not every sample (1000 OK statuses a second swamped /diagnostics)
+        if not abs(x - self._throttle_said) < THROTTLE_REPORT_STEP:
+            self._throttle_said = x
+            self.report(OK, f'throttle set to {x:g}', {'throttle': x})
 
 
 def main(args: Sequence[str] | None = None) -> None:

@@ -48,3 +48,7 @@ def monitor_node() -> None:
 
 def replay_node() -> None:
     launch('replay_node')
+
+
+def driver_node() -> None:
+    launch('driver_node')

@@ -44,7 +44,8 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from cvj_ros.nodes.qos import (CLOCK_TOPIC, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
+from cvj_ros.nodes.qos import (BRAKE_TOPIC, CLOCK_TOPIC, CLUTCH_TOPIC, DIAGNOSTICS_TOPIC,
+                               ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC, GEAR_TOPIC,
                                JOINT_STATES_TOPIC, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
 
 #: the loop topics each hosted node publishes at the exchange rate
@@ -52,6 +53,8 @@ LOOP_TOPICS_OF = {
     'coupling_node': (CLOCK_TOPIC, JOINT_STATES_TOPIC),   # + /coupling/<joint>/wrench
     'engine_node': (ENGINE_WRENCH_TOPIC,),
     'load_node': (LOAD_WRENCH_TOPIC,),
+    # the commands: in order with /clock, on which the driver plays them (command_plan.py)
+    'driver_node': (ENGINE_THROTTLE_TOPIC, CLUTCH_TOPIC, GEAR_TOPIC, BRAKE_TOPIC),
 }
 #: topics that hosted AND outside nodes publish (every node's /diagnostics; the latched
 #: /driveline/scene, which a late joiner gets from DDS): the hosted subscribers get the hosted

@@ -14,7 +14,7 @@ from cvj_ros import bag as bagmod
 from cvj_ros.errors import CvjError
 
 
-NODE_ORDER = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')  # coupling last
+NODE_ORDER = ('engine_node', 'load_node', 'monitor_node', 'driver_node', 'coupling_node')  # coupling last
 MODES = ('lockstep', 'free-run')
 # What a run writes into its directory (all of it is replaced by --overwrite).
 RUN_ENTRIES = ('bag', 'logs', 'report.json', 'load_override.npz', 'fastdds_profile.xml')
@@ -28,6 +28,9 @@ EXTERNAL_PEERS = {
     'load': ('load_node', 'the resisting torque on the last shaft, torque.z in N m (positive '
                           'opposes positive rotation)'),
 }
+#: --external driver: an outside stack sends the commands (throttle, clutch, gear, brake)
+#: instead of driver_node; the coupling node takes them as they come (commands=external)
+EXTERNAL_COMMANDS = 'driver'
 
 
 @dataclass
@@ -143,10 +146,13 @@ def prepare(options: RunOptions) -> _Prepared:
     from cvj_ros.physics.scene import Joint, find_scene, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
-    if scene.has_modes:          # clutch, gearbox, brake, commands: offline reference only
+    if scene.has_modes and scene.is_tree:    # a vehicle scene with clutch, gearbox, brake
         from cvj_ros.physics.hybrid.scene_keys import mode_gap
         field, reason = mode_gap(scene)
         raise CvjError(f'{field}: {reason}')
+    if scene.has_modes and options.scheme != 'zoh':   # clutch, gearbox, brake, commands
+        raise CvjError(f'--scheme: a scene with clutch, gearbox, brake or commands runs with zoh '
+                       f'(the mode model holds the received torques), got {options.scheme!r}')
     if options.mode not in MODES:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
     if options.scheme not in SCHEMES:
@@ -167,9 +173,13 @@ def prepare(options: RunOptions) -> _Prepared:
         raise CvjError(f'--exchange-step: must be a finite number > 0, got {options.exchange_step}')
     if h > duration:
         raise CvjError(f'--exchange-step: {h} s is longer than the duration {duration} s')
-    unknown = [e for e in options.external if e not in EXTERNAL_PEERS]
+    unknown = [e for e in options.external if e not in EXTERNAL_PEERS and e != EXTERNAL_COMMANDS]
     if unknown:
-        raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)} or both, got {unknown[0]!r}')
+        raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)}, {EXTERNAL_COMMANDS} or a '
+                       f'combination, got {unknown[0]!r}')
+    if EXTERNAL_COMMANDS in options.external and not scene.has_modes:
+        raise CvjError(f'--external {EXTERNAL_COMMANDS}: {scene_path.name} has no clutch, gearbox, '
+                       f'brake or commands to drive (the throttle goes to the engine node as it is)')
     if scene.is_tree:
         from cvj_ros.orchestrate.vehicle import check_vehicle_options
         check_vehicle_options(scene_path, options)
@@ -206,7 +216,9 @@ def prepare(options: RunOptions) -> _Prepared:
         from cvj_ros.orchestrate.vehicle import vehicle_peers
         peers = vehicle_peers(scene, options.external)
     import importlib.util
-    outside = {EXTERNAL_PEERS[e][0] for e in options.external}
+    outside = {EXTERNAL_PEERS[e][0] for e in options.external if e in EXTERNAL_PEERS}
+    if EXTERNAL_COMMANDS in options.external or not scene.commands:
+        outside.add('driver_node')     # nothing to play, or an outside stack plays it
     nodes = tuple(n for n in NODE_ORDER if n not in outside
                   and importlib.util.find_spec(f'cvj_ros.nodes.{n}') is not None)
     for required in ('engine_node', 'load_node', 'coupling_node'):

@@ -46,6 +46,11 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
                       start_timeout=float(o.start_timeout))
         if getattr(prep, 'peers', None) is not None:      # a vehicle scene, --external load
             params['wheel_load'] = 'external'
+    if name == 'coupling_node' and prep.scene.has_modes:
+        # the driver's samples gate each state (lockstep), or an outside stack's are taken as they come
+        params['commands'] = 'external' if 'driver' in o.external else 'driver'
+    if name == 'driver_node':
+        params.update(exchange_step=float(prep.exchange_step), duration=float(prep.duration))
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

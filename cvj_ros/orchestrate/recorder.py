@@ -230,10 +230,13 @@ def external_wait_line(external: Sequence[str], domain: int, timeout: float,
     """The one line printed while a run waits for outside peers: which topic, what to publish
     (``peers``: a vehicle scene's, orchestrate.vehicle.vehicle_peers)."""
     parts = [f'{PEER_TOPICS[EXTERNAL_PEERS[e][0]]} ({EXTERNAL_PEERS[e][1]})' for e in external
-             if peers is None or e != 'load']
+             if e in EXTERNAL_PEERS and (peers is None or e != 'load')]
     if peers is not None:
         parts.append(f'{", ".join(t for n, t in peers[0].items() if peers[1].get(n) == "load")} '
                      '(each wheel\'s resisting torque, torque.z in N m (positive opposes positive rotation))')
+    if any(e not in EXTERNAL_PEERS for e in external):   # --external driver: not awaited
+        parts.append('(when it likes) /engine/throttle, /driveline/clutch, /driveline/gear, '
+                     '/driveline/brake (the commands; docs/ros.md, "Commands")')
     return (f'cvj-sim run: waiting up to {timeout:g} s for an outside node on ROS_DOMAIN_ID={domain} '
             f'to publish {" and ".join(parts)}: subscribe to /driveline/joint_states and answer '
             f'every message with a geometry_msgs/WrenchStamped whose header.stamp '
@@ -251,7 +254,7 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
     t0 = time.monotonic()
     deadline = t0 + timeout
     topics, outside = peers if peers is not None else (
-        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external})
+        PEER_TOPICS, {EXTERNAL_PEERS[e][0]: e for e in external if e in EXTERNAL_PEERS})
     settled_since: float | None = None
     dom = domain if domain is not None else os.environ.get('ROS_DOMAIN_ID', '0')
     while not stop_signal:

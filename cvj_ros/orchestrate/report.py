@@ -72,6 +72,9 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
     counters = loop_counters(result.bag, diags=diags)
     if counters:
         result.metrics['loop_counters'] = counters
+    modes = loop_modes(result.bag, diags=diags)
+    if modes:
+        result.metrics['modes'] = modes
     if options.mode == 'lockstep':
         timing = loop_timing(result.bag, diags=diags)
         if timing:
@@ -277,6 +280,48 @@ def loop_counters(bag: Path, *, diags: Any = _READ) -> dict[str, int]:
     return {k: int(float(vals[k])) for k in LOOP_COUNTERS + IDENTITY_COUNTERS if k in vals}
 
 
+#: prefixes of the mode-model values in the loop diagnostics (cvj_ros.nodes.hybrid_backend)
+MODE_PREFIXES = ('clutch_state.', 'gear.', 'brake_state.')
+MODE_KEYS = ('mode_events', 'refused_commands', 'last_refused', 'stall')
+
+
+def loop_modes(bag: Path, *, diags: Any = _READ) -> dict[str, str]:
+    """A mode scene's last recorded modes (engaged gear, clutch and brake slip+ / stuck /
+    slip-), its mode-event and refused-command counts, the last refused command and the stall
+    line, from the coupling node's last loop status; {} for other scenes."""
+    if diags is _READ:
+        diags = read_diagnostics(bag)
+    if diags is None:
+        return {}
+    vals, last = None, (-1.0, False)
+    for statuses in diags.statuses:   # the latest by step (a DDS copy may come late in bag order)
+        for st in statuses:
+            v = st['values']
+            if st['name'] == 'coupling_node: loop' and 'mode_events' in v:
+                key = (float(v.get('steps', 0)), st['message'] == 'finished')
+                if key >= last:
+                    vals, last = v, key
+    if vals is None:
+        return {}
+    return {k: v for k, v in vals.items() if k.startswith(MODE_PREFIXES) or k in MODE_KEYS}
+
+
+def modes_line(modes: dict[str, str]) -> str:
+    """``  modes at the end: clutch stuck, gearbox gear 3, brake slip+; 14 mode events``
+    (then the refused commands and the stall, when there are)."""
+    parts = []
+    for k, v in modes.items():
+        if k.startswith(MODE_PREFIXES):
+            name = k.split('.', 1)[1]
+            parts.append(f'{name} gear {v}' if k.startswith('gear.') else f'{name} {v}')
+    line = f'  modes at the end: {", ".join(parts)}; {modes.get("mode_events", 0)} mode events'
+    if modes.get('refused_commands', '0') not in ('0', ''):
+        line += f'; {modes["refused_commands"]} commands refused (last: {modes.get("last_refused", "-")})'
+    if modes.get('stall'):
+        line += f'\n  STALL {modes["stall"]}'
+    return line
+
+
 #: the coupling node's per-exchange figures (us, means since step 0) in its loop diagnostics
 LOOP_TIMING_KEYS = ('exchange_wall_us_mean', 'integration_us_mean', 'overhead_us_mean',
                     'lockstep_wait_us_mean', 'state_us_mean')
@@ -390,6 +435,8 @@ def print_report(r: RunResult, stream: TextIO) -> None:
         p(f'  outside the run: the recorder dropped {sum(dropped.values())} messages of other '
           f'publishers ({", ".join(f"{t} {n}" for t, n in sorted(dropped.items())) or "none"}) '
           f'and {sum(bad.values())} malformed ones; the loop dropped {malformed} malformed answers')
+    if r.metrics.get('modes'):
+        p(modes_line(r.metrics['modes']))
     counters = {k: v for k, v in r.metrics.get('loop_counters', {}).items() if k in LOOP_COUNTERS}
     if any(counters.values()):   # WARN level in /diagnostics: say it in the report too
         p('  WARN coupling loop: ' + ', '.join(f'{k.replace("_", " ")} {v}' for k, v in counters.items())

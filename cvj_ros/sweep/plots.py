@@ -77,8 +77,10 @@ def _slug(text: str) -> str:
 
 
 def default_metric(header: Sequence[str]) -> str | None:
-    """The last shaft's nonuniformity delta (the driven end of the driveline)."""
-    deltas = [c for c in header if c.endswith('.delta')]
+    """The last shaft's nonuniformity delta (the driven end of the driveline); for a scene
+    with clutch, gearbox or brake its final speed."""
+    deltas = ([c for c in header if c.endswith('.delta')]
+              or [c for c in header if c.endswith('.final_speed')])
     return deltas[-1] if deltas else None
 
 

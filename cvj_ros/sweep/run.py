@@ -158,6 +158,10 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     except CvjError as exc:
         return {'status': 'invalid', 'error': ' '.join(str(exc).split())}, time.perf_counter() - t0
     try:
+        if scene.has_modes:     # clutch, gearbox, brake, commands: the Python reference
+            from cvj_ros.sweep.hybrid_row import hybrid_row
+            return ({'status': 'ok', **hybrid_row(scene, options), 'error': ''},
+                    time.perf_counter() - t0)
         sim = Simulation(scene, fidelity=dict(options.fidelity) or None, backend=options.backend)
         trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
         window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,

@@ -13,7 +13,7 @@ import pytest
 pytestmark = [pytest.mark.colcon, pytest.mark.e2e]
 
 REPO = Path(__file__).resolve().parents[2]
-NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node',
+NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node', 'driver_node',
          'driveline_composed']
 
 

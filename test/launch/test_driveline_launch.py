@@ -65,6 +65,20 @@ def test_parameters_match_the_nodes_declared_parameters(external: str, record: s
     assert cp['min_subscribers'] == 3 + (record == 'true')
 
 
+def test_driver_argument_starts_driver_node_and_sets_the_command_rule() -> None:
+    pytest.importorskip('rclpy')
+    mod = _launch_module()
+    on = mod.node_parameters({'scene': 'launch_clutch_chain', 'driver': 'true', 'duration': '2.0'})
+    off = mod.node_parameters({'scene': 'launch_clutch_chain'})
+    assert on['driver_node'] == {'scene': 'launch_clutch_chain', 'seed': -1, 'duration': 2.0}
+    assert on['coupling_node']['commands'] == 'driver'
+    assert 'driver_node' not in off and off['coupling_node']['commands'] == 'external'
+    for node, values in on.items():
+        declared = _declared(node)
+        for name, value in values.items():
+            declared[name].validate(value)
+
+
 def test_choices_match_the_nodes_choices() -> None:
     pytest.importorskip('rclpy')
     mod = _launch_module()

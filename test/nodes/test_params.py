@@ -1,4 +1,4 @@
-"""Parameter files and process-level parameter validation of the four nodes."""
+"""Parameter files and process-level parameter validation of the nodes."""
 from __future__ import annotations
 
 import os
@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cvj_ros.nodes import coupling_node, engine_node, load_node, monitor_node
+from cvj_ros.nodes import coupling_node, driver_node, engine_node, load_node, monitor_node
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS_DIR = ROOT / 'config' / 'params'
 NODES = {'engine_node': engine_node, 'load_node': load_node, 'coupling_node': coupling_node,
-         'monitor_node': monitor_node}
+         'monitor_node': monitor_node, 'driver_node': driver_node}
 BIN = Path(sys.executable).parent
 
 

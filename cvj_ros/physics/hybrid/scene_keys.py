@@ -113,18 +113,20 @@ def parse_commands(raw: Any, chain: Sequence[Any]) -> tuple[dict[str, float], ..
 
 def mode_gap(scene: Any) -> tuple[str, str]:
     """(field, one-line reason) why ``scene`` (``has_modes``) cannot run on the compiled
-    kernel, Driveline, a sweep or a ROS run yet."""
+    kernel, Driveline, a sweep or a ROS run yet (a vehicle scene: the ROS loop and sweeps
+    take chain mode scenes only)."""
     from cvj_ros.physics.scene import _paths
+    where = ('a vehicle scene with stick/slip modes runs offline only (`cvj-sim simulate`, Python '
+             'reference)' if getattr(scene, 'is_tree', False) else
+             'stick/slip modes need the mode model (`cvj-sim simulate`, `cvj-sim run`, '
+             '`cvj-sim sweep`), not the event-free one')
     for path, el in _paths(scene.driveline):
         if getattr(el, 'type', '') in MODE_TYPES or getattr(el, 'kind', '') == 'clutch_pack':
             what = 'clutch-pack differential' if getattr(el, 'kind', '') == 'clutch_pack' else el.type
-            return (path, f'{what} {el.name!r}: stick/slip modes are not compiled and '
-                    f'have no ROS nodes yet; run it offline with `cvj-sim simulate` (Python reference)')
+            return (path, f'{what} {el.name!r}: {where}')
     if getattr(scene, 'shift_schedule', None) is not None:
-        return ('shift_schedule', 'a shift schedule runs offline only (`cvj-sim simulate`, Python '
-                                  'reference) until the driver node exists')
-    return ('commands', 'a command schedule runs offline only (`cvj-sim simulate`, Python reference) '
-                        'until the driver node exists')
+        return ('shift_schedule', f'a shift schedule: {where}')
+    return ('commands', f'a command schedule: {where}')
 
 
 def check_mode_scene(chain: Sequence[Any], method: str, *, tree: bool = False) -> None:

@@ -84,10 +84,13 @@ def test_cli_simulate_reports_events(capsys) -> None:
 def test_cli_refusals(tmp_path, capsys) -> None:
     assert main(['simulate', 'launch_clutch_chain', '--bag', str(tmp_path / 'b')]) == 2
     assert main(['simulate', 'launch_clutch_chain', '--method', 'rk4']) == 2
-    assert main(['run', 'launch_clutch_chain', '--out', str(tmp_path / 'run')]) == 2
+    assert main(['run', 'launch_clutch_chain', '--out', str(tmp_path / 'run'),
+                 '--scheme', 'extrapolate']) == 2        # the ROS loop runs it with zoh only
     assert main(['sweep', 'launch_clutch_chain', '--set', 'initial.speed_rpm=800,900',
-                 '--out', str(tmp_path / 'sweep'), '--workers', '1', '--no-plots']) == 2
+                 '--out', str(tmp_path / 'sweep'), '--workers', '1', '--no-plots',
+                 '--orders-shaft', 'wheel']) == 2     # no shaft torques on the reference
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith('cvj-sim: error: ') for line in err)
-    assert all("clutch 'clutch': stick/slip modes are not compiled" in e for e in err[2:])
+    assert '--scheme: a scene with clutch, gearbox, brake or commands runs with zoh' in err[2]
+    assert '--orders-shaft: a scene with clutch, gearbox, brake or commands' in err[3]
     assert not (tmp_path / 'run').exists() and not (tmp_path / 'sweep').exists()

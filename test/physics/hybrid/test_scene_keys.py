@@ -104,8 +104,9 @@ def test_layout_rules_name_the_element() -> None:
 
 
 def test_other_paths_refuse_a_mode_scene_in_one_line(tmp_path) -> None:
-    """Driveline (compiled kernel, sweeps, nodes) and the ROS run's preparation refuse a
-    scene with mode elements naming the element, before anything starts."""
+    """Driveline (compiled kernel, sweeps) refuses a scene with mode elements naming the
+    element; the ROS run's preparation takes it with --scheme zoh only, before anything
+    starts."""
     import yaml
 
     from cvj_ros.orchestrate.options import RunOptions, prepare
@@ -117,10 +118,11 @@ def test_other_paths_refuse_a_mode_scene_in_one_line(tmp_path) -> None:
     path = tmp_path / 'modes.yaml'
     path.write_text(yaml.safe_dump(BASE))
     with pytest.raises(CvjError) as exc2:
-        prepare(RunOptions(scene=str(path), out=tmp_path / 'run'))
-    assert str(exc2.value).startswith("driveline[1]: clutch 'clutch': stick/slip modes are not "
-                                      'compiled and have no ROS nodes yet')
+        prepare(RunOptions(scene=str(path), out=tmp_path / 'run', scheme='extrapolate'))
+    assert str(exc2.value).startswith('--scheme: a scene with clutch, gearbox, brake or commands '
+                                      'runs with zoh')
     assert not (tmp_path / 'run').exists()
+    assert 'driver_node' in prepare(RunOptions(scene=str(path), out=tmp_path / 'run')).nodes
 
 
 def test_fuzzed_mode_keys_give_a_scene_or_a_field_error() -> None:

@@ -1,0 +1,45 @@
+"""The result row of one sweep variant with clutch, gearbox, brake or commands: the Python
+reference of the mode model (:mod:`cvj_ros.physics.hybrid`; the compiled kernel has no modes
+yet), summarised as events per element, the first lock-up of each clutch and brake, the final
+modes and shaft speeds, the stall, refused commands and the energy residual."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+__all__ = ['hybrid_row']
+
+
+def hybrid_row(scene: Any, options: Any) -> dict[str, Any]:
+    """Columns of one mode-scene variant (without ``status`` / ``error``); ``options`` a
+    :class:`cvj_ros.sweep.run.RunOptions` (its fidelity and sample step; no order analysis:
+    the reference keeps speeds, not shaft torques)."""
+    from cvj_ros.physics.hybrid.friction import mode_name
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    sim = hybrid_simulation(scene, fidelity=dict(options.fidelity) or None,
+                            sample_dt=options.sample_dt)
+    r = sim.run()
+    row: dict[str, Any] = {'energy_residual': r.max_energy_residual}
+    for key in ('steps', 'nfev', 'events', 'restarts'):
+        row[key] = int(r.stats.get(key, 0))
+    row['backend'] = 'python'
+    row['t_end'] = float(r.t_end)
+    row['stall'] = r.stall is not None
+    row['refused_commands'] = sum(1 for s in r.statuses if 'refused' in s)
+    chain = sim.chain
+    mode = r.final_mode
+    elements = [*chain.clutches, *chain.gearboxes] + ([chain.brake.name] if chain.brake else [])
+    for el in elements:
+        row[f'{el}.events'] = r.count(el)
+    for el in [*chain.clutches] + ([chain.brake.name] if chain.brake else []):
+        locks = [e.t for e in r.events if e.element == el and e.after == 'stuck' and e.t > 0]
+        row[f'{el}.first_stuck_s'] = locks[0] if locks else math.nan
+    for name, m in mode.clutch.items():
+        row[f'{name}.final_mode'] = mode_name(m)
+    for name, g in mode.gear.items():
+        row[f'{name}.final_gear'] = int(g)
+    if chain.brake is not None and mode.brake is not None:
+        row[f'{chain.brake.name}.final_mode'] = mode_name(mode.brake)
+    for i, shaft in enumerate(r.shafts):
+        row[f'{shaft}.final_speed'] = float(r.speed[-1, i]) if r.t.size else math.nan
+    return row

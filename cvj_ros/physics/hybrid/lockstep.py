@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from cvj_ros.errors import CvjError
+from cvj_ros.errors import CvjError, SceneError
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import STUCK, mode_name
 from cvj_ros.physics.hybrid.simulate import HybridSimulation
@@ -289,6 +289,9 @@ def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | No
     ``commands:`` schedule at 0, else pedal 0, brake 0, neutral). The backend behind the
     coupling node for scenes with clutch, gearbox, brake or commands."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    if getattr(scene, 'is_tree', False):     # vehicle mode scenes: offline reference only
+        from cvj_ros.physics.hybrid.scene_keys import mode_gap
+        raise SceneError(*mode_gap(scene))
     sim = hybrid_simulation(scene, method=method, rtol=rtol, atol=atol, fidelity=fidelity)
     s = sim.schedule
     c0 = Commands(s.value('clutch', 0.0), s.value('brake', 0.0), s.gear(0.0))

@@ -62,6 +62,16 @@ def test_print_report_states_the_whole_command_and_the_rate_basis() -> None:
     assert 'target' not in out.getvalue()
 
 
+def test_wall_line_says_how_much_of_the_start_up_was_compiling() -> None:
+    """A run that compiled its kernel first (kernel/prepare.py) says so inside the start-up."""
+    from cvj_ros.orchestrate.report import wall_line
+    r = _result(process='separate', rtf=2.0)
+    r.wall_time = 50.0
+    r.phases = {'kernel_compile_s': 40.0, 'loop_started': 45.0}
+    assert wall_line(r) == ('  wall time 50.00 s: start-up 45.00 s (compiling the physics kernel '
+                            '40.00 s), loop 2.500 s')
+
+
 def test_run_notes_name_a_speed_trend_unless_the_line_stalled() -> None:
     """`cvj-sim run`'s notes after the report carry the report's speed trend (computed from
     the bag, test_report_stream.py) as `simulate` does; a stall line replaces it (the trend

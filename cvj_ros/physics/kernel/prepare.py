@@ -34,7 +34,7 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, NamedTuple, TextIO
 
 __all__ = ['Half', 'halves', 'is_cold', 'prepare_run', 'compile_half', 'child_command', 'main']
 
@@ -42,13 +42,12 @@ __all__ = ['Half', 'halves', 'is_cold', 'prepare_run', 'compile_half', 'child_co
 TICK_S = 1.0
 
 
-class Half:
-    """One compile unit of a run: its name, the numba dispatchers it fills, a description."""
-
-    def __init__(self, name: str, dispatchers: Sequence[Any], words: str) -> None:
-        self.name = name
-        self.dispatchers = tuple(dispatchers)
-        self.words = words
+class Half(NamedTuple):
+    """One compile unit of a run: its name, the numba dispatchers the run calls from it
+    (probed by :func:`is_cold`), the user's words for what of it is cold."""
+    name: str
+    dispatchers: Sequence[Any]
+    words: str
 
 
 def _advance(method: str) -> Any:

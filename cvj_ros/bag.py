@@ -25,6 +25,7 @@ the reading helpers work without a ROS installation.
 from __future__ import annotations
 
 import fnmatch
+import heapq
 import shutil
 import struct
 import threading
@@ -1451,6 +1452,10 @@ class BagRecorder:
             writer.write_many(items)
         self.last_message_wall = wall
 
+    def _keep_clock(self, value: int, data: bytes) -> None:
+        """Keep a /clock sample back (``_pending_clock``: a heap by value, then bytes)."""
+        heapq.heappush(self._pending_clock, (value, bytes(data)))
+
     def _flush_pending_clock(self) -> None:
         """Write the /clock samples kept back. Before the run's own first two joint states
         (s0, s1): after s0 those equal to s0; after s1 those in [s0, s1 + 2 (s1 - s0)]
@@ -1462,18 +1467,33 @@ class BagRecorder:
         own = self._own_js_ns
         if len(own) == 1:
             keep = [(v, d) for v, d in self._pending_clock if v == own[0]]
+            if not keep:
+                return
             self._pending_clock = [(v, d) for v, d in self._pending_clock if v != own[0]]
+            heapq.heapify(self._pending_clock)
         else:
             step = own[1] - own[0]
             hi = own[-1] + (0 if self._loop_ended else step)
             if not self._clock_started:
                 self._clock_started = True
                 hi = max(hi, own[1] + 2 * step)
-            keep = [(v, d) for v, d in self._pending_clock if own[0] <= v <= hi]
-            n_foreign = sum(1 for v, _d in self._pending_clock if v < own[0])
+            # a heap by value (_keep_clock): those below own[0] are another run's, those up
+            # to hi are written, the rest stays - no scan per joint state (an intruder's 1 kHz
+            # /clock far ahead of the run made a scan per state quadratic in the run's length:
+            # the recorder fell seconds behind)
+            pending = self._pending_clock
+            if not pending or pending[0][0] > hi:
+                return
+            n_foreign = 0
+            keep = []
+            while pending and pending[0][0] <= hi:
+                item = heapq.heappop(pending)
+                if item[0] < own[0]:
+                    n_foreign += 1
+                else:
+                    keep.append(item)
             if n_foreign:
                 self._foreign[CLOCK_TOPIC] = self._foreign.get(CLOCK_TOPIC, 0) + n_foreign
-            self._pending_clock = [(v, d) for v, d in self._pending_clock if v > hi]
         for v, data in sorted(keep, key=lambda vd: vd[0]):
             if self._clock_written is not None and v <= self._clock_written:
                 self._foreign[CLOCK_TOPIC] = self._foreign.get(CLOCK_TOPIC, 0) + 1
@@ -1489,13 +1509,13 @@ class BagRecorder:
             own = self._own_js_ns
             value = cdr_stamp_ns(data)
             if len(own) < 2 or not self._clock_started:
-                self._pending_clock.append((value, bytes(data)))
+                self._keep_clock(value, data)
                 return None
             if self._clock_written is not None and value <= self._clock_written:
                 return False              # a repeat or an older value: not the run's
             if value <= own[-1] + (0 if self._loop_ended else own[1] - own[0]):
                 return True
-            self._pending_clock.append((value, bytes(data)))   # ahead of own states: kept back
+            self._keep_clock(value, data)            # ahead of own states: kept back
             return None
         if _one_publisher_topic(topic):
             since = self._ambiguous.get(topic)

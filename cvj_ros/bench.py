@@ -1212,7 +1212,7 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
         md += ['', '## Kernel start-up', '']
         if 'cold_compile_s' in startup:
             md.append(f'- cold compile (`python -m cvj_ros.physics.kernel.warmup`, empty cache, every '
-                      f'method and the outputs; what the first `make test` or `make bench` pays, the first `make demo` compiles only its run's entry points, docs/solvers.md "First run"): {startup["cold_compile_s"]:.1f} s'
+                      f'method and the outputs; what the first `make test` or `make bench` pays, the first `make demo` compiles only the entry points its run calls, docs/solvers.md "First run"): {startup["cold_compile_s"]:.1f} s'
                       + (f' ({startup["cold_compile_how"]})' if startup.get('cold_compile_how') else ''))
         if 'warm_simulate_s_median' in startup:
             md.append(f'- warm start, whole command `cvj-sim simulate kavz685_lever --duration 2`: '

@@ -65,8 +65,7 @@ class Driveline:
     def __init__(self, scene: Scene, levels: Mapping[str, str], *, track_energy: bool = False) -> None:
         if scene.is_tree:
             raise SceneError('driveline', 'a vehicle scene (wheels, differentials) is not a '
-                                          'chain: it runs offline only for now (cvj-sim simulate; '
-                                          'Python: build_driveline / TreeDriveline)')
+                                          'chain: build it with build_driveline or TreeDriveline')
         self.scene = scene
         self.levels = dict(levels)
         self.track_energy = track_energy

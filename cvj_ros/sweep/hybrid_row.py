@@ -1,6 +1,7 @@
-"""The result row of one sweep variant with clutch, gearbox, brake or commands: the Python
-reference of the mode model (:mod:`cvj_ros.physics.hybrid`; the compiled kernel has no modes
-yet), summarised as events per element, the first lock-up of each clutch and brake, the final
+"""The result row of one sweep variant with clutch, gearbox, brake or commands: the mode
+model on the compiled kernel (:mod:`cvj_ros.physics.kernel.modes`, methods dopri5 and dop853)
+or its Python reference (:mod:`cvj_ros.physics.hybrid`; backend 'python' or another method),
+summarised as events per element, the first lock-up of each clutch and brake, the final
 modes and shaft speeds, the stall, refused commands and the energy residual."""
 from __future__ import annotations
 
@@ -18,15 +19,20 @@ def hybrid_row(scene: Any, options: Any) -> dict[str, Any]:
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     sim = hybrid_simulation(scene, fidelity=dict(options.fidelity) or None,
                             sample_dt=options.sample_dt)
+    chain = sim.chain
+    backend = 'python'
+    if getattr(options, 'backend', 'kernel') == 'kernel':
+        from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
+        if sim.method in KERNEL_MODE_METHODS:
+            sim, backend = KernelHybridSimulation.from_reference(sim), 'kernel'
     r = sim.run()
     row: dict[str, Any] = {'energy_residual': r.max_energy_residual}
     for key in ('steps', 'nfev', 'events', 'restarts'):
         row[key] = int(r.stats.get(key, 0))
-    row['backend'] = 'python'
+    row['backend'] = backend
     row['t_end'] = float(r.t_end)
     row['stall'] = r.stall is not None
     row['refused_commands'] = sum(1 for s in r.statuses if 'refused' in s)
-    chain = sim.chain
     mode = r.final_mode
     elements = [*chain.clutches, *chain.gearboxes] + ([chain.brake.name] if chain.brake else [])
     for el in elements:

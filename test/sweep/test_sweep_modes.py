@@ -1,6 +1,6 @@
 """`cvj-sim sweep` of a scene with clutch, gearbox, brake and commands (launch_clutch_chain):
-each variant runs the mode model's Python reference, its row equal to `cvj-sim simulate`'s
-result of the same variant."""
+each variant runs the mode model on the compiled kernel (or, with backend 'python', its
+Python reference), its row equal to that backend's offline result of the same variant."""
 from __future__ import annotations
 
 import copy
@@ -21,10 +21,25 @@ def _base() -> dict:
     return data
 
 
-def test_a_mode_variant_row_is_the_offline_reference() -> None:
+def test_a_mode_variant_row_is_the_offline_kernel_run() -> None:
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.kernel.modes import KernelHybridSimulation
     data = _base()
     data['initial'] = {'speed_rpm': 1000.0}
     row, _wall = run_variant(copy.deepcopy(data), RunOptions())
+    assert row['status'] == 'ok' and row['error'] == '' and row['backend'] == 'kernel'
+    r = KernelHybridSimulation.from_reference(hybrid_simulation(parse_scene(data))).run()
+    for i, shaft in enumerate(r.shafts):
+        assert row[f'{shaft}.final_speed'] == r.speed[-1, i]
+    assert row['energy_residual'] == r.max_energy_residual
+    assert row['brake.events'] == r.count('brake') == 2
+    assert row['brake.final_mode'] == 'slip+' and row['gearbox.final_gear'] == 1
+
+
+def test_a_mode_variant_row_is_the_offline_reference() -> None:
+    data = _base()
+    data['initial'] = {'speed_rpm': 1000.0}
+    row, _wall = run_variant(copy.deepcopy(data), RunOptions(backend='python'))
     assert row['status'] == 'ok' and row['error'] == '' and row['backend'] == 'python'
     _sim, r, _w = run_hybrid(parse_scene(data))
     for i, shaft in enumerate(r.shafts):

@@ -34,7 +34,8 @@ speeds. Locked: omega_L = omega_R (one body; the split follows the wheels). Visc
 (limited slip): a bias torque T_b = c_v (omega_L - omega_R) acts -T_b on the left and +T_b
 on the right side gear (T_L = i T_in/2 - T_b, T_R = i T_in/2 + T_b); it dissipates
 T_b (omega_L - omega_R) = c_v (omega_L - omega_R)^2 >= 0. A clutch-pack (preload + Coulomb
-stick/slip) differential needs the event machinery of stick/slip elements: not modelled.
+stick/slip) differential is a mode element: stuck it is 'locked', slipping 'open' with a
+Coulomb bias torque (cvj_ros.physics.hybrid.tree).
 """
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ from cvj_ros.errors import GeometryError, SceneError
 
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
               'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline',
-              'commands')
+              'commands', 'shift_schedule')
 SOLVER_KEYS = ('method', 'rtol', 'atol', 'h', 'max_step')
 # names users give joints that the registry calls otherwise (suggested, never accepted):
 # a single cardan / universal joint is a Hooke joint (double_cardan is two of them)
@@ -39,14 +39,16 @@ JOINT_KEYS = ('type', 'name', 'kind', 'fidelity', 'params', 'limits')
 ELEMENT_TYPES = ('inertia', 'spring', 'joint', 'clutch', 'gearbox', 'brake')
 # clutch, gearbox, brake: mode elements (cvj_ros.physics.hybrid, docs/clutch_gearbox.md)
 MODE_ELEMENT_TYPES = ('clutch', 'gearbox', 'brake')
-# vehicle scenes (a ``vehicle:`` block) also take wheels and differentials
-# (no mode elements yet: the mode-aware reference is a chain's)
-TREE_TYPES = ('inertia', 'spring', 'joint', 'differential', 'wheel')
+# vehicle scenes (a ``vehicle:`` block) also take wheels and differentials; their mode
+# elements: clutch and gearbox in the trunk, a brake right after a wheel
+TREE_TYPES = ('inertia', 'spring', 'joint', 'differential', 'wheel', 'clutch', 'gearbox', 'brake')
 WHEEL_KEYS = ('type', 'name', 'J', 'radius', 'mu', 'load_share', 'axle', 'tyre', 'limits')
 TYRE_KEYS = ('B', 'C', 'E', 'relaxation_length')
 DIFF_KEYS = ('type', 'name', 'kind', 'ratio', 'J_carrier', 'J_side', 'J_spider', 'spider_ratio',
-             'viscous', 'left', 'right', 'limits')
-DIFF_KINDS = ('open', 'locked', 'viscous')
+             'viscous', 'preload_nm', 'torque_bias', 'static_ratio', 'left', 'right', 'limits')
+# clutch_pack: limited slip with stick/slip modes (cvj_ros.physics.hybrid.tree, Python reference)
+DIFF_KINDS = ('open', 'locked', 'viscous', 'clutch_pack')
+PACK_DIFF_KEYS = ('preload_nm', 'torque_bias', 'static_ratio')
 AXLES = ('front', 'rear')
 VEHICLE_KEYS = ('mass', 'grade_percent', 'rolling_coeff', 'drag_coeff', 'frontal_area',
                 'air_density', 'speed_scale', 'cg_height', 'wheelbase', 'front_share',
@@ -156,6 +158,9 @@ class Differential:
     spider_ratio: float = 1.0
     viscous: float = 0.0
     limits: Mapping[str, float] = field(default_factory=dict)
+    preload: float = 0.0               # clutch_pack: N m
+    torque_bias: float = 0.0           # clutch_pack: capacity per N m of carrier torque (-)
+    static_ratio: float = 1.0          # clutch_pack: static / kinetic capacity (-)
     type: str = 'differential'
 
 
@@ -219,13 +224,16 @@ class Scene:
         """True for a vehicle scene (wheels, possibly differentials), False for a chain."""
         return self.vehicle is not None
     commands: tuple[Mapping[str, float], ...] = ()   # rows {t, throttle|clutch|gear|brake}
+    shift_schedule: Any = None         # cvj_ros.physics.hybrid.shift.ShiftSchedule or None
 
     @property
     def has_modes(self) -> bool:
         """The scene holds a clutch, gearbox or brake or a command schedule: it runs on the
         mode-aware reference (cvj_ros.physics.hybrid), not on Driveline or the kernel."""
-        return bool(self.commands) or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
-                                          for el in self.driveline)
+        return (bool(self.commands) or self.shift_schedule is not None
+                or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                       or getattr(el, 'kind', '') == 'clutch_pack'
+                       for el in iter_elements(self.driveline)))
 
     def element(self, name: str) -> Element:
         """The driveline element called ``name``, in any branch (KeyError if absent)."""
@@ -261,6 +269,9 @@ class Scene:
         d['driveline'] = _chain_dicts(self.driveline)
         if self.commands:
             d['commands'] = [dict(r) for r in self.commands]
+        if self.shift_schedule is not None:
+            from cvj_ros.physics.hybrid.shift import shift_schedule_dict
+            d['shift_schedule'] = shift_schedule_dict(self.shift_schedule)
         return d
 
     def to_yaml(self) -> str:
@@ -309,6 +320,9 @@ def _chain_dicts(chain: tuple[Element, ...]) -> list[dict[str, Any]]:
                  'spider_ratio': el.spider_ratio}
             if el.kind == 'viscous':
                 e['viscous'] = el.viscous
+            if el.kind == 'clutch_pack':
+                e.update(preload_nm=el.preload, torque_bias=el.torque_bias,
+                         static_ratio=el.static_ratio)
             e['left'] = _chain_dicts(el.left)
             e['right'] = _chain_dicts(el.right)
         elif isinstance(el, Inertia):
@@ -554,6 +568,12 @@ def _differential(el: Mapping[str, Any], path: str, name: str, limits: dict[str,
         raise SceneError(f'{path}.viscous', "only for kind 'viscous'")
     if kind == 'viscous' and 'viscous' not in el:
         raise SceneError(f'{path}.viscous', 'missing (N m s/rad, the coupling coefficient c_v)')
+    for key in PACK_DIFF_KEYS:
+        if key in el and kind != 'clutch_pack':
+            raise SceneError(f'{path}.{key}', "only for kind 'clutch_pack'")
+    if kind == 'clutch_pack' and 'preload_nm' not in el:
+        raise SceneError(f'{path}.preload_nm', 'missing (N m, the pack\'s kinetic torque at zero '
+                                               'carrier torque)')
     ratio = _number(el.get('ratio', 1.0), f'{path}.ratio')
     if not 1e-3 <= abs(ratio) <= 1e3:
         raise SceneError(f'{path}.ratio', f'must satisfy 1e-3 <= |ratio| <= 1e3 '
@@ -572,7 +592,10 @@ def _differential(el: Mapping[str, Any], path: str, name: str, limits: dict[str,
         left=branches[0], right=branches[1],
         J_spider=_number(el.get('J_spider', 0.0), f'{path}.J_spider', nonneg=True),
         spider_ratio=_number(el.get('spider_ratio', 1.0), f'{path}.spider_ratio', positive=True),
-        viscous=_number(el.get('viscous', 0.0), f'{path}.viscous', nonneg=True), limits=limits)
+        viscous=_number(el.get('viscous', 0.0), f'{path}.viscous', nonneg=True), limits=limits,
+        preload=_number(el.get('preload_nm', 0.0), f'{path}.preload_nm', nonneg=True, hi=1e6),
+        torque_bias=_number(el.get('torque_bias', 0.0), f'{path}.torque_bias', nonneg=True, hi=0.9),
+        static_ratio=_number(el.get('static_ratio', 1.0), f'{path}.static_ratio', lo=1.0, hi=10.0))
 
 
 def _vehicle(raw: Any) -> VehicleSpec:
@@ -698,21 +721,31 @@ def parse_scene(data: Any, *, source: str = '<dict>') -> Scene:
         check_layout(chain)
     check_hooke_phasing(chain)
     commands: tuple[Mapping[str, float], ...] = ()
+    flat = tuple(iter_elements(chain))
     if d.get('commands') is not None:
-        if tree:
-            raise SceneError('commands', 'a command schedule needs a chain scene for now (the '
-                                         'clutch, gearbox and brake modes are not in vehicle scenes yet)')
         from cvj_ros.physics.hybrid.scene_keys import parse_commands
-        commands = parse_commands(d['commands'], chain)
-    if commands or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES for el in chain):
+        commands = parse_commands(d['commands'], flat)
+    shift = None
+    if d.get('shift_schedule') is not None:
+        from cvj_ros.physics.hybrid.shift import check_no_gear_rows, parse_shift_schedule
+        if not tree:
+            raise SceneError('shift_schedule', 'runs on vehicle scenes (a vehicle: block) for now; '
+                                               'a chain scene shifts by gear rows in commands')
+        shift = parse_shift_schedule(d['shift_schedule'],
+                                     next((el for el in flat if getattr(el, 'type', '') == 'gearbox'),
+                                          None))
+        check_no_gear_rows(commands)
+    if commands or shift is not None or any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES
+                                            or getattr(el, 'kind', '') == 'clutch_pack'
+                                            for el in flat):
         from cvj_ros.physics.hybrid.scene_keys import check_mode_scene
-        check_mode_scene(chain, solver.method)
+        check_mode_scene(chain, solver.method, tree=tree)
     return Scene(name=name, description=description.strip(), seed=seed, duration=duration,
                  exchange_step=exchange_step, solver=solver, engine=dict(engine),
                  load=[dict(x) for x in load] if isinstance(load, list) else dict(load),
                  driveline=chain, initial_speed=speed, initial_angle=angle,
                  accuracy_target=target, sample_step=sample_step, source=source,
-                 vehicle=vehicle, commands=commands)
+                 vehicle=vehicle, commands=commands, shift_schedule=shift)
 
 
 def check_layout(chain: tuple[Element, ...]) -> None:
@@ -830,8 +863,21 @@ def check_tree(chain: tuple[Element, ...], vehicle: VehicleSpec) -> None:
 
     def walk(ch: tuple[Element, ...], path: str, has_inertia: bool) -> None:
         last = len(ch) - 1
+        if last > 0 and getattr(ch[last], 'type', '') == 'brake':
+            if not isinstance(ch[last - 1], Wheel):
+                raise SceneError(f'{path}[{last}].type', 'a brake follows the wheel it acts on')
+            last -= 1
         for i, el in enumerate(ch):
             p = f'{path}[{i}]'
+            etype = getattr(el, 'type', '')
+            if etype == 'brake' and i != last + 1:
+                raise SceneError(f'{p}.type', 'a brake follows the wheel it acts on, as the last '
+                                              'element of its chain')
+            if etype in ('clutch', 'gearbox') and path != 'driveline':
+                raise SceneError(f'{p}.type', f'a {etype} sits in the trunk (the top-level '
+                                              'driveline), before the differential')
+            if etype in ('clutch', 'gearbox'):
+                has_inertia = True
             if isinstance(el, (Wheel, Differential)) and i != last:
                 raise SceneError(f'{p}.type', f'a {el.type} must be the last element of its chain')
             if isinstance(el, Spring):

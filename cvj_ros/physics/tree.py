@@ -152,6 +152,7 @@ class TreeDriveline:
         self.wheels: list[_WheelInfo] = []
         self.shafts: list[Shaft] = []
         self.joint_models: dict[str, Any] = {}
+        self._lock_delta: dict[int, float] = {}     # locked differential -> its fixed delta (rad)
         self._n_coord = 0
         root = self._new_section(-1, -1, 0)
         self._add_chain(scene.driveline, root, 'driveline')
@@ -186,6 +187,9 @@ class TreeDriveline:
                    track_energy: bool = False) -> TreeDriveline:
         """Resolve fidelity (cvj_ros.physics.fidelity) and build; as Driveline.from_scene."""
         from cvj_ros.physics.fidelity import choose_fidelity
+        if scene.has_modes:      # clutch, gearbox, brakes, commands: cvj_ros.physics.hybrid
+            from cvj_ros.physics.hybrid.scene_keys import mode_gap
+            raise SceneError(*mode_gap(scene))
         report = choose_fidelity(scene, overrides=fidelity)
         dl = cls(scene, report.levels, track_energy=track_energy)
         dl.fidelity_report = report
@@ -241,10 +245,10 @@ class TreeDriveline:
                 axle = {'front': 1, 'rear': -1}.get(el.axle or '', 0)
                 self.sections[s].end = ('wheel', len(self.wheels))
                 self.wheels.append(_WheelInfo(el.name, s, tyre, el.load_share, axle))
+            elif getattr(el, 'type', '') in ('clutch', 'gearbox', 'brake'):
+                s = self._add_mode_element(el, s, p)
             elif isinstance(el, Differential):
-                model = DiffModel(kind=el.kind, ratio=el.ratio, J_carrier=el.J_carrier,
-                                  J_spider=el.J_spider, spider_ratio=el.spider_ratio,
-                                  viscous=el.viscous)
+                model = self._diff_model(el)
                 k = self._add_op(s, (0.0, _ratio_fn(1.0 / el.ratio)), el.name)
                 self.shafts.append(Shaft(f'{el.name}_input', s, k, 'input'))
                 k = self._add_op(s, (el.J_carrier, None), f'{el.name}_carrier')
@@ -265,6 +269,17 @@ class TreeDriveline:
                 for c, branch, bp in sides:
                     self._add_chain(branch, c, bp)
 
+    def _add_mode_element(self, el: Any, s: int, path: str) -> int:
+        """A clutch, gearbox or brake in section ``s``; returns the section the chain goes
+        on in. Only the mode-aware tree (cvj_ros.physics.hybrid.tree) takes them."""
+        raise SceneError(path, f'{el.type} {el.name!r}: stick/slip and gear modes run on the '
+                               'mode-aware reference (`cvj-sim simulate`), not here')
+
+    def _diff_model(self, el: Differential) -> DiffModel:
+        """The differential's model (the mode-aware tree maps a clutch pack to locked or open)."""
+        return DiffModel(kind=el.kind, ratio=el.ratio, J_carrier=el.J_carrier,
+                         J_spider=el.J_spider, spider_ratio=el.spider_ratio, viscous=el.viscous)
+
     def _make_groups(self) -> list[tuple[list[int], list[int]]]:
         """Per group: (its coordinates, its sections), sections in tree order."""
         group_of: list[int] = []
@@ -277,7 +292,7 @@ class TreeDriveline:
                 g = group_of[sec.parent]
                 group_of.append(g)
                 groups[g][1].append(s)
-                c = self.diffs[sec.diff].coord
+                c = self.diffs[sec.diff].coord if sec.diff >= 0 else -1
                 if c >= 0 and c not in groups[g][0]:
                     groups[g][0].append(c)
         self._group_of = group_of
@@ -295,7 +310,7 @@ class TreeDriveline:
                 local[c] = i
         self._sec_local = []
         for sec in self.sections:
-            if sec.parent < 0:
+            if sec.parent < 0 or sec.diff < 0:     # a root, or a locked link's output side
                 self._sec_local.append(-1)
             else:
                 c = self.diffs[sec.diff].coord
@@ -374,6 +389,8 @@ class TreeDriveline:
                     q[s] += sec.sign * xl[c]
                     qd[s] += sec.sign * xl[n + c]
                     row[i] += sec.sign
+                elif self._lock_delta and sec.diff in self._lock_delta:
+                    q[s] += sec.sign * self._lock_delta[sec.diff]   # a pack stuck at delta != 0
                 bias[s] = a_p * bias[p] + b_p * qd[p] * qd[p]
             rows[s] = row
             ends[s] = section_kinematics(ops[s], q[s])
@@ -669,6 +686,10 @@ class TreeDriveline:
             kind, idx = sec.end
             if kind == 'wheel':
                 t_end = fo.fx[idx] * self.wheels[idx].tyre.radius
+                if fo.wheel_extra:
+                    t_end += fo.wheel_extra[idx]
+            elif kind == 'link':
+                t_end = self._link_end_torque(idx, start_t, fo)
             elif kind == 'spring':
                 t_end = fo.spring_t[idx]
             elif kind == 'diff':
@@ -710,6 +731,10 @@ class TreeDriveline:
             pos[i], vel[i], eff[i] = phi, om, (0.0 if sh.role == 'mid' else tq)
         return pos, vel, eff, start_t
 
+    def _link_end_torque(self, idx: int, start_t: list[float], fo: _Forces) -> float:
+        """Torque at the end of a section ending in a mode link (mode-aware tree only)."""
+        raise NotImplementedError
+
     def section_start_torques(self, x: FloatArray, T_engine: float) -> list[float]:
         """Torque entering each section at its first shaft (N m), from the backward walk;
         the root's equals T_engine and a spring's right section's that spring's torque when
@@ -738,6 +763,7 @@ class _Forces:
     omega: list[float]
     p_damp: float
     p_slip: float
+    wheel_extra: list[float] = field(default_factory=list)   # brake torque per wheel (N m)
 
 
 def _iter(chain: tuple[Any, ...]) -> Any:

@@ -15,7 +15,10 @@ from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes
 @pytest.mark.parametrize('name', sorted(shipped_scenes()))
 def test_shipped_scenes_have_unique_shaft_names(name: str) -> None:
     sc = load_scene(shipped_scenes()[name])
-    if sc.has_modes:     # clutch, gearbox, brake: the mode-aware chain names the shafts
+    if sc.has_modes and sc.is_tree:   # clutch, gearbox, brakes on a vehicle: the mode-aware tree
+        from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+        names = hybrid_simulation(sc).shaft_names
+    elif sc.has_modes:   # clutch, gearbox, brake: the mode-aware chain names the shafts
         from cvj_ros.physics.hybrid import HybridChain
         names = list(HybridChain(sc.driveline).shafts)
     else:

@@ -60,16 +60,22 @@ class Boundary:
 @dataclass
 class Mode:
     """Discrete state: clutch modes (name -> -1/0/+1), gears (name -> gear, 0 neutral),
-    brake mode (None without brake) and the coupling offsets of locked boundaries (rad)."""
+    brake mode (None without brake), the coupling offsets of locked boundaries (rad) and,
+    on a vehicle tree, each wheel brake's mode (name -> -1/0/+1; the chain's single
+    output-shaft brake uses ``brake``) and each clutch-pack differential's (name -> -1/0/+1;
+    its fixed delta when stuck in ``offsets`` under the key -(differential index + 1))."""
 
     clutch: dict[str, int] = field(default_factory=dict)
     gear: dict[str, int] = field(default_factory=dict)
     brake: int | None = None
     offsets: dict[int, float] = field(default_factory=dict)
+    brakes: dict[str, int] = field(default_factory=dict)
+    packs: dict[str, int] = field(default_factory=dict)
 
     def copy(self) -> Mode:
         return replace(self, clutch=dict(self.clutch), gear=dict(self.gear),
-                       offsets=dict(self.offsets))
+                       offsets=dict(self.offsets), brakes=dict(self.brakes),
+                       packs=dict(self.packs))
 
 
 @dataclass

@@ -114,20 +114,27 @@ def parse_commands(raw: Any, chain: Sequence[Any]) -> tuple[dict[str, float], ..
 def mode_gap(scene: Any) -> tuple[str, str]:
     """(field, one-line reason) why ``scene`` (``has_modes``) cannot run on the compiled
     kernel, Driveline, a sweep or a ROS run yet."""
-    for i, el in enumerate(scene.driveline):
-        if getattr(el, 'type', '') in MODE_TYPES:
-            return (f'driveline[{i}]', f'{el.type} {el.name!r}: stick/slip modes are not compiled and '
+    from cvj_ros.physics.scene import _paths
+    for path, el in _paths(scene.driveline):
+        if getattr(el, 'type', '') in MODE_TYPES or getattr(el, 'kind', '') == 'clutch_pack':
+            what = 'clutch-pack differential' if getattr(el, 'kind', '') == 'clutch_pack' else el.type
+            return (path, f'{what} {el.name!r}: stick/slip modes are not compiled and '
                     f'have no ROS nodes yet; run it offline with `cvj-sim simulate` (Python reference)')
+    if getattr(scene, 'shift_schedule', None) is not None:
+        return ('shift_schedule', 'a shift schedule runs offline only (`cvj-sim simulate`, Python '
+                                  'reference) until the driver node exists')
     return ('commands', 'a command schedule runs offline only (`cvj-sim simulate`, Python reference) '
                         'until the driver node exists')
 
 
-def check_mode_scene(chain: Sequence[Any], method: str) -> None:
+def check_mode_scene(chain: Sequence[Any], method: str, *, tree: bool = False) -> None:
     """A scene with mode elements or commands: its chain splits into valid segments
-    (HybridChain) and its solver has dense output (SceneError naming the field)."""
+    (HybridChain; a vehicle tree's layout is checked by check_tree and ModeTree) and its
+    solver has dense output (SceneError naming the field)."""
     from cvj_ros.physics.hybrid.chain import HybridChain
     if method not in DENSE_METHODS:
         raise SceneError('solver.method', f'a scene with clutch, gearbox, brake or commands needs an '
                                           f'adaptive method with dense output ({", ".join(DENSE_METHODS)}), '
                                           f'got {method!r}')
-    HybridChain(chain)
+    if not tree:
+        HybridChain(chain)

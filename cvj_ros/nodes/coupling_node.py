@@ -322,11 +322,13 @@ class CouplingNode(CvjNode):
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
         # per-exchange joint state (intermediate members filled) and reaction wrenches:
-        # compiled when the stepper runs the kernel, else the Python reference
+        # compiled when the stepper runs the kernel, else the Python reference; outside
+        # wheel loads run the Python stepper (no kernel input) but a compiled joint state
         from cvj_ros.physics.state_outputs import make_state_outputs
         self.outputs = make_state_outputs(
             self.driveline, self.reaction_joints,
-            compiled=getattr(self.stepper, 'backend', 'python') == 'kernel')
+            compiled=(getattr(self.stepper, 'backend', 'python') == 'kernel'
+                      or getattr(self.driveline, 'wheel_torques', None) is not None))
 
         # loop state
         self.k = 0

@@ -403,6 +403,14 @@ class CouplingNode(CvjNode):
                 raise ParameterError('wheel_load', 'external needs a vehicle scene (wheels); '
                                      'a chain takes its outside load on /load/wrench')
             driveline.set_wheel_torques([0.0] * driveline.n_wheel)   # Python stepper
+        rhs_model = driveline
+        if p['wheel_load'] == 'external':
+            # the Python stepper on the compiled right-hand side with the wheel torques
+            from cvj_ros.physics.kernel.tree_wheel_rhs import CompiledWheelLoadRhs
+            try:
+                rhs_model = CompiledWheelLoadRhs(driveline)
+            except NotImplementedError:
+                pass
         method = p['solver'] or scene.solver.method
         rtol = p['rtol'] or scene.solver.rtol
         atol = p['atol'] or scene.solver.atol
@@ -410,7 +418,7 @@ class CouplingNode(CvjNode):
         h_fixed = scene.solver.h or self.h_ns / NS_PER_S
         try:
             # Torque messages carry no slope: linear_implicit estimates it by least squares.
-            stepper = CoupledStepper(driveline, scheme=self.scheme, method=method, rtol=rtol, atol=atol,
+            stepper = CoupledStepper(rhs_model, scheme=self.scheme, method=method, rtol=rtol, atol=atol,
                                      h=h_fixed if method in ('rk4', 'ros2') else scene.solver.h,
                                      slope='estimate' if self.scheme == 'linear_implicit' else 'reported')
         except CvjError as exc:

@@ -23,11 +23,12 @@ from numba import njit
 from cvj_ros.physics.kernel import rhs_nb as _rhs
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
-    H_NDOF, H_SPRING_F, H_TREE, OP_INERTIA, SEC_STRIDE, SPRING_STRIDE, TB_BODY_F, TB_DIFF,
+    H_ENERGY, H_NDOF, H_SPRING_F, H_TREE, OP_INERTIA, SEC_STRIDE, SPRING_STRIDE, TB_BODY_F, TB_DIFF,
     TB_GRP, TB_KMAX, TB_ND, TB_NG, TB_NS, TB_NSPR, TB_NW, TB_OPS, TB_SEC, TB_SPR, TB_WHEEL)
 from cvj_ros.physics.kernel.outputs_nb import fill_mid_one
 
-__all__ = ['END_NONE', 'END_WHEEL', 'END_SPRING', 'END_DIFF', 'tree_tables', 'tree_joint_state']
+__all__ = ['END_NONE', 'END_WHEEL', 'END_SPRING', 'END_DIFF', 'tree_tables', 'tree_joint_state',
+           'tree_rhs_wheels']
 
 END_NONE, END_WHEEL, END_SPRING, END_DIFF = 0, 1, 2, 3
 
@@ -63,14 +64,23 @@ def tree_tables(dl: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
-def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel, eff):
-    """Shaft positions (rad), speeds (rad/s) and torques (N m) of state y into pos/vel/eff
-    (rows of ``tab``) for engine torque ``te`` (N m); ``ext`` != 0: wheel i's tyre is
-    replaced by the resisting torque wheel_t[i] (N m). Intermediate members of ``mtab``
-    filled. Returns False (outputs untouched) when y is not finite."""
-    for i in range(y.shape[0]):
-        if not np.isfinite(y[i]):
-            return False
+def sa_width(ip):
+    """Positions of the longest section: its kernel ops + 1."""
+    tb = ip[H_TREE]
+    sec = ip[tb + TB_SEC]
+    maxp = 1
+    for s in range(ip[tb + TB_NS]):
+        o = sec + SEC_STRIDE * s
+        maxp = max(maxp, ip[o + 1] - ip[o] + 1)
+    return maxp
+
+
+@njit(cache=True)
+def _tree_dynamics(y, ip, fp, te, ext, wheel_t):
+    """Kinematics (per section q, qdot, rows r_s, bias k_s, M_s, C_s; per position phi, a,
+    b; per op its ratio), forces (spring torques, F_x per wheel, damping and slip power) and
+    the accelerations uddot of state y at engine torque ``te`` (TreeDriveline._kinematics,
+    _forces, _accelerations; ``ext`` != 0: F_x = wheel_t[i] / r)."""
     n = ip[H_NDOF]
     tb = ip[H_TREE]
     ns = ip[tb + TB_NS]
@@ -78,10 +88,7 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
     kmax = ip[tb + TB_KMAX]
     sec = ip[tb + TB_SEC]
     ops = ip[tb + TB_OPS]
-    maxp = 1
-    for s in range(ns):
-        o = sec + SEC_STRIDE * s
-        maxp = max(maxp, ip[o + 1] - ip[o] + 1)
+    maxp = sa_width(ip)
     q = np.zeros(ns)
     qd = np.zeros(ns)
     bias = np.zeros(ns)
@@ -140,6 +147,7 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
         c_s[s] = cc
     # generalised forces (tree.TreeDriveline._forces)
     qf[0] += te
+    p_damp = 0.0
     spr = ip[tb + TB_SPR]
     sp0 = ip[H_SPRING_F]
     nspr = ip[tb + TB_NSPR]
@@ -151,7 +159,8 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
         a_l = sa[left, pe]
         th = sphi[left, pe] - q[right]
         thd = a_l * qd[left] - qd[right]
-        ts = _rhs.spring_eval(th, thd, fp, sp0 + SPRING_STRIDE * k)[0]
+        ts, _k, _kd, pd = _rhs.spring_eval(th, thd, fp, sp0 + SPRING_STRIDE * k)
+        p_damp += pd
         spring_t[k] = ts
         qf[left] -= ts * a_l
         qf[right] += ts
@@ -165,6 +174,7 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
         if tbias != 0.0:
             qf[left] -= tbias
             qf[right] += tbias
+            p_damp += tbias * slip
     v = y[2 * n + nw]
     whl = ip[tb + TB_WHEEL]
     bf = ip[tb + TB_BODY_F]
@@ -204,6 +214,8 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
         for i in range(nw):
             wf = ip[whl + 2 * i + 1]
             fz[i] = fzf * fp[wf + 6] / sf if fp[wf + 7] > 0.0 else fzr * fp[wf + 6] / sr_
+    sum_fx = 0.0
+    p_slip = 0.0
     for i in range(nw):
         s = ip[whl + 2 * i]
         wf = ip[whl + 2 * i + 1]
@@ -217,7 +229,10 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
             f = fp[wf] * fz[i] * math.sin(fp[wf + 3] * math.atan(x))
         fx[i] = f
         pe = ip[sec + SEC_STRIDE * s + 1] - ip[sec + SEC_STRIDE * s]
-        qf[s] -= f * r * sa[s, pe]
+        a_w = sa[s, pe]
+        qf[s] -= f * r * a_w
+        p_slip += f * (a_w * qd[s] * r - v)
+        sum_fx += f
     # accelerations, group by group (tree._accelerations); each section's group columns
     acc = np.zeros(max(n, 1))
     g_cs = np.zeros(ns, dtype=np.int64)
@@ -288,6 +303,64 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
             xx[i] = a_ / ll[i, i]
         for i in range(k):
             acc[ip[cs + i]] = xx[i]
+    res = roll + fp[bf + 3] + fp[bf + 4] * v * abs(v)
+    return (q, qd, rows, bias, sphi, sa, sb, sr, acc, g_cs, g_k, spring_t, fx, p_damp, p_slip,
+            sum_fx, res)
+
+
+@njit(cache=True)
+def tree_rhs_wheels(t, y, ip, fp, te, wheel_t, dy):
+    """dy/dt (in place) of a vehicle scene's state y (tree.py: [u, udot, kappa', v, work])
+    with engine torque ``te`` and every tyre replaced by its outside resisting torque
+    wheel_t[i] (N m): TreeDriveline.rhs under set_wheel_torques, in its order of operations
+    (kernel/tree_nb.tree_rhs with F_x = T_w / r)."""
+    n = ip[H_NDOF]
+    tb = ip[H_TREE]
+    nw = ip[tb + TB_NW]
+    sec = ip[tb + TB_SEC]
+    (_q, qd, _rows, _bias, _sphi, sa, _sb, _sr, acc, _gcs, _gk, _spt, _fx, p_damp, p_slip,
+     sum_fx, res) = _tree_dynamics(y, ip, fp, te, 1, wheel_t)
+    for i in range(n):
+        dy[i] = y[n + i]
+        dy[n + i] = acc[i]
+    iv = 2 * n + nw
+    v = y[iv]
+    whl = ip[tb + TB_WHEEL]
+    for i in range(nw):
+        s = ip[whl + 2 * i]
+        wf = ip[whl + 2 * i + 1]
+        pe = ip[sec + SEC_STRIDE * s + 1] - ip[sec + SEC_STRIDE * s]
+        om = sa[s, pe] * qd[s]
+        kap = y[2 * n + i]
+        dy[2 * n + i] = (om * fp[wf + 1] - v - abs(v) * kap) / fp[wf + 5]
+    bf = ip[tb + TB_BODY_F]
+    dy[iv] = (sum_fx - res) / fp[bf]
+    if ip[H_ENERGY] != 0:
+        dy[iv + 1] = te * y[n + ip[sec + 5]]
+        dy[iv + 2] = p_damp
+        dy[iv + 3] = p_slip
+        dy[iv + 4] = res * v
+
+
+@njit(cache=True)
+def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel, eff):
+    """Shaft positions (rad), speeds (rad/s) and torques (N m) of state y into pos/vel/eff
+    (rows of ``tab``) for engine torque ``te`` (N m); ``ext`` != 0: wheel i's tyre is
+    replaced by the resisting torque wheel_t[i] (N m). Intermediate members of ``mtab``
+    filled. Returns False (outputs untouched) when y is not finite."""
+    for i in range(y.shape[0]):
+        if not np.isfinite(y[i]):
+            return False
+    n = ip[H_NDOF]
+    tb = ip[H_TREE]
+    ns = ip[tb + TB_NS]
+    sec = ip[tb + TB_SEC]
+    ops = ip[tb + TB_OPS]
+    dif = ip[tb + TB_DIFF]
+    whl = ip[tb + TB_WHEEL]
+    maxp = sa_width(ip)
+    (q, qd, rows, bias, sphi, sa, sb, sr, acc, g_cs, g_k, spring_t, fx, _pd, _ps,
+     _sfx, _res) = _tree_dynamics(y, ip, fp, te, ext, wheel_t)
     # backward walk, deepest section first, from each section's end torque
     start_t = np.zeros(ns)
     st_tq = np.zeros((ns, maxp))

@@ -2,7 +2,7 @@
 shaft's angle rad, speed rad/s, torque N m, intermediate members filled) and the reaction
 wrench of every joint that has one (housing frame, ``cvj_ros/physics/joints/wrench.py``).
 
-Two implementations of one interface, chosen by :func:`make_state_outputs`:
+Implementations of one interface, chosen by :func:`make_state_outputs`:
 
 * :class:`PythonStateOutputs`: ``Driveline.joint_states_fast`` + ``fill_mid``,
   ``Driveline.reactions`` + ``wrench_from_reactions`` - the readable reference (oracle).
@@ -11,6 +11,8 @@ Two implementations of one interface, chosen by :func:`make_state_outputs`:
   in ``kernel/reactions_nb.py``), one call each. A member or joint without a compiled form
   stays on the Python formula (the rest is compiled); a compiled tripod Newton that fails
   hands that sample to the Python model, which raises its own SolverError.
+* :class:`TreeKernelStateOutputs`: a vehicle scene's joint state (``TreeDriveline._walk``
+  over every branch) compiled in ``kernel/tree_outputs_nb.py``; no reaction wrenches.
 
 Measured per call (this machine, load average 2.8, one run): kavz685_lever joint state
 77 -> 3.5 us, reaction wrench 17 -> 1.7 us; fwd_halfshaft joint state 309 -> 7.7 us (of it

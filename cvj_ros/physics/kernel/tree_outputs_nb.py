@@ -28,7 +28,7 @@ from cvj_ros.physics.kernel.layout import (
 from cvj_ros.physics.kernel.outputs_nb import fill_mid_one
 
 __all__ = ['END_NONE', 'END_WHEEL', 'END_SPRING', 'END_DIFF', 'tree_tables', 'tree_joint_state',
-           'tree_rhs_wheels']
+           'tree_rhs_wheels', 'tree_sample']
 
 END_NONE, END_WHEEL, END_SPRING, END_DIFF = 0, 1, 2, 3
 
@@ -37,7 +37,11 @@ def tree_tables(dl: Any) -> tuple[np.ndarray, np.ndarray]:
     """(shaft table (n_shafts, 3) int64: section, position in the section's kernel ops
     (0 = start, k + 1 = after op k), 1 = 'mid'; section ends (n_sections, 2) int64: END_*
     code, index of the wheel / spring / differential). NotImplementedError for what the walk
-    does not cover (a joint of several kernel stages, a mode link)."""
+    does not cover (the mode-aware tree's links and stuck packs, a joint of several kernel
+    stages)."""
+    from cvj_ros.physics.tree import TreeDriveline
+    if type(dl) is not TreeDriveline:
+        raise NotImplementedError(f'compiled tree outputs: {type(dl).__name__}')
     rows = []
     for sh in dl.shafts:
         sec = dl.sections[sh.section]
@@ -305,7 +309,7 @@ def _tree_dynamics(y, ip, fp, te, ext, wheel_t):
             acc[ip[cs + i]] = xx[i]
     res = roll + fp[bf + 3] + fp[bf + 4] * v * abs(v)
     return (q, qd, rows, bias, sphi, sa, sb, sr, acc, g_cs, g_k, spring_t, fx, p_damp, p_slip,
-            sum_fx, res)
+            sum_fx, res, fz)
 
 
 @njit(cache=True)
@@ -319,7 +323,7 @@ def tree_rhs_wheels(t, y, ip, fp, te, wheel_t, dy):
     nw = ip[tb + TB_NW]
     sec = ip[tb + TB_SEC]
     (_q, qd, _rows, _bias, _sphi, sa, _sb, _sr, acc, _gcs, _gk, _spt, _fx, p_damp, p_slip,
-     sum_fx, res) = _tree_dynamics(y, ip, fp, te, 1, wheel_t)
+     sum_fx, res, _fz) = _tree_dynamics(y, ip, fp, te, 1, wheel_t)
     for i in range(n):
         dy[i] = y[n + i]
         dy[n + i] = acc[i]
@@ -343,15 +347,9 @@ def tree_rhs_wheels(t, y, ip, fp, te, wheel_t, dy):
 
 
 @njit(cache=True)
-def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel, eff):
-    """Shaft positions (rad), speeds (rad/s) and torques (N m) of state y into pos/vel/eff
-    (rows of ``tab``) for engine torque ``te`` (N m); ``ext`` != 0: wheel i's tyre is
-    replaced by the resisting torque wheel_t[i] (N m). Intermediate members of ``mtab``
-    filled. Returns False (outputs untouched) when y is not finite."""
-    for i in range(y.shape[0]):
-        if not np.isfinite(y[i]):
-            return False
-    n = ip[H_NDOF]
+def _walk(y, ip, fp, te, ext, wheel_t, tab, ends, pos, vel, eff):
+    """The backward walk into pos/vel/eff (members left as their joint's input); returns
+    _tree_dynamics' F_x and F_z per wheel."""
     tb = ip[H_TREE]
     ns = ip[tb + TB_NS]
     sec = ip[tb + TB_SEC]
@@ -360,7 +358,7 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
     whl = ip[tb + TB_WHEEL]
     maxp = sa_width(ip)
     (q, qd, rows, bias, sphi, sa, sb, sr, acc, g_cs, g_k, spring_t, fx, _pd, _ps,
-     _sfx, _res) = _tree_dynamics(y, ip, fp, te, ext, wheel_t)
+     _sfx, _res, fz) = _tree_dynamics(y, ip, fp, te, ext, wheel_t)
     # backward walk, deepest section first, from each section's end torque
     start_t = np.zeros(ns)
     st_tq = np.zeros((ns, maxp))
@@ -398,5 +396,38 @@ def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel
         pos[i] = sphi[s, pp]
         vel[i] = sa[s, pp] * qd[s]
         eff[i] = 0.0 if tab[i, 2] == 1 else st_tq[s, pp]
+    return fx, fz
+
+
+@njit(cache=True)
+def tree_joint_state(y, ip, fp, te, ext, wheel_t, tab, ends, mtab, mfp, pos, vel, eff):
+    """Shaft positions (rad), speeds (rad/s) and torques (N m) of state y into pos/vel/eff
+    (rows of ``tab``) for engine torque ``te`` (N m); ``ext`` != 0: wheel i's tyre is
+    replaced by the resisting torque wheel_t[i] (N m). Intermediate members of ``mtab``
+    filled. Returns False (outputs untouched) when y is not finite."""
+    for i in range(y.shape[0]):
+        if not np.isfinite(y[i]):
+            return False
+    _walk(y, ip, fp, te, ext, wheel_t, tab, ends, pos, vel, eff)
     fill_mid_one(pos, vel, mtab, mfp)
     return True
+
+
+@njit(cache=True)
+def tree_sample(y, ip, fp, te, wheel_t, tab, ends, pos, vel, eff, wheels):
+    """One offline sample of a vehicle scene (TreeDriveline.sample_outputs with the tyres):
+    pos/vel/eff as :func:`tree_joint_state` with members left as their joint's input, per
+    wheel i ``wheels[i]`` = (relaxed slip, F_x N, F_z N, status: 0 ok, 1 no load F_z <= 0);
+    returns sum F_x r (N m). ``y`` must be finite (the caller checks)."""
+    fx, fz = _walk(y, ip, fp, te, 0, wheel_t, tab, ends, pos, vel, eff)
+    tb = ip[H_TREE]
+    n = ip[H_NDOF]
+    whl = ip[tb + TB_WHEEL]
+    tl = 0.0
+    for i in range(ip[tb + TB_NW]):
+        tl += fx[i] * fp[ip[whl + 2 * i + 1] + 1]
+        wheels[i, 0] = y[2 * n + i]
+        wheels[i, 1] = fx[i]
+        wheels[i, 2] = fz[i]
+        wheels[i, 3] = 0.0 if fz[i] > 0.0 else 1.0
+    return tl

@@ -29,7 +29,8 @@ class CompiledWheelLoadRhs:
         from cvj_ros.physics.kernel import entry_point
         from cvj_ros.physics.kernel import tree_outputs_nb as TO
         from cvj_ros.physics.kernel.layout import build_model
-        if not getattr(driveline, 'is_tree', False):
+        from cvj_ros.physics.tree import TreeDriveline
+        if type(driveline) is not TreeDriveline:      # not the mode-aware tree either
             raise NotImplementedError('compiled wheel loads: a vehicle scene only')
         held, driveline.wheel_torques = driveline.wheel_torques, None
         try:

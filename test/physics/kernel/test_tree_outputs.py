@@ -157,3 +157,41 @@ def test_coupled_stepper_on_the_compiled_wheel_load_rhs_steps_as_the_reference()
         xb = np.asarray(b.advance((k + 1) * 1e-3, 140.0, 0.0))
         err = np.abs(xa - xb) / np.maximum(1.0, np.abs(xb))
         assert float(np.max(err)) <= TOL, k
+
+
+# --- offline samples (kernel/tree_samples.py through Simulation.run) -------------------------
+
+def _trace(name: str, compiled: bool, monkeypatch: Any) -> Any:
+    from cvj_ros.physics.kernel import tree_samples
+    from cvj_ros.physics.simulate import Simulation
+    if not compiled:
+        def refuse(_dl: Any) -> None:
+            raise NotImplementedError('the Python samples')
+        monkeypatch.setattr(tree_samples, 'TreeKernelSamples', refuse)
+    sim = Simulation(load_scene(shipped_scenes()[name]))
+    assert sim.backend == 'kernel'
+    trace = sim.run(0.05, sample_dt=1e-3)
+    monkeypatch.undo()
+    return trace
+
+
+@pytest.mark.parametrize('name', VEHICLE_SCENES)
+def test_compiled_samples_of_a_vehicle_run_equal_the_python_samples(name: str, monkeypatch) -> None:
+    """Simulation.run on the kernel: every sampled array and wheel channel from the compiled
+    walk against the same run sampled by TreeDriveline.sample_outputs (bound as above;
+    NaN residuals where no work integrals are kept)."""
+    from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
+    TreeKernelSamples(TreeDriveline.from_scene(load_scene(shipped_scenes()[name])))  # covered
+    got = _trace(name, True, monkeypatch)
+    want = _trace(name, False, monkeypatch)
+    pairs = [('position', got.position, want.position), ('velocity', got.velocity, want.velocity),
+             ('effort', got.effort, want.effort), ('engine', got.engine_torque, want.engine_torque),
+             ('load', got.load_torque, want.load_torque),
+             ('residual', got.energy_residual, want.energy_residual)]
+    assert sorted(got.channels) == sorted(want.channels)
+    pairs += [(k, got.channels[k], want.channels[k]) for k in want.channels]
+    for key, a, b in pairs:
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        ok = ~np.isnan(b)
+        err = np.abs(a[ok] - b[ok]) / np.maximum(1.0, np.abs(b[ok]))
+        assert err.size == 0 or float(np.max(err)) <= TOL, key

@@ -195,3 +195,20 @@ def test_compiled_samples_of_a_vehicle_run_equal_the_python_samples(name: str, m
         ok = ~np.isnan(b)
         err = np.abs(a[ok] - b[ok]) / np.maximum(1.0, np.abs(b[ok]))
         assert err.size == 0 or float(np.max(err)) <= TOL, key
+
+
+def test_a_tree_subclass_such_as_the_mode_aware_tree_stays_on_the_python_path() -> None:
+    """The compiled walk has no mode links or stuck packs: a subclass of TreeDriveline (the
+    mode-aware tree is one) is refused by every compiled tree path, and the node's outputs
+    fall back to the Python reference."""
+    from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
+    from cvj_ros.physics.kernel.tree_wheel_rhs import CompiledWheelLoadRhs
+
+    class Sub(TreeDriveline):
+        pass
+    dl = Sub.from_scene(load_scene(shipped_scenes()['fwd_axle']))
+    for build in (lambda: TreeKernelStateOutputs(dl, []), lambda: TreeKernelSamples(dl),
+                  lambda: CompiledWheelLoadRhs(dl)):
+        with pytest.raises(NotImplementedError):
+            build()
+    assert isinstance(make_state_outputs(dl, [], compiled=True), PythonStateOutputs)

@@ -359,11 +359,13 @@ class CouplingNode(CvjNode):
         self.raw_publication = (self._js_cdr.ok and self._clock_cdr.ok
                                 and all(e.ok for e in self._reaction_cdr.values()))
         # per-exchange joint state (intermediate members filled) and reaction wrenches:
-        # compiled when the stepper runs the kernel, else the Python reference
+        # compiled when the stepper runs the kernel, else the Python reference; outside
+        # wheel loads run the Python stepper (no kernel input) but a compiled joint state
         from cvj_ros.physics.state_outputs import make_state_outputs
         self.outputs = getattr(self.driveline, 'state_outputs', None) or make_state_outputs(
             self.driveline, self.reaction_joints,
-            compiled=getattr(self.stepper, 'backend', 'python') == 'kernel')
+            compiled=(getattr(self.stepper, 'backend', 'python') == 'kernel'
+                      or getattr(self.driveline, 'wheel_torques', None) is not None))
         # commands (clutch, gear, brake, throttle) of a mode scene: cvj_ros.nodes.command_inbox
         self.hybrid = getattr(self.driveline, 'hybrid', None)
         self.commands: Any = None
@@ -460,6 +462,14 @@ class CouplingNode(CvjNode):
                 raise ParameterError('wheel_load', 'external needs a vehicle scene (wheels); '
                                      'a chain takes its outside load on /load/wrench')
             driveline.set_wheel_torques([0.0] * driveline.n_wheel)   # Python stepper
+        rhs_model = driveline
+        if p['wheel_load'] == 'external':
+            # the Python stepper on the compiled right-hand side with the wheel torques
+            from cvj_ros.physics.kernel.tree_wheel_rhs import CompiledWheelLoadRhs
+            try:
+                rhs_model = CompiledWheelLoadRhs(driveline)
+            except NotImplementedError:
+                pass
         method = p['solver'] or scene.solver.method
         rtol = p['rtol'] or scene.solver.rtol
         atol = p['atol'] or scene.solver.atol
@@ -467,7 +477,7 @@ class CouplingNode(CvjNode):
         h_fixed = scene.solver.h or self.h_ns / NS_PER_S
         try:
             # Torque messages carry no slope: linear_implicit estimates it by least squares.
-            stepper = CoupledStepper(driveline, scheme=self.scheme, method=method, rtol=rtol, atol=atol,
+            stepper = CoupledStepper(rhs_model, scheme=self.scheme, method=method, rtol=rtol, atol=atol,
                                      h=h_fixed if method in ('rk4', 'ros2') else scene.solver.h,
                                      slope='estimate' if self.scheme == 'linear_implicit' else 'reported')
         except CvjError as exc:

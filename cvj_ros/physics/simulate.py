@@ -646,8 +646,8 @@ class Simulation:
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
         """:meth:`run` step by step with the outputs computed in Python: the Python
         reference's run, and a vehicle scene's on the kernel (compiled stepper and right-hand
-        side, kernel/tree_nb.py; the joint states, wheel channels and energy from the same
-        Python code as the reference)."""
+        side, kernel/tree_nb.py; the joint states and wheel channels from the compiled walk
+        of kernel/tree_samples.py, the energy residual from the reference's Python)."""
         dl = self.driveline
         x0 = dl.x0.copy()
         stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
@@ -675,11 +675,27 @@ class Simulation:
         wheel_cols = [[channels[f'{w.name}.{q}'] for q in ('slip', 'fx', 'fz', 'status')]
                       for w in dl.wheels] if channels else []
         e_torque = self.engine.torque
+        samples = None
+        if channels and self.backend == 'kernel':   # the compiled walk, same numbers
+            from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
+            try:
+                samples = TreeKernelSamples(dl)
+            except NotImplementedError:
+                pass
 
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
             if not np.all(np.isfinite(x)):
                 raise SolverError(f'state became non-finite at t = {tk:g} s')
+            if samples is not None:
+                te[k], tl[k], res[k], wheels = samples(tk, x, e_torque, e0, pos[k], vel[k], eff[k])
+                channels['vehicle_speed'][k] = dl.vehicle_speed(x)
+                for cols, values in zip(wheel_cols, wheels):
+                    for col, value in zip(cols, values):
+                        col[k] = value
+                if progress is not None:
+                    progress(tk)
+                return
             if channels:    # a vehicle scene: one kinematics and force pass per sample
                 te[k], tl[k], pos[k], vel[k], eff[k], res[k], wheels = dl.sample_outputs(
                     tk, x, e_torque, e0)

@@ -2,7 +2,7 @@
 shaft's angle rad, speed rad/s, torque N m, intermediate members filled) and the reaction
 wrench of every joint that has one (housing frame, ``cvj_ros/physics/joints/wrench.py``).
 
-Two implementations of one interface, chosen by :func:`make_state_outputs`:
+Implementations of one interface, chosen by :func:`make_state_outputs`:
 
 * :class:`PythonStateOutputs`: ``Driveline.joint_states_fast`` + ``fill_mid``,
   ``Driveline.reactions`` + ``wrench_from_reactions`` - the readable reference (oracle).
@@ -11,6 +11,8 @@ Two implementations of one interface, chosen by :func:`make_state_outputs`:
   in ``kernel/reactions_nb.py``), one call each. A member or joint without a compiled form
   stays on the Python formula (the rest is compiled); a compiled tripod Newton that fails
   hands that sample to the Python model, which raises its own SolverError.
+* :class:`TreeKernelStateOutputs`: a vehicle scene's joint state (``TreeDriveline._walk``
+  over every branch) compiled in ``kernel/tree_outputs_nb.py``; no reaction wrenches.
 
 Measured per call (this machine, load average 2.8, one run): kavz685_lever joint state
 77 -> 3.5 us, reaction wrench 17 -> 1.7 us; fwd_halfshaft joint state 309 -> 7.7 us (of it
@@ -181,12 +183,72 @@ class KernelStateOutputs:
         return wrench_from_reactions(self._kind[joint], values) if values else None
 
 
-def make_state_outputs(driveline: Any, joints: list[str], *, compiled: bool) -> StateOutputs:
-    """:class:`KernelStateOutputs` when ``compiled`` (the stepper runs the kernel) and the
-    driveline packs into kernel data, else :class:`PythonStateOutputs` (always for a vehicle
-    scene's TreeDriveline: its walk over the branches has no compiled form yet)."""
-    if compiled and not getattr(driveline, 'is_tree', False):
+class TreeKernelStateOutputs:
+    """Compiled joint state of a vehicle scene's TreeDriveline (``kernel/tree_outputs_nb.py``:
+    ``TreeDriveline._walk`` on the kernel's tree tables, members by ``fill_mid_one``), with
+    the driveline's outside wheel torques (``set_wheel_torques``) read at every call. The
+    tree gives no reaction wrenches (``joints`` must be empty). Building it compiles or
+    loads the numba function and evaluates once."""
+
+    backend = 'kernel'
+
+    def __init__(self, driveline: Any, joints: list[str]) -> None:
+        from cvj_ros.physics.kernel import entry_point
+        from cvj_ros.physics.kernel import outputs_nb as O
+        from cvj_ros.physics.kernel import tree_outputs_nb as TO
+        from cvj_ros.physics.kernel.layout import build_model
+        if joints:
+            raise NotImplementedError('compiled tree outputs: reaction wrenches')
+        self.driveline = driveline
+        self.joints: list[str] = []
+        # the tables only: outside wheel torques come with each call, not from the model
+        held, driveline.wheel_torques = driveline.wheel_torques, None
         try:
+            self.model = build_model(driveline)
+        finally:
+            driveline.wheel_torques = held
+        self._tab, self._ends = TO.tree_tables(driveline)
+        self._mtab, self._mfp, self._mid_python = O.mid_table(driveline)
+        self._n = len(driveline.shaft_names)
+        self._wheel_t = np.zeros(max(driveline.n_wheel, 1))
+        x0 = np.array(driveline.x0, dtype=np.float64)
+        n = self._n
+        self._fn = entry_point(TO.tree_joint_state,
+                               (x0, self.model.ip, self.model.fp, 0.0, 0, self._wheel_t, self._tab,
+                                self._ends, self._mtab, self._mfp, np.empty(n), np.empty(n),
+                                np.empty(n)))
+        self.joint_states(x0, 0.0, 0.0)
+
+    def joint_states(self, x: FloatArray, T_engine: float, T_load: float
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        pos = np.empty(self._n)
+        vel = np.empty(self._n)
+        eff = np.empty(self._n)
+        outside = self.driveline.wheel_torques
+        if outside is not None:
+            self._wheel_t[:len(outside)] = outside
+        y = np.ascontiguousarray(x, dtype=np.float64)
+        if not self._fn(y, self.model.ip, self.model.fp, float(T_engine), 0 if outside is None else 1,
+                        self._wheel_t, self._tab, self._ends, self._mtab, self._mfp, pos, vel, eff):
+            return PythonStateOutputs(self.driveline, self.joints).joint_states(x, T_engine, T_load)
+        if self._mid_python:
+            self.driveline.fill_mid(pos[None, :], vel[None, :], members=self._mid_python)
+        return pos, vel, eff
+
+    def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
+                 joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
+        return {}
+
+
+def make_state_outputs(driveline: Any, joints: list[str], *, compiled: bool) -> StateOutputs:
+    """When ``compiled`` (the stepper runs the kernel, or a vehicle scene with outside wheel
+    loads) and the driveline packs into kernel data: :class:`KernelStateOutputs`, for a
+    vehicle scene's TreeDriveline :class:`TreeKernelStateOutputs`; else
+    :class:`PythonStateOutputs`."""
+    if compiled:
+        try:
+            if getattr(driveline, 'is_tree', False):
+                return TreeKernelStateOutputs(driveline, joints)
             return KernelStateOutputs(driveline, joints)
         except NotImplementedError:
             pass

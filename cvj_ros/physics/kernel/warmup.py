@@ -85,7 +85,9 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
 
 def warm_outputs(*, out=sys.stdout) -> float:
     """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
-    joint_state_one and wrenches_one with every joint's reactions, the offline trace's
+    joint_state_one and wrenches_one with every joint's reactions, a vehicle scene's
+    (kernel/tree_outputs_nb.py: joint state, offline samples, right-hand side under
+    outside wheel loads), the offline trace's
     sample_outputs, fill_mid_samples and landing grid, the monitor's window statistics and
     the engine node's map engine torque;
     returns the
@@ -116,6 +118,17 @@ def warm_outputs(*, out=sys.stdout) -> float:
     from cvj_ros.physics.engine import engine_from_spec
     from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque
     CompiledMapEngineTorque(engine_from_spec({'model': 'map'}))   # engine_node's answers
+    # a vehicle scene's joint state and its right-hand side under outside wheel loads
+    from cvj_ros.physics.kernel.tree_wheel_rhs import CompiledWheelLoadRhs
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    from cvj_ros.physics.state_outputs import TreeKernelStateOutputs
+    from cvj_ros.physics.tree import TreeDriveline
+    from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
+    tree = TreeDriveline.from_scene(load_scene(shipped_scenes()['fwd_axle']))
+    TreeKernelStateOutputs(tree, [])
+    TreeKernelSamples(tree)         # an offline vehicle run's samples
+    tree.set_wheel_torques([0.0] * tree.n_wheel)
+    CompiledWheelLoadRhs(tree).rhs(0.0, tree.x0, 0.0)
     dt = time.perf_counter() - t0
     print(f'kernel outputs: {dt:.2f} s', file=out)
     return dt

@@ -102,6 +102,18 @@ def is_cold(dispatcher: Any) -> bool:
         return False   # unknown: the run compiles or loads it as before
 
 
+def _kernel_covers(scene: Any) -> bool:
+    """Whether the run's driveline packs into kernel data (else the run integrates on the
+    Python reference and compiles nothing: its entry points stay cold for good)."""
+    try:
+        from cvj_ros.physics.driveline import Driveline
+        from cvj_ros.physics.kernel.layout import build_model
+        build_model(Driveline.from_scene(scene))
+    except Exception:   # noqa: BLE001 (NotImplementedError, or a bad scene the run reports)
+        return False
+    return True
+
+
 def _scene_method(scene: Any) -> str:
     return scene.solver.method
 
@@ -177,7 +189,7 @@ def prepare_run(scene_path: Path, scene: Any, *, scheme: str = 'zoh',
     except Exception:   # noqa: BLE001 (no numba, a method without a kernel: the run decides)
         return {}
     cold = [h for h in pair if any(is_cold(d) for d in h.dispatchers)]
-    if not cold:
+    if not cold or not _kernel_covers(scene):
         return {}
     if parallel is None:
         parallel = (os.cpu_count() or 1) >= 2 and os.environ.get('CVJ_PREPARE_SERIAL', '') != '1'

@@ -44,13 +44,14 @@ class _Fake:
 def fake_run(monkeypatch: pytest.MonkeyPatch):
     """halves() with two fake dispatchers, compile_half recording, the child command a
     Python that prints what the real child prints."""
-    state = {'cold': {'stepper': True, 'outputs': True}, 'here': []}
+    state = {'cold': {'stepper': True, 'outputs': True}, 'here': [], 'covers': True}
 
     def halves(scene, method):
         return (prepare.Half('stepper', [_Fake(state['cold']['stepper'])], 'the rk4 stepper'),
                 prepare.Half('outputs', [_Fake(state['cold']['outputs'])], 'the joint states'))
     monkeypatch.setattr(prepare, 'halves', halves)
     monkeypatch.setattr(prepare, 'is_cold', lambda d: d.cold)
+    monkeypatch.setattr(prepare, '_kernel_covers', lambda scene: state['covers'])
     monkeypatch.setattr(prepare, 'compile_half',
                         lambda name, scene, **kw: state['here'].append(name))
     monkeypatch.setattr(prepare, 'child_command', lambda *a, **kw: [
@@ -110,3 +111,18 @@ def test_progress_line_on_a_terminal(fake_run, monkeypatch: pytest.MonkeyPatch) 
     text = err.getvalue()
     assert '\rcvj_ros: compiling the physics kernel... 0 s' in text and text.count('\r') >= 2
     assert '\r\033[K' in text and text.endswith(' s)\n')
+
+
+def test_a_scene_on_the_python_reference_compiles_nothing(fake_run) -> None:
+    """A driveline the kernel does not cover runs on Python: its entry points stay cold for
+    good, and every run would otherwise say it compiles."""
+    fake_run['covers'] = False
+    err = io.StringIO()
+    assert prepare.prepare_run(Path('s.yaml'), _Scene(), stream=err) == {}
+    assert err.getvalue() == '' and fake_run['here'] == []
+
+
+def test_kernel_covers_a_shipped_chain_scene() -> None:
+    from cvj_ros.physics.scene import find_scene, load_scene
+    assert prepare._kernel_covers(load_scene(find_scene('fwd_halfshaft')))
+    assert not prepare._kernel_covers(object())

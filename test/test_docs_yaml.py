@@ -54,6 +54,13 @@ def _as_scene(data: object) -> dict:
         scene['driveline'] = elements
     else:
         assert isinstance(data, dict), type(data)
+        if 'shift_schedule' in data and 'vehicle' not in data:   # vehicle scenes only
+            from cvj_ros.physics.scene import find_scene
+            from cvj_ros.textfile import load_yaml_bounded, read_text_file
+            path = find_scene('launch_clutch')
+            scene = load_yaml_bounded(read_text_file(path, what='scene file'), str(path))
+            scene.update(data)
+            return scene
         if 'vehicle' in data:
             scene.pop('load')
         scene.update(data)

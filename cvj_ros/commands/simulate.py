@@ -212,7 +212,10 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
                             sample_dt=args.sample_dt)
     note = ''
     backend = 'python'
-    if args.backend == 'kernel':
+    if args.backend == 'kernel' and scene.is_tree:
+        note = 'compiled kernel: vehicle scenes with modes run on the Python reference'
+        print(f'cvj-sim simulate: {note}', file=sys.stderr)
+    elif args.backend == 'kernel':
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
         if sim.method in KERNEL_MODE_METHODS:
             sim = KernelHybridSimulation.from_reference(sim)

@@ -8,7 +8,8 @@ a constant load without speed scale (T_load), and one-row ramps holding the clut
 the brake. :func:`modes_nb.mode_segment` integrates each mode segment up to its earliest
 witness crossing (one compiled call); the discrete decisions at an event (stick, release,
 shift, settle, stall) and the joint-state outputs stay the Python reference's, as in
-:class:`KernelHybridSimulation`. Each interval starts with the step size the previous one
+:class:`KernelHybridSimulation`. A mode's arrays are built once and reused while the run
+stays in (or returns to) it; only the four held inputs are written per interval. Each interval starts with the step size the previous one
 ended with (the reference lockstep carries its step the same way).
 """
 from __future__ import annotations
@@ -30,6 +31,12 @@ __all__ = ['KernelHybridLockstep']
 _NO_SAMPLES = np.zeros(0)
 
 
+def _mode_key(mode: Any) -> tuple:
+    """A hashable key of a :class:`~cvj_ros.physics.hybrid.chain.Mode`'s content."""
+    return (tuple(mode.clutch.items()), tuple(mode.gear.items()), mode.brake,
+            tuple(mode.offsets.items()), tuple(mode.brakes.items()), tuple(mode.packs.items()))
+
+
 class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
     """:class:`HybridLockstep` whose :meth:`advance` integrates on the compiled kernel
     (dopri5, dop853); same arguments. ``backend`` is ``'kernel'``."""
@@ -40,7 +47,9 @@ class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
         super().__init__(*args, **kwargs)
         self.carry_step = True
         self._h_carry = 0.0
-        self._slots: tuple[int, int, int, int] | None = None
+        self._slots: tuple[int, int, int, int] = (0, 0, 0, 0)
+        self._arrays: dict[tuple, tuple[np.ndarray, np.ndarray, int]] = {}
+        self._assemblies: dict[tuple, Any] = {}     # chain.assemble per mode (a pure function)
 
     @classmethod
     def from_reference(cls, ref: HybridLockstep) -> KernelHybridLockstep:   # type: ignore[override]
@@ -72,15 +81,20 @@ class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
         self._slots = (head[MH_ENGINE_F] + 1, head[MH_LOAD_F], head[MH_RAMP_C] + 2,
                        head[MH_RAMP_B] + 2)
 
-    def _hold_inputs(self) -> None:
-        """Write the held torques and commands into the shared fp (used by every mode)."""
-        if self._base is None:
-            self._build_base()
-        fp = self._base[0]
+    def mode_arrays(self, asm: Any, mode: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """:meth:`KernelHybridSimulation.mode_arrays`, built once per mode (the arrays depend
+        on the mode alone: a run revisits few) with the held inputs written in each call."""
+        hit = self._arrays.get(_mode_key(mode))
+        if hit is None:
+            if len(self._arrays) >= 64:      # offsets differ per lock: keep the cache small
+                self._arrays.clear()
+            hit = self._arrays[_mode_key(mode)] = super().mode_arrays(asm, mode)
+        fp = hit[1]
         e, l_, c, b = self._slots
         now = self.commands.now
         fp[e], fp[l_], fp[c], fp[b] = (self.engine.value, self.load.value, float(now.clutch),
                                        float(now.brake))
+        return hit
 
     def advance(self, t_next: float, T_engine: float, T_load: float) -> Any:
         """As :meth:`HybridLockstep.advance`, each mode segment one compiled call."""
@@ -98,12 +112,16 @@ class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
             mode, st = self._shift(t, mode, st)
             mode, st = self._settle(t, mode, st)
             self._changed = False
-        self._hold_inputs()
         while t < t_next and self.stall is None:
             if t_next - t <= 1e-12 * max(1.0, abs(t)):
                 t = t_next
                 break
-            asm = ch.assemble(mode)
+            key = _mode_key(mode)
+            asm = self._assemblies.get(key)
+            if asm is None:
+                if len(self._assemblies) >= 64:
+                    self._assemblies.clear()
+                asm = self._assemblies[key] = ch.assemble(mode)
             y0, _loss = ch.to_mode(asm, st)
             n = len(asm.groups)
             self.stats['restarts'] += 1

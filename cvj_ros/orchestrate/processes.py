@@ -49,6 +49,7 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
     if name == 'coupling_node' and prep.scene.has_modes:
         # the driver's samples gate each state (lockstep), or an outside stack's are taken as they come
         params['commands'] = 'external' if 'driver' in o.external else 'driver'
+        params['mode_backend'] = o.mode_backend
     if name == 'driver_node':
         params.update(exchange_step=float(prep.exchange_step), duration=float(prep.duration))
     if name == 'engine_node' and 'driver_node' in prep.nodes and o.mode == 'lockstep':

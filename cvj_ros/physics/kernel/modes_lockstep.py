@@ -51,15 +51,6 @@ class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
         self._arrays: dict[tuple, tuple[np.ndarray, np.ndarray, int]] = {}
         self._assemblies: dict[tuple, Any] = {}     # chain.assemble per mode (a pure function)
 
-    @classmethod
-    def from_reference(cls, ref: HybridLockstep) -> KernelHybridLockstep:   # type: ignore[override]
-        """The kernel twin of a (not yet advanced) reference lockstep."""
-        now = ref.commands.now
-        return cls(ref.chain, commands=type(now)(now.clutch, now.brake, now.gear),
-                   initial_speed=ref.initial_speed, initial_speeds=ref.initial_speeds,
-                   stall_speed=ref.stall_speed, method=ref.method, rtol=ref.rtol,
-                   atol=ref.atol, max_step=ref.max_step)
-
     def _build_base(self) -> None:
         """The shared arrays with stand-ins for the held inputs (module docstring); notes
         the fp slots of T_engine, T_load, the clutch pedal and the brake."""

@@ -11,8 +11,12 @@ the same bag twice (docs/contracts.md "Topics and bags"):
 * stamped data (sensor_msgs/JointState, geometry_msgs/WrenchStamped): ``header.stamp``;
 * ``/driveline/scene``: 0 (t0; it is published once before step 0, and when the latched
   message arrives relative to /clock differs from run to run);
-* everything else (``/diagnostics``, ``/engine/throttle``): the latest ``/clock`` time
-  seen by the recorder (0 before the first ``/clock``).
+* the samples of a command schedule a driver plays (``/engine/throttle``,
+  ``/driveline/clutch``, ``/driveline/gear``, ``/driveline/brake``; std_msgs without a
+  stamp): the time t_k of the exchange step they belong to, counted per topic from the
+  schedule (:meth:`BagRecorder.set_command_stamps`);
+* everything else (``/diagnostics``, commands of an outside stack): the latest ``/clock``
+  time seen by the recorder (0 before the first ``/clock``).
   ``/diagnostics`` headers may carry wall-clock stamps, so they are not used.
 
 Both stamped layouts put a ``builtin_interfaces/Time`` first in the message, so the
@@ -1242,6 +1246,10 @@ class BagRecorder:
         self._pending_clock: list[tuple[int, bytes]] = []
         self._clock_started = False            # the start-up rule of the pending /clock done
         self._clock_written: int | None = None  # value (ns) of the last /clock written
+        # command topics of a played schedule: topic -> record times (ns) of its samples in
+        # order, and how many were taken (set_command_stamps)
+        self._command_stamps: dict[str, list[int]] = {}
+        self._command_taken: dict[str, int] = {}
         typestore()   # built now (~0.2 s), not inside the loop at the first /driveline/scene
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
@@ -1324,6 +1332,29 @@ class BagRecorder:
             self._subs[topic] = self.node.create_subscription(
                 _msg_class(msgtype), topic, callback, qos, raw=True)
 
+    def set_command_stamps(self, stamps: dict[str, Sequence[int]]) -> None:
+        """Record the samples of a played command schedule at their step's time: the n-th
+        sample taken on ``topic`` is written at ``stamps[topic][n]`` (ns; a driver publishes
+        the samples of step k on /clock t_k, in order:
+        :meth:`cvj_ros.nodes.command_plan.CommandPlan.record_stamps`), not at the latest
+        /clock the recorder has taken, which in separate processes depends on when the
+        sample arrives. Samples beyond the list fall back to the latest /clock. Call before
+        the first command sample arrives."""
+        self._command_stamps = {topic: list(v) for topic, v in stamps.items()}
+        self._command_taken = {topic: 0 for topic in stamps}
+
+    def _untimed_stamp(self, topic: str, clock_ns: int) -> int:
+        """Record time of a message without a stamp on ``topic``: its step's time for a
+        played command sample (:meth:`set_command_stamps`), else ``clock_ns``."""
+        stamps = self._command_stamps.get(topic)
+        if stamps is None:
+            return clock_ns
+        n = self._command_taken[topic]
+        if n >= len(stamps):
+            return clock_ns
+        self._command_taken[topic] = n + 1
+        return stamps[n]
+
     def _collect(self, topic: str, data: bytes) -> None:
         """A hosted publication of a loop topic (composed mode, the in-process bus's tap):
         kept until :meth:`take_local` (whose wall time the bookkeeping takes for all of them:
@@ -1365,8 +1396,9 @@ class BagRecorder:
                 self.held += 1
                 continue
             if self._types[topic] not in STAMPED_TYPES:    # a hosted driver's commands:
-                out.append((topic, self.clock_ns if clock_ns is None else max(self.clock_ns, clock_ns),
-                            data))        # at the latest /clock, in publication order
+                out.append((topic, self._untimed_stamp(
+                    topic, self.clock_ns if clock_ns is None else max(self.clock_ns, clock_ns)),
+                    data))        # at its step's time, else the latest /clock
                 continue
             if data[1] != 1:       # not little-endian CDR: the general path
                 self._write(topic, self._types[topic], data, stamped=True,
@@ -1426,7 +1458,7 @@ class BagRecorder:
         elif topic == SCENE_TOPIC:
             stamp = 0  # published once before step 0 (t0 = 0); its arrival time races /clock
         else:
-            stamp = self.clock_ns
+            stamp = self._untimed_stamp(topic, self.clock_ns)
         if is_clock:
             self.clock_ns = max(self.clock_ns, stamp)
             self._clock_written = stamp

@@ -427,6 +427,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         comp.add_recorder(writer, prep.coupling_topics,
                           hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
                           if options.mode == 'lockstep' else ())
+        comp.recorder.set_command_stamps(orch.command_record_stamps(prep))
         for name in prep.nodes:
             if stop_signal or error is not None:
                 break

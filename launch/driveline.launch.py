@@ -112,7 +112,10 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
                               commands='driver' if _flag(args['driver']) else 'external',
                               **({'catch_up': args['catch_up'], 'realtime_priority': rt_priority}
                                  if args['mode'] == 'free-run' else {})),
-        'engine_node': dict(common),
+        # with the driver in lockstep: answer the state t_k with the throttle of step k (counted)
+        'engine_node': dict(common, **({'commands': 'driver', 'duration': duration}
+                                       if _flag(args['driver']) and args['mode'] == 'lockstep'
+                                       else {})),
         'load_node': dict(common),
         'monitor_node': {'scene': args['scene']},
         'driver_node': dict(common, duration=duration),

@@ -218,6 +218,61 @@ def test_recorder_writes_raw_messages_at_sim_time(tmp_path: Path, storage: str) 
         '/coupling/rzeppa/wrench'].torque_z, np.arange(20.0))
 
 
+@pytest.mark.ros
+def test_recorder_stamps_a_played_schedule_at_its_steps(tmp_path: Path) -> None:
+    """set_command_stamps: the n-th sample on a command topic is recorded at its step's time
+    whatever /clock the recorder has taken when it arrives; samples beyond the schedule (and
+    topics without one) at the latest /clock."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64, Int8
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node('rec_test', context=ctx)
+        pub_node = rclpy.create_node('pub_test', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        ex.add_node(pub_node)
+        writer = bag.BagWriter(tmp_path / 'b')
+        rec = bag.BagRecorder(node, writer)
+        rec.set_command_stamps({'/engine/throttle': [2_000_000, 5_000_000]})
+        qos = bag.recorder_qos()
+        pubs = {'/clock': pub_node.create_publisher(Clock, '/clock', qos),
+                '/engine/throttle': pub_node.create_publisher(Float64, '/engine/throttle', qos),
+                '/driveline/gear': pub_node.create_publisher(Int8, '/driveline/gear', qos)}
+        deadline = time.monotonic() + 5
+        while any(p.get_subscription_count() == 0 for p in pubs.values()) and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        for k in range(20):
+            c = Clock()
+            c.clock.nanosec = 1_000_000 * k
+            pubs['/clock'].publish(c)
+        deadline = time.monotonic() + 5
+        while writer.counts.get('/clock', 0) < 20:
+            ex.spin_once(timeout_sec=0.05)
+            assert time.monotonic() < deadline, writer.counts
+        for x in (0.5, 0.25, 0.75):          # all arrive after /clock 19 ms
+            pubs['/engine/throttle'].publish(Float64(data=x))
+        pubs['/driveline/gear'].publish(Int8(data=2))
+        deadline = time.monotonic() + 5
+        while writer.counts.get('/engine/throttle', 0) < 3 or not writer.counts.get('/driveline/gear'):
+            ex.spin_once(timeout_sec=0.05)
+            assert time.monotonic() < deadline, writer.counts
+        rec.destroy()
+        writer.close()
+        ex.shutdown()
+        node.destroy_node()
+        pub_node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    throttle = bag.read_raw(tmp_path / 'b', ['/engine/throttle'])
+    assert [ts for _, _, ts, _ in throttle] == [2_000_000, 5_000_000, 19_000_000]
+    assert [ts for _, _, ts, _ in bag.read_raw(tmp_path / 'b', ['/driveline/gear'])] == [19_000_000]
+
+
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_writer_accepts_writes_from_other_threads(tmp_path: Path, storage: str) -> None:
     """Recorder callbacks run on executor threads; sqlite3 objects are bound to their thread."""

@@ -78,6 +78,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--composed', action='store_true',
                         help='host every node and the recorder in this one process on one '
                              'EventsExecutor (same nodes, topics and bag; faster, see docs/ros.md)')
+    parser.add_argument('--mode-backend', choices=('auto', 'kernel', 'python'), default='auto',
+                        help='scenes with clutch, gearbox, brake or commands: the coupling node '
+                             'steps the mode model on the compiled kernel (auto, the default, for '
+                             'dopri5/dop853; kernel) or the Python reference (python)')
     parser.add_argument('--executor', choices=('events', 'single'), default='events',
                         help='--composed: rclpy executor (default events = EventsExecutor)')
     parser.add_argument('--no-intra-process', dest='intra_process', action='store_false',
@@ -98,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         external_timeout=args.external_timeout, nonfinite_torque=args.nonfinite_torque,
         fail_on=args.fail_on, catch_up=args.catch_up, burst_max=args.burst_max,
         rt_priority=args.rt_priority, composed=args.composed, executor=args.executor,
-        intra_process=args.intra_process))
+        intra_process=args.intra_process, mode_backend=args.mode_backend))
     import sys
     for note in degenerate_notes(result):
         print(f'  note: {note}')

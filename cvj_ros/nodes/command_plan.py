@@ -132,3 +132,14 @@ class CommandPlan:
 
     def __iter__(self) -> Iterator[tuple[int, tuple[tuple[str, float], ...]]]:
         return iter(sorted(self.steps.items()))
+
+    def stamps(self, channel: str) -> list[int]:
+        """Step times t_k (integer ns) of the samples of ``channel``, in the order the driver
+        publishes them: the n-th sample on its topic belongs to step ``stamps[n] / h``."""
+        return [k * self.h_ns for k, row in sorted(self.steps.items())
+                for c, _v in row if c == channel]
+
+    def record_stamps(self) -> dict[str, list[int]]:
+        """Topic -> :meth:`stamps` of every played channel: the record times of a run's
+        command samples (:meth:`cvj_ros.bag.BagRecorder.set_command_stamps`)."""
+        return {CHANNEL_TOPICS[c]: self.stamps(c) for c in self.channels}

@@ -187,6 +187,9 @@ PARAMS = (
               'starting); how `cvj-sim run` starts this process while the peers start; '
               'empty = no wait', choices=START_GATES),
     ParamSpec('solver', '', 'integration method; empty = the scene solver', choices=SOLVERS),
+    ParamSpec('mode_backend', 'auto', 'scenes with clutch, gearbox, brake or commands: auto = '
+              'the compiled kernel for dopri5/dop853, else the Python reference; kernel; python',
+              choices=('auto', 'kernel', 'python')),
     ParamSpec('rtol', 0.0, 'relative tolerance [-]; 0 = the scene rtol', lo=0.0, hi=1.0),
     ParamSpec('atol', 0.0, 'absolute tolerance [rad, rad/s]; 0 = the scene atol', lo=0.0, hi=1.0),
     ParamSpec('fidelity', [''], 'forced fidelities "element=level" (joints ideal|closed|exact, '
@@ -440,8 +443,11 @@ class CouplingNode(CvjNode):
             try:
                 driveline, stepper = build_hybrid(scene, method=p['solver'] or None,
                                                   rtol=p['rtol'] or None, atol=p['atol'] or None,
-                                                  fidelity=forced or None)
+                                                  fidelity=forced or None,
+                                                  backend=p['mode_backend'])
             except CvjError as exc:
+                if str(exc).startswith('backend: '):
+                    raise ParameterError('mode_backend', str(exc)[len('backend: '):]) from None
                 raise ParameterError('scene', str(exc)) from None
             h = driveline.hybrid
             self.method, self.rtol, self.atol = h.method, h.rtol, h.atol

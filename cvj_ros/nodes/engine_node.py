@@ -5,7 +5,10 @@
 unwrapped angle (rad); the stamp echoes the joint-state stamp, frame_id = the crank
 shaft name (the scene's first inertia, e.g. ``engine_crank``). /engine/throttle
 (std_msgs/Float64, 0..1) sets the pedal; NaN/inf/out-of-range values are rejected with an
-ERROR diagnostic and not applied.
+ERROR diagnostic and not applied. With ``commands:=driver`` (a driver_node plays the scene's
+schedule in lockstep) the n-th throttle sample belongs to the step of the schedule's n-th
+throttle change, and the joint state t_k is answered only once the samples of the steps up to
+k are in and applied (docs/ros.md, "Commands").
 
 Run alone: ``engine_node --ros-args -p scene:=kavz685_lever`` (waits for joint states).
 """
@@ -13,6 +16,8 @@ from __future__ import annotations
 
 import math
 import sys
+from bisect import bisect_right
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -20,7 +25,7 @@ from std_msgs.msg import Float64
 
 from cvj_ros.errors import CvjError
 from cvj_ros.nodes.cdr import CdrError, decode_float64
-from cvj_ros.nodes.common import (ERROR, OK, ParameterError, ParamSpec, TorqueResponder,
+from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, ParameterError, ParamSpec, TorqueResponder,
                                   declare_parameters, inertia_names, load_scene_param,
                                   load_yaml_mapping, run_node, scene_dict)
 from cvj_ros.nodes.intra import loop_subscription
@@ -38,6 +43,14 @@ PARAMS = (
     ParamSpec('engine_spec', '', 'YAML mapping replacing the scene engine spec '
               '(e.g. "{model: linear, m1: 600, k1: 12}"); empty = the scene engine'),
     ParamSpec('crank_shaft', '', 'JointState name of the crank shaft; empty = the scene first inertia'),
+    ParamSpec('commands', 'none', 'driver: a driver_node plays the scene\'s commands: schedule in '
+              'lockstep; the joint state t_k is answered once the throttle samples of steps <= k '
+              'are in (counted from the schedule); none: each sample applies on arrival',
+              choices=('none', 'driver')),
+    ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s] (commands:=driver); 0 = the '
+              'scene exchange_step', lo=0.0, hi=3600.0),
+    ParamSpec('duration', 0.0, 'simulated time of the run [s] (commands:=driver); 0 = the scene '
+              'duration', lo=0.0, hi=1e9),
 )
 
 
@@ -78,6 +91,16 @@ class EngineNode(TorqueResponder):
         self.throttle = p['throttle'] if p['throttle'] >= 0.0 else float('nan')
         self.throttle_rejected = 0
         self._throttle_said = float('nan')      # the throttle last said on /diagnostics
+        # commands:=driver: step times (ns) of the driver's throttle samples, in order; the
+        # samples taken (step ns, value or None when undecodable) not yet applied; the joint
+        # states waiting for them
+        self.throttle_steps: list[int] | None = None
+        self._throttle_taken = 0
+        self._throttle_queue: deque[tuple[int, float | None]] = deque()
+        self._held_states: deque[tuple[int, int, str, float, float]] = deque()
+        self.throttle_waits = 0        # joint states answered only after their throttle came
+        if p['commands'] == 'driver':
+            self.throttle_steps = self._throttle_schedule(scene, p)
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
@@ -88,14 +111,60 @@ class EngineNode(TorqueResponder):
         self.get_logger().info(f'engine {describe() if describe else type(engine).__name__} on shaft '
                                f'{shaft!r}; waiting for /driveline/joint_states')
 
+    @staticmethod
+    def _throttle_schedule(scene: Any, p: dict[str, Any]) -> list[int]:
+        """Step times (ns) of the throttle samples a driver plays (commands:=driver)."""
+        from cvj_ros.nodes.command_plan import CommandPlan
+        if not scene.commands:
+            raise ParameterError('commands', f'driver: {scene.name} has no commands: schedule')
+        h_ns = int(round((p['exchange_step'] or scene.exchange_step) * NS_PER_S))
+        if h_ns <= 0:
+            raise ParameterError('exchange_step', f'must be >= 1 ns, got {p["exchange_step"]}')
+        n_steps = int(round((p['duration'] or scene.duration) * NS_PER_S / h_ns))
+        return CommandPlan.from_scene(scene, h_ns, n_steps).stamps('throttle')
+
     def _on_throttle_raw(self, data: bytes) -> None:
-        """A serialised /engine/throttle sample: checked (:func:`decode_float64`), applied."""
+        """A serialised /engine/throttle sample: checked (:func:`decode_float64`), applied
+        (commands:=driver: queued with its step, applied when the joint state of that step
+        is answered, and a joint state held for it answered now)."""
         try:
-            x = decode_float64(data)
+            x: float | None = decode_float64(data)
         except CdrError as exc:
             self._drop(str(exc), ENGINE_THROTTLE_TOPIC)
+            x = None
+        if self.throttle_steps is None:
+            if x is not None:
+                self._on_throttle(Float64(data=x))
             return
-        self._on_throttle(Float64(data=x))
+        n = self._throttle_taken
+        self._throttle_taken += 1       # the driver's n-th sample, even one that did not decode
+        step = self.throttle_steps[n] if n < len(self.throttle_steps) else -1   # beyond: now
+        self._throttle_queue.append((step, x))
+        while self._held_states and self._throttle_due(self._held_states[0][0] * NS_PER_S
+                                                       + self._held_states[0][1]):
+            super()._answer_state(*self._held_states.popleft())
+
+    def _throttle_due(self, t_ns: int) -> bool:
+        """Every throttle sample of the steps up to t_ns is in: applied, True."""
+        if bisect_right(self.throttle_steps, t_ns) > self._throttle_taken:
+            return False
+        queue = self._throttle_queue
+        while queue and queue[0][0] <= t_ns:
+            x = queue.popleft()[1]
+            if x is not None:
+                self._on_throttle(Float64(data=x))
+        return True
+
+    def _answer_state(self, sec: int, nanosec: int, frame: str, phi: float, omega: float) -> None:
+        """Answer the joint state at (sec, nanosec); commands:=driver: once the throttle of
+        its step is in force (the throttle of step k travels from the driver's process, the
+        state t_k from the coupling node's: two publishers, no order between them)."""
+        if self.throttle_steps is not None and (
+                self._held_states or not self._throttle_due(sec * NS_PER_S + nanosec)):
+            self._held_states.append((sec, nanosec, frame, phi, omega))
+            self.throttle_waits += 1
+            return
+        super()._answer_state(sec, nanosec, frame, phi, omega)
 
     def _on_throttle(self, msg: Float64) -> None:
         x = float(msg.data)

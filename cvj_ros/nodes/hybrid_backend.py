@@ -3,8 +3,8 @@
 :func:`build_hybrid` wraps :func:`cvj_ros.physics.hybrid.lockstep.hybrid_lockstep` (the one
 call into the physics, so its backend can change) in the three faces the coupling node uses
 for a plain driveline: a driveline (shaft names, energy residual), a stepper
-(``advance(t, T_engine, T_load)``) and state outputs (joint states per exchange; no reaction
-wrenches). :func:`mode_values` are the mode figures of the loop diagnostics.
+(``advance(t, T_engine, T_load)``; each interval on the compiled kernel or the Python
+reference) and state outputs (joint states per exchange; no reaction wrenches). :func:`mode_values` are the mode figures of the loop diagnostics.
 """
 from __future__ import annotations
 
@@ -46,14 +46,15 @@ class HybridDriveline:
 
 
 class HybridStepper:
-    """Stepper face: integrates the mode model between exchanges (python backend)."""
-
-    backend = 'python'
+    """Stepper face: integrates the mode model between exchanges; ``backend`` 'kernel' or
+    'python' as the model's (``backend_fallback``: why 'auto' ran the reference)."""
 
     def __init__(self, hybrid: Any, driveline: HybridDriveline) -> None:
         self.hybrid = hybrid
         self.driveline = driveline
         self.x = driveline.x0
+        self.backend = getattr(hybrid, 'backend', 'python')
+        self.backend_fallback = getattr(hybrid, 'backend_fallback', None)
 
     def advance(self, t_next: float, T_engine: float, T_load: float) -> np.ndarray:
         self.hybrid.advance(t_next, T_engine, T_load)
@@ -80,10 +81,14 @@ class HybridOutputs:
 
 
 def build_hybrid(scene: Any, *, method: str | None, rtol: float | None, atol: float | None,
-                 fidelity: Mapping[str, str] | None) -> tuple[HybridDriveline, HybridStepper]:
-    """(driveline, stepper) of a mode scene; ``driveline.state_outputs`` the outputs face."""
+                 fidelity: Mapping[str, str] | None, backend: str = 'auto'
+                 ) -> tuple[HybridDriveline, HybridStepper]:
+    """(driveline, stepper) of a mode scene; ``driveline.state_outputs`` the outputs face.
+    ``backend``: auto (the compiled kernel where it covers the method), kernel or python
+    (:func:`~cvj_ros.physics.hybrid.lockstep.hybrid_lockstep`)."""
     from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
-    hybrid = hybrid_lockstep(scene, method=method, rtol=rtol, atol=atol, fidelity=fidelity)
+    hybrid = hybrid_lockstep(scene, method=method, rtol=rtol, atol=atol, fidelity=fidelity,
+                             backend=backend)
     driveline = HybridDriveline(hybrid)
     driveline.state_outputs = HybridOutputs(hybrid)
     return driveline, HybridStepper(hybrid, driveline)

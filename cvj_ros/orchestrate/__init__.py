@@ -58,7 +58,7 @@ from cvj_ros.orchestrate.options import (  # noqa: F401  (re-exported)
 from cvj_ros.orchestrate.recorder import (  # noqa: F401  (re-exported)
     DISCOVERY_SETTLE_S, EXTERNAL_PEERS, HOSTED_IN_RUN, LOOP_TOPICS, PEER_TOPICS, _Recorder,
     _wait_for_peers,
-    external_wait_line, open_run_bag)
+    command_record_stamps, external_wait_line, open_run_bag)
 from cvj_ros.orchestrate.processes import (  # noqa: F401  (re-exported)
     _die_with_parent, _ros_args, _signal_name, _stop_processes, close_stdin, error_line,
     node_command, node_parameters, start_gated)
@@ -142,6 +142,8 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
             recorder = _Recorder(writer, prep.coupling_topics, domain,
                                  hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
                                  if options.mode == 'lockstep' else ())
+            # the driver's samples at their step's time, whenever they arrive (docs/ros.md "Commands")
+            recorder.recorder.set_command_stamps(command_record_stamps(prep))
         # the observers run in this process, subscribed before any loop node starts
         for name in (n for n in prep.nodes if n in HOSTED_IN_RUN):
             try:

@@ -82,6 +82,8 @@ class RunOptions:
     composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
     executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
     intra_process: bool = True   # composed mode: loop topics through the in-process bus (nodes/intra.py)
+    # scenes with clutch, gearbox, brake or commands: the coupling node's mode_backend
+    mode_backend: str = 'auto'
     # time.monotonic() when the command started (the report's wall time counts from it;
     # None: from the start of the run's set-up)
     started: float | None = None
@@ -155,6 +157,8 @@ def prepare(options: RunOptions) -> _Prepared:
                        f'(the mode model holds the received torques), got {options.scheme!r}')
     if options.mode not in MODES:
         raise CvjError(f'--mode: must be one of {", ".join(MODES)}, got {options.mode!r}')
+    if options.mode_backend not in ('auto', 'kernel', 'python'):
+        raise CvjError(f'--mode-backend: must be auto, kernel or python, got {options.mode_backend!r}')
     if options.scheme not in SCHEMES:
         raise CvjError(f'--scheme: must be one of {", ".join(SCHEMES)}, got {options.scheme!r}')
     if options.catch_up not in ('skip', 'burst'):

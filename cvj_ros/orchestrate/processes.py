@@ -49,8 +49,13 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
     if name == 'coupling_node' and prep.scene.has_modes:
         # the driver's samples gate each state (lockstep), or an outside stack's are taken as they come
         params['commands'] = 'external' if 'driver' in o.external else 'driver'
+        params['mode_backend'] = o.mode_backend
     if name == 'driver_node':
         params.update(exchange_step=float(prep.exchange_step), duration=float(prep.duration))
+    if name == 'engine_node' and 'driver_node' in prep.nodes and o.mode == 'lockstep':
+        # the state t_k is answered with the driver's throttle of step k (counted)
+        params.update(commands='driver', exchange_step=float(prep.exchange_step),
+                      duration=float(prep.duration))
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

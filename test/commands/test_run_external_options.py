@@ -49,6 +49,13 @@ def test_external_driver_leaves_out_driver_node_and_needs_a_mode_scene(tmp_path:
     assert 'driver_node' not in prep.nodes and 'load_node' not in prep.nodes
     from cvj_ros.orchestrate.processes import node_parameters
     assert node_parameters(prep, 'coupling_node', load_override=None)['commands'] == 'external'
+    assert node_parameters(prep, 'coupling_node', load_override=None)['mode_backend'] == 'auto'
+    prep = prepare(RunOptions('launch_clutch_chain', tmp_path, mode_backend='python'))
+    assert node_parameters(prep, 'coupling_node', load_override=None)['mode_backend'] == 'python'
+    # the engine node counts the driver's throttle samples in lockstep
+    assert node_parameters(prep, 'engine_node', load_override=None)['commands'] == 'driver'
+    with pytest.raises(CvjError, match='^--mode-backend: must be auto, kernel or python'):
+        prepare(RunOptions('launch_clutch_chain', tmp_path, mode_backend='fast'))
     with pytest.raises(CvjError, match='^--external driver: kavz685_lever.yaml has no clutch'):
         prepare(RunOptions('kavz685_lever', tmp_path, external=('driver',)))
     line = external_wait_line(('driver', 'load'), 7, 30.0)

@@ -73,6 +73,11 @@ def test_driver_argument_starts_driver_node_and_sets_the_command_rule() -> None:
     assert on['driver_node'] == {'scene': 'launch_clutch_chain', 'seed': -1, 'duration': 2.0}
     assert on['coupling_node']['commands'] == 'driver'
     assert 'driver_node' not in off and off['coupling_node']['commands'] == 'external'
+    # the engine node counts the driver's throttle samples (lockstep), else applies on arrival
+    assert on['engine_node']['commands'] == 'driver' and on['engine_node']['duration'] == 2.0
+    assert 'commands' not in off['engine_node']
+    free = mod.node_parameters({'scene': 'launch_clutch_chain', 'driver': 'true', 'mode': 'free-run'})
+    assert 'commands' not in free['engine_node']
     for node, values in on.items():
         declared = _declared(node)
         for name, value in values.items():

@@ -115,13 +115,13 @@ def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float =
     return node, peers, drv
 
 
-def by_hand(scene_path: str, steps: int) -> list[np.ndarray]:
+def by_hand(scene_path: str, steps: int, backend: str = 'python') -> list[np.ndarray]:
     """The physics stepped as the lockstep rule says: step k's planned samples in force
     over [t_k, t_(k+1)], the fake peers' torques held; velocities at t_0..t_steps."""
     from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
     from cvj_ros.physics.scene import load_scene
     scene = load_scene(scene_path)
-    hl = hybrid_lockstep(scene)
+    hl = hybrid_lockstep(scene, backend=backend)
     plan = CommandPlan.from_scene(scene, 1_000_000, steps)
     out = []
     for k in range(steps + 1):
@@ -134,9 +134,11 @@ def by_hand(scene_path: str, steps: int) -> list[np.ndarray]:
     return out
 
 
-def test_driver_plays_the_schedule_and_each_step_uses_its_own_samples(ctx, tmp_path):
+@pytest.mark.parametrize('backend', ['python', 'kernel'])
+def test_driver_plays_the_schedule_and_each_step_uses_its_own_samples(ctx, tmp_path, backend):
     scene = mode_scene(tmp_path)
-    node, peers, drv = run(ctx, scene)
+    node, peers, drv = run(ctx, scene, mode_backend=backend)
+    assert node.stepper.backend == backend
     n = 60
     assert node.exit_code == 0 and len(peers.js) == n + 1
     # every sample the plan holds, in order: the bag carries the commands
@@ -146,8 +148,9 @@ def test_driver_plays_the_schedule_and_each_step_uses_its_own_samples(ctx, tmp_p
               'gear': '/driveline/gear', 'brake': '/driveline/brake'}
     want = [(topics[c], v) for _k, row in plan for c, v in row]
     assert sorted(peers.samples) == sorted(want) and drv.published == len(want)
-    # the states equal the physics stepped by hand under the rule, bit for bit
-    ref = by_hand(scene, n)
+    # the states equal the physics (on the node's backend) stepped by hand under the rule,
+    # bit for bit
+    ref = by_hand(scene, n, backend)
     got = [np.array(m.velocity) for m in peers.js]
     for k in range(n + 1):
         np.testing.assert_array_equal(got[k], ref[k], err_msg=f'step {k}')

@@ -208,3 +208,52 @@ def test_engine_spec_examples_of_the_descriptor_and_the_docs_work(ctx, tmp_path)
             assert node.engine.torque(0.0, 10.0) == pytest.approx(600.0 - 12.0 * 10.0)
         finally:
             node.destroy_node()
+
+
+def test_driver_throttle_is_counted_and_a_state_waits_for_its_step(ctx, tmp_path):
+    """commands=driver: the n-th throttle sample belongs to the step of the schedule's n-th
+    throttle change; a joint state t_k that arrives before the throttle of step k (the two
+    come from different processes) is answered only once it is in, with it applied; a state
+    of a step without a change is answered at once."""
+    path = tmp_path / 'throttle_schedule.yaml'
+    data = yaml.safe_load(open(two_mass_scene(tmp_path)))
+    # throttle 0.5 at t0, 0.25 from t = 2 ms (steps of h = 1 ms)
+    data['commands'] = [{'t': 0.0, 'throttle': 0.5}, {'t': 0.0015, 'throttle': 0.5},
+                        {'t': 0.002, 'throttle': 0.25}]
+    path.write_text(yaml.safe_dump(data))
+    from cvj_ros.nodes.command_plan import CommandPlan
+    from cvj_ros.physics.scene import load_scene
+    plan = CommandPlan.from_scene(load_scene(str(path)), 1_000_000, 50)
+    assert [k for k, _row in plan] == [0, 2] and plan.stamps('throttle') == [0, 2_000_000]
+    node = EngineNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=str(path)), Parameter('commands', value='driver')])
+    h = Harness(ctx, node)
+    names, omega = ['engine_crank', 'wheel'], 20.0
+    try:
+        h.send_js(0, names, [0.0, 0.0], [omega, omega])          # before the throttle of step 0
+        h.spin_until(lambda: node.throttle_waits == 1)
+        time.sleep(0.05)
+        h.ex.spin_once(timeout_sec=0.02)
+        assert h.wrenches == []
+        h.th_pub.publish(Float64(data=0.5))
+        h.spin_until(lambda: len(h.wrenches) == 1)
+        h.send_js(1_000_000, names, [0.0, 0.0], [omega, omega])  # step 1: no change, answered
+        h.spin_until(lambda: len(h.wrenches) == 2)
+        h.send_js(2_000_000, names, [0.0, 0.0], [omega, omega])  # before the throttle of step 2
+        h.spin_until(lambda: node.throttle_waits == 2)
+        assert len(h.wrenches) == 2
+        h.th_pub.publish(Float64(data=0.25))
+        h.spin_until(lambda: len(h.wrenches) == 3)
+        # linear engine with throttle x: M = x M1 - K1 omega (as above)
+        expect = [0.5, 0.5, 0.25]
+        for w, x, ns in zip(h.wrenches, expect, (0, 1_000_000, 2_000_000)):
+            assert w.header.stamp.sec * 10**9 + w.header.stamp.nanosec == ns
+            assert w.wrench.torque.z == pytest.approx(x * M1 - K1 * omega, rel=1e-12)
+    finally:
+        h.close()
+        node.destroy_node()
+
+
+def test_commands_driver_needs_a_schedule(ctx, tmp_path):
+    with pytest.raises(ParameterError, match='commands'):
+        make_node(ctx, tmp_path, commands='driver')

@@ -9,8 +9,9 @@ located on the stepper's dense output, a changed gear command goes through neutr
 momentum-conserving lock, a pedal snapped open releases a stuck clutch at t_k. Commands set
 with :meth:`HybridLockstep.set_commands` act from the next :meth:`HybridLockstep.advance` on.
 
-``hybrid_lockstep(scene)`` is the one entry point the nodes use, so the backend (this
-reference, or the compiled kernel once it has modes) can change behind it.
+``hybrid_lockstep(scene, backend=...)`` is the one entry point the nodes use: this
+reference, or each interval on the compiled kernel
+(:mod:`cvj_ros.physics.kernel.modes_lockstep`).
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ if TYPE_CHECKING:
     from cvj_ros.physics.hybrid.chain import HybridChain, SectionState
     from cvj_ros.physics.scene import Scene
 
-__all__ = ['Commands', 'HeldCommands', 'HeldTorque', 'HybridLockstep', 'hybrid_lockstep']
+__all__ = ['BACKENDS', 'Commands', 'HeldCommands', 'HeldTorque', 'HybridLockstep', 'hybrid_lockstep']
 
 FloatArray = NDArray[np.float64]
 
@@ -89,6 +90,8 @@ class HybridLockstep(HybridSimulation):
     Args: as :class:`HybridSimulation` without ``engine``, ``load``, ``schedule`` and
     ``duration``; ``commands``: the commands at t = 0.
     """
+
+    backend = 'python'     # the compiled twin: cvj_ros.physics.kernel.modes_lockstep
 
     def __init__(self, chain: HybridChain, *, commands: Commands, initial_speed: float = 0.0,
                  initial_speeds: Mapping[str, float] | None = None,
@@ -282,12 +285,21 @@ class HybridLockstep(HybridSimulation):
         return pos, vel, eff
 
 
+BACKENDS = ('auto', 'kernel', 'python')
+
+
 def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | None = None,
-                    atol: float | None = None, fidelity: Mapping[str, str] | None = None
-                    ) -> HybridLockstep:
+                    atol: float | None = None, fidelity: Mapping[str, str] | None = None,
+                    backend: str = 'python') -> HybridLockstep:
     """The scene's chain stepped per exchange, its commands at t = 0 in force (the scene's
     ``commands:`` schedule at 0, else pedal 0, brake 0, neutral). The backend behind the
-    coupling node for scenes with clutch, gearbox, brake or commands."""
+    coupling node for scenes with clutch, gearbox, brake or commands. ``backend``:
+    ``'python'`` this reference, ``'kernel'`` each interval on the compiled kernel
+    (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`; dopri5, dop853;
+    CvjError otherwise), ``'auto'`` the kernel where it covers the method and numba is
+    installed, else the reference (``backend_fallback`` says why)."""
+    if backend not in BACKENDS:
+        raise CvjError(f'backend: must be one of {", ".join(BACKENDS)}, got {backend!r}')
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     if getattr(scene, 'is_tree', False):     # vehicle mode scenes: offline reference only
         from cvj_ros.physics.hybrid.scene_keys import mode_gap
@@ -295,6 +307,24 @@ def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | No
     sim = hybrid_simulation(scene, method=method, rtol=rtol, atol=atol, fidelity=fidelity)
     s = sim.schedule
     c0 = Commands(s.value('clutch', 0.0), s.value('brake', 0.0), s.gear(0.0))
-    return HybridLockstep(sim.chain, commands=c0, initial_speed=sim.initial_speed,
-                          stall_speed=sim.stall_speed, method=sim.method, rtol=sim.rtol,
-                          atol=sim.atol, max_step=sim.max_step)
+    cls: type[HybridLockstep] = HybridLockstep
+    fallback = None
+    if backend != 'python':
+        import importlib.util
+
+        from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS
+        if importlib.util.find_spec('numba') is None:
+            fallback = 'compiled kernel: numba is not installed'
+        elif sim.method not in KERNEL_MODE_METHODS:
+            fallback = (f'compiled kernel: mode scenes run with {", ".join(KERNEL_MODE_METHODS)}, '
+                        f'not {sim.method!r}')
+        if fallback is None:
+            from cvj_ros.physics.kernel.modes_lockstep import KernelHybridLockstep
+            cls = KernelHybridLockstep
+        elif backend == 'kernel':
+            raise CvjError(f'backend: {fallback}')
+    out = cls(sim.chain, commands=c0, initial_speed=sim.initial_speed,
+              stall_speed=sim.stall_speed, method=sim.method, rtol=sim.rtol,
+              atol=sim.atol, max_step=sim.max_step)
+    out.backend_fallback = fallback
+    return out

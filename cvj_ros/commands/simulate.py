@@ -217,10 +217,7 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
         print(f'cvj-sim simulate: {note}', file=sys.stderr)
     elif args.backend == 'kernel':
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
-        if getattr(scene, 'is_tree', False):      # vehicle mode scenes: the reference only
-            note = 'compiled kernel: vehicle mode scenes run on the Python reference'
-            print(f'cvj-sim simulate: {note}', file=sys.stderr)
-        elif sim.method in KERNEL_MODE_METHODS:
+        if sim.method in KERNEL_MODE_METHODS:
             sim = KernelHybridSimulation.from_reference(sim)
             backend = 'kernel'
         else:

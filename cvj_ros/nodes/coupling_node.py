@@ -508,6 +508,8 @@ class CouplingNode(CvjNode):
         if p['commands'] == 'driver' and self.mode == 'lockstep' and scene.commands:
             plan = CommandPlan.from_scene(scene, self.h_ns, self.n_steps)
         self.gated_commands = plan is not None
+        # the topics the driver publishes (a channel without rows has no publisher)
+        self._played_topics = {CHANNEL_TOPICS[c] for c in plan.channels} if plan else set()
         self.commands = CommandInbox(plan, n_gears=gear_count(self.hybrid))
         self._refused_said: set[str] = set()
         for channel, topic in CHANNEL_TOPICS.items():
@@ -602,7 +604,7 @@ class CouplingNode(CvjNode):
                 missing.append(f'{topic} (no publisher)')
         if self.gated_commands:      # the driver's command publishers (commands=driver)
             missing += [f'{topic} (no publisher: driver_node)' for topic, sub in self.command_subs.items()
-                        if sub.get_publisher_count() < 1]
+                        if topic in self._played_topics and sub.get_publisher_count() < 1]
         bus = bus_for(self.context)
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
@@ -649,7 +651,8 @@ class CouplingNode(CvjNode):
             (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
             *((topic, sub.get_publisher_count) for topic, sub in self._answer_subs())]
         if self.gated_commands:      # the driver's command topics (commands=driver)
-            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()]
+            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()
+                       if t in self._played_topics]
         bus = bus_for(self.context)
         if self.started and bus is not None:
             topics = [(t, n) for t, n in topics if not bus.carries(t)]

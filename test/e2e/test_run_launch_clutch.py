@@ -121,3 +121,19 @@ def test_joint_states_follow_the_offline_reference(runs) -> None:
 
 BOUND_REL = 0.01
 BOUND_ABS = 0.05
+
+
+def test_diagnostics_carry_the_modes_and_the_vehicle(runs) -> None:
+    """The coupling node's last loop status: gear, clutch and both brakes' modes, the mode
+    events, the vehicle speed and per-wheel tyre values, the energy residual."""
+    d = bag.read_bag(runs['composed'][1], ['/diagnostics'])['/diagnostics']
+    last = [s for ss in d.statuses for s in ss if s['name'] == 'coupling_node: loop'][-1]
+    v = last['values']
+    assert (v['clutch_state.clutch'], v['gear.gearbox']) == ('stuck', '1')
+    assert v['brake_state.brake_left'] == v['brake_state.brake_right'] == 'slip+'
+    assert v['shifting'] == '0' and v['stall'] == '' and v['refused_commands'] == '0'
+    assert int(v['mode_events']) >= 5                 # 2 stuck at 0, 2 releases, the lock
+    assert float(v['vehicle_speed_m_s']) > 2.0
+    for wheel in ('wheel_left', 'wheel_right'):
+        assert float(v[f'{wheel}.fx_N']) > 0.0 and v[f'{wheel}.status'] == '0'
+    assert abs(float(v['energy_residual'])) < 1e-9

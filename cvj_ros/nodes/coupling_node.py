@@ -435,6 +435,9 @@ class CouplingNode(CvjNode):
             if self.scheme != 'zoh':
                 raise ParameterError('coupling_scheme', f'a scene with clutch, gearbox, brake or '
                                                         f'commands runs with zoh, got {self.scheme!r}')
+            if p['wheel_load'] == 'external':
+                raise ParameterError('wheel_load', 'external: not for a scene with clutch, gearbox, '
+                                                   'brake or commands (the mode model has its tyres)')
             try:
                 driveline, stepper = build_hybrid(scene, method=p['solver'] or None,
                                                   rtol=p['rtol'] or None, atol=p['atol'] or None,

@@ -78,8 +78,10 @@ class HybridTreeLockstep(HybridTreeSimulation):
     def set_commands(self, clutch: float | None = None, brake: float | None = None,
                      gear: int | None = None) -> None:
         """Commands in force from the next interval on (None keeps a channel; with a shift
-        schedule the gear is the schedule's)."""
+        schedule the gear is the schedule's: a gear command is refused with a status)."""
         now = self.commands.now
+        if gear is not None and self.auto is not None and int(gear) != now.gear:
+            self._status(self.t, f'gear {int(gear)} refused: the shift_schedule chooses the gear')
         new = Commands(now.clutch if clutch is None else float(clutch),
                        now.brake if brake is None else float(brake),
                        now.gear if gear is None else int(gear))

@@ -98,6 +98,9 @@ def test_ros_runs_are_prepared_on_the_tree_lockstep(tmp_path) -> None:
         TreeDriveline.from_scene(scene)
     nodes = prepare(RunOptions('launch_clutch', tmp_path / 'run')).nodes
     assert 'driver_node' in nodes and 'coupling_node' in nodes
+    from cvj_ros.errors import CvjError
+    with pytest.raises(CvjError, match='^--external load: a vehicle scene with clutch'):
+        prepare(RunOptions('launch_clutch', tmp_path / 'run2', external=('load',)))
 
 
 def test_fwd_axle_manual_commanded_upshift() -> None:

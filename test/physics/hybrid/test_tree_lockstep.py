@@ -111,3 +111,30 @@ def test_held_brake_keeps_the_wheels_exactly_at_rest() -> None:
     assert mv['gear.gearbox'] == 1 and mv['clutch_state.clutch'] == 'slip+'
     assert mv['vehicle_speed_m_s'] == 0.0 and mv['stall'] == ''
     assert hl.gear_count() == 4
+
+
+def test_a_stall_stops_the_stepper_with_one_line() -> None:
+    """Clutch open, a held engine torque of -50 N m: the crank (J 0.25 kg m^2 with the
+    clutch's input side) falls from 800 rpm below the stall speed (500 rpm) after
+    (83.78 - 52.36) 0.25 / 50 = 0.157 s; the stepper stops there and says so."""
+    hl = hybrid_lockstep(_scene())
+    k = 0
+    while hl.stall is None and k < 400:
+        hl.advance((k + 1) * 1e-3, -50.0, 0.0)
+        k += 1
+    assert hl.stall is not None and hl.stall.startswith('engine stalled at t=')
+    t_stall = float(hl.stall.split('t=')[1].split(' ')[0])
+    assert t_stall == pytest.approx((800 - 500) * np.pi / 30 * 0.25 / 50, abs=1e-5)
+    assert hl.mode_values()['stall'] == hl.stall
+    t_end = hl.t
+    hl.advance(t_end + 1e-3, -50.0, 0.0)         # stalled: nothing moves on
+    assert hl.t == t_end
+
+
+def test_a_gear_command_under_a_shift_schedule_is_refused_with_a_status() -> None:
+    hl = hybrid_lockstep(_scene())
+    hl.set_commands(gear=3)
+    hl.advance(1e-3, 20.0, 0.0)
+    assert hl.gear() == 1
+    mv = hl.mode_values()
+    assert mv['refused_commands'] == 1 and 'shift_schedule chooses' in mv['last_refused']

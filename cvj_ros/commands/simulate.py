@@ -217,7 +217,9 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
         print(f'cvj-sim simulate: {note}', file=sys.stderr)
     elif args.backend == 'kernel':
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
-        if sim.method in KERNEL_MODE_METHODS:
+        if sim.chain is None:       # a vehicle tree: the compiled mode kernel covers chains
+            note = 'compiled kernel: vehicle mode scenes run on the Python reference'
+        elif sim.method in KERNEL_MODE_METHODS:
             sim = KernelHybridSimulation.from_reference(sim)
             backend = 'kernel'
         else:

@@ -127,9 +127,6 @@ def run(args: argparse.Namespace) -> int:
     base = load_scene_data(path)
     from cvj_ros.physics.scene import parse_scene
     scene = parse_scene(base)
-    if scene.has_modes and scene.is_tree:     # vehicle mode scenes: offline reference only
-        from cvj_ros.physics.hybrid.scene_keys import mode_gap
-        raise SweepError(': '.join(mode_gap(scene)))
     if scene.has_modes and args.orders_shaft is not None:   # clutch, gearbox, brake, commands
         raise SweepError('--orders-shaft: a scene with clutch, gearbox, brake or commands is swept '
                          'on the Python reference, which keeps speeds, not shaft torques')

@@ -440,6 +440,9 @@ class CouplingNode(CvjNode):
             if self.scheme != 'zoh':
                 raise ParameterError('coupling_scheme', f'a scene with clutch, gearbox, brake or '
                                                         f'commands runs with zoh, got {self.scheme!r}')
+            if p['wheel_load'] == 'external':
+                raise ParameterError('wheel_load', 'external: not for a scene with clutch, gearbox, '
+                                                   'brake or commands (the mode model has its tyres)')
             try:
                 driveline, stepper = build_hybrid(scene, method=p['solver'] or None,
                                                   rtol=p['rtol'] or None, atol=p['atol'] or None,
@@ -524,6 +527,8 @@ class CouplingNode(CvjNode):
         if p['commands'] == 'driver' and self.mode == 'lockstep' and scene.commands:
             plan = CommandPlan.from_scene(scene, self.h_ns, self.n_steps)
         self.gated_commands = plan is not None
+        # the topics the driver publishes (a channel without rows has no publisher)
+        self._played_topics = {CHANNEL_TOPICS[c] for c in plan.channels} if plan else set()
         self.commands = CommandInbox(plan, n_gears=gear_count(self.hybrid))
         self._refused_said: set[str] = set()
         for channel, topic in CHANNEL_TOPICS.items():
@@ -618,7 +623,7 @@ class CouplingNode(CvjNode):
                 missing.append(f'{topic} (no publisher)')
         if self.gated_commands:      # the driver's command publishers (commands=driver)
             missing += [f'{topic} (no publisher: driver_node)' for topic, sub in self.command_subs.items()
-                        if sub.get_publisher_count() < 1]
+                        if topic in self._played_topics and sub.get_publisher_count() < 1]
         bus = bus_for(self.context)
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
@@ -665,7 +670,8 @@ class CouplingNode(CvjNode):
             (JOINT_STATES_TOPIC, lambda: self.count_publishers(JOINT_STATES_TOPIC)),
             *((topic, sub.get_publisher_count) for topic, sub in self._answer_subs())]
         if self.gated_commands:      # the driver's command topics (commands=driver)
-            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()]
+            topics += [(t, sub.get_publisher_count) for t, sub in self.command_subs.items()
+                       if t in self._played_topics]
         bus = bus_for(self.context)
         if self.started and bus is not None:
             topics = [(t, n) for t, n in topics if not bus.carries(t)]

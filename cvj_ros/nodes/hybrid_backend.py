@@ -31,13 +31,19 @@ class HybridDriveline:
 
     @property
     def n_dof(self) -> int:
+        if hasattr(self.hybrid, 'n_dof'):          # a vehicle tree (HybridTreeLockstep)
+            return int(self.hybrid.n_dof)
         return len(self.hybrid.chain.assemble(self.hybrid.mode).groups)
 
     def state(self) -> np.ndarray:
+        if hasattr(self.hybrid, 'state_vector'):
+            return self.hybrid.state_vector()
         st = self.hybrid.st
         return np.concatenate([st.q, st.v])
 
     def energy(self, x: np.ndarray) -> dict[str, float]:
+        if hasattr(self.hybrid, 'energy_parts'):
+            return self.hybrid.energy_parts()
         kin, el = self.hybrid.chain.energy(self.hybrid.st)
         return {'kinetic': kin, 'elastic': el}
 
@@ -96,6 +102,8 @@ def build_hybrid(scene: Any, *, method: str | None, rtol: float | None, atol: fl
 
 def gear_count(hybrid: Any) -> int | None:
     """Forward gears of the scene's gearbox (None without one)."""
+    if hasattr(hybrid, 'gear_count'):              # a vehicle tree
+        return hybrid.gear_count()
     boxes = list(hybrid.chain.gearboxes.values())
     return len(boxes[0][0].ratios) if boxes else None
 
@@ -103,7 +111,10 @@ def gear_count(hybrid: Any) -> int | None:
 def mode_values(hybrid: Any) -> dict[str, Any]:
     """Loop-diagnostics values of the mode model: engaged gear, each clutch's and the brake's
     mode (slip+ / stuck / slip-), the mode events so far, the refused commands and the stall
-    line (empty while the engine runs)."""
+    line (empty while the engine runs); a vehicle tree adds the vehicle values
+    (HybridTreeLockstep.mode_values)."""
+    if hasattr(hybrid, 'mode_values'):
+        return hybrid.mode_values()
     out: dict[str, Any] = {}
     names = hybrid.mode_names()
     for name, (_cl, _b) in hybrid.chain.clutches.items():

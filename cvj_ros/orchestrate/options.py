@@ -148,10 +148,9 @@ def prepare(options: RunOptions) -> _Prepared:
     from cvj_ros.physics.scene import Joint, find_scene, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
-    if scene.has_modes and scene.is_tree:    # a vehicle scene with clutch, gearbox, brake
-        from cvj_ros.physics.hybrid.scene_keys import mode_gap
-        field, reason = mode_gap(scene)
-        raise CvjError(f'{field}: {reason}')
+    if scene.has_modes and scene.is_tree and 'load' in options.external:
+        raise CvjError('--external load: a vehicle scene with clutch, gearbox or brakes runs its '
+                       'built-in tyres (the mode model takes no outside wheel loads yet)')
     if scene.has_modes and options.scheme != 'zoh':   # clutch, gearbox, brake, commands
         raise CvjError(f'--scheme: a scene with clutch, gearbox, brake or commands runs with zoh '
                        f'(the mode model holds the received torques), got {options.scheme!r}')

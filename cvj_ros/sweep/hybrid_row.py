@@ -2,7 +2,9 @@
 model on the compiled kernel (:mod:`cvj_ros.physics.kernel.modes`, methods dopri5 and dop853)
 or its Python reference (:mod:`cvj_ros.physics.hybrid`; backend 'python' or another method),
 summarised as events per element, the first lock-up of each clutch and brake, the final
-modes and shaft speeds, the stall, refused commands and the energy residual."""
+modes and shaft speeds, the stall, refused commands and the energy residual; a vehicle
+scene (the tree reference): the same per clutch, gearbox, wheel brake and clutch-pack
+differential, and the final vehicle speed."""
 from __future__ import annotations
 
 import math
@@ -21,7 +23,8 @@ def hybrid_row(scene: Any, options: Any) -> dict[str, Any]:
                             sample_dt=options.sample_dt)
     chain = sim.chain
     backend = 'python'
-    if getattr(options, 'backend', 'kernel') == 'kernel':
+    tree = chain is None          # a vehicle scene: HybridTreeSimulation (Python reference)
+    if getattr(options, 'backend', 'kernel') == 'kernel' and not tree:
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
         if sim.method in KERNEL_MODE_METHODS:
             sim, backend = KernelHybridSimulation.from_reference(sim), 'kernel'
@@ -34,17 +37,27 @@ def hybrid_row(scene: Any, options: Any) -> dict[str, Any]:
     row['stall'] = r.stall is not None
     row['refused_commands'] = sum(1 for s in r.statuses if 'refused' in s)
     mode = r.final_mode
-    elements = [*chain.clutches, *chain.gearboxes] + ([chain.brake.name] if chain.brake else [])
+    if tree:      # every clutch, gearbox, wheel brake and clutch-pack differential
+        friction = [*sim.clutches, *sim.brake_els, *sim.packs]
+        elements = [*sim.clutches, *sim.gearboxes, *sim.brake_els, *sim.packs]
+    else:
+        friction = [*chain.clutches] + ([chain.brake.name] if chain.brake else [])
+        elements = [*chain.clutches, *chain.gearboxes] + friction[len(chain.clutches):]
     for el in elements:
         row[f'{el}.events'] = r.count(el)
-    for el in [*chain.clutches] + ([chain.brake.name] if chain.brake else []):
+    for el in friction:
         locks = [e.t for e in r.events if e.element == el and e.after == 'stuck' and e.t > 0]
         row[f'{el}.first_stuck_s'] = locks[0] if locks else math.nan
     for name, m in mode.clutch.items():
         row[f'{name}.final_mode'] = mode_name(m)
     for name, g in mode.gear.items():
         row[f'{name}.final_gear'] = int(g)
-    if chain.brake is not None and mode.brake is not None:
+    if tree:
+        for name, m in [*mode.brakes.items(), *mode.packs.items()]:
+            row[f'{name}.final_mode'] = mode_name(m)
+        vel = getattr(r, 'vehicle_speed', None)
+        row['vehicle_speed_m_s'] = float(vel[-1]) if vel is not None and r.t.size else math.nan
+    elif chain.brake is not None and mode.brake is not None:
         row[f'{chain.brake.name}.final_mode'] = mode_name(mode.brake)
     for i, shaft in enumerate(r.shafts):
         row[f'{shaft}.final_speed'] = float(r.speed[-1, i]) if r.t.size else math.nan

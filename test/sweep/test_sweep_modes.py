@@ -66,3 +66,32 @@ def test_an_invalid_mode_variant_names_its_field() -> None:
     data['driveline'][-1]['mu_static'] = 0.1
     row, _wall = run_variant(data, RunOptions())
     assert row['status'] == 'invalid' and row['error'].startswith('driveline[7]')
+
+
+def test_cli_sweeps_a_vehicle_mode_scene(tmp_path: Path) -> None:
+    """launch_clutch (a vehicle tree: clutch, gearbox, two wheel brakes, a shift schedule),
+    2 variants of 2 s (brake hold and release at ~1.74 s, clutch slipping): one row per
+    variant with columns per element, each the offline reference's result."""
+    assert main(['sweep', 'launch_clutch', '--set', 'duration=2.0',
+                 '--set', 'vehicle.grade_percent=8,10', '--out', str(tmp_path / 's'),
+                 '--workers', '1', '--no-plots']) == 0
+    rows = list(csv.DictReader(open(tmp_path / 's' / 'results.csv')))
+    assert [r['status'] for r in rows] == ['ok', 'ok'] and rows[0]['backend'] == 'python'
+    for r in rows:
+        assert r['brake_left.final_mode'] == r['brake_right.final_mode'] == 'slip+'
+        assert r['clutch.final_mode'] == 'slip+' and r['gearbox.final_gear'] == '1'
+        assert float(r['vehicle_speed_m_s']) > 0.0          # rolling up the grade
+    by_grade = {float(r['vehicle.grade_percent']): r for r in rows}
+    # 10 %: stuck at 0, released once; 8 %: released earlier, stuck again once, released
+    assert int(by_grade[10.0]['brake_left.events']) == 2
+    assert int(by_grade[8.0]['brake_left.events']) == 4
+    path = find_scene('launch_clutch')
+    data = load_yaml_bounded(read_text_file(path, what='scene file'), str(path))
+    data['duration'] = 2.0
+    data['vehicle']['grade_percent'] = 8
+    _sim, r, _w = run_hybrid(parse_scene(data))
+    row = by_grade[8.0]
+    for i, shaft in enumerate(r.shafts):
+        assert float(row[f'{shaft}.final_speed']) == r.speed[-1, i]
+    assert float(row['vehicle_speed_m_s']) == float(r.vehicle_speed[-1])
+    assert float(row['energy_residual']) == r.max_energy_residual < 1e-9

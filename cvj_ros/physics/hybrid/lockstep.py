@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cvj_ros.errors import CvjError, SceneError
+from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import STUCK, mode_name
 from cvj_ros.physics.hybrid.simulate import HybridSimulation
@@ -290,23 +290,31 @@ BACKENDS = ('auto', 'kernel', 'python')
 
 def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | None = None,
                     atol: float | None = None, fidelity: Mapping[str, str] | None = None,
-                    backend: str = 'python') -> HybridLockstep:
-    """The scene's chain stepped per exchange, its commands at t = 0 in force (the scene's
-    ``commands:`` schedule at 0, else pedal 0, brake 0, neutral). The backend behind the
-    coupling node for scenes with clutch, gearbox, brake or commands. ``backend``:
-    ``'python'`` this reference, ``'kernel'`` each interval on the compiled kernel
-    (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`; dopri5, dop853;
-    CvjError otherwise), ``'auto'`` the kernel where it covers the method and numba is
-    installed, else the reference (``backend_fallback`` says why)."""
+                    backend: str = 'python') -> Any:
+    """The scene's chain (a HybridLockstep) or vehicle tree (a HybridTreeLockstep) stepped
+    per exchange, its commands at t = 0 in force (the scene's ``commands:`` schedule at 0,
+    else pedal 0, brake 0, neutral). The backend behind the coupling node for scenes with
+    clutch, gearbox, brake or commands. ``backend``: ``'python'`` this reference,
+    ``'kernel'`` each interval on the compiled kernel
+    (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`; dopri5, dop853,
+    chains only; CvjError otherwise), ``'auto'`` the kernel where it covers the scene and
+    method and numba is installed, else the reference (``backend_fallback`` says why)."""
     if backend not in BACKENDS:
         raise CvjError(f'backend: must be one of {", ".join(BACKENDS)}, got {backend!r}')
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
-    if getattr(scene, 'is_tree', False):     # vehicle mode scenes: offline reference only
-        from cvj_ros.physics.hybrid.scene_keys import mode_gap
-        raise SceneError(*mode_gap(scene))
     sim = hybrid_simulation(scene, method=method, rtol=rtol, atol=atol, fidelity=fidelity)
-    s = sim.schedule
+    s = getattr(sim.schedule, 'base', sim.schedule)      # under a shift schedule: the commands
     c0 = Commands(s.value('clutch', 0.0), s.value('brake', 0.0), s.gear(0.0))
+    if getattr(scene, 'is_tree', False):     # a vehicle: cvj_ros.physics.hybrid.tree_lockstep
+        if backend == 'kernel':
+            raise CvjError('backend: compiled kernel: vehicle mode scenes run on the Python reference')
+        from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
+        tree = HybridTreeLockstep(scene, sim.levels, commands=c0, shift=scene.shift_schedule,
+                                  stall_speed=sim.stall_speed, method=sim.method, rtol=sim.rtol,
+                                  atol=sim.atol, max_step=sim.max_step)
+        tree.backend_fallback = ('compiled kernel: vehicle mode scenes run on the Python reference'
+                                 if backend == 'auto' else None)
+        return tree
     cls: type[HybridLockstep] = HybridLockstep
     fallback = None
     if backend != 'python':

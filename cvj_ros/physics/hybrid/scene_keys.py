@@ -112,13 +112,10 @@ def parse_commands(raw: Any, chain: Sequence[Any]) -> tuple[dict[str, float], ..
 
 
 def mode_gap(scene: Any) -> tuple[str, str]:
-    """(field, one-line reason) why ``scene`` (``has_modes``) cannot run on the compiled
-    kernel, Driveline, a sweep or a ROS run yet (a vehicle scene: the ROS loop and sweeps
-    take chain mode scenes only)."""
+    """(field, one-line reason) why ``scene`` (``has_modes``) cannot be built as the
+    event-free Driveline or TreeDriveline (its modes need cvj_ros.physics.hybrid)."""
     from cvj_ros.physics.scene import _paths
-    where = ('a vehicle scene with stick/slip modes runs offline only (`cvj-sim simulate`, Python '
-             'reference)' if getattr(scene, 'is_tree', False) else
-             'stick/slip modes need the mode model (`cvj-sim simulate`, `cvj-sim run`, '
+    where = ('stick/slip modes need the mode model (`cvj-sim simulate`, `cvj-sim run`, '
              '`cvj-sim sweep`), not the event-free one')
     for path, el in _paths(scene.driveline):
         if getattr(el, 'type', '') in MODE_TYPES or getattr(el, 'kind', '') == 'clutch_pack':

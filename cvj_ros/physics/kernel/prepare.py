@@ -84,6 +84,10 @@ def halves(scene: Any, method: str) -> tuple[Half, Half]:
     compiled reactions, so it does not decide whether the outputs are cold; it compiles with
     them)."""
     from cvj_ros.physics.kernel import outputs_nb, sources_nb, window_nb
+    if getattr(scene, 'has_modes', False):    # the mode model (Python reference) steps it
+        stepper = [sources_nb.map_engine_nb] if _uses_map_engine(scene) else []
+        stepper += [window_nb.ring_push, window_nb.ring_window_stats, window_nb.cdr_rows]
+        return (Half('stepper', stepper, _words(stepper, method)), Half('outputs', [], ''))
     stepper = [_advance(method)]
     if _uses_map_engine(scene):
         stepper.append(sources_nb.map_engine_nb)
@@ -125,6 +129,10 @@ def compile_half(name: str, scene: Any, *, scheme: str = 'zoh',
     copy), the engine node's map engine and the monitor's windows; or the coupling node's
     per-exchange outputs (:func:`cvj_ros.physics.state_outputs.make_state_outputs`)."""
     from cvj_ros.physics.driveline import Driveline
+    if getattr(scene, 'has_modes', False):    # no kernel stepper or outputs: engine, monitor
+        if name != 'outputs':
+            _compile_sources(scene)
+        return
     driveline = Driveline.from_scene(scene)
     if name == 'outputs':
         from cvj_ros.physics.state_outputs import make_state_outputs
@@ -137,6 +145,11 @@ def compile_half(name: str, scene: Any, *, scheme: str = 'zoh',
     CoupledStepper(driveline, scheme=scheme, method=method, rtol=scene.solver.rtol,
                    atol=scene.solver.atol, h=h_fixed if method in ('rk4', 'ros2') else scene.solver.h,
                    slope='estimate' if scheme == 'linear_implicit' else 'reported')
+    _compile_sources(scene)
+
+
+def _compile_sources(scene: Any) -> None:
+    """The engine node's map engine and the monitor's windows."""
     if _uses_map_engine(scene):
         from cvj_ros.physics.engine import engine_from_spec
         from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque

@@ -82,11 +82,25 @@ def test_cli_simulate_reports_events_per_element(capsys) -> None:
     assert s['final_vehicle_speed_m_s'] > 0.0
 
 
-def test_cli_refuses_ros_runs(tmp_path, capsys) -> None:
-    assert main(['run', 'launch_clutch', '--out', str(tmp_path / 'run')]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith('cvj-sim: error: ')
-    assert 'cvj-sim simulate' in err[0]
+def test_ros_runs_are_prepared_on_the_tree_lockstep(tmp_path) -> None:
+    """`cvj-sim run` takes the scene (no refusal; the runs themselves:
+    test/e2e/test_run_launch_clutch.py): the coupling node's backend is the vehicle mode
+    model stepped per exchange, and the event-free models still refuse it naming the
+    clutch."""
+    from cvj_ros.errors import SceneError
+    from cvj_ros.orchestrate.options import RunOptions, prepare
+    from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
+    from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
+    from cvj_ros.physics.tree import TreeDriveline
+    scene = load_scene(shipped_scenes()['launch_clutch'])
+    assert isinstance(hybrid_lockstep(scene), HybridTreeLockstep)
+    with pytest.raises(SceneError, match=r"driveline\[1\].*clutch 'clutch'"):
+        TreeDriveline.from_scene(scene)
+    nodes = prepare(RunOptions('launch_clutch', tmp_path / 'run')).nodes
+    assert 'driver_node' in nodes and 'coupling_node' in nodes
+    from cvj_ros.errors import CvjError
+    with pytest.raises(CvjError, match='^--external load: a vehicle scene with clutch'):
+        prepare(RunOptions('launch_clutch', tmp_path / 'run2', external=('load',)))
 
 
 def test_fwd_axle_manual_commanded_upshift() -> None:

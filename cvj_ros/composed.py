@@ -116,6 +116,7 @@ class ComposedDriveline:
         self.batching: Any = None      # cvj_ros.bag.BatchingWriter once the recorder is added
         self._recorder_node: Any = None
         self._wake: Any = None
+        self._spin_timer: tuple[Any, float] = (None, 0.0)   # (timer, wall period) of _spin
         # the container's own node (as rclcpp's component manager has one): its timers end
         # the timed spins, see _spin
         self._container = rclpy.create_node(PROG, context=context)
@@ -213,11 +214,23 @@ class ComposedDriveline:
         give control back for Ctrl-C or progress until the run ends."""
         from rclpy.task import Future
         self._wake = Future()
-        timer = self._container.create_timer(max(seconds, 1e-4), self.wake)
+        period = max(seconds, 1e-4)
+        # one timer per period, re-armed for every spin: a timer created and destroyed per
+        # spin keeps memory in rclpy (a weak reference in the callback group per timer, ~150
+        # bytes, and ~250 bytes of native memory) and, on the EventsExecutor, spins of a
+        # busy loop end early, many times a second (docs/robustness.md "Long runs")
+        timer, timer_period = self._spin_timer
+        if timer is None or timer_period != period:
+            if timer is not None:
+                self._container.destroy_timer(timer)
+            timer = self._container.create_timer(period, self.wake)
+            self._spin_timer = (timer, period)
+        else:
+            timer.reset()
         try:
-            self.executor.spin_until_future_complete(self._wake, timeout_sec=max(seconds, 1e-4) + 1.0)
+            self.executor.spin_until_future_complete(self._wake, timeout_sec=period + 1.0)
         finally:
-            self._container.destroy_timer(timer)
+            timer.cancel()
             self._wake = None
             self.flush()
 

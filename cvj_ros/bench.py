@@ -689,7 +689,7 @@ def overhead_ratios(real: dict[str, Any], rt: dict[str, Any]) -> dict[str, float
     return out
 
 
-#: the round trip of the same topology per loop mode (overhead ratio, issue 10)
+#: the round trip of the same topology per loop mode (overhead ratio)
 MODE_ROUND_TRIP = {'separate': 'events_ipc2', 'composed': 'events2'}
 
 
@@ -1052,7 +1052,7 @@ def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> 
     and mode."""
     if not real:
         return []
-    from cvj_ros.orchestrate.report import REAL_TIME_TARGETS   # issue 10's, as cvj-sim run says
+    from cvj_ros.orchestrate.report import REAL_TIME_TARGETS   # the loop's real-time targets
     md = ['', 'Real lockstep runs (`cvj-sim run SCENE --duration 5`, 1 ms exchange step; separate = '
           'one process per loop node, the monitor beside the recorder; composed = `--composed`, one '
           'process). Overhead = exchange wall - integration; its ratio is to the round trip of the '

@@ -117,7 +117,7 @@ class MonitorNode(CvjNode):
         from cvj_ros.nodes.intra import loop_publisher, loop_subscription
         self.diag_pub = loop_publisher(self, DiagnosticArray, DIAGNOSTICS_TOPIC, DATA_QOS)
         # joint states as raw CDR too, read by JointStateDecoder (rclpy's Python JointState
-        # per sample cost ~4x more; issue 10)
+        # per sample cost ~4x more)
         self._js_decoder = JointStateDecoder()
         self._decode = self._js_decoder.decode
         # the compiled window kernels loaded now, not at the first publication inside the loop

@@ -534,8 +534,7 @@ class Simulation:
         """:meth:`run` on the compiled kernel. The plan of these options (sample times, grid,
         stepper) is made once per Simulation and options; a later run resets the plan's
         stepper (the same steps and bytes as a new one) and spends its Python on little more
-        than one compiled call - a loose-tolerance stiff run is ~17 us in all (rodas3),
-        ~80 before stop 23 (docs/solvers.md "Short runs")."""
+        than one compiled call (costs in docs/solvers.md, "Short runs")."""
         key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
         plan = self._plans.get(key)
         x0 = self.driveline.x0

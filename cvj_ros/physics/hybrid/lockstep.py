@@ -129,23 +129,34 @@ class HybridLockstep(HybridSimulation):
 
     # --- stepping ----------------------------------------------------------------------
 
-    def advance(self, t_next: float, T_engine: float, T_load: float) -> SectionState:
-        """Integrate t -> ``t_next`` (s) with the torques (N m) and commands held; stops early
-        at a stall (``self.stall`` holds its line). Returns the section state at the end."""
+    def _begin(self, t_next: float, T_engine: float, T_load: float
+               ) -> tuple[Any, SectionState, float] | None:
+        """The start of :meth:`advance`: checks the torques (N m) and ``t_next`` (s), holds the
+        torques, applies a command change (shift, then settle); None after a stall, else
+        (mode, sections, t) to integrate from."""
         if not (math.isfinite(T_engine) and math.isfinite(T_load)):
             raise CvjError(f'non-finite torque (engine {T_engine}, load {T_load})')
         if t_next <= self.t:
             raise CvjError(f'cannot advance from t={self.t} s to t={t_next} s')
         if self.stall is not None:
-            return self.st
+            return None
         self.engine.value = float(T_engine)
         self.load.value = float(T_load)
-        ch = self.chain
         mode, st, t = self.mode, self.st, self.t
         if self._changed:
             mode, st = self._shift(t, mode, st)
             mode, st = self._settle(t, mode, st)
             self._changed = False
+        return mode, st, t
+
+    def advance(self, t_next: float, T_engine: float, T_load: float) -> SectionState:
+        """Integrate t -> ``t_next`` (s) with the torques (N m) and commands held; stops early
+        at a stall (``self.stall`` holds its line). Returns the section state at the end."""
+        begun = self._begin(t_next, T_engine, T_load)
+        if begun is None:
+            return self.st
+        mode, st, t = begun
+        ch = self.chain
         while t < t_next and self.stall is None:
             if t_next - t <= 1e-12 * max(1.0, abs(t)):
                 t = t_next

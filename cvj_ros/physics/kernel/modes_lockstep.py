@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.friction import STUCK
 from cvj_ros.physics.hybrid.lockstep import HybridLockstep
 from cvj_ros.physics.kernel.modes import (MH_ENGINE_F, MH_LOAD_F, MH_RAMP_B, MH_RAMP_C,
@@ -89,20 +88,11 @@ class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
 
     def advance(self, t_next: float, T_engine: float, T_load: float) -> Any:
         """As :meth:`HybridLockstep.advance`, each mode segment one compiled call."""
-        if not (math.isfinite(T_engine) and math.isfinite(T_load)):
-            raise CvjError(f'non-finite torque (engine {T_engine}, load {T_load})')
-        if t_next <= self.t:
-            raise CvjError(f'cannot advance from t={self.t} s to t={t_next} s')
-        if self.stall is not None:
+        begun = self._begin(t_next, T_engine, T_load)
+        if begun is None:
             return self.st
-        self.engine.value = float(T_engine)
-        self.load.value = float(T_load)
+        mode, st, t = begun
         ch = self.chain
-        mode, st, t = self.mode, self.st, self.t
-        if self._changed:
-            mode, st = self._shift(t, mode, st)
-            mode, st = self._settle(t, mode, st)
-            self._changed = False
         while t < t_next and self.stall is None:
             if t_next - t <= 1e-12 * max(1.0, abs(t)):
                 t = t_next

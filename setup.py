@@ -2,15 +2,58 @@
 
 `colcon build` installs the node executables to ``lib/cvj_ros`` (setup.cfg), which is
 where ``ros2 run cvj_ros <node>`` looks them up through the ament index. A plain
-``pip install`` puts the same console scripts on the venv's PATH.
+``pip install`` puts the same executables on the venv's PATH.
+
+The executables are not pip console scripts but POSIX-sh launchers written here
+(:func:`launcher_text`): they start this Python with SIGINT blocked, so a Ctrl-C during the
+interpreter's own start-up waits for ``cvj_ros.start.run``, which ends the program quietly
+(docs/ros.md "Packaging").
 """
+import shlex
+import sys
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'cvj_ros'
 
 NODES = ['engine_node', 'coupling_node', 'load_node', 'monitor_node', 'replay_node', 'driver_node']
+
+# executable -> the function it runs; each node's main() through its launcher
+# (cvj_ros/nodes/entry.py: a Ctrl-C during the node module's imports ends it quietly)
+EXECUTABLES = {'cvj-sim': 'cvj_ros.cli:main', 'driveline_composed': 'cvj_ros.composed:main',
+               **{n: f'cvj_ros.nodes.entry:{n}' for n in NODES}}
+LAUNCHER_DIR = Path('build') / 'cvj_launchers'
+
+
+def launcher_text(target: str, python: str) -> str:
+    """The launcher of ``target`` ('module:function'): ``python`` started by GNU env with
+    SIGINT blocked (a blocked signal stays pending across exec), ``-P`` (no script or working
+    directory on sys.path), running ``cvj_ros.start.run(target)`` with the launcher's path
+    as ``sys.argv[0]``."""
+    code = f'from cvj_ros.start import run; run("{target}")'
+    return ('#!/bin/sh\n'
+            '# cvj_ros executable (written by setup.py): Python starts with SIGINT blocked and\n'
+            '# cvj_ros.start takes it over, so a Ctrl-C during start-up prints no traceback\n'
+            f'exec /usr/bin/env --block-signal=INT {shlex.quote(python)} -P -c {shlex.quote(code)} "$0" "$@"\n')
+
+
+def write_launchers() -> list[str]:
+    """Write every executable's launcher for the Python running this build (as pip's
+    console scripts name it in their first line); their paths, relative to setup.py."""
+    here = Path(__file__).resolve().parent
+    (here / LAUNCHER_DIR).mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, target in EXECUTABLES.items():
+        path = here / LAUNCHER_DIR / name
+        text = launcher_text(target, sys.executable)
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+        path.chmod(0o755)
+        paths.append(str(LAUNCHER_DIR / name))
+    return paths
+
 
 setup(
     name=package_name,
@@ -33,12 +76,5 @@ setup(
     description='Virtual driveline for ROS 2 with exact coupling kinematics.',
     license='Apache-2.0',
     tests_require=['pytest'],
-    entry_points={
-        'console_scripts': [
-            'cvj-sim = cvj_ros.cli:main',
-            'driveline_composed = cvj_ros.composed:main',
-        # each node's main() through its launcher (cvj_ros/nodes/entry.py: a Ctrl-C during the
-        # node module's imports ends it quietly)
-        ] + [f'{n} = cvj_ros.nodes.entry:{n}' for n in NODES],
-    },
+    scripts=write_launchers(),
 )

@@ -16,9 +16,9 @@ the console script, ``python -m cvj_ros.cli``), a subcommand that sets
 
 A Ctrl-C at any point of :func:`main` (also while it imports the subcommand) prints
 ``cvj-sim: interrupted`` and exits 130. This module imports next to nothing at load time
-(``argparse`` and the rest inside the functions), so the window before ``main`` runs -
-the console script importing this module - is as short as it can be; a SIGINT during
-Python's own start-up (``site``, before any cvj_ros code) is the interpreter's to report.
+(``argparse`` and the rest inside the functions), so the window before ``main`` runs is
+short; the installed ``cvj-sim`` (setup.py's launcher, :mod:`cvj_ros.start`) starts Python
+with SIGINT blocked until then, so a Ctrl-C during Python's own start-up ends it the same way.
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Console-script launchers of the node executables (setup.py entry points): each imports its
-node module and calls that module's ``main()``.
+"""Entry functions of the node executables (setup.py's launchers run them through
+:func:`cvj_ros.start.run`): each imports its node module and calls that module's ``main()``.
 
 Why not ``cvj_ros.nodes.<node>:main`` directly: a console script imports the module before it
 calls ``main``, so a SIGINT that arrives while the module's imports (rclpy, numpy, numba, the

@@ -44,6 +44,9 @@ def test_colcon_build_installs_runnable_executables(tmp_path: Path) -> None:
     prefix = tmp_path / 'install' / 'cvj_ros'
     lib = prefix / 'lib' / 'cvj_ros'
     assert sorted(p.name for p in lib.iterdir()) == sorted(NODES + ['cvj-sim'])
+    for exe in lib.iterdir():   # setup.py's sh launchers (SIGINT blocked until cvj_ros.start runs)
+        text = exe.read_text()
+        assert text.startswith('#!/bin/sh\n') and '--block-signal=INT' in text, exe.name
     assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'cvj_ros').exists()
     assert (prefix / 'share' / 'cvj_ros' / 'package.xml').exists()
     # the launch file is installed where `ros2 launch cvj_ros driveline.launch.py` finds it, and

@@ -19,13 +19,13 @@ COUPLING = str(Path(sys.executable).with_name('coupling_node'))
 
 
 def test_every_node_executable_goes_through_its_launcher() -> None:
-    """setup.py registers each node's console script as its launcher, and each launcher
-    names the module of the same name."""
+    """setup.py's executable of each node runs its launcher here, and each launcher names
+    the module of the same name."""
     import re
     setup = (Path(__file__).resolve().parents[2] / 'setup.py').read_text()
     nodes = re.search(r"NODES = \[(.*?)\]", setup).group(1)
     names = [n.strip().strip("'") for n in nodes.split(',')]
-    assert "f'{n} = cvj_ros.nodes.entry:{n}' for n in NODES" in setup
+    assert "**{n: f'cvj_ros.nodes.entry:{n}' for n in NODES}" in setup
     for name in names:
         assert callable(getattr(entry, name))
         assert (Path(entry.__file__).with_name(f'{name}.py')).is_file()

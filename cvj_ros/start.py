@@ -38,6 +38,7 @@ def run(target: str) -> None:
     module, _, function = target.partition(':')
     status, line = INTERRUPTED.get(module, (0, ''))
     del sys.argv[0]                      # '-c': argv[0] is the launcher's path, as for a script
+    _name_process(os.path.basename(sys.argv[0]))
     sys.unraisablehook = _redeliver_interrupt(sys.unraisablehook)
     try:
         # a Ctrl-C pending since exec is delivered here, as KeyboardInterrupt
@@ -57,6 +58,16 @@ def run(target: str) -> None:
             print(line, file=sys.stderr)
     _exit_quietly_on_sigint(status)
     sys.exit(status)
+
+
+def _name_process(name: str) -> None:
+    """Show ``name`` (not ``python``) as the process name in ps/top, as when a script runs
+    from its own ``#!`` line (Linux: /proc/self/comm, 15 characters)."""
+    try:
+        with open('/proc/self/comm', 'w') as comm:
+            comm.write(name[:15])
+    except OSError:
+        pass
 
 
 def _redeliver_interrupt(previous: Callable[[object], object]) -> Callable[[object], object]:

@@ -56,6 +56,13 @@ def test_installed_executables_are_the_launchers() -> None:
         assert f'run("{target}")' in text and '--block-signal=INT' in text, name
 
 
+def test_a_running_executable_is_named_after_itself() -> None:
+    """ps and top show ``cvj-sim``, not ``python`` (/proc/PID/comm, which run() sets)."""
+    code = 'import cvj_ros.start as s; s._name_process("cvj-sim"); print(open("/proc/self/comm").read())'
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60).stdout
+    assert out.strip() == 'cvj-sim'
+
+
 def _run_interrupted(cmd: list[str], delay: float | None, env: dict[str, str] | None = None
                      ) -> tuple[int, str]:
     """Status and stderr of ``cmd`` sent SIGINT ``delay`` s after it started (None: not sent)."""
@@ -124,6 +131,9 @@ def test_run_exit_statuses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         'def interrupted():\n    raise KeyboardInterrupt\n')
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setitem(start.INTERRUPTED, 'fake_entry', (130, 'fake: interrupted'))
+    monkeypatch.setattr(sys, 'unraisablehook', sys.unraisablehook)   # restored after
+    named = []
+    monkeypatch.setattr(start, '_name_process', named.append)
     previous = signal.getsignal(signal.SIGINT)
     try:
         for function, status, err in (('ok', 3, ''), ('interrupted', 130, 'fake: interrupted\n')):
@@ -135,6 +145,7 @@ def test_run_exit_statuses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
             assert sys.argv == ['/bin/fake', '--flag']
             assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, ())
             assert capsys.readouterr().err == err
+        assert named == ['fake', 'fake']
     finally:
         signal.signal(signal.SIGINT, previous)
 

@@ -27,16 +27,28 @@ EXECUTABLES = {'cvj-sim': 'cvj_ros.cli:main', 'driveline_composed': 'cvj_ros.com
 LAUNCHER_DIR = Path('build') / 'cvj_launchers'
 
 
-def launcher_text(target: str, python: str) -> str:
+def launcher_text(target: str, python: str, block: bool = True) -> str:
     """The launcher of ``target`` ('module:function'): ``python`` started by GNU env with
     SIGINT blocked (a blocked signal stays pending across exec), ``-P`` (no script or working
     directory on sys.path), running ``cvj_ros.start.run(target)`` with the launcher's path
-    as ``sys.argv[0]``."""
+    as ``sys.argv[0]``. ``block=False`` (an ``env`` without ``--block-signal``): Python
+    directly, as a console script would start it."""
     code = f'from cvj_ros.start import run; run("{target}")'
+    env = '/usr/bin/env --block-signal=INT ' if block else ''
     return ('#!/bin/sh\n'
             '# cvj_ros executable (written by setup.py): Python starts with SIGINT blocked and\n'
             '# cvj_ros.start takes it over, so a Ctrl-C during start-up prints no traceback\n'
-            f'exec /usr/bin/env --block-signal=INT {shlex.quote(python)} -P -c {shlex.quote(code)} "$0" "$@"\n')
+            f'exec {env}{shlex.quote(python)} -P -c {shlex.quote(code)} "$0" "$@"\n')
+
+
+def env_blocks_signals() -> bool:
+    """``/usr/bin/env --block-signal`` works here (GNU coreutils 8.31 or newer)."""
+    import subprocess
+    try:
+        return subprocess.run(['/usr/bin/env', '--block-signal=INT', 'true'], timeout=30,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        return False
 
 
 def write_launchers() -> list[str]:
@@ -45,9 +57,14 @@ def write_launchers() -> list[str]:
     here = Path(__file__).resolve().parent
     (here / LAUNCHER_DIR).mkdir(parents=True, exist_ok=True)
     paths = []
+    block = env_blocks_signals()
+    if not block:
+        print('cvj_ros: /usr/bin/env has no --block-signal (GNU coreutils < 8.31): the executables '
+              'start Python directly; a Ctrl-C during its start-up can print a traceback',
+              file=sys.stderr)
     for name, target in EXECUTABLES.items():
         path = here / LAUNCHER_DIR / name
-        text = launcher_text(target, sys.executable)
+        text = launcher_text(target, sys.executable, block)
         if not path.exists() or path.read_text() != text:
             path.write_text(text)
         path.chmod(0o755)

@@ -45,6 +45,10 @@ def test_launcher_text_blocks_sigint_and_runs_the_entry() -> None:
     assert text.startswith('#!/bin/sh\n')          # not a python shebang: installers keep it
     assert ("exec /usr/bin/env --block-signal=INT '/opt/my venv/bin/python' -P -c "
             "'from cvj_ros.start import run; run(\"cvj_ros.cli:main\")' \"$0\" \"$@\"\n") in text
+    # an env without --block-signal: Python directly (the old start-up window, said at install)
+    assert setup.launcher_text('cvj_ros.cli:main', '/usr/bin/python3', block=False).endswith(
+        "\nexec /usr/bin/python3 -P -c 'from cvj_ros.start import run; run(\"cvj_ros.cli:main\")' \"$0\" \"$@\"\n")
+    assert setup.env_blocks_signals()      # GNU coreutils >= 8.31 (Ubuntu 22.04+, Debian 11+)
     assert setup.EXECUTABLES['cvj-sim'] == 'cvj_ros.cli:main'
     assert all(setup.EXECUTABLES[n] == f'cvj_ros.nodes.entry:{n}' for n in setup.NODES)
 

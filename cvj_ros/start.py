@@ -8,15 +8,16 @@ there)::
 
 Python thus starts with SIGINT *blocked* (a signal mask survives ``exec``): a Ctrl-C during the
 interpreter's start-up (``site``, the encodings, this module's import) stays pending instead
-of raising KeyboardInterrupt where no cvj_ros code can catch it. :func:`run` unblocks it as its
-first statement inside a ``try``: a pending Ctrl-C is delivered there and the program exits
+of raising KeyboardInterrupt where no cvj_ros code can catch it. :func:`run` unblocks it first
+thing inside a ``try``: a pending Ctrl-C is delivered there and the program exits
 quietly with the status it gives an interrupted run (``cvj-sim``: the line ``cvj-sim:
 interrupted``, 130; the nodes and ``driveline_composed``: 0, as when they are stopped while
 running). A Ctrl-C that Python can only report as "unraisable" (its KeyboardInterrupt raised
 inside a weakref callback or a finaliser) is sent again, so it still stops the program. Once
 the entry point returns, a Ctrl-C during the interpreter's teardown ends the process with
-the entry's status and no output. Imports nothing Python's start-up has not loaded already
-but the entry's module, after the unblock.
+the entry's status and no output. The process is named after the executable (ps, top).
+Imports next to nothing (``collections.abc`` while SIGINT is still blocked), the entry's
+module after the unblock.
 """
 from __future__ import annotations
 

@@ -31,6 +31,7 @@ def probe(cmd: list[str], tries: int, max_delay: float, seed: int) -> dict[str, 
     rng = random.Random(seed)
     statuses: collections.Counter[int] = collections.Counter()
     tracebacks, finished_first, example = 0, 0, ''
+    hung: list[float] = []     # delays after which the command did not end within 60 s
     for _ in range(tries):
         delay = rng.uniform(0.0, max_delay)
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
@@ -48,13 +49,14 @@ def probe(cmd: list[str], tries: int, max_delay: float, seed: int) -> dict[str, 
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             _, err = proc.communicate()
+            hung.append(round(delay, 4))
         text = err.decode(errors='replace')
         statuses[proc.returncode] += 1
         if 'Traceback' in text or 'KeyboardInterrupt' in text:
             tracebacks += 1
             example = example or '\n'.join(text.strip().splitlines()[-4:])
     return {'tries': tries, 'finished_before_signal': finished_first, 'tracebacks': tracebacks,
-            'statuses': dict(sorted(statuses.items())), 'example': example}
+            'statuses': dict(sorted(statuses.items())), 'example': example, 'hung': hung}
 
 
 def startup(cmd: list[str], runs: int) -> dict[str, float]:
@@ -95,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f'{" ".join(a.cmd)}: {r["tries"]} tries (delay 0-{a.max_delay} s), '
           f'{r["finished_before_signal"]} ended before the signal, tracebacks {r["tracebacks"]}, '
           f'exit statuses {r["statuses"]}')
+    if r['hung']:
+        print(f'  still running 60 s after the SIGINT (then SIGKILL), delays {r["hung"]} s')
     if r['example']:
         print('  e.g.: ' + r['example'].replace('\n', '\n        '))
     return 0

@@ -34,7 +34,7 @@ import numpy as np
 
 from cvj_ros.errors import CvjError
 
-__all__ = ['BatchRunner', 'element_local', 'run_chunk_batched']
+__all__ = ['BatchRunner', 'element_local', 'run_chunk_batched', 'variant_dict']
 
 _NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
 
@@ -53,6 +53,29 @@ def element_local(keys: Sequence[Sequence[str | int]]) -> list[bool]:
         return path[1]
     elements = [field_of(p) for p in keys]
     return [e is not None and elements.count(e) == 1 for e in elements]
+
+
+def variant_dict(base: Mapping[str, Any], keys: Sequence[Sequence[str | int]],
+                 values: Sequence[Any]) -> dict[str, Any]:
+    """:func:`cvj_ros.sweep.spec.apply_keys` without the deep copy: only the dicts and lists
+    on the keys' paths are copied (once each), the rest is shared with ``base``, which
+    stays unchanged. Equal to apply_keys' dict; for readers only (parse_scene), ~10x
+    cheaper for a scene of a few elements."""
+    d = dict(base)
+    copied = {id(d)}
+    for path, value in zip(keys, values):
+        node: Any = d
+        for k in path[:-1]:
+            if isinstance(k, str) and (k not in node or node[k] is None):
+                node[k] = {}
+            child = node[k]
+            if id(child) not in copied:
+                child = dict(child) if isinstance(child, Mapping) else list(child)
+                copied.add(id(child))
+                node[k] = child
+            node = child
+        node[path[-1]] = value
+    return d
 
 
 def _bits(a: np.ndarray) -> np.ndarray:
@@ -114,10 +137,12 @@ class BatchRunner:
 
     # --- the per-variant path and a full build ------------------------------------------
 
-    def _full(self, data: Mapping[str, Any]) -> tuple[dict[str, Any], float]:
+    def _full(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
+        """The per-variant path on a deep-copied variant dict (as run_chunk makes it)."""
         from cvj_ros.sweep.run import run_variant
+        from cvj_ros.sweep.spec import apply_keys
         self.stats['full'] += 1
-        return run_variant(data, self.options)
+        return run_variant(apply_keys(self.job.base, self.job.keys, values), self.options)
 
     def _build(self, scene: Any) -> Any:
         """A Simulation of ``scene`` as run_variant makes it, or None if it is not a plain
@@ -194,31 +219,29 @@ class BatchRunner:
         """(row, wall s) of the variant ``values``: the same row as run_variant."""
         from cvj_ros.physics.fidelity import choose_fidelity
         from cvj_ros.physics.scene import parse_scene
-        from cvj_ros.sweep.spec import apply_keys
         t0 = time.perf_counter()
         values = tuple(values)
-        data = apply_keys(self.job.base, self.job.keys, values)
         if not self.enabled:
-            return self._full(data)
+            return self._full(values)
         try:
-            scene = parse_scene(data)
+            scene = parse_scene(variant_dict(self.job.base, self.job.keys, values))
             if scene.has_modes or scene.is_tree:
-                return self._full(data)
+                return self._full(values)
             levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
         except CvjError:
-            return self._full(data)        # the same 'invalid' / 'failed' row
+            return self._full(values)        # the same 'invalid' / 'failed' row
         skey = tuple(sorted(levels.items()))
         tpl = self.templates.get(skey)
         if tpl is None:
             return self._new_template(skey, scene, values, levels, t0)
         if not tpl.separable:
-            return self._full(data)
+            return self._full(values)
         parts: list[tuple[int, _Probe]] = []
         for axis, (v, tv) in enumerate(zip(values, tpl.values)):
             if _value_key(v) == _value_key(tv):
                 continue
             if not self.local[axis]:
-                return self._full(data)
+                return self._full(values)
             pk = (axis, _value_key(v))
             if pk not in tpl.probes:
                 pr = self._probe(tpl, axis, v)
@@ -227,7 +250,7 @@ class BatchRunner:
                     self._claim(tpl, axis, pr)
             pr = tpl.probes[pk]
             if pr is None or not tpl.separable:
-                return self._full(data)
+                return self._full(values)
             parts.append((axis, pr))
         # the variant's arrays: the template's with every key's slots from its probe
         fp, mfp = tpl.fp, tpl.mfp
@@ -246,7 +269,7 @@ class BatchRunner:
             row = self._reduce(sim)
         except Exception:       # noqa: BLE001  (the per-variant path gives the row)
             del self.templates[skey]
-            return self._full(data)
+            return self._full(values)
         self.stats['batched'] += 1
         return row, time.perf_counter() - t0
 
@@ -255,17 +278,16 @@ class BatchRunner:
                       t0: float) -> tuple[dict[str, Any], float]:
         """Run the variant in full on a new Simulation and keep it as its structure's
         template (when it is a plain kernel run that ends without an error)."""
-        from cvj_ros.sweep.spec import apply_keys
         try:
             sim = self._build(scene)
         except CvjError:
             sim = None
         if sim is None:
-            return self._full(apply_keys(self.job.base, self.job.keys, values))
+            return self._full(values)
         try:
             row = self._reduce(sim)
         except Exception:       # noqa: BLE001
-            return self._full(apply_keys(self.job.base, self.job.keys, values))
+            return self._full(values)
         tpl = self._template(sim, values, levels)
         plan = next(iter(sim._plans.values()))
         tpl.fp = plan.model.fp          # the arrays the bound run reads

@@ -4,6 +4,7 @@ invalid variant (a fallback), and their patched kernel arrays equal a full build
 bit."""
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,9 +14,9 @@ import numpy as np
 from cvj_ros.commands.sweep import load_scene_data
 from cvj_ros.physics.scene import find_scene, parse_scene
 from cvj_ros.physics.simulate import Simulation
-from cvj_ros.sweep.batch import BatchRunner, element_local
+from cvj_ros.sweep.batch import BatchRunner, element_local, variant_dict
 from cvj_ros.sweep.run import Job, RunOptions, SerialExecutor, execute, run_chunk
-from cvj_ros.sweep.spec import build_sweep
+from cvj_ros.sweep.spec import apply_keys, build_sweep
 
 # accuracy target 1e-2 (measured with choose_fidelity): the coupling is ideal at 0 and 15 deg,
 # closed at 30; the bushings rigid at 3e5 N m/rad, elastic below: four structures, and
@@ -95,3 +96,16 @@ def test_keys_on_one_element_run_per_variant() -> None:
     assert [repr(r) for r in rows] == [repr(o.row) for o in
                                        run_chunk(job, list(enumerate(sw.variants)), batched=False)]
     assert np.isfinite([r['energy_residual'] for r in rows]).all()
+
+
+def test_variant_dict_equals_apply_keys_and_leaves_base_unchanged() -> None:
+    base = load_scene_data(find_scene('kavz685_lever'))
+    frozen = copy.deepcopy(base)
+    keys = [('driveline', 2, 'params', 'alpha_deg'), ('driveline', 1, 'stiffness'),
+            ('driveline', 1, 'damping'), ('solver', 'max_step'), ('duration',)]
+    values = [12.5, 700.0, 0.5, 1e-3, 0.7]
+    d = variant_dict(base, keys, values)
+    assert d == apply_keys(base, keys, values)
+    assert base == frozen
+    assert d['engine'] is base['engine']            # shared, not copied
+    assert d['driveline'][2] is not base['driveline'][2]

@@ -10,7 +10,9 @@ variant of that structure differ from the template's only where a sweep key ente
 * a key's *slots* are found by building it once per value (a *probe*: the template's
   values with that one key changed, a full parse, fidelity choice and build) and diffing
   bit for bit: the model's ``fp`` (kernel/layout.py), the intermediate members'
-  parameters ``mfp`` (outputs_nb.mid_table) and the two parts of the initial energy;
+  parameters ``mfp`` (outputs_nb.mid_table) and the two parts of the initial energy; a value is
+  probed when it comes a second time (its first variant runs in full), so a sweep whose
+  values never repeat (random sampling of ranges) runs as before;
 * a variant is the template's arrays with each key's slots written from its probe, run
   by the template's bound one-call run.
 
@@ -133,6 +135,7 @@ class BatchRunner:
         self.local = element_local(job.keys)
         self.enabled = opts.backend == 'kernel' and any(self.local)
         self.templates: dict[tuple[tuple[str, str], ...], _Template] = {}
+        self.seen: set[tuple[int, tuple[str, str]]] = set()     # (axis, value) met before
         self.stats = {'batched': 0, 'full': 0, 'templates': 0, 'probes': 0}
 
     # --- the per-variant path and a full build ------------------------------------------
@@ -222,6 +225,13 @@ class BatchRunner:
         t0 = time.perf_counter()
         values = tuple(values)
         if not self.enabled:
+            return self._full(values)
+        # a probe pays only for a value that comes again: a value's first variant runs in
+        # full (a random sweep of continuous ranges, every value new, costs what it did)
+        new = [(axis, _value_key(v)) for axis, v in enumerate(values)
+               if self.local[axis] and (axis, _value_key(v)) not in self.seen]
+        if new:
+            self.seen.update(new)
             return self._full(values)
         try:
             scene = parse_scene(variant_dict(self.job.base, self.job.keys, values))

@@ -27,6 +27,7 @@ import json
 import math
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -195,17 +196,19 @@ def simulation_row(sim: Any, options: RunOptions) -> dict[str, Any]:
     return row
 
 
-_RUNNER: list[Any] = [None, None]    # (job key, BatchRunner) of this process's last job
+_RUNNER = threading.local()     # .key, .runner: this thread's BatchRunner of its last job
 
 
 def _batch_runner(job: Job) -> Any:
-    """This process's BatchRunner of ``job`` (kept while chunks of the same job arrive:
-    its templates and probes serve every chunk a worker runs)."""
+    """This thread's BatchRunner of ``job`` (kept while chunks of the same job arrive: its
+    templates and probes serve every chunk a worker runs). Per thread: a runner writes
+    each variant into its templates' arrays, so two threads (a Dask worker with several
+    threads) must not share one."""
     from cvj_ros.sweep.batch import BatchRunner
     key = json.dumps([job.base, job.keys, job.options.to_dict()], sort_keys=True, default=repr)
-    if _RUNNER[0] != key:
-        _RUNNER[:] = [key, BatchRunner(job)]
-    return _RUNNER[1]
+    if getattr(_RUNNER, 'key', None) != key:
+        _RUNNER.key, _RUNNER.runner = key, BatchRunner(job)
+    return _RUNNER.runner
 
 
 def run_chunk(job: Job, chunk: Sequence[tuple[int, Sequence[Any]]], *,

@@ -34,8 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from cvj_ros.errors import CvjError
-
 __all__ = ['BatchRunner', 'element_local', 'run_chunk_batched', 'variant_dict']
 
 _NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
@@ -189,11 +187,12 @@ class BatchRunner:
                                ).levels != tpl.levels:
                 return None
             sim = self._build(scene)
-        except CvjError:
+            if sim is None:
+                return None
+            model = sim._model(float(sim.scene.duration))
+            energy = self._energy(sim)
+        except Exception:       # noqa: BLE001  (a variant with this value runs in full)
             return None
-        if sim is None:
-            return None
-        model = sim._model(float(sim.scene.duration))
         mtab, mfp, _py = sim._mid_table
         if not (np.array_equal(model.ip, tpl.ip) and _bits(sim.driveline.x0).tobytes()
                 == _bits(tpl.x0).tobytes() and np.array_equal(mtab, tpl.mtab)
@@ -202,7 +201,7 @@ class BatchRunner:
             return None
         fs = np.flatnonzero(_bits(model.fp) != _bits(tpl.fp0))
         ms = np.flatnonzero(_bits(mfp) != _bits(tpl.mfp0))
-        return _Probe(fs, model.fp[fs].copy(), ms, mfp[ms].copy(), self._energy(sim))
+        return _Probe(fs, model.fp[fs].copy(), ms, mfp[ms].copy(), energy)
 
     def _claim(self, tpl: _Template, axis: int, pr: _Probe) -> None:
         """Record which axis changes which slots; two axes on one slot end the batching of
@@ -238,7 +237,7 @@ class BatchRunner:
             if scene.has_modes or scene.is_tree:
                 return self._full(values)
             levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
-        except CvjError:
+        except Exception:       # noqa: BLE001  (the per-variant path gives its row)
             return self._full(values)        # the same 'invalid' / 'failed' row
         skey = tuple(sorted(levels.items()))
         tpl = self.templates.get(skey)
@@ -290,7 +289,7 @@ class BatchRunner:
         template (when it is a plain kernel run that ends without an error)."""
         try:
             sim = self._build(scene)
-        except CvjError:
+        except Exception:       # noqa: BLE001  (the per-variant path gives its row)
             sim = None
         if sim is None:
             return self._full(values)

@@ -1,7 +1,8 @@
 """Batched sweep variants: the model built once per structure, each variant a patch of it.
 
-:func:`run_chunk_batched` gives the rows of :func:`cvj_ros.sweep.run.run_chunk`, the same
-bytes, with less Python per variant. A *structure* is the fidelity decision (every joint's
+:class:`BatchRunner` (what :func:`cvj_ros.sweep.run.run_chunk` uses by default, one per
+worker thread and job) gives the rows of the per-variant path, the same bytes, with less
+Python per variant. A *structure* is the fidelity decision (every joint's
 and spring's level, :func:`cvj_ros.physics.fidelity.choose_fidelity`) of a variant; its
 *template* is one full :class:`~cvj_ros.physics.simulate.Simulation` with its run plan
 (sample times, breakpoints, the stepper bound to its one-call run). The kernel data of a
@@ -34,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['BatchRunner', 'element_local', 'run_chunk_batched', 'variant_dict']
+__all__ = ['BatchRunner', 'element_local', 'variant_dict']
 
 _NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
 
@@ -313,11 +314,3 @@ class BatchRunner:
         from cvj_ros.sweep.run import simulation_row
         return simulation_row(sim, self.options)
 
-
-def run_chunk_batched(job: Any, chunk: Sequence[tuple[int, Sequence[Any]]],
-                      runner: BatchRunner | None = None) -> list[Any]:
-    """The batched :func:`cvj_ros.sweep.run.run_chunk`: the same Outcomes, the same rows.
-    ``runner`` keeps its templates between chunks of one job (a worker's cache)."""
-    from cvj_ros.sweep.run import Outcome
-    runner = runner or BatchRunner(job)
-    return [Outcome(index, *runner.run(values)) for index, values in chunk]

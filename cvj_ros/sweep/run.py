@@ -27,6 +27,7 @@ import json
 import math
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -149,7 +150,6 @@ def order_amplitudes(trace: Any, orders: int, transient: float | None,
 def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dict[str, Any], float]:
     """Simulate one variant: (row, wall s). row['status'] is 'ok', 'invalid' (scene error,
     row['error'] names the field) or 'failed' (the run raised; row['error'] says what)."""
-    from cvj_ros.physics.metrics import steady_window, summarize
     from cvj_ros.physics.scene import parse_scene
     from cvj_ros.physics.simulate import Simulation
     t0 = time.perf_counter()
@@ -163,23 +163,7 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
             return ({'status': 'ok', **hybrid_row(scene, options), 'error': ''},
                     time.perf_counter() - t0)
         sim = Simulation(scene, fidelity=dict(options.fidelity) or None, backend=options.backend)
-        trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-        window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
-                               transient=options.transient)
-        # the parts of Simulation.summary() a row needs, from the same functions (its
-        # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
-        summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
-                   'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
-                   'shafts': summarize(trace, window=window)}
-        row = {'status': 'ok', **metrics_row(summary)}
-        if options.orders > 0:
-            try:      # over the metrics' own window
-                row.update(order_amplitudes(trace, options.orders, options.transient,
-                                            options.orders_shaft, window))
-            except KeyError:
-                raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
-                                 f'{", ".join(trace.names)}') from None
-        row['error'] = ''
+        row = simulation_row(sim, options)
     except CvjError as exc:
         row = {'status': 'failed', 'error': ' '.join(str(exc).split())}
     except Exception as exc:  # noqa: BLE001  (one bad variant must not end a sweep of thousands)
@@ -188,8 +172,51 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     return row, time.perf_counter() - t0
 
 
-def run_chunk(job: Job, chunk: Sequence[tuple[int, Sequence[Any]]]) -> list[Outcome]:
+def simulation_row(sim: Any, options: RunOptions) -> dict[str, Any]:
+    """Run ``sim`` (a Simulation of a scene without modes) and reduce it to an 'ok' row:
+    the metrics over the steady window, the torque orders. Raises what the run raises."""
+    from cvj_ros.physics.metrics import steady_window, summarize
+    trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
+    window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                           transient=options.transient)
+    # the parts of Simulation.summary() a row needs, from the same functions (its
+    # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
+    summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
+               'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
+               'shafts': summarize(trace, window=window)}
+    row = {'status': 'ok', **metrics_row(summary)}
+    if options.orders > 0:
+        try:      # over the metrics' own window
+            row.update(order_amplitudes(trace, options.orders, options.transient,
+                                        options.orders_shaft, window))
+        except KeyError:
+            raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
+                             f'{", ".join(trace.names)}') from None
+    row['error'] = ''
+    return row
+
+
+_RUNNER = threading.local()     # .key, .runner: this thread's BatchRunner of its last job
+
+
+def _batch_runner(job: Job) -> Any:
+    """This thread's BatchRunner of ``job`` (kept while chunks of the same job arrive: its
+    templates and probes serve every chunk a worker runs). Per thread: a runner writes
+    each variant into its templates' arrays, so two threads (a Dask worker with several
+    threads) must not share one."""
+    from cvj_ros.sweep.batch import BatchRunner
+    key = json.dumps([job.base, job.keys, job.options.to_dict()], sort_keys=True, default=repr)
+    if getattr(_RUNNER, 'key', None) != key:
+        _RUNNER.key, _RUNNER.runner = key, BatchRunner(job)
+    return _RUNNER.runner
+
+
+def run_chunk(job: Job, chunk: Sequence[tuple[int, Sequence[Any]]], *,
+              batched: bool = True) -> list[Outcome]:
     """Run consecutive variants ``[(index, values), ...]`` of ``job`` (the worker task).
+
+    ``batched`` (default): cvj_ros.sweep.batch, the model built once per structure and
+    patched per variant (the same rows); False: :func:`run_variant` for every variant.
 
     The cyclic garbage collector is paused for the chunk: a variant leaves no reference
     cycles (measured: gc.collect() finds 0 unreachable objects after 64 kavz685_lever
@@ -204,9 +231,13 @@ def run_chunk(job: Job, chunk: Sequence[tuple[int, Sequence[Any]]]) -> list[Outc
     paused = gc.isenabled()
     gc.disable()
     try:
-        for index, values in chunk:
-            row, wall = run_variant(apply_keys(job.base, job.keys, values), job.options)
-            out.append(Outcome(index, row, wall))
+        if batched:
+            runner = _batch_runner(job)
+            out = [Outcome(index, *runner.run(values)) for index, values in chunk]
+        else:
+            for index, values in chunk:
+                row, wall = run_variant(apply_keys(job.base, job.keys, values), job.options)
+                out.append(Outcome(index, row, wall))
     finally:
         if paused:
             gc.enable()

@@ -27,6 +27,7 @@ def clear_caches() -> None:
     fidelity._joint_error_bounds.cache_clear()
     fidelity._joint_max_order.cache_clear()
     load_mod._uniform_block.cache_clear()
+    fidelity._ADJACENT.clear()
 
 
 def test_geometry_sweep_never_reuses_a_cache_entry_wrongly() -> None:
@@ -206,3 +207,24 @@ def test_a_warm_variant_leaves_no_reference_cycles() -> None:
                           timeout=300, env=dict(os.environ))
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["['invalid',", "'ok']", '0']
+
+
+def test_adjacent_inertias_cache_keys_on_geometry_not_stiffness() -> None:
+    """The spring rule's adjacent inertias from the cache equal a direct evaluation; a
+    sweep of the bushings' stiffness shares one entry, the hinge angle and an inertia do
+    not (they change the reduced inertias)."""
+    base = load_scene_data(find_scene('kavz685_lever'))
+    sweep = build_sweep(base, ['driveline[coupling].params.alpha_deg=10,25',
+                               'driveline[bushings].stiffness=300,3000',
+                               'driveline[0].J=0.5,0.6'])
+    fidelity._ADJACENT.clear()
+    seen = {}
+    for i, values in enumerate(sweep.variants):
+        scene = parse_scene(sweep.scene_dict(i))
+        levels = {'coupling': 'exact'}
+        got = fidelity._adjacent_inertias(scene, levels)
+        assert got == fidelity._adjacent_inertias_uncached(scene, levels)
+        seen.setdefault((values[0], values[2]), got)
+        assert got == seen[(values[0], values[2])]
+    assert len(fidelity._ADJACENT) == 4
+    assert len({tuple(v['bushings']) for v in seen.values()}) == 4

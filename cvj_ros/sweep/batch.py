@@ -1,0 +1,316 @@
+"""Batched sweep variants: the model built once per structure, each variant a patch of it.
+
+:class:`BatchRunner` (what :func:`cvj_ros.sweep.run.run_chunk` uses by default, one per
+worker thread and job) gives the rows of the per-variant path, the same bytes, with less
+Python per variant. A *structure* is the fidelity decision (every joint's
+and spring's level, :func:`cvj_ros.physics.fidelity.choose_fidelity`) of a variant; its
+*template* is one full :class:`~cvj_ros.physics.simulate.Simulation` with its run plan
+(sample times, breakpoints, the stepper bound to its one-call run). The kernel data of a
+variant of that structure differ from the template's only where a sweep key enters:
+
+* a key's *slots* are found by building it once per value (a *probe*: the template's
+  values with that one key changed, a full parse, fidelity choice and build) and diffing
+  bit for bit: the model's ``fp`` (kernel/layout.py), the intermediate members'
+  parameters ``mfp`` (outputs_nb.mid_table) and the two parts of the initial energy; a value is
+  probed when it comes a second time (its first variant runs in full), so a sweep whose
+  values never repeat (random sampling of ranges) runs as before;
+* a variant is the template's arrays with each key's slots written from its probe, run
+  by the template's bound one-call run.
+
+The mapping is checked, never assumed: a key is mapped only if it addresses one field of
+one ``driveline[i]`` element (not its kind, name or fidelity; no other key on the same
+element; other keys, e.g. a fixed ``duration``, must equal the template's), a probe must give the template's ``ip``, ``x0``, shaft and member tables and
+fidelity levels, and the slots (and energy parts) two keys change must be disjoint over
+every probe made. Anything else runs the variant on the per-variant path
+(:func:`~cvj_ros.sweep.run.run_variant`): a key that changes structure, a variant whose
+fidelity decision has no template yet (it becomes one), a mode scene, the Python backend,
+a run that raises. Each variant is still parsed (validation) and its fidelity chosen.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ['BatchRunner', 'element_local', 'variant_dict']
+
+_NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
+
+
+def element_local(keys: Sequence[Sequence[str | int]]) -> list[bool]:
+    """Per key: True if it is one field of a ``driveline[i]`` element (``params.X`` or a
+    top-level field other than kind / name / fidelity) that no other key addresses - the
+    keys the batched path maps to slots. A variant that differs from its template in any
+    other key runs on the per-variant path."""
+    def field_of(path: Sequence[str | int]) -> int | None:
+        if len(path) < 3 or path[0] != 'driveline' or not isinstance(path[1], int) \
+                or path[2] in _NOT_LOCAL:
+            return None
+        if (path[2] == 'params' and len(path) != 4) or (path[2] != 'params' and len(path) != 3):
+            return None
+        return path[1]
+    elements = [field_of(p) for p in keys]
+    return [e is not None and elements.count(e) == 1 for e in elements]
+
+
+def variant_dict(base: Mapping[str, Any], keys: Sequence[Sequence[str | int]],
+                 values: Sequence[Any]) -> dict[str, Any]:
+    """:func:`cvj_ros.sweep.spec.apply_keys` without the deep copy: only the dicts and lists
+    on the keys' paths are copied (once each), the rest is shared with ``base``, which
+    stays unchanged. Equal to apply_keys' dict; for readers only (parse_scene), ~10x
+    cheaper for a scene of a few elements."""
+    d = dict(base)
+    copied = {id(d)}
+    for path, value in zip(keys, values):
+        node: Any = d
+        for k in path[:-1]:
+            if isinstance(k, str) and (k not in node or node[k] is None):
+                node[k] = {}
+            child = node[k]
+            if id(child) not in copied:
+                child = dict(child) if isinstance(child, Mapping) else list(child)
+                copied.add(id(child))
+                node[k] = child
+            node = child
+        node[path[-1]] = value
+    return d
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    """The float64 array as int64 bit patterns (so -0.0 != 0.0 and NaN == NaN here)."""
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.int64)
+
+
+@dataclass
+class _Probe:
+    """One key at one value inside a structure: its slots and values."""
+
+    fp_slots: np.ndarray
+    fp_vals: np.ndarray
+    mfp_slots: np.ndarray
+    mfp_vals: np.ndarray
+    energy: tuple[float, float]          # (kinetic, elastic) of x0
+
+
+@dataclass
+class _Template:
+    """One structure's full Simulation, its plan run once, and what its probes showed."""
+
+    sim: Any
+    values: tuple[Any, ...]
+    levels: dict[str, str]
+    ip: np.ndarray
+    x0: np.ndarray
+    fp0: np.ndarray
+    mfp0: np.ndarray
+    mtab: np.ndarray
+    shafts: np.ndarray
+    energy: tuple[float, float]
+    fp: np.ndarray = field(default_factory=lambda: np.zeros(0))   # the plan's own arrays
+    mfp: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    probes: dict[tuple[int, Any], _Probe | None] = field(default_factory=dict)
+    fp_owner: dict[int, int] = field(default_factory=dict)      # slot -> axis that changes it
+    mfp_owner: dict[int, int] = field(default_factory=dict)
+    energy_owner: dict[int, int] = field(default_factory=dict)  # part (0 kin, 1 ela) -> axis
+    separable: bool = True
+
+
+def _value_key(v: Any) -> tuple[str, str]:
+    """A probe key that tells 1 from 1.0 and 0.0 from -0.0 (they may parse differently)."""
+    return type(v).__name__, repr(v)
+
+
+class BatchRunner:
+    """Runs variants of one job, keeping templates and probes for the job's structures."""
+
+    def __init__(self, job: Any) -> None:
+        from cvj_ros.sweep.run import RunOptions
+        self.job = job
+        opts: RunOptions = job.options
+        self.options = opts
+        self.local = element_local(job.keys)
+        self.enabled = opts.backend == 'kernel' and any(self.local)
+        self.templates: dict[tuple[tuple[str, str], ...], _Template] = {}
+        self.seen: set[tuple[int, tuple[str, str]]] = set()     # (axis, value) met before
+        self.stats = {'batched': 0, 'full': 0, 'templates': 0, 'probes': 0}
+
+    # --- the per-variant path and a full build ------------------------------------------
+
+    def _full(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
+        """The per-variant path on a deep-copied variant dict (as run_chunk makes it)."""
+        from cvj_ros.sweep.run import run_variant
+        from cvj_ros.sweep.spec import apply_keys
+        self.stats['full'] += 1
+        return run_variant(apply_keys(self.job.base, self.job.keys, values), self.options)
+
+    def _build(self, scene: Any) -> Any:
+        """A Simulation of ``scene`` as run_variant makes it, or None if it is not a plain
+        kernel run (modes, Python fallback, Python-filled members)."""
+        from cvj_ros.physics.simulate import Simulation
+        if scene.has_modes or scene.is_tree:
+            return None
+        sim = Simulation(scene, fidelity=dict(self.options.fidelity) or None,
+                         backend=self.options.backend)
+        if sim.backend != 'kernel':
+            return None
+        sim._output_tables()
+        if sim._mid_table[2]:
+            return None
+        return sim
+
+    @staticmethod
+    def _energy(sim: Any) -> tuple[float, float]:
+        e = sim.driveline.energy(sim.driveline.x0)
+        return float(e['kinetic']), float(e['elastic'])
+
+    def _template(self, sim: Any, values: tuple[Any, ...], levels: dict[str, str]) -> _Template:
+        model = sim._model(float(sim.scene.duration))
+        return _Template(sim=sim, values=values, levels=levels, ip=model.ip.copy(),
+                         x0=np.array(sim.driveline.x0), fp0=model.fp.copy(),
+                         mfp0=sim._mid_table[1].copy(), mtab=sim._mid_table[0].copy(),
+                         shafts=sim._shaft_table.copy(), energy=self._energy(sim))
+
+    def _probe(self, tpl: _Template, axis: int, value: Any) -> _Probe | None:
+        """Build the template's values with ``axis`` at ``value``; its slots, or None when it
+        is not a patch of the template (invalid, other structure, other tables)."""
+        from cvj_ros.physics.fidelity import choose_fidelity
+        from cvj_ros.physics.scene import parse_scene
+        from cvj_ros.sweep.spec import apply_keys
+        self.stats['probes'] += 1
+        values = list(tpl.values)
+        values[axis] = value
+        try:
+            scene = parse_scene(apply_keys(self.job.base, self.job.keys, values))
+            if choose_fidelity(scene, overrides=dict(self.options.fidelity) or None
+                               ).levels != tpl.levels:
+                return None
+            sim = self._build(scene)
+            if sim is None:
+                return None
+            model = sim._model(float(sim.scene.duration))
+            energy = self._energy(sim)
+        except Exception:       # noqa: BLE001  (a variant with this value runs in full)
+            return None
+        mtab, mfp, _py = sim._mid_table
+        if not (np.array_equal(model.ip, tpl.ip) and _bits(sim.driveline.x0).tobytes()
+                == _bits(tpl.x0).tobytes() and np.array_equal(mtab, tpl.mtab)
+                and np.array_equal(sim._shaft_table, tpl.shafts)
+                and model.fp.size == tpl.fp0.size and mfp.size == tpl.mfp0.size):
+            return None
+        fs = np.flatnonzero(_bits(model.fp) != _bits(tpl.fp0))
+        ms = np.flatnonzero(_bits(mfp) != _bits(tpl.mfp0))
+        return _Probe(fs, model.fp[fs].copy(), ms, mfp[ms].copy(), energy)
+
+    def _claim(self, tpl: _Template, axis: int, pr: _Probe) -> None:
+        """Record which axis changes which slots; two axes on one slot end the batching of
+        this structure (the slots would not be separable)."""
+        for owner, slots in ((tpl.fp_owner, pr.fp_slots), (tpl.mfp_owner, pr.mfp_slots)):
+            for s in slots.tolist():
+                if owner.setdefault(s, axis) != axis:
+                    tpl.separable = False
+        for part in (0, 1):
+            if _bits(np.array(pr.energy[part])) != _bits(np.array(tpl.energy[part])):
+                if tpl.energy_owner.setdefault(part, axis) != axis:
+                    tpl.separable = False
+
+    # --- one variant ----------------------------------------------------------------------
+
+    def run(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
+        """(row, wall s) of the variant ``values``: the same row as run_variant."""
+        from cvj_ros.physics.fidelity import choose_fidelity
+        from cvj_ros.physics.scene import parse_scene
+        t0 = time.perf_counter()
+        values = tuple(values)
+        if not self.enabled:
+            return self._full(values)
+        # a probe pays only for a value that comes again: a value's first variant runs in
+        # full (a random sweep of continuous ranges, every value new, costs what it did)
+        new = [(axis, _value_key(v)) for axis, v in enumerate(values)
+               if self.local[axis] and (axis, _value_key(v)) not in self.seen]
+        if new:
+            self.seen.update(new)
+            return self._full(values)
+        try:
+            scene = parse_scene(variant_dict(self.job.base, self.job.keys, values))
+            if scene.has_modes or scene.is_tree:
+                return self._full(values)
+            levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
+        except Exception:       # noqa: BLE001  (the per-variant path gives its row)
+            return self._full(values)        # the same 'invalid' / 'failed' row
+        skey = tuple(sorted(levels.items()))
+        tpl = self.templates.get(skey)
+        if tpl is None:
+            return self._new_template(skey, scene, values, levels, t0)
+        if not tpl.separable:
+            return self._full(values)
+        parts: list[tuple[int, _Probe]] = []
+        for axis, (v, tv) in enumerate(zip(values, tpl.values)):
+            if _value_key(v) == _value_key(tv):
+                continue
+            if not self.local[axis]:
+                return self._full(values)
+            pk = (axis, _value_key(v))
+            if pk not in tpl.probes:
+                pr = self._probe(tpl, axis, v)
+                tpl.probes[pk] = pr
+                if pr is not None:
+                    self._claim(tpl, axis, pr)
+            pr = tpl.probes[pk]
+            if pr is None or not tpl.separable:
+                return self._full(values)
+            parts.append((axis, pr))
+        # the variant's arrays: the template's with every key's slots from its probe
+        fp, mfp = tpl.fp, tpl.mfp
+        fp[:] = tpl.fp0
+        mfp[:] = tpl.mfp0
+        energy = list(tpl.energy)
+        for axis, pr in parts:
+            fp[pr.fp_slots] = pr.fp_vals
+            mfp[pr.mfp_slots] = pr.mfp_vals
+            for part, owner in tpl.energy_owner.items():
+                if owner == axis:
+                    energy[part] = pr.energy[part]
+        sim = tpl.sim
+        sim._e0 = (_bits(tpl.x0).tobytes(), energy[0] + energy[1])
+        try:
+            row = self._reduce(sim)
+        except Exception:       # noqa: BLE001  (the per-variant path gives the row)
+            del self.templates[skey]
+            return self._full(values)
+        self.stats['batched'] += 1
+        return row, time.perf_counter() - t0
+
+    def _new_template(self, skey: tuple[tuple[str, str], ...], scene: Any,
+                      values: tuple[Any, ...], levels: dict[str, str],
+                      t0: float) -> tuple[dict[str, Any], float]:
+        """Run the variant in full on a new Simulation and keep it as its structure's
+        template (when it is a plain kernel run that ends without an error)."""
+        try:
+            sim = self._build(scene)
+        except Exception:       # noqa: BLE001  (the per-variant path gives its row)
+            sim = None
+        if sim is None:
+            return self._full(values)
+        try:
+            row = self._reduce(sim)
+        except Exception:       # noqa: BLE001
+            return self._full(values)
+        tpl = self._template(sim, values, levels)
+        plan = next(iter(sim._plans.values()))
+        tpl.fp = plan.model.fp          # the arrays the bound run reads
+        tpl.mfp = sim._mid_table[1]
+        if tpl.fp.size != tpl.fp0.size:
+            return row, time.perf_counter() - t0
+        self.templates[skey] = tpl
+        self.stats['templates'] += 1
+        self.stats['full'] += 1
+        return row, time.perf_counter() - t0
+
+    def _reduce(self, sim: Any) -> dict[str, Any]:
+        """Run ``sim`` and reduce it to the row (run_variant's steps after the build)."""
+        from cvj_ros.sweep.run import simulation_row
+        return simulation_row(sim, self.options)
+

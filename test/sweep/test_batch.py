@@ -1,0 +1,130 @@
+"""The batched variants (cvj_ros.sweep.batch) give the per-variant path's rows and
+results.csv bytes, on a grid whose fidelity decision changes (new templates), with an
+invalid variant (a fallback), and their patched kernel arrays equal a full build's bit for
+bit."""
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cvj_ros.commands.sweep import load_scene_data
+from cvj_ros.physics.scene import find_scene, parse_scene
+from cvj_ros.physics.simulate import Simulation
+from cvj_ros.sweep.batch import BatchRunner, element_local, variant_dict
+from cvj_ros.sweep.run import Job, RunOptions, SerialExecutor, execute, run_chunk
+from cvj_ros.sweep.spec import apply_keys, build_sweep
+
+# accuracy target 1e-2 (measured with choose_fidelity): the coupling is ideal at 0 and 15 deg,
+# closed at 30; the bushings rigid at 3e5 N m/rad, elastic below: four structures, and
+# alpha 95 deg is invalid
+SETS = ['duration=0.3', 'accuracy_target=0.01',
+        'driveline[coupling].params.alpha_deg=0,15,30,95',
+        'driveline[bushings].stiffness=300,900,3000,300000']
+
+
+class PerVariantExecutor(SerialExecutor):
+    """The serial executor on the per-variant path (run_variant for every variant)."""
+
+    def map(self, job: Job, work: list[list[tuple[int, Sequence[Any]]]]) -> Iterator[list[Any]]:
+        for chunk in work:
+            yield run_chunk(job, chunk, batched=False)
+
+
+def sweep():
+    return build_sweep(load_scene_data(find_scene('kavz685_lever')), SETS)
+
+
+def test_element_local_keys() -> None:
+    assert element_local([('driveline', 2, 'params', 'alpha_deg'),
+                          ('driveline', 1, 'stiffness')]) == [True, True]
+    # two keys of one element: neither is mapped (their slots could interact)
+    assert element_local([('driveline', 2, 'params', 'alpha_deg'),
+                          ('driveline', 2, 'params', 'delta_alpha_deg')]) == [False, False]
+    assert element_local([('driveline', 2, 'kind'), ('duration',), ('solver', 'rtol'),
+                          ('driveline', 1, 'stiffness')]) == [False, False, False, True]
+
+
+def test_batched_rows_and_arrays_equal_the_per_variant_path() -> None:
+    sw = sweep()
+    job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes), options=RunOptions())
+    items = list(enumerate(sw.variants))
+    reference = run_chunk(job, items, batched=False)
+    runner = BatchRunner(job)
+    assert runner.enabled
+    for _pass in range(2):      # the second pass: every value seen, every structure known
+        for (i, values), ref in zip(items, reference):
+            before = runner.stats['batched']
+            row, _wall = runner.run(values)
+            assert repr(row) == repr(ref.row), f'variant {i} {values}'
+            if runner.stats['batched'] == before:
+                continue        # ran in full
+            # the arrays the variant ran with equal a full build of it, bit for bit
+            scene = parse_scene(sw.scene_dict(i))
+            full = Simulation(scene)
+            model = full._model(float(scene.duration))
+            full._output_tables()
+            tpl = runner.templates[tuple(sorted(full.fidelity_report.levels.items()))]
+            assert tpl.fp.tobytes() == model.fp.tobytes()
+            assert tpl.sim._mid_table[1].tobytes() == full._mid_table[1].tobytes()
+            assert tpl.sim._e0[1] == full._initial_energy(full.driveline.x0)
+    assert [r.row['status'] for r in reference].count('invalid') == 4
+    # first pass: a value's first variant runs in full, 4 templates, 2 batched (measured
+    # by hand from the grid order); second pass: the 12 valid variants all batched
+    assert runner.stats['templates'] == 4
+    assert runner.stats['batched'] == 2 + 12
+    assert runner.stats['full'] == 32 - 14
+
+
+def test_values_that_never_repeat_are_not_probed() -> None:
+    """Random sampling of ranges: every value is new, every variant runs in full (no probe
+    costs on top), the rows are the per-variant path's."""
+    sw = build_sweep(load_scene_data(find_scene('kavz685_lever')),
+                     ['duration=0.2', 'driveline[coupling].params.alpha_deg=5:25',
+                      'driveline[bushings].stiffness=300:3000'], samples=4, seed=3)
+    job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes), options=RunOptions())
+    runner = BatchRunner(job)
+    rows = [repr(runner.run(v)[0]) for v in sw.variants]
+    assert runner.stats == {'batched': 0, 'full': 4, 'templates': 0, 'probes': 0}
+    assert rows == [repr(o.row) for o in run_chunk(job, list(enumerate(sw.variants)),
+                                                   batched=False)]
+
+
+def test_results_csv_bytes_batched_equal_per_variant(tmp_path: Path) -> None:
+    sw = sweep()
+    execute(sw, RunOptions(), tmp_path / 'a', executor=PerVariantExecutor())
+    execute(sw, RunOptions(), tmp_path / 'b', executor=SerialExecutor())
+    a = (tmp_path / 'a' / 'results.csv').read_bytes()
+    assert a == (tmp_path / 'b' / 'results.csv').read_bytes()
+    assert a.count(b',invalid,') == 4
+
+
+def test_keys_on_one_element_run_per_variant() -> None:
+    """Two keys of one element are not mapped (their slots could interact): every variant
+    that differs from the template in one of them takes the per-variant path."""
+    sw = build_sweep(load_scene_data(find_scene('kavz685_lever')),
+                     ['duration=0.2', 'driveline[coupling].params.alpha_deg=10,20',
+                      'driveline[coupling].params.delta_alpha_deg=0,1'])
+    job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes), options=RunOptions())
+    runner = BatchRunner(job)
+    rows = [runner.run(v)[0] for v in sw.variants]
+    assert runner.stats['full'] == 4 and runner.stats['batched'] == 0
+    assert [repr(r) for r in rows] == [repr(o.row) for o in
+                                       run_chunk(job, list(enumerate(sw.variants)), batched=False)]
+    assert np.isfinite([r['energy_residual'] for r in rows]).all()
+
+
+def test_variant_dict_equals_apply_keys_and_leaves_base_unchanged() -> None:
+    base = load_scene_data(find_scene('kavz685_lever'))
+    frozen = copy.deepcopy(base)
+    keys = [('driveline', 2, 'params', 'alpha_deg'), ('driveline', 1, 'stiffness'),
+            ('driveline', 1, 'damping'), ('solver', 'max_step'), ('duration',)]
+    values = [12.5, 700.0, 0.5, 1e-3, 0.7]
+    d = variant_dict(base, keys, values)
+    assert d == apply_keys(base, keys, values)
+    assert base == frozen
+    assert d['engine'] is base['engine']            # shared, not copied
+    assert d['driveline'][2] is not base['driveline'][2]

@@ -8,7 +8,10 @@ shaft name (the scene's first inertia, e.g. ``engine_crank``). /engine/throttle
 ERROR diagnostic and not applied. With ``commands:=driver`` (a driver_node plays the scene's
 schedule in lockstep) the n-th throttle sample belongs to the step of the schedule's n-th
 throttle change, and the joint state t_k is answered only once the samples of the steps up to
-k are in and applied (docs/ros.md, "Commands").
+k are in and applied (docs/ros.md, "Commands"). /engine/throttle_scale (std_msgs/Float64,
+0..1, from the coupling node under a shift schedule) is the transmission's torque
+intervention: the engine runs at pedal x scale; with ``throttle_scale:=lockstep`` the n-th
+sample belongs to step n and the joint state t_k is answered only once it is in.
 
 Run alone: ``engine_node --ros-args -p scene:=kavz685_lever`` (waits for joint states).
 """
@@ -29,7 +32,8 @@ from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, ParameterError, ParamSpec
                                   declare_parameters, inertia_names, load_scene_param,
                                   load_yaml_mapping, run_node, scene_dict)
 from cvj_ros.nodes.intra import loop_subscription
-from cvj_ros.nodes.qos import DATA_QOS, ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC
+from cvj_ros.nodes.qos import (DATA_QOS, ENGINE_THROTTLE_SCALE_TOPIC, ENGINE_THROTTLE_TOPIC,
+                               ENGINE_WRENCH_TOPIC)
 
 #: a throttle change this large (or the first sample) is said on /diagnostics
 THROTTLE_REPORT_STEP = 0.05
@@ -47,8 +51,13 @@ PARAMS = (
               'lockstep; the joint state t_k is answered once the throttle samples of steps <= k '
               'are in (counted from the schedule); none: each sample applies on arrival',
               choices=('none', 'driver')),
-    ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s] (commands:=driver); 0 = the '
-              'scene exchange_step', lo=0.0, hi=3600.0),
+    ParamSpec('throttle_scale', 'auto', 'lockstep: the coupling node\'s n-th /engine/throttle_scale '
+              'sample is the factor on the pedal for step n, and the joint state t_k is answered once '
+              'it is in; on_arrival: each sample applies when it arrives (free-run); auto: lockstep '
+              'when the scene has a shift_schedule, else on_arrival',
+              choices=('auto', 'lockstep', 'on_arrival')),
+    ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s] (commands:=driver, '
+              'throttle_scale lockstep); 0 = the scene exchange_step', lo=0.0, hi=3600.0),
     ParamSpec('duration', 0.0, 'simulated time of the run [s] (commands:=driver); 0 = the scene '
               'duration', lo=0.0, hi=1e9),
 )
@@ -101,12 +110,24 @@ class EngineNode(TorqueResponder):
         self.throttle_waits = 0        # joint states answered only after their throttle came
         if p['commands'] == 'driver':
             self.throttle_steps = self._throttle_schedule(scene, p)
+        # the shift schedule's torque intervention: the pedal (commanded, or the engine spec's)
+        # times the scale in force; throttle_scale lockstep: the scales taken, in step order
+        self.pedal = float(engine.throttle)
+        self.scale = 1.0
+        self.scale_lockstep = (p['throttle_scale'] == 'lockstep' or (
+            p['throttle_scale'] == 'auto' and getattr(scene, 'shift_schedule', None) is not None))
+        self._scale_h_ns = int(round((p['exchange_step'] or scene.exchange_step) * NS_PER_S))
+        self._scales: deque[float | None] = deque()
+        self._scale_taken = 0          # samples received (step of the next one)
+        self._scale_step = -1          # step whose scale is in force
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
         # (composed with driver_node: from the in-process bus, in order with the joint states)
         self.throttle_sub = loop_subscription(self, Float64, ENGINE_THROTTLE_TOPIC,
                                               self._on_throttle_raw, DATA_QOS)
+        self.scale_sub = loop_subscription(self, Float64, ENGINE_THROTTLE_SCALE_TOPIC,
+                                           self._on_scale_raw, DATA_QOS)
         describe = getattr(engine, 'describe', None)
         self.get_logger().info(f'engine {describe() if describe else type(engine).__name__} on shaft '
                                f'{shaft!r}; waiting for /driveline/joint_states')
@@ -140,9 +161,58 @@ class EngineNode(TorqueResponder):
         self._throttle_taken += 1       # the driver's n-th sample, even one that did not decode
         step = self.throttle_steps[n] if n < len(self.throttle_steps) else -1   # beyond: now
         self._throttle_queue.append((step, x))
-        while self._held_states and self._throttle_due(self._held_states[0][0] * NS_PER_S
-                                                       + self._held_states[0][1]):
+        self._release_held()
+
+    def _release_held(self) -> None:
+        """Answer the held joint states whose throttle and scale are in, in order."""
+        while self._held_states and self._due(self._held_states[0][0] * NS_PER_S
+                                              + self._held_states[0][1]):
             super()._answer_state(*self._held_states.popleft())
+
+    def _due(self, t_ns: int) -> bool:
+        """The throttle samples (commands:=driver) and the scale (throttle_scale lockstep) of
+        the step at t_ns are in: applied, True."""
+        if self.scale_lockstep and not self._scale_due(t_ns):
+            return False
+        return self.throttle_steps is None or self._throttle_due(t_ns)
+
+    def _on_scale_raw(self, data: bytes) -> None:
+        """A serialised /engine/throttle_scale sample: checked (:func:`decode_float64`, 0..1);
+        applied now, or (lockstep) queued as the scale of the next step and applied when the
+        joint state of that step is answered."""
+        try:
+            x: float | None = decode_float64(data)
+        except CdrError as exc:
+            self._drop(str(exc), ENGINE_THROTTLE_SCALE_TOPIC)
+            x = None
+        if x is not None and not (math.isfinite(x) and 0.0 <= x <= 1.0):
+            self.throttle_rejected += 1
+            self.report(ERROR, f'{ENGINE_THROTTLE_SCALE_TOPIC}: must be a finite value in 0..1, got '
+                               f'{x}; not applied', {'rejected': self.throttle_rejected})
+            x = None
+        if not self.scale_lockstep:
+            if x is not None:
+                self._set_scale(x)
+            return
+        self._scales.append(x)          # the sample of step _scale_taken, even a bad one
+        self._scale_taken += 1
+        self._release_held()
+
+    def _scale_due(self, t_ns: int) -> bool:
+        """The scale of the step at t_ns is in (lockstep): applied, True."""
+        k = t_ns // self._scale_h_ns if self._scale_h_ns > 0 else 0
+        if k >= self._scale_taken:
+            return False
+        while self._scale_step < k:
+            x = self._scales.popleft()
+            self._scale_step += 1
+            if x is not None:
+                self._set_scale(x)
+        return True
+
+    def _set_scale(self, x: float) -> None:
+        self.scale = x
+        self.engine.set_throttle(self.pedal * x)
 
     def _throttle_due(self, t_ns: int) -> bool:
         """Every throttle sample of the steps up to t_ns is in: applied, True."""
@@ -159,8 +229,8 @@ class EngineNode(TorqueResponder):
         """Answer the joint state at (sec, nanosec); commands:=driver: once the throttle of
         its step is in force (the throttle of step k travels from the driver's process, the
         state t_k from the coupling node's: two publishers, no order between them)."""
-        if self.throttle_steps is not None and (
-                self._held_states or not self._throttle_due(sec * NS_PER_S + nanosec)):
+        if (self.throttle_steps is not None or self.scale_lockstep) and (
+                self._held_states or not self._due(sec * NS_PER_S + nanosec)):
             self._held_states.append((sec, nanosec, frame, phi, omega))
             self.throttle_waits += 1
             return
@@ -174,12 +244,12 @@ class EngineNode(TorqueResponder):
                         {'rejected': self.throttle_rejected})
             return
         try:
-            self.engine.set_throttle(x)
+            self.engine.set_throttle(x * self.scale)
         except CvjError as exc:   # the model's own validation
             self.throttle_rejected += 1
             self.report(ERROR, f'/engine/throttle: {exc}; not applied', {'rejected': self.throttle_rejected})
             return
-        self.throttle = x
+        self.throttle = self.pedal = x
         # a driver plays ramps as one sample per exchange step: say a change of >= 0.05 (and
         # the first), not every sample (1000 OK statuses a second swamped /diagnostics)
         if not abs(x - self._throttle_said) < THROTTLE_REPORT_STEP:

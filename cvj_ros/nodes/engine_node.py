@@ -11,7 +11,8 @@ throttle change, and the joint state t_k is answered only once the samples of th
 k are in and applied (docs/ros.md, "Commands"). /engine/throttle_scale (std_msgs/Float64,
 0..1, from the coupling node under a shift schedule) is the transmission's torque
 intervention: the engine runs at pedal x scale; with ``throttle_scale:=lockstep`` the n-th
-sample belongs to step n and the joint state t_k is answered only once it is in.
+sample is the scale of the n-th joint state (the coupling node publishes one right before
+each state: step n in lockstep) and that state is answered only once it is in.
 
 Run alone: ``engine_node --ros-args -p scene:=kavz685_lever`` (waits for joint states).
 """
@@ -52,12 +53,12 @@ PARAMS = (
               'are in (counted from the schedule); none: each sample applies on arrival',
               choices=('none', 'driver')),
     ParamSpec('throttle_scale', 'auto', 'lockstep: the coupling node\'s n-th /engine/throttle_scale '
-              'sample is the factor on the pedal for step n, and the joint state t_k is answered once '
+              'sample is the factor on the pedal for the n-th joint state, which is answered once '
               'it is in; on_arrival: each sample applies when it arrives (free-run); auto: lockstep '
               'when the scene has a shift_schedule, else on_arrival',
               choices=('auto', 'lockstep', 'on_arrival')),
-    ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s] (commands:=driver, '
-              'throttle_scale lockstep); 0 = the scene exchange_step', lo=0.0, hi=3600.0),
+    ParamSpec('exchange_step', 0.0, 'exchange step of the loop [s] (commands:=driver); 0 = the '
+              'scene exchange_step', lo=0.0, hi=3600.0),
     ParamSpec('duration', 0.0, 'simulated time of the run [s] (commands:=driver); 0 = the scene '
               'duration', lo=0.0, hi=1e9),
 )
@@ -106,20 +107,21 @@ class EngineNode(TorqueResponder):
         self.throttle_steps: list[int] | None = None
         self._throttle_taken = 0
         self._throttle_queue: deque[tuple[int, float | None]] = deque()
-        self._held_states: deque[tuple[int, int, str, float, float]] = deque()
+        self._held_states: deque[tuple[int, tuple[int, int, str, float, float]]] = deque()
         self.throttle_waits = 0        # joint states answered only after their throttle came
         if p['commands'] == 'driver':
             self.throttle_steps = self._throttle_schedule(scene, p)
         # the shift schedule's torque intervention: the pedal (commanded, or the engine spec's)
-        # times the scale in force; throttle_scale lockstep: the scales taken, in step order
+        # times the scale in force; throttle_scale lockstep: the scales taken, in the order of
+        # the joint states they go with
         self.pedal = float(engine.throttle)
         self.scale = 1.0
         self.scale_lockstep = (p['throttle_scale'] == 'lockstep' or (
             p['throttle_scale'] == 'auto' and getattr(scene, 'shift_schedule', None) is not None))
-        self._scale_h_ns = int(round((p['exchange_step'] or scene.exchange_step) * NS_PER_S))
         self._scales: deque[float | None] = deque()
-        self._scale_taken = 0          # samples received (step of the next one)
-        self._scale_step = -1          # step whose scale is in force
+        self._scale_taken = 0          # samples received (index of the state of the next one)
+        self._scale_state = -1         # index of the state whose scale is in force
+        self._states_seen = 0          # joint states of the shaft taken so far
         self.start_answering(source=answering_source(engine), shaft=shaft, wrench_topic=ENGINE_WRENCH_TOPIC)
         # raw: a malformed sample is dropped by the checked decoder, not by rclpy's
         # deserialisation inside the executor (which raised out of spin())
@@ -165,14 +167,17 @@ class EngineNode(TorqueResponder):
 
     def _release_held(self) -> None:
         """Answer the held joint states whose throttle and scale are in, in order."""
-        while self._held_states and self._due(self._held_states[0][0] * NS_PER_S
-                                              + self._held_states[0][1]):
-            super()._answer_state(*self._held_states.popleft())
+        while self._held_states:
+            n, state = self._held_states[0]
+            if not self._due(state[0] * NS_PER_S + state[1], n):
+                return
+            self._held_states.popleft()
+            super()._answer_state(*state)
 
-    def _due(self, t_ns: int) -> bool:
-        """The throttle samples (commands:=driver) and the scale (throttle_scale lockstep) of
-        the step at t_ns are in: applied, True."""
-        if self.scale_lockstep and not self._scale_due(t_ns):
+    def _due(self, t_ns: int, n: int) -> bool:
+        """The throttle samples (commands:=driver) of the step at t_ns and the scale
+        (throttle_scale lockstep) of the n-th joint state are in: applied, True."""
+        if self.scale_lockstep and not self._scale_due(n):
             return False
         return self.throttle_steps is None or self._throttle_due(t_ns)
 
@@ -194,18 +199,17 @@ class EngineNode(TorqueResponder):
             if x is not None:
                 self._set_scale(x)
             return
-        self._scales.append(x)          # the sample of step _scale_taken, even a bad one
+        self._scales.append(x)          # the scale of state _scale_taken, even a bad one
         self._scale_taken += 1
         self._release_held()
 
-    def _scale_due(self, t_ns: int) -> bool:
-        """The scale of the step at t_ns is in (lockstep): applied, True."""
-        k = t_ns // self._scale_h_ns if self._scale_h_ns > 0 else 0
-        if k >= self._scale_taken:
+    def _scale_due(self, n: int) -> bool:
+        """The scale of the n-th joint state is in (lockstep): applied, True."""
+        if n >= self._scale_taken:
             return False
-        while self._scale_step < k:
+        while self._scale_state < n:
             x = self._scales.popleft()
-            self._scale_step += 1
+            self._scale_state += 1
             if x is not None:
                 self._set_scale(x)
         return True
@@ -229,9 +233,11 @@ class EngineNode(TorqueResponder):
         """Answer the joint state at (sec, nanosec); commands:=driver: once the throttle of
         its step is in force (the throttle of step k travels from the driver's process, the
         state t_k from the coupling node's: two publishers, no order between them)."""
+        n = self._states_seen
+        self._states_seen += 1
         if (self.throttle_steps is not None or self.scale_lockstep) and (
-                self._held_states or not self._due(sec * NS_PER_S + nanosec)):
-            self._held_states.append((sec, nanosec, frame, phi, omega))
+                self._held_states or not self._due(sec * NS_PER_S + nanosec, n)):
+            self._held_states.append((n, (sec, nanosec, frame, phi, omega)))
             self.throttle_waits += 1
             return
         super()._answer_state(sec, nanosec, frame, phi, omega)

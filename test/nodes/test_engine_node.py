@@ -318,6 +318,9 @@ def test_throttle_scale_auto_follows_the_scene_and_on_arrival_applies_at_once(ct
         scale_pub.publish(Float64(data=1.5))         # out of range: refused, not applied
         h.spin_until(lambda: node.throttle_rejected == 1)
         assert node.scale == 0.5
+        scale_pub.publish(b'\x07junk')               # not CDR: dropped, counted, not applied
+        h.spin_until(lambda: node.malformed.total == 1)
+        assert node.scale == 0.5 and node.engine.throttle == 0.3
     finally:
         h.close()
         node.destroy_node()

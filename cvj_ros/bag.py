@@ -13,8 +13,9 @@ the same bag twice (docs/contracts.md "Topics and bags"):
   message arrives relative to /clock differs from run to run);
 * the samples of a command schedule a driver plays (``/engine/throttle``,
   ``/driveline/clutch``, ``/driveline/gear``, ``/driveline/brake``; std_msgs without a
-  stamp): the time t_k of the exchange step they belong to, counted per topic from the
-  schedule (:meth:`BagRecorder.set_command_stamps`);
+  stamp) and the coupling node's ``/engine/throttle_scale`` (one per step in lockstep): the
+  time t_k of the exchange step they belong to, counted per topic from the schedule
+  (:meth:`BagRecorder.set_command_stamps`);
 * everything else (``/diagnostics``, commands of an outside stack): the latest ``/clock``
   time seen by the recorder (0 before the first ``/clock``).
   ``/diagnostics`` headers may carry wall-clock stamps, so they are not used.
@@ -56,6 +57,7 @@ TOPIC_TYPES: dict[str, str] = {
     '/engine/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/load/wrench': 'geometry_msgs/msg/WrenchStamped',
     '/engine/throttle': 'std_msgs/msg/Float64',
+    '/engine/throttle_scale': 'std_msgs/msg/Float64',
     '/driveline/clutch': 'std_msgs/msg/Float64',
     '/driveline/gear': 'std_msgs/msg/Int8',
     '/driveline/brake': 'std_msgs/msg/Float64',
@@ -81,7 +83,8 @@ STAMPED_TYPES = frozenset({
 })
 # Topics with one publisher in a run: BagRecorder(run_only=True) records a message of
 # these only while its topic has one matched publisher (besides /coupling/*/wrench).
-RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench', SCENE_TOPIC})
+RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench', SCENE_TOPIC,
+                             '/engine/throttle_scale'})
 
 
 def _one_publisher_topic(topic: str) -> bool:
@@ -1156,6 +1159,31 @@ class BatchingWriter:
         self.wait_total_s += _monotonic() - t0
 
 
+def scene_command_stamps(text: str) -> dict[str, list[int]]:
+    """Record times (ns) of the untimed samples of a run, from its ``/driveline/scene`` text:
+    with ``commands: driver`` (a driver_node plays the scene's ``commands:``) each command
+    topic's :meth:`~cvj_ros.nodes.command_plan.CommandPlan.record_stamps`, and in lockstep
+    under a ``shift_schedule`` the throttle scale's t_0 .. t_N; ``{}`` when the text does not
+    say (an older run, an outside stack) or does not parse."""
+    try:
+        d = yaml.safe_load(text)
+        if not isinstance(d, dict) or not isinstance(d.get('scene'), dict):
+            return {}
+        h_ns = int(round(float(d['exchange_step']) * 1e9))
+        n_steps = int(round(float(d['duration']) * 1e9 / h_ns))
+        from cvj_ros.nodes.command_plan import CommandPlan, throttle_scale_stamps
+        from cvj_ros.physics.scene import parse_scene
+        scene = parse_scene(d['scene'])
+        out: dict[str, list[int]] = {}
+        if d.get('commands') == 'driver' and scene.commands:
+            out.update(CommandPlan.from_scene(scene, h_ns, n_steps).record_stamps())
+        if d.get('mode') == 'lockstep':
+            out.update(throttle_scale_stamps(scene, h_ns, n_steps))
+        return out
+    except Exception:  # noqa: BLE001 (a scene text this recorder cannot read: latest /clock)
+        return {}
+
+
 class BagRecorder:
     """Records ROS topics of a run to a bag: raw CDR from ``raw=True`` subscriptions.
 
@@ -1250,6 +1278,8 @@ class BagRecorder:
         # order, and how many were taken (set_command_stamps)
         self._command_stamps: dict[str, list[int]] = {}
         self._command_taken: dict[str, int] = {}
+        self._stamps_given = False     # set_command_stamps called: the scene message adds none
+        self._untimed_seen: dict[str, int] = {}   # samples recorded at the latest /clock
         typestore()   # built now (~0.2 s), not inside the loop at the first /driveline/scene
         for topic in list(TOPIC_TYPES) + list(topics):
             self.subscribe(topic)
@@ -1339,7 +1369,10 @@ class BagRecorder:
         :meth:`cvj_ros.nodes.command_plan.CommandPlan.record_stamps`), not at the latest
         /clock the recorder has taken, which in separate processes depends on when the
         sample arrives. Samples beyond the list fall back to the latest /clock. Call before
-        the first command sample arrives."""
+        the first command sample arrives. Without this call (a recorder started by hand or
+        by the launch file) the stamps come from the run's ``/driveline/scene``
+        (:func:`scene_command_stamps`)."""
+        self._stamps_given = True
         self._command_stamps = {topic: list(v) for topic, v in stamps.items()}
         self._command_taken = {topic: 0 for topic in stamps}
 
@@ -1348,6 +1381,7 @@ class BagRecorder:
         played command sample (:meth:`set_command_stamps`), else ``clock_ns``."""
         stamps = self._command_stamps.get(topic)
         if stamps is None:
+            self._untimed_seen[topic] = self._untimed_seen.get(topic, 0) + 1
             return clock_ns
         n = self._command_taken[topic]
         if n >= len(stamps):
@@ -1465,6 +1499,11 @@ class BagRecorder:
         if topic == SCENE_TOPIC and self.scene_text is None:
             self.scene_text = typestore().deserialize_cdr(bytes(data), 'std_msgs/msg/String').data
             self.writer.set_custom_data('cvj_ros.scene', self.scene_text)
+            if not self._stamps_given:     # started by hand: the schedule from the scene
+                # (samples taken before it, if any, were recorded at the latest /clock: the
+                # count goes on from them)
+                self._command_stamps = scene_command_stamps(self.scene_text)
+                self._command_taken = {t: self._untimed_seen.get(t, 0) for t in self._command_stamps}
         self._record([(topic, stamp, data)], _monotonic() if wall is None else wall)
 
     def _record(self, items: list[tuple[str, int, bytes]], wall: float) -> None:

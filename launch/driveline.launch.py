@@ -113,9 +113,11 @@ def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
                               **({'catch_up': args['catch_up'], 'realtime_priority': rt_priority}
                                  if args['mode'] == 'free-run' else {})),
         # with the driver in lockstep: answer the state t_k with the throttle of step k (counted)
+        # a shift schedule's throttle scale: counted per step in lockstep (auto), as it comes in free-run
         'engine_node': dict(common, **({'commands': 'driver', 'duration': duration}
                                        if _flag(args['driver']) and args['mode'] == 'lockstep'
-                                       else {})),
+                                       else {}),
+                            **({'throttle_scale': 'on_arrival'} if args['mode'] == 'free-run' else {})),
         'load_node': dict(common),
         'monitor_node': {'scene': args['scene']},
         'driver_node': dict(common, duration=duration),

@@ -487,3 +487,25 @@ def test_empty_bag_reads_as_no_series(tmp_path, storage: str) -> None:
                 w.add_topic(t)
         data = bag.read_bag(path)
         assert set(data) <= set(topics) and all(len(series.t) == 0 for series in data.values())
+
+
+def test_scene_command_stamps_learn_the_schedule_from_the_scene_message() -> None:
+    """A recorder not told the schedule (started by hand or by the launch file) takes the
+    record times of the driver's samples and the throttle scale from /driveline/scene: the
+    same lists `cvj-sim run` hands it (CommandPlan.record_stamps, one scale per step in
+    lockstep); none for an outside stack's commands or a text it cannot read."""
+    from cvj_ros.nodes.command_plan import CommandPlan
+    from cvj_ros.nodes.common import scene_dict
+    from cvj_ros.physics.scene import find_scene, load_scene
+    scene = load_scene(find_scene('launch_clutch'))
+    msg = {'scene': scene_dict(scene), 'seed': 1, 'mode': 'lockstep', 'exchange_step': 0.001,
+           'duration': 1.6, 'commands': 'driver'}
+    got = bag.scene_command_stamps(yaml.safe_dump(msg))
+    want = CommandPlan.from_scene(scene, 1_000_000, 1600).record_stamps()
+    assert {t: got[t] for t in want} == want and len(want['/engine/throttle']) > 300
+    assert got['/engine/throttle_scale'] == [k * 1_000_000 for k in range(1601)]
+    external = bag.scene_command_stamps(yaml.safe_dump(dict(msg, commands='external')))
+    assert list(external) == ['/engine/throttle_scale']
+    assert list(bag.scene_command_stamps(yaml.safe_dump(dict(msg, mode='free-run')))) == list(want)
+    assert bag.scene_command_stamps('{not: [yaml') == {}
+    assert bag.scene_command_stamps(yaml.safe_dump(dict(msg, exchange_step='x'))) == {}

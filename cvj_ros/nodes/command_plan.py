@@ -24,12 +24,15 @@ from dataclasses import dataclass
 from typing import Any
 
 __all__ = ['BRAKE_TOPIC', 'CHANNEL_TOPICS', 'CLUTCH_TOPIC', 'CommandError', 'CommandPlan',
-           'GEAR_TOPIC', 'THROTTLE_TOPIC', 'check_command', 'decode_clock_ns', 'decode_command']
+           'GEAR_TOPIC', 'THROTTLE_SCALE_TOPIC', 'THROTTLE_TOPIC', 'check_command',
+           'decode_clock_ns', 'decode_command', 'throttle_scale_stamps']
 
 THROTTLE_TOPIC = '/engine/throttle'
 CLUTCH_TOPIC = '/driveline/clutch'
 GEAR_TOPIC = '/driveline/gear'
 BRAKE_TOPIC = '/driveline/brake'
+#: the shift schedule's torque intervention on the engine (coupling node -> engine node)
+THROTTLE_SCALE_TOPIC = '/engine/throttle_scale'
 #: channel -> topic, in the order the driver publishes a step's samples
 CHANNEL_TOPICS = {'throttle': THROTTLE_TOPIC, 'clutch': CLUTCH_TOPIC, 'gear': GEAR_TOPIC,
                   'brake': BRAKE_TOPIC}
@@ -143,3 +146,12 @@ class CommandPlan:
         """Topic -> :meth:`stamps` of every played channel: the record times of a run's
         command samples (:meth:`cvj_ros.bag.BagRecorder.set_command_stamps`)."""
         return {CHANNEL_TOPICS[c]: self.stamps(c) for c in self.channels}
+
+
+def throttle_scale_stamps(scene: Any, h_ns: int, n_steps: int) -> dict[str, list[int]]:
+    """``{THROTTLE_SCALE_TOPIC: [t_0 .. t_N]}`` (ns) for a scene with a shift schedule (the
+    coupling node publishes the throttle scale of every step k before the state t_k in
+    lockstep: the n-th sample belongs to step n), else ``{}``."""
+    if getattr(scene, 'shift_schedule', None) is None:
+        return {}
+    return {THROTTLE_SCALE_TOPIC: [k * h_ns for k in range(n_steps + 1)]}

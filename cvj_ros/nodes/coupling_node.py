@@ -94,7 +94,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
+from std_msgs.msg import Float64, String
 
 from cvj_ros.errors import CvjError, StartCancelled
 from cvj_ros.nodes.cdr import CdrError, checked_length
@@ -112,12 +112,15 @@ from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNo
                                   decode_wrench_stamp_torque_z, load_scene_param,
                                   ns_to_stamp, parse_assignments, run_node, scene_dict,
                                   scene_seed)
-from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC,
-                               JOINT_STATES_TOPIC, LATCHED_QOS, LOAD_WRENCH_TOPIC,
-                               RECORDED_TOPIC, SCENE_TOPIC, coupling_wrench_topic)
+from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC,
+                               ENGINE_THROTTLE_SCALE_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
+                               LATCHED_QOS, LOAD_WRENCH_TOPIC, RECORDED_TOPIC, SCENE_TOPIC,
+                               coupling_wrench_topic)
 
 _CLOCK_STAMP = struct.Struct('<iI')    # rosgraph_msgs/Clock: int32 sec, uint32 nanosec at byte 4
 _CLOCK_STAMP_BE = struct.Struct('>iI')
+_FLOAT64_LE = struct.Struct('<4sd')    # std_msgs/Float64 as little-endian CDR
+_CDR_LE = b'\x00\x01\x00\x00'
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
@@ -377,6 +380,10 @@ class CouplingNode(CvjNode):
         self._state_pending = False
         if self.hybrid is not None:
             self._subscribe_commands(scene, p)
+        # a shift schedule's throttle cut: the factor on the pedal for step k goes out before
+        # the state t_k (docs/ros.md "Commands"; the engine node answers t_k with it)
+        self.scale_pub = (loop_publisher(self, Float64, ENGINE_THROTTLE_SCALE_TOPIC, DATA_QOS)
+                          if getattr(self.hybrid, 'cuts_throttle', False) else None)
 
         # loop state
         self.k = 0
@@ -606,6 +613,9 @@ class CouplingNode(CvjNode):
                        'backend': getattr(self.stepper, 'backend', 'python'),
                        'backend_fallback': getattr(self.stepper, 'backend_fallback', None)},
             'shaft_names': self.names,
+            # a mode scene: who sends the commands (driver: a driver_node plays the scene's
+            # schedule, so a recorder started by hand stamps them by it; bag.scene_command_stamps)
+            **({'commands': self.params['commands']} if self.hybrid is not None else {}),
         }, sort_keys=False)
         self.scene_pub.publish(String(data=text))
 
@@ -624,10 +634,22 @@ class CouplingNode(CvjNode):
         if self.gated_commands:      # the driver's command publishers (commands=driver)
             missing += [f'{topic} (no publisher: driver_node)' for topic, sub in self.command_subs.items()
                         if topic in self._played_topics and sub.get_publisher_count() < 1]
+        if (self.scale_pub is not None and self.scale_pub.get_subscription_count() < 1
+                and self._engine_node_listens()):
+            missing.append(f'{ENGINE_THROTTLE_SCALE_TOPIC} (no subscriber: engine_node)')
         bus = bus_for(self.context)
         if bus is not None:    # composed: the in-process DDS endpoints matched (intra.py)
             missing += bus.dds_unmatched()
         return missing
+
+    def _engine_node_listens(self) -> bool:
+        """An engine_node (ours: it takes /engine/throttle_scale, and in lockstep waits for
+        the scale of step 0) subscribes to the joint states; an outside engine need not."""
+        try:
+            return any(info.node_name == 'engine_node' for info in
+                       self.get_subscriptions_info_by_topic(JOINT_STATES_TOPIC))
+        except Exception:  # noqa: BLE001 (graph query during shutdown)
+            return False
 
     def _answer_subs(self) -> list[tuple[str, Any]]:
         """(topic, subscription) of every answer the loop waits for: /engine/wrench and
@@ -1221,6 +1243,8 @@ class CouplingNode(CvjNode):
         # in its joint-state callback. In lockstep it went out already before the
         # integration (_on_wrench); else here, ahead of the joint-state evaluation.
         self._publish_clock(self.t_ns)
+        if self.scale_pub is not None:      # the throttle scale of step k, before the state t_k
+            self.scale_pub.publish(_FLOAT64_LE.pack(_CDR_LE, self.hybrid.throttle_scale()))
         pos, vel, eff = self.outputs.joint_states(x, t_engine, t_load)
         if raw:
             self.js_pub.publish(self._js_cdr.encode(sec, nanosec, pos, vel, eff))

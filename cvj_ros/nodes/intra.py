@@ -45,12 +45,14 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from cvj_ros.nodes.qos import (BRAKE_TOPIC, CLOCK_TOPIC, CLUTCH_TOPIC, DIAGNOSTICS_TOPIC,
-                               ENGINE_THROTTLE_TOPIC, ENGINE_WRENCH_TOPIC, GEAR_TOPIC,
+                               ENGINE_THROTTLE_SCALE_TOPIC, ENGINE_THROTTLE_TOPIC,
+                               ENGINE_WRENCH_TOPIC, GEAR_TOPIC,
                                JOINT_STATES_TOPIC, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
 
 #: the loop topics each hosted node publishes at the exchange rate
 LOOP_TOPICS_OF = {
-    'coupling_node': (CLOCK_TOPIC, JOINT_STATES_TOPIC),   # + /coupling/<joint>/wrench
+    # + /coupling/<joint>/wrench; the throttle scale of a shift schedule before each state
+    'coupling_node': (CLOCK_TOPIC, JOINT_STATES_TOPIC, ENGINE_THROTTLE_SCALE_TOPIC),
     'engine_node': (ENGINE_WRENCH_TOPIC,),
     'load_node': (LOAD_WRENCH_TOPIC,),
     # the commands: in order with /clock, on which the driver plays them (command_plan.py)

@@ -14,7 +14,12 @@ samples it publishes one DiagnosticArray (stamp = latest joint-state stamp) with
   Rzeppa 47 deg Bugaru & Vasile 2021); WARN above the limit, ERROR above limit + 5 deg;
 * ``monitor: loop``: energy residual, real-time factor, lockstep wait (us) from the
   coupling node's diagnostics, with the ``energy_residual_*`` and ``real_time_factor_warn``
-  thresholds.
+  thresholds;
+* ``monitor: modes`` (scenes with clutch, gearbox or brakes): the operating state from the
+  coupling node's loop status (:mod:`cvj_ros.nodes.monitor_modes`): OK in steady running and
+  in the transient states (vehicle held at rest, clutch slipping, neutral, shift running),
+  WARN after a stall. A shaft's nonuniformity over a window that is not wholly steady running
+  is reported at level OK with the reason: the limits are for steady running.
 
 The scene comes from the ``scene`` parameter or, when empty, from /driveline/scene.
 """
@@ -37,6 +42,7 @@ from cvj_ros.nodes.diagnostics import Status, plain_status, publish_statuses
 from cvj_ros.nodes.qos import (DATA_QOS, DIAGNOSTICS_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
                                LATCHED_QOS, LOAD_WRENCH_TOPIC, SCENE_TOPIC)
 from cvj_ros.nodes.malformed import MalformedInputs
+from cvj_ros.nodes.monitor_modes import DrivelineStates, scene_has_modes
 from cvj_ros.nodes.parameters import scene_elements
 from cvj_ros.nodes.cdr import (CdrError, JointStateDecoder, decode_string, decode_wrench_header_torque_z,
                                decode_diagnostic_array, read_joint_state_block,
@@ -44,7 +50,7 @@ from cvj_ros.nodes.cdr import (CdrError, JointStateDecoder, decode_string, decod
 from cvj_ros.physics.monitor_metrics import (DEFAULT_NONUNIFORMITY_ERROR,
                                              DEFAULT_NONUNIFORMITY_WARN,
                                              RECOMMENDED_MAX_ANGLE_DEG, RollingWindow,
-                                             angle_level, level,
+                                             angle_level, detrended_nonuniformity, level,
                                              nonuniformity_from_stats)
 
 LEVELS = (OK, WARN, ERROR)
@@ -101,6 +107,7 @@ class MonitorNode(CvjNode):
         self._diag_frame = 'monitor_node'
         self.joint_limits: dict[str, tuple[float, float]] = {}   # joint -> (angle deg, limit deg)
         self.internal_members: set[str] = set()   # shafts of INTERNAL_MEMBERS: no limit
+        self.states = DrivelineStates()           # steady running or a mode transient
         if self.params['scene']:
             self._use_scene(scene_dict(load_scene_param(self.params['scene'])))
         self.names: list[str] = []
@@ -172,6 +179,7 @@ class MonitorNode(CvjNode):
                 limits[str(el['name'])] = (angle, float(limit))
         self.joint_limits = limits
         self.internal_members = members
+        self.states.expect_modes = scene_has_modes(scene_elements(scene.get('driveline')))
 
     def _foreign(self, sub: Any) -> bool:
         """True (and counted) when ``sub`` (a DDS subscription of a loop topic) has more than
@@ -364,22 +372,27 @@ class MonitorNode(CvjNode):
         if b'coupling_node' not in data:
             return
         try:
-            _stamp_ns, frame, statuses = decode_diagnostic_array(data)
+            stamp_ns, frame, statuses = decode_diagnostic_array(data)
         except CdrError as exc:
             self._drop(DIAGNOSTICS_TOPIC, str(exc))
             return
-        self._take_loop_status(frame, [(name, values) for _l, name, _m, _h, values in statuses])
+        self._take_loop_status(frame, [(name, values) for _l, name, _m, _h, values in statuses],
+                               stamp_ns)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         self._take_loop_status(msg.header.frame_id, [(st.name, [(kv.key, kv.value) for kv in st.values])
-                                                     for st in msg.status])
+                                                     for st in msg.status],
+                               stamp_to_ns(msg.header.stamp))
 
-    def _take_loop_status(self, frame_id: str, statuses: list[tuple[str, list[tuple[str, str]]]]) -> None:
+    def _take_loop_status(self, frame_id: str, statuses: list[tuple[str, list[tuple[str, str]]]],
+                          stamp_ns: int | None = None) -> None:
         """Keep the float values of the coupling node's statuses (name, key/values) of one
-        /diagnostics message with header.frame_id ``frame_id``."""
+        /diagnostics message with header.frame_id ``frame_id`` and stamp ``stamp_ns`` (the
+        loop's t_k), and its modes (:class:`DrivelineStates`)."""
         for name, values in statuses:
             if not name.startswith('coupling_node'):
                 continue
+            self.states.take(self.last_ns if stamp_ns is None else stamp_ns, dict(values))
             for key, value in values:
                 try:
                     self.loop_values[key] = float(value)
@@ -398,17 +411,34 @@ class MonitorNode(CvjNode):
             _n, _e_mean, e_lo, e_hi = self.efforts.stats(p['window'])
             delta = nonuniformity_from_stats(w_mean, w_lo, w_hi, min_speed=max(p['min_speed'], 1e-12))
             w_amp, e_amp = 0.5 * (w_hi - w_lo), 0.5 * (e_hi - e_lo)
+            # a launch, a shift, a stall within the window: not steady running (module docstring)
+            transient = self.states.not_steady(self.last_ns - int(p['window'] * 1e9))
+            trend = None
+            if self.states.expect_modes and not transient:
+                # a vehicle accelerating in gear: judged about the window's speed trend
+                tw, ww = self.speeds.window(p['window'])
+                trend = detrended_nonuniformity(tw, ww, min_speed=max(p['min_speed'], 1e-12))
             for i, name in enumerate(self.names):
                 d = float(delta[i])
+                if trend is not None and math.isfinite(float(trend[0][i])):
+                    d = float(trend[0][i])
                 lv = 0 if math.isnan(d) and math.isfinite(w_mean[i]) else level(
                     d, p['nonuniformity_warn'], p['nonuniformity_error'])
                 msg = ('standstill' if math.isnan(d) and lv == 0
                        else f'nonuniformity {d:.4g}')
+                if trend is not None and math.isfinite(d):
+                    msg += (f' about the speed trend ({float(trend[1][i]):+.4g} rad/s^2; '
+                            f'max-min over mean {float(delta[i]):.4g})')
                 if name in self.internal_members and math.isfinite(d):
                     lv = 0   # the thresholds are for shafts (Davidbaev et al. 2023, sec. 4), not a cage
                     msg += ' (internal member: no limit)'
+                elif transient and math.isfinite(w_mean[i]):
+                    lv = 0   # the thresholds are for steady running (Davidbaev et al. 2023, sec. 4)
+                    if not math.isnan(d):
+                        msg += f' (not judged: {transient} within the window)'
                 out.append(plain_status(f'monitor: {name}', LEVELS[lv], msg, {
-                    'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': d,
+                    'speed_mean_rad_s': float(w_mean[i]), 'nonuniformity': float(delta[i]),
+                    **({'nonuniformity_about_trend': d} if trend is not None else {}),
                     'speed_amplitude_rad_s': float(w_amp[i]),
                     'torque_amplitude_nm': float(e_amp[i]), 'samples': int(n_w)}))
         values: dict[str, float] = {}
@@ -426,6 +456,12 @@ class MonitorNode(CvjNode):
             out.append(plain_status(f'monitor: joint {joint}', LEVELS[lv],
                                    f'angle {angle:.3g} deg, recommended <= {limit:.3g} deg',
                                    {'angle_deg': angle, 'limit_deg': limit}))
+        if self.states.seen or self.states.expect_modes:
+            st = self.states
+            line = st.state_line()
+            out.append(plain_status('monitor: modes', WARN if st.modes.get('stall') else OK,
+                                   st.modes.get('stall') or line,
+                                   {'state': line, **{k: v for k, v in st.modes.items() if k != 'stall'}}))
         if self.loop_values:
             lv = 0
             lv_msgs = []

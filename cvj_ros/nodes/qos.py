@@ -59,6 +59,8 @@ CLOCK_TOPIC = '/clock'
 JOINT_STATES_TOPIC = '/driveline/joint_states'
 ENGINE_WRENCH_TOPIC = '/engine/wrench'
 ENGINE_THROTTLE_TOPIC = '/engine/throttle'
+# the shift schedule's torque intervention: factor on the pedal for step k (coupling node)
+ENGINE_THROTTLE_SCALE_TOPIC = '/engine/throttle_scale'
 CLUTCH_TOPIC = '/driveline/clutch'
 GEAR_TOPIC = '/driveline/gear'
 BRAKE_TOPIC = '/driveline/brake'

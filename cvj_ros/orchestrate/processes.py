@@ -56,6 +56,9 @@ def node_parameters(prep: _Prepared, name: str, *, load_override: Path | None) -
         # the state t_k is answered with the driver's throttle of step k (counted)
         params.update(commands='driver', exchange_step=float(prep.exchange_step),
                       duration=float(prep.duration))
+    if name == 'engine_node' and getattr(prep.scene, 'shift_schedule', None) is not None:
+        # the shift schedule's throttle scale with its joint state (lockstep), or as it comes
+        params['throttle_scale'] = 'lockstep' if o.mode == 'lockstep' else 'on_arrival'
     if load_override is not None and name in ('coupling_node', 'load_node'):
         params['load_override'] = str(load_override)
     return params

@@ -221,18 +221,21 @@ PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
 # slow discovery under load at the cost of 0.3 s per run.
 DISCOVERY_SETTLE_S = 0.3
 LOOP_TOPICS = (bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, bagmod.SCENE_TOPIC,
-               '/engine/wrench', '/load/wrench')
+               '/engine/wrench', '/load/wrench', '/engine/throttle_scale')
 def command_record_stamps(prep: Any) -> dict[str, list[int]]:
     """Record times (ns) of the command samples the run's driver_node plays, per topic
     (:meth:`cvj_ros.bag.BagRecorder.set_command_stamps`): each at the time t_k of its step,
     the same in composed and separate processes; none when no driver plays (an outside
-    stack's samples are recorded at the latest /clock)."""
-    if 'driver_node' not in prep.nodes:
-        return {}
-    from cvj_ros.nodes.command_plan import NS_PER_S, CommandPlan
+    stack's samples are recorded at the latest /clock). In lockstep the coupling node's
+    /engine/throttle_scale (a shift schedule's) has one sample per step, the n-th at t_n."""
+    from cvj_ros.nodes.command_plan import NS_PER_S, CommandPlan, throttle_scale_stamps
     h_ns = int(round(prep.exchange_step * NS_PER_S))
     n_steps = int(round(prep.duration * NS_PER_S / h_ns))
-    return CommandPlan.from_scene(prep.scene, h_ns, n_steps).record_stamps()
+    out = (CommandPlan.from_scene(prep.scene, h_ns, n_steps).record_stamps()
+           if 'driver_node' in prep.nodes else {})
+    if prep.options.mode == 'lockstep':
+        out.update(throttle_scale_stamps(prep.scene, h_ns, n_steps))
+    return out
 
 
 # --external NAME: (the node it replaces, what the outside node must publish)

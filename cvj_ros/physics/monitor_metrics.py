@@ -7,6 +7,10 @@
 
   over the samples of a window; ``nan`` where |omega_mean| is below ``min_speed``
   (a shaft at standstill has no meaningful unevenness).
+* The same about the window's speed trend (a driveline accelerating in gear):
+  r = omega - (a + b t), the least-squares line over the window removed, and
+  delta_trend = (r_max - r_min) / omega_mean; equal to delta for a steady periodic speed
+  (b ~ 0), 0 for a pure speed ramp (:func:`detrended_nonuniformity`).
 * Amplitude of any signal (speed rad/s, torque N m): (x_max - x_min) / 2.
 * Recommended joint angles: :data:`RECOMMENDED_MAX_ANGLE_DEG` (seed references below).
 
@@ -139,6 +143,29 @@ def speed_nonuniformity(omega: FloatArray, *, min_speed: float = 1e-3) -> FloatA
     sec. 4; nan for columns whose |mean| < ``min_speed`` (rad/s) or for an empty window."""
     mean, lo, hi = column_stats(omega)
     return nonuniformity_from_stats(mean, lo, hi, min_speed=min_speed)
+
+
+def detrended_nonuniformity(t: FloatArray, omega: FloatArray, *, min_speed: float = 1e-3
+                            ) -> tuple[FloatArray, FloatArray]:
+    """(delta_trend, b) per column of ``omega`` (n, m) at times ``t`` (n,) (s): the
+    nonuniformity about the least-squares line a + b t (module docstring) and the slope b
+    (rad/s^2); nan where |mean| < ``min_speed`` or fewer than 3 samples."""
+    t = np.asarray(t, dtype=float)
+    w = np.asarray(omega, dtype=float)
+    m = w.shape[1] if w.ndim == 2 else 0
+    nan = np.full(m, np.nan)
+    if w.ndim != 2 or w.shape[0] < 3:
+        return nan, nan.copy()
+    tc = t - t.mean()
+    mean = w.mean(axis=0)
+    denom = float(tc @ tc)
+    b = (tc @ (w - mean)) / denom if denom > 0 else np.zeros(m)
+    r = w - mean - np.outer(tc, b)
+    out = nan.copy()
+    with np.errstate(invalid='ignore'):
+        ok = np.abs(mean) >= min_speed
+    out[ok] = (r.max(axis=0)[ok] - r.min(axis=0)[ok]) / np.abs(mean[ok])
+    return out, b
 
 
 def amplitude(x: FloatArray) -> FloatArray:

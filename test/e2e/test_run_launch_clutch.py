@@ -1,11 +1,14 @@
 """`cvj-sim run launch_clutch` (a vehicle tree: clutch, gearbox, two wheel brakes, a shift
-schedule) as real processes, separate and composed: the joint states of every shaft of both
-branches are the offline exchange loop's bit for bit (HybridTreeLockstep fed with the
-recorded engine torques and the scene's command plan), two composed runs give the same bag,
+schedule) as real processes, separate and composed: every shaft of both branches, every
+engine answer and every throttle scale are the offline exchange loop's bit for bit
+(HybridTreeLockstep with the scene's command plan and the engine model answering each t_k
+at pedal x throttle_scale(), the shift's throttle cut), two composed runs give the same bag,
 and the run follows `cvj-sim simulate` within a stated bound.
 
-Runs are shortened to 3 s: both brakes hold the car on the 10 % grade exactly at rest, the
-brakes release at ~1.74 s, the clutch locks at ~2.69 s in 1st (docs/clutch_gearbox.md)."""
+Runs are shortened to 4.6 s, over the first shift: both brakes hold the car on the 10 %
+grade exactly at rest, the brakes release at ~1.74 s, the clutch locks at ~2.69 s in 1st,
+the schedule shifts 1 -> 2 at ~3.88 s with the throttle cut and the clutch locks again in
+2nd at ~4.31 s (docs/clutch_gearbox.md)."""
 from __future__ import annotations
 
 import importlib.util
@@ -26,11 +29,12 @@ _composed = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_composed)
 raw_messages = _composed.raw_messages          # canonical (stamp, CDR) per topic
 
-DURATION = 3.0
-N = 3000
+DURATION = 4.6
+N = 4600
 H_NS = 1_000_000
 CVJ_SIM = str(Path(sys.executable).parent / 'cvj-sim')
-COMMAND_TOPICS = ('/engine/throttle', '/driveline/clutch', '/driveline/brake')
+COMMAND_TOPICS = ('/engine/throttle', '/driveline/clutch', '/driveline/brake',
+                  '/engine/throttle_scale')
 
 
 @pytest.fixture(scope='module')
@@ -51,10 +55,52 @@ def _scene():
     return load_scene(find_scene('launch_clutch'))
 
 
-def test_runs_finish_with_the_clutch_locked(runs) -> None:
+def offline_exchange_loop(scene, h_ns: int, n: int) -> dict:
+    """The loop's physics without ROS: the scene's stepper (hybrid_lockstep), the commands
+    of step k (CommandPlan), and the engine node's model (answering_source) answering the
+    state t_k at pedal x throttle_scale() (the shift's cut), integrated t_k -> t_(k+1) with
+    that torque held. Returns every step's joint states, torques, scales and the events."""
+    from cvj_ros.nodes.command_plan import CommandPlan
+    from cvj_ros.nodes.common import scene_dict
+    from cvj_ros.nodes.engine_node import answering_source
+    from cvj_ros.nodes.parameters import inertia_names
+    from cvj_ros.physics.engine import engine_from_spec
+    from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
+    plan = CommandPlan.from_scene(scene, h_ns, n)
+    hl = hybrid_lockstep(scene)
+    engine = engine_from_spec(dict(scene_dict(scene)['engine']), field='engine')
+    source = answering_source(engine)
+    pedal = float(engine.throttle)
+    crank = hl.shaft_names.index(inertia_names(scene)[0])
+    out: dict = {'pos': [], 'vel': [], 'eff': [], 'torque': [], 'scale': []}
+    for k in range(n + 1):
+        # the state t_k goes out with the commands of step k in force (their capacities in
+        # the efforts) and the scale of step k; the engine answers it at pedal x scale
+        vals = dict(plan.at(k))
+        hl.set_commands(clutch=vals.get('clutch'), brake=vals.get('brake'))
+        pedal = vals.get('throttle', pedal)
+        scale = hl.throttle_scale()
+        engine.set_throttle(pedal * scale)
+        pos, vel, eff = hl.joint_states()
+        torque = float(source.torque(k * h_ns / 1e9, vel[crank], pos[crank]))
+        for key, v in (('pos', pos), ('vel', vel), ('eff', eff), ('torque', torque),
+                       ('scale', scale)):
+            out[key].append(v)
+        if k < n:
+            hl.advance((k + 1) * h_ns / 1e9, torque, 0.0)
+    out['hybrid'] = hl
+    return out
+
+
+@pytest.fixture(scope='module')
+def offline():
+    return offline_exchange_loop(_scene(), H_NS, N)
+
+
+def test_runs_finish_in_second_gear_with_the_clutch_locked(runs) -> None:
     for name, (r, _bag) in runs.items():
         assert r.returncode == 0, (name, r.stdout[-2000:], r.stderr[-2000:])
-        assert ('modes at the end: clutch stuck, gearbox gear 1, brake_left slip+, '
+        assert ('modes at the end: clutch stuck, gearbox gear 2, brake_left slip+, '
                 'brake_right slip+') in r.stdout, r.stdout
 
 
@@ -67,73 +113,105 @@ def test_two_composed_runs_give_the_same_bag(runs) -> None:
 
 
 @pytest.mark.parametrize('name', ['separate', 'composed'])
-def test_joint_states_are_the_offline_exchange_loop_bit_for_bit(runs, name) -> None:
-    """The coupling node's physics is hybrid_lockstep(scene) stepped per exchange: fed with
-    the engine torque the run received for each t_k and the commands of step k (the scene's
-    plan), the offline loop gives every shaft's position, speed and effort bit for bit."""
-    from cvj_ros.nodes.command_plan import CommandPlan
-    from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
-    scene = _scene()
-    data = bag.read_bag(runs[name][1], ['/driveline/joint_states', '/engine/wrench'])
+def test_the_run_is_the_offline_exchange_loop_bit_for_bit(runs, offline, name) -> None:
+    """The coupling node's physics is hybrid_lockstep(scene) stepped per exchange and the
+    engine node's the engine model at pedal x scale: the offline loop (no ROS) gives every
+    shaft's position, speed and effort, every engine torque and every throttle scale of the
+    run bit for bit, through the shift with its throttle cut, and the same mode events."""
+    data = bag.read_bag(runs[name][1], ['/driveline/joint_states', '/engine/wrench',
+                                         '/engine/throttle_scale'])
     js, ew = data['/driveline/joint_states'], data['/engine/wrench']
-    assert js.t.size == N + 1
-    torque = dict(zip(np.round(np.asarray(ew.t) * 1e9).astype(np.int64).tolist(),
-                      np.asarray(ew.torque_z).tolist()))
-    plan = CommandPlan.from_scene(scene, H_NS, N)
-    hl = hybrid_lockstep(scene)
-    assert list(js.names) == hl.shaft_names
-    for k in range(N + 1):
-        # the state t_k goes out with the commands of step k in force (their capacities
-        # in the efforts), as the coupling node publishes it
-        vals = dict(plan.at(k))
-        hl.set_commands(clutch=vals.get('clutch'), brake=vals.get('brake'))
-        pos, vel, eff = hl.joint_states()
-        np.testing.assert_array_equal(js.position[k], pos, err_msg=f'position at step {k}')
-        np.testing.assert_array_equal(js.velocity[k], vel, err_msg=f'velocity at step {k}')
-        np.testing.assert_array_equal(js.effort[k], eff, err_msg=f'effort at step {k}')
-        if k == N:
-            break
-        hl.advance((k + 1) * H_NS / 1e9, torque[k * H_NS], 0.0)
+    sc = data['/engine/throttle_scale']
+    assert js.t.size == N + 1 and np.asarray(ew.t).size == N + 1
+    assert list(js.names) == offline['hybrid'].shaft_names
+    np.testing.assert_array_equal(js.position, np.array(offline['pos']))
+    np.testing.assert_array_equal(js.velocity, np.array(offline['vel']))
+    np.testing.assert_array_equal(js.effort, np.array(offline['eff']))
+    order = np.argsort(np.asarray(ew.t), kind='stable')
+    np.testing.assert_array_equal(np.asarray(ew.torque_z)[order], np.array(offline['torque']))
+    # one scale per step, recorded at t_n; the cut ran (scale < 1 over the shift)
+    np.testing.assert_array_equal(np.round(np.asarray(sc.t) * 1e9).astype(np.int64),
+                                  np.arange(N + 1, dtype=np.int64) * H_NS)
+    np.testing.assert_array_equal(np.asarray(sc.value), np.array(offline['scale']))
+    assert min(offline['scale']) == 0.0
+    hl = offline['hybrid']
+    assert ('gearbox', 'gear 0', 'gear 2') in [(e.element, e.before, e.after) for e in hl.events]
     assert abs(hl.energy_residual()) < 1e-9
 
 
-def test_joint_states_follow_the_offline_reference(runs) -> None:
-    """Against `cvj-sim simulate` (engine torque and commands continuous) the loop holds the
-    torque and the commands over each 1 ms step. Measured over these 3 s (docs/ros.md):
-    see BOUND; the brakes hold both wheels at exactly 0 until their release, and the clutch's
-    two sides turn at one speed once it is locked."""
+def test_the_run_follows_the_offline_reference(runs, offline) -> None:
+    """Against `cvj-sim simulate` (engine torque, commands and the shift's throttle cut
+    continuous) the loop holds them over each 1 ms step. Measured over these 4.6 s
+    (docs/ros.md "Vehicle mode scenes"): the clutch and gearbox events are the reference's,
+    in order, within EVENT_TOL (largest 1.1 ms, the re-lock in 2nd); outside the shift
+    sequence every shaft's speed is within BOUND (largest error 31 % of it); inside it
+    (trigger to re-lock) the same bound holds with the loop's curve allowed a time offset
+    of one exchange step (its events are located on its own trajectory: largest 71 % of
+    the bound), where the pointwise error at the gear engagement, a speed jump 0.9 ms
+    later in the loop, reaches 42 % of a shaft's largest speed. The brakes hold both wheels
+    at exactly 0 until their release; the clutch's two sides turn at one speed once it is
+    locked in 2nd."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
-    off = hybrid_simulation(_scene(), duration=DURATION, sample_dt=0.01).run()
+    off = hybrid_simulation(_scene(), duration=DURATION, sample_dt=0.001).run()
+    key = lambda evs: [(e.element, e.before, e.after) for e in evs  # noqa: E731
+                       if e.element in ('clutch', 'gearbox')]
+    loop_events = offline['hybrid'].events
+    assert key(loop_events) == key(off.events)
+    assert ('gearbox', 'gear 0', 'gear 2') in key(off.events)
+    for a, b in zip([e for e in loop_events if e.element in ('clutch', 'gearbox')],
+                    [e for e in off.events if e.element in ('clutch', 'gearbox')]):
+        assert abs(a.t - b.t) <= EVENT_TOL, (a, b)
+    (t_shift,) = [e.t for e in off.events if e.after == 'shift to 2']
+    t_lock = max(e.t for e in off.events if e.element == 'clutch' and e.after == 'stuck')
     js = bag.read_bag(runs['composed'][1], ['/driveline/joint_states'])['/driveline/joint_states']
     t = np.asarray(js.t)
     names = list(js.names)
+    inside = (off.t >= t_shift) & (off.t <= t_lock)
+    offsets = np.linspace(-H_NS / 1e9, H_NS / 1e9, 21)
     for name in off.shafts:
-        ros = np.interp(off.t, t, js.velocity[:, names.index(name)])
+        v = js.velocity[:, names.index(name)]
         ref = off.column(name)
-        err = np.max(np.abs(ros - ref))
-        assert err <= BOUND_REL * np.max(np.abs(ref)) + BOUND_ABS, (name, err)
+        bound = BOUND_REL * np.max(np.abs(ref)) + BOUND_ABS
+        err = np.abs(np.interp(off.t, t, v) - ref)
+        assert np.max(err[~inside]) <= bound, (name, np.max(err[~inside]))
+        tube = np.min([np.abs(np.interp(off.t[inside] + s, t, v) - ref[inside])
+                       for s in offsets], axis=0)
+        assert np.max(tube) <= bound, (name, np.max(tube))
     for wheel in ('wheel_left', 'wheel_right'):
         assert np.all(js.velocity[t < 1.7, names.index(wheel)] == 0.0)
-    late = t > 2.8
+    late = t > 4.35
     np.testing.assert_array_equal(js.velocity[late, names.index('clutch_input')],
                                   js.velocity[late, names.index('clutch_output')])
 
 
 BOUND_REL = 0.01
 BOUND_ABS = 0.05
+EVENT_TOL = 2e-3     # s, two exchange steps
 
 
-def test_diagnostics_carry_the_modes_and_the_vehicle(runs) -> None:
+def test_diagnostics_carry_the_modes_and_the_vehicle(runs, offline) -> None:
     """The coupling node's last loop status: gear, clutch and both brakes' modes, the mode
     events, the vehicle speed and per-wheel tyre values, the energy residual."""
     d = bag.read_bag(runs['composed'][1], ['/diagnostics'])['/diagnostics']
     last = [s for ss in d.statuses for s in ss if s['name'] == 'coupling_node: loop'][-1]
     v = last['values']
-    assert (v['clutch_state.clutch'], v['gear.gearbox']) == ('stuck', '1')
+    assert (v['clutch_state.clutch'], v['gear.gearbox']) == ('stuck', '2')
     assert v['brake_state.brake_left'] == v['brake_state.brake_right'] == 'slip+'
     assert v['shifting'] == '0' and v['stall'] == '' and v['refused_commands'] == '0'
-    assert int(v['mode_events']) >= 5                 # 2 stuck at 0, 2 releases, the lock
+    assert int(v['mode_events']) == len(offline['hybrid'].events)
     assert float(v['vehicle_speed_m_s']) > 2.0
     for wheel in ('wheel_left', 'wheel_right'):
         assert float(v[f'{wheel}.fx_N']) > 0.0 and v[f'{wheel}.status'] == '0'
     assert abs(float(v['energy_residual'])) < 1e-9
+
+
+def test_the_monitor_reports_the_standing_start_and_the_shift_as_states(runs) -> None:
+    """The monitor's nonuniformity limits are for steady running: the launch from rest, the
+    wheelspin on the grade and the shift are reported as states (`monitor: modes`), so the
+    run has no ERROR status of the monitor (before: 44 in these windows)."""
+    for name, (r, _bag) in runs.items():
+        assert ' ERROR and ' not in r.stdout, (name, r.stdout[-3000:])
+    d = bag.read_bag(runs['composed'][1], ['/diagnostics'])['/diagnostics']
+    states = {s['message'] for ss in d.statuses for s in ss if s['name'] == 'monitor: modes'}
+    assert 'steady running' in states
+    assert any('slipping' in m for m in states) and any('shift running' in m for m in states)

@@ -208,3 +208,49 @@ def test_launch_equivalent_run_records_a_complete_bag(tmp_path: Path) -> None:
         _stop_all(procs)
     assert 'unrecognized arguments' not in (tmp_path / 'cvj-sim.log').read_text()
     check_complete_bag(out / 'bag', N)
+
+
+CLUTCH_DURATION = 1.6      # the launch's throttle ramp (1.0-1.3 s) and the clutch's from 1.5 s
+CLUTCH_TOPICS = ('/engine/throttle', '/driveline/clutch', '/driveline/brake',
+                 '/engine/throttle_scale', '/driveline/joint_states', '/engine/wrench', '/clock')
+
+
+@pytest.mark.e2e
+def test_launch_equivalent_run_records_the_commands_as_cvj_sim_run(tmp_path: Path) -> None:
+    """launch_clutch with the launch file's driver (driver:=true): the recorder, started by
+    the launch file without being told the schedule, learns it from the latched
+    /driveline/scene, so the bag's command topics (driver's samples and the coupling node's
+    throttle scale) equal `cvj-sim run`'s, record times included; so do the loop topics."""
+    out = tmp_path / 'out'
+    lines = launch_command_lines({'scene': 'launch_clutch', 'out': str(out), 'driver': 'true',
+                                  'duration': str(CLUTCH_DURATION)}, tmp_path)
+    from cvj_ros.orchestrate.processes import node_command
+    # a venv installed before driver_node existed has no console script for it: run the
+    # module as `cvj-sim run` does (node_command)
+    lines = [(label, cmd if Path(cmd[0]).exists() else node_command(Path(cmd[0]).name) + cmd[1:])
+             for label, cmd in lines]
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        for label, cmd in lines:
+            procs[label] = _start(cmd, tmp_path / f'{label}.log')
+        deadline = time.monotonic() + 600
+        for label in ('coupling_node', 'cvj-sim'):
+            rc = procs[label].wait(timeout=max(1.0, deadline - time.monotonic()))
+            assert rc == 0, (label, (tmp_path / f'{label}.log').read_text()[-3000:])
+    finally:
+        _stop_all(procs)
+    ref = tmp_path / 'ref'
+    r = subprocess.run([str(BIN / 'cvj-sim'), 'run', 'launch_clutch', '--out', str(ref),
+                        '--duration', str(CLUTCH_DURATION), '--composed'],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    spec = importlib.util.spec_from_file_location(
+        'e2e_run_composed', REPO / 'test' / 'e2e' / 'test_run_composed.py')
+    composed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(composed)
+    got, want = composed.raw_messages(out / 'bag'), composed.raw_messages(ref / 'bag')
+    n = int(round(CLUTCH_DURATION / 1e-3))
+    assert len(want['/engine/throttle_scale']) == n + 1
+    assert len(want['/engine/throttle']) > 300          # the ramp: one sample per step
+    for topic in CLUTCH_TOPICS:
+        assert got[topic] == want[topic], topic

@@ -257,3 +257,70 @@ def test_driver_throttle_is_counted_and_a_state_waits_for_its_step(ctx, tmp_path
 def test_commands_driver_needs_a_schedule(ctx, tmp_path):
     with pytest.raises(ParameterError, match='commands'):
         make_node(ctx, tmp_path, commands='driver')
+
+
+def test_throttle_scale_lockstep_waits_for_the_scale_of_the_step(ctx, tmp_path):
+    """throttle_scale=lockstep (a shift schedule's torque intervention): the n-th
+    /engine/throttle_scale sample is the factor on the pedal for step n; the joint state t_k
+    is answered only once the scale of step k is in, at pedal x scale, whichever of the two
+    arrives first; with the driver's throttle counted too (commands=driver) both must be in."""
+    path = tmp_path / 'scaled.yaml'
+    data = yaml.safe_load(open(two_mass_scene(tmp_path)))
+    data['commands'] = [{'t': 0.0, 'throttle': 0.8}]
+    path.write_text(yaml.safe_dump(data))
+    node = EngineNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=str(path)), Parameter('commands', value='driver'),
+        Parameter('throttle_scale', value='lockstep')])
+    assert node.scale_lockstep
+    h = Harness(ctx, node)
+    scale_pub = h.peer.create_publisher(Float64, '/engine/throttle_scale', DATA_QOS)
+    names, omega = ['engine_crank', 'wheel'], 20.0
+    try:
+        h.spin_until(lambda: scale_pub.get_subscription_count() >= 1)
+        h.th_pub.publish(Float64(data=0.8))
+        h.send_js(0, names, [0.0, 0.0], [omega, omega])          # throttle in, scale not yet
+        h.spin_until(lambda: node.throttle_waits == 1)
+        time.sleep(0.05)
+        h.ex.spin_once(timeout_sec=0.02)
+        assert h.wrenches == []
+        scale_pub.publish(Float64(data=1.0))
+        h.spin_until(lambda: len(h.wrenches) == 1)
+        scale_pub.publish(Float64(data=0.25))                    # step 1's scale first
+        h.spin_until(lambda: node._scale_taken == 2)
+        h.send_js(1_000_000, names, [0.0, 0.0], [omega, omega])
+        h.spin_until(lambda: len(h.wrenches) == 2)
+        h.send_js(2_000_000, names, [0.0, 0.0], [omega, omega])  # scale of step 2 not in
+        h.spin_until(lambda: node.throttle_waits == 2)
+        scale_pub.publish(Float64(data=0.5))
+        h.spin_until(lambda: len(h.wrenches) == 3)
+        for w, s in zip(h.wrenches, (1.0, 0.25, 0.5)):
+            assert w.wrench.torque.z == pytest.approx(0.8 * s * M1 - K1 * omega, rel=1e-12)
+        assert node.throttle == 0.8 and node.scale == 0.5
+    finally:
+        h.close()
+        node.destroy_node()
+
+
+def test_throttle_scale_auto_follows_the_scene_and_on_arrival_applies_at_once(ctx, tmp_path):
+    node = make_node(ctx, tmp_path)                  # no shift schedule: auto = on_arrival
+    assert not node.scale_lockstep
+    node.destroy_node()
+    node = make_node(ctx, tmp_path, throttle=0.6)
+    h = Harness(ctx, node)
+    scale_pub = h.peer.create_publisher(Float64, '/engine/throttle_scale', DATA_QOS)
+    try:
+        h.spin_until(lambda: scale_pub.get_subscription_count() >= 1)
+        scale_pub.publish(Float64(data=0.5))
+        h.spin_until(lambda: node.scale == 0.5)
+        h.send_js(0, ['engine_crank', 'wheel'], [0.0, 0.0], [10.0, 10.0])
+        h.spin_until(lambda: len(h.wrenches) == 1)
+        assert h.wrenches[0].wrench.torque.z == pytest.approx(0.3 * M1 - K1 * 10.0, rel=1e-12)
+        scale_pub.publish(Float64(data=1.5))         # out of range: refused, not applied
+        h.spin_until(lambda: node.throttle_rejected == 1)
+        assert node.scale == 0.5
+        scale_pub.publish(b'\x07junk')               # not CDR: dropped, counted, not applied
+        h.spin_until(lambda: node.malformed.total == 1)
+        assert node.scale == 0.5 and node.engine.throttle == 0.3
+    finally:
+        h.close()
+        node.destroy_node()

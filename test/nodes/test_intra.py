@@ -51,7 +51,8 @@ def test_carried_topics_follow_the_hosted_nodes() -> None:
     topics, wrenches = intra.carried_topics(['engine_node', 'monitor_node'])
     assert topics == {'/engine/wrench'} and not wrenches
     topics, wrenches = intra.carried_topics([n for n in intra.LOOP_TOPICS_OF if n != 'driver_node'])
-    assert topics == {'/clock', '/driveline/joint_states', '/engine/wrench', '/load/wrench'} and wrenches
+    assert topics == {'/clock', '/driveline/joint_states', '/engine/wrench', '/load/wrench',
+                      '/engine/throttle_scale'} and wrenches
     topics, _w = intra.carried_topics(['driver_node'])      # the commands, with a hosted driver
     assert topics == {'/engine/throttle', '/driveline/clutch', '/driveline/gear', '/driveline/brake'}
     assert intra.is_coupling_wrench('/coupling/tripod/wrench')

@@ -109,3 +109,64 @@ def test_bad_threshold_parameter_named(ctx):
     with pytest.raises(ParameterError) as err:
         MonitorNode(context=ctx, parameter_overrides=[Parameter('window', value=0.0)])
     assert str(err.value).startswith('window:')
+
+
+def test_a_standing_start_is_a_state_and_steady_running_is_judged_about_the_trend(ctx):
+    """A scene with a clutch: while the coupling node's loop status says the clutch slips
+    (a launch) a shaft whose speed rises from rest is reported at OK, not judged; once the
+    window is wholly in steady running (clutch stuck, a gear engaged) a speed ramp is judged
+    about its trend (no nonuniformity) and a ripple on it keeps its level (0.2 -> ERROR)."""
+    node = MonitorNode(context=ctx, parameter_overrides=[
+        Parameter('publish_every', value=100), Parameter('window', value=0.4)])
+    node._use_scene({'driveline': [{'type': 'inertia', 'name': 'a', 'J': 1.0},
+                                   {'type': 'clutch', 'name': 'clutch'},
+                                   {'type': 'inertia', 'name': 'b', 'J': 1.0}]})
+    assert node.states.expect_modes
+    node.take_samples()
+
+    def status(modes: dict[str, str], t_ns: int) -> None:
+        node._take_loop_status('coupling_node', [('coupling_node: loop', list(modes.items()))], t_ns)
+
+    def feed(k0: int, k1: int, ripple: float) -> dict[str, DiagnosticStatus]:
+        for k in range(k0, k1):
+            t = k * 1e-3
+            s = math.sin(2 * math.pi * 5 * t)
+            msg = JointState()
+            msg.header.stamp = ns_to_stamp(k * 1_000_000)
+            msg.name = ['ramp', 'rough']
+            msg.position, msg.effort = [0.0, 0.0], [0.0, 0.0]
+            w = 50.0 * t
+            msg.velocity = [w, w * (1 + ripple * s)]
+            node._on_joint_states(msg, publish=False)
+        return {st.name: st for st in (status_message(x) for x in node.compute())}
+
+    from cvj_ros.nodes.diagnostics import status_message
+    slipping = {'clutch_state.clutch': 'slip+', 'gear.gearbox': '1', 'shifting': '0',
+                'stall': '', 'mode_events': '1'}
+    status(slipping, 0)
+    status(slipping, 900_000_000)
+    last = feed(0, 1000, 0.1)                    # 0 -> 50 rad/s while the clutch slips
+    assert values(last['monitor: ramp'])['nonuniformity'] > 0.5
+    assert last['monitor: ramp'].level == DiagnosticStatus.OK
+    assert 'not judged: clutch slipping' in last['monitor: ramp'].message
+    modes = last['monitor: modes']
+    assert modes.level == DiagnosticStatus.OK and modes.message == 'clutch slipping'
+    locked = dict(slipping, **{'clutch_state.clutch': 'stuck', 'mode_events': '2'})
+    status(locked, 1_000_000_000)                # the lock (an event since the last status)
+    status(locked, 1_100_000_000)
+    last = feed(1000, 1600, 0.1)                 # window 1.2 .. 1.6 s: wholly locked
+    ramp, rough = last['monitor: ramp'], last['monitor: rough']
+    assert values(ramp)['nonuniformity_about_trend'] == pytest.approx(0.0, abs=1e-9)
+    assert ramp.level == DiagnosticStatus.OK and 'about the speed trend' in ramp.message
+    # 50 t (1 + 0.1 sin 10 pi t) over 1.2..1.6 s, two periods: the ripple about the trend,
+    # +-0.1 x 80 rad/s at its largest, over the mean 70 rad/s
+    assert values(rough)['nonuniformity_about_trend'] == pytest.approx(2 * 0.1 * 80 / 70, rel=0.05)
+    assert rough.level == DiagnosticStatus.ERROR
+    assert last['monitor: modes'].message == 'steady running'
+    stalled = dict(locked, stall='engine stalled at t=1.600000 s')
+    status(stalled, 1_600_000_000)
+    last = feed(1600, 1700, 0.1)
+    assert last['monitor: rough'].level == DiagnosticStatus.OK
+    assert last['monitor: modes'].level == DiagnosticStatus.WARN
+    assert last['monitor: modes'].message == 'engine stalled at t=1.600000 s'
+    node.destroy_node()

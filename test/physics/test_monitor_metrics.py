@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from cvj_ros.physics.monitor_metrics import (RollingWindow, amplitude, angle_level, column_stats,
+                                             detrended_nonuniformity,
                                              level, speed_nonuniformity)
 
 
@@ -130,3 +131,23 @@ def test_stats_are_the_window_column_stats(capacity: int, pushes: int, span: flo
 def test_stats_of_an_empty_window_are_nan() -> None:
     n, mean, lo, hi = RollingWindow(5, 2).stats(1.0)
     assert n == 0 and np.isnan(mean).all() and np.isnan(lo).all() and np.isnan(hi).all()
+
+
+def test_detrended_nonuniformity_removes_a_ramp_and_keeps_a_ripple() -> None:
+    """A pure ramp has no nonuniformity about its trend (its raw delta is the speed change);
+    a steady ripple A sin(2 pi f t) about a constant mean keeps delta = 2A/mean; the ripple on
+    a ramp gives it back about the trend (over 50 periods the line absorbs the ripple's slope
+    6A/(pi f T^2) = 0.11 rad/s^2: delta within 2 %), with the ramp's slope."""
+    t = np.linspace(0.0, 1.0, 1001)
+    ramp = 200.0 + 40.0 * t
+    ripple = 3.0 * np.sin(2 * np.pi * 50.0 * t)
+    w = np.column_stack([ramp, 200.0 + ripple, ramp + ripple, np.zeros_like(t)])
+    d, b = detrended_nonuniformity(t, w, min_speed=1.0)
+    assert d[0] == pytest.approx(0.0, abs=1e-12) and b[0] == pytest.approx(40.0, rel=1e-12)
+    raw = (w.max(axis=0) - w.min(axis=0)) / w.mean(axis=0)
+    assert raw[0] == pytest.approx(40.0 / 220.0, rel=1e-12)
+    assert d[1] == pytest.approx(raw[1], rel=2e-2) and abs(b[1]) < 0.5
+    assert d[2] == pytest.approx(6.0 / 220.0, rel=2e-2) and b[2] == pytest.approx(40.0, abs=0.5)
+    assert math.isnan(d[3])                         # standstill
+    nan, _b = detrended_nonuniformity(t[:2], w[:2])
+    assert np.all(np.isnan(nan))

@@ -136,6 +136,10 @@ class AutoShift:
         """A sequence is running at t."""
         return self.seq is not None and t < self.seq[0] + self.schedule.duration
 
+    def envelope(self, t: float) -> float:
+        """The sequence's envelope e(t) in 0..1 (module docstring; 0 outside a sequence)."""
+        return self._envelope(t)
+
     def _envelope(self, t: float) -> float:
         if self.seq is None:
             return 0.0

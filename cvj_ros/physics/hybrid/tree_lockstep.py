@@ -9,7 +9,11 @@ torque is not used). Inside the interval the reference's events run unchanged: s
 slip of the clutch and of each wheel brake located on the dense output, the stall, and a
 ``shift_schedule:`` (AutoShift) whose witness, sequence breakpoints (neutral, new gear, clutch
 closed) and pedal envelope act inside the model at their own times. The engine node owns the
-throttle, so the schedule's throttle cut during a shift (x (1 - e)) is not applied here.
+throttle: the schedule's throttle cut during a shift (effective throttle x (1 - e)) is an output
+of the stepper, :meth:`HybridTreeLockstep.throttle_scale` = 1 - e(t_k) at the interval's start
+(:attr:`HybridTreeLockstep.cuts_throttle` says whether there is one), which the loop hands to
+the engine (a torque intervention, docs/ros.md "Commands"); held over the interval as the
+engine torque is.
 """
 from __future__ import annotations
 
@@ -206,6 +210,20 @@ class HybridTreeLockstep(HybridTreeSimulation):
                             max_step=self.max_step)
 
     # --- outputs -----------------------------------------------------------------------
+
+    @property
+    def cuts_throttle(self) -> bool:
+        """A shift schedule runs: :meth:`throttle_scale` can fall below 1."""
+        return self.auto is not None
+
+    def throttle_scale(self) -> float:
+        """Factor 1 - e(t) on the commanded throttle x at the current time t (e the shift
+        sequence's envelope, :class:`~cvj_ros.physics.hybrid.shift.AutoShift`; 1.0 outside a
+        shift and without a schedule): the engine answering t runs at x (1 - e(t)), the
+        offline reference's throttle at t."""
+        if self.auto is None:
+            return 1.0
+        return 1.0 - self.auto.envelope(self.t)
 
     def _now(self) -> tuple[ModeTree, FloatArray]:
         mt = self.tree(self.mode)

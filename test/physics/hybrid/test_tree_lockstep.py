@@ -41,6 +41,8 @@ def _lockstep_run(duration: float, h: float) -> HybridTreeLockstep:
     hl = HybridTreeLockstep(scene, {}, commands=Commands(1.0, 1.0, 0), shift=scene.shift_schedule,
                             stall_speed=None)
     n = int(round(duration / h))
+    assert hl.cuts_throttle and hl.throttle_scale() == 1.0
+    scales = []
     for k in range(n):
         t = k * h
         for tr, vals in ROWS:
@@ -48,6 +50,8 @@ def _lockstep_run(duration: float, h: float) -> HybridTreeLockstep:
                 hl.set_commands(clutch=vals.get('clutch'), brake=vals.get('brake'))
         hl.advance((k + 1) * h, T_ENGINE, 0.0)
         assert abs(hl.energy_residual()) < 1e-8, (t, hl.energy_residual())   # rtol 1e-8
+        scales.append(hl.throttle_scale())
+    hl.scales = scales          # the throttle scale at t_1 .. t_n
     return hl
 
 
@@ -86,6 +90,38 @@ def test_events_and_speeds_equal_the_offline_reference(pair) -> None:
         if name not in mid:
             assert js_vel[i] == vel[i], name
     assert hl.mode_values()['vehicle_speed_m_s'] == pytest.approx(r.vehicle_speed[-1], rel=1e-6)
+
+
+def test_throttle_scale_is_one_minus_the_shift_envelope(pair) -> None:
+    """The stepper's output for the engine: 1 - e(t_k) at every exchange time, e built here
+    from the up-shift's event time and the schedule's open/neutral/close times (a ramp
+    0 -> 1, a hold, a ramp 1 -> 0; docs/clutch_gearbox.md), 1 outside the shift."""
+    hl, _r = pair
+    s = _scene().shift_schedule
+    (ts,) = [e.t for e in hl.events if e.after == 'shift to 2']
+    h = 0.01
+    inside = 0
+    for k, got in enumerate(hl.scales, start=1):
+        tau = k * h - ts
+        if tau <= 0.0 or tau >= s.open_time + s.neutral_time + s.close_time:
+            e = 0.0
+        elif tau < s.open_time:
+            e = tau / s.open_time
+        elif tau <= s.open_time + s.neutral_time:
+            e = 1.0
+        else:
+            e = (s.open_time + s.neutral_time + s.close_time - tau) / s.close_time
+        inside += 0.0 < e
+        assert got == pytest.approx(1.0 - e, abs=1e-12), (k * h, got, 1.0 - e)
+    assert inside >= 50            # 0.6 s of sequence at 10 ms: the cut was exercised
+
+
+def test_a_chain_or_a_scene_without_schedule_does_not_cut() -> None:
+    scene = load_scene(find_scene('fwd_axle_manual'))
+    hl = hybrid_lockstep(scene)
+    assert not hl.cuts_throttle and hl.throttle_scale() == 1.0
+    chain = hybrid_lockstep(load_scene(find_scene('launch_clutch_chain')))
+    assert not getattr(chain, 'cuts_throttle', False)
 
 
 def test_runs_are_bit_identical() -> None:

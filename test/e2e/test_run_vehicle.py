@@ -108,6 +108,9 @@ def test_vehicle_run_writes_every_branch_and_the_report_shows_the_wheels(runs, m
     from cvj_ros import analysis
     rep = analysis.analyze_bag(bag_path)
     assert {'wheel_left', 'wheel_right'} <= set(rep['shafts'])
+    assert set(rep['reactions']) == set(joints)          # every branch's joints, housing frame
+    assert all(rep['reactions'][j]['frame_id'] == f'{j}_housing' for j in joints)
+    assert 'reaction wrenches (housing frame)' in analysis.format_report(rep)
     figs = rep['diagnostics']['figures']
     assert 13.0 < figs['coupling_node: loop/vehicle_speed_m_s']['last'] < 14.5   # from 50 km/h
     for w in ('wheel_left', 'wheel_right'):

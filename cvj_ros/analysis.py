@@ -5,7 +5,9 @@ Reads a rosbag2 bag (mcap or sqlite3) through ``rosbags`` and reports, per shaft
 Davidbaev et al. 2023, ch. 4) of speed, acceleration and torque, and the harmonics of the shaft torque over
 the shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<joint>_output``)
 the geometric and kinematic nonuniformity (Bugaru & Vasile 2021, eqs. 20-23); engine and load torque;
-energy residual and wait times found on ``/diagnostics``; and lockstep statistics.
+energy residual and wait times found on ``/diagnostics``; per ``/coupling/<joint>/wrench``
+(a chain's joints or every branch's of a vehicle scene) the mean and amplitude of each
+reaction force and torque component in the joint's housing frame; and lockstep statistics.
 
 Steady window: :mod:`cvj_ros.physics.steady`, the one definition shared with ``cvj-sim
 simulate`` and ``run`` (same bag -> same window -> same numbers): the slices of the record
@@ -34,6 +36,7 @@ ENGINE_WRENCH = '/engine/wrench'
 LOAD_WRENCH = '/load/wrench'
 DIAGNOSTICS = '/diagnostics'
 SCENE = '/driveline/scene'
+_REACTION_TOPIC = re.compile(r'/coupling/([^/]+)/wrench')
 # Diagnostic keys reported as loop / energy figures (case-insensitive substring match).
 _DIAG_PATTERNS = {'energy': re.compile('energy', re.I), 'wait': re.compile('wait', re.I),
                   'loop': re.compile('overhead|round_trip|rtf|real_time|exchange|integration|ignored|rejected',
@@ -62,6 +65,8 @@ class BagSignals:
     message_counts: dict[str, int] = field(default_factory=dict)
     # messages left out per topic as not the run's (other joint names, undecodable)
     foreign: dict[str, int] = field(default_factory=dict)
+    # per joint of /coupling/<joint>/wrench: (t s, force (n, 3) N, torque (n, 3) N m, frame_id)
+    reactions: dict[str, tuple[FloatArray, FloatArray, FloatArray, str]] = field(default_factory=dict)
 
     def column(self, name: str) -> int:
         return self.joint_names.index(name)
@@ -81,6 +86,7 @@ def read_bag_signals(path: str | Path) -> BagSignals:
                        f'{", ".join(sorted(t for t, n in info.counts.items() if n)) or "none"})')
     wanted = [t for t in (JOINT_STATES, ENGINE_WRENCH, LOAD_WRENCH, DIAGNOSTICS, SCENE)
               if info.counts.get(t)]
+    wanted += sorted(t for t, n in info.counts.items() if n and _REACTION_TOPIC.fullmatch(t))
     data = bagio.read_bag(path, wanted)
     js = data[JOINT_STATES]
     sig = BagSignals(path=Path(path), joint_names=list(js.names), t=js.t, position=js.position,
@@ -96,6 +102,11 @@ def read_bag_signals(path: str | Path) -> BagSignals:
         sig.diagnostics = [(float(t), str(st['name']), int(st['level']), str(st.get('message', '')),
                             {str(k): str(v) for k, v in st['values'].items()})
                            for t, statuses in zip(d.t, d.statuses) for st in statuses]
+    for topic in wanted:
+        m = _REACTION_TOPIC.fullmatch(topic)
+        if m and topic in data:
+            w = data[topic]
+            sig.reactions[m.group(1)] = (w.t, w.force, w.torque, w.frame_id)
     if SCENE in data and data[SCENE].data:
         sig.scene_yaml = data[SCENE].data[0]
     elif 'cvj_ros.scene' in info.custom_data:
@@ -254,6 +265,18 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
         h, why = _try_harmonics(phi_at, tq[m], n_harmonics=n_harmonics, samples_per_rev=samples_per_rev)
         entry['torque_harmonics'] = _harmonics_dict(h) if h is not None else {'skipped': why}
         report[key] = entry
+    reactions = {}
+    for joint, (tt, force, torque, frame) in sig.reactions.items():
+        m = (tt >= t[0]) & (tt <= t[-1])
+        if np.count_nonzero(m) < 2:
+            continue
+        reactions[joint] = {'frame_id': frame, 'samples': int(np.count_nonzero(m)),
+                            'mean_force_N': [_f(v) for v in np.mean(force[m], axis=0)],
+                            'force_amplitude_N': [_f(signal.half_range(force[m, k])) for k in range(3)],
+                            'mean_torque_Nm': [_f(v) for v in np.mean(torque[m], axis=0)],
+                            'torque_amplitude_Nm': [_f(signal.half_range(torque[m, k])) for k in range(3)]}
+    if reactions:
+        report['reactions'] = reactions
     report['lockstep'] = _lockstep_stats(sig)
     report['diagnostics'] = _diagnostic_figures(sig.diagnostics)
     report['scene'] = _scene_summary(sig.scene_yaml)
@@ -354,6 +377,16 @@ def format_report(report: dict[str, Any]) -> str:
             e = report[key]
             lines.append(f"{key} torque on {e['shaft']}: mean {_fmt(e['mean_torque_Nm'])} N m, "
                          f"amplitude {_fmt(e['torque_amplitude_Nm'])} N m")
+    if report.get('reactions'):
+        lines.append('')
+        lines.append('reaction wrenches (housing frame), mean +/- amplitude per x, y, z: '
+                     'force N, torque N m:')
+        for joint, r in report['reactions'].items():
+            f = ' '.join(f"{_fmt(a, digits=3)}+/-{_fmt(b, digits=2)}"
+                         for a, b in zip(r['mean_force_N'], r['force_amplitude_N']))
+            q = ' '.join(f"{_fmt(a, digits=3)}+/-{_fmt(b, digits=2)}"
+                         for a, b in zip(r['mean_torque_Nm'], r['torque_amplitude_Nm']))
+            lines.append(f'  {joint:<20} F {f}   T {q}')
     ls = report['lockstep']
     lines.append('')
     mode = report.get('scene', {}).get('mode') or 'lockstep'    # recorded by the coupling node

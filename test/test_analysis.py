@@ -40,10 +40,12 @@ def crank_torque(phi: np.ndarray) -> np.ndarray:
 
 def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = DURATION,
                         diagnostics: bool = True, joint_states: bool = True,
-                        foreign_every: int = 0) -> Path:
+                        foreign_every: int = 0, reaction: bool = False) -> Path:
     """Write a lockstep-like bag with the signals of the module docstring; returns ``path``.
     ``foreign_every`` > 0: after every that many joint states another publisher's JointState
-    (other names, other sizes) on the same topic, as `cvj-sim record` keeps them."""
+    (other names, other sizes) on the same topic, as `cvj-sim record` keeps them.
+    ``reaction``: also ``/coupling/hooke/wrench`` (frame hooke_housing), force
+    (3 cos phi_in, 2, 0) N and torque (0, 0, 50 + sin 2 phi_in) N m."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -65,6 +67,8 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
         cl = w.add_connection('/load/wrench', 'geometry_msgs/msg/WrenchStamped', typestore=ts)
         cd = w.add_connection('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', typestore=ts)
         cs = w.add_connection('/driveline/scene', 'std_msgs/msg/String', typestore=ts)
+        cr = (w.add_connection('/coupling/hooke/wrench', 'geometry_msgs/msg/WrenchStamped', typestore=ts)
+              if reaction else None)
         w.write(cs, 0, ts.serialize_cdr(T['std_msgs/msg/String'](data='name: synthetic\nseed: 7\n'),
                                         'std_msgs/msg/String'))
         for i in range(n):
@@ -89,6 +93,14 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
                     header=hdr, wrench=T['geometry_msgs/msg/Wrench'](force=v(x=0.0, y=0.0, z=0.0),
                                                                     torque=v(x=0.0, y=0.0, z=float(tz))))
                 w.write(conn, ns, ts.serialize_cdr(wr, 'geometry_msgs/msg/WrenchStamped'))
+            if cr is not None:
+                v = T['geometry_msgs/msg/Vector3']
+                rh = T['std_msgs/msg/Header'](stamp=stamp, frame_id='hooke_housing')
+                wr = T['geometry_msgs/msg/WrenchStamped'](
+                    header=rh, wrench=T['geometry_msgs/msg/Wrench'](
+                        force=v(x=3.0 * math.cos(phi_in[i]), y=2.0, z=0.0),
+                        torque=v(x=0.0, y=0.0, z=50.0 + math.sin(2 * phi_in[i]))))
+                w.write(cr, ns, ts.serialize_cdr(wr, 'geometry_msgs/msg/WrenchStamped'))
             if diagnostics and i % 500 == 0:
                 kv = T['diagnostic_msgs/msg/KeyValue']
                 st = T['diagnostic_msgs/msg/DiagnosticStatus'](
@@ -216,3 +228,22 @@ def test_gear_stage_nonuniformity_is_relative_to_its_ratio() -> None:
     assert nu.kinematic_max == pytest.approx(2e-3 / 3.5, rel=1e-3)
     cv = signal.joint_nonuniformity(phi, phi + 2 * np.pi, w_in, w_in)      # one whole turn apart
     assert cv.nominal_ratio == 1.0 and cv.geometric_amplitude < 1e-12 and abs(cv.geometric_max) < 1e-12
+
+
+def test_reaction_wrenches_are_reported_per_joint_over_the_window(tmp_path: Path) -> None:
+    """/coupling/<joint>/wrench: mean and amplitude of each component over the window. The
+    window holds many but not whole revolutions of phi_in: a harmonic's mean is then within
+    its amplitude / (pi x revolutions) of 0 (< 0.05 here), the amplitudes exact to the
+    sampling (1e-3)."""
+    rep = analysis.analyze_bag(write_synthetic_bag(tmp_path / 'react', reaction=True), skip_s=0.0)
+    r = rep['reactions']['hooke']
+    assert r['frame_id'] == 'hooke_housing' and r['samples'] == rep['window']['samples']
+    assert r['mean_force_N'][1] == pytest.approx(2.0) and r['mean_force_N'][2] == 0.0
+    assert r['force_amplitude_N'][0] == pytest.approx(3.0, rel=1e-3)
+    assert abs(r['mean_force_N'][0]) < 0.05
+    assert r['mean_torque_Nm'][2] == pytest.approx(50.0, abs=0.05)
+    assert r['torque_amplitude_Nm'][2] == pytest.approx(1.0, rel=1e-3)
+    text = analysis.format_report(rep)
+    assert 'reaction wrenches (housing frame)' in text and '  hooke ' in text
+    # a bag without them: no section
+    assert 'reactions' not in analysis.analyze_bag(write_synthetic_bag(tmp_path / 'plain'), skip_s=0.0)

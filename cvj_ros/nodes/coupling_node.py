@@ -290,7 +290,7 @@ class CouplingNode(CvjNode):
         self.x = np.array(self.stepper_state(), dtype=float)
         self.names = list(self.driveline.shaft_names)
         self.energy0 = self._energy_total(self.x)
-        # a vehicle scene's tree gives no reactions yet (no TreeDriveline.reactions)
+        # every joint with reactions, of a chain or of every branch of a vehicle scene's tree
         self.reaction_joints = [name for name, m in self.driveline.joint_models.items()
                                 if hasattr(m, 'reactions')] if hasattr(self.driveline, 'reactions') else []
         if p['start_gate'] == 'stdin':

@@ -145,7 +145,7 @@ def prepare_kernel(prep: _Prepared, options: RunOptions) -> float:
 
 def prepare(options: RunOptions) -> _Prepared:
     """Validate the scene and every option; raises a CvjError naming the field, starts nothing."""
-    from cvj_ros.physics.scene import Joint, find_scene, load_scene
+    from cvj_ros.physics.scene import Joint, find_scene, iter_elements, load_scene
     scene_path = find_scene(options.scene).resolve()
     scene = load_scene(scene_path)
     if scene.has_modes and scene.is_tree and 'load' in options.external:
@@ -212,8 +212,10 @@ def prepare(options: RunOptions) -> _Prepared:
         if load_series[0].size < 2:
             raise CvjError(f'--load-from-bag: {options.load_from_bag}: needs >= 2 /load/wrench samples')
         check_finite_series(options.load_from_bag, *load_series)
-    # reaction wrench topics (none yet for a vehicle scene: coupling_node publishes none)
-    joints = [] if scene.is_tree else [el.name for el in scene.driveline if isinstance(el, Joint)]
+    # reaction wrench topics: every joint of a chain or of every branch of a vehicle scene
+    # (a vehicle scene with modes publishes none: its mode model gives no reactions)
+    joints = ([] if scene.is_tree and scene.has_modes else
+              [el.name for el in iter_elements(scene.driveline) if isinstance(el, Joint)])
     peers = None
     if scene.is_tree:
         from cvj_ros.orchestrate.vehicle import vehicle_peers

@@ -5,8 +5,9 @@ as part of the tree's equations (cvj_ros.physics.tree); load_node answers /load/
 0 N m so the lockstep protocol stays the chains' one. ``--external load`` instead leaves
 load_node out and has outside nodes answer one ``/load/<wheel>/wrench`` per wheel
 (coupling_node ``wheel_load:=external``, cvj_ros.nodes.wheel_loads); the run waits for, and
-records, every wheel's topic. A recorded load torque (``--load-from-bag``) has no shaft to
-act on there: refused before anything starts.
+records, every wheel's topic. ``--load-from-bag`` is refused before anything starts: a
+vehicle bag's /load/wrench is 0 N m (the tyres are inside), and replaying its per-wheel
+answers would need load_node to answer every wheel topic from a series (not written).
 """
 from __future__ import annotations
 
@@ -26,10 +27,10 @@ def check_vehicle_options(scene_path: Path, options: Any) -> None:
         CvjError: ``--load-from-bag`` with a vehicle scene.
     """
     if options.load_from_bag is not None:
-        raise CvjError(f'--load-from-bag: {scene_path.name} is a vehicle scene: the road load of a '
-                       'vehicle scene is its tyres and vehicle body, integrated by coupling_node '
-                       '(or one outside answer per wheel: --external load); a recorded load '
-                       'torque has no shaft to act on')
+        raise CvjError(f'--load-from-bag: {scene_path.name} is a vehicle scene: its road load is '
+                       'the tyres and vehicle body inside coupling_node (a vehicle bag\'s /load/wrench '
+                       'is 0 N m), and replaying a bag\'s per-wheel /load/<wheel>/wrench is not '
+                       'supported yet; outside wheel loads: --external load')
 
 
 def wheel_names(scene: Any) -> list[str]:

@@ -20,6 +20,11 @@ e = r^2/(1 - r^2) (relative, of the oscillating part); rigid when e <= accuracy_
 a constant angle offset and does not affect speeds. Without a target, or at standstill
 start (omega_op = 0), springs stay elastic.
 
+Vehicle scenes (a tree of differentials and wheels): the same spring rule with each
+side's apparent inertia across the differentials and the vehicle's mass on gripping
+tyres, the operating speed from the rolling initial state; the tyres' slip relaxation is
+reported, never removed (cvj_ros.physics.fidelity_tree).
+
 Users force any level by scene (``fidelity:`` on an element) or by ``overrides``.
 """
 from __future__ import annotations
@@ -48,7 +53,7 @@ class FidelityChoice:
     """Choice for one element: chosen level, candidate bounds, and why."""
 
     name: str
-    element: str                                  # 'joint' | 'spring'
+    element: str                                  # 'joint' | 'spring' | 'tyre'
     chosen: str
     reason: str
     candidates: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -65,7 +70,8 @@ class FidelityReport:
 
     @property
     def levels(self) -> dict[str, str]:
-        return {c.name: c.chosen for c in self.choices}
+        """Chosen level per joint and spring (a tyre's relaxation is always kept)."""
+        return {c.name: c.chosen for c in self.choices if c.element != 'tyre'}
 
     def to_dict(self) -> dict[str, Any]:
         return {'accuracy_target': self.accuracy_target, 'operating_speed': self.operating_speed,
@@ -87,6 +93,8 @@ class FidelityReport:
 
 
 def _fmt_bound(b: Mapping[str, float]) -> str:
+    if 'lag_error' in b:
+        return f'lag e={b["lag_error"]:.2e}'
     return f'e={b.get("speed_error", float("nan")):.2e}'
 
 
@@ -187,6 +195,9 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
         if level not in allowed:
             raise SceneError(f'fidelity.{name}', f'must be one of {", ".join(allowed)}, got {level!r}')
     target = scene.accuracy_target
+    tree = scene.vehicle is not None
+    # a vehicle scene without modes: springs and tyres by cvj_ros.physics.fidelity_tree
+    tree_rule = tree and not scene.has_modes
     omega_op = abs(scene.initial_speed)
     order = max(1.0, engine_order(scene.engine))
     choices: list[FidelityChoice] = []
@@ -213,13 +224,18 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
         choices.append(FidelityChoice(el.name, 'joint', chosen, reason, bounds))
     if joint_orders:
         order = max(order, float(max(joint_orders)))
+    joint_levels = {c.name: c.chosen for c in choices}
+    if tree_rule:
+        from cvj_ros.physics import fidelity_tree
+        omega_op = fidelity_tree.tree_operating_speed(scene, joint_levels)
     band = omega_op * order
     springs = [el for el in elements if isinstance(el, Spring)]
-    tree = scene.vehicle is not None
-    adjacent = (_adjacent_inertias(scene, {c.name: c.chosen for c in choices})
-                if springs and not tree else {})
+    adjacent = (_adjacent_inertias(scene, joint_levels) if springs and not tree else {})
+    if tree_rule and springs:
+        tree_j = fidelity_tree.tree_spring_inertias(scene, joint_levels)
+        adjacent = {name: (j['j_left_grip'], j['j_right_grip']) for name, j in tree_j.items()}
     for el in springs:
-        if tree:
+        if tree and not tree_rule:
             # the adjacent inertias across a differential are a 2x2 matrix, not two numbers:
             # the rigid rule is not derived for them, a vehicle scene's springs stay elastic
             if el.name in overrides:
@@ -236,6 +252,10 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
         bound = r * r / (1.0 - r * r) if r < 1.0 else math.inf
         cand = {'elastic': {'speed_error': 0.0, 'omega_n': omega_n},
                 'rigid': {'speed_error': bound, 'omega_n': omega_n}}
+        if tree_rule:       # the free-tyre frequency, for information (the grip one decides)
+            j = tree_j[el.name]
+            cand['rigid']['omega_n_free_tyres'] = math.sqrt(
+                el.stiffness * (1.0 / j['j_left'] + 1.0 / j['j_right']))
         if el.name in overrides:
             chosen, reason = overrides[el.name], 'forced by argument'
         elif el.fidelity != 'auto':
@@ -253,6 +273,13 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
             reason = (f'omega_n {omega_n:.4g} rad/s = {omega_n / band:.3g} x band, quasi-static '
                       f'error {bound:.2e} > target')
         choices.append(FidelityChoice(el.name, 'spring', chosen, reason, cand))
+    if tree_rule:
+        for name, b in fidelity_tree.tyre_relaxation_bounds(scene, band).items():
+            tau = b['time_constant_s']
+            choices.append(FidelityChoice(
+                name, 'tyre', 'relaxed',
+                f'slip relaxation kept (standstill regularisation), tau {tau:.3g} s at the '
+                f'initial speed', {'instant': b}))
     return FidelityReport(target, omega_op, band, tuple(choices))
 
 

@@ -12,7 +12,9 @@ Implementations of one interface, chosen by :func:`make_state_outputs`:
   stays on the Python formula (the rest is compiled); a compiled tripod Newton that fails
   hands that sample to the Python model, which raises its own SolverError.
 * :class:`TreeKernelStateOutputs`: a vehicle scene's joint state (``TreeDriveline._walk``
-  over every branch) compiled in ``kernel/tree_outputs_nb.py``; no reaction wrenches.
+  over every branch) compiled in ``kernel/tree_outputs_nb.py``; the reaction wrenches of
+  every branch's joints from that joint state by the chain's ``wrenches_one`` (a joint's
+  reaction needs only its input shaft's angle, speed and torque).
 
 Measured per call (this machine, load average 2.8, one run): kavz685_lever joint state
 77 -> 3.5 us, reaction wrench 17 -> 1.7 us; fwd_halfshaft joint state 309 -> 7.7 us (of it
@@ -187,8 +189,9 @@ class TreeKernelStateOutputs:
     """Compiled joint state of a vehicle scene's TreeDriveline (``kernel/tree_outputs_nb.py``:
     ``TreeDriveline._walk`` on the kernel's tree tables, members by ``fill_mid_one``), with
     the driveline's outside wheel torques (``set_wheel_torques``) read at every call. The
-    tree gives no reaction wrenches (``joints`` must be empty). Building it compiles or
-    loads the numba function and evaluates once."""
+    reaction wrenches of ``joints`` are :class:`KernelStateOutputs`'s (``wrenches_one`` on
+    the joint state's ``<joint>_input`` columns; a joint without a compiled form asks its
+    model). Building it compiles or loads the numba functions and evaluates once."""
 
     backend = 'kernel'
 
@@ -197,10 +200,8 @@ class TreeKernelStateOutputs:
         from cvj_ros.physics.kernel import outputs_nb as O
         from cvj_ros.physics.kernel import tree_outputs_nb as TO
         from cvj_ros.physics.kernel.layout import build_model
-        if joints:
-            raise NotImplementedError('compiled tree outputs: reaction wrenches')
         self.driveline = driveline
-        self.joints: list[str] = []
+        self.joints = list(joints)
         # the tables only: outside wheel torques come with each call, not from the model
         held, driveline.wheel_torques = driveline.wheel_torques, None
         try:
@@ -217,7 +218,20 @@ class TreeKernelStateOutputs:
                                (x0, self.model.ip, self.model.fp, 0.0, 0, self._wheel_t, self._tab,
                                 self._ends, self._mtab, self._mfp, np.empty(n), np.empty(n),
                                 np.empty(n)))
-        self.joint_states(x0, 0.0, 0.0)
+        # reaction wrenches: the chain's tables and entry point (KernelStateOutputs.wrenches)
+        self._rtab, self._rfp, self._react_python = O.reaction_table(driveline, self.joints)
+        self._kind = {j: driveline.joint_models[j].kind for j in self.joints}
+        self._rtab_c = self._rtab[self._rtab[:, 1] >= 0] if len(self._rtab) else self._rtab
+        self._row_joint = [self.joints[k] for k in range(len(self.joints))
+                           if k not in self._react_python]
+        self._ws = np.empty((len(self._rtab_c), 6))
+        pos, vel, eff = self.joint_states(x0, 0.0, 0.0)
+        self._wrenches_one = entry_point(O.wrenches_one, (pos, vel, eff, self._rtab_c, self._rfp, self._ws)) \
+            if len(self._rtab_c) else O.wrenches_one
+        self.wrenches(x0, 0.0, 0.0, (pos, vel, eff))
+
+    wrenches = KernelStateOutputs.wrenches
+    _python_wrench = KernelStateOutputs._python_wrench
 
     def joint_states(self, x: FloatArray, T_engine: float, T_load: float
                      ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -234,10 +248,6 @@ class TreeKernelStateOutputs:
         if self._mid_python:
             self.driveline.fill_mid(pos[None, :], vel[None, :], members=self._mid_python)
         return pos, vel, eff
-
-    def wrenches(self, x: FloatArray, T_engine: float, T_load: float,
-                 joint_state: tuple[FloatArray, FloatArray, FloatArray]) -> dict[str, Wrench]:
-        return {}
 
 
 def make_state_outputs(driveline: Any, joints: list[str], *, compiled: bool) -> StateOutputs:

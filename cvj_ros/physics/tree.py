@@ -644,6 +644,21 @@ class TreeDriveline:
         """As :meth:`joint_states`, intermediate members left as their joint's input."""
         return self._walk(x, T_engine)[:3]
 
+    def reactions(self, x: FloatArray, T_engine: float, T_load: float = 0.0
+                  ) -> dict[str, dict[str, float]]:
+        """Per joint whose model has ``reactions(phi_in, omega_in, torque_in)``: its dict, at
+        the joint's ``<joint>_input`` shaft of :meth:`joint_states_fast` (angle, speed and the
+        torque entering the joint from the engine side, as Driveline.reactions passes them
+        along a chain). ``T_load`` is unused (the wheels' road torques are inside)."""
+        pos, vel, eff, _start = self._walk(x, T_engine)
+        col = {name: i for i, name in enumerate(self.shaft_names)}
+        out: dict[str, dict[str, float]] = {}
+        for name, model in self.joint_models.items():
+            if hasattr(model, 'reactions'):
+                i = col[f'{name}_input']
+                out[name] = dict(model.reactions(float(pos[i]), float(vel[i]), float(eff[i])))
+        return out
+
     def fill_mid(self, position: FloatArray, velocity: FloatArray, *, members: Any = None) -> None:
         """Intermediate-member columns (Driveline.fill_mid, same numbers)."""
         from cvj_ros.physics.driveline import Driveline

@@ -29,10 +29,13 @@ def test_external_load_on_a_vehicle_scene_waits_for_every_wheel(tmp_path: Path) 
     prep = prepare(RunOptions(scene='awd_4x4', out=tmp_path / 'a', external=('load',)))
     wheels = ['wheel_front_left', 'wheel_front_right', 'wheel_rear_left', 'wheel_rear_right']
     assert 'load_node' not in prep.nodes
-    assert prep.coupling_topics == [f'/load/{w}/wrench' for w in wheels]
+    # the recorder's extra topics: every branch's reaction wrenches, then the wheels' loads
+    reactions = [f'/coupling/{j}/wrench' for j in ('gearbox', 'tripod_fl', 'rzeppa_fl', 'tripod_fr',
+                                                    'rzeppa_fr')]
+    assert prep.coupling_topics == reactions + [f'/load/{w}/wrench' for w in wheels]
     topics, outside = prep.peers
     assert topics['engine_node'] == '/engine/wrench' and 'engine_node' not in outside
-    assert [t for n, t in topics.items() if outside.get(n) == 'load'] == prep.coupling_topics
+    assert [t for n, t in topics.items() if outside.get(n) == 'load'] == prep.coupling_topics[len(reactions):]
     assert node_parameters(prep, 'coupling_node', load_override=None)['wheel_load'] == 'external'
     chain = prepare(RunOptions(scene='fwd_halfshaft', out=tmp_path / 'b', external=('load',)))
     assert chain.peers is None and 'wheel_load' not in node_parameters(chain, 'coupling_node',

@@ -85,11 +85,17 @@ def test_vehicle_run_writes_every_branch_and_the_report_shows_the_wheels(runs, m
     assert r.returncode == 0, r.stdout + r.stderr
     names = TreeDriveline.from_scene(load_scene(find_scene('fwd_axle'))).shaft_names
     info = bag.bag_info(bag_path)
-    # no /coupling/<joint>/wrench: the tree gives no reaction wrenches yet
+    # every joint of both branches records its reaction wrench, one per exchange
+    joints = ('gearbox', 'tripod_left', 'rzeppa_left', 'tripod_right', 'rzeppa_right')
     assert set(info.counts) == {'/clock', '/driveline/joint_states', '/driveline/scene',
-                                '/engine/wrench', '/load/wrench', '/diagnostics'}, info.counts
+                                '/engine/wrench', '/load/wrench', '/diagnostics',
+                                *(f'/coupling/{j}/wrench' for j in joints)}, info.counts
     assert info.counts['/driveline/joint_states'] == N + 1
     data = bag.read_bag(bag_path)
+    for j in joints:
+        w = data[f'/coupling/{j}/wrench']
+        assert info.counts[f'/coupling/{j}/wrench'] == N + 1 and w.frame_id == f'{j}_housing'
+        assert np.all(np.isfinite(w.torque))
     js = data['/driveline/joint_states']
     assert js.names == names and {'wheel_left', 'wheel_right'} <= set(names)
     np.testing.assert_array_equal(np.round(js.t * 1e9).astype(np.int64), np.arange(N + 1) * 1_000_000)
@@ -102,6 +108,9 @@ def test_vehicle_run_writes_every_branch_and_the_report_shows_the_wheels(runs, m
     from cvj_ros import analysis
     rep = analysis.analyze_bag(bag_path)
     assert {'wheel_left', 'wheel_right'} <= set(rep['shafts'])
+    assert set(rep['reactions']) == set(joints)          # every branch's joints, housing frame
+    assert all(rep['reactions'][j]['frame_id'] == f'{j}_housing' for j in joints)
+    assert 'reaction wrenches (housing frame)' in analysis.format_report(rep)
     figs = rep['diagnostics']['figures']
     assert 13.0 < figs['coupling_node: loop/vehicle_speed_m_s']['last'] < 14.5   # from 50 km/h
     for w in ('wheel_left', 'wheel_right'):

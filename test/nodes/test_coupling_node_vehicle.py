@@ -20,14 +20,21 @@ H = 1e-3
 N = 20
 
 
-def _run(ctx, load_torque: float) -> tuple[CouplingNode, FakePeers]:
-    """fwd_axle for N exchanges; the fake peers answer T_ENGINE and ``load_torque``."""
+def _run(ctx, load_torque: float, wrenches: dict[str, list] | None = None
+         ) -> tuple[CouplingNode, FakePeers]:
+    """fwd_axle for N exchanges; the fake peers answer T_ENGINE and ``load_torque`` (and
+    collect /coupling/<joint>/wrench into ``wrenches[joint]`` for each key given)."""
     import time
 
+    from geometry_msgs.msg import WrenchStamped
+
     from cvj_ros.nodes.common import make_executor
+    from cvj_ros.nodes.qos import DATA_QOS, coupling_wrench_topic
     overrides = [Parameter('scene', value='fwd_axle'), Parameter('min_subscribers', value=1),
                  Parameter('duration', value=N * H), Parameter('exchange_step', value=H)]
     peers = FakePeers(ctx, lambda topic, k, stamp: [(stamp, T_ENGINE if topic == 'engine' else load_torque)])
+    for joint, got in (wrenches or {}).items():
+        peers.node.create_subscription(WrenchStamped, coupling_wrench_topic(joint), got.append, DATA_QOS)
     node = CouplingNode(context=ctx, parameter_overrides=overrides)
     ex = make_executor('events', ctx)
     ex.add_node(peers.node)
@@ -39,6 +46,10 @@ def _run(ctx, load_torque: float) -> tuple[CouplingNode, FakePeers]:
             ex.spin_once(timeout_sec=0.05)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)
+        t1 = time.monotonic()       # the last step's wrenches go out after its joint state
+        while wrenches and any(len(g) < len(peers.js) for g in wrenches.values()) \
+                and time.monotonic() - t1 < 5.0:
+            ex.spin_once(timeout_sec=0.05)
     finally:
         ex.shutdown()
         peers.node.destroy_node()
@@ -46,9 +57,10 @@ def _run(ctx, load_torque: float) -> tuple[CouplingNode, FakePeers]:
     return node, peers
 
 
-def _offline(load_torque: float) -> tuple[list[str], np.ndarray, np.ndarray]:
+def _offline(load_torque: float, states: list | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Names, positions and speeds at t_k of the exchange loop without ROS (the coupling
-    node's stepper and joint-state walk, engine torque held at T_ENGINE)."""
+    node's stepper and joint-state walk, engine torque held at T_ENGINE); the states x_k
+    appended to ``states`` if given."""
     from cvj_ros.physics.cosim import CoupledStepper
     from cvj_ros.physics.tree import TreeDriveline
     sc = load_scene(find_scene('fwd_axle'))
@@ -59,6 +71,8 @@ def _offline(load_torque: float) -> tuple[list[str], np.ndarray, np.ndarray]:
     pos, vel = [], []
     for k in range(N + 1):
         names, p, v, _e = dl.joint_states(x, T_ENGINE, load_torque)
+        if states is not None:
+            states.append(np.array(x))
         pos.append(p)
         vel.append(v)
         if k < N:
@@ -96,8 +110,38 @@ def test_vehicle_scene_publishes_every_branch_and_equals_the_offline_exchange_lo
     for w in ('wheel_left', 'wheel_right'):
         assert stats[f'{w}.fx_N'] == wheels[w]['fx'] and stats[f'{w}.slip'] == wheels[w]['slip']
         assert stats[f'{w}.fz_N'] > 0 and stats[f'{w}.status'] == 0
-    # compiled stepper (tree kernel, engine torque from the input block); no reaction wrenches
-    assert node.stepper.backend == 'kernel' and node.reaction_joints == [] and node.reaction_pubs == {}
+    # compiled stepper (tree kernel, engine torque from the input block); every branch's
+    # joints publish their reaction wrench (test_reaction_wrench_of_every_branch_joint)
+    assert node.stepper.backend == 'kernel'
+    assert node.reaction_joints == ['gearbox', 'tripod_left', 'rzeppa_left', 'tripod_right', 'rzeppa_right']
+
+
+def test_reaction_wrench_of_every_branch_joint(ctx):
+    """/coupling/<joint>/wrench of each joint of both halfshafts (and the gearbox): one per
+    exchange, stamped as the joint state, frame ``<joint>_housing``, equal to the offline
+    TreeDriveline.reactions at the same state and engine torque (test_tree_reactions.py
+    holds those to an independent walk)."""
+    from cvj_ros.physics.joints.wrench import wrench_from_reactions
+    from cvj_ros.physics.tree import TreeDriveline
+    joints = ['gearbox', 'tripod_left', 'rzeppa_left', 'tripod_right', 'rzeppa_right']
+    got: dict[str, list] = {j: [] for j in joints}
+    node, peers = _run(ctx, load_torque=0.0, wrenches=got)
+    assert node.exit_code == 0 and node.outputs.backend == 'kernel'
+    states: list[np.ndarray] = []
+    _offline(load_torque=0.0, states=states)
+    dl = TreeDriveline.from_scene(load_scene(find_scene('fwd_axle')))
+    for j in joints:
+        msgs = got[j]
+        assert [ns(m.header.stamp) for m in msgs] == [ns(m.header.stamp) for m in peers.js], j
+        assert {m.header.frame_id for m in msgs} == {f'{j}_housing'}
+        for k in range(1, N + 1):           # from step 1 on the held engine torque is T_ENGINE
+            force, torque = wrench_from_reactions(dl.joint_models[j].kind,
+                                                  dl.reactions(states[k], T_ENGINE)[j])
+            w = msgs[k].wrench
+            np.testing.assert_allclose([w.force.x, w.force.y, w.force.z], force, rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose([w.torque.x, w.torque.y, w.torque.z], torque, rtol=1e-12, atol=1e-9)
+    # the halfshafts differ (angles and lengths): so do their tripods' reactions
+    assert got['tripod_left'][-1].wrench.force.y != got['tripod_right'][-1].wrench.force.y
 
 
 def test_load_node_answers_zero_on_the_last_wheel_of_a_vehicle_scene(ctx):

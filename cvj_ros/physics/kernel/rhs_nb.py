@@ -96,24 +96,29 @@ def imbalance_torque(k, phi, ip, fp):
 
 
 @njit(cache=True, inline='always')
-def _sigmoid(u):
+def _sigmoid_of(u, z):
+    """_sigmoid(u) given z = exp(-|u|): the same bits (exp(-u) for u >= 0, exp(u) below),
+    one exp shared with the softplus instead of two."""
     if u >= 0.0:
-        return 1.0 / (1.0 + math.exp(-u))
-    z = math.exp(u)
+        return 1.0 / (1.0 + z)
     return z / (1.0 + z)
 
 
 @njit(cache=True, inline='always')
 def spring_deflection(th, g, w):
-    """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw)."""
+    """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw:
+    sections.SpringLaw.deflection, the same expressions; exp(-|u|) is computed once per side
+    and shared by the softplus and the sigmoid, same bits)."""
     if g == 0.0:
         return th, 1.0, 0.0
     u1 = (th - g) / w
     u2 = (-th - g) / w
-    sp1 = w * (max(u1, 0.0) + math.log1p(math.exp(-abs(u1))))
-    sp2 = w * (max(u2, 0.0) + math.log1p(math.exp(-abs(u2))))
-    s1 = _sigmoid(u1)
-    s2 = _sigmoid(u2)
+    z1 = math.exp(-abs(u1))
+    z2 = math.exp(-abs(u2))
+    sp1 = w * (max(u1, 0.0) + math.log1p(z1))
+    sp2 = w * (max(u2, 0.0) + math.log1p(z2))
+    s1 = _sigmoid_of(u1, z1)
+    s2 = _sigmoid_of(u2, z2)
     return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
 
 

@@ -11,6 +11,7 @@ Hermite between pre-generated knots), Fourier load over shaft angle (Davidbaev e
 from __future__ import annotations
 
 import math
+import types
 
 from numba import njit
 
@@ -23,33 +24,35 @@ smooth_ramp_nb = njit(cache=True)(smooth_ramp)
 hermite_table_nb = njit(cache=True)(hermite_table)
 
 
+def _same_code(f):
+    """A new function object running f's code (an overload's implementation must not be the
+    overloaded function itself)."""
+    return types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__, f.__closure__)
+
+
 # Calls of the plain helpers inside other compiled plain functions (map_engine_eval)
-# compile the same Python source, inlined at numba IR level (a call per helper, its tuple
-# return and arguments, was ~20 of the map engine's ~70 ns; the same operations, same bits).
+# compile the same Python source, inlined at numba IR level: the implementation is the
+# helper's own code (a call to its compiled dispatcher would stay a call into another
+# library, docs/solvers.md "Where an rhs call's time goes"); the same operations, same bits.
 @overload(smoothstep, inline='always')
 def _smoothstep_in_jit(u):
-    def impl(u):
-        return smoothstep_nb(u)
-    return impl
+    return _same_code(smoothstep)
 
 
 @overload(smooth_ramp, inline='always')
 def _smooth_ramp_in_jit(u, width):
-    def impl(u, width):
-        return smooth_ramp_nb(u, width)
-    return impl
+    return _same_code(smooth_ramp)
 
 
 @overload(hermite_table, inline='always')
 def _hermite_table_in_jit(omega, w, tq, d):
-    def impl(omega, w, tq, d):
-        return hermite_table_nb(omega, w, tq, d)
-    return impl
+    return _same_code(hermite_table)
 
 
 map_engine_nb = njit(cache=True)(map_engine_eval)     # engine.map_engine_eval, one source
-#: the same source inlined into the rhs (map_engine_at): the rhs uses only the torque, so
-#: the compiler drops the slopes and the ripple's sine there
+#: the same source inlined into the rhs (map_engine_at): no call, and the rhs uses only the
+#: torque, so the compiler drops the slopes and the ripple's sine there
+#: (docs/benchmark.md "The rhs closer to hand-written")
 map_engine_inline_nb = njit(cache=True, inline='always')(map_engine_eval)
 
 

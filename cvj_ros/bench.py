@@ -380,13 +380,13 @@ def rhs_cost(scene: Any, *, calls: int = 200_000) -> dict[str, float]:
     return out
 
 
-HAND_WRITTEN = ('hooke_2dof', 'stiff')
+HAND_WRITTEN = ('hooke_2dof', 'stiff', 'fwd_halfshaft')
 
 
 def hand_written_rhs_cost(model_name: str = 'hooke_2dof', *, calls: int = 200_000,
                           rounds: int = 5) -> dict[str, float]:
     """ns per call of the kernel's rhs on ``model_name`` (:data:`HAND_WRITTEN`:
-    :func:`hooke_2dof_scene` or the shipped stiff scene) and of the same equations written
+    :func:`hooke_2dof_scene`, the shipped stiff or fwd_halfshaft scene) and of the same equations written
     by hand (:mod:`cvj_ros.bench_handrhs`), both from the same compiled loop over 16 states
     (:func:`cvj_ros.bench_handrhs.timing_states`), timed in alternating rounds (this machine
     is shared: each round's pair shares its moment); medians, min and max over the rounds,
@@ -398,6 +398,9 @@ def hand_written_rhs_cost(model_name: str = 'hooke_2dof', *, calls: int = 200_00
         scene, params, timer = hooke_2dof_scene(), hw.hooke_2dof_params, hw.time_hooke_2dof_calls
     elif model_name == 'stiff':
         scene, params, timer = resolve_scene('stiff'), hw.stiff_params, hw.time_stiff_calls
+    elif model_name == 'fwd_halfshaft':
+        scene, params, timer = (resolve_scene('fwd_halfshaft'), hw.fwd_halfshaft_params,
+                                hw.time_fwd_halfshaft_calls)
     else:
         raise ValueError(f'no hand-written rhs for {model_name!r} (have {", ".join(HAND_WRITTEN)})')
     sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))

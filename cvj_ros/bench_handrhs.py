@@ -1,5 +1,6 @@
-"""Hand-written compiled right-hand sides of two scenes, `bench.hooke_2dof_scene` and the
-shipped `stiff` scene (the bench's reference for the price of evaluating a scene from data):
+"""Hand-written compiled right-hand sides of three scenes, `bench.hooke_2dof_scene`, the
+shipped `stiff` scene and the shipped `fwd_halfshaft` scene (the bench's reference for the
+price of evaluating a scene from data):
 the same equations as kernel/rhs_nb.rhs with the scene's structure written out, no section
 walk, no op dispatch.
 
@@ -11,6 +12,12 @@ Te = x M1 - K1 w0 (Kavzarashvili engine line), a linear spring T = k (q0 - q1) +
 then section 1: a Hooke joint (phi, r, s) = hooke_stage(q1, cos beta) driving J1 with the
 constant load Tl at its output, so M1 = J1 r^2, C1 = J1 r s and
 w1' = (T - Tl r - C1 w1^2) / M1 (driveline.py's M(q) qddot + C(q) qdot^2 = Q).
+
+fwd_halfshaft: three sections - the crank J0 with the map engine (engine.map_engine_eval);
+the clutch damper (dead-zone spring, rhs_nb.spring_deflection); input shaft J1, gear k,
+differential J2, the exact tripod (its Fourier series, joints/tripod.py) and midshaft J3, so
+M1 = J1 + J2 k^2 + J3 (k r)^2, C1 = J3 (k r)(s k^2); the linear midshaft spring on the twist
+phi_tripod - q2; the homokinetic Rzeppa (the identity) and the wheel J4 under the road load.
 """
 from __future__ import annotations
 
@@ -19,10 +26,13 @@ import math
 import numpy as np
 from numba import njit
 
-from cvj_ros.physics.kernel.joints_nb import hooke_stage_nb
-from cvj_ros.physics.kernel.rhs_nb import rhs
+from cvj_ros.physics.kernel.borrow_nb import borrowed
+from cvj_ros.physics.kernel.joints_nb import hooke_stage_nb, tripod_series_inline_nb
+from cvj_ros.physics.kernel.rhs_nb import rhs, spring_deflection
+from cvj_ros.physics.kernel.sources_nb import map_engine_inline_nb
 
-__all__ = ['hooke_2dof_params', 'hooke_2dof_rhs', 'stiff_params', 'stiff_rhs', 'time_hooke_2dof_calls',
+__all__ = ['fwd_halfshaft_params', 'fwd_halfshaft_rhs', 'hooke_2dof_params', 'hooke_2dof_rhs',
+           'stiff_params', 'stiff_rhs', 'time_fwd_halfshaft_calls', 'time_hooke_2dof_calls',
            'time_kernel_calls', 'time_stiff_calls', 'timing_states']
 
 
@@ -127,5 +137,79 @@ def time_stiff_calls(n, t, ys, p):
     acc = 0.0
     for k in range(n):
         stiff_rhs(t + k * 1e-9, ys[k % m], p, dy)
+        acc += dy[2] + dy[3]
+    return acc
+
+
+def fwd_halfshaft_params(scene: object) -> np.ndarray:
+    """(J0..J4, k, clutch c d g w, midshaft c d, road roll aero climb lever vs, throttle, the
+    map engine's 13 constants and n, its tables w[n] T[n] d[n], the tripod's nc and b_1..b_nc)
+    of the shipped `fwd_halfshaft` scene (parsed Scene; the exact tripod's table and the
+    engine's constants from their models)."""
+    from cvj_ros.bench import forced_levels
+    from cvj_ros.physics.simulate import Simulation
+    sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))
+    el = {e.name: e for e in scene.driveline}           # type: ignore[attr-defined]
+    tripod = sim.driveline.joint_models['tripod']
+    gear = sim.driveline.joint_models['gearbox']
+    cl, mid = sim.driveline.springs
+    road = sim.load
+    w, tq, d, *consts = sim.engine.kernel_params()
+    head = [el[n].J for n in ('engine_crank', 'input_shaft', 'differential', 'midshaft', 'wheel')]
+    head += [float(gear._k), cl.c, cl.d, cl.gap, cl.width, mid.c, mid.d,
+             road._roll, road._aero, road._climb, road._lever, road.vs, float(sim.engine.throttle)]
+    return np.array(head + [float(c) for c in consts] + [float(len(w))] + list(w) + list(tq)
+                    + list(d) + [float(len(tripod._coeff_list))] + list(tripod._coeff_list))
+
+
+@njit(cache=True)
+def fwd_halfshaft_rhs(t, y, p, dy):
+    """dy/dt of the fwd_halfshaft scene (module docstring; state q0..q2, w0..w2, the three
+    work integrals), in place."""
+    p = borrowed(p)
+    n = int(p[31])
+    o = 32
+    te = map_engine_inline_nb(y[3], y[0], p[17], p[o:o + n], p[o + n:o + 2 * n],
+                              p[o + 2 * n:o + 3 * n], p[18], p[19], p[20], p[21], p[22], p[23],
+                              p[24], p[25], p[26], p[27], p[28], p[29], p[30])[0]
+    # clutch damper: dead zone, no progressive term
+    th0 = y[0] - y[1]
+    thd0 = y[3] - y[4]
+    e, de, _dde = spring_deflection(th0, p[8], p[9])
+    ts0 = p[6] * e * de + p[7] * de * thd0
+    # section 1: J1, gear k, J2, tripod, J3
+    k = p[5]
+    nc = int(p[o + 3 * n])
+    phi, r, s = tripod_series_inline_nb(y[1] * k, p[o + 3 * n + 1:o + 3 * n + 1 + nc])
+    a = r * k
+    b = s * k * k
+    m1 = p[1] + p[2] * k * k + p[3] * a * a
+    c1 = p[3] * a * b
+    th1 = phi - y[2]
+    thd1 = a * y[4] - y[5]
+    ts1 = p[10] * th1 + p[11] * thd1
+    # wheel under the road load (Rzeppa K = 1: the identity)
+    v = y[5] * p[15]
+    tv = math.tanh(v / p[16])
+    tl = (p[12] * tv + p[13] * v * abs(v) + p[14]) * p[15]
+    dy[0] = y[3]
+    dy[1] = y[4]
+    dy[2] = y[5]
+    dy[3] = (te - ts0) / p[0]
+    dy[4] = (ts0 - ts1 * a - c1 * y[4] * y[4]) / m1
+    dy[5] = (ts1 - tl) / p[4]
+    dy[6] = te * y[3]
+    dy[7] = tl * y[5]
+    dy[8] = p[7] * de * thd0 * thd0 + p[11] * thd1 * thd1
+
+
+@njit(cache=True)
+def time_fwd_halfshaft_calls(n, t, ys, p):
+    """:func:`time_hooke_2dof_calls` for :func:`fwd_halfshaft_rhs`."""
+    dy = np.empty(ys.shape[1])
+    m = ys.shape[0]
+    acc = 0.0
+    for k in range(n):
+        fwd_halfshaft_rhs(t + k * 1e-9, ys[k % m], p, dy)
         acc += dy[2] + dy[3]
     return acc

@@ -10,8 +10,9 @@ import numpy as np
 from cvj_ros import bench
 import pytest
 
-from cvj_ros.bench_handrhs import (hooke_2dof_params, hooke_2dof_rhs, stiff_params, stiff_rhs,
-                                  time_hooke_2dof_calls, time_stiff_calls)
+from cvj_ros.bench_handrhs import (fwd_halfshaft_params, fwd_halfshaft_rhs, hooke_2dof_params,
+                                  hooke_2dof_rhs, stiff_params, stiff_rhs,
+                                  time_fwd_halfshaft_calls, time_hooke_2dof_calls, time_stiff_calls)
 from cvj_ros.physics.kernel.layout import build_model
 from cvj_ros.physics.kernel.rhs_nb import rhs
 from cvj_ros.physics.simulate import Simulation
@@ -62,6 +63,29 @@ def test_hand_written_stiff_rhs_equals_the_kernel_rhs_and_the_closed_form() -> N
     assert math.isfinite(time_stiff_calls(100, 0.0, y[None, :], p))
 
 
+def test_hand_written_fwd_halfshaft_rhs_equals_the_kernel_rhs_and_the_closed_form() -> None:
+    """Bit for bit against the kernel at random states around the start (clutch in and out of
+    its lash); at rest but for the wheel (speed w) the tripod's series and the clutch vanish
+    and the wheel sees the midshaft's damping -d w and the road load."""
+    scene = bench.resolve_scene('fwd_halfshaft')
+    sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+    p = fwd_halfshaft_params(scene)
+    rng = np.random.default_rng(9)
+    for _ in range(30):
+        y = model.x0 + rng.normal(scale=[0.05] * 3 + [5.0] * 3 + [1.0] * 3)
+        want, got = np.empty_like(y), np.empty_like(y)
+        rhs(0.01, y, model.ip, model.fp, want)
+        fwd_halfshaft_rhs(0.01, y, p, got)
+        assert np.array_equal(got, want)
+    w = 40.0
+    y = np.array([0.0, 0.0, 0.0, 0.0, 0.0, w, 0.0, 0.0, 0.0])
+    got = np.empty_like(y)
+    fwd_halfshaft_rhs(0.0, y, p, got)
+    assert math.isclose(got[5], (-20.0 * w - sim.load.torque(0.0, w)) / 119.0, rel_tol=1e-12)
+    assert math.isfinite(time_fwd_halfshaft_calls(100, 0.0, y[None, :], p))
+
+
 @pytest.mark.parametrize('name', bench.HAND_WRITTEN)
 def test_hand_written_cost_entry(name: str) -> None:
     out = bench.hand_written_rhs_cost(name, calls=2000, rounds=3)
@@ -81,7 +105,9 @@ def test_timing_loops_compute_the_same_sums() -> None:
     states (the same arithmetic is timed), and the states differ from row to row."""
     from cvj_ros.bench_handrhs import time_kernel_calls, timing_states
     for scene, params, timer in ((bench.hooke_2dof_scene(), hooke_2dof_params, time_hooke_2dof_calls),
-                                 (bench.resolve_scene('stiff'), stiff_params, time_stiff_calls)):
+                                 (bench.resolve_scene('stiff'), stiff_params, time_stiff_calls),
+                                 (bench.resolve_scene('fwd_halfshaft'), fwd_halfshaft_params,
+                                  time_fwd_halfshaft_calls)):
         sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
         model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
         ys = timing_states(model.x0)

@@ -110,6 +110,9 @@ def hooke_stage(phi: FloatArray, cos_beta: float) -> tuple[FloatArray, FloatArra
 
     Units: rad, -, 1/rad. Source: Bugaru & Vasile 2021, eq. 10; derivatives differentiated by hand.
     """
+    if cos_beta == 1.0:     # straight (or a homokinetic Rzeppa, K = 1): the identity, exactly
+        out = np.array(phi, dtype=float)
+        return out, np.ones_like(out), np.zeros_like(out)
     s, co = np.sin(phi), np.cos(phi)
     den = cos_beta * cos_beta * co * co + s * s
     dev = np.arctan2(s * co * (1.0 - cos_beta), cos_beta * co * co + s * s)
@@ -119,7 +122,11 @@ def hooke_stage(phi: FloatArray, cos_beta: float) -> tuple[FloatArray, FloatArra
 
 
 def hooke_stage_scalar(phi: float, cos_beta: float) -> tuple[float, float, float]:
-    """Float version of :func:`hooke_stage` (rad, -, 1/rad)."""
+    """Float version of :func:`hooke_stage` (rad, -, 1/rad). cos_beta = 1 (straight, or a
+    homokinetic Rzeppa, K = 1) is the identity, returned as such: the general expressions
+    give it only to rounding (ratio 1/(cos^2 + sin^2)) at the price of sin, cos and atan2."""
+    if cos_beta == 1.0:
+        return phi, 1.0, 0.0
     s, co = math.sin(phi), math.cos(phi)
     den = cos_beta * cos_beta * co * co + s * s
     dev = math.atan2(s * co * (1.0 - cos_beta), cos_beta * co * co + s * s)

@@ -48,6 +48,10 @@ lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
 tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
 tripod_series_nb = njit(cache=True)(tripod_series_scalar)
 runout_nb = njit(cache=True)(runout_scalar)
+# the two commonest exact stages, inlined into joint_eval (and so into the rhs): no call,
+# no tuple return; the same source, the same bits
+hooke_stage_inline_nb = njit(cache=True, inline='always')(hooke_stage_scalar)
+tripod_series_inline_nb = njit(cache=True, inline='always')(tripod_series_scalar)
 
 
 @njit(cache=True, inline='always')
@@ -55,14 +59,14 @@ def tripod_series_at(phi, fp, off):
     """tripod_series_scalar with its nc coefficients at fp[off + 1:]; the slice lives here, not
     in joint_eval, so joint_eval stays small enough to inline."""
     nc = int(fp[off])
-    return tripod_series_nb(phi, fp[off + 1:off + 1 + nc])
+    return tripod_series_inline_nb(phi, fp[off + 1:off + 1 + nc])
 
 
 @njit(cache=True, inline='always')
 def joint_eval(code, phi, fp, off):
     """(phi_out rad, ratio -, ratio_slope 1/rad) of the joint op ``code`` at input angle phi."""
     if code == OP_HOOKE:
-        return hooke_stage_nb(phi, fp[off])
+        return hooke_stage_inline_nb(phi, fp[off])
     if code == OP_DOUBLE_CARDAN:
         return double_cardan_nb(phi, fp[off], fp[off + 1], fp[off + 2])
     if code == OP_TRIPOD_SERIES:

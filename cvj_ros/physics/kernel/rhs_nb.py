@@ -96,24 +96,42 @@ def imbalance_torque(k, phi, ip, fp):
 
 
 @njit(cache=True, inline='always')
-def _sigmoid(u):
+def _sigmoid_of(u, z):
+    """_sigmoid(u) given z = exp(-|u|): the same bits (exp(-u) for u >= 0, exp(u) below),
+    one exp shared with the softplus instead of two."""
     if u >= 0.0:
-        return 1.0 / (1.0 + math.exp(-u))
-    z = math.exp(u)
+        return 1.0 / (1.0 + z)
     return z / (1.0 + z)
+
+
+#: above it, exp(-u) < 4.3e-18 vanishes in u + log1p(exp(-u)) (half an ulp of u >= 32 is
+#: 3.6e-15) and in 1 + exp(-u) (< 2^-54): softplus = w u and sigmoid = 1, exactly
+SOFTPLUS_LINEAR_U = 40.0
+
+
+@njit(cache=True, inline='always')
+def _softplus_sigmoid(u, w):
+    """(w softplus(u), sigmoid(u)) as sections.SpringLaw.deflection writes them,
+    w (max(u, 0) + log1p(exp(-|u|))) and 1/(1 + exp(-u)) (exp(u)/(1 + exp(u)) below 0), with
+    exp(-|u|) computed once; for u > SOFTPLUS_LINEAR_U the same bits without exp and log1p
+    (a spring preloaded beyond its lash sits there on one side)."""
+    if u > SOFTPLUS_LINEAR_U:
+        return w * u, 1.0
+    z = math.exp(-abs(u))
+    return w * (max(u, 0.0) + math.log1p(z)), _sigmoid_of(u, z)
 
 
 @njit(cache=True, inline='always')
 def spring_deflection(th, g, w):
-    """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw)."""
+    """(e, de/dtheta, d2e/dtheta2) of the softplus dead zone (driveline.SpringLaw:
+    sections.SpringLaw.deflection, the same expressions and bits; per side
+    :func:`_softplus_sigmoid`)."""
     if g == 0.0:
         return th, 1.0, 0.0
     u1 = (th - g) / w
     u2 = (-th - g) / w
-    sp1 = w * (max(u1, 0.0) + math.log1p(math.exp(-abs(u1))))
-    sp2 = w * (max(u2, 0.0) + math.log1p(math.exp(-abs(u2))))
-    s1 = _sigmoid(u1)
-    s2 = _sigmoid(u2)
+    sp1, s1 = _softplus_sigmoid(u1, w)
+    sp2, s2 = _softplus_sigmoid(u2, w)
     return sp1 - sp2, s1 + s2, (s1 * (1.0 - s1) - s2 * (1.0 - s2)) / w
 
 

@@ -11,6 +11,7 @@ Hermite between pre-generated knots), Fourier load over shaft angle (Davidbaev e
 from __future__ import annotations
 
 import math
+import types
 
 from numba import njit
 
@@ -23,30 +24,36 @@ smooth_ramp_nb = njit(cache=True)(smooth_ramp)
 hermite_table_nb = njit(cache=True)(hermite_table)
 
 
+def _same_code(f):
+    """A new function object running f's code (an overload's implementation must not be the
+    overloaded function itself)."""
+    return types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__, f.__closure__)
+
+
 # Calls of the plain helpers inside other compiled plain functions (map_engine_eval)
-# compile the same Python source.
-@overload(smoothstep)
+# compile the same Python source, inlined at numba IR level: the implementation is the
+# helper's own code (a call to its compiled dispatcher would stay a call into another
+# library, docs/solvers.md "Where an rhs call's time goes"); the same operations, same bits.
+@overload(smoothstep, inline='always')
 def _smoothstep_in_jit(u):
-    def impl(u):
-        return smoothstep_nb(u)
-    return impl
+    return _same_code(smoothstep)
 
 
-@overload(smooth_ramp)
+@overload(smooth_ramp, inline='always')
 def _smooth_ramp_in_jit(u, width):
-    def impl(u, width):
-        return smooth_ramp_nb(u, width)
-    return impl
+    return _same_code(smooth_ramp)
 
 
-@overload(hermite_table)
+@overload(hermite_table, inline='always')
 def _hermite_table_in_jit(omega, w, tq, d):
-    def impl(omega, w, tq, d):
-        return hermite_table_nb(omega, w, tq, d)
-    return impl
+    return _same_code(hermite_table)
 
 
 map_engine_nb = njit(cache=True)(map_engine_eval)     # engine.map_engine_eval, one source
+#: the same source inlined into the rhs (map_engine_at): no call, and the rhs uses only the
+#: torque, so the compiler drops the slopes and the ripple's sine there
+#: (docs/benchmark.md "The rhs closer to hand-written")
+map_engine_inline_nb = njit(cache=True, inline='always')(map_engine_eval)
 
 
 class CompiledMapEngineTorque:
@@ -82,15 +89,15 @@ from cvj_ros.physics.kernel.layout import (ENGINE_LINEAR, ENGINE_MAP, LOAD_BRAKE
                                           LOAD_RANDOM, LOAD_ROAD)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def map_engine_at(omega, phi, fp, foff):
-    """engine.map_engine_eval with its parameters read from fp[foff:]. Kept out of
-    engine_eval: the array slices here would make every engine_eval call pay for them."""
+    """engine.map_engine_eval with its parameters read from fp[foff:], inlined into its
+    callers (rhs, jac) with the map engine's own body."""
     # fp: x, p, c0, c1, c2, omega_s, idle_rpm, idle_gain, cutoff_rpm, cutoff_band,
     # stall_rpm, ripple_amplitude, ripple_order, ripple_phase, n, w[n], T[n], d[n]
     n = int(fp[foff + 14])
     o = foff + 15
-    return map_engine_nb(omega, phi, fp[foff], fp[o:o + n], fp[o + n:o + 2 * n],
+    return map_engine_inline_nb(omega, phi, fp[foff], fp[o:o + n], fp[o + n:o + 2 * n],
                          fp[o + 2 * n:o + 3 * n], fp[foff + 1], fp[foff + 2], fp[foff + 3],
                          fp[foff + 4], fp[foff + 5], fp[foff + 6], fp[foff + 7],
                          fp[foff + 8], fp[foff + 9], fp[foff + 10], fp[foff + 11],

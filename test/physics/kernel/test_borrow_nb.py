@@ -70,7 +70,7 @@ def test_rhs_call_tree_and_step_chain_compile_without_calls_between_them():
     call, docs/solvers.md "Where an rhs call's time goes": stiff 96 -> 27 ns). A missing
     flag only costs speed, so the flags themselves are checked."""
     from cvj_ros.physics.kernel import joints_nb, rhs_nb, sources_nb, steppers_nb
-    inlined = {rhs_nb: ('section', '_sigmoid', 'spring_deflection', 'spring_eval',
+    inlined = {rhs_nb: ('section', '_sigmoid_of', 'spring_deflection', 'spring_eval',
                         'engine_torque', 'load_torque'),
                sources_nb: ('engine_eval', 'load_eval', 'random_load', 'time_series_load'),
                joints_nb: ('joint_eval', 'tripod_series_at'),

@@ -362,3 +362,20 @@ def test_in_phase_rigid_propshaft_is_homokinetic_on_the_kernel():
     tr = Simulation(_scene(chain)).run(0.2, sample_dt=0.002)
     ratio = tr.velocity[:, names.index('h2_output')] / tr.velocity[:, names.index('h1_input')]
     assert np.ptp(ratio) > 0.03
+
+
+def test_dead_zone_deflection_has_the_oracle_bits_on_both_sides_of_the_linear_cut():
+    """The kernel's softplus dead zone (exp shared by softplus and sigmoid, no exp/log1p
+    beyond rhs_nb.SOFTPLUS_LINEAR_U) gives SpringLaw.deflection's bits: twists inside the
+    lash, at the cut u = +-40 and an ulp either side, far outside, both signs."""
+    from cvj_ros.physics.kernel.rhs_nb import SOFTPLUS_LINEAR_U, spring_deflection
+    from cvj_ros.physics.sections import SpringLaw
+    g, w = math.radians(0.25), 0.1 * math.radians(0.25)
+    law = SpringLaw('s', 1200.0, 1.0, 0.0, g, w)
+    ths = [0.0, 0.3 * g, g, 2.0 * g, 1.0, -1.0, 0.0417, -0.0417, 1e3]
+    for u in (SOFTPLUS_LINEAR_U, 36.0, 45.0, 700.0, 746.0):
+        for sign in (1.0, -1.0):
+            th = sign * (g + u * w)
+            ths += [th, *np.nextafter(th, th + np.array([-1.0, 1.0])), -th]
+    for th in ths:
+        assert spring_deflection(th, g, w) == law.deflection(th), th

@@ -63,6 +63,18 @@ class _Shim:
         return getattr(self._mt, name)
 
 
+def _ramp_rows(schedule: Any, channel: str) -> tuple[list[float], list[float]]:
+    """(times, values) of a command channel: a CommandSchedule's ramp, or a held
+    schedule's (lockstep) value as one row."""
+    chans = getattr(schedule, 'channels', None)
+    if chans is not None:
+        r = chans[channel]
+        return list(r.times), list(r.values)
+    if channel == 'throttle':
+        return [], []
+    return [0.0], [float(schedule.value(channel, 0.0))]
+
+
 def _base_tables(mt: ModeTree, engine: Any) -> tuple[list[int], list[float]]:
     """ip, fp of the mode's tree (layout's tree tables), couplings as OP_COUPLING ops."""
     md = L._tree_model(_Shim(mt), engine)
@@ -80,11 +92,12 @@ def _base_tables(mt: ModeTree, engine: Any) -> tuple[list[int], list[float]]:
     return ip, fp
 
 
-def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode
+def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode, engine: Any = None
                      ) -> tuple[np.ndarray, np.ndarray]:
     """(ip, fp) of one mode of ``sim`` (kernel/tree_modes_nb.py layout): the tree tables,
-    the mode block, the witnesses of ``sim._witnesses(mode)`` in their order."""
-    ip, fp = _base_tables(mt, sim.engine)
+    the mode block, the witnesses of ``sim._witnesses(mode)`` in their order; ``engine``
+    instead of ``sim.engine`` when given."""
+    ip, fp = _base_tables(mt, sim.engine if engine is None else engine)
     tb = ip[L.H_TREE]
     head = [0] * N_MB
     mb = len(ip)
@@ -169,11 +182,11 @@ def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode
     base = auto.base if auto is not None else sim.schedule
     ramps = []
     for c in ('throttle', 'clutch', 'brake'):
-        r = base.channels[c]
+        times, values = _ramp_rows(base, c)
         ramps.append(len(fp))
-        fp.append(float(len(r.times)))
-        fp.extend(float(v) for v in r.times)
-        fp.extend(float(v) for v in r.values)
+        fp.append(float(len(times)))
+        fp.extend(float(v) for v in times)
+        fp.extend(float(v) for v in values)
     vals = {MB_NLINK: len(mt.links), MB_NBRAKE: len(brake_index), MB_NPACK: len(pack_index),
             MB_NWIT: len(wit) // 4, MB_CHAN_F: chan, MB_RAMP_T: ramps[0], MB_RAMP_C: ramps[1],
             MB_RAMP_B: ramps[2]}
@@ -214,6 +227,7 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
                 'backend)')
         self.step_log: list[np.ndarray] | None = [] if step_log else None
         self._hlog_size = 4096
+        _base_tables(self.probe, self.engine)       # NotImplementedError when it does not pack
 
     @classmethod
     def from_reference(cls, sim: HybridTreeSimulation, *, step_log: bool = False

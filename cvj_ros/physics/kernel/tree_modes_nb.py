@@ -859,7 +859,8 @@ def tree_mode_segment(method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in,
     receives the size of every accepted attempt (s) while it has room. Returns in
     out_i: status ST_*, witness index of the event (-1: reached t_stop), next sample index,
     accepted steps, rhs evaluations, rejected steps, logged steps; out_f: end time (s), the
-    step proposal at the end (s)."""
+    step proposal at the end (s) and, given a third slot, the last accepted step's length
+    (s)."""
     ns = y.shape[0]
     mb = ip[ip.shape[0] - 1]
     nw = ip[mb + MB_NWIT]
@@ -969,3 +970,5 @@ def tree_mode_segment(method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in,
     out_i[5] = cnt[C_NREJ]
     out_i[6] = min(steps, hlog.shape[0])
     out_f[1] = fs[FS_H]
+    if out_f.shape[0] > 2:
+        out_f[2] = fs[FS_HLAST]

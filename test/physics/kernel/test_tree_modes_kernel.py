@@ -194,9 +194,10 @@ def test_random_trees_and_command_schedules(monkeypatch, seed: int) -> None:
 def test_dop853_brake_hold_and_release(monkeypatch) -> None:
     """dop853 on launch_clutch's first 2 s: measured event times 3.6e-13, final states
     3.4e-12, but one sampled speed 6.8e-8 (differential_left at 1.45 s, both wheels pinned,
-    the step-end states agreeing to ~1e-12 around it); presumably the amplification seen
-    with dop853's long steps on launch_clutch_chain's stability-bound stretch (not
-    established here), so the bounds are that case's: 5e-9 (times), 5e-6 (states)."""
+    the step-end states agreeing to ~1e-12 around it), where both backends' dense output is
+    1.2e-5 off a dopri5 rtol 1e-13 run (neighbours 1e-9, 3e-8): a poor interpolant there
+    amplifies its coefficients' rounding. Bounds: those of dop853 on launch_clutch_chain's
+    stability-bound stretch (test_modes_kernel.py): 5e-9 (times), 5e-6 (states)."""
     sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']), duration=2.0,
                             method='dop853')
     k = KernelHybridTreeSimulation.from_reference(sim, step_log=True)

@@ -26,7 +26,7 @@ from cvj_ros.physics.hybrid.tree import ModeTree
 from cvj_ros.physics.hybrid.tree_sim import HybridTreeSimulation
 from cvj_ros.physics.kernel import layout as L
 
-__all__ = ['KernelHybridTreeSimulation', 'tree_mode_arrays']
+__all__ = ['KernelHybridTreeSimulation', 'mode_state', 'tree_mode_arrays']
 
 # codes of kernel/tree_modes_nb.py (repeated so building the arrays does not import numba)
 OP_COUPLING = -1
@@ -200,6 +200,25 @@ def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode, engine
     return np.asarray(ip, dtype=np.int64), np.asarray(fp, dtype=np.float64)
 
 
+def mode_state(mt: ModeTree, st: Any) -> np.ndarray:
+    """ModeTree.from_state(st, fresh=False)'s mode state x (the same values) without its
+    two kinetic-energy evaluations, which a restart without a lock does not use."""
+    n = mt.n_dof
+    x = np.zeros(mt._n_state)
+    for s, sec in enumerate(mt.sections):
+        if sec.coord >= 0:
+            x[sec.coord] = st.q[s]
+            x[n + sec.coord] = st.qd[s]
+    for d_i, d in enumerate(mt.diffs):
+        if d.coord >= 0:
+            x[d.coord] = st.delta[d_i]
+            x[n + d.coord] = st.ddelta[d_i]
+    x[2 * n:] = st.tail
+    for c in mt._pinned_coords:
+        x[n + c] = 0.0
+    return x
+
+
 _ENTRY: list[Any] = []
 
 
@@ -320,7 +339,7 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
                     mode, st = self._settle(t, mode, st)
                 continue
             mt = self.tree(mode)
-            y0, _loss = mt.from_state(st, False)
+            y0 = mode_state(mt, st)
             stats['restarts'] += 1
             ws = self._witnesses(mode)
             if any(w.key[0] == 'shift' for w in ws) or self.stall_speed is not None:

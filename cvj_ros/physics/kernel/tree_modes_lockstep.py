@@ -26,7 +26,7 @@ from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
 from cvj_ros.physics.kernel import layout as L
 from cvj_ros.physics.kernel.tree_modes import (KERNEL_TREE_MODE_METHODS, MB_RAMP_B, MB_RAMP_C,
                                                _base_tables, _segment_entry, _STATUS,
-                                               tree_mode_arrays)
+                                               mode_state, tree_mode_arrays)
 
 __all__ = ['KernelHybridTreeLockstep']
 
@@ -120,7 +120,7 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
                 mode, st = self._at_breakpoint(t, mode, st)
                 continue
             mt = self.tree(mode)
-            y0, _loss = mt.from_state(st, False)
+            y0 = mode_state(mt, st)
             stats['restarts'] += 1
             ws = self._witnesses(mode)
             shifts = [w for w in ws if w.key[0] == 'shift']

@@ -211,3 +211,24 @@ def test_methods_without_dense_output_in_the_kernel_are_refused() -> None:
     sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']), method='rosenbrock')
     with pytest.raises(NotImplementedError):
         KernelHybridTreeSimulation.from_reference(sim)
+
+
+def test_mode_state_is_from_state_without_a_lock() -> None:
+    """kernel.tree_modes.mode_state equals ModeTree.from_state(st, False)'s x, bit for bit,
+    at every event state of a launch (brakes pinned, clutch slipping and locked, gears)."""
+    from cvj_ros.physics.kernel.tree_modes import mode_state
+    sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']), duration=4.0)
+    seen = []
+    plain = sim._settle
+
+    def settle(t, mode, st, fresh=()):
+        mode, st = plain(t, mode, st, fresh)
+        seen.append((mode.copy(), copy.deepcopy(st)))
+        return mode, st
+    sim._settle = settle
+    KernelHybridTreeSimulation.from_reference(sim)         # packs
+    sim.run()
+    assert len(seen) > 5
+    for mode, st in seen:
+        mt = sim.tree(mode)
+        np.testing.assert_array_equal(mode_state(mt, st), mt.from_state(st, False)[0])

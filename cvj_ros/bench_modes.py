@@ -209,8 +209,8 @@ def format_mode_table(study: dict[str, Any]) -> str:
     lines = [f"### {study['scene']} ({study['duration']:g} s): stick/slip modes with events "
              f"(kernel vs solve_ivp + events)",
              '',
-             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms | speedup '
-             '| speedup (CPU time) |',
+             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms '
+             '| speedup | speedup (CPU time) |',
              '| --- | --- | --- | --- | --- | --- | --- |']
     for e in study['levels']:
         p, b = e['project'], e['baseline']
@@ -224,8 +224,8 @@ def format_mode_table(study: dict[str, Any]) -> str:
 def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """modes.csv (every run) and modes.md (the level tables) in ``out``."""
     import csv
-    keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s', 'wall_per_sim_s',
-            'repeats', 'steps', 'nfev', 'events', 'energy_residual']
+    keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s',
+            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual']
     p_csv = out / 'modes.csv'
     with p_csv.open('w', newline='') as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction='ignore')

@@ -68,7 +68,8 @@ def test_two_composed_runs_give_the_same_bag(runs) -> None:
 
 @pytest.mark.parametrize('name', ['separate', 'composed'])
 def test_joint_states_are_the_offline_exchange_loop_bit_for_bit(runs, name) -> None:
-    """The coupling node's physics is hybrid_lockstep(scene) stepped per exchange: fed with
+    """The coupling node's physics is hybrid_lockstep(scene, backend='auto') (the node's
+    default --mode-backend: the compiled tree kernel) stepped per exchange: fed with
     the engine torque the run received for each t_k and the commands of step k (the scene's
     plan), the offline loop gives every shaft's position, speed and effort bit for bit."""
     from cvj_ros.nodes.command_plan import CommandPlan
@@ -80,7 +81,8 @@ def test_joint_states_are_the_offline_exchange_loop_bit_for_bit(runs, name) -> N
     torque = dict(zip(np.round(np.asarray(ew.t) * 1e9).astype(np.int64).tolist(),
                       np.asarray(ew.torque_z).tolist()))
     plan = CommandPlan.from_scene(scene, H_NS, N)
-    hl = hybrid_lockstep(scene)
+    hl = hybrid_lockstep(scene, backend='auto')
+    assert hl.backend == 'kernel'
     assert list(js.names) == hl.shaft_names
     for k in range(N + 1):
         # the state t_k goes out with the commands of step k in force (their capacities

@@ -1,15 +1,18 @@
 """Work-precision of scenes with clutch, gearbox and brake (stick/slip modes with events).
 
 Project: the compiled kernel (:class:`cvj_ros.physics.kernel.modes.KernelHybridSimulation`,
+a vehicle scene :class:`cvj_ros.physics.kernel.tree_modes.KernelHybridTreeSimulation`;
 dopri5, each mode one compiled call with its witnesses and Brent on the dense output).
 Baseline: plain ``scipy.integrate.solve_ivp`` (RK45) on the same mode equations, its event
 functions the same witnesses (terminal, with their directions), restarted at every event and
-command row: what a user of scipy writes (:class:`SolveIvpHybridSimulation`). Both share
+command row: what a user of scipy writes (:class:`SolveIvpHybridSimulation`, a vehicle
+scene :class:`SolveIvpHybridTreeSimulation`). Both share
 the discrete decisions (the reference's code), the sampling and the recording. Reference:
 the Python reference with dop853 at rtol 1e-12. Error: the largest sampled shaft speed
 error over the run relative to the largest reference shaft speed (as ``cvj_ros.bench``'s
 ``err_speed_rel``). At each error level 1e-3..1e-8 the cheapest run of each family reaching
-it is taken; the speedup is baseline wall / project wall.
+it is taken; the speedup is baseline wall / project wall, and the same with the process's
+CPU time (``time.process_time``: on a loaded machine the fairer ratio).
 """
 from __future__ import annotations
 
@@ -21,11 +24,12 @@ from typing import Any
 import numpy as np
 
 from cvj_ros.physics.kernel.modes import KernelHybridSimulation
+from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
 
-__all__ = ['MODE_SCENES', 'SolveIvpHybridSimulation', 'format_mode_table', 'mode_levels',
-           'mode_study']
+__all__ = ['MODE_SCENES', 'SolveIvpHybridSimulation', 'SolveIvpHybridTreeSimulation',
+           'format_mode_table', 'mode_levels', 'mode_study']
 
-MODE_SCENES = ('launch_clutch_chain',)
+MODE_SCENES = ('launch_clutch_chain', 'launch_clutch')
 LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 
@@ -67,6 +71,54 @@ class SolveIvpHybridSimulation(KernelHybridSimulation):
         return np.array(y), t_end, ev_i, k_new, Y.reshape(k_new - k_sample, y.size)
 
 
+def _solve_ivp_segment(fun: Callable[..., Any], g_fns: list[tuple[Callable[..., float], int]],
+                       t: float, t_stop: float, y0: np.ndarray, times: np.ndarray,
+                       k_sample: int, rtol: float, atol: Any, stats: dict[str, int]
+                       ) -> tuple[np.ndarray, float, int, int, np.ndarray]:
+    """One mode by solve_ivp RK45 with the witnesses g(t, y) as terminal events (their
+    directions): (state at the end, end time, event index or -1, next sample, samples)."""
+    from scipy.integrate import solve_ivp
+    events = []
+    for g, direction in g_fns:
+        def ev(tt: float, yy: np.ndarray, g=g) -> float:
+            return g(tt, yy)
+        ev.terminal = True
+        ev.direction = direction
+        events.append(ev)
+    sol = solve_ivp(fun, (t, t_stop), np.asarray(y0, dtype=float), method='RK45', rtol=rtol,
+                    atol=atol, events=events or None, dense_output=True)
+    if sol.status < 0:
+        raise RuntimeError(f'solve_ivp: {sol.message}')
+    stats['steps'] += len(sol.t) - 1
+    stats['nfev'] += int(sol.nfev)
+    ev_i, t_end, y = -1, t_stop, sol.y[:, -1]
+    if sol.status == 1:
+        hits = [(float(te[0]), i) for i, te in enumerate(sol.t_events) if len(te)]
+        t_end, ev_i = min(hits)
+        y = sol.y_events[ev_i][0]
+    k_new = k_sample
+    while k_new < times.size and times[k_new] <= t_end:
+        k_new += 1
+    Y = np.array([y if ts == t_end else sol.sol(ts) for ts in times[k_sample:k_new]])
+    return np.array(y), t_end, ev_i, k_new, Y.reshape(k_new - k_sample, y.size)
+
+
+class SolveIvpHybridTreeSimulation(KernelHybridTreeSimulation):
+    """The vehicle mode loop with each mode integrated by plain solve_ivp (RK45, the
+    reference's Python rhs, its witnesses as terminal event functions)."""
+
+    def _segment(self, mt, mode, t, t_stop, y0, times, k_sample, stats):
+        ws = self._witnesses(mode)
+        need_t = any(w.key[0] == 'clutch' and w.key[2] != 0 for w in ws)     # as the reference
+
+        def fun(tt: float, yy: np.ndarray) -> np.ndarray:
+            return self._eval(mt, tt, yy, False).ydot
+        g_fns = [((lambda tt, yy, w=w: self._g(w, self._eval(mt, tt, yy, need_t), tt, mode)),
+                  w.direction) for w in ws]
+        return _solve_ivp_segment(fun, g_fns, t, t_stop, y0, times, k_sample, self.rtol,
+                                  self.atol, stats)
+
+
 def _speed_error(r: Any, ref: Any) -> float:
     if r.speed.shape != ref.speed.shape or r.stall is not None:
         return float('inf')
@@ -93,13 +145,15 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     ref_wall = time.perf_counter() - t0
     log(f'[bench] {scene.name}: mode reference (Python, dop853, rtol 1e-12) in {ref_wall:.1f} s, '
         f'{len(ref.events)} events')
+    kern: Any = KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation
+    base: Any = SolveIvpHybridTreeSimulation if scene.is_tree else SolveIvpHybridSimulation
     # one untimed kernel run: loads (or compiles) the compiled mode code
-    KernelHybridSimulation.from_reference(hybrid_simulation(scene, sample_dt=sample_dt,
-                                                            duration=horizon)).run()
+    kern.from_reference(hybrid_simulation(scene, sample_dt=sample_dt, duration=horizon)).run()
     rows: list[dict[str, Any]] = []
-    for family, cls in (('project', KernelHybridSimulation), ('baseline', SolveIvpHybridSimulation)):
+    for family, cls in (('project', kern), ('baseline', base)):
         for tol in tolerances:
             walls: list[float] = []
+            cpus: list[float] = []
             r = sim = None
             # the kernel's runs are short: more repeats (their minimum) at little cost
             for _ in range(max(repeats, 10) if family == 'project' else repeats):
@@ -107,6 +161,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
                                                            atol=tol * 1e-2, sample_dt=sample_dt,
                                                            duration=horizon))
                 w0 = time.perf_counter()
+                c0 = time.process_time()
                 try:
                     r = sim.run()
                 except Exception as exc:     # a failing configuration is a row, not a stop
@@ -114,11 +169,12 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
                     log(f'[bench] {scene.name}: {family} rtol {tol:g} failed: {str(exc)[:100]}')
                     break
                 walls.append(time.perf_counter() - w0)
+                cpus.append(time.process_time() - c0)
                 if family == 'baseline' and sum(walls) > baseline_budget_s:
                     break
             row = {'scene': scene.name, 'family': family, 'tol': tol, 'ok': r is not None}
             if r is not None:
-                row.update(wall_s=min(walls), wall_per_sim_s=min(walls) / horizon,
+                row.update(wall_s=min(walls), cpu_s=min(cpus), wall_per_sim_s=min(walls) / horizon,
                            repeats=len(walls), err_speed_rel=_speed_error(r, ref),
                            events=len(r.events), steps=r.stats['steps'], nfev=r.stats['nfev'],
                            energy_residual=r.max_energy_residual,
@@ -142,6 +198,8 @@ def mode_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = LEVELS
             entry[fam] = min(cand, key=lambda r: r['wall_s']) if cand else None
         p, b = entry['project'], entry['baseline']
         entry['speedup'] = b['wall_s'] / p['wall_s'] if p and b else None
+        entry['cpu_speedup'] = (b['cpu_s'] / p['cpu_s'] if p and b and 'cpu_s' in p and 'cpu_s' in b
+                                and p['cpu_s'] > 0 else None)
         out.append(entry)
     return out
 
@@ -151,21 +209,23 @@ def format_mode_table(study: dict[str, Any]) -> str:
     lines = [f"### {study['scene']} ({study['duration']:g} s): stick/slip modes with events "
              f"(kernel vs solve_ivp + events)",
              '',
-             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms | speedup |',
-             '| --- | --- | --- | --- | --- | --- |']
+             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms '
+             '| speedup | speedup (CPU time) |',
+             '| --- | --- | --- | --- | --- | --- | --- |']
     for e in study['levels']:
         p, b = e['project'], e['baseline']
         cell = (lambda r: (f"{r['tol']:g}", f"{r['wall_s'] * 1e3:.1f}") if r else ('-', '-'))
         sp = f"{e['speedup']:.1f}x" if e['speedup'] else '-'
-        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {sp} |")
+        cpu = f"{e['cpu_speedup']:.1f}x" if e.get('cpu_speedup') else '-'
+        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {sp} | {cpu} |")
     return '\n'.join(lines) + '\n'
 
 
 def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """modes.csv (every run) and modes.md (the level tables) in ``out``."""
     import csv
-    keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'wall_per_sim_s',
-            'repeats', 'steps', 'nfev', 'events', 'energy_residual']
+    keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s',
+            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual']
     p_csv = out / 'modes.csv'
     with p_csv.open('w', newline='') as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction='ignore')

@@ -24,6 +24,19 @@ def test_solve_ivp_baseline_finds_the_kernels_events() -> None:
     assert abs(rb.speed - rk.speed).max() < 1e-5 * abs(rk.speed).max()
 
 
+def test_solve_ivp_baseline_of_a_vehicle_finds_the_kernels_events() -> None:
+    """launch_clutch's first 2 s (brake hold and release) by solve_ivp with the tree
+    reference's witnesses as event functions and by the tree kernel."""
+    scene = load_scene(shipped_scenes()['launch_clutch'])
+    kw = dict(duration=2.0, rtol=1e-8, atol=1e-10, sample_dt=0.1)
+    rb = bench_modes.SolveIvpHybridTreeSimulation.from_reference(hybrid_simulation(scene, **kw)).run()
+    rk = bench_modes.KernelHybridTreeSimulation.from_reference(hybrid_simulation(scene, **kw)).run()
+    assert [(e.element, e.after) for e in rb.events] == [(e.element, e.after) for e in rk.events]
+    assert [e.after for e in rk.events] == ['stuck', 'stuck', 'slip+', 'slip+']
+    assert max(abs(a.t - b.t) for a, b in zip(rb.events, rk.events)) < 1e-6
+    assert abs(rb.speed - rk.speed).max() < 1e-5 * abs(rk.speed).max()
+
+
 def test_mode_study_rows_and_levels() -> None:
     lines: list[str] = []
     s = bench_modes.mode_study('launch_clutch_chain', tolerances=(1e-5, 1e-7), samples=10,
@@ -77,7 +90,7 @@ def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
 
 
 def test_cli_mode_scene_selection() -> None:
-    """`cvj-sim bench` times launch_clutch_chain by default, not with --quick or --scenes
+    """`cvj-sim bench` times launch_clutch_chain and launch_clutch by default, not with --quick or --scenes
     (unless --mode-scenes names it); --mode-scenes refuses a scene without modes."""
     import argparse
 
@@ -88,7 +101,7 @@ def test_cli_mode_scene_selection() -> None:
 
     def modes(*argv: str) -> tuple:
         return tuple(cli_bench.config_from_args(p.parse_args(list(argv))).mode_scenes)
-    assert modes() == ('launch_clutch_chain',)
+    assert modes() == ('launch_clutch_chain', 'launch_clutch')
     assert modes('--quick') == () and modes('--scenes', 'cardan_truck') == ()
     assert modes('--mode-scenes') == ()
     assert modes('--scenes', 'cardan_truck', '--mode-scenes', 'launch_clutch_chain') == \

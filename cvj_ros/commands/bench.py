@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spread each configuration's repeats over N passes of its scene [2]")
     parser.add_argument('--mode-scenes', nargs='*', metavar='SCENE',
                         help='scenes with clutch, gearbox or brake, timed as the kernel against '
-                             'solve_ivp with event functions (default: launch_clutch_chain; '
+                             'solve_ivp with event functions (default: launch_clutch_chain and '
+                             'launch_clutch; '
                              'none with --quick or --scenes; give no name to skip)')
     parser.add_argument('--no-ros', action='store_true', help='skip the rclpy round-trip measurement')
     parser.add_argument('--real-lockstep', action='store_true',

@@ -213,13 +213,22 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
     note = ''
     backend = 'python'
     if args.backend == 'kernel' and scene.is_tree:
-        note = 'compiled kernel: vehicle scenes with modes run on the Python reference'
-        print(f'cvj-sim simulate: {note}', file=sys.stderr)
+        from cvj_ros.physics.kernel.tree_modes import (KERNEL_TREE_MODE_METHODS,
+                                                       KernelHybridTreeSimulation)
+        if sim.method in KERNEL_TREE_MODE_METHODS:
+            try:
+                sim = KernelHybridTreeSimulation.from_reference(sim)
+                backend = 'kernel'
+            except NotImplementedError as exc:
+                note = f'{exc}; running the Python reference'
+        else:
+            note = (f'compiled kernel: mode scenes run with {", ".join(KERNEL_TREE_MODE_METHODS)}, '
+                    f'not {sim.method}; running the Python reference')
+        if note:
+            print(f'cvj-sim simulate: {note}', file=sys.stderr)
     elif args.backend == 'kernel':
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
-        if sim.chain is None:       # a vehicle tree: the compiled mode kernel covers chains
-            note = 'compiled kernel: vehicle mode scenes run on the Python reference'
-        elif sim.method in KERNEL_MODE_METHODS:
+        if sim.method in KERNEL_MODE_METHODS:
             sim = KernelHybridSimulation.from_reference(sim)
             backend = 'kernel'
         else:

@@ -1,9 +1,10 @@
 """The result row of one sweep variant with clutch, gearbox, brake or commands: the mode
-model on the compiled kernel (:mod:`cvj_ros.physics.kernel.modes`, methods dopri5 and dop853)
+model on the compiled kernel (:mod:`cvj_ros.physics.kernel.modes`, a vehicle scene
+:mod:`cvj_ros.physics.kernel.tree_modes`; methods dopri5 and dop853)
 or its Python reference (:mod:`cvj_ros.physics.hybrid`; backend 'python' or another method),
 summarised as events per element, the first lock-up of each clutch and brake, the final
 modes and shaft speeds, the stall, refused commands and the energy residual; a vehicle
-scene (the tree reference): the same per clutch, gearbox, wheel brake and clutch-pack
+scene (a tree): the same per clutch, gearbox, wheel brake and clutch-pack
 differential, and the final vehicle speed."""
 from __future__ import annotations
 
@@ -23,8 +24,16 @@ def hybrid_row(scene: Any, options: Any) -> dict[str, Any]:
                             sample_dt=options.sample_dt)
     chain = sim.chain
     backend = 'python'
-    tree = chain is None          # a vehicle scene: HybridTreeSimulation (Python reference)
-    if getattr(options, 'backend', 'kernel') == 'kernel' and not tree:
+    tree = chain is None          # a vehicle scene: HybridTreeSimulation
+    if getattr(options, 'backend', 'kernel') == 'kernel' and tree:
+        from cvj_ros.physics.kernel.tree_modes import (KERNEL_TREE_MODE_METHODS,
+                                                       KernelHybridTreeSimulation)
+        if sim.method in KERNEL_TREE_MODE_METHODS:
+            try:
+                sim, backend = KernelHybridTreeSimulation.from_reference(sim), 'kernel'
+            except NotImplementedError:
+                pass                # a joint or engine the kernel does not pack: the reference
+    elif getattr(options, 'backend', 'kernel') == 'kernel':
         from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, KernelHybridSimulation
         if sim.method in KERNEL_MODE_METHODS:
             sim, backend = KernelHybridSimulation.from_reference(sim), 'kernel'

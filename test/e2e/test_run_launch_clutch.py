@@ -1,7 +1,7 @@
 """`cvj-sim run launch_clutch` (a vehicle tree: clutch, gearbox, two wheel brakes, a shift
 schedule) as real processes, separate and composed: every shaft of both branches, every
 engine answer and every throttle scale are the offline exchange loop's bit for bit
-(HybridTreeLockstep with the scene's command plan and the engine model answering each t_k
+(KernelHybridTreeLockstep with the scene's command plan and the engine model answering each t_k
 at pedal x throttle_scale(), the shift's throttle cut), two composed runs give the same bag,
 and the run follows `cvj-sim simulate` within a stated bound.
 
@@ -56,7 +56,8 @@ def _scene():
 
 
 def offline_exchange_loop(scene, h_ns: int, n: int) -> dict:
-    """The loop's physics without ROS: the scene's stepper (hybrid_lockstep), the commands
+    """The loop's physics without ROS: the scene's stepper (hybrid_lockstep on the compiled
+    tree kernel, as the coupling node's default), the commands
     of step k (CommandPlan), and the engine node's model (answering_source) answering the
     state t_k at pedal x throttle_scale() (the shift's cut), integrated t_k -> t_(k+1) with
     that torque held. Returns every step's joint states, torques, scales and the events."""
@@ -67,7 +68,8 @@ def offline_exchange_loop(scene, h_ns: int, n: int) -> dict:
     from cvj_ros.physics.engine import engine_from_spec
     from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
     plan = CommandPlan.from_scene(scene, h_ns, n)
-    hl = hybrid_lockstep(scene)
+    hl = hybrid_lockstep(scene, backend='auto')     # the coupling node's default --mode-backend
+    assert hl.backend == 'kernel'
     engine = engine_from_spec(dict(scene_dict(scene)['engine']), field='engine')
     source = answering_source(engine)
     pedal = float(engine.throttle)

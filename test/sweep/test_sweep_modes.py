@@ -7,6 +7,8 @@ import copy
 import csv
 from pathlib import Path
 
+import pytest
+
 from cvj_ros.cli import main
 from cvj_ros.physics.hybrid.from_scene import run_hybrid
 from cvj_ros.physics.scene import find_scene, parse_scene
@@ -71,12 +73,13 @@ def test_an_invalid_mode_variant_names_its_field() -> None:
 def test_cli_sweeps_a_vehicle_mode_scene(tmp_path: Path) -> None:
     """launch_clutch (a vehicle tree: clutch, gearbox, two wheel brakes, a shift schedule),
     2 variants of 2 s (brake hold and release at ~1.74 s, clutch slipping): one row per
-    variant with columns per element, each the offline reference's result."""
+    variant with columns per element, each the compiled kernel's result (equal to the
+    offline reference within the kernel tests' bounds, test_tree_modes_kernel.py)."""
     assert main(['sweep', 'launch_clutch', '--set', 'duration=2.0',
                  '--set', 'vehicle.grade_percent=8,10', '--out', str(tmp_path / 's'),
                  '--workers', '1', '--no-plots']) == 0
     rows = list(csv.DictReader(open(tmp_path / 's' / 'results.csv')))
-    assert [r['status'] for r in rows] == ['ok', 'ok'] and rows[0]['backend'] == 'python'
+    assert [r['status'] for r in rows] == ['ok', 'ok'] and rows[0]['backend'] == 'kernel'
     for r in rows:
         assert r['brake_left.final_mode'] == r['brake_right.final_mode'] == 'slip+'
         assert r['clutch.final_mode'] == 'slip+' and r['gearbox.final_gear'] == '1'
@@ -89,9 +92,13 @@ def test_cli_sweeps_a_vehicle_mode_scene(tmp_path: Path) -> None:
     data = load_yaml_bounded(read_text_file(path, what='scene file'), str(path))
     data['duration'] = 2.0
     data['vehicle']['grade_percent'] = 8
-    _sim, r, _w = run_hybrid(parse_scene(data))
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
+    r = KernelHybridTreeSimulation.from_reference(hybrid_simulation(parse_scene(data))).run()
+    _sim, rp, _w = run_hybrid(parse_scene(data))
     row = by_grade[8.0]
     for i, shaft in enumerate(r.shafts):
         assert float(row[f'{shaft}.final_speed']) == r.speed[-1, i]
+        assert r.speed[-1, i] == pytest.approx(rp.speed[-1, i], rel=1e-7, abs=1e-7)
     assert float(row['vehicle_speed_m_s']) == float(r.vehicle_speed[-1])
     assert float(row['energy_residual']) == r.max_energy_residual < 1e-9

@@ -307,8 +307,9 @@ def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | No
     else pedal 0, brake 0, neutral). The backend behind the coupling node for scenes with
     clutch, gearbox, brake or commands. ``backend``: ``'python'`` this reference,
     ``'kernel'`` each interval on the compiled kernel
-    (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`; dopri5, dop853,
-    chains only; CvjError otherwise), ``'auto'`` the kernel where it covers the scene and
+    (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`, a vehicle
+    :class:`~cvj_ros.physics.kernel.tree_modes_lockstep.KernelHybridTreeLockstep`; dopri5,
+    dop853; CvjError otherwise), ``'auto'`` the kernel where it covers the scene and
     method and numba is installed, else the reference (``backend_fallback`` says why)."""
     if backend not in BACKENDS:
         raise CvjError(f'backend: must be one of {", ".join(BACKENDS)}, got {backend!r}')
@@ -317,14 +318,26 @@ def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | No
     s = getattr(sim.schedule, 'base', sim.schedule)      # under a shift schedule: the commands
     c0 = Commands(s.value('clutch', 0.0), s.value('brake', 0.0), s.gear(0.0))
     if getattr(scene, 'is_tree', False):     # a vehicle: cvj_ros.physics.hybrid.tree_lockstep
-        if backend == 'kernel':
-            raise CvjError('backend: compiled kernel: vehicle mode scenes run on the Python reference')
         from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
-        tree = HybridTreeLockstep(scene, sim.levels, commands=c0, shift=scene.shift_schedule,
-                                  stall_speed=sim.stall_speed, method=sim.method, rtol=sim.rtol,
-                                  atol=sim.atol, max_step=sim.max_step)
-        tree.backend_fallback = ('compiled kernel: vehicle mode scenes run on the Python reference'
-                                 if backend == 'auto' else None)
+        tcls: Any = HybridTreeLockstep
+        tfall = None
+        if backend != 'python':
+            import importlib.util
+            if importlib.util.find_spec('numba') is None:
+                tfall = 'compiled kernel: numba is not installed'
+            else:
+                from cvj_ros.physics.kernel.tree_modes_lockstep import KernelHybridTreeLockstep
+                tcls = KernelHybridTreeLockstep
+        kw = dict(commands=c0, shift=scene.shift_schedule, stall_speed=sim.stall_speed,
+                  method=sim.method, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step)
+        try:
+            tree = tcls(scene, sim.levels, **kw)
+        except NotImplementedError as exc:
+            tfall = str(exc)
+            tree = HybridTreeLockstep(scene, sim.levels, **kw)
+        if tfall is not None and backend == 'kernel':
+            raise CvjError(f'backend: {tfall}')
+        tree.backend_fallback = tfall
         return tree
     cls: type[HybridLockstep] = HybridLockstep
     fallback = None

@@ -135,14 +135,18 @@ def warm_outputs(*, out=sys.stdout) -> float:
 
 
 def warm_modes(*, out=sys.stdout) -> float:
-    """Compile or load the clutch/gearbox/brake mode segment (kernel/modes_nb.py) by a
-    0.05 s run of the shipped launch_clutch_chain; returns the wall time (s)."""
+    """Compile or load the clutch/gearbox/brake mode segments by 0.05 s runs of the shipped
+    launch_clutch_chain (kernel/modes_nb.py) and launch_clutch (the vehicle tree,
+    kernel/tree_modes_nb.py); returns the wall time (s)."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.kernel.modes import KernelHybridSimulation
+    from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
     from cvj_ros.physics.scene import load_scene, shipped_scenes
     t0 = time.perf_counter()
     scene = load_scene(shipped_scenes()['launch_clutch_chain'])
     KernelHybridSimulation.from_reference(hybrid_simulation(scene, duration=0.05)).run()
+    scene = load_scene(shipped_scenes()['launch_clutch'])
+    KernelHybridTreeSimulation.from_reference(hybrid_simulation(scene, duration=0.05)).run()
     dt = time.perf_counter() - t0
     print(f'kernel modes: {dt:.2f} s', file=out)
     return dt

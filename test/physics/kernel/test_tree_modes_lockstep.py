@@ -1,0 +1,87 @@
+"""The vehicle lockstep mode model on the compiled kernel (KernelHybridTreeLockstep) against
+the Python reference (HybridTreeLockstep), both driven as the coupling node drives them:
+launch_clutch's sampled command schedule (brake hold and release, clutch engagement, the
+shift schedule's 1 -> 2 shift), the engine map evaluated on each backend's own joint states
+at t_k and held over [t_k, t_(k+1)].
+
+Each backend runs its own mesh, so the bounds are the free-running ones of
+test_modes_lockstep.py: the same events, event times to 1e-8 s, shaft speeds relative to
+the shaft's largest speed to 1e-6 (100 rtol), wheels exactly still while braked on both,
+energy residuals at solver tolerance."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cvj_ros.errors import CvjError
+from cvj_ros.nodes.command_plan import CommandPlan
+from cvj_ros.physics.engine import engine_from_spec
+from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
+from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
+from cvj_ros.physics.scene import find_scene, load_scene
+
+pytest.importorskip('numba')
+from cvj_ros.physics.kernel.tree_modes_lockstep import KernelHybridTreeLockstep  # noqa: E402
+
+H = 1e-3
+
+
+def drive(hybrid, scene, duration: float) -> np.ndarray:
+    """Joint-state speeds at t_0 .. t_(N-1) of ``hybrid`` driven as the loop drives it."""
+    n = int(round(duration / H))
+    plan = CommandPlan.from_scene(scene, 1_000_000, n)
+    from cvj_ros.nodes.common import scene_dict
+    engine = engine_from_spec(dict(scene_dict(scene)['engine']))
+    out = []
+    for k in range(n):
+        row = dict(plan.at(k))
+        if 'throttle' in row:
+            engine.set_throttle(row['throttle'])
+        hybrid.set_commands(clutch=row.get('clutch'), brake=row.get('brake'),
+                            gear=None if 'gear' not in row else int(row['gear']))
+        pos, vel, _eff = hybrid.joint_states()
+        out.append(vel.copy())
+        hybrid.advance((k + 1) * H, engine.torque(k * H, vel[0], pos[0]), 0.0)
+    return np.array(out)
+
+
+def _compare(duration: float, min_events: int, gear: int) -> None:
+    scene = load_scene(find_scene('launch_clutch'))
+    ref = hybrid_lockstep(scene, backend='python')
+    ker = hybrid_lockstep(scene, backend='kernel')
+    assert type(ref) is HybridTreeLockstep and type(ker) is KernelHybridTreeLockstep
+    assert ker.backend == 'kernel'
+    vp = drive(ref, scene, duration)
+    vk = drive(ker, scene, duration)
+    assert len(ref.events) == len(ker.events) >= min_events
+    for a, b in zip(ref.events, ker.events):
+        assert (a.element, a.before, a.after) == (b.element, b.before, b.after)
+        assert abs(a.t - b.t) < 1e-8, (a, b)
+    assert ref.mode_names() == ker.mode_names() and ker.gear() == gear
+    scale = np.maximum(np.abs(vp).max(axis=0), 1.0)
+    assert np.max(np.abs(vp - vk) / scale) < 1e-6
+    wheel = ker.shaft_names.index('wheel_left')
+    assert np.array_equal(vk[:, wheel] == 0.0, vp[:, wheel] == 0.0)
+    assert abs(ker.energy_residual()) < 1e-7 and abs(ref.energy_residual()) < 1e-7
+
+
+def test_brake_hold_and_release_in_lockstep() -> None:
+    """2 s: both brakes stick at 0, are released, stick again and are released (8 events;
+    in the loop the engine torque is held per exchange)."""
+    _compare(2.0, 4, 1)
+
+
+@pytest.mark.slow
+def test_launch_clutch_in_lockstep_matches_the_reference() -> None:
+    """4.5 s (~8 min under load, the reference's share): the clutch locks, the 1 -> 2 shift."""
+    _compare(4.5, 9, 2)
+
+
+def test_backend_choice() -> None:
+    scene = load_scene(find_scene('launch_clutch'))
+    auto = hybrid_lockstep(scene, backend='auto')
+    assert type(auto) is KernelHybridTreeLockstep and auto.backend_fallback is None
+    slow = hybrid_lockstep(scene, method='rodas4', backend='auto')
+    assert type(slow) is HybridTreeLockstep and 'rodas4' in slow.backend_fallback
+    with pytest.raises(CvjError, match="^backend: compiled kernel: .*'rodas4'"):
+        hybrid_lockstep(scene, method='rodas4', backend='kernel')

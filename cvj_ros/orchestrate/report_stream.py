@@ -5,7 +5,10 @@ run's length except the joint-state times and the reference speed (16 bytes per 
 MiB per simulated second of a composed run after the batch reader; 6 MiB before it). This
 module computes the same figures from blocks of the bag (:func:`cvj_ros.bag.iter_blocks`):
 
-1. joint states: times ``t`` and the reference speed ``w`` (the first shaft's) in full - the
+1. joint states: times ``t`` and the reference speed ``w`` (the first shaft's) in full (from
+   a run's mcap bag the times come from its message indexes, :func:`_indexed_times`, and ``w``
+   from pass 2, which checks every stamp against them; other bags: a pass over the joint
+   states) - the
    steady window's slices (:func:`cvj_ros.physics.steady.slice_bounds`), their Hann means,
    the reference speed's spans and the window's mean speed come from them exactly as before;
 2. everything else per *segment* of rows (the slices, split once more where a window could

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ['BATCH', 'SeriesBuilder', 'as_bytes', 'batch_decodable', 'joint_state_layout',
-           'mcap_log_times', 'mcap_messages', 'wrench_layout']
+           'mcap_log_time_parts', 'mcap_log_times', 'mcap_messages', 'wrench_layout']
 
 #: messages decoded at once per topic (a few MiB of raw bytes at most)
 BATCH = 8192
@@ -445,7 +445,15 @@ def mcap_messages(path: str, topics: set[str] | None = None) -> Any:
 
 
 def mcap_log_times(path: str, topic: str) -> np.ndarray | None:
-    """The log (record) times (int64 ns, file order) of one topic's messages in an
+    """:func:`mcap_log_time_parts` joined into one int64 array (ns), or None."""
+    parts = mcap_log_time_parts(path, topic)
+    if parts is None:
+        return None
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+
+def mcap_log_time_parts(path: str, topic: str) -> list[np.ndarray] | None:
+    """The log (record) times (int64 ns, file order, one array per chunk) of one topic's messages in an
     uncompressed mcap file, from the MessageIndex records after each chunk: chunk bodies are
     skipped (read only until the topic's channel is known), so this reads ~3 % of a run's
     bag. None when the file is not that (compressed or damaged chunk, a chunk without
@@ -496,7 +504,7 @@ def mcap_log_times(path: str, topic: str) -> np.ndarray | None:
                     fh.seek(length, 1)
     except (OSError, NotPlain, struct.error, ValueError):
         return None
-    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+    return parts
 
 
 def _message_indexes(fh: Any) -> list[tuple[int, bytes]]:

@@ -248,15 +248,25 @@ class _NotIndexed(Exception):
 def _indexed_times(plain: Any, topic: str, count: int) -> np.ndarray | None:
     """The topic's record times (s, as :func:`_seconds`) from the mcap files' message
     indexes, None unless they give exactly ``count`` of them."""
-    from cvj_ros.bag_decode import mcap_log_times
-    parts = []
+    from cvj_ros.bag_decode import mcap_log_time_parts
+    parts: list[np.ndarray] = []
     for f in plain[0]:
-        ns = mcap_log_times(str(f), topic)
-        if ns is None:
+        got = mcap_log_time_parts(str(f), topic)
+        if got is None:
             return None
-        parts.append(ns)
-    ns = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-    return _seconds(ns) if ns.size == count and count else None
+        parts += got
+    if not count or sum(p.size for p in parts) != count:
+        return None
+    # converted a few chunks at a time into the one array: the peak is the int64 times
+    # (8 bytes per exchange, in chunk-sized pieces) and t, not whole-length temporaries
+    t = np.empty(count)
+    row = 0
+    for i in range(0, len(parts), 256):
+        sn = np.concatenate(parts[i:i + 256])
+        t[row:row + sn.size] = _seconds(sn)
+        row += sn.size
+        parts[i:i + 256] = [None] * len(parts[i:i + 256])   # type: ignore[list-item]
+    return t
 
 
 def _seconds(sn: np.ndarray) -> np.ndarray:

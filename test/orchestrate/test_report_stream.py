@@ -139,8 +139,9 @@ def test_times_from_the_message_indexes_equal_the_messages(
     assert bag_decode.mcap_log_times(str(cut), bag.JOINT_STATES_TOPIC) is None
 
 
+@pytest.mark.parametrize('scene', [False, True], ids=['times_from_messages', 'times_from_index'])
 def test_report_memory_grows_by_the_times_and_reference_speed_only(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, scene: bool) -> None:
     """Traced peak (tracemalloc: Python objects and numpy arrays) of the streaming report on
     10 000 and 40 000 steps: the growth per step is bounded by the joint-state times and
     reference speed it keeps (16 B) plus slack: 48 B. The in-memory path holds ~200 B per
@@ -150,7 +151,7 @@ def test_report_memory_grows_by_the_times_and_reference_speed_only(
     monkeypatch.setattr(bag_decode, 'BATCH', 1024)
     peaks = {}
     for steps in (10_000, 40_000):
-        path = write_run_bag(tmp_path / f'b{steps}', steps)
+        path = write_run_bag(tmp_path / f'b{steps}', steps, scene=scene)
         stream_bag_metrics(path)                 # warm: imports, type store, caches
         tracemalloc.start()
         try:

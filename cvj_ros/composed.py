@@ -48,11 +48,9 @@ PROG = 'driveline_composed'
 HOSTED_NODES = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')
 EXECUTORS = ('auto', 'events', 'single')
 #: ``--executor auto`` takes the EventsExecutor for runs of at most this many exchanges and
-#: the SingleThreadedExecutor for longer ones. Measured side by side (docs/robustness.md,
-#: "Long runs"): the EventsExecutor runs the loop 1.3-2x faster, but the process grows by
-#: 55-64 bytes per exchange with it (kavz685_lever, fwd_halfshaft; 295 on fwd_axle) against
-#: 6-41 with the SingleThreadedExecutor; at the largest of those, 1e5 exchanges (100 s at
-#: 1 ms) add at most ~28 MiB, while an hour at 1 ms would add ~1 GiB
+#: the SingleThreadedExecutor for longer ones: the EventsExecutor needs less CPU per exchange,
+#: but the process grows with every exchange on it, up to ~300 bytes (the side-by-side
+#: measurement in docs/robustness.md, "Long runs"): at most ~28 MiB over 1e5 exchanges
 AUTO_EVENTS_MAX_EXCHANGES = 100_000
 # wall s between checks of the signal flag by the container's timer (a loop that is running
 # stops at its next exchange anyway: CouplingNode.stop_signal)

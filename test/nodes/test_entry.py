@@ -95,3 +95,30 @@ def test_sigint_inside_a_c_extensions_initialisation_exits_0(monkeypatch: pytest
     monkeypatch.setattr(importlib, 'import_module', missing)
     with pytest.raises(ImportError, match='No module named x'):
         entry.launch('coupling_node')
+
+
+def test_sigint_whose_keyboard_interrupt_the_interpreter_ignored_still_exits_0(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A SIGINT whose KeyboardInterrupt is raised inside a weakref callback during the import
+    is printed and ignored by the interpreter ("Exception ignored in"; under load the node
+    then waited at its start gate for good): the launcher recorded it and exits 0 without
+    running the node, and puts the previous SIGINT handler back."""
+    import importlib
+    before = signal.getsignal(signal.SIGINT)
+
+    class Node:
+        @staticmethod
+        def main() -> None:
+            raise AssertionError('the node must not run')
+
+    def import_with_ignored_interrupt(name: str):
+        try:                          # what the interpreter does with it in a callback
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+        except KeyboardInterrupt:
+            pass
+        return Node
+    monkeypatch.setattr(importlib, 'import_module', import_with_ignored_interrupt)
+    with pytest.raises(SystemExit) as done:
+        entry.launch('coupling_node')
+    assert done.value.code == 0
+    assert signal.getsignal(signal.SIGINT) is before

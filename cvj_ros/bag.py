@@ -30,6 +30,7 @@ the reading helpers work without a ROS installation.
 from __future__ import annotations
 
 import fnmatch
+import functools
 import heapq
 import shutil
 import struct
@@ -730,18 +731,38 @@ def _stamp_s(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def _metadata(path: Path) -> Any:
+    """metadata.yaml parsed, remembered while the file keeps its modification time and size
+    (the report reads it five times; with a vehicle scene in ``custom_data`` each parse cost
+    ~20 ms). The result is shared: read it, do not change it. Raises as yaml.safe_load and
+    Path.stat."""
+    st = path.stat()
+    return _metadata_cached(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _metadata_cached(path: str, _mtime_ns: int, _size: int) -> Any:
+    return yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+
+
+@functools.lru_cache(maxsize=8)
+def _yaml_text(text: str) -> Any:
+    """A YAML string parsed (the scene text of metadata.yaml), remembered; shared as above."""
+    return yaml.safe_load(text)
+
+
 def run_joint_names(path: str | Path) -> list[str] | None:
     """The run's joint names of a bag: ``shaft_names`` of the scene message the recorder
     stored in metadata.yaml ``custom_data['cvj_ros.scene']`` (the run's ``/driveline/scene``),
     else None (no such entry, unreadable)."""
     try:
-        info = yaml.safe_load((Path(path) / 'metadata.yaml').read_text(encoding='utf-8'))
+        info = _metadata(Path(path) / 'metadata.yaml')
         text = info['rosbag2_bagfile_information']['custom_data']['cvj_ros.scene']
-        names = yaml.safe_load(text).get('shaft_names')
+        names = _yaml_text(text).get('shaft_names')
     except (OSError, ValueError, KeyError, TypeError, AttributeError, yaml.YAMLError):
         return None
     if isinstance(names, list) and names and all(isinstance(n, str) for n in names):
-        return names
+        return list(names)                     # a copy: the parsed text is shared
     return None
 
 
@@ -926,8 +947,7 @@ def plain_mcap_bag(path: str | Path) -> tuple[list[Path], dict[str, tuple[str, i
     bag-level compression, from its metadata.yaml alone (no rosbags reader), else None."""
     p = Path(path)
     try:
-        info = yaml.safe_load((p / 'metadata.yaml').read_text(encoding='utf-8'))
-        info = info['rosbag2_bagfile_information']
+        info = _metadata(p / 'metadata.yaml')['rosbag2_bagfile_information']
         if info.get('storage_identifier') != 'mcap' or str(info.get('compression_mode') or '').lower() not in ('', 'none'):
             return None
         files = [p / Path(str(f)).name for f in info['relative_file_paths']]

@@ -46,7 +46,12 @@ PROG = 'driveline_composed'
 # Creation order: the recorder first (subscribed before anything publishes), the coupling node
 # last (it makes the peers talk), as in cvj_ros.orchestrate.NODE_ORDER.
 HOSTED_NODES = ('engine_node', 'load_node', 'monitor_node', 'coupling_node')
-EXECUTORS = ('events', 'single')
+EXECUTORS = ('auto', 'events', 'single')
+#: ``--executor auto`` takes the EventsExecutor for runs of at most this many exchanges and
+#: the SingleThreadedExecutor for longer ones: the EventsExecutor needs less CPU per exchange,
+#: but the process grows with every exchange on it, up to ~300 bytes (the side-by-side
+#: measurement in docs/robustness.md, "Long runs"): at most ~28 MiB over 1e5 exchanges
+AUTO_EVENTS_MAX_EXCHANGES = 100_000
 # wall s between checks of the signal flag by the container's timer (a loop that is running
 # stops at its next exchange anyway: CouplingNode.stop_signal)
 SIGNAL_POLL_S = 0.02
@@ -70,6 +75,20 @@ def node_class(name: str) -> type:
         from cvj_ros.nodes.driver_node import DriverNode
         return DriverNode
     raise CvjError(f'node: must be one of {", ".join(HOSTED_NODES)}, got {name!r}')
+
+
+def resolve_executor(kind: str, exchanges: int | None) -> tuple[str, str | None]:
+    """``(events | single, note or None)`` for ``--executor kind`` and a run of
+    ``exchanges`` exchange steps (None: until stopped). ``auto``: ``events`` up to
+    :data:`AUTO_EVENTS_MAX_EXCHANGES`, else ``single`` (flat memory), with a note saying so."""
+    if kind != 'auto':
+        return kind, None
+    if exchanges is not None and exchanges <= AUTO_EVENTS_MAX_EXCHANGES:
+        return 'events', None
+    length = 'a run without an end' if exchanges is None else f'{exchanges} exchanges'
+    return 'single', (f'SingleThreadedExecutor for {length} (--executor auto: the '
+                      f'EventsExecutor is faster but its memory grows with every exchange; '
+                      f'it is used up to {AUTO_EVENTS_MAX_EXCHANGES} exchanges)')
 
 
 def make_composed_executor(kind: str, context: Any) -> tuple[Any, str, str | None]:
@@ -98,7 +117,8 @@ class ComposedDriveline:
 
     Args:
         context: an initialised rclpy Context (the caller shuts it down).
-        executor: ``'events'`` (default) or ``'single'``.
+        executor: ``'events'`` (default) or ``'single'`` (``'auto'``: see
+            :func:`resolve_executor`; here, without a known length, ``'single'``).
         hosted: the node names that will be added (:data:`HOSTED_NODES` or fewer): with
             ``intra_process`` their loop topics go through an
             :class:`cvj_ros.nodes.intra.IntraProcessBus` between the hosted nodes and the
@@ -110,7 +130,9 @@ class ComposedDriveline:
                  hosted: Sequence[str] = (), intra_process: bool = True) -> None:
         import rclpy
         self.context = context
-        self.executor, self.executor_kind, self.executor_note = make_composed_executor(executor, context)
+        kind, auto_note = resolve_executor(executor, None)
+        self.executor, self.executor_kind, self.executor_note = make_composed_executor(kind, context)
+        self.executor_note = self.executor_note or auto_note
         self.nodes: dict[str, Any] = {}
         self.recorder: Any = None
         self.batching: Any = None      # cvj_ros.bag.BatchingWriter once the recorder is added
@@ -419,6 +441,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
     foreign_dropped: dict[str, int] = {}
     malformed_dropped: dict[str, int] = {}
     steps = int(round(prep.duration / prep.exchange_step))
+    executor_kind, executor_note = resolve_executor(options.executor, steps)
     error: str | None = None
     stopped_by: str | None = None
     ctx = None
@@ -435,7 +458,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         # ROS_LOG_DIR; rcl logging is set up once per process, so this holds for the first run
         rclpy.init(args=['--ros-args', '--disable-stdout-logs'], context=ctx, domain_id=domain,
                    signal_handler_options=SignalHandlerOptions.NO)
-        comp = ComposedDriveline(ctx, executor=options.executor, hosted=prep.nodes,
+        comp = ComposedDriveline(ctx, executor=executor_kind, hosted=prep.nodes,
                                  intra_process=getattr(options, 'intra_process', True))
         comp.add_recorder(writer, prep.coupling_topics,
                           hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
@@ -483,8 +506,9 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
             states = comp.recorder.counts.get(js, 0)
             if states:
                 progress.update((states - 1) * prep.exchange_step)
-        if comp.executor_note:
-            print(f'cvj-sim run: {comp.executor_note}', file=stream, flush=True)
+        for note in (executor_note, comp.executor_note):
+            if note:
+                print(f'cvj-sim run: {note}', file=stream, flush=True)
         if coupling is not None and error is None:
             from cvj_ros.nodes.executor import freeze_heap
             freeze_heap()
@@ -546,7 +570,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
     return _finish(orch, options, prep, out, domain, code=code, error=error, stopped_by=stopped_by,
                    counts=dict(writer.counts), rec_state=rec_state, exit_codes=exit_codes,
                    phases=phases, wall=time.monotonic() - wall0, steps=steps, stream=stream,
-                   executor=comp.executor_kind if comp is not None else options.executor,
+                   executor=comp.executor_kind if comp is not None else executor_kind,
                    foreign_dropped=foreign_dropped, malformed_dropped=malformed_dropped)
 
 
@@ -579,7 +603,8 @@ def _parse_args(argv: Sequence[str]) -> argparse.Namespace:
                         help='also record a bag to DIR (must not exist) from inside the process')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
     parser.add_argument('--executor', choices=EXECUTORS, default='events',
-                        help='events (default; falls back to single if unavailable) or single')
+                        help='events (default; falls back to single if unavailable), single, or '
+                             'auto (here: single, flat memory for a container that runs until stopped)')
     parser.add_argument('--no-intra-process', dest='intra_process', action='store_false',
                         help='hand the loop topics to the hosted nodes through DDS too, instead '
                              'of in-process (slower; for comparison)')

@@ -31,3 +31,17 @@ def test_timed_spins_reuse_one_timer(ctx, executor: str) -> None:
     finally:
         comp.executor.shutdown()
         comp._container.destroy_node()
+
+
+def test_auto_executor_is_events_for_short_runs_and_single_for_long_ones() -> None:
+    """``--executor auto``: the faster EventsExecutor up to AUTO_EVENTS_MAX_EXCHANGES, the
+    SingleThreadedExecutor (flat memory) beyond and for a container without an end, saying
+    so; an explicit choice is kept."""
+    from cvj_ros.composed import AUTO_EVENTS_MAX_EXCHANGES, resolve_executor
+    assert resolve_executor('auto', 5000) == ('events', None)
+    assert resolve_executor('auto', AUTO_EVENTS_MAX_EXCHANGES) == ('events', None)
+    kind, note = resolve_executor('auto', AUTO_EVENTS_MAX_EXCHANGES + 1)
+    assert kind == 'single' and f'for {AUTO_EVENTS_MAX_EXCHANGES + 1} exchanges' in note
+    assert resolve_executor('auto', None)[0] == 'single'
+    assert resolve_executor('events', 10 ** 7) == ('events', None)
+    assert resolve_executor('single', 10) == ('single', None)

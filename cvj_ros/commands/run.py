@@ -82,8 +82,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='scenes with clutch, gearbox, brake or commands: the coupling node '
                              'steps the mode model on the compiled kernel (auto, the default, for '
                              'dopri5/dop853; kernel) or the Python reference (python)')
-    parser.add_argument('--executor', choices=('events', 'single'), default='events',
-                        help='--composed: rclpy executor (default events = EventsExecutor)')
+    parser.add_argument('--executor', choices=('auto', 'events', 'single'), default='auto',
+                        help='--composed: rclpy executor: events (EventsExecutor, faster; its '
+                             'memory grows with every exchange), single (SingleThreadedExecutor, '
+                             'flat memory) or auto (default: events up to 1e5 exchanges, else single)')
     parser.add_argument('--no-intra-process', dest='intra_process', action='store_false',
                         help='--composed: hand the loop topics to the hosted nodes through DDS '
                              'too, instead of in-process (slower; for comparison)')

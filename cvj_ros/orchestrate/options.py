@@ -80,7 +80,7 @@ class RunOptions:
     burst_max: int = 10
     rt_priority: int = 0
     composed: bool = False       # every node and the recorder in this process (cvj_ros.composed)
-    executor: str = 'events'     # composed mode: 'events' (EventsExecutor) or 'single'
+    executor: str = 'auto'       # composed mode: 'auto', 'events' (EventsExecutor) or 'single'
     intra_process: bool = True   # composed mode: loop topics through the in-process bus (nodes/intra.py)
     # scenes with clutch, gearbox, brake or commands: the coupling node's mode_backend
     mode_backend: str = 'auto'

@@ -5,7 +5,10 @@ run's length except the joint-state times and the reference speed (16 bytes per 
 MiB per simulated second of a composed run after the batch reader; 6 MiB before it). This
 module computes the same figures from blocks of the bag (:func:`cvj_ros.bag.iter_blocks`):
 
-1. joint states: times ``t`` and the reference speed ``w`` (the first shaft's) in full - the
+1. joint states: times ``t`` and the reference speed ``w`` (the first shaft's) in full (from
+   a run's mcap bag the times come from its message indexes, :func:`_indexed_times`, and ``w``
+   from pass 2, which checks every stamp against them; other bags: a pass over the joint
+   states) - the
    steady window's slices (:func:`cvj_ros.physics.steady.slice_bounds`), their Hann means,
    the reference speed's spans and the window's mean speed come from them exactly as before;
 2. everything else per *segment* of rows (the slices, split once more where a window could
@@ -100,36 +103,36 @@ def _scan_statuses(data: bytes) -> tuple[bool, bool] | None:
     cut message): the caller decodes it."""
     if len(data) < 16 or data[1] != 1:
         return None
+    # CDR aligns relative to byte 4 (after the encapsulation header), which is a multiple
+    # of 4: a 4-aligned offset is (pos + 3) & -4. The walk is written out (no helper
+    # function): it runs over every string of every /diagnostics message of a run
     u32 = _U32.unpack_from
+    loop_name, n_loop = _LOOP_NAME, len(_LOOP_NAME) + 1
     try:
-        pos = 12
-
-        def skip() -> tuple[int, int]:
-            nonlocal pos
-            pos += -(pos - 4) % 4
-            n = u32(data, pos)[0]
-            start = pos + 4
-            pos = start + n
-            return start, n
-        skip()                                              # header.frame_id
-        pos += -(pos - 4) % 4
+        pos = 16 + u32(data, 12)[0]                         # header.frame_id
+        pos = (pos + 3) & -4
         count = u32(data, pos)[0]
         pos += 4
         loop = other = False
         for _ in range(count):
             level = data[pos]
-            pos += 1
-            start, n = skip()
-            if data[start:start + max(n - 1, 0)] == _LOOP_NAME:
+            pos = (pos + 4) & -4
+            n = u32(data, pos)[0]
+            if n == n_loop and data[pos + 4:pos + 3 + n] == loop_name:
                 loop = True
-            elif level in (1, 2):
+            elif level == 1 or level == 2:
                 other = True
-            skip(), skip()                                  # message, hardware_id
-            pos += -(pos - 4) % 4
+            pos += 4 + n
+            pos = (pos + 3) & -4                            # message
+            pos += 4 + u32(data, pos)[0]
+            pos = (pos + 3) & -4                            # hardware_id
+            pos += 4 + u32(data, pos)[0]
+            pos = (pos + 3) & -4
             kv = u32(data, pos)[0]
             pos += 4
-            for _ in range(2 * kv):
-                skip()
+            for _ in range(2 * kv):                         # key, value strings
+                pos = (pos + 3) & -4
+                pos += 4 + u32(data, pos)[0]
         return (loop, other) if pos <= len(data) else None
     except (struct.error, IndexError):
         return None
@@ -214,7 +217,6 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         NotStreamable: joint-state stamps not strictly increasing (use the in-memory path).
         BagError: an unreadable bag (as read_bag).
     """
-    from cvj_ros.physics import steady
     js_topic = bagmod.JOINT_STATES_TOPIC
     plain = bagmod.plain_mcap_bag(path)      # counts and types without rosbags' reader
     if plain is not None:
@@ -223,30 +225,91 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     else:
         info = bagmod.bag_info(path)
         counts, types = info.counts, info.types
+    n_js = int(counts.get(js_topic, 0))
+    # pass 1: the joint-state times. A plain mcap bag gives them from its message indexes
+    # (the record time of a stamped message is its header stamp, cvj_ros.bag.STAMPED_TYPES),
+    # without reading the messages; pass 2 then checks every stamp against them and fills
+    # the reference speed (a bag where they differ - another recorder, foreign joint
+    # states - is read with both passes over the messages)
+    indexed = (_indexed_times(plain, js_topic, n_js)
+               if plain is not None and bagmod.run_joint_names(path) else None)
+    if indexed is not None:
+        try:
+            return _stream(path, counts, types, indexed)
+        except _NotIndexed:
+            pass
+    return _stream(path, counts, types, None)
+
+
+class _NotIndexed(Exception):
+    """The joint states' stamps are not their record times (or some are not the run's)."""
+
+
+def _indexed_times(plain: Any, topic: str, count: int) -> np.ndarray | None:
+    """The topic's record times (s, as :func:`_seconds`) from the mcap files' message
+    indexes, None unless they give exactly ``count`` of them."""
+    from cvj_ros.bag_decode import mcap_log_time_parts
+    parts: list[np.ndarray] = []
+    for f in plain[0]:
+        got = mcap_log_time_parts(str(f), topic)
+        if got is None:
+            return None
+        parts += got
+    if not count or sum(p.size for p in parts) != count:
+        return None
+    # converted a few chunks at a time into the one array: the peak is the int64 times
+    # (8 bytes per exchange, in chunk-sized pieces) and t, not whole-length temporaries
+    t = np.empty(count)
+    row = 0
+    for i in range(0, len(parts), 256):
+        sn = np.concatenate(parts[i:i + 256])
+        t[row:row + sn.size] = _seconds(sn)
+        row += sn.size
+        parts[i:i + 256] = [None] * len(parts[i:i + 256])   # type: ignore[list-item]
+    return t
+
+
+def _seconds(sn: np.ndarray) -> np.ndarray:
+    """sec + nanosec * 1e-9 as bag.read_bag computes it: the same float64 bits."""
+    t = (sn // 1_000_000_000).astype(float)
+    t += (sn % 1_000_000_000).astype(float) * 1e-9
+    return t
+
+
+def _stream(path: Path, counts: dict[str, int], types: dict[str, str],
+            indexed: np.ndarray | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """:func:`stream_bag_metrics` with the joint-state times ``indexed`` (s) when known
+    (pass 2 checks each against its message and raises :class:`_NotIndexed` on the first
+    difference), else pass 1 reads them from the messages."""
+    from cvj_ros.physics import steady
+    js_topic = bagmod.JOINT_STATES_TOPIC
     out: dict[str, Any] = {'shafts': {}, 'wrenches': {}}
     extra: dict[str, Any] = {'diagnostics': None, 'scene': None}
-    # pass 1: times and the reference speed, into arrays allocated once for the count the
-    # bag states (no concatenation, no int64 copy: 16 bytes per exchange at the peak)
     n_js = int(counts.get(js_topic, 0))
-    t, w = np.empty(n_js), np.empty(n_js)
     names, rows, speed_peak, foreign = None, 0, 0.0, 0
-    for _topic, _ty, d in (bagmod.iter_blocks(path, [js_topic], columns=('velocity',))
-                           if n_js else ()):
-        sn, k = d['stamp_ns'], d['stamp_ns'].size
-        foreign += d.get('foreign', 0)      # not the run's (bag.iter_blocks): left out
-        if rows + k > n_js:
-            raise NotStreamable(f'{js_topic}: more messages than the bag states')
-        # sec + nanosec * 1e-9 as bag.read_bag computes it: the same float64 bits
-        t[rows:rows + k] = (sn // 1_000_000_000).astype(float)
-        t[rows:rows + k] += (sn % 1_000_000_000).astype(float) * 1e-9
-        v0 = d['velocity'][:, 0] if d['velocity'].shape[1] else np.full(k, np.nan)
-        w[rows:rows + k] = v0
-        speed_peak = max(speed_peak, float(np.max(np.abs(v0)))) if k else speed_peak
-        names = d['names']
-        rows += k
-    if rows + foreign != n_js:
-        raise NotStreamable(f'{js_topic}: {rows} messages, the bag states {n_js}')
-    t, w = t[:rows], w[:rows]
+    if indexed is not None:
+        t, w = indexed, np.full(n_js, np.nan)
+        names = run_names = bagmod.run_joint_names(path)
+        rows = n_js
+    else:
+        # times and the reference speed, into arrays allocated once for the count the bag
+        # states (no concatenation, no int64 copy: 16 bytes per exchange at the peak)
+        t, w = np.empty(n_js), np.empty(n_js)
+        for _topic, _ty, d in (bagmod.iter_blocks(path, [js_topic], columns=('velocity',))
+                               if n_js else ()):
+            sn, k = d['stamp_ns'], d['stamp_ns'].size
+            foreign += d.get('foreign', 0)      # not the run's (bag.iter_blocks): left out
+            if rows + k > n_js:
+                raise NotStreamable(f'{js_topic}: more messages than the bag states')
+            t[rows:rows + k] = _seconds(sn)
+            v0 = d['velocity'][:, 0] if d['velocity'].shape[1] else np.full(k, np.nan)
+            w[rows:rows + k] = v0
+            speed_peak = max(speed_peak, float(np.max(np.abs(v0)))) if k else speed_peak
+            names = d['names']
+            rows += k
+        if rows + foreign != n_js:
+            raise NotStreamable(f'{js_topic}: {rows} messages, the bag states {n_js}')
+        t, w = t[:rows], w[:rows]
     wanted = [tp for tp, c in counts.items() if c and tp != bagmod.CLOCK_TOPIC and (
         tp in (bagmod.SCENE_TOPIC, '/diagnostics')
         or types.get(tp) == 'geometry_msgs/msg/WrenchStamped')]
@@ -280,6 +343,13 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
         if topic == js_topic:
             v, e = d['velocity'], d['effort']
             k = v.shape[0]
+            if indexed is not None:
+                if (d.get('foreign', 0) or row + k > n or d['names'] != run_names
+                        or not np.array_equal(_seconds(d['stamp_ns']), t[row:row + k])):
+                    raise _NotIndexed(js_topic)
+                v0 = v[:, 0] if v.shape[1] else np.full(k, np.nan)
+                w[row:row + k] = v0
+                speed_peak = max(speed_peak, float(np.max(np.abs(v0)))) if k else speed_peak
             vel.add(row, v)
             eff.add(row, e)
             tvel.add(row, (t[row:row + k] - t[0])[:, None] * v)
@@ -323,6 +393,8 @@ def stream_bag_metrics(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     if not streaming:
         return out, extra
     if row != n:
+        if indexed is not None:
+            raise _NotIndexed(js_topic)
         raise NotStreamable(f'{js_topic}: {row} rows in the second pass, {n} in the first')
     if done < n:                      # the last row: the edge formula over the last three
         g = np.gradient(carry_v, carry_t, axis=0, edge_order=2)

@@ -24,16 +24,22 @@ H_NS = 1_000_000
 NAMES = ['engine_crank', 'cpl_input', 'cpl_output', 'wheel']
 
 
-def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = 'mcap') -> Path:
+def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = 'mcap',
+                  scene: bool = False, late_record: int | None = None) -> Path:
     """A run-like bag: per step /clock, joint states (4 shafts, 2nd-order ripple, speed
     ramp ``ramp`` rad/s^2), an engine and a load answer; /diagnostics every 50 steps with a
-    WARN every 1000; the project's own encoders (fast)."""
+    WARN every 1000; the project's own encoders (fast). ``scene``: the run's joint names in
+    metadata.yaml (as a run's recorder stores them); ``late_record``: that joint state
+    recorded 1 ns after its stamp (not what cvj_ros records)."""
     from cvj_ros.nodes.cdr import ClockEncoder, JointStateEncoder, WrenchStampedEncoder
     from cvj_ros.nodes.diagnostics import diagnostic_array_encoder, plain_status
     js, eng, load, clock = (JointStateEncoder(NAMES, 'driveline'), WrenchStampedEncoder('engine_crank'),
                             WrenchStampedEncoder('wheel'), ClockEncoder())
     diag = diagnostic_array_encoder()
     w = bag.BagWriter(path, storage=storage)
+    if scene:
+        import yaml
+        w.set_custom_data('cvj_ros.scene', yaml.safe_dump({'seed': 1, 'shaft_names': NAMES}))
     for topic in (bag.CLOCK_TOPIC, bag.JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench',
                   '/diagnostics'):
         w.add_topic(topic)
@@ -47,7 +53,7 @@ def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = '
         ripple = np.array([0.0, 0.1, 0.4, 0.3]) * np.sin(2 * phi[i] + np.arange(4))
         eff = 100.0 + np.array([5.0, 3.0, 2.0, 1.0]) * np.cos(2 * phi[i])
         items += [(bag.CLOCK_TOPIC, i * H_NS, clock.encode(sec, nsec)),
-                  (bag.JOINT_STATES_TOPIC, i * H_NS,
+                  (bag.JOINT_STATES_TOPIC, i * H_NS + (i == late_record),
                    js.encode(sec, nsec, phi[i] + np.zeros(4), omega[i] + ripple, eff)),
                   ('/engine/wrench', i * H_NS, eng.encode(sec, nsec, 0, 0, 0, 0, 0, eff[0])),
                   ('/load/wrench', i * H_NS, load.encode(sec, nsec, 0, 0, 0, 0, 0, 99.0 + math.sin(i)))]
@@ -101,8 +107,41 @@ def test_stream_equals_in_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert report.monitor_statuses(path, diags=side['diagnostics'])['warn'] == 4
 
 
+@pytest.mark.parametrize('late_record', [None, 1234], ids=['indexed', 'record_time_differs'])
+def test_times_from_the_message_indexes_equal_the_messages(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, late_record: int | None) -> None:
+    """A run's mcap bag (joint names in metadata.yaml): the joint-state times come from the
+    message indexes and pass 2 checks each stamp against them; a joint state recorded at
+    another time than its stamp sends the report back to reading the times from the
+    messages - either way the figures equal the in-memory path's."""
+    from cvj_ros.orchestrate import report_stream
+    path = write_run_bag(tmp_path / 'b', 3001, scene=True, late_record=late_record)
+    full = report.bag_metrics(path)
+    monkeypatch.setattr(bag_decode, 'BATCH', 97)      # the check runs block by block
+    calls = []
+    real = report_stream._stream
+
+    def spy(path, counts, types, indexed):
+        calls.append(indexed is not None)
+        return real(path, counts, types, indexed)
+    monkeypatch.setattr(report_stream, '_stream', spy)
+    streamed, side = stream_bag_metrics(path)
+    _same(full, streamed)
+    assert calls == ([True] if late_record is None else [True, False])
+    ns = bag_decode.mcap_log_times(str(path / 'b.mcap'), bag.JOINT_STATES_TOPIC)
+    expected = np.arange(3001) * H_NS
+    if late_record is not None:
+        expected[late_record] += 1
+    assert np.array_equal(ns, expected)
+    assert bag_decode.mcap_log_times(str(path / 'b.mcap'), '/nope').size == 0
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes((path / 'b.mcap').read_bytes()[:5000])
+    assert bag_decode.mcap_log_times(str(cut), bag.JOINT_STATES_TOPIC) is None
+
+
+@pytest.mark.parametrize('scene', [False, True], ids=['times_from_messages', 'times_from_index'])
 def test_report_memory_grows_by_the_times_and_reference_speed_only(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, scene: bool) -> None:
     """Traced peak (tracemalloc: Python objects and numpy arrays) of the streaming report on
     10 000 and 40 000 steps: the growth per step is bounded by the joint-state times and
     reference speed it keeps (16 B) plus slack: 48 B. The in-memory path holds ~200 B per
@@ -112,7 +151,7 @@ def test_report_memory_grows_by_the_times_and_reference_speed_only(
     monkeypatch.setattr(bag_decode, 'BATCH', 1024)
     peaks = {}
     for steps in (10_000, 40_000):
-        path = write_run_bag(tmp_path / f'b{steps}', steps)
+        path = write_run_bag(tmp_path / f'b{steps}', steps, scene=scene)
         stream_bag_metrics(path)                 # warm: imports, type store, caches
         tracemalloc.start()
         try:

@@ -30,6 +30,14 @@ HOSTILE = str(Path(__file__).with_name('hostile_peer.py'))
 DURATION = '2.0'        # s simulated: long enough for DDS to discover the intruder mid-run
 FROM_S = '0.1'          # the attack starts at the first joint state stamped >= this
 RUN_TIMEOUT_S = 180.0
+H_S = 1e-3              # kavz685_lever's exchange step
+# A stopped run's bag holds its states up to the recorder's last one-publisher check before
+# the intruder appeared (docs/robustness.md, "Known limitations"); the intruder appears at a
+# state >= FROM_S, and the recorder may lag the loop by up to bag.MAX_LAG_S of simulated time
+# (the record gate) plus one step, so at least this many of the run's states are in the bag
+# (make test-stress, load ~21: 71 of the 100 before the stop, once only 1, which analyze then
+# refuses as too short, not for the intruder)
+MIN_RECORDED = max(1, round(float(FROM_S) / H_S) - round(bag.MAX_LAG_S / H_S) - 1)
 
 
 def _run(out: Path) -> subprocess.CompletedProcess:
@@ -85,7 +93,10 @@ def test_attack_leaves_the_undisturbed_run_or_one_named_line(reference: Path, tm
         lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
         assert len(lines) == 1, r.stderr
         assert f'{topic}: intruder /hostile (gid ' in lines[0], lines[0]
-        assert r.returncode == 1 and len(ours) >= 100 and ours == ref[:len(ours)]
+        assert r.returncode == 1 and len(ours) >= MIN_RECORDED and ours == ref[:len(ours)]
     a = subprocess.run([CVJ_SIM, 'analyze', str(run_bag), '--json'], capture_output=True, text=True,
                        timeout=120)
-    assert a.returncode == 0, a.stderr
+    if len(ours) < 2:      # a stop before the recorder had two states (MIN_RECORDED): too short
+        assert a.returncode == 2 and 'need at least 2 messages' in a.stderr, a.stderr
+    else:
+        assert a.returncode == 0, a.stderr

@@ -16,14 +16,24 @@ Ids are capped at 232 (the largest the default RTPS port mapping allows). A bloc
 means a domain is reused only ten tests later, long after that test's processes ended.
 Module-scoped fixtures that start processes (e2e runs) run between tests, one at a time,
 on the block's first id.
+
+Signals. A suite started in the background of a non-interactive shell (``make test &``,
+some CI runners) inherits SIGINT *ignored*, and an ignored disposition survives exec: every
+process a test starts would ignore the Ctrl-C the signal tests send it. pytest therefore
+takes SIGINT back (Python's default handler) when it finds it ignored, so the processes it
+starts get the default disposition.
 """
 from __future__ import annotations
 
 import itertools
 import os
+import signal
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 MAX_DOMAIN_ID = 232          # RTPS port mapping: 7400 + 250 * id + offsets must stay < 65536
 

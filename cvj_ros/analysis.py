@@ -311,6 +311,10 @@ def _scene_summary(scene_yaml: str | None) -> dict[str, Any]:
         if isinstance(fid, dict) and isinstance(fid.get('choices'), list):   # FidelityReport.to_dict()
             out['fidelity'] = ' '.join(f"{c.get('name')}={c.get('chosen')}" for c in fid['choices']
                                        if isinstance(c, dict))
+        elif isinstance(fid, dict):     # {'levels': {...}} or {name: level} (mode scenes)
+            levels = fid.get('levels', fid)
+            if isinstance(levels, dict) and levels:
+                out['fidelity'] = ' '.join(f'{k}={v}' for k, v in levels.items())
         elif fid is not None:
             out['fidelity'] = fid
     return out

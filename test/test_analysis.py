@@ -247,3 +247,15 @@ def test_reaction_wrenches_are_reported_per_joint_over_the_window(tmp_path: Path
     assert 'reaction wrenches (housing frame)' in text and '  hooke ' in text
     # a bag without them: no section
     assert 'reactions' not in analysis.analyze_bag(write_synthetic_bag(tmp_path / 'plain'), skip_s=0.0)
+
+
+@pytest.mark.parametrize(('fidelity', 'shown'), [
+    ({'choices': [{'name': 'hooke', 'chosen': 'exact'}]}, 'hooke=exact'),
+    ({'levels': {'clutch_damper': 'elastic'}}, 'clutch_damper=elastic'),
+    ({'levels': {}}, None),          # a mode scene without choices: nothing, not a dict repr
+    ({}, None),
+    ('hooke=exact', 'hooke=exact')])
+def test_scene_summary_shows_fidelity_as_name_level_pairs(fidelity, shown) -> None:
+    import yaml
+    summary = analysis._scene_summary(yaml.safe_dump({'name': 's', 'fidelity': fidelity}))
+    assert summary.get('fidelity') == shown

@@ -127,10 +127,13 @@ def degenerate_notes(result: Any) -> list[str]:
     notes = []
     try:
         scene = load_scene(result.scene_path)
-        mode = dg.fastest_mode(Driveline.from_scene(scene))
     except Exception:   # noqa: BLE001 (a note, never a failure of the run)
         return []
-    line = dg.coarse_step_line(float(result.exchange_step), mode, 'exchange step')
+    try:                # chains; a vehicle tree or a mode scene has no Driveline
+        mode = dg.fastest_mode(Driveline.from_scene(scene))
+    except Exception:   # noqa: BLE001
+        mode = None
+    line = dg.coarse_step_line(float(result.exchange_step), mode, 'exchange step') if mode else None
     if line:
         notes.append(line)
     stall = dg.stall_line({n: float(m.get('mean_speed', float('nan'))) for n, m in shafts.items()},

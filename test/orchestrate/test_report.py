@@ -90,3 +90,16 @@ def test_run_notes_name_a_speed_trend_unless_the_line_stalled() -> None:
     r.metrics.update(speed_trend=trend, shafts={'engine_crank': {'mean_speed': 1e-3}})
     notes = degenerate_notes(r)
     assert len(notes) == 1 and notes[0].startswith('stall: ')
+
+
+@pytest.mark.parametrize('scene', ['launch_clutch', 'fwd_axle', 'launch_clutch_chain'])
+def test_run_notes_name_the_trend_on_vehicle_and_mode_scenes(scene) -> None:
+    """A vehicle tree or a mode scene has no serial Driveline for the fastest-mode check; the
+    speed trend is still named (a launch from rest is all trend)."""
+    from cvj_ros.commands.run import degenerate_notes
+    from cvj_ros.physics.scene import find_scene
+    trend = 'speed trend: wheel_left accelerates ...'
+    r = _result(process='composed', rtf=1.0)
+    r.scene_path = str(find_scene(scene))
+    r.metrics = {'shafts': {'engine_crank': {'mean_speed': 150.0}}, 'speed_trend': trend}
+    assert degenerate_notes(r) == [trend]

@@ -64,11 +64,13 @@ def assert_same_run(rp, rk, tol_t: float = TOL, tol_x: float = TOL_STATE) -> dic
     return {'event_t': dt, 'speed': ds, 'final': fin}
 
 
-def replay(sim: HybridSimulation, log: list[np.ndarray], monkeypatch) -> HybridResult:
-    """Run the reference ``sim`` on the kernel's mesh: the stepper of its k-th mode segment
-    takes the k-th logged step sizes, each accepted (the kernel accepted it)."""
+def replay_on_mesh(module, run, sim, log: list[np.ndarray], monkeypatch):
+    """``run(sim)`` (a reference run) on the kernel's mesh: the stepper that
+    ``module.make_stepper`` gives its k-th mode segment takes the k-th logged step sizes, each
+    accepted (the kernel accepted it). Chains: ``hybrid.simulate``; vehicle trees:
+    ``hybrid.tree_sim`` (test_tree_modes_kernel.py)."""
     segments = iter(log)
-    plain = hs.make_stepper
+    plain = module.make_stepper
 
     def make(*args, **kwargs):
         st = plain(*args, **kwargs)
@@ -85,8 +87,13 @@ def replay(sim: HybridSimulation, log: list[np.ndarray], monkeypatch) -> HybridR
         st._attempt, st.step = forced_attempt, forced_step
         return st
     with monkeypatch.context() as m:
-        m.setattr(hs, 'make_stepper', make)
-        return PLAIN_RUN(sim)
+        m.setattr(module, 'make_stepper', make)
+        return run(sim)
+
+
+def replay(sim: HybridSimulation, log: list[np.ndarray], monkeypatch) -> HybridResult:
+    """The chain reference ``sim`` on the kernel's mesh (:func:`replay_on_mesh`)."""
+    return replay_on_mesh(hs, PLAIN_RUN, sim, log, monkeypatch)
 
 
 PLAIN_RUN = HybridSimulation.run

@@ -19,6 +19,8 @@ differential and random brake, clutch and pack data.
 from __future__ import annotations
 
 import copy
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,6 +37,11 @@ from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation  # noqa
 TOL = 1e-12           # event times
 TOL_STATE = 1e-10     # samples and final states (as test_modes_kernel.py)
 PLAIN_RUN = HybridTreeSimulation.run
+
+_spec = importlib.util.spec_from_file_location(
+    '_chain_mode_kernel_tests', Path(__file__).with_name('test_modes_kernel.py'))
+_chain_tests = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_chain_tests)
 
 
 def assert_same_run(rp, rk, tol_t: float = TOL, tol_x: float = TOL_STATE) -> dict[str, float]:
@@ -69,28 +76,9 @@ def assert_same_run(rp, rk, tol_t: float = TOL, tol_x: float = TOL_STATE) -> dic
 
 
 def replay(sim: HybridTreeSimulation, log: list[np.ndarray], monkeypatch):
-    """Run the reference ``sim`` on the kernel's mesh: the stepper of its k-th mode segment
-    takes the k-th logged step sizes, each accepted (the kernel accepted it)."""
-    segments = iter(log)
-    plain = ts.make_stepper
-
-    def make(*args, **kwargs):
-        st = plain(*args, **kwargs)
-        sizes = iter(next(segments))
-        attempt, step = st._attempt, st.step
-
-        def forced_attempt(h):
-            err, y_new = attempt(h)
-            return min(err, 1.0), y_new
-
-        def forced_step(t_bound):
-            st.h = next(sizes)
-            return step(t_bound)
-        st._attempt, st.step = forced_attempt, forced_step
-        return st
-    with monkeypatch.context() as m:
-        m.setattr(ts, 'make_stepper', make)
-        return PLAIN_RUN(sim)
+    """Run the reference ``sim`` on the kernel's mesh (the chain tests' replay_on_mesh with
+    the tree's stepper factory)."""
+    return _chain_tests.replay_on_mesh(ts, PLAIN_RUN, sim, log, monkeypatch)
 
 
 def twin(sim: HybridTreeSimulation, monkeypatch, free: bool = True) -> tuple[dict, object]:

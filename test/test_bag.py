@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import struct
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -509,3 +510,60 @@ def test_scene_command_stamps_learn_the_schedule_from_the_scene_message() -> Non
     assert list(bag.scene_command_stamps(yaml.safe_dump(dict(msg, mode='free-run')))) == list(want)
     assert bag.scene_command_stamps('{not: [yaml') == {}
     assert bag.scene_command_stamps(yaml.safe_dump(dict(msg, exchange_step='x'))) == {}
+
+
+class _FakeSubscription:
+    """A subscription whose queue holds ``samples`` (what BagRecorder._take_queued takes)."""
+
+    def __init__(self, samples: list[bytes]) -> None:
+        self.samples = list(samples)
+        self.handle = self
+        self.pointer = id(self)
+        self.msg_type = None
+
+    def __enter__(self) -> '_FakeSubscription':
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def take_message(self, _msg_type: object, _raw: bool) -> tuple[bytes, dict] | None:
+        return (self.samples.pop(0), {}) if self.samples else None
+
+    def get_publisher_count(self) -> int:
+        return 1
+
+
+def _stamped_cdr(stamp_ns: int, tag: bytes) -> bytes:
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    return b'\x00\x01\x00\x00' + struct.pack('<iI', sec, nsec) + tag
+
+
+def test_recorder_feeds_observers_in_loop_order_not_topic_by_topic() -> None:
+    """One wake that takes 150 joint states and then their 150 answers (the recorder takes
+    topic by topic) feeds the observers state t_k, answer t_k, state t_k+1, ...: a hosted
+    monitor that publishes at every 100th state then has the answers of its window (a CI run
+    showed its first status without torques when it was fed topic by topic)."""
+    rec = bag.BagRecorder.__new__(bag.BagRecorder)
+    rec.run_only = False
+    rec._on_message = lambda *a, **k: True
+    seen: list[bytes] = []
+    rec.observers = {bag.JOINT_STATES_TOPIC: [seen.append], '/engine/wrench': [seen.append],
+                     '/load/wrench': [seen.append], '/diagnostics': [seen.append]}
+    n = 150
+    subs = {topic: _FakeSubscription([_stamped_cdr(k * 1_000_000, tag + b'%d' % k) for k in range(n)])
+            for topic, tag in ((bag.JOINT_STATES_TOPIC, b'js'), ('/engine/wrench', b'en'),
+                               ('/load/wrench', b'ld'))}
+    # a loop status stamped t_100 (the coupling node's): after the state t_100 and its answers
+    subs['/diagnostics'] = _FakeSubscription([_stamped_cdr(100_000_000, b'dg')])
+    entries = [(topic, sub, topic != '/diagnostics', False,
+                bag.TOPIC_TYPES.get(topic, 'geometry_msgs/msg/WrenchStamped'))
+               for topic, sub in sorted(subs.items())]
+    rec._take_queued(entries, None)
+    expected = [_stamped_cdr(k * 1_000_000, tag + b'%d' % k) for k in range(n) for tag in (b'js', b'en', b'ld')]
+    expected.insert(3 * 101, _stamped_cdr(100_000_000, b'dg'))
+    assert seen == expected
+    # big-endian samples are ordered by their stamp too
+    assert bag._feed_order(b'\x00\x00\x00\x00' + struct.pack('>iI', 2, 5) + b'x', 'sensor_msgs/msg/JointState') == 2_000_000_005
+    assert bag._feed_order(b'\x00\x01', 'sensor_msgs/msg/JointState') == -1
+    assert bag._feed_order(_stamped_cdr(5, b'x'), 'std_msgs/msg/String') == -1

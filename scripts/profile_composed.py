@@ -15,7 +15,7 @@ callback of the hosted nodes, and prints the mean time per exchange step of each
   Python-object conversion of deserialised messages, GIL hand-offs, other processes.
 
 Usage: ``python scripts/profile_composed.py [SCENE] [--duration S] [--exchange-step S]
-[--runs N] [--separate]`` (``--separate`` times the one-process-per-node mode instead:
+[--runs N] [--separate] [--cprofile N]`` (``--separate`` times the one-process-per-node mode instead:
 only the exchange wall time and the coupling node's own split are available then).
 """
 from __future__ import annotations
@@ -57,7 +57,23 @@ def instrument() -> None:
     from cvj_ros.nodes.monitor_node import MonitorNode
     from cvj_ros.nodes.torque_responder import TorqueResponder
     from cvj_ros.physics.cosim import CoupledStepper
+    from cvj_ros.nodes.driver_node import DriverNode
+    from cvj_ros.nodes.hybrid_backend import HybridOutputs, HybridStepper
+    from cvj_ros.physics import state_outputs
+    from cvj_ros.physics.kernel.tree_modes_lockstep import KernelHybridTreeLockstep
     CoupledStepper.advance = timed('coupling integrate', CoupledStepper.advance)
+    # mode scenes (clutch, gearbox, brake): the mode lockstep, its compiled segments inside
+    HybridStepper.advance = timed('coupling integrate', HybridStepper.advance)
+    KernelHybridTreeLockstep._run_segment = timed('compiled segments',
+                                                  KernelHybridTreeLockstep._run_segment)
+    # the physics of "publish state": joint state and reaction wrenches
+    for cls in (HybridOutputs, state_outputs.TreeKernelStateOutputs,
+                state_outputs.KernelStateOutputs, state_outputs.PythonStateOutputs):
+        cls.joint_states = timed('joint state', cls.joint_states)
+        cls.wrenches = timed('reaction wrenches', cls.wrenches)
+    CouplingNode._apply_commands = timed('commands', CouplingNode._apply_commands)
+    CouplingNode._on_command = timed('command callbacks', CouplingNode._on_command)
+    DriverNode._on_clock = timed('driver', DriverNode._on_clock)
     CouplingNode._publish_state = timed('coupling publish state', CouplingNode._publish_state)
     CouplingNode._step = timed('coupling step (integrate + publish)', CouplingNode._step)
     CouplingNode._on_engine = timed('coupling wrench callbacks (incl. step)', CouplingNode._on_engine)
@@ -85,6 +101,9 @@ def main() -> None:
                          'processes; the rest is then process CPU - callbacks)')
     ap.add_argument('--without', action='append', default=[], choices=('monitor_node',),
                     help='leave the monitor out (its share of the exchange = the difference)')
+    ap.add_argument('--cprofile', type=int, default=0, metavar='N',
+                    help='instead of the timers: cProfile the loop thread and print the N '
+                         'functions with the most own time (us per exchange)')
     a = ap.parse_args()
     if a.without:
         import cvj_ros.orchestrate as orch
@@ -96,10 +115,27 @@ def main() -> None:
     opts = dict(scene=a.scene, out=out, exchange_step=a.exchange_step, overwrite=True,
                 composed=not a.separate)
     run(RunOptions(duration=0.2, **opts), stream=io.StringIO())     # warm-up: imports, kernel
-    if not a.separate:
+    if not a.separate and not a.cprofile:
         instrument()
     for i in range(a.runs):
         TIMES.clear()
+        if a.cprofile:
+            import cProfile
+            import pstats
+            prof = cProfile.Profile()
+            prof.enable()
+            r = run(RunOptions(duration=a.duration, **opts), stream=io.StringIO())
+            prof.disable()
+            steps = max(1, r.counts.get('/driveline/joint_states', 1) - 1)
+            print(f'{a.scene} run {i + 1} (cProfile): {steps} exchanges, real-time factor '
+                  f'{r.real_time_factor:.3g}')
+            st = pstats.Stats(prof)
+            rows = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:a.cprofile]
+            print(f'  {"own us/exch":>11s} {"cum us/exch":>11s} {"calls/exch":>10s}  function')
+            for (file, line, fn), (_cc, nc, tt, ct, _callers) in rows:
+                print(f'  {tt / steps * 1e6:11.1f} {ct / steps * 1e6:11.1f} {nc / steps:10.2f}  '
+                      f'{Path(file).name}:{line} {fn}')
+            continue
         r = run(RunOptions(duration=a.duration, **opts), stream=io.StringIO())
         steps = max(1, r.counts.get('/driveline/joint_states', 1) - 1)
         per = r.wall_per_step * 1e6
@@ -127,12 +163,18 @@ def main() -> None:
         }
         step_rest = us.get('coupling step (integrate + publish)', 0.0) - exclusive['coupling integrate'] \
             - exclusive['coupling publish state']
-        exclusive['coupling step bookkeeping'] = step_rest
+        exclusive['coupling step bookkeeping'] = step_rest - us.get('commands', 0.0)
+        exclusive['coupling commands (step k in force)'] = us.get('commands', 0.0)
+        exclusive['coupling command callbacks'] = us.get('command callbacks', 0.0)
+        exclusive['driver'] = us.get('driver', 0.0)
         in_callbacks = sum(exclusive.values())
         for k, v in exclusive.items():
             print(f'  {k:34s} {v:8.1f} us')
         rest = 'executor, DDS, writer thread (rest)' if a.clock == 'cpu' else 'executor, DDS, GIL, other (rest)'
         print(f'  {rest:34s} {per - in_callbacks:8.1f} us')
+        for k in ('compiled segments', 'joint state', 'reaction wrenches'):
+            if k in us:      # inside integrate / publish state above
+                print(f'  {"  of which " + k:34s} {us[k]:8.1f} us')
         print(f'  {"writer thread (parallel, GIL)":34s} {us.get("writer thread (rosbags write)", 0.0):8.1f} us')
     sys.stdout.flush()
 

@@ -12,6 +12,14 @@ and the joint-state outputs stay the Python reference's. A mode's arrays are bui
 per (mode, witnesses, shift sequence) and reused; only the three held inputs are written
 per interval. Each interval starts with the step the previous one ended with, as the
 reference lockstep.
+
+The exchange's Python around the segments reuses what it computed (the same numbers as the
+reference's path, bit for bit: test_tree_modes_lockstep.py): a ModeTree keeps its last
+kinematics and walk (:mod:`cvj_ros.physics.hybrid.tree_reuse`), :meth:`_eval` keeps its
+last evaluation and forces keyed by every input (mode tree, slip directions, t, state bytes,
+held engine torque, capacities), so the joint state of t_(k+1) takes the settle's evaluation
+at t_(k+1) when the commands did not change in between; mode states without a lock are made
+by :func:`~cvj_ros.physics.kernel.tree_modes.mode_state` (no kinetic-energy evaluations).
 """
 from __future__ import annotations
 
@@ -23,6 +31,7 @@ import numpy as np
 from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.friction import STUCK
 from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
+from cvj_ros.physics.hybrid.tree_reuse import reuse_tree
 from cvj_ros.physics.kernel import layout as L
 from cvj_ros.physics.kernel.tree_modes import (KERNEL_TREE_MODE_METHODS, MB_RAMP_B, MB_RAMP_C,
                                                _base_tables, _segment_entry, _STATUS,
@@ -45,6 +54,8 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         from cvj_ros.physics.engine import LinearEngine
+        self._last_eval: tuple | None = None
+        self._last_fo: Any = None
         super().__init__(*args, **kwargs)
         if self.method not in KERNEL_TREE_MODE_METHODS:
             raise NotImplementedError(
@@ -54,6 +65,78 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         self._stand_in.set_throttle(1.0)
         _base_tables(self.probe, self._stand_in)      # NotImplementedError when it does not pack
         self._arrays: dict[tuple, tuple[np.ndarray, np.ndarray, tuple[int, int, int]]] = {}
+
+    # --- reuse within an exchange (module docstring) -------------------------------------
+
+    def tree(self, mode: Any) -> Any:
+        """The reference's ModeTree of ``mode`` with its last kinematics and walk kept."""
+        return reuse_tree(super().tree(mode))
+
+    def _eval(self, mt: Any, t: float, x: np.ndarray, torques: bool = True) -> Any:
+        """The reference's evaluation, the last one kept with its forces (``_last_fo``): keyed
+        by the mode tree, its slip directions, t, x's bytes, the held engine torque and the
+        capacities; a torques=True result also serves torques=False."""
+        if self._throttle:
+            self.engine.set_throttle(self.schedule.value('throttle', t))
+        ck, _cs, bk, _bs = self._capacities(t)
+        m = mt.mode
+        key = (id(mt), tuple(m.clutch.items()), tuple(m.brakes.items()), tuple(m.packs.items()),
+               t, float(self.engine.value), ck, tuple(bk.items()), x.tobytes())
+        last = self._last_eval
+        if last is not None and last[0] == key and (last[2] or not torques):
+            return last[1]
+        made: list[Any] = []
+        forces = mt._forces
+
+        def keep(*args: Any, **kw: Any) -> Any:
+            made.append(forces(*args, **kw))
+            return made[-1]
+
+        mt._forces = keep
+        try:
+            ev = mt.evaluate(t, x, self.engine, ck, bk, torques=torques)
+        finally:
+            del mt._forces
+        self._last_eval = (key, ev, torques, mt)       # mt held: its id stays unique
+        self._last_fo = made[0]
+        return ev
+
+    def _apply(self, mode: Any, st: Any, fresh: bool) -> tuple[Any, np.ndarray, Any]:
+        if fresh:
+            return super()._apply(mode, st, fresh)
+        mt = self.tree(mode)
+        x = mode_state(mt, st)            # from_state(st, False)'s x; its loss is not used
+        return mt, x, mt.to_state(x, st.lock_loss)
+
+    def _now(self) -> tuple[Any, np.ndarray]:
+        mt = self.tree(self.mode)
+        return mt, mode_state(mt, self.st)
+
+    def joint_states(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`HybridTreeLockstep.joint_states` (the same numbers), on the kept
+        evaluation and walk when their inputs are unchanged."""
+        mt, x = self._now()
+        self._eval(mt, self.t, x, False)
+        fo = self._last_fo
+        pos, vel, eff, _start = mt._walk(x, fo.T_engine, kin=mt._kinematics(x), fo=fo)
+        pos, vel = np.array(pos, dtype=float), np.array(vel, dtype=float)
+        if mt._mid_index:
+            self._fill_mid(mt, pos, vel)
+        return pos, vel, np.array(eff, dtype=float)
+
+    def _fill_mid(self, mt: Any, pos: np.ndarray, vel: np.ndarray) -> None:
+        """``mt.fill_mid`` on one sample: the members with a compiled form by
+        ``outputs_nb.fill_mid_one`` (the same formula and numbers), the rest in Python."""
+        from cvj_ros.physics.kernel import entry_point_once
+        from cvj_ros.physics.kernel import outputs_nb as O
+        tab = mt.__dict__.get('_mid_tables')
+        if tab is None:
+            tab = mt._mid_tables = O.mid_table(mt)
+        mtab, mfp, python = tab
+        if len(mtab):
+            entry_point_once(O.fill_mid_one, (pos, vel, mtab, mfp))(pos, vel, mtab, mfp)
+        if python:
+            mt.fill_mid(pos[None, :], vel[None, :], members=python)
 
     def _arrays_of(self, mt: Any, mode: Any) -> tuple[np.ndarray, np.ndarray]:
         ws = tuple(w.key for w in self._witnesses(mode))

@@ -18,6 +18,7 @@ from cvj_ros.nodes.command_plan import CommandPlan
 from cvj_ros.physics.engine import engine_from_spec
 from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
 from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
+from cvj_ros.physics.hybrid.tree_sim import HybridTreeSimulation
 from cvj_ros.physics.scene import find_scene, load_scene
 
 pytest.importorskip('numba')
@@ -85,3 +86,85 @@ def test_backend_choice() -> None:
     assert type(slow) is HybridTreeLockstep and 'rodas4' in slow.backend_fallback
     with pytest.raises(CvjError, match="^backend: compiled kernel: .*'rodas4'"):
         hybrid_lockstep(scene, method='rodas4', backend='kernel')
+
+
+class _NoReuse(KernelHybridTreeLockstep):
+    """The kernel lockstep with the reference's exchange path: no kept kinematics, walk or
+    evaluation, ModeTree.from_state for every mode state, the Python fill_mid."""
+
+    tree = HybridTreeSimulation.tree
+    _eval = HybridTreeSimulation._eval
+    _apply = HybridTreeSimulation._apply
+    _now = HybridTreeLockstep._now
+    joint_states = HybridTreeLockstep.joint_states
+
+
+def _as_hybrid_lockstep(cls, scene):
+    """``cls`` built as hybrid_lockstep builds the vehicle lockstep."""
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    from cvj_ros.physics.hybrid.lockstep import Commands
+    sim = hybrid_simulation(scene)
+    s = getattr(sim.schedule, 'base', sim.schedule)
+    c0 = Commands(s.value('clutch', 0.0), s.value('brake', 0.0), s.gear(0.0))
+    return cls(scene, sim.levels, commands=c0, shift=scene.shift_schedule,
+               stall_speed=sim.stall_speed, method=sim.method, rtol=sim.rtol, atol=sim.atol,
+               max_step=sim.max_step)
+
+
+def _exchange_loop(hybrid, scene, n: int, on_step=None) -> list[bytes]:
+    """The bytes of every joint state (position, velocity, effort) of ``drive``'s loop."""
+    plan = CommandPlan.from_scene(scene, 1_000_000, n)
+    from cvj_ros.nodes.common import scene_dict
+    engine = engine_from_spec(dict(scene_dict(scene)['engine']))
+    out = []
+    for k in range(n):
+        row = dict(plan.at(k))
+        if 'throttle' in row:
+            engine.set_throttle(row['throttle'])
+        hybrid.set_commands(clutch=row.get('clutch'), brake=row.get('brake'))
+        pos, vel, eff = hybrid.joint_states()
+        out.append(pos.tobytes() + vel.tobytes() + eff.tobytes())
+        if on_step is not None:
+            on_step(k)
+        hybrid.advance((k + 1) * H, engine.torque(k * H, vel[0], pos[0]), 0.0)
+    return out
+
+
+def test_reuse_gives_the_reference_exchange_path_bit_for_bit() -> None:
+    """3 s of launch_clutch's loop (brakes held, released, the clutch ramped in and locked at
+    ~2.69 s: the kept walk serves a stuck clutch): every joint state, event and the final
+    mode state are the bytes of the same stepper without the reuse."""
+    scene = load_scene(find_scene('launch_clutch'))
+    fast = hybrid_lockstep(scene, backend='kernel')
+    ref = _as_hybrid_lockstep(_NoReuse, scene)
+    n = 3000
+    a, b = _exchange_loop(fast, scene, n), _exchange_loop(ref, scene, n)
+    assert fast.mode_names()['clutch'] == 'stuck' and len(fast.events) >= 5
+    assert [e for e in fast.events] == [e for e in ref.events]
+    assert a == b
+    assert fast.state_vector().tobytes() == ref.state_vector().tobytes()
+    assert fast.energy_residual() == ref.energy_residual()
+
+
+def test_one_evaluation_per_exchange_while_the_commands_hold() -> None:
+    """With the commands unchanged (the first second: brakes holding, clutch open), the joint
+    state of t_(k+1) takes the settle's evaluation at t_(k+1): one ModeTree.evaluate per
+    exchange, against two on the reference's path."""
+    from cvj_ros.physics.hybrid.tree import ModeTree
+    scene = load_scene(find_scene('launch_clutch'))
+    fast = hybrid_lockstep(scene, backend='kernel')
+    calls = [0]
+    real = ModeTree.evaluate
+
+    def counted(self, *args, **kwargs):
+        calls[0] += 1
+        return real(self, *args, **kwargs)
+
+    counts = []
+    ModeTree.evaluate = counted
+    try:
+        _exchange_loop(fast, scene, 300, on_step=lambda k: counts.append(calls[0]))
+    finally:
+        ModeTree.evaluate = real
+    steady = np.diff(counts[100:])
+    assert np.all(steady == 1), steady

@@ -15,7 +15,8 @@ reference lockstep.
 
 The exchange's Python around the segments reuses what it computed (the same numbers as the
 reference's path, bit for bit: test_tree_modes_lockstep.py): a ModeTree keeps its last
-kinematics and walk (:mod:`cvj_ros.physics.hybrid.tree_reuse`), :meth:`_eval` keeps its
+kinematics and walk (:mod:`cvj_ros.physics.hybrid.tree_reuse`), :meth:`_capacities` its
+last capacities (keyed by t, the held commands, the shift sequence), :meth:`_eval` its
 last evaluation and forces keyed by every input (mode tree, slip directions, t, state bytes,
 held engine torque, capacities), so the joint state of t_(k+1) takes the settle's evaluation
 at t_(k+1) when the commands did not change in between; mode states without a lock are made
@@ -56,6 +57,7 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         from cvj_ros.physics.engine import LinearEngine
         self._last_eval: tuple | None = None
         self._last_fo: Any = None
+        self._last_caps: tuple | None = None
         super().__init__(*args, **kwargs)
         if self.method not in KERNEL_TREE_MODE_METHODS:
             raise NotImplementedError(
@@ -100,6 +102,18 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         self._last_eval = (key, ev, torques, mt)       # mt held: its id stays unique
         self._last_fo = made[0]
         return ev
+
+    def _capacities(self, t: float) -> tuple[float, float, dict[str, float], dict[str, float]]:
+        """The reference's capacities, the last kept: keyed by t, the held commands and the
+        shift sequence (AutoShift.value's inputs)."""
+        now = self.commands.now
+        key = (t, now.clutch, now.brake, now.gear, None if self.auto is None else self.auto.seq)
+        last = self._last_caps
+        if last is not None and last[0] == key:
+            return last[1]
+        caps = super()._capacities(t)
+        self._last_caps = (key, caps)
+        return caps
 
     def _apply(self, mode: Any, st: Any, fresh: bool) -> tuple[Any, np.ndarray, Any]:
         if fresh:

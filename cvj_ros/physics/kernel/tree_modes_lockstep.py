@@ -58,6 +58,7 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         self._last_eval: tuple | None = None
         self._last_fo: Any = None
         self._last_caps: tuple | None = None
+        self._last_tree: tuple | None = None
         super().__init__(*args, **kwargs)
         if self.method not in KERNEL_TREE_MODE_METHODS:
             raise NotImplementedError(
@@ -71,8 +72,20 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
     # --- reuse within an exchange (module docstring) -------------------------------------
 
     def tree(self, mode: Any) -> Any:
-        """The reference's ModeTree of ``mode`` with its last kinematics and walk kept."""
-        return reuse_tree(super().tree(mode))
+        """The reference's ModeTree of ``mode`` with its last kinematics and walk kept; a
+        mode with the same contents as the last call's (its dicts item for item, in order:
+        equal contents, so the reference's sorted key is equal too) takes the last tree
+        without building that key."""
+        snap = (tuple(mode.clutch.items()), tuple(mode.gear.items()), tuple(mode.brakes.items()),
+                tuple(mode.packs.items()), tuple(mode.offsets.items()))
+        last = self._last_tree
+        if last is not None and last[0] == snap:
+            mt = last[1]
+            mt.mode = mode          # as the reference: the slip directions are read from it
+            return mt
+        mt = reuse_tree(super().tree(mode))
+        self._last_tree = (snap, mt)
+        return mt
 
     def _eval(self, mt: Any, t: float, x: np.ndarray, torques: bool = True) -> Any:
         """The reference's evaluation, the last one kept with its forces (``_last_fo``): keyed
@@ -152,8 +165,9 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         if python:
             mt.fill_mid(pos[None, :], vel[None, :], members=python)
 
-    def _arrays_of(self, mt: Any, mode: Any) -> tuple[np.ndarray, np.ndarray]:
-        ws = tuple(w.key for w in self._witnesses(mode))
+    def _arrays_of(self, mt: Any, mode: Any, witnesses: list[Any]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        ws = tuple(w.key for w in witnesses)
         seq = self.auto.seq if self.auto is not None else None
         key = (_mode_key(mode), ws, seq)
         hit = self._arrays.get(key)
@@ -170,10 +184,11 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         fp[e], fp[c], fp[b] = float(self.engine.value), float(now.clutch), float(now.brake)
         return ip, fp
 
-    def _run_segment(self, mt: Any, mode: Any, t: float, t_stop: float, y0: np.ndarray
+    def _run_segment(self, mt: Any, mode: Any, t: float, t_stop: float, y0: np.ndarray,
+                     witnesses: list[Any]
                      ) -> tuple[np.ndarray, float, int]:
         from cvj_ros.physics.kernel.stepper import _dop853_args
-        ip, fp = self._arrays_of(mt, mode)
+        ip, fp = self._arrays_of(mt, mode, witnesses)
         y = np.array(y0, dtype=np.float64)
         ns = y.size
         atol = np.full(ns, float(self.atol)) if np.ndim(self.atol) == 0 else \
@@ -244,7 +259,7 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
                 self.stall = (f'engine stalled at t={t:.6f} s: {w_e:.2f} rad/s below '
                               f'the stall speed {self.stall_speed:.2f} rad/s')
                 break
-            y, t_end, ev_i = self._run_segment(mt, mode, t, t_stop, y0)
+            y, t_end, ev_i = self._run_segment(mt, mode, t, t_stop, y0, ws)
             st = mt.to_state(y, st.lock_loss)
             if ev_i < 0:
                 t = t_stop

@@ -147,3 +147,10 @@ def test_float_arrays(method):
     assert np.array_equal(tab['A'][S - 1, :S], tab['B']) and tab['C'][S - 1] == 1.0
     assert abs(tab['E'].sum()) < 1e-13
     assert np.allclose(tab['P'].sum(axis=1)[:S], tab['B'], atol=1e-13)
+    # the doubles themselves: rows sum to C and b . A 1 = 1/2 to 1e-12 (vern6's published
+    # values rounded one by one missed it by 7e-12: the first column is re-rounded)
+    A = [[Fraction(v) for v in row] for row in tab['A']]
+    for i in range(S):
+        assert abs(float(sum(A[i], Fraction(0)) - Fraction(tab['C'][i]))) < 1e-14
+    b_a1 = sum((Fraction(tab['B'][i]) * sum(A[i], Fraction(0)) for i in range(S)), Fraction(0))
+    assert abs(float(b_a1 - Fraction(1, 2))) < 1e-12

@@ -13,8 +13,8 @@ dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compi
 (RODAS5P, its own dense output), 'rodas4' and 'rodas3' (Hermite dense output),
 adaptive,
 'dop853' (8(5,3), 7th-order dense output), and the efficient FSAL pairs 'tsit5' (Tsitouras
-5(4)) and 'vern6' (Verner 6(5)) with their interpolants (``steppers_rk_nb``). Every method of solvers.METHODS is compiled;
-unknown names raise
+5(4)) and 'vern6' (Verner 6(5)) with their interpolants (``steppers_rk_nb``). Every method
+of solvers.METHODS is compiled; unknown names raise
 SolverOptionError('method', ...).
 """
 from __future__ import annotations

@@ -26,7 +26,7 @@ from .borrow_nb import borrowed_all
 from .rhs_nb import rhs as RHS
 from .steppers_nb import (
     _EPS, BETA, C_BADIDX, C_DENSE, C_HAVEF, C_LASTREJ, C_NACC, C_NFEV, C_NREJ, FAC_MIN,
-    FAC_MAX, FS_ERROLD, FS_H, FS_HLAST, FS_T, FS_TBAD, FS_TOLD, SAFETY, ST_NONFINITE, ST_OK,
+    FAC_MAX, FS_H, FS_HLAST, FS_T, FS_TBAD, FS_TOLD, SAFETY, ST_NONFINITE, ST_OK,
     ST_UNDERFLOW, _first_nonfinite, _proposal, _store_row)
 
 __all__ = ['erk_advance', 'erk_dense', 'erk_land', 'erk_sample', 'erk_step', 'erk_step_once']

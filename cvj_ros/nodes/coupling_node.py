@@ -123,7 +123,8 @@ _FLOAT64_LE = struct.Struct('<4sd')    # std_msgs/Float64 as little-endian CDR
 _CDR_LE = b'\x00\x01\x00\x00'
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
-SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
+SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3', 'tsit5',
+           'vern6')
 NONFINITE_POLICIES = ('stop', 'hold')
 #: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
 JOINT_STATES_FRAME = 'driveline'

@@ -66,7 +66,8 @@ LIMIT_KEYS = ('max_angle_deg', 'max_speed_rad_s', 'max_torque_nm', 'max_twist_de
 # Solver names of cvj_ros.physics.solvers.METHODS (validated here so a typo stops early):
 # a scene's solver.method takes every method `cvj-sim simulate --method` takes, the two
 # loose-tolerance RODAS methods included (each is compiled in the kernel too)
-SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3')
+SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3', 'tsit5',
+                  'vern6')
 # every solver an offline run takes (cvj-sim simulate --method, Simulation)
 OFFLINE_METHODS = SOLVER_METHODS
 # unit suffix in a scene file -> (SI unit of the registry, factor to SI)

@@ -22,6 +22,10 @@ method          order  stability                        source
 ``rk4``         4      explicit, fixed step             Kutta 1901 (classic RK4)
 ``ros2``        2      L-stable, linearly implicit,     Verwer et al. 1999, SIAM J.
                        fixed step (real time, stiff)    Sci. Comput. 20 (ROS2)
+``tsit5``       5(4)   explicit, non-stiff, FSAL        Tsitouras 2011, Comput.
+                                                        Math. Appl. 62
+``vern6``       6(5)   explicit, non-stiff, FSAL        Verner 2010, Numer.
+                                                        Algorithms 53
 ==============  =====  ===============================  ===========================
 
 Implementation notes (measured on the project machine, n = 4):
@@ -417,6 +421,75 @@ class Dop853Stepper(_ExplicitRK):
             y += f
             y *= x if i % 2 == 0 else 1.0 - x
         return y + self.y_old
+
+
+class _ErkStepper(_ExplicitRK):
+    """An efficient FSAL pair with interpolant (physics/erk_tableaux.py): S stages per
+    attempt (the last f(t + h, y_new): S - 1 fev), DOPRI5's error norm and PI controller
+    with the embedded order's exponent; dense output of the pair's interpolant, its extra
+    stages (vern6: 3 fev) once per step. The Python oracle of the compiled
+    ``kernel/steppers_rk_nb.py``."""
+
+    beta = 0.04
+    fac_min = 0.2
+    fac_max = 10.0
+    _TAB: dict
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        from cvj_ros.physics.erk_tableaux import erk_tableau
+        tab = cls._TAB = erk_tableau(cls.method)
+        S = tab['S']
+        cls.order = tab['error_order']
+        cls._S = S - 1
+        cls._C = tab['C']
+        cls._A_FULL = tab['A']
+        cls._B = tab['B'][:S - 1]
+        cls._EXTRA_ROWS = tab['C'].size - S
+        cls._E_EXT = np.r_[0.0, tab['E'], np.zeros(cls._EXTRA_ROWS)]   # over KE rows
+
+    def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        y_new = self._stages(h)
+        e = np.dot(self._E_EXT, self._KE)
+        sc = np.abs(self.y)
+        np.maximum(sc, np.abs(y_new), out=sc)
+        sc *= self.rtol
+        sc += self.atol
+        e /= sc
+        return abs(h) * math.sqrt(float(np.dot(e, e)) / self.n), y_new
+
+    def dense(self, t: float) -> np.ndarray:
+        """y(t) inside the last accepted step (the pair's interpolant)."""
+        t = self._check_dense_t(t)
+        h = self._h_last
+        if h == 0.0 or t == self.t:
+            return self.y.copy()
+        K = self._KE[1:]   # k_0 .. k_{S-1}, then the extra stages
+        tab = self._TAB
+        if self._dense_cache is None:
+            A, C = tab['A'], tab['C']
+            for s in range(self._S + 1, C.size):
+                K[s] = self.fun(self.t_old + C[s] * h, self.y_old + h * np.dot(A[s, :s], K[:s]))
+            self.nfev += C.size - self._S - 1
+            self._dense_cache = True
+        x = (t - self.t_old) / h
+        P = tab['P']
+        powers = x ** np.arange(1, P.shape[1] + 1)
+        return self.y_old + h * np.dot(P @ powers, K[:P.shape[0]])
+
+
+class Tsit5Stepper(_ErkStepper):
+    """Tsitouras 5(4), FSAL, 7 stages (6 fev per step), free 4th-order interpolant;
+    Tsitouras, Comput. Math. Appl. 62 (2011) 770-775."""
+
+    method = 'tsit5'
+
+
+class Vern6Stepper(_ErkStepper):
+    """Verner's efficient 6(5), FSAL, 9 stages (8 fev per step), 6th-order interpolant (3
+    extra fev once per step with dense output); Verner, Numer. Algorithms 53 (2010)."""
+
+    method = 'vern6'
 
 
 
@@ -830,6 +903,8 @@ METHODS: dict[str, type] = {
     'rodas3': Rodas3Stepper,
     'rk4': Rk4Stepper,
     'ros2': Ros2Stepper,
+    'tsit5': Tsit5Stepper,
+    'vern6': Vern6Stepper,
 }
 
 

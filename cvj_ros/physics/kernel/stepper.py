@@ -11,9 +11,10 @@ Implemented: 'dopri5' (adaptive 5(4), dense output), 'rk4' (fixed step h, Hermit
 dense output), 'ros2' (fixed step h, L-stable Rosenbrock with the analytic compiled
 ``jac(t, y, ip, fp, J)``, hand-written LU; Hermite dense output), 'rosenbrock'
 (RODAS5P, its own dense output), 'rodas4' and 'rodas3' (Hermite dense output),
-adaptive, and
-'dop853' (8(5,3), 7th-order dense output). Every method of solvers.METHODS is compiled;
-unknown names raise
+adaptive,
+'dop853' (8(5,3), 7th-order dense output), and the efficient FSAL pairs 'tsit5' (Tsitouras
+5(4)) and 'vern6' (Verner 6(5)) with their interpolants (``steppers_rk_nb``). Every method
+of solvers.METHODS is compiled; unknown names raise
 SolverOptionError('method', ...).
 """
 from __future__ import annotations
@@ -46,16 +47,18 @@ def _rhs_module():
     return rhs_nb
 
 
-def steppers_for(rhs, jac=None):
-    """The compiled steppers calling ``rhs``/``jac``: ``steppers_nb`` itself for the
+def steppers_for(rhs, jac=None, module=None):
+    """The compiled steppers calling ``rhs``/``jac``: ``module`` (default ``steppers_nb``;
+    also ``steppers_rk_nb``) itself for the
     driveline kernel (rhs_nb.rhs / rhs_nb.jac, disk-cached), else a private copy of that
     module whose globals RHS/JAC are the given dispatchers, with disk caching off (a toy
     rhs in a test would otherwise overwrite the kernel's cache entries of the same
-    signature). Copies are made once per (rhs, jac) and process."""
+    signature). Copies are made once per (rhs, jac, module) and process."""
     rhs_nb = _rhs_module()
+    base = steppers_nb if module is None else module
     if rhs is rhs_nb.rhs and (jac is None or jac is rhs_nb.jac):
-        return steppers_nb
-    key = (id(rhs), id(jac))
+        return base
+    key = (id(rhs), id(jac)) if base is steppers_nb else (id(rhs), id(jac), base.__name__)
     mod = _COPIES.get(key)
     if mod is None:
         import importlib.util
@@ -63,11 +66,11 @@ def steppers_for(rhs, jac=None):
         from numba.core.caching import NullCache
         from numba.core.registry import CPUDispatcher
         name = f'{__package__}._steppers_copy_{len(_COPIES)}'
-        spec = importlib.util.spec_from_file_location(name, steppers_nb.__file__)
+        spec = importlib.util.spec_from_file_location(name, base.__file__)
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
-        for obj in vars(mod).values():
-            if isinstance(obj, CPUDispatcher):
+        for obj in vars(mod).values():   # the copy's own functions, not the imported ones
+            if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == name:
                 obj._cache = NullCache()
         mod.RHS = rhs
         mod.JAC = jac if jac is not None else rhs_nb.jac
@@ -76,7 +79,9 @@ def steppers_for(rhs, jac=None):
         mod = mod[0]
     return mod
 
-KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4', 'rodas3')
+KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5',
+                  'vern6')
+_ERK = ('tsit5', 'vern6')   # efficient FSAL pairs with interpolants (steppers_rk_nb)
 _ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4', 'rodas3')
 _RODAS = ('rosenbrock', 'rodas4', 'rodas3')   # adaptive, tableau passed in (tableaux.py)
 _HERMITE_RODAS = ('rodas4', 'rodas3')   # dense output: cubic Hermite from K's last row
@@ -145,6 +150,14 @@ class KernelStepper(_StepperBase):
         if method in _RODAS:
             self._tab, self._H = _rosenbrock_args(method)
             stages = len(self._tab[3]) + 1   # K rows: f, stages (M), f at the last step start
+        if method in _ERK:
+            from ..erk_tableaux import erk_tableau
+            from . import steppers_rk_nb
+            tab = erk_tableau(method)
+            self._rk_nb = steppers_for(rhs, jac, steppers_rk_nb)
+            self._erk = (int(tab['error_order']), tab['C'], tab['A'], tab['B'], tab['E'])
+            self._erk_P = tab['P']
+            stages = tab['C'].size - 1   # K rows: the step's stages, the interpolant's extra
         # every float array of the state is a C-contiguous view of one buffer (and every
         # int one of another), so reset() is two fills: a run that reuses its stepper
         # (Simulation.run) pays ~2 us instead of this constructor's ~14. fs (NFS), y_old,
@@ -273,6 +286,9 @@ class KernelStepper(_StepperBase):
         elif self.method == 'dop853':
             st = self._call(self._nb.dop853_advance, *a, self.rtol, self._atol, self.max_step, *self._d8, self._K,
                                    self._work)
+        elif self.method in _ERK:
+            st = self._call(self._rk_nb.erk_advance, *a, self.rtol, self._atol, self.max_step,
+                            *self._erk, self._K, self._work)
         elif self.method == 'ros2':
             st = self._call(self._nb.ros2_advance, *a, *self._ros_args())
         elif self.method in _ROSENBROCK:
@@ -307,6 +323,9 @@ class KernelStepper(_StepperBase):
         elif self.method == 'dop853':
             st, _ = self._call(self._nb.dop853_land, *a, self.rtol, self._atol, self.max_step,
                                *self._d8, self._K, self._work)
+        elif self.method in _ERK:
+            st, _ = self._call(self._rk_nb.erk_land, *a, self.rtol, self._atol, self.max_step,
+                               *self._erk, self._K, self._work)
         elif self.method == 'ros2':
             st, _ = self._call(self._nb.ros2_land, *a, *self._ros_args())
         elif self.method in _ROSENBROCK:
@@ -325,6 +344,9 @@ class KernelStepper(_StepperBase):
         elif self.method == 'dop853':
             st = nb.ST_OK if self.t >= t_bound else self._call(self._nb.dop853_step, 
                 *a, self.rtol, self._atol, self.max_step, *self._d8, self._K, self._work)
+        elif self.method in _ERK:
+            st = self._call(self._rk_nb.erk_step_once, *a, self.rtol, self._atol, self.max_step,
+                            *self._erk, self._K, self._work)
         elif self.method == 'ros2':
             st = self._call(self._nb.ros2_step_once, *a, *self._ros_args())
         elif self.method in _ROSENBROCK:
@@ -353,7 +375,8 @@ class KernelStepper(_StepperBase):
         return tail
 
     def dense(self, t: float) -> np.ndarray:
-        """y(t) inside the last accepted step (dopri5: 4th order; rk4: cubic Hermite)."""
+        """y(t) inside the last accepted step (dopri5, tsit5: 4th order; vern6: 6th; rk4:
+        cubic Hermite)."""
         t = self._check_dense_t(t)
         out = np.empty(self.n)
         if self.method == 'dopri5':
@@ -365,6 +388,13 @@ class KernelStepper(_StepperBase):
                 return self.y.copy()
             self._call(self._nb.dop853_dense, t, self._y, self._y_old, self.ip, self.fp, self._fs,
                             self._cnt, *self._d8_dense, self._K, out)
+            self._sync()
+        elif self.method in _ERK:
+            if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
+                return self.y.copy()
+            _order, C, A, B, _E = self._erk
+            self._call(self._rk_nb.erk_dense, t, self._y, self._y_old, self.ip, self.fp,
+                       self._fs, self._cnt, C, A, self._erk_P, self._K, self._work, B.size, out)
             self._sync()
         elif self.method == 'rosenbrock':
             if t == self.t or self._fs[nb.FS_HLAST] == 0.0:
@@ -421,6 +451,10 @@ class KernelStepper(_StepperBase):
             return (self._nb.dop853_sample, (*state, self.rtol, self._atol, self.max_step,
                                              *self._d8, *self._d8_dense, self._K, self._work),
                     False)
+        if self.method in _ERK:
+            return (self._rk_nb.erk_sample, (*state, self.rtol, self._atol, self.max_step,
+                                             *self._erk, self._erk_P, self._K, self._work),
+                    False)
         if self.method == 'ros2':
             return self._nb.ros2_sample, (*state, *self._ros_args()), False
         if self.method in _ROSENBROCK:
@@ -440,6 +474,10 @@ class KernelStepper(_StepperBase):
             return run_nb.dopri5_run, (self.rtol, self.max_step), ()
         if self.method == 'dop853':
             return run_nb.dop853_run, (self.rtol, self.max_step), (*self._d8, *self._d8_dense)
+        if self.method in _ERK:
+            from .run_rk_nb import erk_run
+            order, C, A, B, E = self._erk
+            return erk_run, (self.rtol, self.max_step, order), (C, A, B, E, self._erk_P)
         if self.method == 'rk4':
             return run_nb.rk4_run, (), ()
         linear = (self._J, self._LU, self._ft, self._piv)

@@ -22,8 +22,8 @@ data and scratch: ``x0``, the sample ``times``, the plan - ``grid, rows`` (landi
 landings and the grid row of every sample, empty when every landing is a sample; ``grid``
 empty for dense sampling) and ``seg, brk, tb, two`` (dense: sample rows [seg[i, 0], seg[i, 1])
 read by dense output up to breakpoint brk[i] (NaN: none), on which a step lands; ``tb`` (2,)
-and ``two`` (2, n) are that landing's scratch) -, ``atol``, the method's tableau and
-``sample_outputs``' shaft table ``tab``). Unpacking them in compiled code is a few slices;
+and ``two`` (2, n) are that landing's scratch) -, ``atol``, the method's tableau,
+``sample_outputs``' shaft table ``tab`` and ``fill_mid_samples``' ``mtab, mfp``). Unpacking them in compiled code is a few slices;
 unboxing each as an argument cost ~60-90 ns (a meminfo allocated and freed, two atomic
 reference counts): 39 array arguments were ~3 of a 19 us stiff run, 15 are ~1.
 
@@ -39,15 +39,15 @@ import numpy as np
 from numba import njit
 
 from .borrow_nb import borrowed_all
-from .outputs_nb import sample_outputs
+from .outputs_nb import fill_mid_samples, sample_outputs
 from .steppers_nb import (
     FS_ERROLD, FS_H, FS_T, FS_TOLD, ST_OK, dop853_land, dop853_sample, dopri5_land,
     dopri5_sample, rk4_land, rk4_sample, ros2_land, ros2_sample, ros_land, ros_sample)
 
 # entries of the pack table (pack(): the arrays in this order); the method's own from E_M0
 (E_X0, E_TIMES, E_GRID, E_BRK, E_TB, E_TWO, E_ATOL, E_FS, E_YOLD, E_K, E_WORK, E_ROWS, E_SEG,
- E_TAB, E_CNT) = range(15)
-E_M0 = 15
+ E_TAB, E_CNT, E_MTAB, E_MFP) = range(17)
+E_M0 = 17
 # Rosenbrock (ros2 uses the first four): J, LU, ft, piv, then A, C, M, E, alpha, gsum, H
 E_J, E_LU, E_FT, E_PIV, E_A, E_C, E_MW, E_E, E_ALPHA, E_GSUM, E_H = range(E_M0, E_M0 + 11)
 # dop853: C, A, B, E5, E3, D, A_EXTRA, C_EXTRA
@@ -137,6 +137,19 @@ def _i1(e, ipk, ibuf):
 def _i2(e, ipk, ibuf):
     """2-d int entry e."""
     return _view2(e, ipk, ipk, ibuf, B_IBUF)
+
+
+@njit(cache=True, inline='always')
+def _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk, fbuf, ibuf):
+    """``sample_outputs`` and, when every sample is finite, the intermediate members'
+    angles and speeds (``fill_mid_samples`` with the pack's ``mtab, mfp``): what
+    ``Simulation.run`` did after the call, in the same order. Returns sample_outputs'
+    first non-finite sample, or -1."""
+    bad = sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    mtab = _i2(E_MTAB, ipk, ibuf)
+    if bad < 0 and mtab.shape[0] > 0:
+        fill_mid_samples(pos, vel, mtab, _f1(E_MFP, fpk, ipk, fbuf))
+    return bad
 
 
 @njit(cache=True, inline='always')
@@ -233,7 +246,8 @@ def ros_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, autonomous, con
                                   alpha, gsum, order, fac_max, J, LU, piv, ft, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk,
+                           fbuf, ibuf)
 
 
 @njit(cache=True)
@@ -264,7 +278,8 @@ def dopri5_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, p
                                      max_step, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk,
+                           fbuf, ibuf)
 
 
 @njit(cache=True)
@@ -301,7 +316,8 @@ def dop853_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, p
                                      max_step, C, A, B, E5, E3, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk,
+                           fbuf, ibuf)
 
 
 @njit(cache=True)
@@ -329,7 +345,8 @@ def rk4_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, e0, X, XG, pos, vel, eff, te, t
                 st, _k = rk4_land(tb, two, y, y_old, ip, fp, fs, cnt, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk,
+                           fbuf, ibuf)
 
 
 @njit(cache=True)
@@ -361,4 +378,5 @@ def ros2_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, autonomous, constant_jac, e0, 
                                    constant_jac, J, LU, piv, ft, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, fpk, ipk,
+                           fbuf, ibuf)

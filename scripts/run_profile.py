@@ -5,17 +5,23 @@ breakpoints, sampling)`` on one Simulation, its plan kept) for a scene and confi
 and splits it into pieces timed the same way (CPU time of this thread, min over CALLS
 calls, median of ROUNDS rounds):
 
-- ``whole run``: ``Simulation.run`` as the bench calls it;
-- ``compiled call``: the plan's one-call run (``KernelStepper.bind_run``) alone, the run's
+- ``whole``: ``Simulation.run`` as the bench calls it;
+- ``call``: the plan's one-call run (``KernelStepper.bind_run``) alone, the run's
   arrays allocated once outside the timing;
 - ``dispatch``: a compiled function that does nothing, with the same arguments, called the
   same way (functools.partial over the compiled entry point): numba's unboxing;
-- ``integration`` and ``outputs``: the stepper's landing / sampled loop and the samples'
-  outputs, each in a compiled loop (``_harness``), so without any dispatch;
+- ``compiled_run``: the same run function called from a compiled loop (no dispatch);
+- ``outputs``: the samples' outputs (``sample_outputs`` and the intermediate members'
+  ``fill_mid_samples``) in a compiled loop;
+- ``jac``: the Jacobian evaluations x its ns per call in a compiled loop;
 - ``rhs``: the evaluations x the rhs's ns per call in a compiled loop at the run's states;
-- ``Python``: the whole run minus the compiled call.
+- ``python``: the whole run minus the call; ``call_overhead``: the call minus the compiled
+  run; ``integration_rest``: the compiled run minus outputs, rhs and Jacobian (the stepper's
+  own arithmetic: start, step-size control, LU and solves, dense output).
 
-    PYTHONPATH=. python scripts/run_profile.py stiff rodas3 1e-3 dense [ROUNDS]
+    PYTHONPATH=. python scripts/run_profile.py stiff rodas3 1e-3 dense [ROUNDS [across]]
+
+(``across``: step across the load's breakpoints instead of landing on them.)
 """
 from __future__ import annotations
 
@@ -28,7 +34,7 @@ from numba import njit
 
 from cvj_ros import bench
 from cvj_ros.physics.kernel import rhs_nb
-from cvj_ros.physics.kernel.outputs_nb import sample_outputs
+from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples, sample_outputs
 from cvj_ros.physics.simulate import Simulation
 
 
@@ -43,14 +49,11 @@ def _min_cpu(fn, calls: int) -> float:
     return best
 
 
-def _mean_cpu(fn, calls: int) -> float:
-    """CPU time per call of fn, averaged over one batch of ``calls`` calls (s): for pieces
-    shorter than the clock's resolution."""
-    clock = time.thread_time
-    t0 = clock()
-    for _ in range(calls):
-        fn()
-    return (clock() - t0) / calls
+def _batch_cpu(fn, batches: int) -> float:
+    """Least CPU time of one call of fn over ``batches`` calls (s): fn is a compiled loop
+    over many repetitions of a piece (the caller divides by them), so the least batch is
+    the piece's cost with the fewest interruptions, as the runs' min is."""
+    return _min_cpu(fn, batches)
 
 
 @njit
@@ -66,10 +69,12 @@ def _noop19(a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15
 
 
 @njit
-def _outputs_loop(n, times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
+def _outputs_loop(n, times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, mtab, mfp):
     bad = 0
     for _ in range(n):
         bad += sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+        if mtab.shape[0] > 0:
+            fill_mid_samples(pos, vel, mtab, mfp)
     return bad
 
 
@@ -110,12 +115,13 @@ def _run_function(sim):
 
 
 def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int = 5,
-            calls: int = 2000, horizon: float = 1.0, samples: int = 20) -> dict[str, float]:
+            calls: int = 2000, horizon: float = 1.0, samples: int = 20,
+            breakpoints: bool = True) -> dict[str, float]:
     scene = bench.resolve_scene(scene_name)
     sim = Simulation(scene, method=solver, rtol=tol, atol=tol,
                      fidelity=bench.forced_levels(scene, 'exact'))
     dt = horizon / samples
-    tr = sim.run(horizon, sample_dt=dt, sampling=sampling)
+    tr = sim.run(horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints)
     plan = next(iter(sim._plans.values()))
     m, n, n_sh = plan.shape
     X, pos, vel, eff = np.empty((m, n)), np.empty((m, n_sh)), np.empty((m, n_sh)), np.empty((m, n_sh))
@@ -135,7 +141,8 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     noop_entry = functools.partial(noop.overloads[noop.signatures[0]].entry_point, *head)
     tab = sim._shaft_table
     ip, fp = sim.model.ip, sim.model.fp
-    _outputs_loop(1, plan.times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    mtab, mfp, _python = sim._mid_table
+    _outputs_loop(1, plan.times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, mtab, mfp)
     dy = np.empty(n)
     _rhs_loop(1, X, ip, fp, plan.times, dy)
     nfev = int(tr.solver['nfev'])
@@ -148,19 +155,20 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     out: dict[str, list[float]] = {k: [] for k in ('whole', 'call', 'dispatch', 'outputs', 'rhs',
                                                    'compiled_run', 'jac')}
     for _ in range(rounds):
-        out['whole'].append(_min_cpu(lambda: sim.run(horizon, sample_dt=dt, sampling=sampling),
-                                     calls))
+        out['whole'].append(_min_cpu(lambda: sim.run(horizon, sample_dt=dt, sampling=sampling,
+                                                      breakpoints=breakpoints), calls))
         out['call'].append(_min_cpu(lambda: plan.run(*per_run), calls))
-        out['dispatch'].append(_mean_cpu(lambda: noop_entry(*per_run), calls))
-        k = 2000
-        out['outputs'].append(_mean_cpu(
-            lambda: _outputs_loop(k, plan.times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res),
-            5) / k)
-        out['compiled_run'].append(_mean_cpu(lambda: _run_loop(k, run_fn, args), 5) / k)
-        out['jac'].append(_mean_cpu(lambda: _jac_loop(100_000, X, ip, fp, plan.times, J), 3)
-                          / 100_000 * njev)
-        out['rhs'].append(_mean_cpu(lambda: _rhs_loop(100_000, X, ip, fp, plan.times, dy), 3)
-                          / 100_000 * nfev)
+        out['dispatch'].append(_batch_cpu(lambda: [noop_entry(*per_run) for _ in range(100)], 20)
+                               / 100)
+        k = max(1, int(2e-4 / max(out['call'][-1], 1e-7)))   # ~0.2 ms batches
+        out['compiled_run'].append(_batch_cpu(lambda: _run_loop(k, run_fn, args), 30) / k)
+        out['outputs'].append(_batch_cpu(
+            lambda: _outputs_loop(k, plan.times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res,
+                                  mtab, mfp), 30) / k)
+        out['jac'].append(_batch_cpu(lambda: _jac_loop(10_000, X, ip, fp, plan.times, J), 10)
+                          / 10_000 * njev)
+        out['rhs'].append(_batch_cpu(lambda: _rhs_loop(10_000, X, ip, fp, plan.times, dy), 10)
+                          / 10_000 * nfev)
     med = {k: float(np.median(v)) * 1e6 for k, v in out.items()}
     med['nfev'] = nfev
     med['steps'] = int(tr.solver['naccept']) + int(tr.solver['nreject'])
@@ -174,7 +182,8 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
 def main() -> None:
     scene, solver, tol, sampling = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
     rounds = int(sys.argv[5]) if len(sys.argv) > 5 else 5
-    med = profile(scene, solver, tol, sampling, rounds)
+    across = len(sys.argv) > 6 and sys.argv[6] == 'across'
+    med = profile(scene, solver, tol, sampling, rounds, breakpoints=not across)
     print(f'{scene} {solver} tol={tol:g} {sampling}: ' + ', '.join(
         f'{k} {v:.2f}' if isinstance(v, float) else f'{k} {v}' for k, v in med.items()))
 

@@ -468,7 +468,8 @@ class KernelStepper(_StepperBase):
         run that succeeds leaves the Python attributes (t, y, counters: ~1.1 us to refresh)
         as they were - :meth:`stats` reads the arrays; :meth:`reset` refreshes them. Only
         for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). ``x0``, ``times``, the plan,
-        ``atol``, the tableau, ``tab`` and ``mids`` are copied into the run's packs here
+        ``atol``, the tableau, ``tab`` and ``mtab`` are copied into the run's packs here (``fp``
+        and ``mfp`` are read where they are)
         (``run_nb.pack``: fixed for these options); the fixed arguments are bound to the
         entry point after its first call (functools.partial)."""
         if self._nb is not steppers_nb:
@@ -477,12 +478,15 @@ class KernelStepper(_StepperBase):
         fn, scalars, entries = self._run_call()
         grid, rows, seg, brk, tb, two = plan
         mtab, mfp = mids if mids is not None else (np.zeros((0, 4), np.int64), np.zeros(0))
+        if not (isinstance(mfp, np.ndarray) and mfp.dtype == np.float64 and mfp.ndim == 1
+                and mfp.flags.c_contiguous):
+            raise SolverOptionError('mids', 'mfp must be a 1-d C-contiguous float64 array')
         fpk, ipk = pack([x0, times, grid, brk, tb, two, self._atol, self._fs, self._y_old,
                          self._K, self._work, rows, seg, tab, self._cnt,
-                         np.ascontiguousarray(mtab, dtype=np.int64),
-                         np.ascontiguousarray(mfp, dtype=np.float64), *entries],
+                         np.ascontiguousarray(mtab, dtype=np.int64), *entries],
                         self._fbuf, self._ibuf)
-        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp,
+        # mfp is read where it is, as fp is (a sweep patches both between runs)
+        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp, mfp,
                 0.0 if self._h0 is None else float(self._h0), *scalars)
         check = self._check
         bound = None

@@ -56,16 +56,13 @@ def _batch_cpu(fn, batches: int) -> float:
     return _min_cpu(fn, batches)
 
 
-@njit
-def _noop26(a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15, a16, a17,
-            a18, a19, a20, a21, a22, a23, a24, a25):
-    return 0, -1
-
-
-@njit
-def _noop20(a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15, a16, a17,
-            a18, a19):
-    return 0, -1
+def _noop(arity: int):
+    """A compiled function of ``arity`` arguments that does nothing (returns (0, -1), as a
+    run does)."""
+    names = ', '.join(f'a{i}' for i in range(arity))
+    scope: dict = {}
+    exec(f'def noop({names}):\n    return 0, -1\n', scope)
+    return njit(scope['noop'])
 
 
 @njit
@@ -136,7 +133,7 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
         v = cell.cell_contents
         if isinstance(v, functools.partial):
             head = v.args
-    noop = _noop26 if len(head) + len(per_run) == 26 else _noop20
+    noop = _noop(len(head) + len(per_run))
     noop(*head, *per_run)
     noop_entry = functools.partial(noop.overloads[noop.signatures[0]].entry_point, *head)
     tab = sim._shaft_table

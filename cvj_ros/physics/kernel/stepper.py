@@ -462,15 +462,15 @@ class KernelStepper(_StepperBase):
         pos, ...)`` does, then - every sample finite - the intermediate members of
         ``mids = (mtab, mfp)`` (``outputs_nb.mid_table``) as ``fill_mid_samples(pos, vel,
         mtab, mfp)`` does (none when None). Same steps and bytes as reset + land / sample +
-        sample_outputs + fill_mid_samples (test_run_nb.py). It raises SolverError as :meth:`advance_to` and returns the first
-        sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
+        sample_outputs + fill_mid_samples (test_run_nb.py). It raises SolverError as
+        :meth:`advance_to` and returns the first sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
         array (C-contiguous float64 / int64, fixed ndim): nothing is checked per run, and a
         run that succeeds leaves the Python attributes (t, y, counters: ~1.1 us to refresh)
         as they were - :meth:`stats` reads the arrays; :meth:`reset` refreshes them. Only
         for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). ``x0``, ``times``, the plan,
-        ``atol``, the tableau, ``tab`` and ``mtab`` are copied into the run's packs here (``fp``
-        and ``mfp`` are read where they are)
-        (``run_nb.pack``: fixed for these options); the fixed arguments are bound to the
+        ``atol``, the tableau, ``tab`` and ``mtab`` are copied into the run's packs here
+        (``run_nb.pack``: fixed for these options; ``fp`` and ``mfp`` are read where they
+        are, a sweep patches them between runs); the fixed arguments are bound to the
         entry point after its first call (functools.partial)."""
         if self._nb is not steppers_nb:
             raise SolverOptionError('rhs', 'bind_run runs the driveline kernel only')

@@ -357,13 +357,14 @@ class Simulation:
         self._check_outputs(times, entry_point_once(sample_outputs, args)(*args), pos, vel)
 
     def _check_outputs(self, times: FloatArray, bad: int, pos: FloatArray,
-                       vel: FloatArray) -> None:
+                       vel: FloatArray, *, compiled_mids: bool = False) -> None:
         """SolverError when sample ``bad`` (>= 0) was not finite; else the intermediate
-        members' angles and speeds (compiled where the kernel has them, else Python)."""
+        members' angles and speeds (compiled where the kernel has them - already filled by
+        the one-call run when ``compiled_mids`` - else Python)."""
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         mtab, mfp, python_members = self._mid_table
-        if mtab.shape[0]:
+        if mtab.shape[0] and not compiled_mids:
             entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
             args = (pos, vel, mtab, mfp)
             entry_point_once(fill_mid_samples, args)(*args)
@@ -524,9 +525,10 @@ class Simulation:
                           np.array([(k, k_end) for k, k_end, _b in segments], dtype=np.int64),
                           np.array([math.nan if b is None else b for _k, _ke, b in segments]))
             self._output_tables()
+            mtab, mfp, _python_members = self._mid_table
             plan.run = stepper.bind_run(self.driveline.x0, times,
                                         (*arrays, np.zeros(2), np.zeros((2, n))),
-                                        self._shaft_table)
+                                        self._shaft_table, (mtab, mfp))
         return plan
 
     def _run_kernel(self, dur: float, dt: float, sampling: str,
@@ -617,7 +619,7 @@ class Simulation:
         bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
         wall = clock() - wall0
         times = plan.times
-        self._check_outputs(times, bad, pos, vel)
+        self._check_outputs(times, bad, pos, vel, compiled_mids=True)
         return self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             wall, wall)
 

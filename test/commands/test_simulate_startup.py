@@ -72,9 +72,9 @@ def test_warm_simulate_imports_and_loads_only_what_it_needs(tmp_path: Path, caps
     assert heavy == []
     assert sorted(m for m in mods if m.startswith('cvj_ros.commands.')) == [
         'cvj_ros.commands.simulate']
-    # one compiled call runs it (kernel/run_nb.py: integration and outputs); the lever
-    # hinge's earring is an intermediate member: its compiled fill is loaded too
-    assert got['loaded'] == ['outputs_nb.fill_mid_samples', stepper]
+    # one compiled call runs it (kernel/run_nb.py: integration and outputs, the lever
+    # hinge's earring - an intermediate member - filled inside that call too)
+    assert got['loaded'] == [stepper]
 
 
 def test_fast_load_is_off_with_cvj_kernel_load_numba(tmp_path: Path, monkeypatch) -> None:
@@ -83,7 +83,7 @@ def test_fast_load_is_off_with_cvj_kernel_load_numba(tmp_path: Path, monkeypatch
     monkeypatch.setenv('CVJ_KERNEL_LOAD', 'numba')
     got = _probe(tmp_path, ['simulate', 'kavz685_lever', '--duration', '0.05'])
     assert 'numba.np.arraymath' in got['modules']
-    assert got['loaded'] == ['outputs_nb.fill_mid_samples', 'run_nb.dopri5_run']
+    assert got['loaded'] == ['run_nb.dopri5_run']
 
 
 def test_command_named_picks_the_subcommand_or_none() -> None:

@@ -10,7 +10,8 @@ method and sampling with the step-by-step path).
 
 Arguments: the two packs ``fpk, ipk`` (below), the stepper's buffers ``fbuf, ibuf`` (every
 float / int array of its state is a view of one of them, see ``KernelStepper.__init__``),
-its state ``y``, the model's ``ip, fp``, then the method's scalar options and ``h0`` (start
+its state ``y``, the model's ``ip, fp``, the intermediate members' ``mfp`` (read where it
+is, as ``fp``: a sweep patches both between runs), then the method's scalar options and ``h0`` (start
 step proposal, 0 = HINIT); then per run ``e0`` (initial energy, J), ``X`` (the states at
 ``times``; X[0] is written here), ``XG`` (landing: the states at the grid's landings; X
 itself when every landing is a sample) and the outputs ``pos, vel, eff, te, tl, res``.
@@ -22,8 +23,8 @@ data and scratch: ``x0``, the sample ``times``, the plan - ``grid, rows`` (landi
 landings and the grid row of every sample, empty when every landing is a sample; ``grid``
 empty for dense sampling) and ``seg, brk, tb, two`` (dense: sample rows [seg[i, 0], seg[i, 1])
 read by dense output up to breakpoint brk[i] (NaN: none), on which a step lands; ``tb`` (2,)
-and ``two`` (2, n) are that landing's scratch) -, ``atol``, the method's tableau and
-``sample_outputs``' shaft table ``tab``). Unpacking them in compiled code is a few slices;
+and ``two`` (2, n) are that landing's scratch) -, ``atol``, the method's tableau,
+``sample_outputs``' shaft table ``tab`` and ``fill_mid_samples``' ``mtab``). Unpacking them in compiled code is a few slices;
 unboxing each as an argument cost ~60-90 ns (a meminfo allocated and freed, two atomic
 reference counts): 39 array arguments were ~3 of a 19 us stiff run, 15 are ~1.
 
@@ -39,15 +40,15 @@ import numpy as np
 from numba import njit
 
 from .borrow_nb import borrowed_all
-from .outputs_nb import sample_outputs
+from .outputs_nb import fill_mid_samples, sample_outputs
 from .steppers_nb import (
     FS_ERROLD, FS_H, FS_T, FS_TOLD, ST_OK, dop853_land, dop853_sample, dopri5_land,
     dopri5_sample, rk4_land, rk4_sample, ros2_land, ros2_sample, ros_land, ros_sample)
 
 # entries of the pack table (pack(): the arrays in this order); the method's own from E_M0
 (E_X0, E_TIMES, E_GRID, E_BRK, E_TB, E_TWO, E_ATOL, E_FS, E_YOLD, E_K, E_WORK, E_ROWS, E_SEG,
- E_TAB, E_CNT) = range(15)
-E_M0 = 15
+ E_TAB, E_CNT, E_MTAB) = range(16)
+E_M0 = 16
 # Rosenbrock (ros2 uses the first four): J, LU, ft, piv, then A, C, M, E, alpha, gsum, H
 E_J, E_LU, E_FT, E_PIV, E_A, E_C, E_MW, E_E, E_ALPHA, E_GSUM, E_H = range(E_M0, E_M0 + 11)
 # dop853: C, A, B, E5, E3, D, A_EXTRA, C_EXTRA
@@ -140,6 +141,19 @@ def _i2(e, ipk, ibuf):
 
 
 @njit(cache=True, inline='always')
+def _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf, mfp):
+    """``sample_outputs`` and, when every sample is finite, the intermediate members'
+    angles and speeds (``fill_mid_samples`` with the pack's ``mtab`` and ``mfp``): what
+    ``Simulation.run`` did after the call, in the same order. Returns sample_outputs'
+    first non-finite sample, or -1."""
+    bad = sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    mtab = _i2(E_MTAB, ipk, ibuf)
+    if bad < 0 and mtab.shape[0] > 0:
+        fill_mid_samples(pos, vel, mtab, mfp)
+    return bad
+
+
+@njit(cache=True, inline='always')
 def _common(fpk, ipk, fbuf, ibuf):
     """The entries every method reads: x0, times, grid, brk, tb, two, atol, fs, y_old, K,
     work, rows, seg, tab, cnt."""
@@ -197,12 +211,12 @@ def _to_breakpoint(b, fs, tb):
 
 
 @njit(cache=True)
-def ros_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, autonomous, constant_jac, gamma,
+def ros_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, rtol, max_step, autonomous, constant_jac, gamma,
             order, fac_max, hermite_row, e0, X, XG, pos, vel, eff, te, tl, res):
     """The Rosenbrock methods (RODAS5P, rodas4, rodas3): ros_land or ros_sample / ros_land, then
     sample_outputs."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     J, LU, ft, piv = _linear(fpk, ipk, fbuf, ibuf)
@@ -233,15 +247,16 @@ def ros_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, autonomous, con
                                   alpha, gsum, order, fac_max, J, LU, piv, ft, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)
 
 
 @njit(cache=True)
-def dopri5_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, pos, vel, eff,
+def dopri5_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, rtol, max_step, e0, X, XG, pos, vel, eff,
                te, tl, res):
     """dopri5: dopri5_land or dopri5_sample / dopri5_land, then sample_outputs."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     _start(x0, h0, X, fbuf, ibuf, y, y_old, fs)
@@ -264,15 +279,16 @@ def dopri5_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, p
                                      max_step, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)
 
 
 @njit(cache=True)
-def dop853_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, pos, vel, eff,
+def dop853_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, rtol, max_step, e0, X, XG, pos, vel, eff,
                te, tl, res):
     """dop853: dop853_land or dop853_sample / dop853_land, then sample_outputs."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     C, A = _f1(E_D8, fpk, ipk, fbuf), _f2(E_D8 + 1, fpk, ipk, fbuf)
@@ -301,14 +317,15 @@ def dop853_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, e0, X, XG, p
                                      max_step, C, A, B, E5, E3, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)
 
 
 @njit(cache=True)
-def rk4_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, e0, X, XG, pos, vel, eff, te, tl, res):
+def rk4_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, e0, X, XG, pos, vel, eff, te, tl, res):
     """rk4: rk4_land or rk4_sample / rk4_land, then sample_outputs."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     _start(x0, h0, X, fbuf, ibuf, y, y_old, fs)
@@ -329,15 +346,16 @@ def rk4_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, e0, X, XG, pos, vel, eff, te, t
                 st, _k = rk4_land(tb, two, y, y_old, ip, fp, fs, cnt, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)
 
 
 @njit(cache=True)
-def ros2_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, autonomous, constant_jac, e0, X, XG, pos,
+def ros2_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, autonomous, constant_jac, e0, X, XG, pos,
              vel, eff, te, tl, res):
     """ros2: ros2_land or ros2_sample / ros2_land, then sample_outputs."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     J, LU, ft, piv = _linear(fpk, ipk, fbuf, ibuf)
@@ -361,4 +379,5 @@ def ros2_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, autonomous, constant_jac, e0, 
                                    constant_jac, J, LU, piv, ft, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)

@@ -490,31 +490,41 @@ class KernelStepper(_StepperBase):
                  order, fac_max, self._K.shape[0] - 1 if hermite else -1),
                 (*linear, A, C, M, E, alpha, gsum, _NO_H if hermite else self._H))
 
-    def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray):
+    def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray,
+                 mids: tuple[np.ndarray, np.ndarray] | None = None):
         """A whole offline run in one compiled call (``run_nb``), bound to what is fixed for a
         Simulation's options: ``run(e0, X, XG, pos, vel, eff, te, tl, res)`` starts again at
         (0, x0) as :meth:`reset` does, integrates over ``times`` (s) into ``X`` (X[0] = x0)
         by the ``plan`` - ``(grid, rows, seg, brk, tb, two)``, see ``run_nb`` - and fills
         the samples' outputs as ``outputs_nb.sample_outputs(times, X, ip, fp, tab, e0,
-        pos, ...)`` does. Same steps and bytes as reset + land / sample + sample_outputs
-        (test_run_nb.py). It raises SolverError as :meth:`advance_to` and returns the first
-        sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
+        pos, ...)`` does, then - every sample finite - the intermediate members of
+        ``mids = (mtab, mfp)`` (``outputs_nb.mid_table``) as ``fill_mid_samples(pos, vel,
+        mtab, mfp)`` does (none when None). Same steps and bytes as reset + land / sample +
+        sample_outputs + fill_mid_samples (test_run_nb.py). It raises SolverError as
+        :meth:`advance_to` and returns the first sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
         array (C-contiguous float64 / int64, fixed ndim): nothing is checked per run, and a
         run that succeeds leaves the Python attributes (t, y, counters: ~1.1 us to refresh)
         as they were - :meth:`stats` reads the arrays; :meth:`reset` refreshes them. Only
         for the driveline kernel (``rhs_nb.rhs``/``rhs_nb.jac``). ``x0``, ``times``, the plan,
-        ``atol``, the tableau and ``tab`` are copied into the run's packs here
-        (``run_nb.pack``: fixed for these options); the fixed arguments are bound to the
+        ``atol``, the tableau, ``tab`` and ``mtab`` are copied into the run's packs here
+        (``run_nb.pack``: fixed for these options; ``fp`` and ``mfp`` are read where they
+        are, a sweep patches them between runs); the fixed arguments are bound to the
         entry point after its first call (functools.partial)."""
         if self._nb is not steppers_nb:
             raise SolverOptionError('rhs', 'bind_run runs the driveline kernel only')
         from .run_nb import pack
         fn, scalars, entries = self._run_call()
         grid, rows, seg, brk, tb, two = plan
+        mtab, mfp = mids if mids is not None else (np.zeros((0, 4), np.int64), np.zeros(0))
+        if not (isinstance(mfp, np.ndarray) and mfp.dtype == np.float64 and mfp.ndim == 1
+                and mfp.flags.c_contiguous):
+            raise SolverOptionError('mids', 'mfp must be a 1-d C-contiguous float64 array')
         fpk, ipk = pack([x0, times, grid, brk, tb, two, self._atol, self._fs, self._y_old,
-                         self._K, self._work, rows, seg, tab, self._cnt, *entries],
+                         self._K, self._work, rows, seg, tab, self._cnt,
+                         np.ascontiguousarray(mtab, dtype=np.int64), *entries],
                         self._fbuf, self._ibuf)
-        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp,
+        # mfp is read where it is, as fp is (a sweep patches both between runs)
+        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp, mfp,
                 0.0 if self._h0 is None else float(self._h0), *scalars)
         check = self._check
         bound = None

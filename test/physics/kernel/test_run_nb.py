@@ -106,3 +106,34 @@ def test_pack_keeps_state_views_in_place_and_copies_the_rest():
     assert fbuf[4] == 99.0
     with pytest.raises(ValueError, match='pack entry 0'):
         run_nb.pack([np.zeros((2, 2, 2))], fbuf, ibuf)
+
+
+@pytest.mark.parametrize('scene_name', ['fwd_halfshaft', 'kavz685_lever'])
+def test_the_one_call_fills_the_intermediate_members_as_the_separate_call_did(scene_name):
+    """bind_run with the members' table fills their angles and speeds in the run's own call
+    (no fill_mid_samples call after it): the same bytes as the run without them followed by
+    that separate call, which the members' columns of the bare run do not have."""
+    from cvj_ros.physics.kernel import entry_point_once
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+
+    scene = load_scene(SCENES / f'{scene_name}.yaml')
+    sim = Simulation(scene, method='dopri5', rtol=1e-4, atol=1e-6)
+    tr = sim.run(0.2, sample_dt=0.01, breakpoints=False)
+    plan = next(iter(sim._plans.values()))
+    mtab, mfp, _python = sim._mid_table
+    assert mtab.shape[0] > 0
+    m, n, n_sh = plan.shape
+    bare = plan.stepper.bind_run(sim.driveline.x0, plan.times,
+                                 (plan.grid, np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
+                                  np.zeros(0), np.zeros(2), np.zeros((2, n))), sim._shaft_table)
+    X, eff = np.empty((m, n)), np.empty((m, n_sh))
+    pos, vel = np.full((m, n_sh), np.nan), np.full((m, n_sh), np.nan)
+    te, tl, res = np.empty(m), np.empty(m), np.empty(m)
+    assert plan.grid.size == m   # no breakpoints: every landing a sample (XG is X)
+    assert bare(sim._initial_energy(sim.driveline.x0), X, X, pos, vel, eff, te, tl, res) == -1
+    mids = mtab[:, 0]
+    assert not np.array_equal(pos[:, mids], tr.position[:, mids])   # not filled by the bare run
+    args = (pos, vel, mtab, mfp)
+    entry_point_once(fill_mid_samples, args)(*args)
+    for got, want in ((pos, tr.position), (vel, tr.velocity), (eff, tr.effort)):
+        assert np.array_equal(got, want)

@@ -310,7 +310,8 @@ class BatchRunner:
         return row, time.perf_counter() - t0
 
     def _reduce(self, sim: Any) -> dict[str, Any]:
-        """Run ``sim`` and reduce it to the row (run_variant's steps after the build)."""
+        """Run ``sim`` and reduce it to the row (run_variant's steps after the build; the
+        window and metrics compiled, cvj_ros.sweep.reduce)."""
         from cvj_ros.sweep.run import simulation_row
-        return simulation_row(sim, self.options)
+        return simulation_row(sim, self.options, compiled=True)
 

@@ -172,18 +172,27 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     return row, time.perf_counter() - t0
 
 
-def simulation_row(sim: Any, options: RunOptions) -> dict[str, Any]:
+def simulation_row(sim: Any, options: RunOptions, *, compiled: bool = False) -> dict[str, Any]:
     """Run ``sim`` (a Simulation of a scene without modes) and reduce it to an 'ok' row:
-    the metrics over the steady window, the torque orders. Raises what the run raises."""
-    from cvj_ros.physics.metrics import steady_window, summarize
+    the metrics over the steady window, the torque orders. Raises what the run raises.
+    ``compiled``: the window, metrics and energy residual in one compiled call where it
+    covers the record (cvj_ros.sweep.reduce: the same floats; the batched path)."""
     trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-    window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
-                           transient=options.transient)
-    # the parts of Simulation.summary() a row needs, from the same functions (its
-    # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
-    summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
-               'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
-               'shafts': summarize(trace, window=window)}
+    reduced = None
+    if compiled:
+        from cvj_ros.sweep.reduce import compiled_reduction
+        reduced = compiled_reduction(trace, options)
+    if reduced is not None:
+        window, summary = reduced
+    else:
+        from cvj_ros.physics.metrics import steady_window, summarize
+        window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                               transient=options.transient)
+        # the parts of Simulation.summary() a row needs, from the same functions (its
+        # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
+        summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
+                   'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
+                   'shafts': summarize(trace, window=window)}
     row = {'status': 'ok', **metrics_row(summary)}
     if options.orders > 0:
         try:      # over the metrics' own window

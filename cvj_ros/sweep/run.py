@@ -305,6 +305,10 @@ class ProcessExecutor:
         # no fork of this (possibly threaded) process, no per-worker kernel load
         ctx = mp.get_context('forkserver')
         ctx.set_forkserver_preload(['cvj_ros.sweep.preload'])
+        # start the fork server (its kernel load, ~0.6 s CPU) now, while the caller builds
+        # the sweep and its manifest on the other core, not at the first task
+        from multiprocessing import forkserver
+        forkserver.ensure_running()
         self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                            initializer=_init_worker)
         self.futures: list[Any] = []

@@ -109,3 +109,14 @@ def test_a_run_bit_for_bit(scene: str) -> None:
     got = compiled_reduction(tr, RunOptions())
     assert got is not None
     assert repr(got[1]) == repr(_numpy_summary(tr))
+
+
+def test_slices_kept_per_times() -> None:
+    """The slice bounds kept for the last times serve only records with those times: two
+    records of one length and other times (uniform, then stretched) each get their own."""
+    from cvj_ros.physics.steady import slice_bounds
+    from cvj_ros.sweep.reduce import _slices
+    for t in (np.arange(500) * 0.5, np.linspace(0.0, 1.0, 500) ** 2, np.arange(500) * 0.5):
+        lo, hi = _slices(t)
+        _e, lo_ref, hi_ref = slice_bounds(t)
+        assert np.array_equal(lo, lo_ref) and np.array_equal(hi, hi_ref)

@@ -124,9 +124,9 @@ def run(args: argparse.Namespace) -> int:
     from cvj_ros.commands.simulate import parse_fidelity
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)
-    # the workers start (a local pool's fork server loads the kernel) while this process
-    # reads the scene and expands the sweep
-    executor = make_executor(args.workers, args.cluster)
+    # a local pool starts (its fork server loads the kernel) while this process reads the
+    # scene and expands the sweep; a cluster is contacted once the sweep is known valid
+    executor = None if args.cluster else make_executor(args.workers, None)
     try:
         base = load_scene_data(path)
         from cvj_ros.physics.scene import parse_scene
@@ -147,8 +147,11 @@ def run(args: argparse.Namespace) -> int:
                              fidelity=parse_fidelity(args.fidelity), backend=args.backend,
                              sampling=args.sampling, orders=args.orders,
                              orders_shaft=args.orders_shaft)
+        if executor is None:
+            executor = make_executor(args.workers, args.cluster)
     except BaseException:
-        executor.close()        # execute() closes it from here on
+        if executor is not None:
+            executor.close()    # execute() closes it from here on
         raise
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'

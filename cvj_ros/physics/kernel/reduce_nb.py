@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['pairwise_sum', 'series_sum', 'steady_metrics']
+__all__ = ['pairwise_sum', 'series_sum', 'steady_metrics', 'warm']
 
 PW_BLOCKSIZE = 128
 
@@ -259,3 +259,14 @@ def steady_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
         out[o + 4] = series_sum(eff, i0, cnt, j) / cnt
         out[o + 5] = 0.5 * (_max(eff, i0, m, j) - _min(eff, i0, m, j))
     return 0
+
+
+def warm() -> None:
+    """Compile or load :func:`steady_metrics` for the argument types the sweep passes
+    (``python -m cvj_ros.physics.kernel.warmup``)."""
+    t = np.linspace(0.0, 1.0, 31)
+    ones = np.ones((31, 1))
+    lo = np.array([0, 10, 20], np.int64)
+    hi = np.array([10, 20, 31], np.int64)
+    steady_metrics(t, ones, ones, np.zeros(31), lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6,
+                   1e-3, 0.5, np.empty(9))

@@ -1,18 +1,23 @@
-"""A run's steady window, shaft metrics and energy residual in one compiled call
-(:func:`cvj_ros.physics.kernel.reduce_nb.steady_metrics`), the same floats bit for bit as
-the numpy path of :func:`cvj_ros.sweep.run.simulation_row` (steady.joint_state_window,
-metrics.summarize, Trace.max_energy_residual). The batched sweep uses it; the per-variant
-path keeps the numpy functions (the reference the tests compare with).
+"""A run's steady window, shaft metrics and energy residual in two compiled calls
+(:func:`cvj_ros.physics.kernel.reduce_nb.steady_start` and ``window_metrics``), the same
+floats bit for bit as the numpy path of :func:`cvj_ros.sweep.run.simulation_row`
+(steady.joint_state_window, metrics.summarize, Trace.max_energy_residual). The batched
+sweep uses it; the per-variant path keeps the numpy functions (the reference the tests
+compare with).
 
-The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS; see reduce_nb). Records
-the compiled reduction does not cover return None and take the numpy path: a ``--transient``
-start, fewer than 3 or more than :data:`MAX_SAMPLES` samples (numpy's reductions of longer
-series sum in buffer-sized blocks, not replicated), times not strictly increasing, slices
-too few or too short for the criterion, a non-finite speed or torque.
+The window reads only the first shaft's speed and the torques, so a caller may fill the
+other speeds (the lever hinge's earring: ``fill``) only from the row before the window on,
+all the metrics read. The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
+see reduce_nb). Records the compiled reduction does not cover return None and take the
+numpy path: a ``--transient`` start, fewer than 3 or more than :data:`MAX_SAMPLES`
+samples (numpy's reductions of longer series sum in buffer-sized blocks, not replicated),
+times not strictly increasing, slices too few or too short for the criterion, a non-finite
+speed or torque.
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -25,16 +30,16 @@ __all__ = ['MAX_SAMPLES', 'compiled_reduction']
 #: longest record reduced compiled (numpy's reduction buffer, 8192 elements)
 MAX_SAMPLES = 8192
 
-_ENTRY: list[Any] = []
+_ENTRY: dict[str, Any] = {}
 
 
-def _steady_metrics(args: tuple[Any, ...]) -> int:
-    """The compiled call through its cached entry point (same argument types every call)."""
-    if not _ENTRY:
-        from cvj_ros.physics.kernel import entry_point_once
-        from cvj_ros.physics.kernel.reduce_nb import steady_metrics
-        _ENTRY.append(entry_point_once(steady_metrics, args))
-    return _ENTRY[0](*args)
+def _call(name: str, args: tuple[Any, ...]) -> Any:
+    """reduce_nb's ``name`` through its cached entry point (same argument types every call)."""
+    entry = _ENTRY.get(name)
+    if entry is None:
+        from cvj_ros.physics.kernel import entry_point_once, reduce_nb
+        entry = _ENTRY[name] = entry_point_once(getattr(reduce_nb, name), args)
+    return entry(*args)
 
 
 _SLICES: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -53,10 +58,13 @@ def _slices(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return entry[1], entry[2]
 
 
-def compiled_reduction(trace: Any, options: Any) -> tuple[SteadyWindow, dict[str, Any]] | None:
+def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | None = None
+                       ) -> tuple[SteadyWindow, dict[str, Any]] | None:
     """(window, summary) of ``trace`` as simulation_row computes them (the window's start,
     end and verdict; the summary's 'window', 'energy_residual', 'solver' and 'shafts'), or
-    None when the record is not one the compiled reduction covers (module docstring)."""
+    None when the record is not one the compiled reduction covers (module docstring).
+    ``fill(i)``, if given, completes the speeds of every shaft but the first from row i on
+    (called once the window is known, with the row before it)."""
     if options.transient is not None:
         return None
     t = trace.t
@@ -66,7 +74,8 @@ def compiled_reduction(trace: Any, options: Any) -> tuple[SteadyWindow, dict[str
     vel, eff = trace.velocity, trace.effort
     names = trace.names
     n_sh = len(names)
-    if vel.shape != (m, n_sh) or eff.shape != (m, n_sh) or n_sh < 1:
+    if n_sh < 1 or vel.shape != (m, n_sh) or eff.shape != (m, n_sh) \
+            or not (vel.flags.c_contiguous and eff.flags.c_contiguous):
         return None
     lo, hi = _slices(t)
     if not (lo.size >= steady.MIN_SLICES and bool(np.all(hi - lo >= 2))):
@@ -74,12 +83,14 @@ def compiled_reduction(trace: Any, options: Any) -> tuple[SteadyWindow, dict[str
     w = vel[:, 0]
     means = np.array([hann_mean(w[a:b]) for a, b in zip(lo, hi)])
     out = np.empty(3 + 6 * n_sh)
-    args = (t, np.ascontiguousarray(vel), np.ascontiguousarray(eff),
-            np.ascontiguousarray(trace.energy_residual, dtype=np.float64),
-            lo, hi, means, steady.DRIFT_TOL,
-            steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR, steady.TORQUE_FLOOR,
-            steady.FALLBACK_FRACTION, out)
-    if _steady_metrics(args) != 0:
+    if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
+                              steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
+                              steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, out)) != 0:
+        return None
+    if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
+        fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
+    res = np.ascontiguousarray(trace.energy_residual, dtype=np.float64)
+    if _call('window_metrics', (t, vel, eff, res, out)) != 0:
         return None
     vals = out.tolist()
     is_steady = vals[0] == 1.0

@@ -26,7 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['pairwise_sum', 'series_sum', 'steady_metrics', 'warm']
+__all__ = ['pairwise_sum', 'series_sum', 'steady_start', 'warm', 'window_first_row',
+           'window_metrics']
 
 PW_BLOCKSIZE = 128
 
@@ -153,31 +154,27 @@ def _gradient_at(t: np.ndarray, f: np.ndarray, col: int, r: int, uniform: bool) 
 
 
 @njit(cache=True)
-def steady_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndarray,
-                   lo: np.ndarray, hi: np.ndarray, means: np.ndarray, drift_tol: float,
-                   amplitude_tol: float, min_slices: int, speed_floor: float,
-                   torque_floor: float, fallback_fraction: float,
-                   out: np.ndarray) -> int:
+def steady_start(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray, means: np.ndarray, drift_tol: float, amplitude_tol: float,
+                 min_slices: int, speed_floor: float, torque_floor: float,
+                 fallback_fraction: float, out: np.ndarray) -> int:
     """The steady window of :func:`cvj_ros.physics.steady.joint_state_window` (criterion,
-    no skip) and :func:`cvj_ros.physics.metrics.shaft_metrics` over it, for a record of
-    m >= 3 strictly increasing times ``t`` (s), speeds ``vel`` and torques ``eff``
-    (m, shafts), energy residual ``res`` (m,), slices [lo[k], hi[k]) (steady.slice_bounds,
-    every slice >= 2 samples, at least ``min_slices``) and their Hann means ``means`` of
-    the first shaft's speed (steady.hann_mean).
-
-    ``out`` (2 + 1 + 6 shafts): [0] 1.0 if steady else 0.0, [1] the window's start (s),
-    [2] the max |energy residual| ignoring NaN (NaN if all are), then per shaft
-    mean_speed, delta, speed_amplitude, acceleration_amplitude, mean_torque,
-    torque_amplitude. Returns 0, or -1 when a speed or torque is not finite (the caller
-    then uses the numpy functions, whose NaN handling this does not replicate)."""
+    no skip) of a record of m >= 3 strictly increasing times ``t`` (s), speeds ``vel`` and
+    torques ``eff`` (m, shafts): slices [lo[k], hi[k]) (steady.slice_bounds, every slice
+    >= 2 samples, at least ``min_slices``), ``means`` the slices' Hann means of the first
+    shaft's speed (steady.hann_mean). Reads the first shaft's speed and every torque.
+    ``out[0]`` = 1.0 if steady else 0.0, ``out[1]`` = the window's start (s). Returns 0, or
+    -1 when a value it reads is not finite (the caller then uses the numpy functions,
+    whose NaN handling this does not replicate)."""
     m = t.size
     n_sh = vel.shape[1]
     n = lo.size
     for i in range(m):
+        if not math.isfinite(vel[i, 0]):
+            return -1
         for j in range(n_sh):
-            if not (math.isfinite(vel[i, j]) and math.isfinite(eff[i, j])):
+            if not math.isfinite(eff[i, j]):
                 return -1
-    # --- the window (steady.find_steady_window, window_from_slices) -----------------
     speed_peak = 0.0
     for i in range(m):
         speed_peak = max(speed_peak, abs(vel[i, 0]))
@@ -216,24 +213,45 @@ def steady_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
         else:
             break
     if best >= 0:
-        start = t[lo[best]]
         out[0] = 1.0
+        out[1] = t[lo[best]]
     else:       # steady.fallback_start
         s0 = t[m - 1] - fallback_fraction * (t[m - 1] - t[0])
-        start = t[_searchsorted_left(t, s0 - 1e-12 * max(1.0, abs(s0)))]
         out[0] = 0.0
-    out[1] = start
-    # --- the energy residual (Trace.max_energy_residual) ------------------------------
-    emax = math.nan
+        out[1] = t[_searchsorted_left(t, s0 - 1e-12 * max(1.0, abs(s0)))]
+    return 0
+
+
+@njit(cache=True)
+def window_first_row(t: np.ndarray, start: float) -> int:
+    """First row of the window [start, t[-1]] (SteadyWindow.mask of an increasing t: at
+    least the last two rows)."""
+    i0 = _searchsorted_left(t, start)
+    return min(i0, t.size - 2)
+
+
+@njit(cache=True)
+def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndarray,
+                   out: np.ndarray) -> int:
+    """:func:`cvj_ros.physics.metrics.shaft_metrics` over the window starting at ``out[1]``
+    (s) and the energy residual, of a record as :func:`steady_start`'s. Reads every
+    speed and torque from the row before the window on (the acceleration's central
+    difference) and all of ``res``. ``out[2]`` = max |energy residual| ignoring NaN (NaN if
+    all are), then per shaft mean_speed, delta, speed_amplitude, acceleration_amplitude,
+    mean_torque, torque_amplitude. Returns 0, or -1 for a non-finite speed or torque."""
+    m = t.size
+    n_sh = vel.shape[1]
+    i0 = window_first_row(t, out[1])
+    for i in range(max(0, i0 - 1), m):
+        for j in range(n_sh):
+            if not (math.isfinite(vel[i, j]) and math.isfinite(eff[i, j])):
+                return -1
+    emax = math.nan         # Trace.max_energy_residual
     for i in range(res.size):
         x = abs(res[i])
         if x == x and not (x <= emax):
             emax = x
     out[2] = emax
-    # --- the shaft metrics over the window (SteadyWindow.mask, metrics.shaft_metrics) -
-    i0 = _searchsorted_left(t, start)
-    if m - i0 < 2:
-        i0 = m - 2
     cnt = m - i0
     uniform = True
     h0 = t[1] - t[0]
@@ -262,11 +280,13 @@ def steady_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
 
 
 def warm() -> None:
-    """Compile or load :func:`steady_metrics` for the argument types the sweep passes
+    """Compile or load :func:`steady_start` and :func:`window_metrics` for the argument
+    types the sweep passes
     (``python -m cvj_ros.physics.kernel.warmup``)."""
     t = np.linspace(0.0, 1.0, 31)
     ones = np.ones((31, 1))
     lo = np.array([0, 10, 20], np.int64)
     hi = np.array([10, 20, 31], np.int64)
-    steady_metrics(t, ones, ones, np.zeros(31), lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6,
-                   1e-3, 0.5, np.empty(9))
+    out = np.empty(9)
+    steady_start(t, ones, ones, lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6, 1e-3, 0.5, out)
+    window_metrics(t, ones, ones, np.zeros(31), out)

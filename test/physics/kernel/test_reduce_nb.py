@@ -1,7 +1,8 @@
 """The compiled reduction (kernel/reduce_nb.py, through cvj_ros.sweep.reduce) gives the
 floats of the numpy path bit for bit: numpy's pairwise sum on every length and offset, and
 the steady window, shaft metrics and energy residual of synthetic records (steady and never
-steady, uniform and non-uniform time steps, windows of every start) and of a real run."""
+steady, uniform and non-uniform time steps, windows of every start) and of a real run, also
+when the speeds but the first are filled only from the row before the window on."""
 from __future__ import annotations
 
 import math
@@ -82,6 +83,27 @@ def test_synthetic_records_bit_for_bit() -> None:
         assert np.array_equal(win.mask(tr.t), steady_window(tr.t, tr.names, tr.velocity,
                                                             tr.effort).mask(tr.t))
     assert verdicts == {True, False}               # both branches of the criterion
+
+
+def test_speeds_filled_from_the_window_on() -> None:
+    """A record whose speeds (but the first) are NaN until ``fill`` completes them from the
+    row it is given: the same summary as the complete record, and the row is the one
+    before the window (or 0)."""
+    for tr in _records(11):
+        full = tr.velocity.copy()
+        tr.velocity[:, 1:] = np.nan
+        rows = []
+
+        def fill(i: int, tr=tr, full=full, rows=rows) -> None:
+            rows.append(i)
+            tr.velocity[i:, 1:] = full[i:, 1:]
+        got = compiled_reduction(tr, RunOptions(), fill=fill)
+        tr.velocity[:] = full
+        ref = _numpy_summary(tr)
+        assert got is not None and repr(got[1]) == repr(ref)
+        i0 = int(np.flatnonzero(steady_window(tr.t, tr.names, tr.velocity,
+                                              tr.effort).mask(tr.t))[0])
+        assert rows == [max(0, i0 - 1)]
 
 
 def test_records_it_does_not_cover_return_none() -> None:

@@ -328,7 +328,8 @@ class BatchRunner:
         law per sample): (trace, fill), ``fill(i)`` fills them from row i on. Each row is
         filled from its own input angle and speed, so the rows filled are the same floats
         as a fill of all rows; the metrics read the earring from the row before the
-        window on, which the compiled reduction fills once it knows the window."""
+        window on, which the compiled reduction fills once it knows the window (the
+        trace, kept as the template's ``last_trace``, holds unfilled rows before it)."""
         from cvj_ros.physics.kernel import entry_point_once
         from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
         m, n, n_sh = plan.shape

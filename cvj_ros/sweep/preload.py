@@ -35,9 +35,9 @@ def warm_batch() -> None:
 
     import cvj_ros.sweep.batch  # noqa: F401
     import cvj_ros.sweep.spec  # noqa: F401
+    from cvj_ros.physics.simulate import Trace
     from cvj_ros.sweep.reduce import compiled_reduction
     from cvj_ros.sweep.run import RunOptions
-    from cvj_ros.physics.simulate import Trace
     t = np.linspace(0.0, 1.0, 31)
     ones = np.ones((31, 1))
     compiled_reduction(Trace(t, ['a'], ones, ones, ones, t, t, np.zeros(31)), RunOptions())

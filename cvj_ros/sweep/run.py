@@ -175,8 +175,8 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
 def simulation_row(sim: Any, options: RunOptions, *, compiled: bool = False) -> dict[str, Any]:
     """Run ``sim`` (a Simulation of a scene without modes) and reduce it to an 'ok' row:
     the metrics over the steady window, the torque orders. Raises what the run raises.
-    ``compiled``: the window, metrics and energy residual in one compiled call where it
-    covers the record (cvj_ros.sweep.reduce: the same floats; the batched path)."""
+    ``compiled``: the window, metrics and energy residual compiled where that covers the
+    record (cvj_ros.sweep.reduce: the same floats; the batched path)."""
     trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
     return trace_row(trace, options, compiled=compiled)
 

@@ -124,25 +124,35 @@ def run(args: argparse.Namespace) -> int:
     from cvj_ros.commands.simulate import parse_fidelity
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)
-    base = load_scene_data(path)
-    from cvj_ros.physics.scene import parse_scene
-    scene = parse_scene(base)
-    if scene.has_modes and args.orders_shaft is not None:   # clutch, gearbox, brake, commands
-        raise SweepError('--orders-shaft: a scene with clutch, gearbox, brake or commands is swept '
-                         'on the Python reference, which keeps speeds, not shaft torques')
-    sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
-    if args.orders_shaft is not None:
-        from cvj_ros.physics.driveline import build_driveline
+    # a local pool starts (its fork server loads the kernel) while this process reads the
+    # scene and expands the sweep; a cluster is contacted once the sweep is known valid
+    executor = None if args.cluster else make_executor(args.workers, None)
+    try:
+        base = load_scene_data(path)
         from cvj_ros.physics.scene import parse_scene
-        shafts = build_driveline(parse_scene(base)).shaft_names
-        if args.orders_shaft not in shafts:
-            raise SweepError(f'--orders-shaft {args.orders_shaft}: no such shaft in '
-                             f'{base.get("name")}; shafts: {", ".join(shafts)}')
-    options = RunOptions(sample_dt=args.sample_dt, transient=args.transient,
-                         fidelity=parse_fidelity(args.fidelity), backend=args.backend,
-                         sampling=args.sampling, orders=args.orders,
-                         orders_shaft=args.orders_shaft)
-    executor = make_executor(args.workers, args.cluster)
+        scene = parse_scene(base)
+        if scene.has_modes and args.orders_shaft is not None:   # clutch, gearbox, brake, commands
+            raise SweepError('--orders-shaft: a scene with clutch, gearbox, brake or commands is '
+                             'swept on the Python reference, which keeps speeds, not shaft '
+                             'torques')
+        sweep = build_sweep(base, args.sets, samples=args.samples, seed=args.seed)
+        if args.orders_shaft is not None:
+            from cvj_ros.physics.driveline import build_driveline
+            from cvj_ros.physics.scene import parse_scene
+            shafts = build_driveline(parse_scene(base)).shaft_names
+            if args.orders_shaft not in shafts:
+                raise SweepError(f'--orders-shaft {args.orders_shaft}: no such shaft in '
+                                 f'{base.get("name")}; shafts: {", ".join(shafts)}')
+        options = RunOptions(sample_dt=args.sample_dt, transient=args.transient,
+                             fidelity=parse_fidelity(args.fidelity), backend=args.backend,
+                             sampling=args.sampling, orders=args.orders,
+                             orders_shaft=args.orders_shaft)
+        if executor is None:
+            executor = make_executor(args.workers, args.cluster)
+    except BaseException:
+        if executor is not None:
+            executor.close()    # execute() closes it from here on
+        raise
     where = f'Dask cluster {executor.address}' if args.cluster else (
         f'{executor.workers} local worker process{"es" if executor.workers > 1 else ""}'
         if executor.workers > 1 else 'this process')

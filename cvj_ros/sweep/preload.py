@@ -2,7 +2,8 @@
 loads the compiled kernel there, so every worker forked from it starts with the kernel
 loaded instead of loading it itself (measured here: ~2-5 s per spawned worker on a shared
 2-core machine). Loading is done by running a tiny scene through the same path a variant
-takes (Simulation.run with dense sampling, compiled outputs, metrics). Any failure here is
+takes (Simulation.run with dense sampling, compiled outputs, metrics; the batched path's
+compiled reduction). Any failure here is
 harmless: a worker then loads the kernel on its first variant."""
 from __future__ import annotations
 
@@ -27,7 +28,23 @@ def warm() -> None:
             sim.summary()
 
 
+def warm_batch() -> None:
+    """Import the batched path (cvj_ros.sweep.batch, run, spec) and load its compiled
+    reduction (kernel/reduce_nb.py) on a tiny record, so a forked worker has both."""
+    import numpy as np
+
+    import cvj_ros.sweep.batch  # noqa: F401
+    import cvj_ros.sweep.spec  # noqa: F401
+    from cvj_ros.physics.simulate import Trace
+    from cvj_ros.sweep.reduce import compiled_reduction
+    from cvj_ros.sweep.run import RunOptions
+    t = np.linspace(0.0, 1.0, 31)
+    ones = np.ones((31, 1))
+    compiled_reduction(Trace(t, ['a'], ones, ones, ones, t, t, np.zeros(31)), RunOptions())
+
+
 try:
     warm()
+    warm_batch()
 except Exception:  # noqa: BLE001  (see the module docstring)
     pass

@@ -172,18 +172,38 @@ def run_variant(scene_data: Mapping[str, Any], options: RunOptions) -> tuple[dic
     return row, time.perf_counter() - t0
 
 
-def simulation_row(sim: Any, options: RunOptions) -> dict[str, Any]:
+def simulation_row(sim: Any, options: RunOptions, *, compiled: bool = False) -> dict[str, Any]:
     """Run ``sim`` (a Simulation of a scene without modes) and reduce it to an 'ok' row:
-    the metrics over the steady window, the torque orders. Raises what the run raises."""
-    from cvj_ros.physics.metrics import steady_window, summarize
+    the metrics over the steady window, the torque orders. Raises what the run raises.
+    ``compiled``: the window, metrics and energy residual compiled where that covers the
+    record (cvj_ros.sweep.reduce: the same floats; the batched path)."""
     trace = sim.run(sample_dt=options.sample_dt, sampling=options.sampling)
-    window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
-                           transient=options.transient)
-    # the parts of Simulation.summary() a row needs, from the same functions (its
-    # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
-    summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
-               'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
-               'shafts': summarize(trace, window=window)}
+    return trace_row(trace, options, compiled=compiled)
+
+
+def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False,
+              fill: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """The 'ok' row of a run's ``trace`` (:func:`simulation_row` after the run).
+    ``fill(i)``: the trace's speeds other than the first shaft's are complete only from
+    row i on once it is called (the batched run's earring, cvj_ros.sweep.batch); the
+    compiled reduction calls it with the row before the window, else it is called with 0."""
+    reduced = None
+    if compiled:
+        from cvj_ros.sweep.reduce import compiled_reduction
+        reduced = compiled_reduction(trace, options, fill)
+    if reduced is not None:
+        window, summary = reduced
+    else:
+        if fill is not None:
+            fill(0)
+        from cvj_ros.physics.metrics import steady_window, summarize
+        window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
+                               transient=options.transient)
+        # the parts of Simulation.summary() a row needs, from the same functions (its
+        # window / fidelity-report dicts and texts cost ~0.5 ms a variant and are not kept)
+        summary = {'window': {'steady': window.steady, 'start_s': window.start_s},
+                   'energy_residual': trace.max_energy_residual, 'solver': trace.solver,
+                   'shafts': summarize(trace, window=window)}
     row = {'status': 'ok', **metrics_row(summary)}
     if options.orders > 0:
         try:      # over the metrics' own window
@@ -296,6 +316,10 @@ class ProcessExecutor:
         # no fork of this (possibly threaded) process, no per-worker kernel load
         ctx = mp.get_context('forkserver')
         ctx.set_forkserver_preload(['cvj_ros.sweep.preload'])
+        # start the fork server (its kernel load, ~0.6 s CPU) now, while the caller builds
+        # the sweep and its manifest on the other core, not at the first task
+        from multiprocessing import forkserver
+        forkserver.ensure_running()
         self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                            initializer=_init_worker)
         self.futures: list[Any] = []

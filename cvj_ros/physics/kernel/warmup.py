@@ -88,7 +88,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
     joint_state_one and wrenches_one with every joint's reactions, a vehicle scene's
     (kernel/tree_outputs_nb.py: joint state, offline samples, right-hand side under
     outside wheel loads), the offline trace's
-    sample_outputs, fill_mid_samples and landing grid, the monitor's window statistics and
+    sample_outputs, fill_mid_samples and landing grid, the batched sweep's reduction, the
+    monitor's window statistics and
     the engine node's map engine torque;
     returns the
     wall time (s)."""
@@ -115,6 +116,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
     window_nb.warm()                  # the monitor's windows and bulk reading
     from cvj_ros.physics.kernel import grid_nb
     grid_nb.warm()                    # an offline run's landing grid
+    from cvj_ros.physics.kernel import reduce_nb
+    reduce_nb.warm()                  # the batched sweep's window and metrics
     from cvj_ros.physics.engine import engine_from_spec
     from cvj_ros.physics.kernel.sources_nb import CompiledMapEngineTorque
     CompiledMapEngineTorque(engine_from_spec({'model': 'map'}))   # engine_node's answers

@@ -1,0 +1,144 @@
+"""The compiled reduction (kernel/reduce_nb.py, through cvj_ros.sweep.reduce) gives the
+floats of the numpy path bit for bit: numpy's pairwise sum on every length and offset, and
+the steady window, shaft metrics and energy residual of synthetic records (steady and never
+steady, uniform and non-uniform time steps, windows of every start) and of a real run, also
+when the speeds but the first are filled only from the row before the window on."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from cvj_ros.physics import steady
+from cvj_ros.physics.kernel.reduce_nb import series_sum
+from cvj_ros.physics.metrics import steady_window, summarize
+from cvj_ros.sweep.reduce import MAX_SAMPLES, compiled_reduction
+from cvj_ros.sweep.run import RunOptions
+
+
+def test_pairwise_sum_is_numpys() -> None:
+    """np.add.reduce of a column slice (contiguous copy or strided view: the same sum) for
+    lengths across the 8-term and 128-term block boundaries and the halving above them."""
+    rng = np.random.default_rng(7)
+    a = rng.standard_normal((3000, 3)) * 10.0 ** rng.integers(-3, 4, (3000, 3))
+    for n in [*range(1, 40), 127, 128, 129, 255, 256, 257, 1000, 2001, 2999]:
+        for start in sorted({0, min(1, 3000 - n), min(3, 3000 - n), 3000 - n}):
+            for col in (0, 2):
+                ref = np.add.reduce(np.ascontiguousarray(a[start:start + n, col]))
+                assert series_sum(a, start, n, col) == ref, (n, start, col)
+                assert np.mean(a[start:start + n, col]) == series_sum(a, start, n, col) / n
+
+
+def _trace(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndarray) -> SimpleNamespace:
+    names = [f's{i}' for i in range(vel.shape[1])]
+    return SimpleNamespace(t=t, names=names, velocity=vel, effort=eff, energy_residual=res,
+                           solver={'nfev': 1},
+                           max_energy_residual=(math.nan if np.all(np.isnan(res))
+                                                else float(np.nanmax(np.abs(res)))))
+
+
+def _numpy_summary(tr: SimpleNamespace) -> dict:
+    w = steady_window(tr.t, tr.names, tr.velocity, tr.effort)
+    return {'window': {'steady': w.steady, 'start_s': w.start_s},
+            'energy_residual': tr.max_energy_residual, 'solver': tr.solver,
+            'shafts': summarize(tr, window=w)}
+
+
+def _records(seed: int):
+    """Shaft speeds: a mean with a decaying transient (steady or not by its time constant)
+    and ripple; torques likewise; times uniform (arange * 0.5) or not (linspace)."""
+    rng = np.random.default_rng(seed)
+    for k in range(60):
+        m = int(rng.integers(40, 2500))
+        t = (np.arange(m) * 0.5 if k % 3 == 0 else np.linspace(0.0, rng.uniform(0.5, 5), m))
+        n_sh = int(rng.integers(1, 5))
+        tau = rng.uniform(0.01, 3.0) * t[-1]
+        x = t[:, None] / t[-1]
+        vel = (rng.uniform(-50, 300, n_sh) * (1 + rng.uniform(0, 0.5) * np.exp(-t[:, None] / tau))
+               + rng.uniform(0, 2, n_sh) * np.sin(2 * np.pi * rng.uniform(5, 40) * x
+                                                   + rng.uniform(0, 6, n_sh)))
+        eff = (rng.uniform(-100, 100, n_sh) + rng.uniform(0, 20, n_sh)
+               * np.cos(2 * np.pi * rng.uniform(5, 40) * x) * (1 + np.exp(-t[:, None] / tau)))
+        if k % 7 == 0:
+            eff[:, -1] = 0.0                       # a free end: the torque floor
+        res = rng.standard_normal(m) * 1e-9
+        if k % 5 == 0:
+            res[::3] = np.nan
+        if k % 11 == 0:
+            res[:] = np.nan
+        yield _trace(t, vel, eff, res)
+
+
+def test_synthetic_records_bit_for_bit() -> None:
+    verdicts = set()
+    for tr in _records(3):
+        got = compiled_reduction(tr, RunOptions())
+        assert got is not None
+        ref = _numpy_summary(tr)
+        assert repr(got[1]) == repr(ref)
+        verdicts.add(ref['window']['steady'])
+        win = got[0]
+        assert np.array_equal(win.mask(tr.t), steady_window(tr.t, tr.names, tr.velocity,
+                                                            tr.effort).mask(tr.t))
+    assert verdicts == {True, False}               # both branches of the criterion
+
+
+def test_speeds_filled_from_the_window_on() -> None:
+    """A record whose speeds (but the first) are NaN until ``fill`` completes them from the
+    row it is given: the same summary as the complete record, and the row is the one
+    before the window (or 0)."""
+    for tr in _records(11):
+        full = tr.velocity.copy()
+        tr.velocity[:, 1:] = np.nan
+        rows = []
+
+        def fill(i: int, tr=tr, full=full, rows=rows) -> None:
+            rows.append(i)
+            tr.velocity[i:, 1:] = full[i:, 1:]
+        got = compiled_reduction(tr, RunOptions(), fill=fill)
+        tr.velocity[:] = full
+        ref = _numpy_summary(tr)
+        assert got is not None and repr(got[1]) == repr(ref)
+        i0 = int(np.flatnonzero(steady_window(tr.t, tr.names, tr.velocity,
+                                              tr.effort).mask(tr.t))[0])
+        assert rows == [max(0, i0 - 1)]
+
+
+def test_records_it_does_not_cover_return_none() -> None:
+    tr = next(iter(_records(5)))
+    assert compiled_reduction(tr, RunOptions(transient=0.1)) is None
+    bad = _trace(tr.t.copy(), tr.velocity.copy(), tr.effort, tr.energy_residual)
+    bad.velocity[5, 0] = np.nan
+    assert compiled_reduction(bad, RunOptions()) is None
+    back = _trace(tr.t[::-1].copy(), tr.velocity, tr.effort, tr.energy_residual)
+    assert compiled_reduction(back, RunOptions()) is None
+    m = MAX_SAMPLES + 1
+    long = _trace(np.linspace(0, 1, m), np.ones((m, 1)), np.ones((m, 1)), np.zeros(m))
+    assert compiled_reduction(long, RunOptions()) is None
+    assert steady.FALLBACK_FRACTION == 0.5 and steady.MIN_SLICES == 3   # what the docs state
+
+
+@pytest.mark.parametrize('scene', ['kavz685_lever', 'cardan_truck'])
+def test_a_run_bit_for_bit(scene: str) -> None:
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene, parse_scene
+    from cvj_ros.physics.simulate import Simulation
+    data = load_scene_data(find_scene(scene))
+    data['duration'] = 0.5
+    tr = Simulation(parse_scene(data)).run(sampling='dense')
+    got = compiled_reduction(tr, RunOptions())
+    assert got is not None
+    assert repr(got[1]) == repr(_numpy_summary(tr))
+
+
+def test_slices_kept_per_times() -> None:
+    """The slice bounds kept for the last times serve only records with those times: two
+    records of one length and other times (uniform, then stretched) each get their own."""
+    from cvj_ros.physics.steady import slice_bounds
+    from cvj_ros.sweep.reduce import _slices
+    for t in (np.arange(500) * 0.5, np.linspace(0.0, 1.0, 500) ** 2, np.arange(500) * 0.5):
+        lo, hi = _slices(t)
+        _e, lo_ref, hi_ref = slice_bounds(t)
+        assert np.array_equal(lo, lo_ref) and np.array_equal(hi, hi_ref)

@@ -1,14 +1,14 @@
 """A whole offline run in one compiled call for the efficient RK pairs ('tsit5', 'vern6'):
 ``run_nb``'s protocol (the packs, the stepper's buffers, per-run outputs; see its
-docstring) over ``steppers_rk_nb``'s landing and sampled loops, then ``sample_outputs``.
+docstring) over ``steppers_rk_nb``'s landing and sampled loops, then ``sample_outputs`` and
+the intermediate members (``run_nb._outputs``).
 The pack's method entries (from ``run_nb.E_M0``): C, A, B, E, P of ``erk_tableaux``."""
 from __future__ import annotations
 
 from numba import njit
 
 from .borrow_nb import borrowed_all
-from .outputs_nb import sample_outputs
-from .run_nb import E_M0, _common, _f1, _f2, _gather, _start, _to_breakpoint
+from .run_nb import E_M0, _common, _f1, _f2, _gather, _outputs, _start, _to_breakpoint
 from .steppers_nb import ST_OK
 from .steppers_rk_nb import erk_land, erk_sample
 
@@ -16,11 +16,11 @@ __all__ = ['erk_run']
 
 
 @njit(cache=True)
-def erk_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, order, e0, X, XG, pos, vel,
+def erk_run(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, rtol, max_step, order, e0, X, XG, pos, vel,
             eff, te, tl, res):
-    """erk_land or erk_sample / erk_land, then sample_outputs (as run_nb.dopri5_run)."""
-    (fpk, ipk, fbuf, ibuf, y, ip, fp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip, fp,
-                                                            X, XG))
+    """erk_land or erk_sample / erk_land, then the outputs (as run_nb.dopri5_run)."""
+    (fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, X, XG) = borrowed_all((fpk, ipk, fbuf, ibuf, y, ip,
+                                                                 fp, mfp, X, XG))
     (x0, times, grid, brk, tb, two, atol, fs, y_old, K, work, rows, seg, tab,
      cnt) = _common(fpk, ipk, fbuf, ibuf)
     C, A = _f1(E_M0, fpk, ipk, fbuf), _f2(E_M0 + 1, fpk, ipk, fbuf)
@@ -46,4 +46,5 @@ def erk_run(fpk, ipk, fbuf, ibuf, y, ip, fp, h0, rtol, max_step, order, e0, X, X
                                   order, C, A, B, E, K, work)
                 if st != ST_OK:
                     return st, -1
-    return ST_OK, sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    return ST_OK, _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf,
+                           mfp)

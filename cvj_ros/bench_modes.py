@@ -8,7 +8,12 @@ functions the same witnesses (terminal, with their directions), restarted at eve
 command row: what a user of scipy writes (:class:`SolveIvpHybridSimulation`, a vehicle
 scene :class:`SolveIvpHybridTreeSimulation`). Both share
 the discrete decisions (the reference's code), the sampling and the recording. Reference:
-the Python reference with dop853 at rtol 1e-12. Error: the largest sampled shaft speed
+the Python reference with dop853 at rtol 1e-12 on a chain; on a vehicle scene, whose Python
+reference at that tolerance takes the better part of an hour for launch_clutch's 10 s, the
+compiled kernel with dopri5 at rtol 1e-13 (:data:`KERNEL_REFERENCE`), which reproduces the
+Python reference's events and states to 1e-12 on the same mesh
+(test/physics/kernel/test_tree_modes_kernel.py) and is checked against it and against dop853
+in test/test_bench_modes.py. Error: the largest sampled shaft speed
 error over the run relative to the largest reference shaft speed (as ``cvj_ros.bench``'s
 ``err_speed_rel``). At each error level 1e-3..1e-8 the cheapest run of each family reaching
 it is taken; the speedup is baseline wall / project wall, and the same with the process's
@@ -16,6 +21,7 @@ CPU time (``time.process_time``: on a loaded machine the fairer ratio).
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -26,12 +32,16 @@ import numpy as np
 from cvj_ros.physics.kernel.modes import KernelHybridSimulation
 from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
 
-__all__ = ['MODE_SCENES', 'SolveIvpHybridSimulation', 'SolveIvpHybridTreeSimulation',
-           'format_mode_table', 'mode_levels', 'mode_study']
+__all__ = ['KERNEL_REFERENCE', 'MODE_SCENES', 'PYTHON_REFERENCE', 'SolveIvpHybridSimulation',
+           'SolveIvpHybridTreeSimulation', 'format_mode_table', 'mode_levels', 'mode_study',
+           'reference_run']
 
 MODE_SCENES = ('launch_clutch_chain', 'launch_clutch')
 LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+#: reference of a vehicle mode scene: the compiled kernel, (method, rtol, atol)
+KERNEL_REFERENCE = ('dopri5', 1e-13, 1e-15)
+PYTHON_REFERENCE = ('dop853', 1e-12, 1e-14)
 
 
 class SolveIvpHybridSimulation(KernelHybridSimulation):
@@ -125,26 +135,42 @@ def _speed_error(r: Any, ref: Any) -> float:
     return float(np.max(np.abs(r.speed - ref.speed)) / max(1e-300, float(np.max(np.abs(ref.speed)))))
 
 
+def reference_run(scene: Any, horizon: float, sample_dt: float, backend: str) -> Any:
+    """The reference run: ``backend`` 'python' (:data:`PYTHON_REFERENCE` on the Python
+    reference) or 'kernel' (:data:`KERNEL_REFERENCE` on the compiled kernel)."""
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    method, rtol, atol = KERNEL_REFERENCE if backend == 'kernel' else PYTHON_REFERENCE
+    sim = hybrid_simulation(scene, method=method, rtol=rtol, atol=atol, sample_dt=sample_dt,
+                            duration=horizon)
+    if backend == 'kernel':
+        sim = (KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation).from_reference(sim)
+    return sim.run()
+
+
 def mode_study(scene_name: str = 'launch_clutch_chain', *,
                tolerances: Sequence[float] = TOLERANCES, samples: int = 20, repeats: int = 3,
                baseline_budget_s: float = 60.0, duration: float | None = None,
-               log: Callable[[str], None] = print) -> dict[str, Any]:
+               reference: str = 'auto', log: Callable[[str], None] = print) -> dict[str, Any]:
     """Runs of both families at each tolerance (rtol = tol, atol = tol / 100) over the
     scene's duration (or ``duration`` s) with ``samples`` samples, best of ``repeats`` walls
     (the kernel's: of at least 10; the baseline's stop repeating after
-    ``baseline_budget_s``); returns
-    {'scene', 'duration', 'reference', 'rows', 'levels'}."""
+    ``baseline_budget_s``), against the ``reference`` ('python', 'kernel', or 'auto': the
+    kernel on a vehicle scene, else the Python reference); each row keeps the load average
+    before and after its runs; returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
     scene = load_scene(find_scene(scene_name))
     horizon = float(duration or scene.duration)
     sample_dt = horizon / samples
+    backend = ('kernel' if scene.is_tree else 'python') if reference == 'auto' else reference
+    if backend not in ('python', 'kernel'):
+        raise ValueError(f"reference: 'auto', 'python' or 'kernel', not {reference!r}")
+    method, rtol, _atol = KERNEL_REFERENCE if backend == 'kernel' else PYTHON_REFERENCE
     t0 = time.perf_counter()
-    ref = hybrid_simulation(scene, method='dop853', rtol=1e-12, atol=1e-14,
-                            sample_dt=sample_dt, duration=horizon).run()
+    ref = reference_run(scene, horizon, sample_dt, backend)
     ref_wall = time.perf_counter() - t0
-    log(f'[bench] {scene.name}: mode reference (Python, dop853, rtol 1e-12) in {ref_wall:.1f} s, '
-        f'{len(ref.events)} events')
+    log(f'[bench] {scene.name}: mode reference ({backend}, {method}, rtol {rtol:g}) in '
+        f'{ref_wall:.1f} s, {len(ref.events)} events')
     kern: Any = KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation
     base: Any = SolveIvpHybridTreeSimulation if scene.is_tree else SolveIvpHybridSimulation
     # one untimed kernel run: loads (or compiles) the compiled mode code
@@ -155,6 +181,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
             walls: list[float] = []
             cpus: list[float] = []
             r = sim = None
+            load0 = _load()
             # the kernel's runs are short: more repeats (their minimum) at little cost
             for _ in range(max(repeats, 10) if family == 'project' else repeats):
                 sim = cls.from_reference(hybrid_simulation(scene, method='dopri5', rtol=tol,
@@ -177,14 +204,25 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
                 row.update(wall_s=min(walls), cpu_s=min(cpus), wall_per_sim_s=min(walls) / horizon,
                            repeats=len(walls), err_speed_rel=_speed_error(r, ref),
                            events=len(r.events), steps=r.stats['steps'], nfev=r.stats['nfev'],
-                           energy_residual=r.max_energy_residual,
+                           energy_residual=r.max_energy_residual, load=(load0, _load()),
                            label='kernel dopri5' if family == 'project' else 'solve_ivp RK45 + events')
                 log(f"[bench] {scene.name}: {row['label']} rtol {tol:g}: err {row['err_speed_rel']:.2e}, "
-                    f"{row['wall_s'] * 1e3:.1f} ms, {row['steps']} steps, {row['events']} events")
+                    f"{row['wall_s'] * 1e3:.1f} ms (CPU {row['cpu_s'] * 1e3:.1f} ms), {row['steps']} steps, "
+                    f"{row['events']} events, energy residual {row['energy_residual']:.2e}")
             rows.append(row)
-    return {'scene': scene.name, 'duration': horizon, 'reference': {'method': 'dop853', 'rtol': 1e-12,
-                                               'wall_s': ref_wall, 'events': len(ref.events)},
+    return {'scene': scene.name, 'duration': horizon,
+            'reference': {'backend': backend, 'method': method, 'rtol': rtol, 'wall_s': ref_wall,
+                          'events': len(ref.events),
+                          'energy_residual': ref.max_energy_residual},
             'rows': rows, 'levels': mode_levels(rows)}
+
+
+def _load() -> float:
+    """The 1-minute load average (nan where the platform has none)."""
+    try:
+        return float(os.getloadavg()[0])
+    except OSError:
+        return float('nan')
 
 
 def mode_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = LEVELS
@@ -205,19 +243,32 @@ def mode_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = LEVELS
 
 
 def format_mode_table(study: dict[str, Any]) -> str:
-    """Markdown table of :func:`mode_study`'s levels."""
+    """Markdown table of :func:`mode_study`'s levels: per family the rtol, CPU and wall ms,
+    then the speedups in CPU time and in wall, and the load average over the two rows."""
+    ref = study.get('reference', {})
     lines = [f"### {study['scene']} ({study['duration']:g} s): stick/slip modes with events "
              f"(kernel vs solve_ivp + events)",
              '',
-             '| error level | kernel dopri5 rtol | wall ms | solve_ivp RK45 + events rtol | wall ms '
-             '| speedup | speedup (CPU time) |',
-             '| --- | --- | --- | --- | --- | --- | --- |']
+             f"Reference: {ref.get('backend', 'python')} {ref.get('method', 'dop853')} at rtol "
+             f"{ref.get('rtol', 1e-12):g}, {ref.get('events', '?')} events.",
+             '',
+             '| error level | kernel dopri5 rtol | CPU ms | wall ms | solve_ivp RK45 + events rtol '
+             '| CPU ms | wall ms | speedup (CPU time) | speedup (wall) | load |',
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for e in study['levels']:
         p, b = e['project'], e['baseline']
-        cell = (lambda r: (f"{r['tol']:g}", f"{r['wall_s'] * 1e3:.1f}") if r else ('-', '-'))
+
+        def cell(r: dict[str, Any] | None) -> tuple[str, str, str]:
+            if not r:
+                return ('-', '-', '-')
+            cpu = f"{r['cpu_s'] * 1e3:.1f}" if 'cpu_s' in r else '-'
+            return (f"{r['tol']:g}", cpu, f"{r['wall_s'] * 1e3:.1f}")
         sp = f"{e['speedup']:.1f}x" if e['speedup'] else '-'
         cpu = f"{e['cpu_speedup']:.1f}x" if e.get('cpu_speedup') else '-'
-        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {sp} | {cpu} |")
+        loads = [x for r in (p, b) if r for x in r.get('load', ()) if x == x]
+        load = f'{min(loads):.1f}-{max(loads):.1f}' if loads else '-'
+        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {cpu} "
+                     f"| {sp} | {load} |")
     return '\n'.join(lines) + '\n'
 
 
@@ -225,7 +276,7 @@ def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Pat
     """modes.csv (every run) and modes.md (the level tables) in ``out``."""
     import csv
     keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s',
-            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual']
+            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual', 'load']
     p_csv = out / 'modes.csv'
     with p_csv.open('w', newline='') as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction='ignore')

@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from cvj_ros import analysis
 
     if args.skip is not None and not (math.isfinite(args.skip) and args.skip >= 0):
@@ -45,6 +47,10 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.harmonics <= 60:
         raise BagError(f'--harmonics: must be in 1..60, got {args.harmonics}')
     sig = analysis.read_bag_signals(args.bag)
+    if sig.position.size and bool(np.all(np.isnan(sig.position))):
+        raise BagError(f'{args.bag}: its joint states carry no shaft angles (an offline run of a '
+                       'scene with clutch, gearbox, brake or commands keeps speeds only; its figure '
+                       'is `cvj-sim simulate SCENE --plots DIR`)')
     report = analysis.analyze_signals(sig, skip_s=args.skip, n_harmonics=args.harmonics,
                                       samples_per_rev=max(72, 4 * args.harmonics))
     if args.plots:

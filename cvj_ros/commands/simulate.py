@@ -46,13 +46,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--csv', metavar='FILE', help='write the sampled trace as CSV')
     parser.add_argument('--plots', metavar='DIR',
                         help='write the PNG figures of `cvj-sim analyze --plots` for this run '
-                             '(speeds_torques, nonuniformity, harmonics) to DIR')
+                             '(speeds_torques, nonuniformity, harmonics) to DIR; a scene with '
+                             'clutch, gearbox, brake or commands: mode_speeds.png (speeds, gear, '
+                             'events)')
     parser.add_argument('--no-internal-members', action='store_true',
                         help="leave the joints' internal members (Rzeppa cage, tripod spider, lever-hinge "
                              "earring: no line torque) out of speeds_torques.png of --plots")
     parser.add_argument('--bag', metavar='DIR',
                         help='write the sampled trace as a rosbag2 bag (joint states, engine and load '
-                             'wrench, scene) that `cvj-sim analyze` reads')
+                             'wrench, scene) that `cvj-sim analyze` reads; a scene with clutch, '
+                             'gearbox, brake or commands: speeds, commands, mode events on '
+                             '/diagnostics')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing --bag directory')
     parser.add_argument('--json', action='store_true', help='print the summary as JSON')
     parser.add_argument('--backend', choices=('kernel', 'python'), default='kernel',
@@ -199,10 +203,12 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
 
     from cvj_ros.physics.hybrid.from_scene import (format_hybrid_summary, hybrid_simulation,
                                                    hybrid_summary)
-    for opt in ('plots', 'bag', 'dense'):
-        if getattr(args, opt):
-            raise SceneError(f'--{opt}', 'not available yet for a scene with clutch, gearbox, brake '
-                                         'or commands (docs/clutch_gearbox.md)')
+    if args.dense:
+        raise SceneError('--dense', 'not available for a scene with clutch, gearbox, brake or '
+                                    'commands (its samples come from the dense output already)')
+    from pathlib import Path
+    if args.bag and not args.overwrite and Path(args.bag).exists():    # before the run, not after
+        raise SceneError('--bag', f'{args.bag} exists (use --overwrite to replace it)')
     from cvj_ros.physics.hybrid.scene_keys import DENSE_METHODS
     if args.method is not None and args.method not in DENSE_METHODS:
         raise SceneError('--method', f'a scene with clutch, gearbox, brake or commands needs one of '
@@ -247,6 +253,24 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
         cols = ['t_s'] + [f'{n}_velocity_rad_s' for n in result.shafts] + ['gear', 'energy_residual']
         data = np.column_stack([result.t, result.speed, result.gear, result.energy_residual])
         np.savetxt(args.csv, data, delimiter=',', header=','.join(cols), comments='')
+    if args.plots:
+        from cvj_ros.mode_outputs import write_mode_plots
+        summary['plots'] = [str(p) for p in write_mode_plots(scene, result, args.plots)]
+        for p in summary['plots']:
+            print(f'cvj-sim simulate: wrote {p}', file=sys.stderr)
+    if args.bag:
+        import yaml
+
+        from cvj_ros.mode_outputs import write_mode_bag
+        text = yaml.safe_dump({'scene': scene.to_dict(), 'seed': scene.seed, 'mode': 'offline',
+                               'duration': float(result.t_end), 'commands': 'offline',
+                               'solver': {k: summary['solver'].get(k)
+                                          for k in ('method', 'rtol', 'atol', 'backend')},
+                               'shaft_names': list(result.shafts)}, sort_keys=False)
+        counts = write_mode_bag(scene, result, summary, args.bag, scene_yaml=text,
+                                overwrite=args.overwrite)
+        print(f'cvj-sim simulate: wrote {counts.get("/driveline/joint_states", 0)} samples, '
+              f'{len(result.events)} mode events and the commands to bag {args.bag}', file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=1))
     else:

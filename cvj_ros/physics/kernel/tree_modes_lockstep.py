@@ -40,7 +40,7 @@ def _mode_key(mode: Any) -> tuple:
 
 class KernelHybridTreeLockstep(HybridTreeLockstep):
     """:class:`HybridTreeLockstep` whose :meth:`advance` integrates on the compiled kernel
-    (dopri5, dop853); same arguments. NotImplementedError when the scene does not pack."""
+    (tree_modes.KERNEL_TREE_MODE_METHODS); same arguments. NotImplementedError when the scene does not pack."""
 
     backend = 'kernel'
 

@@ -366,6 +366,19 @@ def test_launch_clutch_chain_on_rosenbrock_matches_the_reference(monkeypatch, me
     assert np.isfinite(rk.energy_residual).all()
 
 
+def test_every_method_shares_one_compiled_segment() -> None:
+    """segment_nb.mode_segment takes the method (and chain or tree) as a run-time flag and
+    every method's coefficients with the same numba types, so one compiled code - one cache
+    entry, one cold compile - serves dopri5, dop853 and the RODAS methods."""
+    from numba import typeof
+
+    from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS, _coefficients
+    from cvj_ros.physics.kernel.tree_modes import KERNEL_TREE_MODE_METHODS
+    assert set(KERNEL_TREE_MODE_METHODS) == set(KERNEL_MODE_METHODS)
+    types = {tuple(typeof(a) for a in _coefficients(m)) for m in KERNEL_MODE_METHODS}
+    assert len(types) == 1
+
+
 def _stiff_damper_scene(stiffness: float, damping: float):
     """launch_clutch_chain with a stiffer, damped clutch damper (the disc, 0.01 kg m^2, on
     ``stiffness`` N m/rad and ``damping`` N m s/rad)."""

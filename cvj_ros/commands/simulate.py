@@ -196,8 +196,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_modes(scene: Any, args: argparse.Namespace) -> int:
     """A scene with clutch, gearbox, brake or commands: stick/slip modes with events
-    (docs/clutch_gearbox.md) on the compiled kernel (dopri5; ``--backend python`` or another
-    method runs the Python reference); prints events per element."""
+    (docs/clutch_gearbox.md) on the compiled kernel (every method with dense output;
+    ``--backend python`` runs the Python reference); prints events per element."""
     import sys
     import time
 

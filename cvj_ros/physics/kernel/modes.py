@@ -3,7 +3,7 @@
 :class:`KernelHybridSimulation` is :class:`cvj_ros.physics.hybrid.HybridSimulation` (the
 Python reference, the oracle) with the continuous part compiled: each mode becomes
 ``ip``/``fp`` arrays (``kernel/modes_nb.py`` layout, no per-scene or per-mode compile) and
-:func:`modes_nb.mode_segment` integrates it (dopri5 or dop853), checks the witnesses after
+:func:`segment_nb.mode_segment` integrates it (dopri5, dop853 or a RODAS method), checks the witnesses after
 every step and locates the earliest crossing on the dense output (Brent), all in one
 compiled call per mode. The discrete decisions at an event (stick or slip, release, gear commands and their
 refusals, the momentum-conserving locks, the stall) are the oracle's own methods, so the
@@ -15,6 +15,7 @@ estimate, and equality with it needs the same).
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -27,7 +28,7 @@ from cvj_ros.physics.kernel import layout as L
 
 __all__ = ['KERNEL_MODE_METHODS', 'KernelHybridSimulation']
 
-KERNEL_MODE_METHODS = ('dopri5', 'dop853')
+KERNEL_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock')
 
 # codes of kernel/modes_nb.py (repeated here so building the arrays does not import numba)
 OP_COUPLING = -1
@@ -38,25 +39,60 @@ N_MHEADER = 17
 (MH_N, MH_OPS, MH_LINKS, MH_ENGINE, MH_ENGINE_F, MH_LOAD, MH_LOAD_F, MH_PINNED, MH_BRAKE,
  MH_NWIT, MH_WIT, MH_NSTUCK, MH_STUCK, MH_CHAN_F, MH_RAMP_T, MH_RAMP_C, MH_RAMP_B) = range(17)
 N_CHAN = 12
-_STATUS = {1: 'a state or derivative is not finite', 2: 'the step size underflowed'}
+_STATUS = {1: 'a state or derivative is not finite', 2: 'the step size underflowed',
+           3: 'the matrix I/(h gamma) - J is singular or not finite'}
 
 
 _ENTRY: list[Any] = []
+KIND_CHAIN, KIND_TREE = 0, 1          # segment_nb's right-hand sides
+# segment_nb's method codes: the Rosenbrock family shares one, its tableau is passed in
+_METHOD_CODE = {'dopri5': 0, 'dop853': 1, 'rodas3': 2, 'rodas4': 2, 'rosenbrock': 2}
 
 
 def _segment_entry(args: tuple) -> Any:
-    """modes_nb.mode_segment's compiled entry point, found once per process from the disk
-    cache without numba's full start-up (kernel.entry_point). A compile on a cache miss runs
-    the function once: it gets copies of the arrays, which the segment overwrites."""
+    """segment_nb.mode_segment's compiled entry point (chains and vehicle trees), found once
+    per process from the disk cache without numba's full start-up (kernel.entry_point). A
+    compile on a cache miss runs the function once: it gets copies of the arrays, which the
+    segment overwrites."""
     if not _ENTRY:
-        from cvj_ros.physics.kernel import entry_point, modes_nb
+        from cvj_ros.physics.kernel import entry_point, segment_nb
         spare = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
-        _ENTRY.append(entry_point(modes_nb.mode_segment, spare))
+        _ENTRY.append(entry_point(segment_nb.mode_segment, spare))
     return _ENTRY[0]
 
 
+@functools.lru_cache(maxsize=None)
+def _coefficients(method: str) -> tuple:
+    """The coefficient arguments of segment_nb.mode_segment for ``method``: DOP853's
+    (C, A, B, E5, E3, D, A_EXTRA, C_EXTRA), then the Rosenbrock tableau (A, C, M, E, alpha,
+    gamma_sum, H; H without rows for the Hermite dense output of rodas3/rodas4) and
+    (gamma, order, fac_max); a method that does not use them gets RODAS3's (same types:
+    one compiled code)."""
+    from cvj_ros.physics.kernel.stepper import _dop853_args, _rosenbrock_args
+    (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
+    tab, H = _rosenbrock_args(method if _METHOD_CODE[method] == 2 else 'rodas3')
+    gamma, A, C, M, E, alpha, gsum, order, fac_max = tab
+    if H is None:
+        H = np.zeros((0, M.shape[0]))
+    ros = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (A, C, M, E, alpha, gsum, H))
+    return (c8, a8, b8, e5, e3, d8, ax, cx, ros,
+            np.array([gamma, float(order), fac_max], dtype=np.float64))
+
+
+def run_segment(kind: int, method: str, t: float, t_stop: float, y: np.ndarray,
+                ip: np.ndarray, fp: np.ndarray, rtol: float, atol: np.ndarray,
+                max_step: float, h_in: float, times: np.ndarray, k_sample: int,
+                Y: np.ndarray, hlog: np.ndarray, out_i: np.ndarray, out_f: np.ndarray) -> None:
+    """One compiled call of segment_nb.mode_segment (its docstring: the arguments, y and the
+    out arrays overwritten) with ``method``'s coefficients."""
+    args = (int(kind), _METHOD_CODE[method], float(t), float(t_stop), y, ip, fp, float(rtol),
+            atol, float(max_step), float(h_in), times, int(k_sample), Y, hlog, out_i, out_f,
+            *_coefficients(method))
+    _segment_entry(args)(*args)
+
+
 class KernelHybridSimulation(HybridSimulation):
-    """:class:`HybridSimulation` integrated by the compiled kernel (dopri5, dop853); same arguments,
+    """:class:`HybridSimulation` integrated by the compiled kernel (KERNEL_MODE_METHODS); same arguments,
     plus ``carry_step`` (module docstring) and ``step_log`` (keep every accepted step size
     per mode segment in ``self.step_log``, to replay the run's mesh in the reference)."""
 
@@ -208,7 +244,6 @@ class KernelHybridSimulation(HybridSimulation):
         """Integrate one mode from (t, y0) towards t_stop up to its earliest witness
         crossing: (state at the end, end time, witness index or -1, next sample index,
         the sampled states from ``k_sample`` on). Counters go to ``self.stats``."""
-        from cvj_ros.physics.kernel.stepper import _dop853_args
         ip, fp, ns = self.mode_arrays(asm, mode)
         y = np.array(y0, dtype=np.float64)
         atol = np.full(ns, float(self.atol)) if np.ndim(self.atol) == 0 else \
@@ -218,11 +253,8 @@ class KernelHybridSimulation(HybridSimulation):
         hlog = np.zeros(self._hlog_size if self.step_log is not None else 0)
         out_f = np.zeros(2)
         h_in = self._h_carry if self.carry_step else 0.0
-        (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
-        args = (0 if self.method == 'dopri5' else 1, float(t), float(t_stop), y, ip, fp,
-                float(self.rtol), atol, float(self.max_step), float(h_in), times, int(k_sample),
-                Y, hlog, out_i, out_f, c8, a8, b8, e5, e3, d8, ax, cx)
-        _segment_entry(args)(*args)
+        run_segment(KIND_CHAIN, self.method, t, t_stop, y, ip, fp, self.rtol, atol,
+                    self.max_step, h_in, times, k_sample, Y, hlog, out_i, out_f)
         if out_i[0] != 0:
             raise RuntimeError(f'compiled kernel: integration failed near t={t:.6f} s: '
                                f'{_STATUS.get(int(out_i[0]), "status " + str(int(out_i[0])))}')

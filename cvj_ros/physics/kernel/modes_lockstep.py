@@ -5,7 +5,7 @@ Per interval [t_k, t_(k+1)] the engine and load torques and the clutch and brake
 are held; in the kernel's mode arrays (:meth:`KernelHybridSimulation.mode_arrays`) that is
 a linear engine with throttle 1, m1 = T_engine, k1 = 0 (torque 1 T - 0 omega = T exactly),
 a constant load without speed scale (T_load), and one-row ramps holding the clutch pedal and
-the brake. :func:`modes_nb.mode_segment` integrates each mode segment up to its earliest
+the brake. :func:`segment_nb.mode_segment` integrates each mode segment up to its earliest
 witness crossing (one compiled call); the discrete decisions at an event (stick, release,
 shift, settle, stall) and the joint-state outputs stay the Python reference's, as in
 :class:`KernelHybridSimulation`. A mode's arrays are built once and reused while the run
@@ -38,7 +38,7 @@ def _mode_key(mode: Any) -> tuple:
 
 class KernelHybridLockstep(HybridLockstep, KernelHybridSimulation):
     """:class:`HybridLockstep` whose :meth:`advance` integrates on the compiled kernel
-    (dopri5, dop853); same arguments. ``backend`` is ``'kernel'``."""
+    (modes.KERNEL_MODE_METHODS); same arguments. ``backend`` is ``'kernel'``."""
 
     backend = 'kernel'
 

@@ -6,7 +6,7 @@ compiled kernel.
 :class:`~cvj_ros.physics.hybrid.tree.ModeTree` becomes ``ip``/``fp`` arrays (the event-free
 tree tables of ``kernel/layout.py`` plus the mode block of ``kernel/tree_modes_nb.py``; no
 per-scene or per-mode compile) and :func:`tree_modes_nb.tree_mode_segment` integrates it
-(dopri5 or dop853), checks the witnesses after every step and locates the earliest crossing
+(dopri5, dop853 or a RODAS method), checks the witnesses after every step and locates the earliest crossing
 on the dense output (Brent), in one compiled call per mode. The discrete decisions (stick or
 slip, release, the shift schedule's triggers, gear commands and their refusals, the
 momentum-conserving locks, the stall) and the samples are the oracle's own methods, so the
@@ -25,6 +25,7 @@ from cvj_ros.physics.hybrid.simulate import HybridResult
 from cvj_ros.physics.hybrid.tree import ModeTree
 from cvj_ros.physics.hybrid.tree_sim import HybridTreeSimulation
 from cvj_ros.physics.kernel import layout as L
+from cvj_ros.physics.kernel.modes import _STATUS, KIND_TREE, run_segment
 
 __all__ = ['KernelHybridTreeSimulation', 'mode_state', 'tree_mode_arrays']
 
@@ -37,8 +38,7 @@ END_NONE, END_WHEEL, END_SPRING, END_DIFF, END_LINK = 0, 1, 2, 3, 4
 (TW_STALL, TW_SLIP, TW_CLUTCH_FWD, TW_CLUTCH_BWD, TW_BRAKE_SPEED, TW_BRAKE_FWD, TW_BRAKE_BWD,
  TW_PACK_SLIP, TW_PACK_FWD, TW_PACK_BWD, TW_SHIFT) = range(11)
 _ENDS = {'wheel': END_WHEEL, 'spring': END_SPRING, 'diff': END_DIFF, 'link': END_LINK}
-_STATUS = {1: 'a state or derivative is not finite', 2: 'the step size underflowed'}
-KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853')
+KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock')
 
 
 class _Gear:
@@ -219,21 +219,8 @@ def mode_state(mt: ModeTree, st: Any) -> np.ndarray:
     return x
 
 
-_ENTRY: list[Any] = []
-
-
-def _segment_entry(args: tuple) -> Any:
-    """tree_modes_nb.tree_mode_segment's compiled entry point, found once per process
-    (modes.py's _segment_entry)."""
-    if not _ENTRY:
-        from cvj_ros.physics.kernel import entry_point, tree_modes_nb
-        spare = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
-        _ENTRY.append(entry_point(tree_modes_nb.tree_mode_segment, spare))
-    return _ENTRY[0]
-
-
 class KernelHybridTreeSimulation(HybridTreeSimulation):
-    """:class:`HybridTreeSimulation` integrated by the compiled kernel (dopri5, dop853); same
+    """:class:`HybridTreeSimulation` integrated by the compiled kernel (KERNEL_TREE_MODE_METHODS); same
     arguments, plus ``step_log`` (keep every accepted step size per mode segment in
     ``self.step_log``, to replay the run's mesh in the reference)."""
 
@@ -264,7 +251,6 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
                  ) -> tuple[np.ndarray, float, int, int, np.ndarray]:
         """One mode from (t, y0) towards t_stop up to its earliest witness crossing: (state
         at the end, end time, witness index or -1, next sample index, sampled states)."""
-        from cvj_ros.physics.kernel.stepper import _dop853_args
         ip, fp = tree_mode_arrays(self, mt, mode)
         ns = y0.size
         y = np.array(y0, dtype=np.float64)
@@ -274,11 +260,8 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
         out_i = np.zeros(7, np.int64)
         hlog = np.zeros(self._hlog_size if self.step_log is not None else 0)
         out_f = np.zeros(2)
-        (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
-        args = (0 if self.method == 'dopri5' else 1, float(t), float(t_stop), y, ip, fp,
-                float(self.rtol), atol, float(self.max_step), 0.0, times, int(k_sample),
-                Y, hlog, out_i, out_f, c8, a8, b8, e5, e3, d8, ax, cx)
-        _segment_entry(args)(*args)
+        run_segment(KIND_TREE, self.method, t, t_stop, y, ip, fp, self.rtol, atol,
+                    self.max_step, 0.0, times, k_sample, Y, hlog, out_i, out_f)
         if out_i[0] != 0:
             raise RuntimeError(f'compiled kernel: integration failed near t={t:.6f} s: '
                                f'{_STATUS.get(int(out_i[0]), "status " + str(int(out_i[0])))}')

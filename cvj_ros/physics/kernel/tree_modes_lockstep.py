@@ -34,8 +34,9 @@ from cvj_ros.physics.hybrid.friction import STUCK
 from cvj_ros.physics.hybrid.tree_lockstep import HybridTreeLockstep
 from cvj_ros.physics.hybrid.tree_reuse import reuse_tree
 from cvj_ros.physics.kernel import layout as L
+from cvj_ros.physics.kernel.modes import KIND_TREE, run_segment
 from cvj_ros.physics.kernel.tree_modes import (KERNEL_TREE_MODE_METHODS, MB_RAMP_B, MB_RAMP_C,
-                                               _base_tables, _segment_entry, _STATUS,
+                                               _base_tables, _STATUS,
                                                mode_state, tree_mode_arrays)
 
 __all__ = ['KernelHybridTreeLockstep']
@@ -49,7 +50,7 @@ def _mode_key(mode: Any) -> tuple:
 
 class KernelHybridTreeLockstep(HybridTreeLockstep):
     """:class:`HybridTreeLockstep` whose :meth:`advance` integrates on the compiled kernel
-    (dopri5, dop853); same arguments. NotImplementedError when the scene does not pack."""
+    (tree_modes.KERNEL_TREE_MODE_METHODS); same arguments. NotImplementedError when the scene does not pack."""
 
     backend = 'kernel'
 
@@ -187,7 +188,6 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
     def _run_segment(self, mt: Any, mode: Any, t: float, t_stop: float, y0: np.ndarray,
                      witnesses: list[Any]
                      ) -> tuple[np.ndarray, float, int]:
-        from cvj_ros.physics.kernel.stepper import _dop853_args
         ip, fp = self._arrays_of(mt, mode, witnesses)
         y = np.array(y0, dtype=np.float64)
         ns = y.size
@@ -196,11 +196,9 @@ class KernelHybridTreeLockstep(HybridTreeLockstep):
         out_i = np.zeros(7, np.int64)
         out_f = np.zeros(3)
         h0 = min(self._h, t_stop - t) if self._h else 0.0
-        (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
-        args = (0 if self.method == 'dopri5' else 1, float(t), float(t_stop), y, ip, fp,
-                float(self.rtol), atol, float(self.max_step), float(h0), np.zeros(0), 0,
-                np.zeros((0, ns)), np.zeros(0), out_i, out_f, c8, a8, b8, e5, e3, d8, ax, cx)
-        _segment_entry(args)(*args)
+        run_segment(KIND_TREE, self.method, t, t_stop, y, ip, fp, self.rtol, atol,
+                    self.max_step, h0, np.zeros(0), 0, np.zeros((0, ns)), np.zeros(0), out_i,
+                    out_f)
         if out_i[0] != 0:
             raise CvjError(f'compiled kernel: integration failed near t={t:.6f} s: '
                            f'{_STATUS.get(int(out_i[0]), "status " + str(int(out_i[0])))}')

@@ -5,7 +5,8 @@ Run by ``make test`` and ``make bench`` (which use every method), so no test nod
 cold compile while its peers wait. ``make demo`` does not: a run compiles only the entry
 points it calls, on first use (docs/solvers.md "First run"). With a warm cache it only loads.
 Prints one line per method with the wall time and whether it compiled or loaded. The
-clutch/gearbox/brake mode segment (kernel/modes_nb.py) is warmed after the outputs.
+clutch/gearbox/brake mode segment (kernel/segment_nb.py, chains and trees, every method) is
+warmed after the outputs.
 
 On a machine with two or more cores the cold compile runs in two processes sharing the
 cache: this one compiles dopri5, dop853, rk4 and the outputs, a child (``--methods``) the
@@ -140,7 +141,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
 def warm_modes(*, out=sys.stdout) -> float:
     """Compile or load the clutch/gearbox/brake mode segments by 0.05 s runs of the shipped
     launch_clutch_chain (kernel/modes_nb.py) and launch_clutch (the vehicle tree,
-    kernel/tree_modes_nb.py); returns the wall time (s)."""
+    kernel/tree_modes_nb.py): one compiled segment (kernel/segment_nb.py) for both and for
+    every method (the method is a run-time flag); returns the wall time (s)."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.kernel.modes import KernelHybridSimulation
     from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation

@@ -75,10 +75,10 @@ def test_cli_simulate_reports_events(capsys) -> None:
     out = capsys.readouterr().out
     assert 'events brake: 1 -> stuck' in out and 'final: clutch' in out
     assert 'backend kernel' in out
-    # a method the kernel does not run modes with: the reference, said in one line
+    # the Rosenbrock methods run compiled too, without a note
     assert main(['simulate', 'launch_clutch_chain', '--duration', '0.5', '--method', 'rodas4']) == 0
     cap = capsys.readouterr()
-    assert 'running the Python reference' in cap.err and 'backend python' in cap.out
+    assert 'backend kernel' in cap.out and cap.err == ''
 
 
 def test_cli_refusals(tmp_path, capsys) -> None:

@@ -71,11 +71,10 @@ def test_backend_choice() -> None:
     scene = load_scene(find_scene('launch_clutch_chain'))
     auto = hybrid_lockstep(scene, backend='auto')
     assert type(auto) is KernelHybridLockstep and auto.backend_fallback is None
-    # a method the kernel does not cover: auto falls back and says why, kernel refuses
-    slow = hybrid_lockstep(scene, method='rodas4', backend='auto')
-    assert type(slow) is HybridLockstep and 'rodas4' in slow.backend_fallback
-    with pytest.raises(CvjError, match="^backend: compiled kernel: .*'rodas4'"):
-        hybrid_lockstep(scene, method='rodas4', backend='kernel')
+    # every method with dense output runs mode scenes compiled
+    for method in ('rodas3', 'rodas4', 'rosenbrock'):
+        ros = hybrid_lockstep(scene, method=method, backend='auto')
+        assert type(ros) is KernelHybridLockstep and ros.backend_fallback is None
     with pytest.raises(CvjError, match='^backend: must be one of'):
         hybrid_lockstep(scene, backend='fast')
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cvj_ros.errors import CvjError
 from cvj_ros.nodes.command_plan import CommandPlan
 from cvj_ros.physics.engine import engine_from_spec
 from cvj_ros.physics.hybrid.lockstep import hybrid_lockstep
@@ -82,10 +81,10 @@ def test_backend_choice() -> None:
     scene = load_scene(find_scene('launch_clutch'))
     auto = hybrid_lockstep(scene, backend='auto')
     assert type(auto) is KernelHybridTreeLockstep and auto.backend_fallback is None
-    slow = hybrid_lockstep(scene, method='rodas4', backend='auto')
-    assert type(slow) is HybridTreeLockstep and 'rodas4' in slow.backend_fallback
-    with pytest.raises(CvjError, match="^backend: compiled kernel: .*'rodas4'"):
-        hybrid_lockstep(scene, method='rodas4', backend='kernel')
+    # every method with dense output runs mode scenes compiled
+    for method in ('rodas3', 'rodas4', 'rosenbrock'):
+        ros = hybrid_lockstep(scene, method=method, backend='auto')
+        assert type(ros) is KernelHybridTreeLockstep and ros.backend_fallback is None
 
 
 class _NoReuse(KernelHybridTreeLockstep):

@@ -323,13 +323,11 @@ class BatchRunner:
     @staticmethod
     def _lean_run(sim: Any, plan: Any) -> tuple[Any, Any]:
         """Simulation._run_one_call of ``sim``'s plan (the compiled one-call run, the same
-        arrays and Trace) without filling the intermediate members' angles and speeds
-        (the lever hinge's earring: ``fill_mid_samples``, five evaluations of the lever
-        law per sample): (trace, fill), ``fill(i)`` fills them from row i on. Each row is
-        filled from its own input angle and speed, so the rows filled are the same floats
-        as a fill of all rows; the metrics read the earring from the row before the
-        window on, which the compiled reduction fills once it knows the window (the
-        trace, kept as the template's ``last_trace``, holds unfilled rows before it)."""
+        arrays and Trace): (trace, fill), ``fill(i)`` fills the intermediate members'
+        angles and speeds (the lever hinge's earring: ``fill_mid_samples``) from row i on
+        where they are not filled yet. The bound run fills every row itself when every
+        sample is finite (run_nb._outputs), so ``fill`` has nothing left to do then; it
+        stays the reduction's hook (cvj_ros.sweep.run.trace_row)."""
         from cvj_ros.physics.kernel import entry_point_once
         from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
         m, n, n_sh = plan.shape
@@ -347,11 +345,12 @@ class BatchRunner:
         times = plan.times
         mtab, mfp, python_members = sim._mid_table
         if bad >= 0 or python_members or (mtab.shape[0] and 0 in mtab[:, 0].tolist()):
-            sim._check_outputs(times, bad, pos, vel)    # raises, or fills every row
+            sim._check_outputs(times, bad, pos, vel, compiled_mids=True)   # raises, or the Python members
             mtab = mtab[:0]
         trace = sim._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             wall, wall)
-        done = [m]
+        # the bound run has filled the members (run_nb._outputs) when every sample is finite
+        done = [0 if bad < 0 else m]
 
         def fill(i: int) -> None:
             if mtab.shape[0] and i < done[0]:

@@ -1644,7 +1644,8 @@ class BagRecorder:
     def spin(self, stop: threading.Event, *, poll: float = 0.05, discover_period: float = 0.2,
              coalesce: float = 0.0) -> None:
         """Record until ``stop`` is set, without an executor: wait on all subscriptions and
-        take every queued message of each ready one (raw) in a tight loop.
+        take every queued message of each ready one (of every one when observers are fed:
+        :meth:`_take_queued`) (raw) in a tight loop.
 
         Measured on this 2-core machine during a lockstep run: an rclpy
         SingleThreadedExecutor (one callback per wait) fell ~0.7 s behind a 200-step run;
@@ -1708,8 +1709,16 @@ class BagRecorder:
         stamp; at equal stamps the state before its answers: :func:`_feed_order`), as the
         in-process bus of composed mode delivers them, not topic by topic as they are taken: a wake that took 150 joint states and then their 150
         answers would otherwise show a hosted monitor the states of a whole window before
-        any answer of it (its first status then had no torques; seen in a CI run)."""
+        any answer of it (its first status then had no torques; seen in a CI run).
+
+        With observers, every subscription is taken at every wake, ready or not, in the
+        order of ``entries`` (joint states before the answers): a subscription found ready
+        is taken some time after the wait returned (a busy machine may not run this thread
+        for tens of ms), and the answers that arrived meanwhile, before the later states
+        taken, must go to the observers with them, not a wake later."""
         feed: list[tuple[int, int, int, list[Callable[[bytes], None]], bytes]] = []
+        if ready is not None and any(self.observers.values()):
+            ready = None
         for rank, (topic, sub, stamped, is_clock, msgtype) in enumerate(entries):
             if ready is not None and sub.handle.pointer not in ready:
                 continue

@@ -567,3 +567,30 @@ def test_recorder_feeds_observers_in_loop_order_not_topic_by_topic() -> None:
     assert bag._feed_order(b'\x00\x00\x00\x00' + struct.pack('>iI', 2, 5) + b'x', 'sensor_msgs/msg/JointState') == 2_000_000_005
     assert bag._feed_order(b'\x00\x01', 'sensor_msgs/msg/JointState') == -1
     assert bag._feed_order(_stamped_cdr(5, b'x'), 'std_msgs/msg/String') == -1
+
+
+def test_recorder_with_observers_takes_every_subscription_at_a_wake() -> None:
+    """The wait found only the joint states ready (their first sample was in; the answer to
+    it not yet), and by the time the recorder thread took them - late, on a busy machine -
+    150 states and their 150 answers had arrived: with observers the answers are taken in
+    the same wake, so a hosted monitor's status at the 100th state has the answers of its
+    window (taken a wake later, its first status had no torques). Without observers only
+    the ready subscriptions are taken (a plain recorder's wake stays as cheap as before)."""
+    def wake(observed: bool) -> tuple[list[bytes], dict[str, _FakeSubscription]]:
+        rec = bag.BagRecorder.__new__(bag.BagRecorder)
+        rec.run_only = False
+        rec._on_message = lambda *a, **k: True
+        seen: list[bytes] = []
+        rec.observers = ({bag.JOINT_STATES_TOPIC: [seen.append], '/engine/wrench': [seen.append]}
+                         if observed else {})
+        subs = {topic: _FakeSubscription([_stamped_cdr(k * 1_000_000, tag + b'%d' % k)
+                                          for k in range(150)])
+                for topic, tag in ((bag.JOINT_STATES_TOPIC, b'js'), ('/engine/wrench', b'en'))}
+        entries = [(topic, sub, True, False, bag.TOPIC_TYPES[topic]) for topic, sub in subs.items()]
+        rec._take_queued(entries, {subs[bag.JOINT_STATES_TOPIC].pointer})
+        return seen, subs
+    seen, subs = wake(observed=True)
+    assert seen == [_stamped_cdr(k * 1_000_000, tag + b'%d' % k) for k in range(150) for tag in (b'js', b'en')]
+    assert not subs['/engine/wrench'].samples
+    seen, subs = wake(observed=False)
+    assert seen == [] and len(subs['/engine/wrench'].samples) == 150 and not subs[bag.JOINT_STATES_TOPIC].samples

@@ -421,9 +421,10 @@ class RecorderFeed:
     is created, :func:`attach` makes this the "bus" of the recorder's context, so
     ``loop_subscription`` of a topic the recorder subscribes to creates no DDS reader and
     adds the callback to :attr:`cvj_ros.bag.BagRecorder.observers` instead; the recorder
-    thread calls it with each sample's CDR bytes right after recording it (the samples it
-    keeps, in the order taken: malformed ones and those not of the run's publishers are
-    left out). Publishers (the monitor's /diagnostics) stay plain DDS publishers.
+    thread calls it with each sample's CDR bytes after each wake, in loop order (the samples
+    it keeps: malformed ones and those not of the run's publishers are left out;
+    :meth:`cvj_ros.bag.BagRecorder._take_queued`). Publishers (the monitor's /diagnostics)
+    stay plain DDS publishers.
 
     A callback that raises ends the node's feed (as the exception would end its process):
     ``on_error(name, exc)`` is called once and its callbacks are dropped."""

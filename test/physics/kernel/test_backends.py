@@ -2,9 +2,12 @@
 backend (issue 9): same scene, same algorithm, same step sequence; the trajectories differ
 only by rounding.
 
-Bounds: both backends take the same steps (asserted: equal accepted/rejected/fev counts),
-so the difference is rounding in the rhs sums and in the stage combinations (BLAS dot in
-Python, fixed-order loops in the kernel), amplified along the trajectory. Measured on the
+Bounds: both backends take the same steps (equal accepted/rejected/fev counts), so the
+difference is rounding in the rhs sums and in the stage combinations (BLAS dot in
+Python, fixed-order loops in the kernel), amplified along the trajectory - unless that
+rounding flips a step decision of the reference (its BLAS kernel decides its last bits:
+awd_4x4 under OPENBLAS_CORETYPE=Haswell), when only the scene's tolerance is guaranteed
+(:func:`_assert_two_solutions_of_one_tolerance`). Measured on the
 shipped scenes over 0.3 s: <= 4e-11 relative (Simulation), <= 1.5e-13 (CoupledStepper, 500
 exchanges); asserted 1e-9, >= 25x margin (efforts: see the conditioning note in the test).
 """
@@ -48,15 +51,16 @@ def test_simulation_kernel_matches_python_reference(name: str) -> None:
         assert kern.backend_note and kern.backend_note.startswith('compiled kernel: ')
         pytest.skip(kern.backend_note)
     assert a.solver['backend'] == 'kernel' and b.solver['backend'] == 'python'
-    for c in COUNTERS:
-        assert a.solver[c] == b.solver[c], c
-    assert _rel(a.velocity, b.velocity) < REL
-    assert _rel(a.position, b.position) < REL
     # effort holds spring torques c * twist: a twist differing by rounding (dphi) moves them
     # by c * dphi, ill-conditioned for the stiff scene (c = 1e6 N m/rad: measured 3.6e-8 N m
     # from 3e-14 rad); bound 10x that conditioning on top of REL.
     laws = [sp[0] if isinstance(sp, tuple) else sp for sp in kern.driveline.springs]  # tree: (law, l, r)
     c_max = max((law.c for law in laws), default=0.0)
+    if any(a.solver[c] != b.solver[c] for c in COUNTERS):
+        _assert_two_solutions_of_one_tolerance(scene, a, b, c_max)
+        return
+    assert _rel(a.velocity, b.velocity) < REL
+    assert _rel(a.position, b.position) < REL
     d_eff = float(np.max(np.abs(a.effort - b.effort)))
     d_pos = float(np.max(np.abs(a.position - b.position)))
     assert d_eff <= REL * max(1.0, float(np.max(np.abs(b.effort)))) + 10 * c_max * d_pos
@@ -64,6 +68,28 @@ def test_simulation_kernel_matches_python_reference(name: str) -> None:
     # the kernel's samples come from the compiled walk (kernel/outputs_nb.py), the Python
     # ones from Driveline._walk / energy: torques and names must agree too
     assert _rel(a.engine_torque, b.engine_torque) < REL and _rel(a.load_torque, b.load_torque) < REL
+    assert a.names == b.names
+
+
+def _assert_two_solutions_of_one_tolerance(scene, a, b, c_max: float) -> None:
+    """The kernel (fixed-order sums: the same bytes under every OPENBLAS_CORETYPE) and the
+    Python reference (np.dot, LAPACK: its last bits follow the CPU's BLAS kernel) took
+    different steps: a step decision of the reference lay within rounding of its threshold
+    and flipped (awd_4x4 under OPENBLAS_CORETYPE=Haswell: 769 accepted / 52 rejected in the
+    kernel, 770 / 50 in the reference; every other core type tried: the same steps). Equal
+    step sequences are then not guaranteed, only two solutions of the same tolerance: the
+    counts differ by a few steps (1 % of the accepted ones) and the samples by about one
+    step's local error, below the scene's rtol (measured there: velocity 7.9e-9 relative,
+    position 4.3e-12, rtol 1e-6)."""
+    rtol = scene.solver.rtol
+    assert abs(a.solver['naccept'] - b.solver['naccept']) <= 0.01 * b.solver['naccept'], (a.solver, b.solver)
+    for got, ref in ((a.velocity, b.velocity), (a.position, b.position),
+                     (a.engine_torque, b.engine_torque), (a.load_torque, b.load_torque)):
+        assert _rel(got, ref) < rtol, (a.solver, b.solver, _rel(got, ref))
+    # efforts: spring torques c * twist, conditioned as in the equal-steps case (the caller)
+    d_pos = float(np.max(np.abs(a.position - b.position)))
+    assert float(np.max(np.abs(a.effort - b.effort))) <= \
+        rtol * max(1.0, float(np.max(np.abs(b.effort)))) + 10 * c_max * d_pos
     assert a.names == b.names
 
 

@@ -311,51 +311,12 @@ class BatchRunner:
 
     def _reduce(self, sim: Any) -> dict[str, Any]:
         """Run ``sim`` and reduce it to the row (run_variant's steps after the build; the
-        window and metrics compiled, cvj_ros.sweep.reduce). A template's later runs take
-        :meth:`_lean_run`."""
+        window and metrics compiled, cvj_ros.sweep.reduce). A template's later runs make
+        the plan's one compiled call (Simulation._run_one_call) without Simulation.run's
+        option handling."""
         from cvj_ros.sweep.run import simulation_row, trace_row
         plan = next(iter(sim._plans.values()), None)
         if plan is None or plan.run is None:
             return simulation_row(sim, self.options, compiled=True)
-        trace, fill = self._lean_run(sim, plan)
-        return trace_row(trace, self.options, compiled=True, fill=fill)
-
-    @staticmethod
-    def _lean_run(sim: Any, plan: Any) -> tuple[Any, Any]:
-        """Simulation._run_one_call of ``sim``'s plan (the compiled one-call run, the same
-        arrays and Trace): (trace, fill), ``fill(i)`` fills the intermediate members'
-        angles and speeds (the lever hinge's earring: ``fill_mid_samples``) from row i on
-        where they are not filled yet. The bound run fills every row itself when every
-        sample is finite (run_nb._outputs), so ``fill`` has nothing left to do then; it
-        stays the reduction's hook (cvj_ros.sweep.run.trace_row)."""
-        from cvj_ros.physics.kernel import entry_point_once
-        from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
-        m, n, n_sh = plan.shape
-        X = np.empty((m, n))
-        pos = np.empty((m, n_sh))
-        vel = np.empty((m, n_sh))
-        eff = np.empty((m, n_sh))
-        te = np.empty(m)
-        tl = np.empty(m)
-        res = np.empty(m)
-        e0 = sim._initial_energy(sim.driveline.x0)
-        wall0 = time.perf_counter()
-        bad = plan.run(e0, X, X if plan.XG is None else plan.XG, pos, vel, eff, te, tl, res)
-        wall = time.perf_counter() - wall0
-        times = plan.times
-        mtab, mfp, python_members = sim._mid_table
-        if bad >= 0 or python_members or (mtab.shape[0] and 0 in mtab[:, 0].tolist()):
-            sim._check_outputs(times, bad, pos, vel, compiled_mids=True)   # raises, or the Python members
-            mtab = mtab[:0]
-        trace = sim._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
-                            wall, wall)
-        # the bound run has filled the members (run_nb._outputs) when every sample is finite
-        done = [0 if bad < 0 else m]
-
-        def fill(i: int) -> None:
-            if mtab.shape[0] and i < done[0]:
-                args = (pos[i:done[0]], vel[i:done[0]], mtab, mfp)
-                entry_point_once(fill_mid_samples, args)(*args)
-                done[0] = i
-        return trace, fill
+        return trace_row(sim._run_one_call(plan, sim.driveline.x0), self.options, compiled=True)
 

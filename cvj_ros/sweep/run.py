@@ -181,21 +181,15 @@ def simulation_row(sim: Any, options: RunOptions, *, compiled: bool = False) -> 
     return trace_row(trace, options, compiled=compiled)
 
 
-def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False,
-              fill: Callable[[int], None] | None = None) -> dict[str, Any]:
-    """The 'ok' row of a run's ``trace`` (:func:`simulation_row` after the run).
-    ``fill(i)``: the trace's speeds other than the first shaft's are complete only from
-    row i on once it is called (the batched run's earring, cvj_ros.sweep.batch); the
-    compiled reduction calls it with the row before the window, else it is called with 0."""
+def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False) -> dict[str, Any]:
+    """The 'ok' row of a run's ``trace`` (:func:`simulation_row` after the run)."""
     reduced = None
     if compiled:
         from cvj_ros.sweep.reduce import compiled_reduction
-        reduced = compiled_reduction(trace, options, fill)
+        reduced = compiled_reduction(trace, options)
     if reduced is not None:
         window, summary = reduced
     else:
-        if fill is not None:
-            fill(0)
         from cvj_ros.physics.metrics import steady_window, summarize
         window = steady_window(trace.t, trace.names, trace.velocity, trace.effort,
                                transient=options.transient)

@@ -200,9 +200,14 @@ def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False) -> dic
                    'shafts': summarize(trace, window=window)}
     row = {'status': 'ok', **metrics_row(summary)}
     if options.orders > 0:
-        try:      # over the metrics' own window
-            row.update(order_amplitudes(trace, options.orders, options.transient,
-                                        options.orders_shaft, window))
+        try:      # over the metrics' own window; batched: the grids' cos/sin kept (same floats)
+            if compiled or reduced is not None:
+                from cvj_ros.sweep.orders import order_amplitudes_cached
+                row.update(order_amplitudes_cached(trace, options.orders, options.orders_shaft,
+                                                   window))
+            else:
+                row.update(order_amplitudes(trace, options.orders, options.transient,
+                                            options.orders_shaft, window))
         except KeyError:
             raise SceneError('--orders-shaft', f'no shaft {options.orders_shaft!r}; shafts: '
                              f'{", ".join(trace.names)}') from None

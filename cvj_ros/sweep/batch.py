@@ -28,14 +28,15 @@ a run that raises. Each variant is still parsed (validation) and its fidelity ch
 """
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-__all__ = ['BatchRunner', 'element_local', 'variant_dict']
+__all__ = ['BatchRunner', 'bind_lean', 'element_local', 'lean_run', 'variant_dict']
 
 _NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
 
@@ -116,6 +117,7 @@ class _Template:
     mfp_owner: dict[int, int] = field(default_factory=dict)
     energy_owner: dict[int, int] = field(default_factory=dict)  # part (0 kin, 1 ela) -> axis
     separable: bool = True
+    lean: Any = None        # the plan's one-call run without the members (bind_lean)
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -276,7 +278,7 @@ class BatchRunner:
         sim = tpl.sim
         sim._e0 = (_bits(tpl.x0).tobytes(), energy[0] + energy[1])
         try:
-            row = self._reduce(sim)
+            row = self._reduce(sim, tpl.lean)
         except Exception:       # noqa: BLE001  (the per-variant path gives the row)
             del self.templates[skey]
             return self._full(values)
@@ -305,18 +307,94 @@ class BatchRunner:
         if tpl.fp.size != tpl.fp0.size:
             return row, time.perf_counter() - t0
         self.templates[skey] = tpl
+        tpl.lean = bind_lean(sim, plan, self.options.sampling)
         self.stats['templates'] += 1
         self.stats['full'] += 1
         return row, time.perf_counter() - t0
 
-    def _reduce(self, sim: Any) -> dict[str, Any]:
+    def _reduce(self, sim: Any, lean: Any = None) -> dict[str, Any]:
         """Run ``sim`` and reduce it to the row (run_variant's steps after the build; the
         window and metrics compiled, cvj_ros.sweep.reduce). A template's later runs make
         the plan's one compiled call (Simulation._run_one_call) without Simulation.run's
-        option handling."""
+        option handling; with ``lean`` (:func:`bind_lean`) that run without the members,
+        filled from the row before the steady window on (the rows the metrics read)."""
         from cvj_ros.sweep.run import simulation_row, trace_row
         plan = next(iter(sim._plans.values()), None)
         if plan is None or plan.run is None:
             return simulation_row(sim, self.options, compiled=True)
-        return trace_row(sim._run_one_call(plan, sim.driveline.x0), self.options, compiled=True)
+        if lean is None:
+            return trace_row(sim._run_one_call(plan, sim.driveline.x0), self.options,
+                             compiled=True)
+        from cvj_ros.sweep.reduce import compiled_reduction
+        trace, fill = lean_run(sim, plan, lean)
+        reduced = compiled_reduction(trace, self.options, fill=fill)
+        if reduced is None:
+            fill(0)         # the numpy path reads every row
+        return trace_row(trace, self.options, compiled=reduced is not None, reduced=reduced)
+
+
+def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
+    """The plan's one-call run (``KernelStepper.bind_run``, the same compiled function, packs
+    and stepper) bound without the intermediate members (``mids`` None): it integrates and
+    fills every sample's shaft outputs as ``plan.run`` does and leaves the members' columns
+    unwritten. None when the members cannot wait for the window: none compiled, some filled
+    in Python, or one of them is the first shaft (the steady window reads its speed)."""
+    mtab, _mfp, python_members = sim._mid_table
+    if not mtab.shape[0] or python_members or 0 in mtab[:, 0].tolist():
+        return None
+    n = sim.driveline.x0.size
+    times = plan.times
+    if sampling == 'land':      # as Simulation._kernel_plan builds the one-call plan
+        grid = plan.grid
+        gather = grid.size != times.size
+        arrays = (grid, plan.rows.astype(np.int64) if gather else np.zeros(0, np.int64),
+                  np.zeros((0, 2), np.int64), np.zeros(0))
+    else:
+        arrays = (np.zeros(0), np.zeros(0, np.int64),
+                  np.array([(k, k_end) for k, k_end, _b in plan.segments], dtype=np.int64),
+                  np.array([math.nan if b is None else b for _k, _ke, b in plan.segments]))
+    run = plan.stepper.bind_run(sim.driveline.x0, times, (*arrays, np.zeros(2), np.zeros((2, n))),
+                                sim._shaft_table, None)
+    # fill's entry point loaded now, not in a later chunk (zero rows, the types fill passes)
+    from cvj_ros.physics.kernel import entry_point_once
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    n_sh = plan.shape[2]
+    args = (np.empty((0, n_sh)), np.empty((0, n_sh)), mtab, _mfp)
+    entry_point_once(fill_mid_samples, args)(*args)
+    return run
+
+
+def lean_run(sim: Any, plan: Any, run: Any) -> tuple[Any, Callable[[int], None]]:
+    """Simulation._run_one_call of ``sim``'s plan with the lean bound ``run``
+    (:func:`bind_lean`): (trace, fill). ``fill(i)`` fills the intermediate members' angles
+    and speeds (the lever hinge's earring: ``outputs_nb.fill_mid_samples``, the function
+    the full run calls per row) from row i on, where not filled yet: each row from its own
+    input angle and speed, so the rows filled are the full run's floats."""
+    from cvj_ros.physics.kernel import entry_point_once
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    m, n, n_sh = plan.shape
+    X = np.empty((m, n))
+    pos = np.empty((m, n_sh))
+    vel = np.empty((m, n_sh))
+    eff = np.empty((m, n_sh))
+    te = np.empty(m)
+    tl = np.empty(m)
+    res = np.empty(m)
+    e0 = sim._initial_energy(sim.driveline.x0)
+    wall0 = time.perf_counter()
+    bad = run(e0, X, X if plan.XG is None else plan.XG, pos, vel, eff, te, tl, res)
+    wall = time.perf_counter() - wall0
+    times = plan.times
+    sim._check_outputs(times, bad, pos, vel, compiled_mids=True)   # raises if bad >= 0
+    trace = sim._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
+                        wall, wall)
+    mtab, mfp, _py = sim._mid_table
+    done = [m]
+
+    def fill(i: int) -> None:
+        if i < done[0]:
+            args = (pos[i:done[0]], vel[i:done[0]], mtab, mfp)
+            entry_point_once(fill_mid_samples, args)(*args)
+            done[0] = i
+    return trace, fill
 

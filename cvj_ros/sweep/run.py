@@ -181,10 +181,12 @@ def simulation_row(sim: Any, options: RunOptions, *, compiled: bool = False) -> 
     return trace_row(trace, options, compiled=compiled)
 
 
-def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False) -> dict[str, Any]:
-    """The 'ok' row of a run's ``trace`` (:func:`simulation_row` after the run)."""
-    reduced = None
-    if compiled:
+def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False,
+              reduced: tuple[Any, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The 'ok' row of a run's ``trace`` (:func:`simulation_row` after the run);
+    ``reduced``: the (window, summary) of cvj_ros.sweep.reduce.compiled_reduction when the
+    caller made it already."""
+    if reduced is None and compiled:
         from cvj_ros.sweep.reduce import compiled_reduction
         reduced = compiled_reduction(trace, options)
     if reduced is not None:

@@ -128,3 +128,31 @@ def test_variant_dict_equals_apply_keys_and_leaves_base_unchanged() -> None:
     assert base == frozen
     assert d['engine'] is base['engine']            # shared, not copied
     assert d['driveline'][2] is not base['driveline'][2]
+
+
+def test_lean_run_fills_the_same_rows_as_the_one_call_run() -> None:
+    """bind_lean's run (no members) plus fill(i) gives the one-call run's arrays bit for bit
+    in every row it fills; the shaft columns are the same in every row."""
+    from cvj_ros.sweep.batch import bind_lean, lean_run
+    data = apply_keys(load_scene_data(find_scene('kavz685_lever')),
+                      [('duration',), ('driveline', 2, 'params', 'alpha_deg')], [0.3, 30.0])
+    sim = Simulation(parse_scene(data), fidelity={'coupling': 'exact'})
+    full = sim.run(sampling='dense')
+    plan = next(iter(sim._plans.values()))
+    ref = sim._run_one_call(plan, sim.driveline.x0)
+    lean = bind_lean(sim, plan, 'dense')
+    assert lean is not None and sim._mid_table[0].shape[0] > 0   # the earring is a member
+    members = sim._mid_table[0][:, 0].tolist()
+    shafts = [c for c in range(ref.velocity.shape[1]) if c not in members]
+    m = ref.t.size
+    for first in (m // 2, 0):
+        trace, fill = lean_run(sim, plan, lean)
+        for name in ('t', 'engine_torque', 'load_torque', 'energy_residual'):
+            assert getattr(trace, name).tobytes() == getattr(ref, name).tobytes(), name
+        for name in ('position', 'velocity', 'effort'):
+            assert getattr(trace, name)[:, shafts].tobytes() == \
+                getattr(ref, name)[:, shafts].tobytes(), name
+        fill(first)
+        for name in ('position', 'velocity'):
+            assert getattr(trace, name)[first:].tobytes() == getattr(ref, name)[first:].tobytes()
+    assert ref.velocity.tobytes() == full.velocity.tobytes()

@@ -15,7 +15,9 @@ variant of that structure differ from the template's only where a sweep key ente
   probed when it comes a second time (its first variant runs in full), so a sweep whose
   values never repeat (random sampling of ranges) runs as before;
 * a variant is the template's arrays with each key's slots written from its probe, run
-  by the template's bound one-call run.
+  by the template's one-call run bound without the intermediate members
+  (:func:`bind_lean`), whose rows are filled from the row before the steady window on
+  (the rows the metrics read; :func:`lean_run`).
 
 The mapping is checked, never assumed: a key is mapped only if it addresses one field of
 one ``driveline[i]`` element (not its kind, name or fidelity; no other key on the same

@@ -66,15 +66,18 @@ def assert_same_run(rp, rk, tol_t: float = TOL, tol_x: float = TOL_STATE) -> dic
 
 def replay_on_mesh(module, run, sim, log: list[np.ndarray], monkeypatch):
     """``run(sim)`` (a reference run) on the kernel's mesh: the stepper that
-    ``module.make_stepper`` gives its k-th mode segment takes the k-th logged step sizes, each
-    accepted (the kernel accepted it). Chains: ``hybrid.simulate``; vehicle trees:
-    ``hybrid.tree_sim`` (test_tree_modes_kernel.py)."""
+    ``module.make_stepper`` gives its k-th integrated mode segment takes the k-th logged step
+    sizes, each accepted (the kernel accepted it). Chains: ``hybrid.simulate``; vehicle
+    trees: ``hybrid.tree_sim`` (test_tree_modes_kernel.py). A segment takes its sizes at its
+    first step: the reference makes a stepper before it checks for a scheduled shift due at
+    the segment's start (a clutch locking with the synchronous speed already past a shift
+    speed), the kernel checks before it integrates, and that segment takes no step."""
     segments = iter(log)
     plain = module.make_stepper
 
     def make(*args, **kwargs):
         st = plain(*args, **kwargs)
-        sizes = iter(next(segments))
+        sizes: list = []
         attempt, step = st._attempt, st.step
 
         def forced_attempt(h):
@@ -82,7 +85,9 @@ def replay_on_mesh(module, run, sim, log: list[np.ndarray], monkeypatch):
             return min(err, 1.0), y_new
 
         def forced_step(t_bound):
-            st.h = next(sizes)
+            if not sizes:
+                sizes.append(iter(next(segments)))
+            st.h = next(sizes[0])
             return step(t_bound)
         st._attempt, st.step = forced_attempt, forced_step
         return st
@@ -205,6 +210,43 @@ def test_launch_clutch_chain_on_dop853_matches_the_reference(monkeypatch) -> Non
     # (final state); the bounds are these with a margin, not the 1e-12 of the hard cases
     assert_same_run(rp, rk, tol_t=5e-9, tol_x=5e-6)
     assert rk.max_energy_residual < 1e-7
+
+
+def fuzzed_rows(rng: np.random.Generator, h: float, gears: bool, duration: float = 1.5,
+                n: int = 14) -> list[dict]:
+    """A random command schedule: a row at 0 (brake and clutch pedal 0 or 1, throttle
+    0.3..0.6, with ``gears`` a gear -1..2) and ``n`` rows over ``duration`` whose times are
+    uniform, on the exchange-step grid (``h``), one exchange step after another row or at
+    the same time as one; each may set throttle (0.3..1), the clutch pedal (0, 1 or
+    uniform: steps and ramps), the brake (releases, full, partial) and with ``gears`` a
+    gear -1..4 (refused ones included). Shared by the chain and vehicle fuzz."""
+    times: list[float] = []
+    for _ in range(n):
+        kind = rng.integers(4)
+        if kind == 0 or not times:
+            times.append(float(rng.uniform(0.0, duration)))
+        elif kind == 1:
+            times.append(int(rng.integers(1, int(duration / h))) * h)
+        elif kind == 2:
+            times.append(min(duration, times[int(rng.integers(len(times)))] + h))
+        else:
+            times.append(times[int(rng.integers(len(times)))])
+    rows = [{'t': 0.0, 'brake': float(rng.choice([0.0, 1.0])), 'clutch': float(rng.choice([0.0, 1.0])),
+             'throttle': float(rng.uniform(0.3, 0.6))}]
+    if gears:
+        rows[0]['gear'] = int(rng.integers(-1, 3))
+    for t in sorted(times):
+        row: dict = {'t': float(t)}
+        if rng.random() < 0.5:
+            row['throttle'] = float(rng.uniform(0.3, 1.0))
+        if rng.random() < 0.5:
+            row['clutch'] = float(rng.choice([0.0, 1.0, rng.uniform()]))
+        if rng.random() < 0.4:
+            row['brake'] = float(rng.choice([0.0, 0.0, 1.0, rng.uniform(0.0, 0.5)]))
+        if gears and rng.random() < 0.3:
+            row['gear'] = int(rng.integers(-1, 5))
+        rows.append(row)
+    return rows
 
 
 def _random_chain_sim(seed: int):

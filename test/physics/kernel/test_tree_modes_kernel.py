@@ -268,34 +268,8 @@ def _fuzzed_launch(seed: int) -> dict:
     then send no gear, which it would refuse), even seeds command gears -1..4."""
     rng = np.random.default_rng(7000 + seed)
     d = _launch_dict()
-    h = float(d['exchange_step'])
-    times: list[float] = []
-    for _ in range(14):
-        kind = rng.integers(4)
-        if kind == 0 or not times:
-            times.append(float(rng.uniform(0.0, 1.5)))
-        elif kind == 1:
-            times.append(int(rng.integers(1, int(1.5 / h))) * h)
-        elif kind == 2:
-            times.append(min(1.5, times[int(rng.integers(len(times)))] + h))
-        else:
-            times.append(times[int(rng.integers(len(times)))])
     scheduled = bool(seed % 2)
-    rows = [{'t': 0.0, 'brake': float(rng.choice([0.0, 1.0])), 'clutch': float(rng.choice([0.0, 1.0])),
-             'throttle': float(rng.uniform(0.3, 0.6))}]
-    if not scheduled:
-        rows[0]['gear'] = int(rng.integers(-1, 3))
-    for t in sorted(times):
-        row: dict = {'t': float(t)}
-        if rng.random() < 0.5:
-            row['throttle'] = float(rng.uniform(0.3, 1.0))
-        if rng.random() < 0.5:
-            row['clutch'] = float(rng.choice([0.0, 1.0, rng.uniform()]))
-        if rng.random() < 0.4:
-            row['brake'] = float(rng.choice([0.0, 0.0, 1.0, rng.uniform(0.0, 0.5)]))
-        if not scheduled and rng.random() < 0.3:
-            row['gear'] = int(rng.integers(-1, 5))
-        rows.append(row)
+    rows = _chain_tests.fuzzed_rows(rng, float(d['exchange_step']), gears=not scheduled)
     d.update(duration=1.5, commands=rows)
     if not scheduled:
         del d['shift_schedule']
@@ -304,33 +278,11 @@ def _fuzzed_launch(seed: int) -> dict:
     return d
 
 
-FREE_T, FREE_W = 1e-8, 1e-6    # free-running twins: event times (s), speeds (docs/clutch_gearbox.md)
-
-
 def _fuzz_case(seed: int, monkeypatch) -> dict[str, float]:
     """The reference replayed on the kernel's mesh (:func:`twin`: events, times to 1e-12,
-    states to 1e-10). Where on that mesh the reference does not see a crossing the kernel
-    saw in the same step (a witness at rounding level at the step's end, e.g. a wheel under
-    a released brake reversing: its next segment's sizes then run out), both free-running:
-    the same events and statuses, times within FREE_T, speeds within FREE_W of each
-    shaft's largest."""
+    states to 1e-10)."""
     sim = hybrid_simulation(parse_scene(_fuzzed_launch(seed)))
-    fresh, again = copy.deepcopy(sim), copy.deepcopy(sim)
-    try:
-        got, rk = twin(sim, monkeypatch, free=False)
-    except StopIteration:
-        rk = KernelHybridTreeSimulation.from_reference(again).run()
-        rp = PLAIN_RUN(fresh)
-        assert [(e.element, e.before, e.after, e.cause) for e in rk.events] == \
-            [(e.element, e.before, e.after, e.cause) for e in rp.events]
-        assert [x.split(':', 1)[1] for x in rk.statuses] == [x.split(':', 1)[1] for x in rp.statuses]
-        dt = max([abs(a.t - b.t) for a, b in zip(rk.events, rp.events)], default=0.0)
-        assert dt <= FREE_T and abs(rk.t_end - rp.t_end) <= FREE_T
-        assert rk.speed.shape == rp.speed.shape
-        scale = np.maximum(np.nanmax(np.abs(rp.speed), axis=0, initial=0.0), 1.0)
-        dw = float(np.nanmax(np.abs(rk.speed - rp.speed) / scale, initial=0.0))
-        assert dw <= FREE_W
-        got = {'event_t': dt, 'speed': dw, 'free': 1.0}
+    got, rk = twin(sim, monkeypatch, free=False)
     assert rk.max_energy_residual < 1e-7
     return got
 

@@ -304,9 +304,11 @@ def test_two_brakes_reaching_capacity_together_both_slip(monkeypatch) -> None:
     d['duration'] = 0.2
     _got, rk = twin(hybrid_simulation(parse_scene(d)), monkeypatch, free=False)
     ev = [(e.element, e.before, e.after) for e in rk.events]
-    assert ev[:4] == [('brake_left', 'slip+', 'stuck'), ('brake_right', 'slip+', 'stuck'),
-                      ('brake_left', 'stuck', 'slip+'), ('brake_right', 'stuck', 'slip+')]
-    assert rk.events[2].t == rk.events[3].t and rk.events[4].t > rk.events[3].t + 0.01
+    assert sorted(ev[:2]) == [('brake_left', 'slip+', 'stuck'), ('brake_right', 'slip+', 'stuck')]
+    # which of the two reaches its capacity first is a matter of rounding: either order
+    assert sorted(ev[2:4]) == [('brake_left', 'stuck', 'slip+'), ('brake_right', 'stuck', 'slip+')]
+    t2, t3 = rk.events[2].t, rk.events[3].t
+    assert abs(t3 - t2) <= 1e-12 and rk.events[4].t > t3 + 0.01    # one instant (tree_sim)
 
 
 @pytest.mark.parametrize('seed', range(4))

@@ -51,6 +51,12 @@ __all__ = ['HybridTreeSimulation']
 FloatArray = NDArray[np.float64]
 
 
+def _same_instant(t: float, t0: float) -> bool:
+    """t and t0 are one instant: within the run loop's rounding rule for an event just
+    before a command row (1e-12 max(1 s, |t|))."""
+    return abs(t - t0) <= 1e-12 * max(1.0, abs(t))
+
+
 class HybridTreeSimulation:
     """Offline run of a vehicle scene with mode elements under a command schedule.
 
@@ -82,6 +88,7 @@ class HybridTreeSimulation:
         self.events: list[ModeEvent] = []
         self.statuses: list[str] = []
         self._cache: dict[tuple, ModeTree] = {}
+        self._released: tuple[float, set[str]] = (-math.inf, set())   # _release, _settle
         els = list(iter_elements(scene.driveline))
         self.clutches = {el.name: el for el in els if getattr(el, 'type', '') == 'clutch'}
         self.gearboxes = {el.name: el for el in els if getattr(el, 'type', '') == 'gearbox'}
@@ -246,6 +253,9 @@ class HybridTreeSimulation:
         return out, st
 
     def _release(self, t: float, mode: Mode, kind: str, name: str, new: int, cause: str) -> Mode:
+        if not _same_instant(t, self._released[0]):
+            self._released = (t, set())
+        self._released[1].add(name)
         out = mode.copy()
         if kind == 'clutch':
             out.clutch[name] = new
@@ -261,7 +271,13 @@ class HybridTreeSimulation:
     def _settle(self, t: float, mode: Mode, st: TreeState, fresh: tuple[str, ...] = ()
                 ) -> tuple[Mode, TreeState]:
         """As the chain's: release stuck elements whose capacity no longer holds, stick
-        slipping ones at exactly zero slip that can hold (at most 16 rounds)."""
+        slipping ones at exactly zero slip that can hold (at most 16 rounds). An element
+        released at this instant is not stuck again at it (as ``fresh``): two brakes behind
+        an open differential reach their capacity together, each one's release raising the
+        other's holding torque; re-sticking the first when the second lets go would repeat
+        at the same instant for ever, both slipping is the consistent mode."""
+        if _same_instant(t, self._released[0]):
+            fresh = tuple(fresh) + tuple(sorted(self._released[1]))
         for _ in range(16):
             mt, x, st = self._apply(mode, st, False)
             ev = self._eval(mt, t, x)

@@ -268,34 +268,8 @@ def _fuzzed_launch(seed: int) -> dict:
     then send no gear, which it would refuse), even seeds command gears -1..4."""
     rng = np.random.default_rng(7000 + seed)
     d = _launch_dict()
-    h = float(d['exchange_step'])
-    times: list[float] = []
-    for _ in range(14):
-        kind = rng.integers(4)
-        if kind == 0 or not times:
-            times.append(float(rng.uniform(0.0, 1.5)))
-        elif kind == 1:
-            times.append(int(rng.integers(1, int(1.5 / h))) * h)
-        elif kind == 2:
-            times.append(min(1.5, times[int(rng.integers(len(times)))] + h))
-        else:
-            times.append(times[int(rng.integers(len(times)))])
     scheduled = bool(seed % 2)
-    rows = [{'t': 0.0, 'brake': float(rng.choice([0.0, 1.0])), 'clutch': float(rng.choice([0.0, 1.0])),
-             'throttle': float(rng.uniform(0.3, 0.6))}]
-    if not scheduled:
-        rows[0]['gear'] = int(rng.integers(-1, 3))
-    for t in sorted(times):
-        row: dict = {'t': float(t)}
-        if rng.random() < 0.5:
-            row['throttle'] = float(rng.uniform(0.3, 1.0))
-        if rng.random() < 0.5:
-            row['clutch'] = float(rng.choice([0.0, 1.0, rng.uniform()]))
-        if rng.random() < 0.4:
-            row['brake'] = float(rng.choice([0.0, 0.0, 1.0, rng.uniform(0.0, 0.5)]))
-        if not scheduled and rng.random() < 0.3:
-            row['gear'] = int(rng.integers(-1, 5))
-        rows.append(row)
+    rows = _chain_tests.fuzzed_rows(rng, float(d['exchange_step']), gears=not scheduled)
     d.update(duration=1.5, commands=rows)
     if not scheduled:
         del d['shift_schedule']
@@ -304,49 +278,52 @@ def _fuzzed_launch(seed: int) -> dict:
     return d
 
 
-FREE_T, FREE_W = 1e-8, 1e-6    # free-running twins: event times (s), speeds (docs/clutch_gearbox.md)
-
-
 def _fuzz_case(seed: int, monkeypatch) -> dict[str, float]:
     """The reference replayed on the kernel's mesh (:func:`twin`: events, times to 1e-12,
-    states to 1e-10). Where on that mesh the reference does not see a crossing the kernel
-    saw in the same step (a witness at rounding level at the step's end, e.g. a wheel under
-    a released brake reversing: its next segment's sizes then run out), both free-running:
-    the same events and statuses, times within FREE_T, speeds within FREE_W of each
-    shaft's largest."""
+    states to 1e-10)."""
     sim = hybrid_simulation(parse_scene(_fuzzed_launch(seed)))
-    fresh, again = copy.deepcopy(sim), copy.deepcopy(sim)
-    try:
-        got, rk = twin(sim, monkeypatch, free=False)
-    except StopIteration:
-        rk = KernelHybridTreeSimulation.from_reference(again).run()
-        rp = PLAIN_RUN(fresh)
-        assert [(e.element, e.before, e.after, e.cause) for e in rk.events] == \
-            [(e.element, e.before, e.after, e.cause) for e in rp.events]
-        assert [x.split(':', 1)[1] for x in rk.statuses] == [x.split(':', 1)[1] for x in rp.statuses]
-        dt = max([abs(a.t - b.t) for a, b in zip(rk.events, rp.events)], default=0.0)
-        assert dt <= FREE_T and abs(rk.t_end - rp.t_end) <= FREE_T
-        assert rk.speed.shape == rp.speed.shape
-        scale = np.maximum(np.nanmax(np.abs(rp.speed), axis=0, initial=0.0), 1.0)
-        dw = float(np.nanmax(np.abs(rk.speed - rp.speed) / scale, initial=0.0))
-        assert dw <= FREE_W
-        got = {'event_t': dt, 'speed': dw, 'free': 1.0}
+    got, rk = twin(sim, monkeypatch, free=False)
     assert rk.max_energy_residual < 1e-7
     return got
+
+
+def test_two_brakes_reaching_capacity_together_both_slip(monkeypatch) -> None:
+    """Fuzzed launch 19's first 0.2 s (-13.6 % grade, 2589 kg, both wheel brakes full and
+    equal behind the open differential): at 0.1555 s both holding torques reach the brakes'
+    capacity together, each release raising the other's holding torque. Both backends (the
+    transitions are the reference's Python, tree_sim._settle) release both at that instant
+    and do not stick the first again there (before, the two releases repeated at that
+    instant for ever); the next event comes 15 ms later."""
+    plain_log = HybridTreeSimulation._log
+
+    def log(self, *args) -> None:
+        assert len(self.events) < 100, 'mode events repeat at one instant'
+        plain_log(self, *args)
+    monkeypatch.setattr(HybridTreeSimulation, '_log', log)
+    d = _fuzzed_launch(19)
+    d['duration'] = 0.2
+    _got, rk = twin(hybrid_simulation(parse_scene(d)), monkeypatch, free=False)
+    ev = [(e.element, e.before, e.after) for e in rk.events]
+    assert sorted(ev[:2]) == [('brake_left', 'slip+', 'stuck'), ('brake_right', 'slip+', 'stuck')]
+    # which of the two reaches its capacity first is a matter of rounding: either order
+    assert sorted(ev[2:4]) == [('brake_left', 'stuck', 'slip+'), ('brake_right', 'stuck', 'slip+')]
+    t2, t3 = rk.events[2].t, rk.events[3].t
+    assert abs(t3 - t2) <= 1e-12 and rk.events[4].t > t3 + 0.01    # one instant (tree_sim)
 
 
 @pytest.mark.parametrize('seed', range(4))
 def test_fuzzed_grades_masses_and_schedules(monkeypatch, seed: int) -> None:
     """Kernel = reference on seeded fuzzed launches (:func:`_fuzzed_launch`, :func:`_fuzz_case`):
     the same events and statuses, event times to 1e-12 relative, samples and final states to
-    1e-10 (the module docstring's measure); more seeds under ``-m slow``."""
+    1e-10 (the module docstring's measure); more seeds under ``-m slow``. Measured over
+    seeds 0..19 (0-86 events each, 314 in all): event times <= 1.8e-13, samples <= 9.6e-12,
+    final states <= 2.4e-11 (all three seed 1's; the others 8.2e-14, 1.2e-12, 1.5e-12)."""
     _fuzz_case(seed, monkeypatch)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('seed', range(4, 19))
+@pytest.mark.parametrize('seed', range(4, 20))
 def test_fuzzed_grades_masses_and_schedules_more(monkeypatch, seed: int) -> None:
-    """Seeds 4..18 (each replayed on the kernel's mesh: event times <= 8.2e-14, samples
-    <= 1.2e-12, final states <= 1.5e-12; seed 19 had not finished after 10 min of wall at a
-    load of ~15, the process getting a few % of a core, and is left out until measured)."""
+    """Seeds 4..19 (:func:`test_fuzzed_grades_masses_and_schedules`; seed 19 is
+    :func:`test_two_brakes_reaching_capacity_together_both_slip` over 1.5 s)."""
     _fuzz_case(seed, monkeypatch)

@@ -22,6 +22,12 @@ Pairs:
   interpolant with 3 extra stages; Verner, Numer. Algorithms 53 (2010) 383-396
   ("Numerically optimal Runge-Kutta pairs with interpolants"), the rational coefficients of
   his published tables.
+- ``vern7``, ``vern8``: Verner's "efficient" 7(6) (10 stages, 7th-order interpolant with 6
+  extra stages) and 8(7) (13 stages, 8th-order interpolant with 8 extra stages), same paper;
+  7(6) from his 40-digit decimals, 8(7) from his rationals (interpolant: decimals). Not
+  FSAL, but each interpolant's first extra stage is f(t + h, y_new): it is laid out here as
+  the last step stage (c = 1, row = b, zero weights in B and E), so the FSAL layout above
+  holds and the step costs 10 (vern7) or 12 (vern8) evaluations, as the non-FSAL form.
 
 The tables are checked by the order conditions (rooted trees, exact rational arithmetic for
 Verner's) in test/physics/test_erk_tableaux.py, not trusted as copied.

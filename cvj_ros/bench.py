@@ -53,7 +53,8 @@ from cvj_ros.errors import CvjError, SceneError
 
 REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xiu2024', 'stiff',
                     'fwd_axle')
-ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6')
+ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6',
+                    'vern7', 'vern8')
 BASELINES = ('RK45', 'LSODA', 'Radau')
 FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto')
 COUPLING_SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')

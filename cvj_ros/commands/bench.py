@@ -11,8 +11,8 @@ from cvj_ros.errors import SceneError
 NAME = 'bench'
 HELP = 'work-precision benchmark: project solvers and fidelities vs solve_ivp, lockstep loop'
 DESCRIPTION = """\
-For each reference scene, solver (dopri5, dop853, rosenbrock, rodas4, rodas3, tsit5, vern6, rk4
-fixed step), tolerance
+For each reference scene, solver (dopri5, dop853, rosenbrock, rodas4, rodas3, tsit5, vern6,
+vern7, vern8, rk4 fixed step), tolerance
 and fidelity (ideal/closed/exact and the fidelity chooser's pick 'auto'): wall seconds per
 simulated second, rhs evaluations, max relative error of the output speed and max error of
 the output angle against a dop853 reference at exact fidelity. The same equations are solved
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='reduced set (2 scenes, 4 tolerances, short horizon): under two minutes')
     parser.add_argument('--out', default='runs/bench', metavar='DIR', help='output directory (default runs/bench)')
     parser.add_argument('--scenes', nargs='+', metavar='SCENE', help='scene names or YAML paths')
-    parser.add_argument('--solvers', nargs='+', metavar='SOLVER', help='dopri5 dop853 rosenbrock rodas4 rodas3 tsit5 vern6 rk4 ros2')
+    parser.add_argument('--solvers', nargs='+', metavar='SOLVER', help='dopri5 dop853 rosenbrock rodas4 rodas3 tsit5 vern6 vern7 vern8 rk4 ros2')
     parser.add_argument('--fidelities', nargs='+', metavar='LEVEL', help='ideal closed exact auto')
     parser.add_argument('--baselines', nargs='+', metavar='METHOD', help='solve_ivp methods (RK45 LSODA Radau)')
     parser.add_argument('--tolerances', type=_floats, metavar='T1,T2,..', help='rtol = atol values')

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('scene', help='shipped scene name (see `cvj-sim scenes`) or YAML path')
     parser.add_argument('--duration', type=float, help='simulated seconds (default: the scene\'s)')
     parser.add_argument('--sample-dt', type=float, help='sample period, s (default: scene exchange_step)')
-    parser.add_argument('--method', help='solver: dopri5, dop853, rosenbrock, rodas4, rodas3, rk4, ros2, tsit5, vern6 (default: scene)')
+    parser.add_argument('--method', help='solver: dopri5, dop853, rosenbrock, rodas4, rodas3, rk4, ros2, tsit5, vern6, vern7, vern8 (default: scene)')
     parser.add_argument('--rtol', type=float, help='relative tolerance (default: scene)')
     parser.add_argument('--atol', type=float, help='absolute tolerance (default: scene)')
     parser.add_argument('--fidelity', nargs='+', default=[], metavar='NAME=LEVEL',

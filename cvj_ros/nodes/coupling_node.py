@@ -124,7 +124,7 @@ _CDR_LE = b'\x00\x01\x00\x00'
 MODES = ('lockstep', 'free-run')
 SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3', 'tsit5',
-           'vern6')
+           'vern6', 'vern7', 'vern8')
 NONFINITE_POLICIES = ('stop', 'hold')
 #: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
 JOINT_STATES_FRAME = 'driveline'

@@ -67,7 +67,7 @@ LIMIT_KEYS = ('max_angle_deg', 'max_speed_rad_s', 'max_torque_nm', 'max_twist_de
 # a scene's solver.method takes every method `cvj-sim simulate --method` takes, the two
 # loose-tolerance RODAS methods included (each is compiled in the kernel too)
 SOLVER_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas3', 'tsit5',
-                  'vern6')
+                  'vern6', 'vern7', 'vern8')
 # every solver an offline run takes (cvj-sim simulate --method, Simulation)
 OFFLINE_METHODS = SOLVER_METHODS
 # unit suffix in a scene file -> (SI unit of the registry, factor to SI)

@@ -501,7 +501,7 @@ class Simulation:
         segments = []
         if sampling == 'dense':
             segments = dense_segments(times, breaks)
-            if self.method in ('dopri5', 'tsit5', 'vern6'):   # their sampled loops clip alike
+            if self.method in ('dopri5', 'tsit5', 'vern6', 'vern7', 'vern8'):   # their sampled loops clip alike
                 segments = dopri5_segments(times, segments, breaks)
         kwargs = self._stepper_options(dt)
         stepper = self.make_stepper(self.driveline.x0.copy(), dur, **kwargs)

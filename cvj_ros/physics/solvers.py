@@ -26,6 +26,10 @@ method          order  stability                        source
                                                         Math. Appl. 62
 ``vern6``       6(5)   explicit, non-stiff, FSAL        Verner 2010, Numer.
                                                         Algorithms 53
+``vern7``       7(6)   explicit, non-stiff (its stage   Verner 2010, Numer.
+                       f(t+h, y_new) reused: FSAL form) Algorithms 53
+``vern8``       8(7)   as vern7                         Verner 2010, Numer.
+                                                        Algorithms 53
 ==============  =====  ===============================  ===========================
 
 Implementation notes (measured on the project machine, n = 4):
@@ -492,6 +496,21 @@ class Vern6Stepper(_ErkStepper):
     method = 'vern6'
 
 
+class Vern7Stepper(_ErkStepper):
+    """Verner's efficient 7(6), 10 stages plus f(t + h, y_new) reused as the next step's
+    first (10 fev per step), 7th-order interpolant (5 extra fev once per step with dense
+    output); Verner, Numer. Algorithms 53 (2010)."""
+
+    method = 'vern7'
+
+
+class Vern8Stepper(_ErkStepper):
+    """Verner's efficient 8(7), 13 stages plus f(t + h, y_new) reused as the next step's
+    first (12 fev per step), 8th-order interpolant (7 extra fev once per step with dense
+    output); Verner, Numer. Algorithms 53 (2010)."""
+
+    method = 'vern8'
+
 
 # -------------------------------------------------------------------- Rosenbrock
 
@@ -905,6 +924,8 @@ METHODS: dict[str, type] = {
     'ros2': Ros2Stepper,
     'tsit5': Tsit5Stepper,
     'vern6': Vern6Stepper,
+    'vern7': Vern7Stepper,
+    'vern8': Vern8Stepper,
 }
 
 

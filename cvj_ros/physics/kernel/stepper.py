@@ -80,8 +80,8 @@ def steppers_for(rhs, jac=None, module=None):
     return mod
 
 KERNEL_METHODS = ('dopri5', 'dop853', 'rk4', 'ros2', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5',
-                  'vern6')
-_ERK = ('tsit5', 'vern6')   # efficient FSAL pairs with interpolants (steppers_rk_nb)
+                  'vern6', 'vern7', 'vern8')
+_ERK = ('tsit5', 'vern6', 'vern7', 'vern8')   # efficient pairs with interpolants (steppers_rk_nb)
 _ROSENBROCK = ('ros2', 'rosenbrock', 'rodas4', 'rodas3')
 _RODAS = ('rosenbrock', 'rodas4', 'rodas3')   # adaptive, tableau passed in (tableaux.py)
 _HERMITE_RODAS = ('rodas4', 'rodas3')   # dense output: cubic Hermite from K's last row

@@ -63,6 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time the kernel's cold compile of every method (empty cache; "
                              'docs/solvers.md "First run") and a warm '
                              '`cvj-sim simulate kavz685_lever --duration 2`')
+    parser.add_argument('--report', metavar='DIR',
+                        help='only rebuild the per-level speedup summary (DIR/summary.md, printed) '
+                             'from an earlier run\'s DIR/bench.csv, without re-running')
     parser.add_argument('--sweep', type=int, metavar='N',
                         help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '
                              'all workers, scaling efficiency (docs/sweeps.md)')
@@ -106,6 +109,18 @@ def config_from_args(args: argparse.Namespace) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, 'report', None) is not None:
+        from pathlib import Path
+
+        from cvj_ros.bench_report import write_summary
+        if not (Path(args.report) / 'bench.csv').is_file():
+            raise SceneError('--report', f'no bench.csv in {args.report}')
+        try:
+            path = write_summary(args.report)
+        except (ValueError, KeyError) as exc:
+            raise SceneError('--report', str(exc).splitlines()[0]) from None
+        print(path.read_text(), end='')
+        return 0
     if args.sweep is not None:
         from cvj_ros.bench import format_sweep_rates, sweep_rates
         from cvj_ros.sweep.run import default_workers

@@ -857,8 +857,8 @@ def _may_have_breakpoints(scene: Any) -> bool:
 
 def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print,
               progress: Callable[[float], None] | None = None) -> dict[str, Any]:
-    """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``bench.md`` and one
-    ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths).
+    """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``rhs.csv``, ``bench.md``
+    and one ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths).
     ``progress``, if given, is called with the number of solver runs done (of
     :func:`planned_runs`) after each one."""
     from cvj_ros.plots import work_precision_plot

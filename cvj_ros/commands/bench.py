@@ -18,7 +18,8 @@ simulated second, rhs evaluations, max relative error of the output speed and ma
 the output angle against a dop853 reference at exact fidelity. The same equations are solved
 by plain scipy.integrate.solve_ivp (RK45, LSODA, Radau) as the baseline in the same run.
 Also the lockstep loop (exchange step vs error per coupling scheme, real-time factor) and
-the rclpy round trip. Writes bench.csv, lockstep.csv, bench.md and wp_<scene>.png to --out.
+the rclpy round trip. Writes bench.csv, lockstep.csv, rhs.csv, bench.md and wp_<scene>.png to
+--out; --report DIR rebuilds the per-level speedup table from DIR/bench.csv alone.
 On a terminal, stderr shows a progress line (solver runs done, ETA) at most once a second.
 """
 

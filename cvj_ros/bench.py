@@ -858,8 +858,8 @@ def _may_have_breakpoints(scene: Any) -> bool:
 
 def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], None] = print,
               progress: Callable[[float], None] | None = None) -> dict[str, Any]:
-    """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``bench.md`` and one
-    ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths).
+    """Run the benchmark and write ``bench.csv``, ``lockstep.csv``, ``rhs.csv``, ``bench.md``
+    and one ``wp_<scene>.png`` per scene to ``out_dir``. Returns the results (rows, tables, paths).
     ``progress``, if given, is called with the number of solver runs done (of
     :func:`planned_runs`) after each one."""
     from cvj_ros.plots import work_precision_plot
@@ -1132,6 +1132,13 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
     if cfg.expert_methods and not expert_methods_run(cfg):
         from cvj_ros.bench_expert import skip_line, unavailable_reason
         md += ['', skip_line(unavailable_reason() or '').removeprefix('[bench] ')]
+    from cvj_ros.bench_report import summary_lines, write_rhs_csv
+    rhs = {name: prob.rhs_cost for name, prob in problems.items() if prob.rhs_cost}
+    paths.append(write_rhs_csv(out / 'rhs.csv', rhs))
+    md += ['', '## Speedups per error level against each baseline family', '',
+           'Best project configuration against the best of each family reaching the level '
+           '(`cvj-sim bench --report DIR` rebuilds this from DIR/bench.csv).', '']
+    md += summary_lines(rows, {k: v['compiled_ns'] for k, v in rhs.items() if 'compiled_ns' in v})
     for name, prob in problems.items():
         srows = [r for r in rows if r['scene'] == name]
         md += ['', f'## {name}', '',

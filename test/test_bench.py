@@ -69,6 +69,11 @@ def test_outputs_written_without_nan(result: tuple[dict, Path]) -> None:
     assert 'best solve_ivp (compiled rhs)' in md and 'ns per call from a compiled loop' in md
     assert 'nan' not in md.lower()
     assert "Fidelity chooser's pick (hooke=exact bush=elastic, the same model as exact)" in md
+    # the per-level summary rebuilt from the CSV (`cvj-sim bench --report`) is the run's own
+    from cvj_ros import bench_report
+    rebuilt = bench_report.summary_lines(bench_report.read_bench_csv(out / 'bench.csv'),
+                                         bench_report.read_rhs_ns(out))
+    assert '\n'.join(rebuilt) in md and len(rebuilt) > 2 + len(bench.ERROR_LEVELS)
 
 
 def test_errors_shrink_as_tolerances_tighten(result: tuple[dict, Path]) -> None:
@@ -157,7 +162,8 @@ def test_cli_bench_reduced(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     text = capsys.readouterr().out
     assert '# cvj_ros work-precision benchmark' in text and 'mini_lever' in text
     assert sorted(p.name for p in out.iterdir()) == ['bench.csv', 'bench.md', 'lockstep.csv', 'lockstep.png',
-                                                     'wp_mini_lever.png']
+                                                     'rhs.csv', 'wp_mini_lever.png']
+    assert '## Speedups per error level against each baseline family' in text
     data = np.genfromtxt(out / 'bench.csv', delimiter=',', names=True, dtype=None, encoding='utf-8')
     assert np.all(np.isfinite(data['err_speed_rel']))
 

@@ -18,7 +18,8 @@ simulated second, rhs evaluations, max relative error of the output speed and ma
 the output angle against a dop853 reference at exact fidelity. The same equations are solved
 by plain scipy.integrate.solve_ivp (RK45, LSODA, Radau) as the baseline in the same run.
 Also the lockstep loop (exchange step vs error per coupling scheme, real-time factor) and
-the rclpy round trip. Writes bench.csv, lockstep.csv, bench.md and wp_<scene>.png to --out.
+the rclpy round trip. Writes bench.csv, lockstep.csv, rhs.csv, bench.md and wp_<scene>.png to
+--out; --report DIR rebuilds the per-level speedup table from DIR/bench.csv alone.
 On a terminal, stderr shows a progress line (solver runs done, ETA) at most once a second.
 """
 
@@ -63,6 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time the kernel's cold compile of every method (empty cache; "
                              'docs/solvers.md "First run") and a warm '
                              '`cvj-sim simulate kavz685_lever --duration 2`')
+    parser.add_argument('--report', metavar='DIR',
+                        help='only rebuild the per-level speedup summary (DIR/summary.md, printed) '
+                             'from an earlier run\'s DIR/bench.csv, without re-running')
     parser.add_argument('--sweep', type=int, metavar='N',
                         help='only the sweep line: variants/s of N kavz685_lever variants with 1 and '
                              'all workers, scaling efficiency (docs/sweeps.md)')
@@ -106,6 +110,18 @@ def config_from_args(args: argparse.Namespace) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, 'report', None) is not None:
+        from pathlib import Path
+
+        from cvj_ros.bench_report import write_summary
+        if not (Path(args.report) / 'bench.csv').is_file():
+            raise SceneError('--report', f'no bench.csv in {args.report}')
+        try:
+            path = write_summary(args.report)
+        except (ValueError, KeyError) as exc:
+            raise SceneError('--report', str(exc).splitlines()[0]) from None
+        print(path.read_text(), end='')
+        return 0
     if args.sweep is not None:
         from cvj_ros.bench import format_sweep_rates, sweep_rates
         from cvj_ros.sweep.run import default_workers

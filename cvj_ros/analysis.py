@@ -5,7 +5,8 @@ Reads a rosbag2 bag (mcap or sqlite3) through ``rosbags`` and reports, per shaft
 Davidbaev et al. 2023, ch. 4) of speed, acceleration and torque, and the harmonics of the shaft torque over
 the shaft angle (Davidbaev et al. 2023, eqs. 4.1-4.3); per joint (names ``<joint>_input``/``<joint>_output``)
 the geometric and kinematic nonuniformity (Bugaru & Vasile 2021, eqs. 20-23); engine and load torque;
-energy residual and wait times found on ``/diagnostics``; per ``/coupling/<joint>/wrench``
+energy residual and wait times found on ``/diagnostics``; for a scene with clutch, gearbox
+or brakes its mode events and final modes (``/diagnostics``); per ``/coupling/<joint>/wrench``
 (a chain's joints or every branch's of a vehicle scene) the mean and amplitude of each
 reaction force and torque component in the joint's housing frame; and lockstep statistics.
 
@@ -195,6 +196,28 @@ def _diagnostic_figures(diags: list[tuple[float, str, int, str, dict[str, str]]]
     return {'levels': levels, 'figures': figures, 'errors': messages}
 
 
+#: loop-status keys of a scene with clutch, gearbox or brakes (coupling node and simulate bags)
+_MODE_KEY = re.compile(r'^(clutch_state|gear|brake_state|pack_state)\.|^(mode_events|stall)$')
+#: per-event status of an offline run's bag (cvj_ros.mode_outputs.EVENT_STATUS)
+_EVENT_STATUS = 'cvj-sim simulate: mode event'
+
+
+def _mode_summary(diags: list[tuple[float, str, int, str, dict[str, str]]]) -> dict[str, Any]:
+    """Modes of a scene with clutch, gearbox or brakes from ``/diagnostics``: the located
+    events (one status each in an offline run's bag) and the last value of every mode key
+    (``clutch_state.*``, ``gear.*``, ``brake_state.*``, ``pack_state.*``, ``mode_events``,
+    ``stall``); empty when the bag has none."""
+    events = [{'t_s': _f(float(v.get('t_s', t))), 'element': v.get('element', ''),
+               'before': v.get('before', ''), 'after': v.get('after', ''), 'cause': v.get('cause', '')}
+              for t, name, _lev, _msg, v in diags if name == _EVENT_STATUS]
+    final: dict[str, str] = {}
+    for _t, _name, _lev, _msg, values in diags:
+        final.update({k: v for k, v in values.items() if _MODE_KEY.search(k)})
+    if not events and not final:
+        return {}
+    return {'events': events, 'final': final}
+
+
 def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
                     skip_fraction: float | None = None, n_harmonics: int = 6, samples_per_rev: int = 72) -> dict[str, Any]:
     """Analysis report (JSON-ready dict) of the signals of a bag; see the module docstring.
@@ -279,6 +302,9 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
         report['reactions'] = reactions
     report['lockstep'] = _lockstep_stats(sig)
     report['diagnostics'] = _diagnostic_figures(sig.diagnostics)
+    modes = _mode_summary(sig.diagnostics)
+    if modes:
+        report['modes'] = modes
     report['scene'] = _scene_summary(sig.scene_yaml)
     return report
 
@@ -412,6 +438,17 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append('  energy residual: not recorded in this bag')
     for m in d['errors']:
         lines.append(f'  ERROR {m}')
+    if report.get('modes'):
+        md = report['modes']
+        fin = md['final']
+        lines.append(f"modes: {fin.get('mode_events', len(md['events']))} mode events; at the end "
+                     + (', '.join(f'{k} {v}' for k, v in fin.items()
+                                  if k not in ('mode_events', 'stall')) or 'not recorded'))
+        if fin.get('stall'):
+            lines.append(f"  {fin['stall']}")
+        for e in md['events']:
+            lines.append(f"  t = {_fmt(e['t_s'], digits=6)} s  {e['element']}: {e['before']} -> "
+                         f"{e['after']} ({e['cause']})")
     sc = report['scene']
     lines.append('scene: ' + ('not recorded' if not sc['present'] else
                               ', '.join(f'{k}={v}' for k, v in sc.items() if k != 'present')))

@@ -2,13 +2,18 @@
 (``cvj-sim simulate SCENE --bag/--plots``; docs/clutch_gearbox.md).
 
 The bag has a ROS run's topics for such a scene: ``/driveline/scene`` (the scene as YAML,
-``mode: offline``), ``/driveline/joint_states`` per sample (every shaft's speed; the mode
-reference keeps speeds, so position and effort are empty), the commands as driver_node plays
-them at the scene's exchange step (``/engine/throttle``, ``/driveline/clutch``,
-``/driveline/gear``, ``/driveline/brake``: a channel's sample when its value changes) and
+``mode: offline``), ``/driveline/joint_states`` per sample (every shaft's
+position, velocity and effort: the unwrapped angle, the speed and the shaft torque entering
+the shaft, as the coupling node's joint states of the same scene), ``/engine/wrench`` per
+sample (``torque.z`` the engine torque on the crank, stamped as the joint state it
+answers; both only when the run sampled them, ``joint_samples``, else speeds only), the
+commands as driver_node plays them at the scene's exchange step (``/engine/throttle``,
+``/driveline/clutch``, ``/driveline/gear``, ``/driveline/brake``: a channel's sample when
+its value changes) and
 ``/diagnostics``: one status ``cvj-sim simulate: mode event`` per located event (element,
 before, after, cause, count) and the final modes in the loop status's keys
-(``clutch_state.*``, ``gear.*``, ``brake_state.*``, ``mode_events``, ``stall``). Stamps are
+(``clutch_state.*``, ``gear.*``, ``brake_state.*``, ``mode_events``, ``stall``) with the
+largest |energy residual| of the samples (``energy_residual_max_abs``). Stamps are
 the simulated time in integer ns. The figure: the shaft speeds over time, the gear, and a
 dotted line at every event.
 """
@@ -25,6 +30,8 @@ __all__ = ['DIAGNOSTICS_TOPIC', 'MODE_STATUS', 'EVENT_STATUS', 'mode_speeds_figu
            'write_mode_bag', 'write_mode_plots']
 
 DIAGNOSTICS_TOPIC = '/diagnostics'
+ENGINE_WRENCH_TOPIC = '/engine/wrench'
+ENGINE_FRAME = 'engine_crank'
 EVENT_STATUS = 'cvj-sim simulate: mode event'
 MODE_STATUS = 'cvj-sim simulate: modes'
 NS_PER_S = 1_000_000_000
@@ -46,6 +53,10 @@ def final_mode_values(summary: dict[str, Any], result: Any) -> dict[str, str]:
         else:
             out[f'brake_state.{name}'] = text
     out['mode_events'] = str(len(result.events))
+    resid = np.asarray(result.energy_residual, dtype=float)
+    resid = resid[np.isfinite(resid)]
+    if resid.size:
+        out['energy_residual_max_abs'] = repr(float(np.max(np.abs(resid))))
     out['stall'] = result.stall or ''
     return out
 
@@ -65,12 +76,15 @@ def write_mode_bag(scene: Any, result: Any, summary: dict[str, Any], path: str |
     Time, Header = T['builtin_interfaces/msg/Time'], T['std_msgs/msg/Header']
     JointState, String = T['sensor_msgs/msg/JointState'], T['std_msgs/msg/String']
     Float64, Int8 = T['std_msgs/msg/Float64'], T['std_msgs/msg/Int8']
+    Wrench, WrenchStamped, Vector3 = (T['geometry_msgs/msg/Wrench'],
+                                      T['geometry_msgs/msg/WrenchStamped'],
+                                      T['geometry_msgs/msg/Vector3'])
     Array, Status, KeyValue = (T['diagnostic_msgs/msg/DiagnosticArray'],
                                T['diagnostic_msgs/msg/DiagnosticStatus'],
                                T['diagnostic_msgs/msg/KeyValue'])
 
-    def header(ns: int) -> Any:
-        return Header(stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id='')
+    def header(ns: int, frame_id: str = '') -> Any:
+        return Header(stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id=frame_id)
 
     def status(ns: int, name: str, message: str, values: dict[str, str], level: int = 0) -> bytes:
         st = Status(level=level, name=name, message=message,
@@ -83,9 +97,13 @@ def write_mode_bag(scene: Any, result: Any, summary: dict[str, Any], path: str |
     n_steps = int(result.t_end * NS_PER_S // h_ns)
     plan = CommandPlan.from_scene(scene, h_ns, n_steps) if scene.commands else None
     empty = np.zeros(0, dtype=np.float64)
+    position, effort, engine = (getattr(result, k, None) for k in ('position', 'effort', 'engine_torque'))
+    zero = Vector3(x=0.0, y=0.0, z=0.0)
     with bagmod.BagWriter(path, storage=storage, overwrite=overwrite) as writer:
         for topic in (bagmod.SCENE_TOPIC, bagmod.JOINT_STATES_TOPIC, DIAGNOSTICS_TOPIC):
             writer.add_topic(topic)
+        if engine is not None:
+            writer.add_topic(ENGINE_WRENCH_TOPIC)
         for c in plan.channels if plan else ():
             writer.add_topic(CHANNEL_TOPICS[c])
         writer.write(bagmod.SCENE_TOPIC, 0, ts.serialize_cdr(String(data=scene_yaml), 'std_msgs/msg/String'))
@@ -98,10 +116,18 @@ def write_mode_bag(scene: Any, result: Any, summary: dict[str, Any], path: str |
                 msgs.append((k * h_ns, 0, CHANNEL_TOPICS[channel], data))
         for k, t in enumerate(np.asarray(result.t, dtype=float)):
             ns = _ns(t)
-            js = JointState(header=header(ns), name=list(result.shafts), position=empty,
+            js = JointState(header=header(ns), name=list(result.shafts),
+                            position=(empty if position is None
+                                      else np.ascontiguousarray(position[k], dtype=np.float64)),
                             velocity=np.ascontiguousarray(result.speed[k], dtype=np.float64),
-                            effort=empty)
+                            effort=(empty if effort is None
+                                    else np.ascontiguousarray(effort[k], dtype=np.float64)))
             msgs.append((ns, 1, bagmod.JOINT_STATES_TOPIC, ts.serialize_cdr(js, 'sensor_msgs/msg/JointState')))
+            if engine is not None:
+                w = WrenchStamped(header=header(ns, ENGINE_FRAME),
+                                  wrench=Wrench(force=zero, torque=Vector3(x=0.0, y=0.0, z=float(engine[k]))))
+                msgs.append((ns, 1, ENGINE_WRENCH_TOPIC,
+                             ts.serialize_cdr(w, 'geometry_msgs/msg/WrenchStamped')))
         for i, e in enumerate(result.events):
             ns = _ns(e.t)
             msgs.append((ns, 2, DIAGNOSTICS_TOPIC, status(

@@ -48,9 +48,9 @@ def run(args: argparse.Namespace) -> int:
         raise BagError(f'--harmonics: must be in 1..60, got {args.harmonics}')
     sig = analysis.read_bag_signals(args.bag)
     if sig.position.size and bool(np.all(np.isnan(sig.position))):
-        raise BagError(f'{args.bag}: its joint states carry no shaft angles (an offline run of a '
-                       'scene with clutch, gearbox, brake or commands keeps speeds only; its figure '
-                       'is `cvj-sim simulate SCENE --plots DIR`)')
+        raise BagError(f'{args.bag}: its joint states carry no shaft angles (a bag of speeds only, '
+                       'as `cvj-sim simulate` wrote for scenes with clutch, gearbox, brake or commands '
+                       'before it sampled angles: write it again with `cvj-sim simulate SCENE --bag DIR`)')
     report = analysis.analyze_signals(sig, skip_s=args.skip, n_harmonics=args.harmonics,
                                       samples_per_rev=max(72, 4 * args.harmonics))
     if args.plots:

@@ -241,6 +241,7 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
             note = (f'compiled kernel: mode scenes run with {", ".join(KERNEL_MODE_METHODS)}, '
                     f'not {sim.method}; running the Python reference')
             print(f'cvj-sim simulate: {note}', file=sys.stderr)
+    sim.joint_samples = bool(args.bag)      # positions and efforts for the bag's joint states
     t0 = time.perf_counter()
     result = sim.run()
     wall = time.perf_counter() - t0

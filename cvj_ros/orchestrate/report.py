@@ -362,6 +362,21 @@ FREE_RUN_KEYS = ('catch_up', 'ticks_handled', 'ticks_run', 'ticks_skipped', 'ove
                  'drift_s', 'drift_max_s', 'realtime_priority')
 
 
+def free_run_line(fr: dict[str, Any]) -> str:
+    """The report's one free-run line: ticks run and skipped (with the skipped share: each
+    run tick after a skip integrates the skipped interval with its torques held, so a large
+    share means the run is not the scene's at this exchange step), overruns, lateness and
+    drift."""
+    rt = f', SCHED_FIFO {fr["realtime_priority"]}' if fr.get('realtime_priority') else ''
+    run, skipped = int(fr.get('ticks_run', 0)), int(fr.get('ticks_skipped', 0))
+    share = f' ({100.0 * skipped / (run + skipped):.1f} % of the ticks)' if skipped else ''
+    return (f'  free-run (catch-up {fr.get("catch_up")}{rt}): {run} ticks run, '
+            f'{skipped} skipped{share}, {fr.get("overruns", 0)} overruns (late by >= 1 step); '
+            f'lateness p50 {fr.get("lateness_us_p50", 0):.0f} us, p99 {fr.get("lateness_us_p99", 0):.0f} us, '
+            f'max {fr.get("lateness_us_max", 0):.0f} us; drift {1e3 * fr.get("drift_s", 0):.3f} ms '
+            f'(max {1e3 * fr.get("drift_max_s", 0):.3f} ms)')
+
+
 def free_run_timing(bag: Path, *, diags: Any = _READ) -> dict[str, Any]:
     """Free-run deadline figures of the coupling node's last recorded loop diagnostics:
     catch-up policy, ticks run/skipped, overruns (ticks late by >= one exchange step),
@@ -444,12 +459,7 @@ def print_report(r: RunResult, stream: TextIO) -> None:
              if counters.get('held_torques') else ''))
     fr = r.metrics.get('free_run', {})
     if fr:
-        rt = f', SCHED_FIFO {fr["realtime_priority"]}' if fr.get('realtime_priority') else ''
-        p(f'  free-run (catch-up {fr.get("catch_up")}{rt}): {fr.get("ticks_run", 0)} ticks run, '
-          f'{fr.get("ticks_skipped", 0)} skipped, {fr.get("overruns", 0)} overruns (late by >= 1 step); '
-          f'lateness p50 {fr.get("lateness_us_p50", 0):.0f} us, p99 {fr.get("lateness_us_p99", 0):.0f} us, '
-          f'max {fr.get("lateness_us_max", 0):.0f} us; drift {1e3 * fr.get("drift_s", 0):.3f} ms '
-          f'(max {1e3 * fr.get("drift_max_s", 0):.3f} ms)')
+        p(free_run_line(fr))
     mon = r.metrics.get('monitor', {})
     if mon.get('warn') or mon.get('error'):
         p(f'  monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN statuses; '

@@ -1003,13 +1003,18 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
 
 def scene_dirs() -> list[Path]:
     """Directories searched for shipped scenes: the source tree's config/scenes and the
-    ament share directory ``share/cvj_ros/config/scenes`` when installed."""
+    ament share directory ``share/cvj_ros/config/scenes`` when installed: the first prefix
+    of ``AMENT_PREFIX_PATH`` whose resource index marks the package
+    (``share/ament_index/resource_index/packages/cvj_ros``), the lookup
+    ament_index_python's ``get_package_share_directory`` makes, read here without
+    importing a ROS package."""
+    import os
     dirs = [Path(__file__).resolve().parents[2] / 'config' / 'scenes']
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        dirs.append(Path(get_package_share_directory('cvj_ros')) / 'config' / 'scenes')
-    except Exception:  # noqa: BLE001  (ament index absent or package not installed)
-        pass
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        if prefix and (Path(prefix) / 'share' / 'ament_index' / 'resource_index' / 'packages'
+                       / 'cvj_ros').is_file():
+            dirs.append(Path(prefix) / 'share' / 'cvj_ros' / 'config' / 'scenes')
+            break
     import sys
     dirs.append(Path(sys.prefix) / 'share' / 'cvj_ros' / 'config' / 'scenes')
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]

@@ -103,3 +103,17 @@ def test_run_notes_name_the_trend_on_vehicle_and_mode_scenes(scene) -> None:
     r.scene_path = str(find_scene(scene))
     r.metrics = {'shafts': {'engine_crank': {'mean_speed': 150.0}}, 'speed_trend': trend}
     assert degenerate_notes(r) == [trend]
+
+
+def test_free_run_line_states_the_skipped_share() -> None:
+    """One line; the skipped ticks with their share of all ticks, none when nothing was
+    skipped (the numbers of a launch_clutch free run that fell behind at 1 ms)."""
+    from cvj_ros.orchestrate.report import free_run_line
+    fr = {'catch_up': 'skip', 'ticks_run': 1328, 'ticks_skipped': 8672, 'overruns': 8673,
+          'lateness_us_p50': 13803.8, 'lateness_us_p99': 758578.0, 'lateness_us_max': 844091.0,
+          'drift_s': 0.0187685, 'drift_max_s': 0.845076}
+    line = free_run_line(fr)
+    assert '\n' not in line
+    assert '1328 ticks run, 8672 skipped (86.7 % of the ticks), 8673 overruns' in line
+    kept = free_run_line({**fr, 'ticks_run': 10000, 'ticks_skipped': 0, 'overruns': 0})
+    assert '10000 ticks run, 0 skipped, 0 overruns' in kept

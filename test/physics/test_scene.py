@@ -223,3 +223,19 @@ def test_two_hooke_stages_of_a_chain_joint_need_a_phase() -> None:
 def test_hooke_phase_parameters_validated(key: str, value: float, words: str) -> None:
     with pytest.raises(SceneError, match=rf'^driveline\[2\]\.params\.{key}: .*{words}'):
         parse_scene(scene_with(f'driveline[2].params.{key}', value))
+
+
+def test_scene_dirs_finds_an_installed_share_directory(tmp_path, monkeypatch) -> None:
+    """The ament resource index marks the package's prefix (ament_index_python's lookup,
+    read without importing it); a prefix without the marker is not searched."""
+    from cvj_ros.physics.scene import scene_dirs
+    marked, other = tmp_path / 'marked', tmp_path / 'other'
+    for prefix in (marked, other):
+        (prefix / 'share' / 'cvj_ros' / 'config' / 'scenes').mkdir(parents=True)
+    index = marked / 'share' / 'ament_index' / 'resource_index' / 'packages'
+    index.mkdir(parents=True)
+    (index / 'cvj_ros').write_text('')
+    monkeypatch.setenv('AMENT_PREFIX_PATH', f'{other}:{marked}')
+    dirs = scene_dirs()
+    assert marked / 'share' / 'cvj_ros' / 'config' / 'scenes' in dirs
+    assert other / 'share' / 'cvj_ros' / 'config' / 'scenes' not in dirs

@@ -26,7 +26,6 @@ from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import STUCK, mode_name
 from cvj_ros.physics.hybrid.simulate import HybridSimulation
-from cvj_ros.physics.sections import section_kinematics
 from cvj_ros.physics.solvers import make_stepper
 
 if TYPE_CHECKING:
@@ -246,54 +245,9 @@ class HybridLockstep(HybridSimulation):
         return (kin + el - self.energy0 - we + wl + wd + wf + self.st.lock_loss) / scale
 
     def joint_states(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(position rad, velocity rad/s, effort N m) per name of :attr:`shaft_names`; the
-        effort is the shaft torque entering each shaft, walked from each rigid group's first
-        shaft with the group's acceleration as ``HybridChain.evaluate`` walks stuck torques
-        (engine torque into the first group, the boundary torque into the others)."""
-        ch = self.chain
-        mode = self.mode
-        asm = ch.assemble(mode)
-        y, _loss = ch.to_mode(asm, self.st)
-        ev = self._eval(asm, mode, self.t, y)
-        n = len(asm.groups)
-        ck = self._capacities(self.t)[0]
-        inflow = [ev.engine_torque] + [0.0] * (n - 1)
-        for g, b in enumerate(asm.links):
-            bd = ch.boundaries[b]
-            if bd.kind == 'spring':
-                phi_l, a_l = section_kinematics(asm.groups[g].ops, float(y[g]))[:2]
-                thd = a_l * float(y[n + g]) - float(y[n + g + 1])
-                inflow[g + 1] = bd.spring.evaluate(phi_l - float(y[g + 1]), thd)[0]
-            elif bd.kind == 'clutch':
-                inflow[g + 1] = mode.clutch[bd.name] * ck
-        where: dict[tuple[int, int], int] = {}    # (section, op) -> index in shaft_names
-        for i, (s, k, role) in enumerate(ch.shafts.values()):
-            where[(s, k + (1 if role == 'output' else 0))] = i
-        m = len(self.shaft_names)
-        pos, vel, eff = np.zeros(m), np.zeros(m), np.zeros(m)
-        for g, grp in enumerate(asm.groups):
-            phi, a, b = float(y[g]), 1.0, 0.0
-            v, acc, torque = float(y[n + g]), float(ev.ydot[n + g]), inflow[g]
-            sec_at = dict(zip(grp.starts, grp.sections))
-            s, base = grp.sections[0], 0
-            for k, (jv, fn) in enumerate(grp.ops):
-                if k in sec_at:
-                    s, base = sec_at[k], k
-                i = where.get((s, k - base))
-                if i is not None:
-                    pos[i], vel[i], eff[i] = phi, a * v, torque
-                if fn is None:
-                    torque -= jv * (a * acc + b * v * v)
-                else:
-                    po, r, sd = fn(phi)
-                    b = sd * a * a + r * b
-                    a = r * a
-                    phi = po
-                    torque = torque / r
-            i = where.get((s, len(grp.ops) - base))
-            if i is not None:                     # a joint output at the group's end
-                pos[i], vel[i], eff[i] = phi, a * v, torque
-        return pos, vel, eff
+        """(position rad, velocity rad/s, effort N m) per name of :attr:`shaft_names` now, with
+        the held engine torque (:meth:`HybridSimulation.joint_state`)."""
+        return self.joint_state(self.mode, self.st, self.t)[:3]
 
 
 BACKENDS = ('auto', 'kernel', 'python')

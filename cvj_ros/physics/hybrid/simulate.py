@@ -74,6 +74,11 @@ class HybridResult:
     final_mode: Mode
     t_end: float
     stats: dict[str, int] = field(default_factory=dict)
+    # with ``joint_samples`` on the simulation: per sample the joint states' position (rad,
+    # unwrapped) and effort (N m, shaft torque), as ``shafts``, and the engine torque (N m)
+    position: FloatArray | None = None
+    effort: FloatArray | None = None
+    engine_torque: FloatArray | None = None
 
     def column(self, name: str) -> FloatArray:
         return self.speed[:, self.shafts.index(name)]
@@ -127,6 +132,7 @@ class HybridSimulation:
         for name in self.initial_speeds:
             if name not in chain.shafts or chain.shafts[name][1] != 0:
                 raise SceneError(f'initial_speeds.{name}', 'not the first shaft of a section')
+        self.joint_samples = False   # True: run() also samples positions, efforts, engine torque
 
     # --- capacities ----------------------------------------------------------------------
 
@@ -325,6 +331,57 @@ class HybridSimulation:
             mode = out
         return mode, st
 
+    def joint_state(self, mode: Mode, st: SectionState, t: float
+                    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+        """(position rad, velocity rad/s, effort N m per shaft of ``chain.shafts``, engine
+        torque N m) of the sections' state ``st`` at ``t`` in ``mode``; the
+        effort is the shaft torque entering each shaft, walked from each rigid group's first
+        shaft with the group's acceleration as ``HybridChain.evaluate`` walks stuck torques
+        (engine torque into the first group, the boundary torque into the others)."""
+        ch = self.chain
+        asm = ch.assemble(mode)
+        y, _loss = ch.to_mode(asm, st)
+        ev = self._eval(asm, mode, t, y)
+        n = len(asm.groups)
+        ck = self._capacities(t)[0]
+        inflow = [ev.engine_torque] + [0.0] * (n - 1)
+        for g, b in enumerate(asm.links):
+            bd = ch.boundaries[b]
+            if bd.kind == 'spring':
+                phi_l, a_l = section_kinematics(asm.groups[g].ops, float(y[g]))[:2]
+                thd = a_l * float(y[n + g]) - float(y[n + g + 1])
+                inflow[g + 1] = bd.spring.evaluate(phi_l - float(y[g + 1]), thd)[0]
+            elif bd.kind == 'clutch':
+                inflow[g + 1] = mode.clutch[bd.name] * ck
+        where: dict[tuple[int, int], int] = {}    # (section, op) -> index in chain.shafts
+        for i, (s, k, role) in enumerate(ch.shafts.values()):
+            where[(s, k + (1 if role == 'output' else 0))] = i
+        m = len(ch.shafts)
+        pos, vel, eff = np.zeros(m), np.zeros(m), np.zeros(m)
+        for g, grp in enumerate(asm.groups):
+            phi, a, b = float(y[g]), 1.0, 0.0
+            v, acc, torque = float(y[n + g]), float(ev.ydot[n + g]), inflow[g]
+            sec_at = dict(zip(grp.starts, grp.sections))
+            s, base = grp.sections[0], 0
+            for k, (jv, fn) in enumerate(grp.ops):
+                if k in sec_at:
+                    s, base = sec_at[k], k
+                i = where.get((s, k - base))
+                if i is not None:
+                    pos[i], vel[i], eff[i] = phi, a * v, torque
+                if fn is None:
+                    torque -= jv * (a * acc + b * v * v)
+                else:
+                    po, r, sd = fn(phi)
+                    b = sd * a * a + r * b
+                    a = r * a
+                    phi = po
+                    torque = torque / r
+            i = where.get((s, len(grp.ops) - base))
+            if i is not None:                     # a joint output at the group's end
+                pos[i], vel[i], eff[i] = phi, a * v, torque
+        return pos, vel, eff, float(ev.engine_torque)
+
     def _status(self, t: float, text: str) -> None:
         self.statuses.append(f't={t:.6f} s: {text}')
 
@@ -389,7 +446,13 @@ class HybridSimulation:
         stats = {'steps': 0, 'nfev': 0, 'events': 0, 'restarts': 0}
         stall: str | None = None
 
+        js = ((np.full((times.size, len(names)), np.nan), np.full((times.size, len(names)), np.nan),
+               np.full(times.size, np.nan)) if self.joint_samples else None)
+
         def record(t_s: float, s: SectionState, i: int) -> None:
+            if js is not None:
+                p_, _v, e_, te_ = self.joint_state(mode, s, t_s)
+                js[0][i], js[1][i], js[2][i] = p_, e_, te_
             speed[i] = [ch.shaft_speed(s, nm) for nm in names]
             kin_, el_ = ch.energy(s)
             we, wl, wd, wf = (float(x) for x in s.work)
@@ -476,5 +539,8 @@ class HybridSimulation:
         if stall is not None:
             self.statuses.append(stall)
         keep = k_sample
-        return HybridResult(times[:keep], names, speed[:keep], resid[:keep], gears[:keep],
-                            list(self.events), list(self.statuses), stall, st, mode, t, stats)
+        res = HybridResult(times[:keep], names, speed[:keep], resid[:keep], gears[:keep],
+                           list(self.events), list(self.statuses), stall, st, mode, t, stats)
+        if js is not None:
+            res.position, res.effort, res.engine_torque = (a[:keep] for a in js)
+        return res

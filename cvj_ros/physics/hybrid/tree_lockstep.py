@@ -264,24 +264,7 @@ class HybridTreeLockstep(HybridTreeSimulation):
         (TreeDriveline.joint_states) on the forces of the mode in force (slipping clutch and
         brake torques, pinned wheels' holding torques) with the held engine torque."""
         mt, x = self._now()
-        made: list[Any] = []
-        forces = mt._forces
-
-        def keep(*args: Any, **kw: Any) -> Any:
-            made.append(forces(*args, **kw))
-            return made[-1]
-
-        mt._forces = keep                  # type: ignore[method-assign]
-        try:
-            self._eval(mt, self.t, x, False)
-        finally:
-            del mt._forces
-        fo = made[0]
-        pos, vel, eff, _start = mt._walk(x, fo.T_engine, kin=mt._kinematics(x), fo=fo)
-        pos, vel = np.array(pos, dtype=float), np.array(vel, dtype=float)
-        if mt._mid_index:
-            mt.fill_mid(pos[None, :], vel[None, :])
-        return pos, vel, np.asarray(eff, dtype=float)
+        return self.joint_state(mt, self.t, x)[:3]
 
     def mode_names(self) -> dict[str, str]:
         """Element -> its mode now: clutch and brakes 'slip+' / 'stuck' / 'slip-', gearbox

@@ -105,6 +105,7 @@ class HybridTreeSimulation:
                      brakes={b: FORWARD for b in self.brake_els}, packs={p: FORWARD for p in self.packs})
         self.probe = self.tree(probe)
         self.shaft_names = list(self.probe.shaft_names)
+        self.joint_samples = False   # True: run() also samples positions, efforts, engine torque
 
     # --- modes -----------------------------------------------------------------------------
 
@@ -138,6 +139,36 @@ class HybridTreeSimulation:
             self.engine.set_throttle(self.schedule.value('throttle', t))
         ck, _cs, bk, _bs = self._capacities(t)
         return mt.evaluate(t, x, self.engine, ck, bk, torques=torques)
+
+    def joint_state(self, mt: ModeTree, t: float, x: FloatArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+        """(position rad, velocity rad/s, effort N m per name of :attr:`shaft_names`, engine
+        torque N m) at (t, x) in the mode of ``mt``: the tree's backward walk
+        (TreeDriveline.joint_states) on the forces of that mode (slipping clutch and brake
+        torques, pinned wheels' holding torques), intermediate members filled."""
+        made: list[Any] = []
+        forces = mt._forces
+
+        def keep(*args: Any, **kw: Any) -> Any:
+            made.append(forces(*args, **kw))
+            return made[-1]
+
+        mt._forces = keep                  # type: ignore[method-assign]
+        try:
+            self._eval(mt, t, x, False)
+        finally:
+            del mt._forces
+        fo = made[0]
+        pos, vel, eff, _start = mt._walk(x, fo.T_engine, kin=mt._kinematics(x), fo=fo)
+        pos, vel = np.array(pos, dtype=float), np.array(vel, dtype=float)
+        if mt._mid_index:
+            mt.fill_mid(pos[None, :], vel[None, :])
+        return pos, vel, np.asarray(eff, dtype=float), float(fo.T_engine)
+
+    @staticmethod
+    def _joint_arrays(n: int, m: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """NaN-filled (positions, efforts) of n samples by m shafts and engine torques."""
+        return np.full((n, m), np.nan), np.full((n, m), np.nan), np.full(n, np.nan)
 
     def _apply(self, mode: Mode, st: TreeState, fresh: bool) -> tuple[ModeTree, FloatArray, TreeState]:
         mt = self.tree(mode)
@@ -461,6 +492,8 @@ class HybridTreeSimulation:
         stats = {'steps': 0, 'nfev': 0, 'events': 0, 'restarts': 0}
         stall: str | None = None
 
+        js = self._joint_arrays(times.size, len(names)) if self.joint_samples else None
+
         def record(m: ModeTree, xx: FloatArray, lock_loss: float, md: Mode, i: int) -> None:
             speed[i] = m.shaft_speeds(xx)
             tot = m.energy_total(xx)
@@ -470,6 +503,9 @@ class HybridTreeSimulation:
             resid[i] = (tot - e0 - we + wd + ws + wr + wf + lock_loss) / scale
             gears[i] = md.gear[gb_name] if gb_name else 0
             vel[i] = m.vehicle_speed(xx)
+            if js is not None:
+                p_, _v, e_, te_ = self.joint_state(m, float(times[i]), xx)
+                js[0][i], js[1][i], js[2][i] = p_, e_, te_
 
         t = 0.0
         mode, st = self._shift(0.0, mode, st)
@@ -572,4 +608,6 @@ class HybridTreeSimulation:
         res = HybridResult(times[:keep], list(names), speed[:keep], resid[:keep], gears[:keep],
                            list(self.events), list(self.statuses), stall, st, mode, t, stats)
         res.vehicle_speed = vel[:keep]          # type: ignore[attr-defined]
+        if js is not None:
+            res.position, res.effort, res.engine_torque = (a[:keep] for a in js)
         return res

@@ -294,7 +294,13 @@ class KernelHybridSimulation(HybridSimulation):
         self._h_carry = 0.0
         self.stats = stats
 
+        js = ((np.full((times.size, len(names)), np.nan), np.full((times.size, len(names)), np.nan),
+               np.full(times.size, np.nan)) if self.joint_samples else None)
+
         def record(s, i: int) -> None:
+            if js is not None:
+                p_, _v, e_, te_ = self.joint_state(mode, s, float(times[i]))
+                js[0][i], js[1][i], js[2][i] = p_, e_, te_
             speed[i] = [ch.shaft_speed(s, nm) for nm in names]
             kin_, el_ = ch.energy(s)
             we, wl, wd, wf = (float(x) for x in s.work)
@@ -353,7 +359,10 @@ class KernelHybridSimulation(HybridSimulation):
         if stall is not None:
             self.statuses.append(stall)
         keep = k_sample
-        return HybridResult(times[:keep], names, speed[:keep], resid[:keep], gears[:keep],
-                            list(self.events), list(self.statuses), stall, st, mode, t, stats)
+        res = HybridResult(times[:keep], names, speed[:keep], resid[:keep], gears[:keep],
+                           list(self.events), list(self.statuses), stall, st, mode, t, stats)
+        if js is not None:
+            res.position, res.effort, res.engine_torque = (a[:keep] for a in js)
+        return res
 
 

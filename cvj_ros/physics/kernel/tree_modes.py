@@ -300,6 +300,8 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
         stats = {'steps': 0, 'nfev': 0, 'events': 0, 'restarts': 0}
         stall: str | None = None
 
+        js = self._joint_arrays(times.size, len(names)) if self.joint_samples else None
+
         def record(m: ModeTree, xx: np.ndarray, lock_loss: float, md: Mode, i: int) -> None:
             speed[i] = m.shaft_speeds(xx)
             tot = m.energy_total(xx)
@@ -309,6 +311,9 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
             resid[i] = (tot - e0 - we + wd + ws + wr + wf + lock_loss) / scale
             gears[i] = md.gear[gb_name] if gb_name else 0
             vel[i] = m.vehicle_speed(xx)
+            if js is not None:
+                p_, _v, e_, te_ = self.joint_state(m, float(times[i]), xx)
+                js[0][i], js[1][i], js[2][i] = p_, e_, te_
 
         t = 0.0
         mode, st = self._shift(0.0, mode, st)
@@ -387,4 +392,6 @@ class KernelHybridTreeSimulation(HybridTreeSimulation):
         res = HybridResult(times[:keep], list(names), speed[:keep], resid[:keep], gears[:keep],
                            list(self.events), list(self.statuses), stall, st, mode, t, stats)
         res.vehicle_speed = vel[:keep]          # type: ignore[attr-defined]
+        if js is not None:
+            res.position, res.effort, res.engine_torque = (a[:keep] for a in js)
         return res

@@ -1,6 +1,6 @@
 """The result row of one sweep variant with clutch, gearbox, brake or commands: the mode
 model on the compiled kernel (:mod:`cvj_ros.physics.kernel.modes`, a vehicle scene
-:mod:`cvj_ros.physics.kernel.tree_modes`; methods dopri5 and dop853)
+:mod:`cvj_ros.physics.kernel.tree_modes`; every method with dense output)
 or its Python reference (:mod:`cvj_ros.physics.hybrid`; backend 'python' or another method),
 summarised as events per element, the first lock-up of each clutch and brake, the final
 modes and shaft speeds, the stall, refused commands and the energy residual; a vehicle

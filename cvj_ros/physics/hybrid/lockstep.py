@@ -263,7 +263,7 @@ def hybrid_lockstep(scene: Scene, *, method: str | None = None, rtol: float | No
     ``'kernel'`` each interval on the compiled kernel
     (:class:`~cvj_ros.physics.kernel.modes_lockstep.KernelHybridLockstep`, a vehicle
     :class:`~cvj_ros.physics.kernel.tree_modes_lockstep.KernelHybridTreeLockstep`; dopri5,
-    dop853, rodas3, rodas4, rosenbrock; CvjError otherwise), ``'auto'`` the kernel where it covers the scene and
+    dop853, rodas3, rodas4, rosenbrock, tsit5, vern6; CvjError otherwise), ``'auto'`` the kernel where it covers the scene and
     method and numba is installed, else the reference (``backend_fallback`` says why)."""
     if backend not in BACKENDS:
         raise CvjError(f'backend: must be one of {", ".join(BACKENDS)}, got {backend!r}')

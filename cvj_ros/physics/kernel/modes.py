@@ -3,8 +3,8 @@
 :class:`KernelHybridSimulation` is :class:`cvj_ros.physics.hybrid.HybridSimulation` (the
 Python reference, the oracle) with the continuous part compiled: each mode becomes
 ``ip``/``fp`` arrays (``kernel/modes_nb.py`` layout, no per-scene or per-mode compile) and
-:func:`segment_nb.mode_segment` integrates it (dopri5, dop853 or a RODAS method), checks the witnesses after
-every step and locates the earliest crossing on the dense output (Brent), all in one
+:func:`segment_nb.mode_segment` integrates it (dopri5, dop853, a RODAS method, tsit5 or
+vern6), checks the witnesses after every step and locates the earliest crossing on the dense output (Brent), all in one
 compiled call per mode. The discrete decisions at an event (stick or slip, release, gear commands and their
 refusals, the momentum-conserving locks, the stall) are the oracle's own methods, so the
 two backends differ only by the rounding of the compiled arithmetic.
@@ -28,7 +28,7 @@ from cvj_ros.physics.kernel import layout as L
 
 __all__ = ['KERNEL_MODE_METHODS', 'KernelHybridSimulation']
 
-KERNEL_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock')
+KERNEL_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5', 'vern6')
 
 # codes of kernel/modes_nb.py (repeated here so building the arrays does not import numba)
 OP_COUPLING = -1
@@ -45,8 +45,10 @@ _STATUS = {1: 'a state or derivative is not finite', 2: 'the step size underflow
 
 _ENTRY: list[Any] = []
 KIND_CHAIN, KIND_TREE = 0, 1          # segment_nb's right-hand sides
-# segment_nb's method codes: the Rosenbrock family shares one, its tableau is passed in
-_METHOD_CODE = {'dopri5': 0, 'dop853': 1, 'rodas3': 2, 'rodas4': 2, 'rosenbrock': 2}
+# segment_nb's method codes: the Rosenbrock family shares one, the explicit pairs with
+# interpolants (erk_tableaux) another; their tableaux are passed in
+_METHOD_CODE = {'dopri5': 0, 'dop853': 1, 'rodas3': 2, 'rodas4': 2, 'rosenbrock': 2,
+                'tsit5': 3, 'vern6': 3}
 
 
 def _segment_entry(args: tuple) -> Any:
@@ -67,7 +69,9 @@ def _coefficients(method: str) -> tuple:
     (C, A, B, E5, E3, D, A_EXTRA, C_EXTRA), then the Rosenbrock tableau (A, C, M, E, alpha,
     gamma_sum, H; H without rows for the Hermite dense output of rodas3/rodas4) and
     (gamma, order, fac_max); a method that does not use them gets RODAS3's (same types:
-    one compiled code)."""
+    one compiled code). tsit5 and vern6 (erk_tableaux) pass their pair in DOP853's slots:
+    C, A, B, E, DOP853's E3, then P and the rows of A and C of the interpolant's extra
+    stages; their embedded order in the second entry of the last array."""
     from cvj_ros.physics.kernel.stepper import _dop853_args, _rosenbrock_args
     (c8, a8, b8, e5, e3), (d8, ax, cx) = _dop853_args()
     tab, H = _rosenbrock_args(method if _METHOD_CODE[method] == 2 else 'rodas3')
@@ -75,6 +79,14 @@ def _coefficients(method: str) -> tuple:
     if H is None:
         H = np.zeros((0, M.shape[0]))
     ros = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (A, C, M, E, alpha, gsum, H))
+    if _METHOD_CODE[method] == 3:
+        from cvj_ros.physics.erk_tableaux import erk_tableau
+        et = erk_tableau(method)
+        s = int(et['S'])
+        c8, a8, b8, e5, d8, ax, cx = (
+            np.array(a, dtype=np.float64, order='C') for a in
+            (et['C'], et['A'], et['B'], et['E'], et['P'], et['A'][s:], et['C'][s:]))
+        order = int(et['error_order'])
     return (c8, a8, b8, e5, e3, d8, ax, cx, ros,
             np.array([gamma, float(order), fac_max], dtype=np.float64))
 

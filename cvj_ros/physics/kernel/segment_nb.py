@@ -7,6 +7,10 @@ t_stop with one of
 
 * M_DOPRI5, M_DOP853: Dormand-Prince 5(4) / 8(5,3), the step control and dense output of
   ``steppers_nb.dopri5_step`` / ``dop853_step``;
+* M_ERK: an efficient explicit FSAL pair with interpolant (``tsit5``, Tsitouras 2011;
+  ``vern6``, Verner 2010; ``physics/erk_tableaux.py``), the step control of
+  ``steppers_rk_nb.erk_step`` and the pair's own interpolant (its extra stages once per
+  step), as ``solvers._ErkStepper``;
 * M_ROSENBROCK: an adaptive RODAS method whose tableau is passed in (``rodas3``, ``rodas4``,
   ``rosenbrock`` = RODAS5P; ``kernel/stepper._rosenbrock_args``), the step of
   ``steppers_nb.ros_step`` with the Jacobian the Python reference uses for a mode's
@@ -47,10 +51,12 @@ from cvj_ros.physics.kernel.steppers_nb import (BETA, C_DENSE, C_LASTREJ, C_LUM,
                                                 dopri5_dense, lu_factor, lu_solve, ros_dense_h)
 from cvj_ros.physics.kernel.tree_modes_nb import MB_NWIT, MB_WIT, WIT_STRIDE, tm_eval
 
-__all__ = ['KIND_CHAIN', 'KIND_TREE', 'M_DOP853', 'M_DOPRI5', 'M_ROSENBROCK', 'mode_segment']
+__all__ = ['KIND_CHAIN', 'KIND_TREE', 'M_DOP853', 'M_DOPRI5', 'M_ERK', 'M_ROSENBROCK',
+           'mode_segment']
 
 KIND_CHAIN, KIND_TREE = 0, 1
 M_ROSENBROCK = 2
+M_ERK = 3
 # rp (Rosenbrock parameters): gamma, embedded order, fac_max
 RP_GAMMA, RP_ORDER, RP_FACMAX = 0, 1, 2
 _EPS = np.finfo(float).eps
@@ -108,6 +114,8 @@ def _dense(kind, method, tau, y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX, RH, 
         dopri5_dense(tau, y_old, fs, K, out)
     elif method == M_DOP853:
         _d8_dense(kind, tau, y, y_old, ip, fp, fs, cnt, D8, AX, CX, K, out, sc)
+    elif method == M_ERK:     # D8, AX, CX: the pair's P and its extra stages' A rows, C
+        _erk_dense(kind, tau, y, y_old, ip, fp, fs, cnt, D8, AX, CX, K, out, sc)
     elif RH.shape[0] > 0:
         ros_dense_h(tau, y, y_old, fs, RH, K, out)
     else:        # f at the step start in K's last row, at its end in K[0]
@@ -408,6 +416,116 @@ def _d8_dense(kind, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out, s
 
 
 @njit(cache=True)
+def _erk_step(kind, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, order, C, A, B,
+              E, K, work, sc):
+    """One accepted step of an explicit FSAL pair (steppers_rk_nb.erk_step on the mode's
+    rhs: C, A, B, E of erk_tableaux, S = B.size stages, K[S-1] = f(t + h, y_new); ``order``
+    the embedded order); K[0] = f(t, y) on entry. Returns ST_*."""
+    n = y.shape[0]
+    ns = B.shape[0]
+    expo = 1.0 / (order + 1) - 0.75 * BETA
+    t = fs[FS_T]
+    h_prop = fs[FS_H]
+    remaining = t_bound - t
+    clipped = h_prop * 1.01 >= remaining
+    h = remaining if clipped else h_prop
+    arg = work[0]
+    ynew = work[1]
+    nonfinite = False
+    while True:
+        if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
+            return ST_NONFINITE if nonfinite else ST_UNDERFLOW
+        for s in range(1, ns - 1):
+            for i in range(n):
+                arg[i] = y[i]
+            for j in range(s):
+                c = h * A[s, j]
+                if c != 0.0:
+                    kj = K[j]
+                    for i in range(n):
+                        arg[i] += c * kj[i]
+            _f(kind, t + C[s] * h, arg, ip, fp, K[s], sc, False)
+        for i in range(n):
+            ynew[i] = y[i]
+        for j in range(ns - 1):
+            c = h * B[j]
+            if c != 0.0:
+                kj = K[j]
+                for i in range(n):
+                    ynew[i] += c * kj[i]
+        _f(kind, t + h, ynew, ip, fp, K[ns - 1], sc, True)   # also the witnesses' scratch
+        cnt[C_NFEV] += ns - 1
+        ss = 0.0
+        for i in range(n):
+            e = 0.0
+            for j in range(ns):
+                e += E[j] * K[j, i]
+            scl = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]
+            ss += (e / scl) ** 2
+        err = abs(h) * math.sqrt(ss / n)
+        if err <= 1.0:
+            h_new = _proposal(h, err, fs, expo, FAC_MAX)
+            if cnt[C_LASTREJ] == 1:
+                h_new = min(h_new, h)
+            cnt[C_LASTREJ] = 0
+            cnt[C_NACC] += 1
+            _accepted(t, t_bound if clipped else t + h, h, y, y_old, ynew, fs)
+            fs[FS_H] = min(max(h_new, h_prop) if clipped else h_new, max_step)
+            cnt[C_DENSE] = 0      # the interpolant's extra stages not evaluated yet
+            return ST_OK
+        cnt[C_NREJ] += 1
+        cnt[C_LASTREJ] = 1
+        clipped = False
+        if math.isfinite(err) and _first_nonfinite(ynew) < 0:
+            h = h / min(1.0 / FAC_MIN, err ** expo / SAFETY)
+        else:
+            nonfinite = True
+            h = h * FAC_MIN
+
+
+@njit(cache=True)
+def _erk_dense(kind, t, y, y_old, ip, fp, fs, cnt, P, A_EXTRA, C_EXTRA, K, out, sc):
+    """The pair's interpolant y_old + h sum_j b_j(theta) k_j, b_j(theta) = sum_d P[j, d]
+    theta^(d+1) (solvers._ErkStepper.dense); the extra stages (rows S.. of K, S = P's rows
+    minus C_EXTRA's size; A_EXTRA, C_EXTRA: their rows of the tableau's A and C) once per
+    step. The step end itself is y."""
+    n = y.shape[0]
+    h = fs[FS_HLAST]
+    t_old = fs[FS_TOLD]
+    if h == 0.0 or t == fs[FS_T]:
+        for i in range(n):
+            out[i] = y[i]
+        return
+    s_all = P.shape[0]
+    ns = s_all - C_EXTRA.shape[0]
+    if cnt[C_DENSE] == 0 and s_all > ns:
+        arg = np.empty(n)
+        for r in range(s_all - ns):
+            s = ns + r
+            for i in range(n):
+                arg[i] = y_old[i]
+            for j in range(s):
+                c = h * A_EXTRA[r, j]
+                if c != 0.0:
+                    kj = K[j]
+                    for i in range(n):
+                        arg[i] += c * kj[i]
+            _f(kind, t_old + C_EXTRA[r] * h, arg, ip, fp, K[s], sc, False)
+        cnt[C_NFEV] += s_all - ns
+    cnt[C_DENSE] = 1
+    x = (t - t_old) / h
+    deg = P.shape[1]
+    for i in range(n):
+        acc = 0.0
+        for j in range(s_all):
+            q = 0.0
+            for d in range(deg - 1, -1, -1):
+                q = (q + P[j, d]) * x
+            acc += K[j, i] * q
+        out[i] = y_old[i] + h * acc
+
+
+@njit(cache=True)
 def _ros_prepare(kind, h, gamma, y, ip, fp, fs, cnt, J, LU, piv, ft, K, work, sc, fresh):
     """Jacobian and f_t at (t, y) when ``fresh`` (the first attempt of a step), LU of
     I/(h gamma) - J when h changed (solvers._LinearlyImplicit._prepare). K[0] = f(t, y).
@@ -554,7 +672,10 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
     the earliest witness crossing, with ``method`` M_DOPRI5, M_DOP853 (its coefficients
     C8 .. CX: scipy's DOP853 tableau, as steppers_nb.dop853_step takes them) or
     M_ROSENBROCK (ros = (A, C, M, E, alpha, gamma_sum, H; H with no rows: Hermite dense
-    output), rp = (gamma, embedded order, fac_max)); the unused coefficients are ignored.
+    output), rp = (gamma, embedded order, fac_max)) or M_ERK (an erk_tableaux pair in
+    DOP853's slots: C8, A8, B8, E5 = C, A, B, E; D8 = P; AX, CX = the rows of A and C of
+    the interpolant's extra stages; rp[1] = the embedded order); the unused coefficients
+    are ignored.
 
     y: the mode state at t0, overwritten with the state at the end (event or t_stop).
     h_in: first step (s), 0: Hairer's estimate. Samples t_samp[k] (ascending, k >= k0) up to
@@ -583,11 +704,14 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
     elif method == M_DOP853:
         nk = 23
         order = D8_ORDER
+    elif method == M_ERK:
+        nk = D8.shape[0]                  # the step's stages, the interpolant's extra ones
+        order = int(rp[RP_ORDER])
     else:
         nk = ros[2].shape[0] + 2          # f, the stages, f at the step start
         order = int(rp[RP_ORDER])
     K = np.zeros((nk, ns))
-    fsal = 6 if method == M_DOPRI5 else B8.shape[0]
+    fsal = 6 if method == M_DOPRI5 else (B8.shape[0] - 1 if method == M_ERK else B8.shape[0])
     work = np.zeros((4, ns))
     y_old = np.zeros(ns)
     yy = np.zeros(ns)
@@ -630,6 +754,9 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
         elif method == M_DOP853:
             st = _d8_step(kind, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, C8,
                           A8, B8, E5, E3, K, work, sc)
+        elif method == M_ERK:
+            st = _erk_step(kind, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                           order, C8, A8, B8, E5, K, work, sc)
         else:
             st = _ros_step(kind, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, ros,
                            rp, J, LU, piv, ft, K, work, sc)

@@ -6,8 +6,8 @@ compiled kernel.
 :class:`~cvj_ros.physics.hybrid.tree.ModeTree` becomes ``ip``/``fp`` arrays (the event-free
 tree tables of ``kernel/layout.py`` plus the mode block of ``kernel/tree_modes_nb.py``; no
 per-scene or per-mode compile) and :func:`tree_modes_nb.tree_mode_segment` integrates it
-(dopri5, dop853 or a RODAS method), checks the witnesses after every step and locates the earliest crossing
-on the dense output (Brent), in one compiled call per mode. The discrete decisions (stick or
+(dopri5, dop853, a RODAS method, tsit5 or vern6), checks the witnesses after every step and
+locates the earliest crossing on the dense output (Brent), in one compiled call per mode. The discrete decisions (stick or
 slip, release, the shift schedule's triggers, gear commands and their refusals, the
 momentum-conserving locks, the stall) and the samples are the oracle's own methods, so the
 two backends differ only by the rounding of the compiled arithmetic.
@@ -38,7 +38,8 @@ END_NONE, END_WHEEL, END_SPRING, END_DIFF, END_LINK = 0, 1, 2, 3, 4
 (TW_STALL, TW_SLIP, TW_CLUTCH_FWD, TW_CLUTCH_BWD, TW_BRAKE_SPEED, TW_BRAKE_FWD, TW_BRAKE_BWD,
  TW_PACK_SLIP, TW_PACK_FWD, TW_PACK_BWD, TW_SHIFT) = range(11)
 _ENDS = {'wheel': END_WHEEL, 'spring': END_SPRING, 'diff': END_DIFF, 'link': END_LINK}
-KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock')
+KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5',
+                            'vern6')
 
 
 class _Gear:

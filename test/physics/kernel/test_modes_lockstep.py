@@ -128,3 +128,24 @@ def test_random_chains_and_schedules_in_lockstep_match_the_reference(seed: int) 
     assert dt < 1e-8
     assert [s.split(' at t=')[0] for s in ref.statuses] == [s.split(' at t=')[0] for s in ker.statuses]
     assert (ref.stall is None) == (ker.stall is None)
+
+
+@pytest.mark.parametrize('method', ['tsit5', 'vern6'])
+def test_launch_clutch_chain_in_lockstep_on_tsit5_vern6(method: str) -> None:
+    """The explicit pairs with interpolants run the lockstep model compiled too (no fallback
+    to the reference): launch_clutch_chain's 6 s on both backends with ``method``, the bounds
+    of the dopri5 case above (each backend its own mesh)."""
+    scene = load_scene(find_scene('launch_clutch_chain'))
+    ref = hybrid_lockstep(scene, method=method, backend='python')
+    ker = hybrid_lockstep(scene, method=method, backend='auto')
+    assert type(ker) is KernelHybridLockstep and ker.backend_fallback is None
+    vp = drive(ref, scene, 6.0)
+    vk = drive(ker, scene, 6.0)
+    assert len(ref.events) == len(ker.events) == 7
+    for a, b in zip(ref.events, ker.events):
+        assert (a.element, a.before, a.after) == (b.element, b.before, b.after)
+        assert abs(a.t - b.t) < 1e-8, (a, b)
+    assert ref.mode_names() == ker.mode_names() and ref.gear() == ker.gear() == 2
+    scale = np.maximum(np.abs(vp).max(axis=0), 1.0)
+    assert np.max(np.abs(vp - vk) / scale) < 1e-6
+    assert abs(ker.energy_residual()) < 1e-7 and abs(ref.energy_residual()) < 1e-7

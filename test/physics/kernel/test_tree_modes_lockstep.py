@@ -167,3 +167,25 @@ def test_one_evaluation_per_exchange_while_the_commands_hold() -> None:
         ModeTree.evaluate = real
     steady = np.diff(counts[100:])
     assert np.all(steady == 1), steady
+
+
+@pytest.mark.parametrize('method', ['tsit5', 'vern6'])
+def test_brake_hold_and_release_in_lockstep_on_tsit5_vern6(method: str) -> None:
+    """launch_clutch's first 2 s in lockstep with tsit5 / vern6 on both backends (compiled,
+    no fallback): the bounds of test_brake_hold_and_release_in_lockstep."""
+    scene = load_scene(find_scene('launch_clutch'))
+    ref = hybrid_lockstep(scene, method=method, backend='python')
+    ker = hybrid_lockstep(scene, method=method, backend='auto')
+    assert type(ker) is KernelHybridTreeLockstep and ker.backend_fallback is None
+    vp = drive(ref, scene, 2.0)
+    vk = drive(ker, scene, 2.0)
+    assert len(ref.events) == len(ker.events) >= 4
+    for a, b in zip(ref.events, ker.events):
+        assert (a.element, a.before, a.after) == (b.element, b.before, b.after)
+        assert abs(a.t - b.t) < 1e-8, (a, b)
+    assert ref.mode_names() == ker.mode_names() and ker.gear() == 1
+    scale = np.maximum(np.abs(vp).max(axis=0), 1.0)
+    assert np.max(np.abs(vp - vk) / scale) < 1e-6
+    wheel = ker.shaft_names.index('wheel_left')
+    assert np.array_equal(vk[:, wheel] == 0.0, vp[:, wheel] == 0.0)
+    assert abs(ker.energy_residual()) < 1e-7 and abs(ref.energy_residual()) < 1e-7

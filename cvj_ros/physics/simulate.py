@@ -220,6 +220,7 @@ class _KernelPlan:
     run: Any = None                       # KernelStepper.bind_run's one-call run
     XG: FloatArray | None = None          # land: its states at the grid (None: X itself)
     shape: tuple[int, int, int] = (0, 0, 0)   # samples, states, shafts (the run's arrays)
+    call: Any = None                      # run's bound entry point, after its first call
 
 
 class Simulation:
@@ -635,14 +636,14 @@ class Simulation:
         XG = plan.XG
         clock = time.perf_counter
         wall0 = clock()
-        run = plan.run
-        call = run.call   # the bound entry point after the first run (bind_run)
+        call = plan.call   # the bound entry point after the first run (bind_run)
         if call is None:
-            bad = run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            plan.call = plan.run.bound()
         else:
             st, bad = call(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
             if st != _ST_OK:
-                run.check(st)   # raises
+                plan.run.check(st)   # raises
         wall = clock() - wall0
         times = plan.times
         if bad >= 0 or self._mid_table[2]:   # a non-finite sample, or members in Python

@@ -393,6 +393,33 @@ def test_the_same_arguments_again_take_the_fast_path_with_fresh_arrays() -> None
     assert tight.solver['nfev'] != ref.solver['nfev'] and sim._fast[0][5] == 1e-6
 
 
+def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
+    """The plan's bound run (and the fast path's entry point kept beside it) hold no
+    reference back to themselves: a Simulation run twice and dropped is freed by reference
+    counting, gc.collect() finds nothing. In a fresh interpreter (another test's threads
+    could leave garbage of their own)."""
+    import os
+    import subprocess
+    import sys
+    code = (
+        'import gc\n'
+        'from cvj_ros.physics.scene import find_scene, load_scene\n'
+        'from cvj_ros.physics.simulate import Simulation\n'
+        "sc = load_scene(find_scene('stiff'))\n"
+        "Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3).run(0.2, sample_dt=0.05)\n"
+        'gc.collect()\n'
+        'for _ in range(3):\n'
+        "    sim = Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3)\n"
+        '    sim.run(0.2, sample_dt=0.05)\n'
+        '    sim.run(0.2, sample_dt=0.05)\n'
+        '    del sim\n'
+        'print(gc.collect())\n')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=300, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ['0']
+
+
 @pytest.mark.parametrize('backend', ['kernel', 'python'])
 def test_time_invariant_sources_skip_f_t_with_the_same_trajectory(backend: str) -> None:
     """Linear engine + constant load have no explicit t: the Rosenbrock steppers skip the f_t

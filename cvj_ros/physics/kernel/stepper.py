@@ -539,15 +539,16 @@ class KernelStepper(_StepperBase):
             if bound is None:
                 st, bad = self._call(fn, *head, *per_run)
                 bound = functools.partial(_ENTRY_POINTS[(fn, len(head) + len(per_run))], *head)
-                # for a caller that skips this frame: run.call(*per_run) -> (status, bad),
-                # status != ST_OK for run.check (raises)
-                run.call = bound
             else:
                 st, bad = bound(*per_run)
             if st != nb.ST_OK:
                 check(st)   # raises
             return bad
-        run.call = None     # until the first call has loaded or compiled the entry point
+        # for a caller that skips this frame after the first call: run.bound() is the
+        # bound entry point (None before), bound(*per_run) -> (status, bad), and a status
+        # != ST_OK goes to run.check (raises). Read through a lambda: run itself in its
+        # own body would make a reference cycle.
+        run.bound = lambda: bound
         run.check = check
         return run
 

@@ -97,6 +97,9 @@ class Trace:
 
 
 _NO_BREAKS = np.empty(0)
+#: kernel/steppers_nb.py's ST_OK (a run's status without error), here without importing
+#: numba (test_simulate.py checks that they agree)
+_ST_OK = 0
 _EPS = float(np.finfo(float).eps)
 #: a breakpoint within LANDING_TOL max(1, |t|) (s) of a sample or of the breakpoint kept
 #: before it is not landed on (``landing_grid`` and its compiled twin)
@@ -217,6 +220,7 @@ class _KernelPlan:
     run: Any = None                       # KernelStepper.bind_run's one-call run
     XG: FloatArray | None = None          # land: its states at the grid (None: X itself)
     shape: tuple[int, int, int] = (0, 0, 0)   # samples, states, shafts (the run's arrays)
+    call: Any = None                      # run's bound entry point, after its first call
 
 
 class Simulation:
@@ -310,6 +314,9 @@ class Simulation:
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
+        # (run's own arguments with method, rtol, atol; the plan) of the latest one-call
+        # run: the same arguments again skip the checks and the plan's lookup (run)
+        self._fast: tuple[tuple, _KernelPlan] | None = None
         if backend == 'kernel':
             # packing the scene is also the test whether the kernel covers it (kernel_gap);
             # the packed model is kept for a run over the scene's duration (_model)
@@ -445,6 +452,14 @@ class Simulation:
         lands on every time where the load is not smooth in t (:meth:`breakpoints`); off, the
         controller steps across them (cheaper only at loose tolerances). Raises SolverError
         if the state becomes non-finite."""
+        fast = self._fast
+        if fast is not None and progress is None and fast[0] == (
+                duration, sample_dt, sampling, breakpoints, self.method, self.rtol, self.atol):
+            # the latest one-call run's arguments again: they were checked and made into
+            # this plan then (the scene is frozen), so only the call is left
+            plan = fast[1]
+            self.model = plan.model
+            return self._run_one_call(plan, self.driveline.x0)
         if sampling not in ('land', 'dense'):
             raise SceneError('sampling', f"must be 'land' or 'dense', got {sampling!r}")
         sc = self.scene
@@ -455,7 +470,12 @@ class Simulation:
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
         if self.backend == 'kernel' and not self.scene.is_tree:
-            return self._run_kernel(dur, dt, sampling, progress, breakpoints)
+            trace = self._run_kernel(dur, dt, sampling, progress, breakpoints)
+            plan = next(iter(self._plans.values()))
+            self._fast = None if progress is not None or plan.run is None else (
+                (duration, sample_dt, sampling, breakpoints, self.method, self.rtol,
+                 self.atol), plan)
+            return trace
         return self._run_python(dur, dt, sampling, progress, breakpoints)
 
     def _stepper_options(self, dt: float) -> dict[str, Any]:
@@ -616,10 +636,18 @@ class Simulation:
         XG = plan.XG
         clock = time.perf_counter
         wall0 = clock()
-        bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+        call = plan.call   # the bound entry point after the first run (bind_run)
+        if call is None:
+            bad = plan.run(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            plan.call = plan.run.bound()
+        else:
+            st, bad = call(e0, X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            if st != _ST_OK:
+                plan.run.check(st)   # raises
         wall = clock() - wall0
         times = plan.times
-        self._check_outputs(times, bad, pos, vel, compiled_mids=True)
+        if bad >= 0 or self._mid_table[2]:   # a non-finite sample, or members in Python
+            self._check_outputs(times, bad, pos, vel, compiled_mids=True)
         return self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             wall, wall)
 

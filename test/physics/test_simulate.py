@@ -348,6 +348,78 @@ def test_repeated_runs_reuse_the_plan_and_repeat_the_bytes(scene: str, method: s
     assert counters(loose) != counters(fresh)
 
 
+def test_the_same_arguments_again_take_the_fast_path_with_fresh_arrays() -> None:
+    """A run with the latest one-call run's arguments skips the checks and the plan's lookup
+    (Simulation._fast) and still returns arrays of its own: every trace array and the final
+    state are new objects sharing no memory with the previous trace, and the bytes equal a
+    fresh Simulation's. Other arguments (a progress callback, another tolerance, None for the
+    scene's duration) leave the fast path and give their own results."""
+    from cvj_ros.physics.scene import find_scene, load_scene
+    sc = load_scene(find_scene('kavz685_lever'))
+    fields = ('t', 'position', 'velocity', 'effort', 'engine_torque', 'load_torque',
+              'energy_residual')
+
+    def arrays(tr) -> bytes:
+        return b''.join(getattr(tr, f).tobytes() for f in fields)
+
+    sim = Simulation(sc, method='rodas3', rtol=1e-4, atol=1e-4)
+    first = sim.run(0.2, sample_dt=0.01, sampling='dense')
+    state = sim.final_state
+    fast = sim._fast
+    assert fast is not None and fast[1] is next(iter(sim._plans.values()))
+    sim._plans = {}                     # the fast path does not look the plan up
+    second = sim.run(0.2, sample_dt=0.01, sampling='dense')
+    assert sim._fast is fast and sim._plans == {}
+    for f in fields:
+        assert not np.shares_memory(getattr(first, f), getattr(second, f)), f
+    assert not np.shares_memory(state, sim.final_state)
+    assert second.names is not first.names and second.solver is not first.solver
+    fresh = Simulation(sc, method='rodas3', rtol=1e-4, atol=1e-4)
+    ref = fresh.run(0.2, sample_dt=0.01, sampling='dense')
+    assert arrays(first) == arrays(second) == arrays(ref)
+    assert first.solver == second.solver | {'integration_wall_time':
+                                            first.solver['integration_wall_time']}
+    assert sim.final_state.tobytes() == fresh.final_state.tobytes()
+    seen: list[float] = []
+    with_progress = sim.run(0.2, sample_dt=0.01, sampling='dense', progress=seen.append)
+    assert sim._fast is None and seen == ref.t[1:].tolist()   # every sample after t = 0
+    assert arrays(with_progress) == arrays(ref)
+    sim.run(0.2, sample_dt=0.01, sampling='dense')   # the fast path again, then a change
+    sim.rtol = 1e-6
+    tight = sim.run(0.2, sample_dt=0.01, sampling='dense')
+    from cvj_ros.physics import simulate
+    from cvj_ros.physics.kernel import steppers_nb
+    assert simulate._ST_OK == steppers_nb.ST_OK
+    assert tight.solver['nfev'] != ref.solver['nfev'] and sim._fast[0][5] == 1e-6
+
+
+def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
+    """The plan's bound run (and the fast path's entry point kept beside it) hold no
+    reference back to themselves: a Simulation run twice and dropped is freed by reference
+    counting, gc.collect() finds nothing. In a fresh interpreter (another test's threads
+    could leave garbage of their own)."""
+    import os
+    import subprocess
+    import sys
+    code = (
+        'import gc\n'
+        'from cvj_ros.physics.scene import find_scene, load_scene\n'
+        'from cvj_ros.physics.simulate import Simulation\n'
+        "sc = load_scene(find_scene('stiff'))\n"
+        "Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3).run(0.2, sample_dt=0.05)\n"
+        'gc.collect()\n'
+        'for _ in range(3):\n'
+        "    sim = Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3)\n"
+        '    sim.run(0.2, sample_dt=0.05)\n'
+        '    sim.run(0.2, sample_dt=0.05)\n'
+        '    del sim\n'
+        'print(gc.collect())\n')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=300, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ['0']
+
+
 @pytest.mark.parametrize('backend', ['kernel', 'python'])
 def test_time_invariant_sources_skip_f_t_with_the_same_trajectory(backend: str) -> None:
     """Linear engine + constant load have no explicit t: the Rosenbrock steppers skip the f_t

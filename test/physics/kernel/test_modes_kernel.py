@@ -319,7 +319,7 @@ _ROS_CASES = {
     'test_random_command_schedules_keep_the_invariants[0]': ('rodas4', 'rosenbrock'),
     # the clutch pedal jumps at 0.1 s (two rows at one time): f_t one-sided at a segment's
     # end (solvers._LinearlyImplicit._time_derivative) reaches it in 127 / 125 steps; rodas3
-    # still ends in a step-size underflow before it (docs/clutch_gearbox.md)
+    # still ends in a step-size underflow before it in both backends (docs/clutch_gearbox.md)
     'test_stall_is_reported_at_the_closed_form_time': ('rodas4', 'rosenbrock')}
 _ROS_SLOW = {'test_judder_locates_every_transition': ('rodas3', 'rodas4'),
              'test_random_command_schedules_keep_the_invariants[0]': ('rodas3',)}
@@ -394,7 +394,7 @@ def test_stiff_clutch_damper_takes_far_fewer_steps_on_rodas() -> None:
     """A clutch damper of 1e6 N m/rad, 100 N m s/rad on the 0.01 kg m^2 disc (eigenvalues
     ~ -5000 +- 8700i 1/s: stiff against the launch's seconds) at rtol 1e-6: dopri5 is held
     at its stability limit (measured 25858 steps), the L-stable RODAS methods follow the
-    accuracy (rodas3 3808, rodas4 1344, RODAS5P 661). Deterministic counts of the kernel's
+    accuracy (rodas3 3799, rodas4 1287, RODAS5P 612). Deterministic counts of the kernel's
     step control; the bound (4x) is far below the measured 6.8x of the weakest."""
     scene = _stiff_damper_scene(1e6, 100.0)
     runs = {m: KernelHybridSimulation.from_reference(

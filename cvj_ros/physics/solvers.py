@@ -573,6 +573,9 @@ class _LinearlyImplicit:
         self._inv = None
         self.njev_fd = 0
         self._eye = np.eye(self.n)
+        # (lo, hi): the inputs are smooth only inside, f_t one-sided near its ends
+        # (:meth:`_time_derivative`); None: central everywhere
+        self.ft_window: tuple[float, float] | None = None
 
     def _ensure_f(self) -> np.ndarray:
         if self._f is None:
@@ -600,6 +603,26 @@ class _LinearlyImplicit:
             J[:, j] = (self._eval(t, yp) - f0) / delta
         return J
 
+    def _time_derivative(self, f0: np.ndarray) -> np.ndarray:
+        """f_t at (t, y): central difference of increment delta = eps^(1/3) max(1, |t|)
+        (error ~ eps^(2/3), forward would give ~ sqrt(eps)); with ``ft_window`` = (lo, hi)
+        set (the inputs are smooth only inside it, e.g. a mode segment between command
+        rows) and t within delta of an end, one-sided away from that end, increment
+        min(delta, distance to the far end): (f0 - f(t - d)) / d nearer hi, (f(t + d) - f0) / d
+        nearer lo; 0 if d = 0. The compiled mode segment's is the same rule
+        (kernel/segment_nb._ros_prepare)."""
+        t, y = self.t, self.y
+        delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
+        win = self.ft_window
+        if win is None or (t - delta >= win[0] and t + delta <= win[1]):
+            return (self._eval(t + delta, y) - self._eval(t - delta, y)) / (2.0 * delta)
+        lo, hi = win
+        if t - lo >= hi - t:
+            d = min(delta, t - lo)
+            return (f0 - self._eval(t - d, y)) / d if d > 0.0 else np.zeros_like(f0)
+        d = min(delta, hi - t)
+        return (self._eval(t + d, y) - f0) / d if d > 0.0 else np.zeros_like(f0)
+
     def _prepare(self, h: float) -> None:
         """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed."""
         if self._J is None:
@@ -607,10 +630,7 @@ class _LinearlyImplicit:
             self._J = self._jacobian(self.t, self.y, f0)
             self._lu_h = None
             if not self._autonomous:
-                # central difference: error ~ eps^(2/3), forward would give ~ sqrt(eps)
-                delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(self.t))
-                self._ft = (self._eval(self.t + delta, self.y)
-                            - self._eval(self.t - delta, self.y)) / (2.0 * delta)
+                self._ft = self._time_derivative(f0)
         if self._lu_h is None or abs(self._lu_h - h) > 1e-12 * h:
             G = self._eye / (h * self._gamma) - self._J
             # LAPACK getrf as in scipy.linalg.lu_factor, without its checking wrapper

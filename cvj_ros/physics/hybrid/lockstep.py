@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import STUCK, mode_name
-from cvj_ros.physics.hybrid.simulate import HybridSimulation
+from cvj_ros.physics.hybrid.simulate import ROSENBROCK_METHODS, HybridSimulation
+from cvj_ros.physics.sections import section_kinematics
 from cvj_ros.physics.solvers import make_stepper
 
 if TYPE_CHECKING:
@@ -78,6 +79,10 @@ class HeldTorque:
 
     def torque(self, t: float, omega: float, phi: float) -> float:
         return self.value
+
+    def slope(self, t: float, omega: float, phi: float = 0.0) -> float:
+        """dT/domega = 0 (held)."""
+        return 0.0
 
     def set_throttle(self, x: float) -> None:
         return None
@@ -165,8 +170,13 @@ class HybridLockstep(HybridSimulation):
             n = len(asm.groups)
             fun = lambda tt, yy, asm=asm, mode=mode: self._eval(asm, mode, tt, yy).ydot  # noqa: E731
             h0 = min(self._h, t_next - t) if self._h else None
+            jac = None
+            if self.method in ROSENBROCK_METHODS:
+                jac = lambda tt, yy, asm=asm, mode=mode: self._jac(asm, mode, tt, yy)  # noqa: E731
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
-                                   h=h0, max_step=self.max_step)
+                                   h=h0, max_step=self.max_step, jac=jac)
+            if jac is not None:
+                stepper.ft_window = (t, t_next)     # commands change only between intervals
             self.stats['restarts'] += 1
             ws = self._witnesses(asm, mode)
             ev0 = self._eval(asm, mode, t, y0)

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from cvj_ros.errors import SceneError
 from cvj_ros.physics.hybrid.chain import Assembly, Evaluation, HybridChain, Mode, SectionState
+from cvj_ros.physics.hybrid.chain_jac import mode_jacobian
 from cvj_ros.physics.hybrid.commands import CommandSchedule
 from cvj_ros.physics.hybrid.elements import Clutch
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
@@ -45,6 +46,8 @@ from cvj_ros.physics.solvers import make_stepper
 __all__ = ['HybridResult', 'HybridSimulation', 'ModeEvent']
 
 FloatArray = NDArray[np.float64]
+# the methods that take the mode's analytic Jacobian (solvers._LinearlyImplicit)
+ROSENBROCK_METHODS = ('rodas3', 'rodas4', 'rosenbrock', 'ros2')
 
 
 @dataclass(frozen=True)
@@ -160,6 +163,15 @@ class HybridSimulation:
         ck, _cs, bk, _bs = self._capacities(t)
         return self.chain.evaluate(asm, mode, t, y, engine=self.engine, load=self.load,
                                    clutch_kinetic=ck, brake_kinetic=bk)
+
+    def _jac(self, asm: Assembly, mode: Mode, t: float, y: FloatArray) -> FloatArray:
+        """Analytic d(ydot)/dy of the mode at (t, y) (hybrid/chain_jac.py), for the
+        Rosenbrock methods."""
+        if self._throttle:
+            self.engine.set_throttle(self.schedule.value('throttle', t))
+        ck, _cs, bk, _bs = self._capacities(t)
+        return mode_jacobian(self.chain, asm, mode, t, y, engine=self.engine, load=self.load,
+                             clutch_kinetic=ck, brake_kinetic=bk)
 
     # --- witnesses -----------------------------------------------------------------------
 
@@ -477,8 +489,13 @@ class HybridSimulation:
             y0, _loss = ch.to_mode(asm, st)
             n = len(asm.groups)
             fun = lambda tt, yy, asm=asm, mode=mode: self._eval(asm, mode, tt, yy).ydot  # noqa: E731
+            jac = None
+            if self.method in ROSENBROCK_METHODS:
+                jac = lambda tt, yy, asm=asm, mode=mode: self._jac(asm, mode, tt, yy)  # noqa: E731
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
-                                   max_step=self.max_step)
+                                   max_step=self.max_step, jac=jac)
+            if jac is not None:
+                stepper.ft_window = (t, t_stop)     # commands jump only at segment ends
             stats['restarts'] += 1
             ws = self._witnesses(asm, mode)
             ev0 = self._eval(asm, mode, t, y0)

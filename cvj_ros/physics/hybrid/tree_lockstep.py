@@ -129,6 +129,8 @@ class HybridTreeLockstep(HybridTreeSimulation):
             fun = lambda tt, yy, mt=mt: self._eval(mt, tt, yy, False).ydot  # noqa: E731
             h0 = min(self._h, t_stop - t) if self._h else None
             stepper = self._stepper(fun, t, y0, h0)
+            if hasattr(stepper, 'ft_window'):
+                stepper.ft_window = (t, t_stop)     # commands jump only at segment ends
             stats['restarts'] += 1
             ws = self._witnesses(mode)
             need_t = any(w.key[0] == 'clutch' and w.key[2] != STUCK for w in ws)

@@ -523,6 +523,8 @@ class HybridTreeSimulation:
             fun = lambda tt, yy, mt=mt: self._eval(mt, tt, yy, False).ydot  # noqa: E731
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
                                    max_step=self.max_step)
+            if hasattr(stepper, 'ft_window'):
+                stepper.ft_window = (t, t_stop)     # commands jump only at segment ends
             stats['restarts'] += 1
             ws = self._witnesses(mode)
             need_t = any(w.key[0] == 'clutch' and w.key[2] != STUCK for w in ws)

@@ -14,9 +14,12 @@ t_stop with one of
 * M_ROSENBROCK: an adaptive RODAS method whose tableau is passed in (``rodas3``, ``rodas4``,
   ``rosenbrock`` = RODAS5P; ``kernel/stepper._rosenbrock_args``), the step of
   ``steppers_nb.ros_step`` with the Jacobian the Python reference uses for a mode's
-  right-hand side: ``solvers._LinearlyImplicit._jacobian``'s forward differences
-  (increment sqrt(eps max(1e-5, |y_j|)), Hairer & Wanner II, sec. IV.7) and f_t by central
-  differences (increment eps^(1/3) max(1, |t|)), both at every accepted step. Dense output:
+  right-hand side: a chain's analytic ``modes_jac_nb.mode_jac`` (the reference's
+  ``hybrid/chain_jac.mode_jacobian``), a tree's forward differences (increment
+  sqrt(eps max(1e-5, |y_j|)), Hairer & Wanner II, sec. IV.7, as
+  ``solvers._LinearlyImplicit._jacobian``), and f_t by central differences (increment
+  eps^(1/3) max(1, |t|)), one-sided within it of the segment's ends (the commands jump
+  there), both at every accepted step. Dense output:
   RODAS5P's continuous extension (``steppers_nb.ros_dense_h``), RODAS3/4 the cubic Hermite
   of ``solvers._hermite`` from f at both step ends.
 
@@ -37,6 +40,7 @@ import math
 import numpy as np
 from numba import njit
 
+from cvj_ros.physics.kernel.modes_jac_nb import mode_jac
 from cvj_ros.physics.kernel.modes_nb import (FS_HUSED, M_DOP853, M_DOPRI5, MH_N, MH_NWIT,
                                              MH_WIT, N_SCRATCH_EXTRA, mode_eval,
                                              witness_values)
@@ -526,32 +530,69 @@ def _erk_dense(kind, t, y, y_old, ip, fp, fs, cnt, P, A_EXTRA, C_EXTRA, K, out, 
 
 
 @njit(cache=True)
-def _ros_prepare(kind, h, gamma, y, ip, fp, fs, cnt, J, LU, piv, ft, K, work, sc, fresh):
+def _time_derivative(kind, t, t_lo, t_hi, y, ip, fp, cnt, ft, K, work, sc):
+    """f_t at (t, y) into ft (solvers._LinearlyImplicit._time_derivative, the segment
+    [t_lo, t_hi] its ft_window): central difference of increment delta = eps^(1/3)
+    max(1, |t|); within delta of an end one-sided away from it, increment min(delta,
+    distance to the far end), 0 if that is 0. K[0] = f(t, y)."""
+    n = y.shape[0]
+    delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
+    if t - delta >= t_lo and t + delta <= t_hi:
+        _f(kind, t + delta, y, ip, fp, work[2], sc, False)
+        _f(kind, t - delta, y, ip, fp, work[3], sc, False)
+        cnt[C_NFEV] += 2
+        for i in range(n):
+            ft[i] = (work[2, i] - work[3, i]) / (2.0 * delta)
+        return
+    if t - t_lo >= t_hi - t:
+        d = min(delta, t - t_lo)
+        if d > 0.0:
+            _f(kind, t - d, y, ip, fp, work[3], sc, False)
+            cnt[C_NFEV] += 1
+            for i in range(n):
+                ft[i] = (K[0, i] - work[3, i]) / d
+            return
+    else:
+        d = min(delta, t_hi - t)
+        if d > 0.0:
+            _f(kind, t + d, y, ip, fp, work[2], sc, False)
+            cnt[C_NFEV] += 1
+            for i in range(n):
+                ft[i] = (work[2, i] - K[0, i]) / d
+            return
+    for i in range(n):
+        ft[i] = 0.0
+
+
+@njit(cache=True)
+def _ros_prepare(kind, h, gamma, t_lo, t_hi, y, ip, fp, fs, cnt, J, LU, piv, ft, K, work, sc,
+                 fresh):
     """Jacobian and f_t at (t, y) when ``fresh`` (the first attempt of a step), LU of
     I/(h gamma) - J when h changed (solvers._LinearlyImplicit._prepare). K[0] = f(t, y).
-    J: forward differences, column j (f(t, y + delta e_j) - f(t, y)) / delta, delta =
-    sqrt(eps max(1e-5, |y_j|)) (solvers._LinearlyImplicit._jacobian); f_t: central
-    difference of increment eps^(1/3) max(1, |t|)."""
+    J: a chain's analytic ``modes_jac_nb.mode_jac`` (the reference's
+    ``hybrid/chain_jac.mode_jacobian``); a tree's forward differences, column j
+    (f(t, y + delta e_j) - f(t, y)) / delta, delta = sqrt(eps max(1e-5, |y_j|))
+    (solvers._LinearlyImplicit._jacobian); f_t: :func:`_time_derivative` on the segment
+    [t_lo, t_hi]."""
     n = y.shape[0]
     t = fs[FS_T]
     if fresh:
-        col = work[2]
-        yp = work[3]
-        for j in range(n):
-            yj = y[j]
-            delta = math.sqrt(_EPS * max(1e-5, abs(yj)))
-            for i in range(n):
-                yp[i] = y[i]
-            yp[j] = yj + delta
-            _f(kind, t, yp, ip, fp, col, sc, False)
-            for i in range(n):
-                J[i, j] = (col[i] - K[0, i]) / delta
-        delta = _EPS ** (1.0 / 3.0) * max(1.0, abs(t))
-        _f(kind, t + delta, y, ip, fp, work[2], sc, False)
-        _f(kind, t - delta, y, ip, fp, work[3], sc, False)
-        cnt[C_NFEV] += n + 2
-        for i in range(n):
-            ft[i] = (work[2, i] - work[3, i]) / (2.0 * delta)
+        if kind == KIND_CHAIN:
+            mode_jac(t, y, ip, fp, J)
+        else:
+            col = work[2]
+            yp = work[3]
+            for j in range(n):
+                yj = y[j]
+                delta = math.sqrt(_EPS * max(1e-5, abs(yj)))
+                for i in range(n):
+                    yp[i] = y[i]
+                yp[j] = yj + delta
+                _f(kind, t, yp, ip, fp, col, sc, False)
+                for i in range(n):
+                    J[i, j] = (col[i] - K[0, i]) / delta
+            cnt[C_NFEV] += n
+        _time_derivative(kind, t, t_lo, t_hi, y, ip, fp, cnt, ft, K, work, sc)
         fs[FS_LUH] = 0.0
     if fs[FS_LUH] == 0.0 or abs(fs[FS_LUH] - h) > 1e-12 * h:
         d = 1.0 / (h * gamma)
@@ -609,8 +650,8 @@ def _ros_stages(kind, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, 
 
 
 @njit(cache=True)
-def _ros_step(kind, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, ros, rp, J, LU,
-              piv, ft, K, work, sc):
+def _ros_step(kind, t_lo, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, ros, rp,
+              J, LU, piv, ft, K, work, sc):
     """One accepted adaptive Rosenbrock step (steppers_nb.ros_step on the mode's rhs, the
     Jacobian of :func:`_ros_prepare` kept across rejected attempts); K[0] = f(t, y) on
     entry, copied to K's last row (f at the step start) on acceptance. ros = (A, C, M, E,
@@ -630,8 +671,8 @@ def _ros_step(kind, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, ro
     while True:
         if h < 10 * _EPS * max(abs(t), 1e-300) or h <= 1e-300:
             return ST_UNDERFLOW
-        stat = _ros_prepare(kind, h, gamma, y, ip, fp, fs, cnt, J, LU, piv, ft, K, work, sc,
-                            fresh)
+        stat = _ros_prepare(kind, h, gamma, t_lo, t_bound, y, ip, fp, fs, cnt, J, LU, piv, ft,
+                            K, work, sc, fresh)
         fresh = False
         if stat != ST_OK:
             return stat
@@ -758,8 +799,8 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
             st = _erk_step(kind, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
                            order, C8, A8, B8, E5, K, work, sc)
         else:
-            st = _ros_step(kind, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, ros,
-                           rp, J, LU, piv, ft, K, work, sc)
+            st = _ros_step(kind, t0, t_stop, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step,
+                           ros, rp, J, LU, piv, ft, K, work, sc)
         if st != ST_OK:
             out_i[0] = st
             break

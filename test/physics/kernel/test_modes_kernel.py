@@ -406,13 +406,13 @@ def _patch_ros_twin(monkeypatch, method: str) -> list[dict[str, float]]:
     return seen
 
 
-# The Rosenbrock methods use the reference's forward-difference Jacobian (increment
-# sqrt(eps |y_j|) ~ 1e-8 sqrt|y_j|): the last-bit differences of the two backends' states
-# enter J divided by that increment, ~1e-8 relative, and J enters every step's solution, so
-# the two drift apart faster than with dopri5 (docs/clutch_gearbox.md). Measured on the hard
-# cases below: event and end times <= 4.0e-12 relative (the random schedule on rodas3),
-# sampled speeds <= 5.5e-10, final states <= 4.4e-10; the bounds are these with a margin.
-ROS_TOL_T, ROS_TOL_X = 1e-11, 5e-9
+# The Rosenbrock methods use the mode's analytic Jacobian in both backends
+# (kernel/modes_jac_nb.py, hybrid/chain_jac.py; a forward-difference Jacobian divided the
+# backends' last-bit differences by its increment ~1e-8 and gave ~1e-9 in states), so they
+# agree as dopri5 does: measured on the hard cases below event and end times <= 2.8e-15
+# relative, sampled speeds <= 1.1e-12, final states <= 4.1e-12 (the undamped judder on
+# RODAS5P after its transitions, as dopri5's 6.3e-12 there); the bounds are dopri5's.
+ROS_TOL_T, ROS_TOL_X = TOL, TOL_STATE
 # cheap in CI; the rest (the reference's RODAS steps in Python at the cases' rtol 1e-10: 30 s
 # to 260 s each on the shared machine) under -m slow
 _ROS_CASES = {
@@ -421,14 +421,13 @@ _ROS_CASES = {
     'test_brake_holds_on_a_grade_for_10_s_with_speed_exactly_zero': ROSENBROCK,
     'test_brake_release_on_a_grade_rolls_back_when_the_ramp_crosses_the_hold_torque': ROSENBROCK,
     'test_shift_under_load_matches_the_closed_form': ROSENBROCK,
-    'test_random_command_schedules_keep_the_invariants[0]': ('rodas4', 'rosenbrock')}
+    'test_random_command_schedules_keep_the_invariants[0]': ('rodas4', 'rosenbrock'),
+    # the clutch pedal jumps at 0.1 s (two rows at one time): f_t one-sided at a segment's
+    # end (solvers._LinearlyImplicit._time_derivative) reaches it in 127 / 125 steps; rodas3
+    # still ends in a step-size underflow before it in both backends (docs/clutch_gearbox.md)
+    'test_stall_is_reported_at_the_closed_form_time': ('rodas4', 'rosenbrock')}
 _ROS_SLOW = {'test_judder_locates_every_transition': ('rodas3', 'rodas4'),
-             'test_random_command_schedules_keep_the_invariants[0]': ('rodas3',),
-             # the stall case's clutch pedal jumps at 0.1 s (two rows at one time): the f_t
-             # central difference of every step within 6e-6 s of it straddles the jump, and
-             # both backends creep up to it (31595 steps on the reference with RODAS5P, the
-             # kernel ends in a step-size underflow there; docs/clutch_gearbox.md)
-             'test_stall_is_reported_at_the_closed_form_time': ('rodas3', 'rodas4')}
+             'test_random_command_schedules_keep_the_invariants[0]': ('rodas3',)}
 
 
 def _ros_params():
@@ -455,18 +454,17 @@ def test_hard_case_on_rosenbrock_matches_the_reference(monkeypatch, case, kwargs
 def test_launch_clutch_chain_on_rosenbrock_matches_the_reference(monkeypatch, method) -> None:
     """Every event, sample and the final state of the shipped launch on the kernel's mesh,
     and the energy residual at the tolerance through every transition (rtol 1e-8).
-    Measured (rosenbrock, rodas4, rodas3): event times 3.7e-11, 1.7e-11, 2.3e-11 relative;
-    sampled speeds 1.7e-8, 2.1e-9, 4.3e-9; final states 2.1e-9, 1.1e-9, 1.0e-9 (the
-    forward-difference Jacobian's amplification, above, over 2100-18500 steps; the disc on
-    its damper while the clutch slips, 2.0-2.5 s, amplifies most); energy residual 2.8e-10,
-    1.9e-10, 1.2e-8. Bounds: these with a margin."""
+    Measured (rosenbrock, rodas4; analytic Jacobian): event times 1.6e-14, 1.0e-13
+    relative; sampled speeds 4.6e-12, 2.5e-12 (the disc on its damper while the clutch
+    slips, 2.0-2.5 s, amplifies the last bits as with dopri5); final states 5.6e-13,
+    7.2e-13; energy residual 2.7e-10, 8.5e-10. Bounds: dopri5's (TOL, TOL_STATE)."""
     scene = load_scene(shipped_scenes()['launch_clutch_chain'])
     k = KernelHybridSimulation.from_reference(hybrid_simulation(scene, method=method),
                                               step_log=True)
     rk = k.run()
     rp = replay(hybrid_simulation(scene, method=method), k.step_log, monkeypatch)
     assert len(rk.events) >= 9
-    assert_same_run(rp, rk, tol_t=5e-10, tol_x=2e-7)
+    assert_same_run(rp, rk, tol_t=TOL, tol_x=TOL_STATE)
     assert rk.max_energy_residual < 1e-7
     assert np.isfinite(rk.energy_residual).all()
 
@@ -501,7 +499,7 @@ def test_stiff_clutch_damper_takes_far_fewer_steps_on_rodas() -> None:
     """A clutch damper of 1e6 N m/rad, 100 N m s/rad on the 0.01 kg m^2 disc (eigenvalues
     ~ -5000 +- 8700i 1/s: stiff against the launch's seconds) at rtol 1e-6: dopri5 is held
     at its stability limit (measured 25858 steps), the L-stable RODAS methods follow the
-    accuracy (rodas3 3808, rodas4 1344, RODAS5P 661). Deterministic counts of the kernel's
+    accuracy (rodas3 3799, rodas4 1287, RODAS5P 612). Deterministic counts of the kernel's
     step control; the bound (4x) is far below the measured 6.8x of the weakest."""
     scene = _stiff_damper_scene(1e6, 100.0)
     runs = {m: KernelHybridSimulation.from_reference(

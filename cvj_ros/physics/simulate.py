@@ -307,6 +307,7 @@ class Simulation:
         self.compile_seconds: float | None = None
         self._packed: dict[float, Any] = {}
         self._plans: dict[tuple, _KernelPlan] = {}
+        self._tree_plans: dict[tuple, tuple[Any, Any]] = {}   # vehicle: (stepper, samples)
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
@@ -651,8 +652,19 @@ class Simulation:
         of kernel/tree_samples.py, the energy residual from the reference's Python)."""
         dl = self.driveline
         x0 = dl.x0.copy()
-        stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
         times = self._sample_times(dur, dt)
+        kept = None
+        if self.scene.is_tree and self.backend == 'kernel':
+            # a vehicle scene on the kernel keeps its stepper and compiled sample walk per
+            # options, as a chain keeps its plan (_run_kernel): a later run resets the
+            # stepper (the same steps and bytes as a new one)
+            key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
+            kept = self._tree_plans.get(key)
+        if kept is None:
+            stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
+        else:
+            stepper = kept[0]
+            stepper.reset(0.0, x0)
         n_sh = len(dl.shaft_names)
         pos = np.empty((times.size, n_sh))
         vel = np.empty_like(pos)
@@ -677,12 +689,16 @@ class Simulation:
                       for w in dl.wheels] if channels else []
         e_torque = self.engine.torque
         samples = None
-        if channels and self.backend == 'kernel':   # the compiled walk, same numbers
+        if kept is not None:
+            samples = kept[1]
+        elif channels and self.backend == 'kernel':   # the compiled walk, same numbers
             from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
             try:
                 samples = TreeKernelSamples(dl)
             except NotImplementedError:
                 pass
+        if kept is None and self.scene.is_tree and self.backend == 'kernel':
+            self._tree_plans = {key: (stepper, samples)}   # the latest options only
 
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
@@ -720,14 +736,26 @@ class Simulation:
             grid, rows = landing_grid(times, breaks)
             is_sample = np.zeros(grid.size, dtype=bool)
             is_sample[rows] = True
-            k = 1
-            for j in range(1, grid.size):
+            if progress is None and self.backend == 'kernel':
+                # every landing in one compiled call (KernelStepper._land: the same steps
+                # and bytes as the advance_to loop below), then the samples' outputs
+                XG = np.empty((grid.size, x0.size))
+                XG[0] = x0
                 c0 = clock()
-                x = stepper.advance_to(float(grid[j]))
-                integ += clock() - c0
-                if is_sample[j]:
-                    record(k, x)
-                    k += 1
+                stepper._land(np.ascontiguousarray(grid, dtype=np.float64), XG)
+                integ = clock() - c0
+                for k in range(1, times.size):
+                    record(k, XG[rows[k]])
+                x = stepper.y
+            else:
+                k = 1
+                for j in range(1, grid.size):
+                    c0 = clock()
+                    x = stepper.advance_to(float(grid[j]))
+                    integ += clock() - c0
+                    if is_sample[j]:
+                        record(k, x)
+                        k += 1
         else:
             if breaks.size:
                 # samples are not landings, so a breakpoint on a sample is kept too;

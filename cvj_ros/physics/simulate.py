@@ -307,7 +307,7 @@ class Simulation:
         self.compile_seconds: float | None = None
         self._packed: dict[float, Any] = {}
         self._plans: dict[tuple, _KernelPlan] = {}
-        self._tree_plans: dict[tuple, tuple[Any, Any]] = {}   # vehicle: (stepper, samples)
+        self._tree_plans: dict[tuple, tuple[Any, Any, Any]] = {}   # vehicle: stepper, samples, mids
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
@@ -697,8 +697,15 @@ class Simulation:
                 samples = TreeKernelSamples(dl)
             except NotImplementedError:
                 pass
-        if kept is None and self.scene.is_tree and self.backend == 'kernel':
-            self._tree_plans = {key: (stepper, samples)}   # the latest options only
+        mids = None
+        if kept is not None:
+            mids = kept[2]
+        elif self.scene.is_tree and self.backend == 'kernel':
+            # the intermediate members compiled (outputs_nb.fill_mid_samples: the same bytes
+            # as the Python fill_mid on the vehicle scenes), the rest left to Python
+            from cvj_ros.physics.kernel.outputs_nb import mid_table
+            mids = mid_table(dl)
+            self._tree_plans = {key: (stepper, samples, mids)}   # the latest options only
 
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
@@ -777,7 +784,16 @@ class Simulation:
                     record(k, np.asarray(x, dtype=float))
                     k += 1
             x = stepper.y
-        dl.fill_mid(pos, vel)
+        if mids is None:
+            dl.fill_mid(pos, vel)
+        else:
+            mtab, mfp, python_members = mids
+            if mtab.shape[0]:
+                entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
+                args = (pos, vel, mtab, mfp)
+                entry_point_once(fill_mid_samples, args)(*args)
+            if python_members:
+                dl.fill_mid(pos, vel, members=python_members)
         trace = self._finish(stepper, times, pos, vel, eff, te, tl, res, x, integ,
                              time.perf_counter() - wall0)
         trace.channels = channels

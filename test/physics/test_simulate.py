@@ -354,7 +354,8 @@ def test_vehicle_runs_keep_their_stepper_and_land_in_one_call(scene: str, method
     """A vehicle scene on the kernel keeps its stepper and compiled sample walk per options
     and lands on every sample in one compiled call (KernelStepper._land): the same bytes as
     the step-by-step advance_to loop (taken when a progress callback is given) and as a
-    fresh Simulation, on every run; other options get their own stepper."""
+    fresh Simulation, on every run, its intermediate members as the Python fill_mid's;
+    other options get their own stepper."""
     from cvj_ros.physics.scene import find_scene, load_scene
     sc = load_scene(find_scene(scene))
 
@@ -379,6 +380,11 @@ def test_vehicle_runs_keep_their_stepper_and_land_in_one_call(scene: str, method
     for tr in (first, second):
         assert arrays(tr) == arrays(stepwise) and counters(tr) == counters(stepwise)
     assert sim.final_state.tobytes() == final.tobytes()
+    # the intermediate members (compiled fill_mid_samples): the Python fill_mid's bytes
+    pos, vel = second.position.copy(), second.velocity.copy()
+    sim.driveline.fill_mid(pos, vel)
+    assert pos.tobytes() == second.position.tobytes()
+    assert vel.tobytes() == second.velocity.tobytes()
     sim.rtol = 1e-3                                     # other options: another stepper
     loose = sim.run(0.2, sample_dt=0.01)
     assert next(iter(sim._tree_plans.values()))[0] is not stepper

@@ -648,8 +648,10 @@ class Simulation:
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
         """:meth:`run` step by step with the outputs computed in Python: the Python
         reference's run, and a vehicle scene's on the kernel (compiled stepper and right-hand
-        side, kernel/tree_nb.py; the joint states and wheel channels from the compiled walk
-        of kernel/tree_samples.py, the energy residual from the reference's Python)."""
+        side, kernel/tree_nb.py, kept per options and landing on all samples in one call
+        without a progress callback; the joint states and wheel channels from the compiled
+        walk of kernel/tree_samples.py, the intermediate members compiled, the energy
+        residual from the reference's Python)."""
         dl = self.driveline
         x0 = dl.x0.copy()
         times = self._sample_times(dur, dt)

@@ -311,6 +311,7 @@ class Simulation:
         self.compile_seconds: float | None = None
         self._packed: dict[float, Any] = {}
         self._plans: dict[tuple, _KernelPlan] = {}
+        self._tree_plans: dict[tuple, tuple[Any, Any, Any]] = {}   # vehicle: stepper, samples, mids
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
@@ -675,12 +676,25 @@ class Simulation:
                     progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
         """:meth:`run` step by step with the outputs computed in Python: the Python
         reference's run, and a vehicle scene's on the kernel (compiled stepper and right-hand
-        side, kernel/tree_nb.py; the joint states and wheel channels from the compiled walk
-        of kernel/tree_samples.py, the energy residual from the reference's Python)."""
+        side, kernel/tree_nb.py, kept per options and landing on all samples in one call
+        without a progress callback; the joint states and wheel channels from the compiled
+        walk of kernel/tree_samples.py, the intermediate members compiled, the energy
+        residual from the reference's Python)."""
         dl = self.driveline
         x0 = dl.x0.copy()
-        stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
         times = self._sample_times(dur, dt)
+        kept = None
+        if self.scene.is_tree and self.backend == 'kernel':
+            # a vehicle scene on the kernel keeps its stepper and compiled sample walk per
+            # options, as a chain keeps its plan (_run_kernel): a later run resets the
+            # stepper (the same steps and bytes as a new one)
+            key = (dur, dt, sampling, breakpoints, self.method, self.rtol, self.atol)
+            kept = self._tree_plans.get(key)
+        if kept is None:
+            stepper = self.make_stepper(x0, dur, **self._stepper_options(dt))
+        else:
+            stepper = kept[0]
+            stepper.reset(0.0, x0)
         n_sh = len(dl.shaft_names)
         pos = np.empty((times.size, n_sh))
         vel = np.empty_like(pos)
@@ -705,12 +719,23 @@ class Simulation:
                       for w in dl.wheels] if channels else []
         e_torque = self.engine.torque
         samples = None
-        if channels and self.backend == 'kernel':   # the compiled walk, same numbers
+        if kept is not None:
+            samples = kept[1]
+        elif channels and self.backend == 'kernel':   # the compiled walk, same numbers
             from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
             try:
                 samples = TreeKernelSamples(dl)
             except NotImplementedError:
                 pass
+        mids = None
+        if kept is not None:
+            mids = kept[2]
+        elif self.scene.is_tree and self.backend == 'kernel':
+            # the intermediate members compiled (outputs_nb.fill_mid_samples: the same bytes
+            # as the Python fill_mid on the vehicle scenes), the rest left to Python
+            from cvj_ros.physics.kernel.outputs_nb import mid_table
+            mids = mid_table(dl)
+            self._tree_plans = {key: (stepper, samples, mids)}   # the latest options only
 
         def record(k: int, x: FloatArray) -> None:
             tk = float(times[k])
@@ -748,14 +773,26 @@ class Simulation:
             grid, rows = landing_grid(times, breaks)
             is_sample = np.zeros(grid.size, dtype=bool)
             is_sample[rows] = True
-            k = 1
-            for j in range(1, grid.size):
+            if progress is None and self.backend == 'kernel':
+                # every landing in one compiled call (KernelStepper._land: the same steps
+                # and bytes as the advance_to loop below), then the samples' outputs
+                XG = np.empty((grid.size, x0.size))
+                XG[0] = x0
                 c0 = clock()
-                x = stepper.advance_to(float(grid[j]))
-                integ += clock() - c0
-                if is_sample[j]:
-                    record(k, x)
-                    k += 1
+                stepper._land(np.ascontiguousarray(grid, dtype=np.float64), XG)
+                integ = clock() - c0
+                for k in range(1, times.size):
+                    record(k, XG[rows[k]])
+                x = stepper.y
+            else:
+                k = 1
+                for j in range(1, grid.size):
+                    c0 = clock()
+                    x = stepper.advance_to(float(grid[j]))
+                    integ += clock() - c0
+                    if is_sample[j]:
+                        record(k, x)
+                        k += 1
         else:
             if breaks.size:
                 # samples are not landings, so a breakpoint on a sample is kept too;
@@ -777,7 +814,16 @@ class Simulation:
                     record(k, np.asarray(x, dtype=float))
                     k += 1
             x = stepper.y
-        dl.fill_mid(pos, vel)
+        if mids is None:
+            dl.fill_mid(pos, vel)
+        else:
+            mtab, mfp, python_members = mids
+            if mtab.shape[0]:
+                entry_point_once, _outputs, fill_mid_samples = _outputs_kernel()
+                args = (pos, vel, mtab, mfp)
+                entry_point_once(fill_mid_samples, args)(*args)
+            if python_members:
+                dl.fill_mid(pos, vel, members=python_members)
         trace = self._finish(stepper, times, pos, vel, eff, te, tl, res, x, integ,
                              time.perf_counter() - wall0)
         trace.channels = channels

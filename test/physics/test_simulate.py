@@ -420,6 +420,50 @@ def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
     assert done.stdout.split() == ['0']
 
 
+@pytest.mark.parametrize('scene', ['fwd_axle', 'awd_4x4'])
+@pytest.mark.parametrize('method', ['dopri5', 'vern6', 'rodas3'])
+def test_vehicle_runs_keep_their_stepper_and_land_in_one_call(scene: str, method: str) -> None:
+    """A vehicle scene on the kernel keeps its stepper and compiled sample walk per options
+    and lands on every sample in one compiled call (KernelStepper._land): the same bytes as
+    the step-by-step advance_to loop (taken when a progress callback is given) and as a
+    fresh Simulation, on every run, its intermediate members as the Python fill_mid's;
+    other options get their own stepper."""
+    from cvj_ros.physics.scene import find_scene, load_scene
+    sc = load_scene(find_scene(scene))
+
+    def arrays(tr) -> bytes:
+        return b''.join(np.ascontiguousarray(a).tobytes() for a in (
+            tr.t, tr.position, tr.velocity, tr.effort, tr.engine_torque, tr.load_torque,
+            tr.energy_residual, *(tr.channels[k] for k in sorted(tr.channels))))
+
+    def counters(tr) -> tuple:
+        return tuple(tr.solver[k] for k in ('nfev', 'njev', 'naccept', 'nreject'))
+
+    seen: list[float] = []
+    stepwise = Simulation(sc, method=method, rtol=1e-4, atol=1e-6).run(
+        0.2, sample_dt=0.01, progress=seen.append)
+    assert len(seen) == stepwise.t.size                # the advance_to loop ran
+    sim = Simulation(sc, method=method, rtol=1e-4, atol=1e-6)
+    first = sim.run(0.2, sample_dt=0.01)
+    stepper = next(iter(sim._tree_plans.values()))[0]
+    final = sim.final_state.copy()
+    second = sim.run(0.2, sample_dt=0.01)
+    assert next(iter(sim._tree_plans.values()))[0] is stepper
+    for tr in (first, second):
+        assert arrays(tr) == arrays(stepwise) and counters(tr) == counters(stepwise)
+    assert sim.final_state.tobytes() == final.tobytes()
+    # the intermediate members (compiled fill_mid_samples): the Python fill_mid's bytes
+    pos, vel = second.position.copy(), second.velocity.copy()
+    sim.driveline.fill_mid(pos, vel)
+    assert pos.tobytes() == second.position.tobytes()
+    assert vel.tobytes() == second.velocity.tobytes()
+    sim.rtol = 1e-3                                     # other options: another stepper
+    loose = sim.run(0.2, sample_dt=0.01)
+    assert next(iter(sim._tree_plans.values()))[0] is not stepper
+    fresh = Simulation(sc, method=method, rtol=1e-3, atol=1e-6).run(0.2, sample_dt=0.01)
+    assert arrays(loose) == arrays(fresh) and counters(loose) == counters(fresh)
+
+
 @pytest.mark.parametrize('backend', ['kernel', 'python'])
 def test_time_invariant_sources_skip_f_t_with_the_same_trajectory(backend: str) -> None:
     """Linear engine + constant load have no explicit t: the Rosenbrock steppers skip the f_t

@@ -147,9 +147,11 @@ def mode_speeds_figure(result: Any, title: str) -> Any:
     """Shaft speeds (rad/s) over time above the engaged gear, a dotted line at every event
     (colour per element); matplotlib Figure (caller saves and closes)."""
     from cvj_ros.plots import plt, series_style, shaft_labels
-    fig, (ax, axg) = plt.subplots(2, 1, sharex=True, figsize=(10, 6.5),
-                                  gridspec_kw={'height_ratios': [3, 1]})
     labels = shaft_labels(result.shafts)
+    n_entries = len(labels) + len(set(e.element for e in result.events))
+    ncol = 1 if n_entries <= 16 else 2        # a vehicle's ~30 entries: two columns
+    fig, (ax, axg) = plt.subplots(2, 1, sharex=True, figsize=(10 + 2.5 * (ncol - 1), 6.5),
+                                  gridspec_kw={'height_ratios': [3, 1]})
     for i, name in enumerate(labels):
         ax.plot(result.t, result.speed[:, i], label=name, **series_style(i))
     elements = list(dict.fromkeys(e.element for e in result.events))
@@ -162,7 +164,9 @@ def mode_speeds_figure(result: Any, title: str) -> Any:
     handles, names = ax.get_legend_handles_labels()
     handles += [Line2D([], [], color=colours(i % 10), linestyle=':') for i in range(len(elements))]
     names += [f'event: {el}' for el in elements]
-    ax.legend(handles, names, loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize='small')
+    right = 0.80 if ncol == 1 else 0.68      # the legend beside both panels, not stretching them
+    fig.legend(handles, names, loc='upper left', bbox_to_anchor=(right, 0.98), fontsize='small',
+               ncol=ncol)
     ax.set_ylabel('shaft speed (rad/s)')
     ax.set_title(f'{title}: {len(result.events)} mode events')
     ax.grid(alpha=0.3)
@@ -170,7 +174,7 @@ def mode_speeds_figure(result: Any, title: str) -> Any:
     axg.set_ylabel('gear')
     axg.set_xlabel('t (s)')
     axg.grid(alpha=0.3)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, right, 1.0))
     return fig
 
 

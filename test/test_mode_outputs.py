@@ -181,3 +181,26 @@ def test_joint_samples_leave_the_run_unchanged() -> None:
             (e.t, e.element, e.after) for e in on_.events]
         # the walk's speeds are the sampled ones
         assert np.all(np.isfinite(on_.position)) and np.all(np.isfinite(on_.effort))
+
+
+def test_mode_figure_of_a_vehicle_keeps_its_panels_tall_beside_a_long_legend() -> None:
+    """~30 shafts (a vehicle): the legend goes beside the panels in two columns instead of
+    stretching the speed panel's column (it had left the panel a third of the figure)."""
+    from types import SimpleNamespace
+
+    from cvj_ros.mode_outputs import mode_speeds_figure
+    from cvj_ros.plots import plt
+    t = np.linspace(0.0, 1.0, 11)
+    shafts = [f'shaft_{i}' for i in range(30)]
+    events = [SimpleNamespace(t=0.3, element='clutch'), SimpleNamespace(t=0.6, element='brake')]
+    r = SimpleNamespace(t=t, speed=np.ones((t.size, len(shafts))), shafts=shafts,
+                        events=events, gear=np.ones(t.size))
+    fig = mode_speeds_figure(r, 'x')
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    assert ax.get_position().height > 0.5              # of the figure: 3/4 of the two panels
+    (legend,) = fig.legends
+    assert len(legend.get_texts()) == len(shafts) + len(set(e.element for e in events))
+    box = legend.get_window_extent().transformed(fig.transFigure.inverted())
+    assert box.x0 >= ax.get_position().x1 and box.y0 >= 0.0   # beside the panels, inside
+    plt.close(fig)

@@ -22,37 +22,14 @@ timed the same way (CPU time of this thread, min over CALLS calls, median of ROU
 from __future__ import annotations
 
 import sys
-import time
 
 import numpy as np
-from numba import njit
 
 from cvj_ros import bench, bench_expert
-from cvj_ros.physics.kernel import rhs_nb
 from cvj_ros.physics.kernel.layout import build_model
 from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
 from cvj_ros.physics.simulate import Simulation, landing_grid
-
-
-def _min_cpu(fn, calls: int) -> float:
-    """Least CPU time of one call of fn over ``calls`` calls (s)."""
-    clock = time.thread_time
-    best = np.inf
-    for _ in range(calls):
-        t0 = clock()
-        fn()
-        best = min(best, clock() - t0)
-    return best
-
-
-@njit
-def _rhs_loop(n, X, ip, fp, times, dy):
-    acc = 0.0
-    for r in range(n):
-        k = r % X.shape[0]
-        rhs_nb.rhs(times[k], X[k], ip, fp, dy)
-        acc += dy[0]
-    return acc
+from run_profile import _min_cpu, _rhs_loop   # scripts/ is on the path when run as a script
 
 
 def profile(scene_name: str, solver: str, tol: float, rounds: int = 5,

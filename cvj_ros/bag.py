@@ -1260,6 +1260,7 @@ class BagRecorder:
         self.scene_text: str | None = None
         self.first_wall: dict[str, float] = {}   # monotonic s of the first message per topic
         self.last_wall: dict[str, float] = {}
+        self.last_stamp: dict[str, int] = {}     # newest record stamp (ns) written per topic
         self._subs: dict[str, Any] = {}
         # per topic, called with every sample this recorder takes from DDS (after recording
         # it; also another run's and held ones): readers in this process that share the
@@ -1530,7 +1531,7 @@ class BagRecorder:
     def _record(self, items: list[tuple[str, int, bytes]], wall: float) -> None:
         """Write (topic, record stamp ns, CDR) items in order: bag connections for topics
         new to the bag, the writer, the wall time (monotonic s) of the first and the last
-        message per topic."""
+        message and the newest record stamp per topic."""
         writer = self.writer
         topics = {topic for topic, _stamp, _data in items} if len(items) > 1 else (items[0][0],)
         for topic in topics:
@@ -1538,6 +1539,10 @@ class BagRecorder:
                 writer.add_topic(topic, self._types.get(topic) or topic_type(topic))
             self.first_wall.setdefault(topic, wall)
             self.last_wall[topic] = wall
+        last_stamp = self.last_stamp
+        for topic, stamp, _data in items:
+            if stamp > last_stamp.get(topic, -1):
+                last_stamp[topic] = stamp
         if len(items) == 1:
             writer.write(*items[0])
         else:

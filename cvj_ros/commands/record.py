@@ -5,7 +5,9 @@ time = the message's simulated stamp, every contract topic plus ``/coupling/*/wr
 ``/load/*/wrench`` as they appear, the latched ``/driveline/scene`` message stored in the bag and in its
 metadata). It records on the current ``ROS_DOMAIN_ID`` until Ctrl-C / SIGTERM, until
 ``--duration`` wall seconds have passed, or (``--until-idle S``) until nothing arrived for
-S seconds after the first message; on every one of these paths the bag is finalised
+S seconds after the first message (up to BEHIND_WAIT_S more while the joint states, /clock or an
+answer topic end before the others: their last messages are still on the way); on every one
+of these paths the bag is finalised
 (metadata.yaml written), so everything recorded stays readable.
 """
 from __future__ import annotations
@@ -44,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
                         help='stop once no message arrived for S wall seconds (after the run\'s '
                              'first one; the latched scene message, sent while the coupling node '
-                             'still waits for its peers, does not count)')
+                             'still waits for its peers, does not count; up to 15 s more while '
+                             'the joint states, /clock or an answer topic end before the others)')
     parser.add_argument('--run-only', action='store_true',
                         help='record one run\'s publishers only: a loop topic\'s messages while it has '
                              'one publisher, /clock attributed by value (docs/ros.md "Run identity"); '
@@ -87,6 +90,42 @@ class IdleClock:
         return self.idle
 
 
+# --until-idle: how long past S the recorder still waits while the joint states' or a loop
+# topic's newest stamp is behind the others'. A reliable DDS writer repairs a lost sample when its reader
+# answers the writer's heartbeat, and the reader hands later samples over only in order, so a
+# sample lost late in the run (a full receive buffer on a busy machine) holds back the rest of
+# its topic until the next heartbeat: Fast DDS sends one every 3 s by default, more than S = 2 s
+# (seen: a hand-started run whose bag ended 60 engine, load and coupling answers short, all
+# joint states in). Several heartbeat periods, so a repair that is itself lost is waited for.
+BEHIND_WAIT_S = 15.0
+
+
+def loop_topic(topic: str) -> bool:
+    """A topic with one message per exchange stamped like the joint state it belongs to:
+    /clock and the answers (/engine/wrench, /load/wrench, /load/<wheel>/wrench,
+    /coupling/<joint>/wrench)."""
+    from fnmatch import fnmatchcase
+    return (topic in ('/clock', '/engine/wrench', '/load/wrench')
+            or fnmatchcase(topic, '/coupling/*/wrench') or fnmatchcase(topic, '/load/*/wrench'))
+
+
+def behind_topics(last_stamp: dict[str, int]) -> list[str]:
+    """The joint states and loop topics whose newest recorded stamp (ns) is older than the
+    newest of them all: their last messages are still on the way (or their publisher
+    stopped). Every exchange t_k has a joint state, a /clock and the answers stamped t_k."""
+    stamps = {t: v for t, v in list(last_stamp.items()) if t == '/driveline/joint_states' or loop_topic(t)}
+    if '/driveline/joint_states' not in stamps:
+        return []
+    newest = max(stamps.values())
+    return sorted(t for t, v in stamps.items() if v < newest)
+
+
+def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
+    """--until-idle: stop after ``until_idle`` s without a message, unless a topic is
+    :func:`behind_topics`; then after ``until_idle`` + BEHIND_WAIT_S."""
+    return idle >= until_idle and (not behind or idle >= until_idle + BEHIND_WAIT_S)
+
+
 def _last_run_message(rec: Any) -> float:
     """Wall time (monotonic s) of the newest message recorded on any topic but the latched
     /driveline/scene (0 before the first): the coupling node publishes the scene as it
@@ -98,7 +137,9 @@ def _last_run_message(rec: Any) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from cvj_ros import bag as bagmod
+    from cvj_ros.nodes.qos import node_dds_defaults
     _check(args)
+    node_dds_defaults()     # before the recorder's participant: 20 ms heartbeats (repairs)
     out = Path(args.out)
     writer = bagmod.BagWriter(out / 'bag', storage=args.storage, overwrite=args.overwrite)
     writer.set_custom_data('cvj_ros.recorded_by', 'cvj-sim record')
@@ -122,8 +163,9 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break
-            if args.until_idle is not None and idle.tick(now, _last_run_message(recorder.recorder)) \
-                    >= args.until_idle:
+            if args.until_idle is not None and idle_stop(
+                    idle.tick(now, _last_run_message(recorder.recorder)), args.until_idle,
+                    behind_topics(recorder.recorder.last_stamp)):
                 break
             time.sleep(0.02)
     finally:
@@ -140,6 +182,12 @@ def run(args: argparse.Namespace) -> int:
           + (f' (stopped by {signal.Signals(stop[0]).name})' if stop else ''), file=sys.stderr)
     for topic in sorted(counts):
         print(f'  {topic:32s} {counts[topic]:8d}', file=sys.stderr)
+    behind = behind_topics(recorder.recorder.last_stamp) if recorder is not None else []
+    if behind:
+        stamps = recorder.recorder.last_stamp
+        print('cvj-sim record: note: ' + ', '.join(f'{t} ends at t={stamps[t] / 1e9:.9g} s' for t in behind)
+              + f', the run at t={max(stamps[t] for t in stamps if t == "/driveline/joint_states" or loop_topic(t)) / 1e9:.9g} s '
+              '(their publisher stopped early, or their last messages never arrived)', file=sys.stderr)
     foreign = dict(recorder.recorder.foreign) if recorder is not None else {}
     if foreign:
         print(f'cvj-sim record: dropped {sum(foreign.values())} messages of publishers outside '

@@ -147,6 +147,14 @@ START_SETTLE_S = 0.3
 # matched the peers' writers before "go", and in composed mode the in-process bus reports
 # the hosted nodes' matches (missing_peers): both keep START_SETTLE_S.
 OBSERVER_SETTLE_S = 2.0
+# After that settle, a hand-started lockstep run also waits until every subscription the ROS
+# graph shows on this node's own data topics (/clock, the joint states, /diagnostics, the
+# coupling wrenches, same type, compatible QoS) is matched by its writer: a state written
+# before the writer matched a (volatile) reader never reaches it. Seen: a recorder started
+# before the coupling node whose /clock and coupling-wrench readers matched 12 steps after
+# step 0. Bounded (this long past the settle, then one WARN line naming them and the run
+# starts): an endpoint the graph lists can fail to match for reasons not visible here.
+UNMATCHED_WAIT_S = 10.0
 # A stall during which only wrong-stamped answers came from a topic ends after this many
 # seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
 # (e.g. with now() under use_sim_time a step behind) never sends the right stamp, while a
@@ -260,6 +268,17 @@ def wait_for_go(logger: Any = None, stream: Any = None) -> None:
         line = ''
     if line.strip() != 'go':
         raise StartCancelled('start_gate: no "go" on standard input; not started')
+
+
+def _qos_match(pub: Any, sub: Any) -> bool:
+    """The request/offer rules of reliability and durability (the policies these topics set;
+    rclpy's qos_check_compatible also compares deadline and liveliness, which the graph
+    reports in another form and calls incompatible)."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+    if pub.reliability == ReliabilityPolicy.BEST_EFFORT and sub.reliability == ReliabilityPolicy.RELIABLE:
+        return False
+    return not (pub.durability == DurabilityPolicy.VOLATILE
+                and sub.durability == DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class CouplingNode(CvjNode):
@@ -643,6 +662,33 @@ class CouplingNode(CvjNode):
             missing += bus.dds_unmatched()
         return missing
 
+    def _own_data_publishers(self) -> list[tuple[str, Any]]:
+        """(topic, publisher) of this node's per-exchange data topics."""
+        pubs = [(CLOCK_TOPIC, self.clock_pub), (JOINT_STATES_TOPIC, self.js_pub),
+                (DIAGNOSTICS_TOPIC, self.diag_pub),
+                *((coupling_wrench_topic(j), pub) for j, pub in self.reaction_pubs.items())]
+        if self.scale_pub is not None:
+            pubs.append((ENGINE_THROTTLE_SCALE_TOPIC, self.scale_pub))
+        return pubs
+
+    def unmatched_subscriptions(self) -> list[str]:
+        """'topic (n of m)' for each own data topic whose writer has matched fewer readers
+        than the ROS graph shows subscriptions of the same type with a compatible QoS."""
+        out = []
+        for topic, pub in self._own_data_publishers():
+            try:
+                infos = self.get_subscriptions_info_by_topic(topic)
+            except Exception:  # noqa: BLE001 (graph query during shutdown)
+                return []
+            cls = pub.msg_type
+            type_name = f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+            shown = sum(1 for i in infos
+                        if i.topic_type == type_name and _qos_match(pub.qos_profile, i.qos_profile))
+            matched = pub.get_subscription_count()
+            if matched < shown:
+                out.append(f'{topic} ({matched} of {shown} subscriptions matched)')
+        return out
+
     def _engine_node_listens(self) -> bool:
         """An engine_node (ours: it takes /engine/throttle_scale, and in lockstep waits for
         the scale of step 0) subscribes to the joint states; an outside engine need not."""
@@ -758,11 +804,18 @@ class CouplingNode(CvjNode):
             if self._ready_since is None:
                 self._ready_since = now
             # (composed: the in-process bus reports its DDS matches, missing_peers)
-            settle = (OBSERVER_SETTLE_S if self.params['min_subscribers'] > 2
-                      and not self.params['start_gate'] and bus_for(self.context) is None
-                      else START_SETTLE_S)
+            by_hand = (self.params['min_subscribers'] > 2 and not self.params['start_gate']
+                       and bus_for(self.context) is None)
+            settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
             if now - self._ready_since < settle:
                 return
+            unmatched = self.unmatched_subscriptions() if by_hand else []
+            if unmatched:
+                if now - self._ready_since < settle + UNMATCHED_WAIT_S:
+                    return
+                self.get_logger().warning(
+                    f'start: {"; ".join(unmatched)} after {settle + UNMATCHED_WAIT_S:g} s; '
+                    'starting: those subscribers may miss the first states')
         self._start_timer.cancel()
         self._note_peers()
         self.started = True

@@ -112,6 +112,9 @@ def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pr
 
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
+
+    from cvj_ros.nodes.qos import node_dds_defaults
+    node_dds_defaults()     # a hand-started node: `cvj-sim run`'s delivery settings
     ctx = Context()
     # Own SIGINT/SIGTERM handling: finish the spin loop cleanly and exit 0.
     rclpy.init(args=list(args) if args is not None else None, context=ctx,

@@ -158,8 +158,45 @@ def dds_environment(env: dict[str, str], *, profile_dir: str | None = None) -> d
     env.setdefault('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
     if (profile_dir is not None and env.get('RMW_IMPLEMENTATION') == 'rmw_fastrtps_cpp'
             and not env.get('FASTRTPS_DEFAULT_PROFILES_FILE')):
-        path = os.path.join(profile_dir, FASTDDS_PROFILE_NAME)
-        with open(path, 'w', encoding='utf-8') as fh:
-            fh.write(FASTDDS_PROFILE)
-        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = path
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = write_profile(profile_dir)
     return env
+
+
+def write_profile(profile_dir: str) -> str:
+    """:data:`FASTDDS_PROFILE` as ``<profile_dir>/fastdds_profile.xml`` (written to a
+    temporary name and renamed, so a process reading it never sees half a file); its path."""
+    import os
+    import tempfile
+    os.makedirs(profile_dir, exist_ok=True)
+    path = os.path.join(profile_dir, FASTDDS_PROFILE_NAME)
+    fd, tmp = tempfile.mkstemp(dir=profile_dir, prefix='.fastdds_profile.')
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(FASTDDS_PROFILE)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def node_dds_defaults() -> None:
+    """In a node process started by hand (console script, ``ros2 run``, the launch file) or
+    in ``cvj-sim record``: the two DDS settings of `cvj-sim run`'s processes that make
+    delivery complete - synchronous publication and :data:`FASTDDS_PROFILE` (20 ms
+    heartbeats) - set in this process's environment where the user set none, before its
+    first participant. The RMW and the discovery range stay the user's; another RMW than
+    Fast DDS gets nothing."""
+    import os
+    import tempfile
+    if os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp') not in ('', 'rmw_fastrtps_cpp'):
+        return
+    os.environ.setdefault('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
+    if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') or os.environ.get('FASTDDS_DEFAULT_PROFILES_FILE'):
+        return
+    try:
+        path = write_profile(os.path.join(tempfile.gettempdir(), f'cvj_ros_dds_{os.getuid()}'))
+    except OSError:
+        return      # no writable temp dir: Fast DDS's defaults
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = path

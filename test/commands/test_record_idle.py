@@ -19,3 +19,23 @@ def test_idle_counts_polls_not_wall_gaps() -> None:
     assert idle == pytest.approx(0.2)
     assert clock.tick(t + 3.0, 4.9) == pytest.approx(0.2 + IDLE_TICK_MAX_S)   # starved 3 s
     assert clock.tick(t + 3.02, 8.0) == 0.0    # a new message resets it
+
+
+def test_loop_topics_behind_the_joint_states_hold_the_stop() -> None:
+    from cvj_ros.commands.record import BEHIND_WAIT_S, behind_topics, idle_stop
+    stamps = {'/driveline/joint_states': 300, '/clock': 300, '/engine/wrench': 239,
+              '/coupling/cpl/wrench': 240, '/load/wrench': 300, '/load/front_left/wrench': 10,
+              '/diagnostics': 100, '/driveline/scene': 0, '/engine/throttle': 5}
+    # /diagnostics, the scene and the commands are not one-per-exchange topics
+    assert behind_topics(stamps) == ['/coupling/cpl/wrench', '/engine/wrench', '/load/front_left/wrench']
+    assert behind_topics({'/clock': 5}) == []          # no joint state yet: nothing to compare
+    # the coupling node's own topics can lag too: the answers say how far the run went
+    assert behind_topics({'/driveline/joint_states': 268, '/clock': 268, '/engine/wrench': 300,
+                          '/diagnostics': 268}) == ['/clock', '/driveline/joint_states']
+    behind = behind_topics(stamps)
+    assert not idle_stop(2.0, 2.0, behind)             # S reached, answers still on the way
+    assert not idle_stop(2.0 + BEHIND_WAIT_S - 0.1, 2.0, behind)
+    assert idle_stop(2.0 + BEHIND_WAIT_S, 2.0, behind)  # bounded: a peer that stopped early
+    assert idle_stop(2.0, 2.0, [])
+    assert not idle_stop(1.9, 2.0, [])
+

@@ -195,6 +195,64 @@ def _js(k: int, frame: str = 'driveline', names=('engine_crank', 'wheel')) -> Jo
     return msg
 
 
+def test_recorder_tells_which_answers_are_behind_the_joint_states(ctx, tmp_path: Path) -> None:
+    """cvj-sim record --until-idle waits while an answer topic's newest stamp is behind the
+    newest joint state (commands/record.behind_topics on BagRecorder.last_stamp)."""
+    from cvj_ros.commands.record import behind_topics
+    node = rclpy.create_node('rec_behind_test', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    try:
+        rec = bag.BagRecorder(node, writer, discover_period=0.0)
+        feed = _feeder(rec)
+        for k in range(3):
+            feed('/clock', Clock(clock=Time(sec=0, nanosec=k * 1_000_000)))
+            feed('/driveline/joint_states', _js(k))
+            feed('/load/wrench', _wrench('wheel', k))
+            if k < 2:
+                feed('/engine/wrench', _wrench('engine_crank', k))
+        assert rec.last_stamp['/driveline/joint_states'] == 2_000_000
+        assert behind_topics(rec.last_stamp) == ['/engine/wrench']
+        feed('/engine/wrench', _wrench('engine_crank', 2))
+        assert behind_topics(rec.last_stamp) == []
+    finally:
+        writer.close()
+        node.destroy_node()
+
+
+def test_coupling_node_counts_graph_subscriptions_its_writers_have_not_matched(
+        ctx, tmp_path: Path, monkeypatch) -> None:
+    """The hand-start gate's condition (CouplingNode.unmatched_subscriptions): a subscription
+    the ROS graph shows on an own data topic, of its type and a compatible QoS, that the
+    writer has not matched; an incompatible one (transient_local against the volatile writer)
+    never matches and is not waited for."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)])
+    reader = rclpy.create_node('clock_reader', context=ctx)
+    ex = make_executor('events', ctx)
+    try:
+        ex.add_node(node)
+        ex.add_node(reader)
+        reader.create_subscription(Clock, '/clock', lambda m: None, DATA_QOS)
+        reader.create_subscription(Clock, '/clock', lambda m: None, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        deadline = time.monotonic() + 30.0       # discovery within one process (generous)
+        while (len(node.get_subscriptions_info_by_topic('/clock')) < 2
+               or node.clock_pub.get_subscription_count() < 1):
+            assert time.monotonic() < deadline, 'the readers were not discovered'
+            ex.spin_once(timeout_sec=0.02)
+        assert node.unmatched_subscriptions() == []
+        real = node.get_subscriptions_info_by_topic
+        extra = [i for i in real('/clock') if i.qos_profile.durability == DurabilityPolicy.VOLATILE]
+        monkeypatch.setattr(node, 'get_subscriptions_info_by_topic',
+                            lambda t: list(real(t)) + (extra if t == '/clock' else []))
+        assert node.unmatched_subscriptions() == ['/clock (1 of 2 subscriptions matched)']
+    finally:
+        ex.shutdown()
+        reader.destroy_node()
+        node.destroy_node()
+
+
 def test_load_node_answers_with_its_shaft_frame_and_not_beside_a_second_publisher(ctx, tmp_path: Path) -> None:
     """load_node answers every joint state with frame_id = its shaft whatever the state's
     frame_id; while /driveline/joint_states has two publishers it answers none (counted in

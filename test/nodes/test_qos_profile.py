@@ -53,3 +53,34 @@ def test_process_dds_profile_sets_and_restores(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.delenv(KEY)
     with qos.process_dds_profile({}):                     # no profile (not Fast DDS)
         assert KEY not in os.environ
+
+
+def test_a_hand_started_node_takes_the_runs_delivery_settings_unless_the_user_set_them(
+        tmp_path: Path, monkeypatch) -> None:
+    """node_dds_defaults (called before a node process's or `cvj-sim record`'s first
+    participant): synchronous publication and the 20 ms heartbeat profile where unset; the
+    RMW and the discovery range untouched; the user's values win; another RMW gets nothing."""
+    import tempfile
+    for key in ('RMW_FASTRTPS_PUBLICATION_MODE', 'FASTRTPS_DEFAULT_PROFILES_FILE',
+                'FASTDDS_DEFAULT_PROFILES_FILE', 'RMW_IMPLEMENTATION', 'ROS_AUTOMATIC_DISCOVERY_RANGE'):
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setattr(tempfile, 'gettempdir', lambda: str(tmp_path))
+    qos.node_dds_defaults()
+    assert os.environ['RMW_FASTRTPS_PUBLICATION_MODE'] == 'SYNCHRONOUS'
+    path = Path(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'])
+    assert path.parent.parent == tmp_path and path.read_text() == qos.FASTDDS_PROFILE
+    assert 'RMW_IMPLEMENTATION' not in os.environ and 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in os.environ
+    assert [p.name for p in path.parent.iterdir()] == [path.name]     # no temporary left behind
+
+    monkeypatch.setenv('RMW_FASTRTPS_PUBLICATION_MODE', 'ASYNCHRONOUS')
+    monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE', '/mine.xml')
+    qos.node_dds_defaults()
+    assert os.environ['RMW_FASTRTPS_PUBLICATION_MODE'] == 'ASYNCHRONOUS'
+    assert os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] == '/mine.xml'
+
+    for key in ('RMW_FASTRTPS_PUBLICATION_MODE', 'FASTRTPS_DEFAULT_PROFILES_FILE'):
+        monkeypatch.delenv(key)
+    monkeypatch.setenv('RMW_IMPLEMENTATION', 'rmw_cyclonedds_cpp')
+    qos.node_dds_defaults()
+    assert 'RMW_FASTRTPS_PUBLICATION_MODE' not in os.environ
+    assert 'FASTRTPS_DEFAULT_PROFILES_FILE' not in os.environ

@@ -264,6 +264,16 @@ class KernelStepper(_StepperBase):
         return {'method': self.method, 't': t, 'h': h if h > 0 else None, 'nfev': nfev,
                 'njev': njev, 'nlu': nlu, 'naccept': naccept, 'nreject': nreject}
 
+    def stats_into(self, out: dict) -> None:
+        """:meth:`stats`' counters and step-size proposal written into ``out`` (a dict it
+        returned), its other keys left as they are: a run that reuses its Trace
+        (``Simulation.run(reuse_trace=True)``) refreshes its solver dict without a new one."""
+        t, h = _T_H(self._fs.tolist())
+        (out['nfev'], out['njev'], out['nlu'], out['naccept'],
+         out['nreject']) = _COUNTS(self._cnt.tolist())
+        out['t'] = t
+        out['h'] = h if h > 0 else None
+
     def _check(self, status: int) -> None:
         self._sync()
         if status == nb.ST_OK:

@@ -38,9 +38,7 @@ from cvj_ros.physics.kernel import run_nb, steppers_nb as nb
 from cvj_ros.physics.kernel.rhs_nb import jac as JAC
 from cvj_ros.physics.kernel.rhs_nb import rhs as RHS
 from cvj_ros.physics.simulate import Simulation
-
-sys.path.insert(0, __file__.rsplit('/', 1)[0])
-from run_profile import _min_cpu  # noqa: E402
+from run_profile import _min_cpu   # scripts/ is on the path when run as a script
 
 
 @njit

@@ -288,7 +288,8 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
     every load breakpoint; joint states and energy residual per sample). Building the
     Simulation (fidelity choice, joint set-up) is not timed, for project and baseline alike;
     the runs after the first reuse its plan (``Simulation._run_kernel``: sample times,
-    stepper), as a user's repeated runs of one Simulation do."""
+    stepper) and write one Trace in place (``run(reuse_trace=True)``: the result of the last
+    run is the one measured), as a user's repeated runs of one Simulation do."""
     from cvj_ros.physics.simulate import Simulation
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
@@ -311,7 +312,7 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
         if python_rhs:
             sim.fun = _counted(plain_fun, cfg.max_rhs_evals)
         tr = sim.run(prob.horizon, sample_dt=prob.horizon / cfg.samples, breakpoints=breakpoints,
-                     sampling=sampling)
+                     sampling=sampling, reuse_trace=True)
         nfev = int(tr.solver['nfev'])
         if nfev > cfg.max_rhs_evals:    # the compiled path is not stopped midway: checked after
             raise _BudgetExceeded

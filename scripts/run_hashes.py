@@ -7,10 +7,11 @@ each run's outputs (t, position, velocity, effort, torques, energy residual, the
 state) and counters (nfev, njev, nlu, naccept, nreject, t, h) go into one sha256. The
 Rosenbrock methods run the non-stiff scenes at the loose tolerance only (as the bench).
 
-    PYTHONPATH=. python scripts/run_hashes.py OUT.txt [SCENE ...]
+    PYTHONPATH=. python scripts/run_hashes.py OUT.txt [SCENE ...] [--pairs] [--reuse]
 
 then ``diff`` two OUT files: 76 lines for the five methods of the original check, 116 with
-tsit5 and vern6 (``--pairs``).
+tsit5 and vern6 (``--pairs``). ``--reuse``: every run with ``reuse_trace=True`` (the second
+run rewrites the first's Trace in place), whose hashes must equal the runs' without it.
 """
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ METHODS = ('rodas3', 'rosenbrock', 'rodas4', 'dopri5', 'dop853')
 PAIRS = ('tsit5', 'vern6')
 
 
-def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METHODS
-               ) -> dict[str, str]:
+def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METHODS,
+               reuse: bool = False) -> dict[str, str]:
     """{'scene method tol sampling': sha256 prefix of two runs' outputs and counters}."""
     out: dict[str, str] = {}
     for name in scenes:
@@ -46,7 +47,8 @@ def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METH
                                      fidelity=bench.forced_levels(scene, 'exact'))
                     h = hashlib.sha256()
                     for _rep in range(2):
-                        tr = sim.run(1.0, sample_dt=0.05, sampling=sampling)
+                        tr = sim.run(1.0, sample_dt=0.05, sampling=sampling,
+                                     reuse_trace=reuse)
                         for f in FIELDS:
                             h.update(np.ascontiguousarray(getattr(tr, f)).tobytes())
                         h.update(np.ascontiguousarray(sim.final_state).tobytes())
@@ -59,9 +61,9 @@ def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METH
 
 
 def main() -> None:
-    args = [a for a in sys.argv[1:] if a != '--pairs']
+    args = [a for a in sys.argv[1:] if a not in ('--pairs', '--reuse')]
     methods = METHODS + PAIRS if '--pairs' in sys.argv else METHODS
-    out = run_hashes(tuple(args[1:]) or SCENES, methods)
+    out = run_hashes(tuple(args[1:]) or SCENES, methods, reuse='--reuse' in sys.argv)
     with open(args[0], 'w') as fh:
         for k, v in out.items():
             fh.write(f'{k} {v}\n')

@@ -5,7 +5,9 @@ breakpoints, sampling)`` on one Simulation, its plan kept) for a scene and confi
 and splits it into pieces timed the same way (CPU time of this thread, min over CALLS
 calls, median of ROUNDS rounds):
 
-- ``whole``: ``Simulation.run`` as the bench calls it;
+- ``whole``: ``Simulation.run`` as the bench calls it (``reuse_trace=True``: the run
+  rewrites one Trace in place); ``whole_fresh``: the same call without it (new arrays and
+  a new Trace per run);
 - ``call``: the plan's one-call run (``KernelStepper.bind_run``) alone, the run's
   arrays allocated once outside the timing;
 - ``dispatch``: a compiled function that does nothing, with the same arguments, called the
@@ -15,13 +17,17 @@ calls, median of ROUNDS rounds):
   ``fill_mid_samples``) in a compiled loop;
 - ``jac``: the Jacobian evaluations x its ns per call in a compiled loop;
 - ``rhs``: the evaluations x the rhs's ns per call in a compiled loop at the run's states;
-- ``python``: the whole run minus the call; ``call_overhead``: the call minus the compiled
+- ``python``: the whole run minus the call (``python_fresh``: without ``reuse_trace``);
+  ``call_overhead``: the call minus the compiled
   run; ``integration_rest``: the compiled run minus outputs, rhs and Jacobian (the stepper's
   own arithmetic: start, step-size control, LU and solves, dense output).
 
     PYTHONPATH=. python scripts/run_profile.py stiff rodas3 1e-3 dense [ROUNDS [across]]
+        [--fidelity auto]
 
-(``across``: step across the load's breakpoints instead of landing on them.)
+(``across``: step across the load's breakpoints instead of landing on them; ``--fidelity``:
+the bench's fidelity column, default exact.) The rhs and Jacobian are timed on the run's
+own model (an ``auto`` or ``ideal`` run's cheaper model, not the exact one).
 """
 from __future__ import annotations
 
@@ -107,18 +113,23 @@ def _rhs_loop(n, X, ip, fp, times, dy):
 def _run_function(sim):
     """The run_nb function of the simulation's method."""
     from cvj_ros.physics.kernel import run_nb
+    from cvj_ros.physics.kernel.run_rk_nb import erk_run
+    if sim.method in ('tsit5', 'vern6', 'vern7', 'vern8'):
+        return erk_run
     return {'dopri5': run_nb.dopri5_run, 'dop853': run_nb.dop853_run, 'rk4': run_nb.rk4_run,
             'ros2': run_nb.ros2_run}.get(sim.method, run_nb.ros_run)
 
 
 def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int = 5,
             calls: int = 2000, horizon: float = 1.0, samples: int = 20,
-            breakpoints: bool = True) -> dict[str, float]:
+            breakpoints: bool = True, fidelity: str = 'exact') -> dict[str, float]:
     scene = bench.resolve_scene(scene_name)
     sim = Simulation(scene, method=solver, rtol=tol, atol=tol,
-                     fidelity=bench.forced_levels(scene, 'exact'))
+                     fidelity=bench.forced_levels(scene, fidelity))
     dt = horizon / samples
     tr = sim.run(horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints)
+    sim.run(horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints,
+            reuse_trace=True)
     plan = next(iter(sim._plans.values()))
     m, n, n_sh = plan.shape
     X, pos, vel, eff = np.empty((m, n)), np.empty((m, n_sh)), np.empty((m, n_sh)), np.empty((m, n_sh))
@@ -149,11 +160,14 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     J = np.zeros((n, n))
     _jac_loop(1, X, ip, fp, plan.times, J)
     njev = int(tr.solver.get('njev', 0))
-    out: dict[str, list[float]] = {k: [] for k in ('whole', 'call', 'dispatch', 'outputs', 'rhs',
-                                                   'compiled_run', 'jac')}
+    out: dict[str, list[float]] = {k: [] for k in ('whole', 'whole_fresh', 'call', 'dispatch',
+                                                   'outputs', 'rhs', 'compiled_run', 'jac')}
     for _ in range(rounds):
         out['whole'].append(_min_cpu(lambda: sim.run(horizon, sample_dt=dt, sampling=sampling,
-                                                      breakpoints=breakpoints), calls))
+                                                      breakpoints=breakpoints,
+                                                      reuse_trace=True), calls))
+        out['whole_fresh'].append(_min_cpu(lambda: sim.run(
+            horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints), calls))
         out['call'].append(_min_cpu(lambda: plan.run(*per_run), calls))
         out['dispatch'].append(_batch_cpu(lambda: [noop_entry(*per_run) for _ in range(100)], 20)
                                / 100)
@@ -171,16 +185,24 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     med['steps'] = int(tr.solver['naccept']) + int(tr.solver['nreject'])
     med['njev'] = int(tr.solver.get('njev', 0))
     med['python'] = med['whole'] - med['call']
+    med['python_fresh'] = med['whole_fresh'] - med['call']
     med['call_overhead'] = med['call'] - med['compiled_run']
     med['integration_rest'] = med['compiled_run'] - med['outputs'] - med['rhs'] - med['jac']
     return med
 
 
 def main() -> None:
-    scene, solver, tol, sampling = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
-    rounds = int(sys.argv[5]) if len(sys.argv) > 5 else 5
-    across = len(sys.argv) > 6 and sys.argv[6] == 'across'
-    med = profile(scene, solver, tol, sampling, rounds, breakpoints=not across)
+    argv = sys.argv[1:]
+    fidelity = 'exact'
+    if '--fidelity' in argv:
+        i = argv.index('--fidelity')
+        fidelity = argv[i + 1]
+        del argv[i:i + 2]
+    scene, solver, tol, sampling = argv[0], argv[1], float(argv[2]), argv[3]
+    rounds = int(argv[4]) if len(argv) > 4 else 5
+    across = len(argv) > 5 and argv[5] == 'across'
+    med = profile(scene, solver, tol, sampling, rounds, breakpoints=not across,
+                  fidelity=fidelity)
     print(f'{scene} {solver} tol={tol:g} {sampling}: ' + ', '.join(
         f'{k} {v:.2f}' if isinstance(v, float) else f'{k} {v}' for k, v in med.items()))
 

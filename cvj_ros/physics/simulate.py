@@ -221,6 +221,9 @@ class _KernelPlan:
     XG: FloatArray | None = None          # land: its states at the grid (None: X itself)
     shape: tuple[int, int, int] = (0, 0, 0)   # samples, states, shafts (the run's arrays)
     call: Any = None                      # run's bound entry point, after its first call
+    #: run(reuse_trace=True): (its Trace, the call's arrays X, XG, pos, vel, eff, te, tl,
+    #: res, the final state's view), made by the first such run and rewritten by the next
+    kept: tuple[Trace, tuple[FloatArray, ...], FloatArray] | None = None
 
 
 class Simulation:
@@ -442,7 +445,7 @@ class Simulation:
 
     def run(self, duration: float | None = None, *, sample_dt: float | None = None,
             sampling: str = 'land', progress: Callable[[float], None] | None = None,
-            breakpoints: bool = True) -> Trace:
+            breakpoints: bool = True, reuse_trace: bool = False) -> Trace:
         """Integrate from t = 0 over ``duration`` (s, default the scene's), sampling every
         ``sample_dt`` (s). ``sampling='land'`` steps exactly onto every sample time (samples
         are solver points; dense sampling then bounds the step); ``'dense'`` lets the
@@ -451,8 +454,17 @@ class Simulation:
         steps). ``progress``, if given, is called with the simulated time (s) of every sample
         (e.g. :meth:`cvj_ros.progress.Progress.update`). ``breakpoints`` (default on): a step
         lands on every time where the load is not smooth in t (:meth:`breakpoints`); off, the
-        controller steps across them (cheaper only at loose tolerances). Raises SolverError
-        if the state becomes non-finite."""
+        controller steps across them (cheaper only at loose tolerances).
+
+        ``reuse_trace=True`` (repeated runs of the same options: a benchmark, a loop over
+        initial states) returns this Simulation's own Trace for these options, its arrays
+        and ``final_state`` rewritten in place by every later run with ``reuse_trace=True``
+        and the same arguments: the results alias one buffer, so copy what you keep. Such a
+        run allocates nothing (its arrays and solver dict are the first such run's). It
+        applies where the run is one compiled call (the kernel backend of a chain scene,
+        no ``progress``); elsewhere the Trace is a new one as without it.
+
+        Raises SolverError if the state becomes non-finite."""
         fast = self._fast
         if fast is not None and progress is None and fast[0] == (
                 duration, sample_dt, sampling, breakpoints, self.method, self.rtol, self.atol):
@@ -460,7 +472,9 @@ class Simulation:
             # this plan then (the scene is frozen), so only the call is left
             plan = fast[1]
             self.model = plan.model
-            return self._run_one_call(plan, self.driveline.x0)
+            if reuse_trace and plan.kept is not None:
+                return self._run_kept(plan, self.driveline.x0, plan.kept)
+            return self._run_one_call(plan, self.driveline.x0, reuse_trace)
         if sampling not in ('land', 'dense'):
             raise SceneError('sampling', f"must be 'land' or 'dense', got {sampling!r}")
         sc = self.scene
@@ -471,7 +485,7 @@ class Simulation:
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
         if self.backend == 'kernel' and not self.scene.is_tree:
-            trace = self._run_kernel(dur, dt, sampling, progress, breakpoints)
+            trace = self._run_kernel(dur, dt, sampling, progress, breakpoints, reuse_trace)
             plan = next(iter(self._plans.values()))
             self._fast = None if progress is not None or plan.run is None else (
                 (duration, sample_dt, sampling, breakpoints, self.method, self.rtol,
@@ -553,7 +567,8 @@ class Simulation:
         return plan
 
     def _run_kernel(self, dur: float, dt: float, sampling: str,
-                    progress: Callable[[float], None] | None, breakpoints: bool) -> Trace:
+                    progress: Callable[[float], None] | None, breakpoints: bool,
+                    reuse_trace: bool = False) -> Trace:
         """:meth:`run` on the compiled kernel. The plan of these options (sample times, grid,
         stepper) is made once per Simulation and options; a later run resets the plan's
         stepper (the same steps and bytes as a new one) and spends its Python on little more
@@ -567,7 +582,7 @@ class Simulation:
             self._plans = {key: plan}   # the latest options only
         self.model = plan.model
         if progress is None and plan.run is not None:
-            return self._run_one_call(plan, x0)
+            return self._run_one_call(plan, x0, reuse_trace)
         stepper = plan.stepper
         times = plan.times
         m, n, n_sh = plan.shape
@@ -619,11 +634,16 @@ class Simulation:
         return self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                             integ, clock() - wall0)
 
-    def _run_one_call(self, plan: _KernelPlan, x0: FloatArray) -> Trace:
+    def _run_one_call(self, plan: _KernelPlan, x0: FloatArray, reuse: bool = False) -> Trace:
         """Start, integration and outputs in one compiled call (kernel/run_nb.py), and the
         Trace. The Python around the call is what a short run pays beyond its compiled time
         (stiff at tol 1e-3: ~15 us compiled; docs/solvers.md "Short runs"), so it allocates
-        the run's arrays, makes the call and hands the rest to :meth:`_finish`."""
+        the run's arrays, makes the call and hands the rest to :meth:`_finish`; with
+        ``reuse`` (``run(reuse_trace=True)``) the plan's kept arrays and Trace are written
+        again instead (:meth:`_run_kept`)."""
+        kept = plan.kept if reuse else None
+        if kept is not None:
+            return self._run_kept(plan, x0, kept)
         m, n, n_sh = plan.shape
         empty = np.empty
         X = empty((m, n))
@@ -649,8 +669,36 @@ class Simulation:
         times = plan.times
         if bad >= 0 or self._mid_table[2]:   # a non-finite sample, or members in Python
             self._check_outputs(times, bad, pos, vel, compiled_mids=True)
-        return self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
-                            wall, wall)
+        trace = self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
+                             wall, wall)
+        if reuse:
+            plan.kept = (trace, (X, X if XG is None else XG, pos, vel, eff, te, tl, res),
+                         self.final_state)
+        return trace
+
+    def _run_kept(self, plan: _KernelPlan, x0: FloatArray,
+                  kept: tuple[Trace, tuple[FloatArray, ...], FloatArray]) -> Trace:
+        """:meth:`_run_one_call` into the arrays of the plan's kept Trace: the same call and
+        checks, then the Trace's counters, proposal and wall times refreshed in place
+        (``KernelStepper.stats_into``); nothing is allocated. The first kept run's made
+        the Trace, so the call's bound entry point exists."""
+        trace, arrays, final = kept
+        e0 = self._initial_energy(x0)
+        clock = time.perf_counter
+        wall0 = clock()
+        st, bad = plan.call(e0, *arrays)
+        if st != _ST_OK:
+            plan.run.check(st)   # raises
+        wall = clock() - wall0
+        if bad >= 0 or self._mid_table[2]:   # a non-finite sample, or members in Python
+            self._check_outputs(plan.times, bad, arrays[2], arrays[3], compiled_mids=True)
+        solver = trace.solver
+        plan.stepper.stats_into(solver)
+        solver['integration_wall_time'] = wall
+        trace.wall_time = wall
+        self.last_trace = trace
+        self.final_state = final
+        return trace
 
     def _finish(self, stepper: Any, times: FloatArray, pos: FloatArray, vel: FloatArray,
                 eff: FloatArray, te: FloatArray, tl: FloatArray, res: FloatArray,

@@ -393,11 +393,56 @@ def test_the_same_arguments_again_take_the_fast_path_with_fresh_arrays() -> None
     assert tight.solver['nfev'] != ref.solver['nfev'] and sim._fast[0][5] == 1e-6
 
 
+@pytest.mark.parametrize('scene, method, sampling', [('stiff', 'rodas3', 'dense'),
+                                                    ('kavz685_lever', 'dopri5', 'land')])
+def test_reuse_trace_rewrites_one_trace_in_place_with_fresh_bytes(scene: str, method: str,
+                                                                   sampling: str) -> None:
+    """run(reuse_trace=True) returns the Simulation's own Trace for these options, its
+    arrays, final state and solver dict rewritten in place: after the arrays and counters of
+    the kept Trace are spoiled (NaN, -1), the next reused run holds exactly a fresh
+    Simulation's bytes and counters again, in the same objects. A run without it, or with
+    other options, returns a Trace of its own that the reused runs never write."""
+    from cvj_ros.physics.scene import find_scene, load_scene
+    sc = load_scene(find_scene(scene))
+    fields = ('t', 'position', 'velocity', 'effort', 'engine_torque', 'load_torque',
+              'energy_residual')
+    counters = ('nfev', 'njev', 'nlu', 'naccept', 'nreject', 't', 'h')
+
+    def arrays(tr) -> bytes:
+        return b''.join(getattr(tr, f).tobytes() for f in fields)
+
+    ref_sim = Simulation(sc, method=method, rtol=1e-4, atol=1e-4)
+    ref = ref_sim.run(0.2, sample_dt=0.01, sampling=sampling)
+    sim = Simulation(sc, method=method, rtol=1e-4, atol=1e-4)
+    first = sim.run(0.2, sample_dt=0.01, sampling=sampling, reuse_trace=True)
+    objects = [getattr(first, f) for f in fields] + [first.solver, sim.final_state]
+    own = sim.run(0.2, sample_dt=0.01, sampling=sampling)        # not reused: its own
+    for f in fields[1:]:
+        getattr(first, f).fill(np.nan)
+    sim.final_state.fill(np.nan)
+    for k in counters:
+        first.solver[k] = -1
+    again = sim.run(0.2, sample_dt=0.01, sampling=sampling, reuse_trace=True)
+    assert again is first and sim.last_trace is first
+    now = [getattr(again, f) for f in fields] + [again.solver, sim.final_state]
+    assert all(a is b for a, b in zip(now, objects))
+    assert arrays(again) == arrays(ref) == arrays(own)
+    assert sim.final_state.tobytes() == ref_sim.final_state.tobytes()
+    assert {k: again.solver[k] for k in counters} == {k: ref.solver[k] for k in counters}
+    assert again.solver.keys() == ref.solver.keys()
+    for f in fields:
+        assert not np.shares_memory(getattr(own, f), getattr(again, f)), f
+    sim.rtol = 1e-3                                      # other options: another Trace
+    loose = sim.run(0.2, sample_dt=0.01, sampling=sampling, reuse_trace=True)
+    assert loose is not first and arrays(first) == arrays(ref)
+
+
 def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
-    """The plan's bound run (and the fast path's entry point kept beside it) hold no
-    reference back to themselves: a Simulation run twice and dropped is freed by reference
-    counting, gc.collect() finds nothing. In a fresh interpreter (another test's threads
-    could leave garbage of their own)."""
+    """The plan's bound run (and the fast path's entry point and the reused Trace kept
+    beside it) hold no reference back to themselves: a Simulation run four times (twice
+    with reuse_trace) and dropped is freed by reference counting, gc.collect() finds
+    nothing. In a fresh interpreter (another test's threads could leave garbage of their
+    own)."""
     import os
     import subprocess
     import sys
@@ -412,6 +457,8 @@ def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
         "    sim = Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3)\n"
         '    sim.run(0.2, sample_dt=0.05)\n'
         '    sim.run(0.2, sample_dt=0.05)\n'
+        '    sim.run(0.2, sample_dt=0.05, reuse_trace=True)\n'
+        '    sim.run(0.2, sample_dt=0.05, reuse_trace=True)\n'
         '    del sim\n'
         'print(gc.collect())\n')
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

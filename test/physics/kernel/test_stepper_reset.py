@@ -37,3 +37,23 @@ def test_reset_repeats_a_new_steppers_run(scene: str, method: str) -> None:
     assert used.y.tobytes() == x0.tobytes()
     assert used.dense(0.0).tobytes() == at_start
     assert run(used) == fresh
+
+
+@pytest.mark.parametrize('method', ['rodas3', 'dopri5'])
+def test_stats_read_the_counters_the_attributes_hold(method: str) -> None:
+    """stats() and stats_into() read t, h and the counters from the kernel arrays as slices
+    (fs[t:h], cnt[nfev:nreject]); after a run they equal the attributes _sync sets from the
+    layout constants one by one, and stats_into writes them into a dict without its other keys
+    changing."""
+    sim = Simulation(load_scene(find_scene('stiff')), method=method, rtol=1e-4, atol=1e-4)
+    st = sim.make_stepper(sim.driveline.x0.copy(), 1.0, rtol=1e-4, atol=1e-4)
+    st.advance_to(0.05)
+    st.advance_to(0.1)
+    d = st.stats()
+    st._sync()
+    assert d == {'method': method, 't': st.t, 'h': st.h, 'nfev': st.nfev, 'njev': st.njev,
+                 'nlu': st.nlu, 'naccept': st.naccept, 'nreject': st.nreject}
+    assert st.t == 0.1 and st.nfev > 0 and st.naccept > 0
+    kept = {k: -1 for k in d} | {'method': 'other', 'extra': 'kept'}
+    st.stats_into(kept)
+    assert kept == d | {'method': 'other', 'extra': 'kept'}

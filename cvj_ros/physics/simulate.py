@@ -776,7 +776,9 @@ class Simulation:
         side, kernel/tree_nb.py, kept per options and landing on all samples in one call
         without a progress callback; the joint states and wheel channels from the compiled
         walk of kernel/tree_samples.py, the intermediate members compiled, the energy
-        residual from the reference's Python)."""
+        residual from the reference's Python). A vehicle run with landing sampling and no
+        progress callback takes :meth:`_run_tree` instead where the compiled outputs cover
+        its driveline."""
         dl = self.driveline
         x0 = dl.x0.copy()
         times = self._sample_times(dur, dt)

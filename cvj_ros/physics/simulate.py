@@ -562,11 +562,12 @@ class Simulation:
         tab, ends, mtab, mfp, wheel_t = plan.tables
         args = (times, XG, plan.rows, plan.model.ip, plan.model.fp, tab, ends, float(e0), pos,
                 vel, eff, te, tl, res, ch, mtab, mfp, wheel_t)
-        if plan.call is None:
-            from cvj_ros.physics.kernel import entry_point
+        call = plan.call
+        if call is None:   # every argument of the types above: one entry point per process
+            from cvj_ros.physics.kernel import entry_point_once
             from cvj_ros.physics.kernel.tree_run_nb import tree_run_outputs
-            plan.call = entry_point(tree_run_outputs, args)
-        bad = plan.call(*args)
+            call = plan.call = entry_point_once(tree_run_outputs, args)
+        bad = call(*args)
         if bad >= 0:
             raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
         if plan.python_members:

@@ -4,7 +4,11 @@ Times the bench's own call (``bench.run_project``: ``Simulation.run(1.0, sample_
 one Simulation) on a vehicle scene for a method and tolerance, and splits it into pieces
 timed the same way (CPU time of this thread, min over CALLS calls, median of ROUNDS rounds):
 
-- ``whole``: ``Simulation.run`` as the bench calls it;
+- ``whole``: ``Simulation.run`` as the bench calls it (one landing call, then every
+  sample's outputs in one compiled call);
+- ``whole_py``: the same run with the outputs from Python per sample
+  (``Simulation._run_python``: one landing call, then ``record`` below per sample), the
+  path vehicle runs took before the compiled outputs;
 - ``stepper``: making the run's stepper (``Simulation.make_stepper``, the model packed and
   copied);
 - ``samples_build``: building the compiled sample walk (``TreeKernelSamples``);
@@ -12,8 +16,11 @@ timed the same way (CPU time of this thread, min over CALLS calls, median of ROU
   Python (the run's integration);
 - ``integ_land``: the same landings in one compiled call (``KernelStepper._land``);
 - ``rhs``: the run's evaluations x the compiled rhs's ns per call in a compiled loop;
-- ``record``: the per-sample outputs (``TreeKernelSamples`` call, ``vehicle_speed``, the
-  wheel channels), of which ``energy``: ``TreeDriveline.energy_residual`` (Python);
+- ``record``: the per-sample outputs from Python (``TreeKernelSamples`` call,
+  ``vehicle_speed``, the wheel channels: the path a run with a progress callback takes), of
+  which ``energy``: ``TreeDriveline.energy_residual`` (Python);
+- ``outputs``: every sample's outputs and the intermediate members in one compiled call
+  (``kernel/tree_run_nb.tree_run_outputs``, what ``Simulation.run`` calls after the landing);
 - ``expert``: numbalsoda ``dop853`` at the same tolerance on the same compiled rhs
   (``bench_expert.solve_expert``, 21 samples), and its evaluations.
 
@@ -26,7 +33,9 @@ import sys
 import numpy as np
 
 from cvj_ros import bench, bench_expert
+from cvj_ros.physics.kernel import entry_point
 from cvj_ros.physics.kernel.layout import build_model
+from cvj_ros.physics.kernel.tree_run_nb import tree_run_outputs
 from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
 from cvj_ros.physics.simulate import Simulation, landing_grid
 from run_profile import _min_cpu, _rhs_loop   # scripts/ is on the path when run as a script
@@ -73,6 +82,16 @@ def profile(scene_name: str, solver: str, tol: float, rounds: int = 5,
         for k in range(m):
             dl.energy_residual(X[k], e0)
 
+    plan = sim._tree_plan(horizon, dt, True)
+    ch = np.empty((len(plan.channel_names), m))
+    te, tl, res = np.empty(m), np.empty(m), np.empty(m)
+    out_args = (times, XG, plan.rows, plan.model.ip, plan.model.fp, *plan.tables[:2], e0, pos,
+                vel, eff, te, tl, res, ch, *plan.tables[2:])
+    out_call = entry_point(tree_run_outputs, out_args)
+
+    def outputs() -> None:
+        out_call(*out_args)
+
     model = build_model(dl, engine=sim.engine, horizon=max(1.0, scene.duration))
     addr = bench_expert.expert_cfunc().address
     data = bench_expert.expert_data(model.ip, model.fp, x0.size)
@@ -89,9 +108,11 @@ def profile(scene_name: str, solver: str, tol: float, rounds: int = 5,
     _rhs_loop(1, X, ip, fp, times, dy)
     nfev = int(tr.solver['nfev'])
     pieces = {'whole': lambda: sim.run(horizon, sample_dt=dt),
+              'whole_py': lambda: sim._run_python(horizon, dt, 'land', None, True),
               'stepper': lambda: sim.make_stepper(x0, horizon, **opts),
               'samples_build': lambda: TreeKernelSamples(dl),
               'integ_loop': loop, 'integ_land': land, 'record': record, 'energy': energy,
+              'outputs': outputs,
               'expert': expert}
     out: dict[str, list[float]] = {k: [] for k in (*pieces, 'rhs')}
     for _ in range(rounds):

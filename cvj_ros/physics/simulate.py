@@ -226,6 +226,22 @@ class _KernelPlan:
     kept: tuple[Trace, tuple[FloatArray, ...], FloatArray] | None = None
 
 
+@dataclass
+class _TreePlan:
+    """A vehicle run's options made concrete once (Simulation._tree_plan): the stepper,
+    the landing grid and the compiled outputs' tables (kernel/tree_run_nb.py)."""
+
+    times: FloatArray                     # sample times (s); a trace gets a copy
+    grid: FloatArray                      # the landing grid (s)
+    rows: np.ndarray                      # grid row of every sample (int64)
+    stepper: Any                          # reset for every run after the first
+    model: Any                            # its ModelData (the engine inside)
+    tables: tuple                         # tab, ends, mtab, mfp, wheel_t
+    python_members: list                  # members left to the Python fill_mid
+    channel_names: list[str]              # Trace.channels' keys, in the rows' order
+    call: Any = None                      # tree_run_outputs' entry point
+
+
 class Simulation:
     """Offline closed loop of ``scene``.
 
@@ -315,6 +331,7 @@ class Simulation:
         self._packed: dict[float, Any] = {}
         self._plans: dict[tuple, _KernelPlan] = {}
         self._tree_plans: dict[tuple, tuple[Any, Any, Any]] = {}   # vehicle: stepper, samples, mids
+        self._tree_runs: dict[tuple, _TreePlan | None] = {}   # vehicle, compiled outputs
         self._shaft_table: NDArray[np.int64] | None = None
         self._mid_table: tuple[Any, Any, list[tuple[int, int]]] | None = None   # with it
         self._e0: tuple[bytes | None, float] = (None, 0.0)   # (x0 bytes, its energy)
@@ -491,7 +508,88 @@ class Simulation:
                 (duration, sample_dt, sampling, breakpoints, self.method, self.rtol,
                  self.atol), plan)
             return trace
+        if (self.backend == 'kernel' and progress is None and sampling == 'land'
+                and self.scene.is_tree):
+            trace = self._run_tree(dur, dt, breakpoints)
+            if trace is not None:
+                return trace
         return self._run_python(dur, dt, sampling, progress, breakpoints)
+
+    def _tree_plan(self, dur: float, dt: float, breakpoints: bool) -> _TreePlan | None:
+        """A vehicle run's plan (:class:`_TreePlan`), or None when the compiled outputs do
+        not cover this driveline (tree_outputs_nb.tree_tables: a subclass such as the
+        mode-aware tree, a joint of several kernel stages)."""
+        from cvj_ros.physics.kernel.outputs_nb import mid_table
+        from cvj_ros.physics.kernel.tree_outputs_nb import tree_tables
+        dl = self.driveline
+        try:
+            tab, ends = tree_tables(dl)
+        except NotImplementedError:
+            return None
+        times = self._sample_times(dur, dt)
+        breaks = self.breakpoints(float(times[-1])) if breakpoints else _NO_BREAKS
+        grid, rows = landing_grid(times, breaks)
+        stepper = self.make_stepper(dl.x0.copy(), dur, **self._stepper_options(dt))
+        mtab, mfp, python_members = mid_table(dl)
+        names = ['vehicle_speed'] + [f'{w.name}.{q}' for w in dl.wheels
+                                     for q in ('slip', 'fx', 'fz', 'status')]
+        return _TreePlan(times=times, grid=np.ascontiguousarray(grid, dtype=np.float64),
+                         rows=np.ascontiguousarray(rows, dtype=np.int64), stepper=stepper,
+                         model=self.model,
+                         tables=(tab, ends, np.ascontiguousarray(mtab, dtype=np.int64), mfp,
+                                 np.zeros(max(dl.n_wheel, 1))),
+                         python_members=python_members, channel_names=names)
+
+    def _run_tree(self, dur: float, dt: float, breakpoints: bool) -> Trace | None:
+        """A vehicle run on the kernel in two compiled calls: every landing
+        (KernelStepper._land, the same steps as the advance_to loop) and every sample's
+        outputs with the intermediate members (kernel/tree_run_nb.tree_run_outputs). The
+        plan (stepper, grid, tables) is kept per options; a later run resets the stepper.
+        None when the compiled outputs do not cover the driveline (``_run_python`` then)."""
+        key = (dur, dt, breakpoints, self.method, self.rtol, self.atol)
+        fresh = key not in self._tree_runs
+        if fresh:
+            self._tree_runs = {key: self._tree_plan(dur, dt, breakpoints)}   # latest only
+        plan = self._tree_runs[key]
+        if plan is None:
+            return None
+        self.model = plan.model
+        dl = self.driveline
+        x0 = dl.x0
+        stepper = plan.stepper
+        times, grid = plan.times, plan.grid
+        m = times.size
+        n_sh = len(dl.shaft_names)
+        empty = np.empty
+        XG = empty((grid.size, x0.size))
+        pos, vel, eff = empty((m, n_sh)), empty((m, n_sh)), empty((m, n_sh))
+        te, tl, res = empty(m), empty(m), empty(m)
+        ch = empty((len(plan.channel_names), m))
+        e0 = self._initial_energy(x0)
+        clock = time.perf_counter
+        wall0 = clock()
+        if not fresh:
+            stepper.reset(0.0, x0)
+        XG[0] = x0
+        stepper._land(grid, XG)   # grid and XG built by the plan: checked by construction
+        integ = clock() - wall0
+        tab, ends, mtab, mfp, wheel_t = plan.tables
+        args = (times, XG, plan.rows, plan.model.ip, plan.model.fp, tab, ends, float(e0), pos,
+                vel, eff, te, tl, res, ch, mtab, mfp, wheel_t)
+        call = plan.call
+        if call is None:   # every argument of the types above: one entry point per process
+            from cvj_ros.physics.kernel import entry_point_once
+            from cvj_ros.physics.kernel.tree_run_nb import tree_run_outputs
+            call = plan.call = entry_point_once(tree_run_outputs, args)
+        bad = call(*args)
+        if bad >= 0:
+            raise SolverError(f'state became non-finite at t = {float(times[bad]):g} s')
+        if plan.python_members:
+            dl.fill_mid(pos, vel, members=plan.python_members)
+        trace = self._finish(stepper, times.copy(), pos, vel, eff, te, tl, res, XG[-1].copy(),
+                             integ, clock() - wall0)
+        trace.channels = dict(zip(plan.channel_names, ch))
+        return trace
 
     def _stepper_options(self, dt: float) -> dict[str, Any]:
         """Keyword options of this run's stepper: tolerances, h (the scene's, or for the
@@ -727,7 +825,9 @@ class Simulation:
         side, kernel/tree_nb.py, kept per options and landing on all samples in one call
         without a progress callback; the joint states and wheel channels from the compiled
         walk of kernel/tree_samples.py, the intermediate members compiled, the energy
-        residual from the reference's Python)."""
+        residual from the reference's Python). A vehicle run with landing sampling and no
+        progress callback takes :meth:`_run_tree` instead where the compiled outputs cover
+        its driveline."""
         dl = self.driveline
         x0 = dl.x0.copy()
         times = self._sample_times(dur, dt)

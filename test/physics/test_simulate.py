@@ -469,12 +469,14 @@ def test_a_simulation_and_its_runs_leave_no_reference_cycles() -> None:
 
 @pytest.mark.parametrize('scene', ['fwd_axle', 'awd_4x4'])
 @pytest.mark.parametrize('method', ['dopri5', 'vern6', 'rodas3'])
-def test_vehicle_runs_keep_their_stepper_and_land_in_one_call(scene: str, method: str) -> None:
-    """A vehicle scene on the kernel keeps its stepper and compiled sample walk per options
-    and lands on every sample in one compiled call (KernelStepper._land): the same bytes as
-    the step-by-step advance_to loop (taken when a progress callback is given) and as a
-    fresh Simulation, on every run, its intermediate members as the Python fill_mid's;
-    other options get their own stepper."""
+def test_vehicle_runs_keep_their_plan_and_run_in_two_compiled_calls(scene: str, method: str) -> None:
+    """A vehicle scene on the kernel keeps its plan (stepper, landing grid, compiled output
+    tables) per options, lands on every sample in one compiled call and computes every
+    sample's outputs in another (kernel/tree_run_nb.py): the same steps, counters and
+    final state as the step-by-step advance_to loop (taken when a progress callback is
+    given) and as a fresh Simulation, the same bytes on every run; its intermediate members
+    as the Python fill_mid's; other options get their own plan. The outputs against the
+    Python per-sample path: test/physics/kernel/test_tree_run_nb.py."""
     from cvj_ros.physics.scene import find_scene, load_scene
     sc = load_scene(find_scene(scene))
 
@@ -487,26 +489,29 @@ def test_vehicle_runs_keep_their_stepper_and_land_in_one_call(scene: str, method
         return tuple(tr.solver[k] for k in ('nfev', 'njev', 'naccept', 'nreject'))
 
     seen: list[float] = []
-    stepwise = Simulation(sc, method=method, rtol=1e-4, atol=1e-6).run(
-        0.2, sample_dt=0.01, progress=seen.append)
+    step_sim = Simulation(sc, method=method, rtol=1e-4, atol=1e-6)
+    stepwise = step_sim.run(0.2, sample_dt=0.01, progress=seen.append)
     assert len(seen) == stepwise.t.size                # the advance_to loop ran
     sim = Simulation(sc, method=method, rtol=1e-4, atol=1e-6)
     first = sim.run(0.2, sample_dt=0.01)
-    stepper = next(iter(sim._tree_plans.values()))[0]
+    plan = next(iter(sim._tree_runs.values()))
+    assert plan is not None and not sim._tree_plans    # the compiled path, not _run_python
     final = sim.final_state.copy()
+    assert final.tobytes() == step_sim.final_state.tobytes()
     second = sim.run(0.2, sample_dt=0.01)
-    assert next(iter(sim._tree_plans.values()))[0] is stepper
+    assert next(iter(sim._tree_runs.values())) is plan
+    assert arrays(first) == arrays(second)
     for tr in (first, second):
-        assert arrays(tr) == arrays(stepwise) and counters(tr) == counters(stepwise)
+        assert counters(tr) == counters(stepwise) and list(tr.channels) == list(stepwise.channels)
     assert sim.final_state.tobytes() == final.tobytes()
     # the intermediate members (compiled fill_mid_samples): the Python fill_mid's bytes
     pos, vel = second.position.copy(), second.velocity.copy()
     sim.driveline.fill_mid(pos, vel)
     assert pos.tobytes() == second.position.tobytes()
     assert vel.tobytes() == second.velocity.tobytes()
-    sim.rtol = 1e-3                                     # other options: another stepper
+    sim.rtol = 1e-3                                     # other options: another plan
     loose = sim.run(0.2, sample_dt=0.01)
-    assert next(iter(sim._tree_plans.values()))[0] is not stepper
+    assert next(iter(sim._tree_runs.values())).stepper is not plan.stepper
     fresh = Simulation(sc, method=method, rtol=1e-3, atol=1e-6).run(0.2, sample_dt=0.01)
     assert arrays(loose) == arrays(fresh) and counters(loose) == counters(fresh)
 

@@ -349,7 +349,8 @@ def tree_rhs_wheels(t, y, ip, fp, te, wheel_t, dy):
 @njit(cache=True)
 def _walk(y, ip, fp, te, ext, wheel_t, tab, ends, pos, vel, eff):
     """The backward walk into pos/vel/eff (members left as their joint's input); returns
-    _tree_dynamics' F_x and F_z per wheel."""
+    _tree_dynamics' F_x and F_z per wheel and, for the energy (kernel/tree_run_nb.py), the
+    section angles q, speeds qdot and per position angle and ratio a."""
     tb = ip[H_TREE]
     ns = ip[tb + TB_NS]
     sec = ip[tb + TB_SEC]
@@ -396,7 +397,7 @@ def _walk(y, ip, fp, te, ext, wheel_t, tab, ends, pos, vel, eff):
         pos[i] = sphi[s, pp]
         vel[i] = sa[s, pp] * qd[s]
         eff[i] = 0.0 if tab[i, 2] == 1 else st_tq[s, pp]
-    return fx, fz
+    return fx, fz, q, qd, sphi, sa
 
 
 @njit(cache=True)
@@ -419,7 +420,7 @@ def tree_sample(y, ip, fp, te, wheel_t, tab, ends, pos, vel, eff, wheels):
     pos/vel/eff as :func:`tree_joint_state` with members left as their joint's input, per
     wheel i ``wheels[i]`` = (relaxed slip, F_x N, F_z N, status: 0 ok, 1 no load F_z <= 0);
     returns sum F_x r (N m). ``y`` must be finite (the caller checks)."""
-    fx, fz = _walk(y, ip, fp, te, 0, wheel_t, tab, ends, pos, vel, eff)
+    fx, fz, _q, _qd, _sphi, _sa = _walk(y, ip, fp, te, 0, wheel_t, tab, ends, pos, vel, eff)
     tb = ip[H_TREE]
     n = ip[H_NDOF]
     whl = ip[tb + TB_WHEEL]

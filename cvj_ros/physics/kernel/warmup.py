@@ -88,7 +88,7 @@ def warm_outputs(*, out=sys.stdout) -> float:
     """Compile or load the outputs (kernel/outputs_nb.py): the coupling node's per-exchange
     joint_state_one and wrenches_one with every joint's reactions, a vehicle scene's
     (kernel/tree_outputs_nb.py: joint state, offline samples, right-hand side under
-    outside wheel loads), the offline trace's
+    outside wheel loads; kernel/tree_run_nb.py: an offline run's outputs), the offline trace's
     sample_outputs, fill_mid_samples and landing grid, the batched sweep's reduction, the
     monitor's window statistics and
     the engine node's map engine torque;
@@ -131,6 +131,8 @@ def warm_outputs(*, out=sys.stdout) -> float:
     tree = TreeDriveline.from_scene(load_scene(shipped_scenes()['fwd_axle']))
     TreeKernelStateOutputs(tree, [])
     TreeKernelSamples(tree)         # an offline vehicle run's samples
+    from cvj_ros.physics.kernel import tree_run_nb
+    tree_run_nb.warm(tree)          # an offline vehicle run's outputs in one call
     tree.set_wheel_torques([0.0] * tree.n_wheel)
     CompiledWheelLoadRhs(tree).rhs(0.0, tree.x0, 0.0)
     dt = time.perf_counter() - t0

@@ -171,16 +171,18 @@ def _trace(name: str, compiled: bool, monkeypatch: Any) -> Any:
         monkeypatch.setattr(tree_samples, 'TreeKernelSamples', refuse)
     sim = Simulation(load_scene(shipped_scenes()[name]))
     assert sim.backend == 'kernel'
-    trace = sim.run(0.05, sample_dt=1e-3)
+    trace = sim.run(0.05, sample_dt=1e-3, progress=lambda _t: None)   # the per-sample path
     monkeypatch.undo()
     return trace
 
 
 @pytest.mark.parametrize('name', VEHICLE_SCENES)
 def test_compiled_samples_of_a_vehicle_run_equal_the_python_samples(name: str, monkeypatch) -> None:
-    """Simulation.run on the kernel: every sampled array and wheel channel from the compiled
-    walk against the same run sampled by TreeDriveline.sample_outputs (bound as above;
-    NaN residuals where no work integrals are kept)."""
+    """Simulation.run on the kernel stepped from Python (a progress callback): every
+    sampled array and wheel channel from the compiled walk against the same run sampled by
+    TreeDriveline.sample_outputs (bound as above; NaN residuals where no work integrals are
+    kept). Without a callback the run's outputs are kernel/tree_run_nb.py's
+    (test_tree_run_nb.py)."""
     from cvj_ros.physics.kernel.tree_samples import TreeKernelSamples
     TreeKernelSamples(TreeDriveline.from_scene(load_scene(shipped_scenes()[name])))  # covered
     got = _trace(name, True, monkeypatch)

@@ -107,16 +107,19 @@ def _rhs_loop(n, X, ip, fp, times, dy):
 def _run_function(sim):
     """The run_nb function of the simulation's method."""
     from cvj_ros.physics.kernel import run_nb
+    if sim.method in ('tsit5', 'vern6', 'vern7', 'vern8'):
+        from cvj_ros.physics.kernel.run_rk_nb import erk_run
+        return erk_run
     return {'dopri5': run_nb.dopri5_run, 'dop853': run_nb.dop853_run, 'rk4': run_nb.rk4_run,
             'ros2': run_nb.ros2_run}.get(sim.method, run_nb.ros_run)
 
 
 def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int = 5,
             calls: int = 2000, horizon: float = 1.0, samples: int = 20,
-            breakpoints: bool = True) -> dict[str, float]:
+            breakpoints: bool = True, fidelity: str = 'exact') -> dict[str, float]:
     scene = bench.resolve_scene(scene_name)
     sim = Simulation(scene, method=solver, rtol=tol, atol=tol,
-                     fidelity=bench.forced_levels(scene, 'exact'))
+                     fidelity=bench.forced_levels(scene, fidelity))
     dt = horizon / samples
     tr = sim.run(horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints)
     plan = next(iter(sim._plans.values()))

@@ -166,7 +166,13 @@ def tripod_series_scalar(phi_in: float, coeffs: Any) -> tuple[float, float, floa
     """'exact' fidelity from its Fourier table: phi_out = phi_in + sum_k b_k sin(3 k phi_in)
     (sequence ``coeffs`` = b_1, b_2, ...), derivatives by the angle-addition recurrence. Also
     compiled by kernel/joints_nb.py (coeffs then a float64 array view)."""
-    x = 3.0 * (math.fmod(phi_in, TWO_PI_3))
+    return tripod_series_reduced(phi_in, math.fmod(phi_in, TWO_PI_3), coeffs)
+
+
+def tripod_series_reduced(phi_in: float, red: float, coeffs: Any) -> tuple[float, float, float]:
+    """:func:`tripod_series_scalar` given ``red`` = fmod(phi_in, TWO_PI_3) (the series has period
+    2 pi/3): the compiled kernel passes its own exact reduction (kernel/joints_nb.py)."""
+    x = 3.0 * red
     s1, c1 = math.sin(x), math.cos(x)
     sk, ck = s1, c1
     dev = d1 = d2 = 0.0

@@ -23,7 +23,8 @@ def _math_fmod(x, y):
 
 from cvj_ros.physics.joints.double_cardan import double_cardan_scalar
 from cvj_ros.physics.joints.hooke import hooke_phased_scalar, hooke_stage_scalar
-from cvj_ros.physics.joints.tripod import tripod_closed_scalar, tripod_series_scalar
+from cvj_ros.physics.joints.tripod import (TWO_PI_3, tripod_closed_scalar, tripod_series_reduced,
+                                           tripod_series_scalar)
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
 from cvj_ros.physics.joints.runout import runout_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_HOOKE_PHASED, OP_JOINT_IDENTITY,
@@ -54,12 +55,53 @@ hooke_stage_inline_nb = njit(cache=True, inline='always')(hooke_stage_scalar)
 tripod_series_inline_nb = njit(cache=True, inline='always')(tripod_series_scalar)
 
 
+tripod_series_reduced_inline_nb = njit(cache=True, inline='always')(tripod_series_reduced)
+
+#: TWO_PI_3 = C_HI + C_LO exactly, C_HI with 26 significant bits (the low 27 of the
+#: mantissa cleared) and so C_LO with at most 27: k C_HI and k C_LO are exact for |k| < 2^25
+_C_BITS = np.array([TWO_PI_3]).view(np.uint64)[0] & ~np.uint64((1 << 27) - 1)
+C_HI = float(np.array([_C_BITS], dtype=np.uint64).view(np.float64)[0])
+C_LO = TWO_PI_3 - C_HI
+INV_TWO_PI_3 = 1.0 / TWO_PI_3
+#: beyond this many periods (|phi| > 7e7 rad) the reduction falls back to fmod
+REDUCE_Q_MAX = 33554432.0      # 2^25
+
+
+@njit(cache=True, inline='always')
+def fmod_two_pi_3(phi):
+    """math.fmod(phi, TWO_PI_3), the same bits (signed zeros included), without the libm call:
+    k = trunc(phi / TWO_PI_3) (from a product, corrected by one period below), then
+    r = (phi - k C_HI) - k C_LO (Cody & Waite 1980 with an exact two-part constant). Both
+    products are exact for |k| < 2^25, the first difference is exact (Sterbenz: phi and
+    k C_HI within a factor 2), and phi - k TWO_PI_3 is a multiple of ulp(TWO_PI_3) below
+    4 in magnitude, so representable: the second difference is exact too, as is the one-
+    period correction when the product's rounding put k one off."""
+    q = phi * INV_TWO_PI_3
+    if not abs(q) < REDUCE_Q_MAX:
+        return math.fmod(phi, TWO_PI_3)
+    k = float(int(q))
+    r = (phi - k * C_HI) - k * C_LO
+    if phi >= 0.0:
+        if r < 0.0:
+            r += TWO_PI_3
+        elif r >= TWO_PI_3:
+            r -= TWO_PI_3
+    elif r > 0.0:
+        r -= TWO_PI_3
+    elif r <= -TWO_PI_3:
+        r += TWO_PI_3
+    if r == 0.0:
+        return math.copysign(0.0, phi)
+    return r
+
+
 @njit(cache=True, inline='always')
 def tripod_series_at(phi, fp, off):
-    """tripod_series_scalar with its nc coefficients at fp[off + 1:]; the slice lives here, not
-    in joint_eval, so joint_eval stays small enough to inline."""
+    """tripod_series_scalar with its nc coefficients at fp[off + 1:] and the period reduced
+    by :func:`fmod_two_pi_3` (the same bits as its fmod); the slice lives here, not in
+    joint_eval, so joint_eval stays small enough to inline."""
     nc = int(fp[off])
-    return tripod_series_inline_nb(phi, fp[off + 1:off + 1 + nc])
+    return tripod_series_reduced_inline_nb(phi, fmod_two_pi_3(phi), fp[off + 1:off + 1 + nc])
 
 
 @njit(cache=True, inline='always')

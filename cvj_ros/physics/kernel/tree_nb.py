@@ -4,7 +4,7 @@ The equations of the readable oracle ``TreeDriveline._rhs`` (cvj_ros/physics/tre
 docstring), evaluated from the tree tables of ``kernel/layout.py`` (``H_TREE``): per section
 the chain rule over its ops (rhs_nb.section's loop), its group-local row r_s and bias
 acceleration k_s = a_end k_parent + b_end qdot_parent^2; generalised forces from the engine,
-springs (rhs_nb.spring_eval), viscous couplings and tyres (magic formula on the relaxed slip,
+springs (rhs_nb.spring_torque), viscous couplings and tyres (magic formula on the relaxed slip,
 normal loads with load transfer in closed form, cvj_ros.physics.vehicle); per group the SPD
 system [sum_s M_s r_s r_s^T + sum_d P_d e_d e_d^T] uddot = sum_s r_s (Q_s - C_s qdot_s^2 - M_s k_s)
 solved by a plain-loop Cholesky, in the oracle's order of operations (same bytes). No
@@ -98,7 +98,7 @@ def tree_rhs(t, y, ip, fp, dy):
         a_l = sc[R_A, left]
         th = sc[R_PHI, left] - sc[R_Q, right]
         thd = a_l * sc[R_QD, left] - sc[R_QD, right]
-        ts, _k, _kd, pd = _rhs.spring_eval(th, thd, fp, sp0 + SPRING_STRIDE * k)
+        ts, pd = _rhs.spring_torque(th, thd, fp, sp0 + SPRING_STRIDE * k)
         p_damp += pd
         sc[R_QF, left] -= ts * a_l
         sc[R_QF, right] += ts

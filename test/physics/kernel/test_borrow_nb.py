@@ -71,9 +71,9 @@ def test_rhs_call_tree_and_step_chain_compile_without_calls_between_them():
     flag only costs speed, so the flags themselves are checked."""
     from cvj_ros.physics.kernel import joints_nb, rhs_nb, sources_nb, steppers_nb
     inlined = {rhs_nb: ('section', '_sigmoid_of', 'spring_deflection', 'spring_eval',
-                        'engine_torque', 'load_torque'),
+                        'deflection_slope', 'spring_torque', 'engine_torque', 'load_torque'),
                sources_nb: ('engine_eval', 'load_eval', 'random_load', 'time_series_load'),
-               joints_nb: ('joint_eval', 'tripod_series_at'),
+               joints_nb: ('joint_eval', 'tripod_series_at', 'fmod_two_pi_3'),
                steppers_nb: ('_first_nonfinite', '_proposal', '_dopri5_attempt', 'dopri5_step',
                              '_dopri5_fsal', 'dopri5_advance', '_store_row', 'lu_factor',
                              'lu_solve', '_ros_prepare', '_ros_stages', '_proposal_nobeta',

@@ -379,3 +379,32 @@ def test_dead_zone_deflection_has_the_oracle_bits_on_both_sides_of_the_linear_cu
             ths += [th, *np.nextafter(th, th + np.array([-1.0, 1.0])), -th]
     for th in ths:
         assert spring_deflection(th, g, w) == law.deflection(th), th
+
+
+def test_rhs_spring_torque_has_the_bits_of_the_full_spring_evaluation():
+    """rhs_nb.spring_torque (the rhs's dead-zone spring: beyond the linear cut on one side,
+    neither exp nor log1p of the other) gives spring_eval's torque and dissipated power bit
+    for bit, and so SpringLaw.evaluate's: twists inside the lash, on the smooth corner, at the
+    cut u = +-40 and an ulp either side, far out, a progressive spring, both signs of the
+    twist rate. A shortcut that dropped the far side's softplus where it is not below half an
+    ulp (e.g. a cut at u = 10) fails here."""
+    from cvj_ros.physics.kernel.rhs_nb import SOFTPLUS_LINEAR_U, spring_eval, spring_torque
+    from cvj_ros.physics.sections import SpringLaw
+    g = math.radians(0.25)
+    rng = np.random.default_rng(5)
+    for smoothing, k2 in ((0.1, 0.0), (0.1, 3.0), (2.0, 0.0), (1e-3, 0.0)):
+        w = smoothing * g
+        law = SpringLaw('s', 1200.0, 1.5, k2, g, w)
+        fp = np.array([1200.0, 1.5, k2, g, w])
+        ths = [0.0, 0.3 * g, g, 2.0 * g, 1.0, -1.0, 0.0417, -0.0417, 1e3,
+               *rng.uniform(-60.0 * (g + w), 60.0 * (g + w), 400)]
+        for u in (SOFTPLUS_LINEAR_U, 10.0, 36.0, 45.0, 700.0, 746.0):
+            for sign in (1.0, -1.0):
+                th = sign * (g + u * w)
+                ths += [th, *np.nextafter(th, th + np.array([-1.0, 1.0])), -th]
+        for th in ths:
+            for thd in (0.0, 2.5, -7.0):
+                t_full, _k, _kd, p_full = spring_eval(th, thd, fp, 0)
+                t_law, _k, _kd, _v, p_law = law.evaluate(th, thd)
+                assert spring_torque(th, thd, fp, 0) == (t_full, p_full) == (t_law, p_law), \
+                    (smoothing, k2, th, thd)

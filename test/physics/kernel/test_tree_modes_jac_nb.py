@@ -10,8 +10,9 @@ max(1, |y_j|) on the rest) errs by h^4 |f^(5)| / 30 (truncation; the sharpest fe
 the lash's dead zone, w = 4.4e-4 rad: (h / w)^4 / 30 ~ 1e-8) plus ~eps |y| |f| / h
 (rounding; twists are differences of angles up to ~1e3 rad: ~2e-8); both are below 1e-6 of
 the column's scale max(max_i |J_ij|, max_i |f_i| / max(1, |y_j|)), so an entry off by a
-missing term (relative 1) fails. The two backends' Jacobians are the same
-formula term by term: bound 1e-12 of the column's scale max(max_i |J_ij|, 1).
+missing term (relative 1) fails (measured: 6.5e-9 launch_clutch, 1.3e-8 fwd_axle_manual).
+The two backends' Jacobians are the same formula term by term: bound 1e-12 of the column's
+scale max(max_i |J_ij|, 1) (measured: 5.8e-18, 1.6e-18).
 """
 from __future__ import annotations
 

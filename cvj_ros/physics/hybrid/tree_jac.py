@@ -34,7 +34,8 @@ __all__ = ['tree_mode_jacobian']
 FloatArray = NDArray[np.float64]
 
 
-def _section_end(ops: tuple[Op, ...], q: float) -> tuple[float, float, float, float, float, float, bool]:
+def _section_end(ops: tuple[Op, ...], q: float
+                 ) -> tuple[float, float, float, float, float, float, bool]:
     """(phi, a, b, M, C, dM/dq = sum 2 J a b, has a joint op) at the section's end."""
     phi, a, b, m, c, dm = q, 1.0, 0.0, 0.0, 0.0, 0.0
     hj = False
@@ -61,7 +62,11 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
     x = np.asarray(x, dtype=float)
     nst = x.size
     xl = x.tolist()
-    for name, (el, d) in mt.packs.items():
+
+    def rhs(xx: FloatArray) -> FloatArray:
+        return mt.evaluate(t, xx, engine, clutch_kinetic, brake_kinetic, torques=False).ydot
+
+    for _name, (el, d) in mt.packs.items():
         if mt.diffs[d].coord >= 0 and el.torque_bias != 0.0:
             jac = np.empty((nst, nst))
             for j in range(nst):
@@ -69,11 +74,9 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
                 xp, xm = x.copy(), x.copy()
                 xp[j] += h
                 xm[j] -= h
-                jac[:, j] = (mt.evaluate(t, xp, engine, clutch_kinetic, brake_kinetic, torques=False).ydot
-                             - mt.evaluate(t, xm, engine, clutch_kinetic, brake_kinetic,
-                                           torques=False).ydot) / (2.0 * h)
+                jac[:, j] = (rhs(xp) - rhs(xm)) / (2.0 * h)
             return jac
-    acc = mt.evaluate(t, x, engine, clutch_kinetic, brake_kinetic, torques=False).ydot[n:2 * n].tolist()
+    acc = rhs(x)[n:2 * n].tolist()
     J = np.zeros((nst, nst))
     ns = len(mt.sections)
     coords = [mt._groups[mt._group_of[s]][0] for s in range(ns)]

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 
 import cvj_ros.physics.hybrid.tree_sim as ts
 from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
-from cvj_ros.physics.scene import load_scene, shipped_scenes
+from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes
 
 pytest.importorskip('numba')
 from cvj_ros.physics.kernel.tree_modes import tree_mode_arrays  # noqa: E402
@@ -81,11 +82,12 @@ def _states(mt, y0, rng):
     return out
 
 
-def _check_run(name: str, duration: float, seed: int) -> dict:
+def _check_run(name: str | dict, duration: float, seed: int) -> dict:
     """Spy on every mode segment of a dopri5 run of the Python reference: the kernel's and
     the reference's Jacobians at its start and around it, against central differences and
     each other (the kernel's arrays of that mode: ``tree_mode_arrays``)."""
-    sim = hybrid_simulation(load_scene(shipped_scenes()[name]), duration=duration)
+    scene = parse_scene(name) if isinstance(name, dict) else load_scene(shipped_scenes()[name])
+    sim = hybrid_simulation(scene, duration=duration)
     rng = np.random.default_rng(seed)
     got = {'fd': 0.0, 'twin': 0.0, 'modes': set(), 'pinned': 0, 'slipping_clutch': 0}
     plain_tree, plain_stepper = sim.tree, ts.make_stepper
@@ -109,7 +111,7 @@ def _check_run(name: str, duration: float, seed: int) -> dict:
             return dy
 
         got['modes'].add((tuple(sorted(mode.clutch.items())), tuple(sorted(mode.gear.items())),
-                          tuple(sorted(mode.brakes.items()))))
+                          tuple(sorted(mode.brakes.items())), tuple(sorted(mode.packs.items()))))
         got['pinned'] += bool(mt.pinned)
         got['slipping_clutch'] += any(m != 0 for m in mode.clutch.values())
         for y in _states(mt, np.array(y0, dtype=float), rng):
@@ -149,3 +151,18 @@ def test_fwd_axle_manual_mode_jacobians() -> None:
     """The commanded shift under load (lash in the clutch damper: the softplus dead zone)."""
     got = _check_run('fwd_axle_manual', 2.0, 12)
     assert len(got['modes']) >= 3, got
+
+
+@pytest.mark.parametrize('bias', [0.0, 0.2])
+def test_clutch_pack_mode_jacobians(bias: float) -> None:
+    """A clutch-pack differential on split mu (fwd_axle_split_mu, full throttle, 0.3 s):
+    stuck (the locked pack's offset), then slipping with its preload (torque_bias 0: the
+    analytic path) or with torque sensing (0.2: the central-difference fallback, the same
+    increments in both backends)."""
+    with open(shipped_scenes()['fwd_axle_split_mu'], encoding='utf-8') as f:
+        d = yaml.safe_load(f)
+    d['engine'] = {'model': 'map', 'throttle': 1.0}
+    d['driveline'][4] = dict(d['driveline'][4], kind='clutch_pack', preload_nm=100.0,
+                             torque_bias=bias)
+    got = _check_run(d, 0.3, 13)
+    assert {m[3] for m in got['modes']} >= {(('differential', 0),), (('differential', 1),)}, got

@@ -27,6 +27,7 @@ from cvj_ros.errors import CvjError
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import BACKWARD, FORWARD, STUCK, mode_name
 from cvj_ros.physics.hybrid.lockstep import Commands, HeldCommands, HeldTorque
+from cvj_ros.physics.hybrid.simulate import ROSENBROCK_METHODS
 from cvj_ros.physics.hybrid.tree_sim import HybridTreeSimulation
 
 if TYPE_CHECKING:
@@ -128,7 +129,10 @@ class HybridTreeLockstep(HybridTreeSimulation):
             y0, _loss = mt.from_state(st, False)
             fun = lambda tt, yy, mt=mt: self._eval(mt, tt, yy, False).ydot  # noqa: E731
             h0 = min(self._h, t_stop - t) if self._h else None
-            stepper = self._stepper(fun, t, y0, h0)
+            jac = None
+            if self.method in ROSENBROCK_METHODS:
+                jac = lambda tt, yy, mt=mt: self._jac(mt, tt, yy)  # noqa: E731
+            stepper = self._stepper(fun, t, y0, h0, jac)
             if hasattr(stepper, 'ft_window'):
                 stepper.ft_window = (t, t_stop)     # commands jump only at segment ends
             stats['restarts'] += 1
@@ -206,10 +210,11 @@ class HybridTreeLockstep(HybridTreeSimulation):
         self.mode, self.st, self.t = mode, st, t
         return st
 
-    def _stepper(self, fun: Any, t: float, y0: FloatArray, h0: float | None) -> Any:
+    def _stepper(self, fun: Any, t: float, y0: FloatArray, h0: float | None,
+                 jac: Any = None) -> Any:
         from cvj_ros.physics.solvers import make_stepper
         return make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol, h=h0,
-                            max_step=self.max_step)
+                            max_step=self.max_step, jac=jac)
 
     # --- outputs -----------------------------------------------------------------------
 

@@ -41,8 +41,9 @@ from cvj_ros.physics.hybrid.chain import Mode
 from cvj_ros.physics.hybrid.elements import Clutch
 from cvj_ros.physics.hybrid.events import Witness, crossed, locate
 from cvj_ros.physics.hybrid.friction import BACKWARD, FORWARD, STUCK, decide_mode, mode_name
-from cvj_ros.physics.hybrid.simulate import HybridResult, ModeEvent
+from cvj_ros.physics.hybrid.simulate import ROSENBROCK_METHODS, HybridResult, ModeEvent
 from cvj_ros.physics.hybrid.tree import ModeTree, TreeEvaluation, TreeState
+from cvj_ros.physics.hybrid.tree_jac import tree_mode_jacobian
 from cvj_ros.physics.scene import Scene, Spring, iter_elements
 from cvj_ros.physics.solvers import make_stepper
 
@@ -139,6 +140,14 @@ class HybridTreeSimulation:
             self.engine.set_throttle(self.schedule.value('throttle', t))
         ck, _cs, bk, _bs = self._capacities(t)
         return mt.evaluate(t, x, self.engine, ck, bk, torques=torques)
+
+    def _jac(self, mt: ModeTree, t: float, x: FloatArray) -> FloatArray:
+        """Analytic d(xdot)/dx of the mode at (t, x) (hybrid/tree_jac.py), for the
+        Rosenbrock methods."""
+        if self._throttle:
+            self.engine.set_throttle(self.schedule.value('throttle', t))
+        ck, _cs, bk, _bs = self._capacities(t)
+        return tree_mode_jacobian(mt, t, x, self.engine, ck, bk)
 
     def joint_state(self, mt: ModeTree, t: float, x: FloatArray
                     ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
@@ -521,8 +530,11 @@ class HybridTreeSimulation:
             mt = self.tree(mode)
             y0, _loss = mt.from_state(st, False)
             fun = lambda tt, yy, mt=mt: self._eval(mt, tt, yy, False).ydot  # noqa: E731
+            jac = None
+            if self.method in ROSENBROCK_METHODS:
+                jac = lambda tt, yy, mt=mt: self._jac(mt, tt, yy)  # noqa: E731
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
-                                   max_step=self.max_step)
+                                   max_step=self.max_step, jac=jac)
             if hasattr(stepper, 'ft_window'):
                 stepper.ft_window = (t, t_stop)     # commands jump only at segment ends
             stats['restarts'] += 1

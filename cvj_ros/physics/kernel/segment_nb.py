@@ -15,9 +15,8 @@ t_stop with one of
   ``rosenbrock`` = RODAS5P; ``kernel/stepper._rosenbrock_args``), the step of
   ``steppers_nb.ros_step`` with the Jacobian the Python reference uses for a mode's
   right-hand side: a chain's analytic ``modes_jac_nb.mode_jac`` (the reference's
-  ``hybrid/chain_jac.mode_jacobian``), a tree's forward differences (increment
-  sqrt(eps max(1e-5, |y_j|)), Hairer & Wanner II, sec. IV.7, as
-  ``solvers._LinearlyImplicit._jacobian``), and f_t by central differences (increment
+  ``hybrid/chain_jac.mode_jacobian``), a tree's analytic ``tree_modes_jac_nb.tm_jac`` (the
+  reference's ``hybrid/tree_jac.tree_mode_jacobian``), and f_t by central differences (increment
   eps^(1/3) max(1, |t|)), one-sided within it of the segment's ends (the commands jump
   there), both at every accepted step. Dense output:
   RODAS5P's continuous extension (``steppers_nb.ros_dense_h``), RODAS3/4 the cubic Hermite
@@ -53,6 +52,7 @@ from cvj_ros.physics.kernel.steppers_nb import (BETA, C_DENSE, C_LASTREJ, C_LUM,
                                                 _coupled_size, _first_nonfinite, _proposal,
                                                 _proposal_nobeta, _stage_at_start,
                                                 dopri5_dense, lu_factor, lu_solve, ros_dense_h)
+from cvj_ros.physics.kernel.tree_modes_jac_nb import tm_jac
 from cvj_ros.physics.kernel.tree_modes_nb import MB_NWIT, MB_WIT, WIT_STRIDE, tm_eval
 
 __all__ = ['KIND_CHAIN', 'KIND_TREE', 'M_DOP853', 'M_DOPRI5', 'M_ERK', 'M_ROSENBROCK',
@@ -570,9 +570,8 @@ def _ros_prepare(kind, h, gamma, t_lo, t_hi, y, ip, fp, fs, cnt, J, LU, piv, ft,
     """Jacobian and f_t at (t, y) when ``fresh`` (the first attempt of a step), LU of
     I/(h gamma) - J when h changed (solvers._LinearlyImplicit._prepare). K[0] = f(t, y).
     J: a chain's analytic ``modes_jac_nb.mode_jac`` (the reference's
-    ``hybrid/chain_jac.mode_jacobian``); a tree's forward differences, column j
-    (f(t, y + delta e_j) - f(t, y)) / delta, delta = sqrt(eps max(1e-5, |y_j|))
-    (solvers._LinearlyImplicit._jacobian); f_t: :func:`_time_derivative` on the segment
+    ``hybrid/chain_jac.mode_jacobian``), a tree's analytic ``tree_modes_jac_nb.tm_jac``
+    (``hybrid/tree_jac.tree_mode_jacobian``); f_t: :func:`_time_derivative` on the segment
     [t_lo, t_hi]."""
     n = y.shape[0]
     t = fs[FS_T]
@@ -580,18 +579,7 @@ def _ros_prepare(kind, h, gamma, t_lo, t_hi, y, ip, fp, fs, cnt, J, LU, piv, ft,
         if kind == KIND_CHAIN:
             mode_jac(t, y, ip, fp, J)
         else:
-            col = work[2]
-            yp = work[3]
-            for j in range(n):
-                yj = y[j]
-                delta = math.sqrt(_EPS * max(1e-5, abs(yj)))
-                for i in range(n):
-                    yp[i] = y[i]
-                yp[j] = yj + delta
-                _f(kind, t, yp, ip, fp, col, sc, False)
-                for i in range(n):
-                    J[i, j] = (col[i] - K[0, i]) / delta
-            cnt[C_NFEV] += n
+            tm_jac(t, y, ip, fp, J)
         _time_derivative(kind, t, t_lo, t_hi, y, ip, fp, cnt, ft, K, work, sc)
         fs[FS_LUH] = 0.0
     if fs[FS_LUH] == 0.0 or abs(fs[FS_LUH] - h) > 1e-12 * h:

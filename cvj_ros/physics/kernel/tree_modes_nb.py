@@ -45,7 +45,7 @@ from cvj_ros.physics.kernel.layout import (
     TB_WHEEL)
 from cvj_ros.physics.kernel.modes_nb import op_eval, ramp
 
-__all__ = ['tm_eval']
+__all__ = ['commands', 'tm_eval']
 
 (MB_NLINK, MB_LINK, MB_NBRAKE, MB_BRAKE, MB_NPACK, MB_PACK, MB_NWIT, MB_WIT, MB_SECX,
  MB_CHAN_F, MB_RAMP_T, MB_RAMP_C, MB_RAMP_B) = range(13)
@@ -79,6 +79,29 @@ def envelope(t, fp, ch):
     if tau <= fp[ch + TC_OPEN] + fp[ch + TC_NEUTRAL]:
         return 1.0
     return 1.0 - (tau - fp[ch + TC_OPEN] - fp[ch + TC_NEUTRAL]) / fp[ch + TC_CLOSE]
+
+
+@njit(cache=True, inline='always')
+def commands(t, ip, fp):
+    """(clutch kinetic, clutch static capacity N m, brake fraction 0..1) at t; sets the
+    engine's throttle in fp (HybridTreeSimulation._eval, _capacities; AutoShift.value)."""
+    mb = ip[ip.shape[0] - 1]
+    ch = ip[mb + MB_CHAN_F]
+    e = envelope(t, fp, ch)
+    if fp[ch + TC_THROTTLE] != 0.0:
+        x = ramp(t, fp, ip[mb + MB_RAMP_T])
+        fp[ip[H_ENGINE_F]] = x * (1.0 - e) if fp[ch + TC_SEQ] != 0.0 else x
+    ck = 0.0
+    cs = 0.0
+    if fp[ch + TC_CLUTCH] != 0.0:
+        pv = ramp(t, fp, ip[mb + MB_RAMP_C])
+        if fp[ch + TC_SEQ] != 0.0:
+            pv = pv + (1.0 - pv) * e
+        f = min(1.0, max(0.0, 1.0 - pv))
+        ck = fp[ch + TC_CMUK] * fp[ch + TC_CCGEO] * fp[ch + TC_CFN] * f
+        cs = fp[ch + TC_CMUS] * fp[ch + TC_CCGEO] * fp[ch + TC_CFN] * f
+    fb = min(1.0, max(0.0, ramp(t, fp, ip[mb + MB_RAMP_B])))
+    return ck, cs, fb
 
 
 @njit(cache=True)
@@ -244,21 +267,7 @@ def tm_eval(t, y, ip, fp, dy, wv, want):
     l0 = m0 + kmax
     acc = np.zeros(n)
     st = np.zeros(ns)
-    # commands (HybridTreeSimulation._eval, _capacities; AutoShift.value)
-    e = envelope(t, fp, ch)
-    if fp[ch + TC_THROTTLE] != 0.0:
-        x = ramp(t, fp, ip[mb + MB_RAMP_T])
-        fp[ip[H_ENGINE_F]] = x * (1.0 - e) if fp[ch + TC_SEQ] != 0.0 else x
-    ck = 0.0
-    cs = 0.0
-    if fp[ch + TC_CLUTCH] != 0.0:
-        pv = ramp(t, fp, ip[mb + MB_RAMP_C])
-        if fp[ch + TC_SEQ] != 0.0:
-            pv = pv + (1.0 - pv) * e
-        f = min(1.0, max(0.0, 1.0 - pv))
-        ck = fp[ch + TC_CMUK] * fp[ch + TC_CCGEO] * fp[ch + TC_CFN] * f
-        cs = fp[ch + TC_CMUS] * fp[ch + TC_CCGEO] * fp[ch + TC_CFN] * f
-    fb = min(1.0, max(0.0, ramp(t, fp, ip[mb + MB_RAMP_B])))
+    ck, cs, fb = commands(t, ip, fp)
     # kinematics in tree order (TreeDriveline._kinematics)
     for s in range(ns):
         o = sec + SEC_STRIDE * s

@@ -144,7 +144,8 @@ def warm_modes(*, out=sys.stdout) -> float:
     """Compile or load the clutch/gearbox/brake mode segments by 0.05 s runs of the shipped
     launch_clutch_chain (kernel/modes_nb.py) and launch_clutch (the vehicle tree,
     kernel/tree_modes_nb.py): one compiled segment (kernel/segment_nb.py) for both and for
-    every method (the method is a run-time flag); returns the wall time (s)."""
+    every method (the method is a run-time flag), with the modes' analytic Jacobians
+    (modes_jac_nb, tree_modes_jac_nb) it calls; returns the wall time (s)."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.kernel.modes import KernelHybridSimulation
     from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation

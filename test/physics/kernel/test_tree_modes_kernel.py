@@ -222,20 +222,39 @@ def test_methods_without_dense_output_in_the_kernel_are_refused() -> None:
         KernelHybridTreeSimulation.from_reference(sim)
 
 
-@pytest.mark.parametrize('method', ['rosenbrock', pytest.param('rodas3', marks=pytest.mark.slow)])
+@pytest.mark.parametrize('method', ['rosenbrock', 'rodas4',
+                                    pytest.param('rodas3', marks=pytest.mark.slow)])
 def test_launch_clutch_on_rosenbrock(monkeypatch, method: str) -> None:
-    """The first 2 s (brake hold, release) on a RODAS method (kernel/segment_nb.py, the
-    reference's forward-difference Jacobian), against the reference on the kernel's mesh.
-    Measured (rosenbrock): event times 1.6e-12, sampled speeds 4.3e-9, final 5.9e-11; bounds
-    those of the chain's Rosenbrock comparison of launch_clutch_chain (test_modes_kernel.py:
-    the Jacobian's differences, ~1e-8 relative, enter every step): 5e-10, 2e-7."""
+    """The first 2 s (brake hold, release) on a RODAS method (kernel/segment_nb.py with the
+    tree mode's analytic Jacobian, kernel/tree_modes_jac_nb.py, the reference's
+    hybrid/tree_jac.py), against the reference on the kernel's mesh: the dopri5 bounds.
+    Measured (rosenbrock / rodas4): event times 1.0e-14 / 1.3e-16, sampled speeds 7.5e-12 /
+    4.3e-14, final 4.8e-13 / 3.5e-14 (with the forward-difference Jacobian RODAS5P reached
+    1.6e-12 and 4.3e-9: its increment divided the backends' last-bit differences)."""
     sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']), duration=2.0,
                             method=method)
     k = KernelHybridTreeSimulation.from_reference(sim, step_log=True)
     rk = k.run()
     rp = replay(sim, k.step_log, monkeypatch)
-    assert_same_run(rp, rk, tol_t=5e-10, tol_x=2e-7)
+    assert_same_run(rp, rk)
     assert [e.after for e in rk.events] == ['stuck', 'stuck', 'slip+', 'slip+']
+    assert rk.max_energy_residual < 1e-8
+
+
+@pytest.mark.parametrize('method', ['rosenbrock', 'rodas4'])
+def test_fwd_axle_manual_on_rosenbrock(monkeypatch, method: str) -> None:
+    """The commanded 3 -> 4 shift under load (clutch opens, neutral, 4th, slips, locks) on
+    RODAS5P and rodas4 with the analytic Jacobian, against the reference on the kernel's
+    mesh: the dopri5 bounds, the same events, the energy residual through every transition.
+    Measured (rosenbrock / rodas4): event times 1.5e-13 / 7.4e-14, sampled speeds 8.1e-12 /
+    3.3e-12, final 3.9e-12 / 2.6e-12, energy residual 5.6e-11 / 3.7e-12."""
+    sim = hybrid_simulation(load_scene(shipped_scenes()['fwd_axle_manual']), duration=2.0,
+                            method=method)
+    k = KernelHybridTreeSimulation.from_reference(sim, step_log=True)
+    rk = k.run()
+    rp = replay(sim, k.step_log, monkeypatch)
+    assert_same_run(rp, rk)
+    assert any(e.element == 'gearbox' for e in rk.events)
     assert rk.max_energy_residual < 1e-8
 
 

@@ -37,7 +37,7 @@ from cvj_ros.physics.hybrid.chain import Assembly, Evaluation, HybridChain, Mode
 from cvj_ros.physics.hybrid.chain_jac import mode_jacobian
 from cvj_ros.physics.hybrid.commands import CommandSchedule
 from cvj_ros.physics.hybrid.elements import Clutch
-from cvj_ros.physics.hybrid.events import Witness, crossed, locate
+from cvj_ros.physics.hybrid.events import Witness, crossed, locate, same_instant
 from cvj_ros.physics.hybrid.friction import (BACKWARD, FORWARD, STUCK, decide_mode,
                                              mode_name)
 from cvj_ros.physics.sections import section_kinematics
@@ -136,6 +136,7 @@ class HybridSimulation:
             if name not in chain.shafts or chain.shafts[name][1] != 0:
                 raise SceneError(f'initial_speeds.{name}', 'not the first shaft of a section')
         self.joint_samples = False   # True: run() also samples positions, efforts, engine torque
+        self._released: tuple[float, set[str]] = (-math.inf, set())   # _release, _settle
 
     # --- capacities ----------------------------------------------------------------------
 
@@ -257,6 +258,9 @@ class HybridSimulation:
         return out, st
 
     def _release(self, t: float, mode: Mode, kind: str, name: str, new: int, cause: str) -> Mode:
+        if not same_instant(t, self._released[0]):
+            self._released = (t, set())
+        self._released[1].add(name)
         out = mode.copy()
         if kind == 'clutch':
             out.clutch[name] = new
@@ -271,8 +275,15 @@ class HybridSimulation:
         """Release stuck elements whose capacity no longer holds and stick slipping ones at
         exactly zero slip that can hold; repeated until no mode changes (at most 8 rounds).
         Elements in ``fresh`` have just had their mode chosen at this event: they are not
-        stuck again (just released, their stuck torque equals the capacity to rounding)."""
+        stuck again (just released, their stuck torque equals the capacity to rounding).
+        Nor is an element released at this instant (as on the vehicle tree): a clutch and
+        the brake behind it can each need the other stuck to hold, so sticking one again
+        when the other lets go repeated stick, stick, release, release at one instant and
+        left whichever mode the last round set (a stuck element over its capacity);
+        both slipping is the consistent mode."""
         for _ in range(8):
+            if same_instant(t, self._released[0]):
+                fresh = tuple(fresh) + tuple(sorted(self._released[1] - set(fresh)))
             asm, y, st = self._apply(mode, st, [])
             ev = self._eval(asm, mode, t, y)
             _ck, cs, _bk, bs = self._capacities(t)
@@ -401,6 +412,7 @@ class HybridSimulation:
 
     def _initial(self) -> tuple[Mode, SectionState]:
         ch = self.chain
+        self._released = (-math.inf, set())
         mode = Mode(clutch={c: FORWARD for c in ch.clutches},
                     gear={g: self.schedule.gear(0.0) for g in ch.gearboxes},
                     brake=None if ch.brake is None else FORWARD)

@@ -579,10 +579,22 @@ class _LinearlyImplicit:
 
     def _ensure_f(self) -> np.ndarray:
         if self._f is None:
-            self._f = np.asarray(self._eval(self.t, self.y), dtype=float)
+            self._f = np.asarray(self._eval(self._inside(self.t), self.y), dtype=float)
             if not np.all(np.isfinite(self._f)):
                 self._raise_nonfinite(self._f, self.t, 'fun(t, y)')
         return self._f
+
+    def _inside(self, t: float) -> float:
+        """t, or the last float before the ``ft_window``'s end hi when t reaches it: the
+        inputs jump only at the window's ends, so a stage at t + h = hi (alpha_i = 1) and
+        f at the step end take the inputs' left limit there (a command row's value before
+        its jump). Taking the row's value instead put the jump into the error estimate
+        E.K ~ h |jump| of every step landing on the row (RODAS3: h gamma k_4 = -h df/6 with
+        J = 0), so steps towards a jump were rejected down to the step-size floor."""
+        win = self.ft_window
+        if win is not None and t >= win[1]:
+            return math.nextafter(win[1], -math.inf)
+        return t
 
     def _jacobian(self, t: float, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
         self.njev += 1
@@ -677,7 +689,7 @@ class _LinearlyImplicit:
                 if self._reuse_f[i]:
                     rhs = self._ensure_f()
                 else:
-                    rhs = fun(t + alpha[i] * h, dot(arg_rows[i], arg_views[i]))
+                    rhs = fun(self._inside(t + alpha[i] * h), dot(arg_rows[i], arg_views[i]))
                 rhs = rhs + dot(c_rows[i], k_views[i])
                 if ft is not None and gsum[i] != 0.0:
                     rhs += (h * gsum[i]) * ft

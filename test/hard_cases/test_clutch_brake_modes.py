@@ -405,3 +405,29 @@ def test_an_event_on_a_command_row_still_applies_the_row() -> None:
     assert len(gears) == 1 and gears[0][1] == 'gear 1' and gears[0][0] == pytest.approx(0.5, abs=1e-12)
     assert r.final_mode.gear['gearbox'] == 1 and r.column('wheel')[-1] < 0.0   # rolls back
     assert r.max_energy_residual < ENERGY_BOUND
+
+
+def test_clutch_and_brake_that_each_need_the_other_stuck_both_slip() -> None:
+    """Everything at rest, clutch closed (150 N m static, 112.5 kinetic), an engine of
+    100 N m on 0.25 kg m^2, a light output side (0.05 kg m^2) that the load drives with
+    900 N m against a brake of 800 N m static (640 kinetic). Both stuck, the brake must hold
+    1000 N m: it slips; then the clutch must hold 100 - 0.25 (1000 - 640)/0.3 = -200 N m: it
+    slips backwards; with it slipping the brake would hold 900 - 112.5 = 787.5 N m, and
+    with the brake stuck the clutch 100 N m. Sticking either again at t = 0 (before: the
+    settle's 8 rounds ended with the clutch stuck carrying 200 N m, its witness already
+    below zero, for the whole run) is wrong: both slip, each side at constant acceleration,
+    engine (100 + 112.5) / 0.25 = 850 rad/s^2, output (900 - 112.5 - 640) / 0.05 =
+    2950 rad/s^2 (closed form), and nothing changes after t = 0."""
+    clutch = CoulombPack(mu_s=0.4, mu_k=0.3, cgeo=0.2, fn_max=1875.0)
+    chain = HybridChain([Inertia('engine_crank', 0.2), Clutch('clutch', 0.05, 0.01, clutch),
+                         Inertia('output_shaft', 0.04), Brake('brake', BRAKE)])
+    sched = CommandSchedule([(0.0, {'clutch': 0.0, 'brake': 0.16, 'throttle': 1.0})])
+    sim = HybridSimulation(chain, engine=_const_engine(100.0), load=ConstantLoad(torque=-900.0),
+                           schedule=sched, duration=0.2, sample_dt=0.01, rtol=1e-10, atol=1e-12)
+    r = sim.run()
+    assert r.final_mode.clutch['clutch'] == -1 and r.final_mode.brake == 1
+    assert all(e.t == 0.0 for e in r.events)
+    assert [(e.element, e.after) for e in r.events[-2:]] == [('brake', 'slip+'), ('clutch', 'slip-')]
+    np.testing.assert_allclose(r.column('engine_crank'), 850.0 * r.t, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(r.column('output_shaft'), 2950.0 * r.t, rtol=1e-12, atol=1e-12)
+    assert r.max_energy_residual < ENERGY_BOUND

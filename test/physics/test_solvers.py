@@ -408,10 +408,14 @@ def test_dop853_error_estimate_ignores_unfilled_dense_rows() -> None:
 @pytest.mark.parametrize('method', ['rodas3', 'rodas4', 'rosenbrock'])
 def test_ft_window_keeps_f_t_inside_a_segment_before_a_jump(method: str) -> None:
     """y' = y + c(t), c = t jumping to 1e3 at t = 1 (a command row that jumps, the new value
-    from 1 on): with ``ft_window`` = (0, 1) no evaluation lies beyond 1 (f_t one-sided within
-    eps^(1/3) of the end), the run matches y = 2 e^t - t - 1 at the tolerance and takes fewer
-    steps than with the central f_t, which straddles the jump there (measured 279 / 94 / 70
-    against 375 / 308 / 121 for rodas3 / rodas4 / RODAS5P)."""
+    from 1 on): with ``ft_window`` = (0, 1) no evaluation lies at or beyond 1 (f_t one-sided
+    within eps^(1/3) of the end; a stage at t + h = 1 and f at the end take the last float
+    before 1, the inputs' left limit), the run matches y = 2 e^t - t - 1 at the tolerance
+    and no step is rejected: the jump never enters the error estimate, so the last step
+    lands on 1 at its natural size (measured 227 / 38 / 11 steps for rodas3 / rodas4 /
+    RODAS5P, last step 1.3e-3 / 1.5e-2 / 9.3e-2 s; with the row's value at t + h = 1 they
+    crept to it with 279 / 94 / 70 steps, 27-31 rejected, the last ~1e-10 s; with the
+    central f_t, which straddles the jump, 375 / 308 / 121)."""
     def run(window):
         seen = []
 
@@ -424,10 +428,14 @@ def test_ft_window_keeps_f_t_inside_a_segment_before_a_jump(method: str) -> None
         while st.t < 1.0 and steps < 100000:
             st.step(1.0)
             steps += 1
-        return steps, float(st.y[0]), max(seen)
+        return steps, st, max(seen)
 
-    n_win, y_win, t_max = run((0.0, 1.0))
+    n_win, st, t_max = run((0.0, 1.0))
     n_central, _, t_central = run(None)
-    assert t_max == 1.0 and t_central > 1.0
-    assert y_win == pytest.approx(2.0 * math.e - 2.0, rel=1e-6)
+    assert t_max < 1.0 and t_central > 1.0
+    assert float(st.y[0]) == pytest.approx(2.0 * math.e - 2.0, rel=1e-6)
+    assert st.nreject == 0 and st.t - st.t_old > 1e-4
+    # the last step's dense output takes f's left limit at its end, not the jump
+    tm = 0.5 * (st.t_old + st.t)
+    assert float(st.dense(tm)[0]) == pytest.approx(2.0 * math.exp(tm) - tm - 1.0, rel=1e-6)
     assert n_central > n_win

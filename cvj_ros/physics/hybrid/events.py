@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-__all__ = ['Witness', 'crossed', 'earliest', 'locate']
+__all__ = ['Witness', 'crossed', 'earliest', 'locate', 'same_instant']
 
 _EPS = float(np.finfo(float).eps)
 
@@ -26,6 +26,12 @@ class Witness:
 
     key: tuple
     direction: int
+
+
+def same_instant(t: float, t0: float) -> bool:
+    """t and t0 (s) are one instant: within the run loops' rounding rule for an event just
+    before a command row (1e-12 max(1 s, |t|))."""
+    return abs(t - t0) <= 1e-12 * max(1.0, abs(t))
 
 
 def crossed(direction: int, g_old: float, g_new: float) -> bool:

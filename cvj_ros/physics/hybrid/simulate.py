@@ -37,7 +37,7 @@ from cvj_ros.physics.hybrid.chain import Assembly, Evaluation, HybridChain, Mode
 from cvj_ros.physics.hybrid.chain_jac import mode_jacobian
 from cvj_ros.physics.hybrid.commands import CommandSchedule
 from cvj_ros.physics.hybrid.elements import Clutch
-from cvj_ros.physics.hybrid.events import Witness, crossed, locate
+from cvj_ros.physics.hybrid.events import Witness, crossed, locate, same_instant
 from cvj_ros.physics.hybrid.friction import (BACKWARD, FORWARD, STUCK, decide_mode,
                                              mode_name)
 from cvj_ros.physics.sections import section_kinematics
@@ -136,6 +136,7 @@ class HybridSimulation:
             if name not in chain.shafts or chain.shafts[name][1] != 0:
                 raise SceneError(f'initial_speeds.{name}', 'not the first shaft of a section')
         self.joint_samples = False   # True: run() also samples positions, efforts, engine torque
+        self._seen: tuple[float, set[tuple]] = (-math.inf, set())   # modes at one instant
 
     # --- capacities ----------------------------------------------------------------------
 
@@ -256,7 +257,26 @@ class HybridSimulation:
             self._log(t, name, mode_name(before), mode_name(new), cause)
         return out, st
 
+    def _mark(self, t: float, mode: Mode) -> None:
+        """Note ``mode`` as passed through at the instant t."""
+        if not same_instant(t, self._seen[0]):
+            self._seen = (t, set())
+        self._seen[1].add((tuple(sorted(mode.clutch.items())), tuple(sorted(mode.gear.items())),
+                           mode.brake))
+
+    def _revisits(self, t: float, mode: Mode, kind: str, name: str) -> bool:
+        """Sticking ``name`` would return to a mode already passed through at t."""
+        cand = mode.copy()
+        if kind == 'clutch':
+            cand.clutch[name] = STUCK
+        else:
+            cand.brake = STUCK
+        return same_instant(t, self._seen[0]) and (
+            tuple(sorted(cand.clutch.items())), tuple(sorted(cand.gear.items())),
+            cand.brake) in self._seen[1]
+
     def _release(self, t: float, mode: Mode, kind: str, name: str, new: int, cause: str) -> Mode:
+        self._mark(t, mode)
         out = mode.copy()
         if kind == 'clutch':
             out.clutch[name] = new
@@ -271,8 +291,16 @@ class HybridSimulation:
         """Release stuck elements whose capacity no longer holds and stick slipping ones at
         exactly zero slip that can hold; repeated until no mode changes (at most 8 rounds).
         Elements in ``fresh`` have just had their mode chosen at this event: they are not
-        stuck again (just released, their stuck torque equals the capacity to rounding)."""
+        stuck again (just released, their stuck torque equals the capacity to rounding).
+        Nor is an element stuck when that returns to a mode already passed through at this
+        instant: a clutch and the brake behind it can each need the other stuck to hold, so
+        sticking one again when the other let go repeated stick, stick, release, release at
+        one instant and left whichever mode the last round set (a stuck element over its
+        capacity); both slipping is the consistent mode there. (A stick to a mode not yet
+        passed through stays allowed: an element released before another can be the one
+        that holds once the other slips.)"""
         for _ in range(8):
+            self._mark(t, mode)
             asm, y, st = self._apply(mode, st, [])
             ev = self._eval(asm, mode, t, y)
             _ck, cs, _bk, bs = self._capacities(t)
@@ -285,7 +313,8 @@ class HybridSimulation:
                         mode = self._release(t, mode, 'clutch', name, new, 'capacity below torque')
                         changed = True
                         break
-                elif ev.slip[b] == 0.0 and cs > 0.0 and name not in fresh:
+                elif (ev.slip[b] == 0.0 and cs > 0.0 and name not in fresh
+                      and not self._revisits(t, mode, 'clutch', name)):
                     m2, st2 = self._try_stick(t, mode, st, 'clutch', name, 'zero slip')
                     if m2.clutch[name] != m:
                         mode, st, changed = m2, st2, True
@@ -299,7 +328,8 @@ class HybridSimulation:
                     if new != STUCK:
                         mode = self._release(t, mode, 'brake', br.name, new, 'capacity below torque')
                         continue
-                elif ev.omega_last == 0.0 and bs > 0.0 and br.name not in fresh:
+                elif (ev.omega_last == 0.0 and bs > 0.0 and br.name not in fresh
+                      and not self._revisits(t, mode, 'brake', br.name)):
                     m2, st2 = self._try_stick(t, mode, st, 'brake', br.name, 'zero speed')
                     if m2.brake != mode.brake:
                         mode, st = m2, st2
@@ -401,6 +431,7 @@ class HybridSimulation:
 
     def _initial(self) -> tuple[Mode, SectionState]:
         ch = self.chain
+        self._seen = (-math.inf, set())
         mode = Mode(clutch={c: FORWARD for c in ch.clutches},
                     gear={g: self.schedule.gear(0.0) for g in ch.gearboxes},
                     brake=None if ch.brake is None else FORWARD)

@@ -597,10 +597,13 @@ def _ros_prepare(kind, h, gamma, t_lo, t_hi, y, ip, fp, fs, cnt, J, LU, piv, ft,
 
 
 @njit(cache=True)
-def _ros_stages(kind, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work, sc):
+def _ros_stages(kind, h, t_hi, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work,
+                sc):
     """Rosenbrock stages in K form (steppers_nb._ros_stages on the mode's rhs):
     (I/(h g) - J) K_i = f(t + alpha_i h, y + sum_j A_ij K_j) + sum_j C_ij/h K_j
-    + h gsum_i f_t into K[i+1]; y_new into work[1]."""
+    + h gsum_i f_t into K[i+1]; y_new into work[1]. A stage time reaching the segment's end
+    t_hi is the last float before it (the commands' left limit at a row,
+    solvers._LinearlyImplicit._inside)."""
     n = y.shape[0]
     st = M.shape[0]
     t = fs[FS_T]
@@ -620,7 +623,9 @@ def _ros_stages(kind, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, 
                 for j in range(s):
                     acc += A[s, j] * K[j + 1, i]
                 arg[i] = y[i] + acc
-            _f(kind, t + alpha[s] * h, arg, ip, fp, b, sc, False)
+            ts = t + alpha[s] * h
+            _f(kind, ts if ts < t_hi else np.nextafter(t_hi, -np.inf), arg, ip, fp, b, sc,
+               False)
             cnt[C_NFEV] += 1
         if s > 0:
             for i in range(n):
@@ -664,8 +669,8 @@ def _ros_step(kind, t_lo, t_bound, y, y_old, ip, fp, fs, cnt, rtol, atol, max_st
         fresh = False
         if stat != ST_OK:
             return stat
-        _ros_stages(kind, h, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K, work,
-                    sc)
+        _ros_stages(kind, h, t_bound, y, ip, fp, fs, cnt, A, C, M, alpha, gsum, LU, piv, ft, K,
+                    work, sc)
         ss = 0.0
         for i in range(n):
             e = 0.0
@@ -802,9 +807,14 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
         else:
             _witness_at(kind, t_new, y, ip, fp, dy, sc, g_new)
             if method == M_ROSENBROCK:
-                # f at the step end: the Hermite dense output's and the next step's f(t, y)
-                for j in range(ns):
-                    K[0, j] = dy[j]
+                # f at the step end: the Hermite dense output's and the next step's f(t, y);
+                # at the segment's end with the commands' left limit (_ros_stages)
+                if t_new >= t_stop:
+                    _f(kind, np.nextafter(t_stop, -np.inf), y, ip, fp, K[0], sc, False)
+                    cnt[C_NFEV] += 1
+                else:
+                    for j in range(ns):
+                        K[0, j] = dy[j]
                 cnt[C_NFEV] += 1
         best_t = math.inf
         best_i = -1

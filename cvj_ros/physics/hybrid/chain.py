@@ -188,6 +188,9 @@ class HybridChain:
                     if sh.name in self.shafts:
                         raise SceneError('driveline', f'shaft name {sh.name!r} made twice')
                     self.shafts[sh.name] = (base + sh.section, sh.op_index, sh.role)
+        if len({id(c.pack) for c, _b in self.clutches.values()}) > 1:
+            # the one `clutch` command channel and its capacity (simulate._capacities)
+            raise SceneError('driveline', 'one clutch pedal drives every clutch: give one clutch')
         if len(self.gearboxes) > 1:
             raise SceneError('driveline', 'at most one gearbox (the gear command drives it)')
         self.n_sections = len(self.sections)

@@ -45,6 +45,10 @@ def test_sections_boundaries_and_shaft_names() -> None:
     ([Inertia('a', 1.0), Brake('brake', PACK), Inertia('b', 1.0)], 'driveline[1]'),
     ([Inertia('a', 1.0), Gearbox('g1', 1.0, 1.0, (2.0,), -2.0, 1.0),
       Gearbox('g2', 1.0, 1.0, (2.0,), -2.0, 1.0), Inertia('b', 1.0)], 'driveline'),
+    # one clutch command, one capacity: a second clutch would be given the first one's pack
+    ([Inertia('a', 1.0), Clutch('c1', 0.05, 0.02, PACK), Inertia('b', 1.0),
+      Clutch('c2', 0.05, 0.02, CoulombPack(mu_s=0.4, mu_k=0.3, cgeo=0.1, fn_max=400.0)),
+      Inertia('c', 1.0)], 'driveline'),
 ])
 def test_bad_layouts_name_the_field(elements: list, field: str) -> None:
     with pytest.raises(SceneError) as exc:

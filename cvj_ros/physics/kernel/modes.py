@@ -180,6 +180,7 @@ class KernelHybridSimulation(HybridSimulation):
             fp.append(float(len(r.times)))
             fp.extend(float(v) for v in r.times)
             fp.extend(float(v) for v in r.values)
+            fp.append(math.inf)     # the segment's end (modes_nb.ramp), set by each segment
         head = [0] * N_MHEADER
         head[MH_ENGINE], head[MH_ENGINE_F], head[MH_LOAD], head[MH_LOAD_F] = e_code, e_f, l_code, l_f
         head[MH_CHAN_F], head[MH_RAMP_T], head[MH_RAMP_C], head[MH_RAMP_B] = chan, *ramps

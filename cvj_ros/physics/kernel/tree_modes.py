@@ -188,6 +188,7 @@ def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode, engine
         fp.append(float(len(times)))
         fp.extend(float(v) for v in times)
         fp.extend(float(v) for v in values)
+        fp.append(math.inf)         # the segment's end (modes_nb.ramp), set by each segment
     vals = {MB_NLINK: len(mt.links), MB_NBRAKE: len(brake_index), MB_NPACK: len(pack_index),
             MB_NWIT: len(wit) // 4, MB_CHAN_F: chan, MB_RAMP_T: ramps[0], MB_RAMP_C: ramps[1],
             MB_RAMP_B: ramps[2]}

@@ -482,6 +482,28 @@ def test_every_method_shares_one_compiled_segment() -> None:
     assert len(types) == 1
 
 
+def test_kernel_ramp_sees_a_step_at_the_segment_end_as_the_reference() -> None:
+    """modes_nb.ramp (its Python body: the same arithmetic) equals commands.Ramp.at bit for
+    bit at random times, row times and a rounding either side of them, for segment ends on a
+    step (two rows at one time), on a plain row and beyond the last row; the block's t_end
+    slot is what mode_segment writes (modes_nb.set_ramp_end)."""
+    from cvj_ros.physics.hybrid.commands import CommandSchedule
+    from cvj_ros.physics.kernel.modes_nb import ramp, set_ramp_end
+    s = CommandSchedule([(0.0, {'clutch': 1.0}), (0.1, {'clutch': 1.0}), (0.1, {'clutch': 0.0}),
+                         (0.7, {'clutch': 0.3}), (0.7, {'clutch': 0.3}), (1.3, {'clutch': 0.9})])
+    r = s.channels['clutch']
+    fp = np.array([float(len(r.times)), *r.times, *r.values, math.inf])
+    rng = np.random.default_rng(5)
+    ts = [*rng.uniform(-0.5, 2.0, 200), *r.times]
+    ts += [math.nextafter(t, d) for t in r.times for d in (-1.0, 2.0)]
+    for t_end in (math.inf, 0.1, 0.7, 1.3, 0.4, 2.0):
+        set_ramp_end.py_func(fp, 0, t_end)
+        for t in ts:
+            assert ramp.py_func(t, fp, 0) == r.at(t, t_end), (t, t_end)
+    set_ramp_end.py_func(fp, 0, 0.1)
+    assert (ramp.py_func(0.1, fp, 0), r(0.1)) == (1.0, 0.0)
+
+
 def _stiff_damper_scene(stiffness: float, damping: float):
     """launch_clutch_chain with a stiffer, damped clutch damper (the disc, 0.01 kg m^2, on
     ``stiffness`` N m/rad and ``damping`` N m s/rad)."""
@@ -536,12 +558,15 @@ _ERK_CASES = ('test_engagement_at_large_speed_difference_locks_at_the_closed_for
               'test_judder_locates_every_transition',
               'test_judder_with_low_damping_locates_every_transition',
               'test_brake_holds_on_a_grade_for_10_s_with_speed_exactly_zero',
-              'test_random_command_schedules_keep_the_invariants[0]')
-# not the stall case: its clutch pedal jumps at 0.1 s (two rows at one time), the end of
-# its first segment; the FSAL stage at t + h = 0.1 s sees the closed clutch and the error
-# estimate rejects every step towards it, on both backends (the reference lands on 0.1 s
-# after 57 rejections with h = 7e-16 s, the kernel's mesh, different in the last bits,
-# ends in a step-size underflow there; docs/clutch_gearbox.md)
+              'test_random_command_schedules_keep_the_invariants[0]',
+              'test_stall_is_reported_at_the_closed_form_time',
+              'test_shift_under_load_matches_the_closed_form')
+# the stall case's clutch pedal jumps at 0.1 s and the shift's at 0.5 s (two rows at one
+# time), each the end of a segment: the segment's last stage and witnesses see the pedal
+# before the jump (commands.Ramp.at, modes_nb.ramp), so the explicit pairs step onto the row
+# (before, the FSAL stage at t + h = 0.1 s saw the closed clutch and the error estimate
+# rejected every step towards it: 57 rejections down to h = 7e-16 s in the tsit5 reference,
+# a step-size underflow in the kernel)
 
 
 def _patch_erk_twin(monkeypatch, method: str) -> list[dict[str, float]]:

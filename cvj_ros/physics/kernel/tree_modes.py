@@ -6,7 +6,7 @@ compiled kernel.
 :class:`~cvj_ros.physics.hybrid.tree.ModeTree` becomes ``ip``/``fp`` arrays (the event-free
 tree tables of ``kernel/layout.py`` plus the mode block of ``kernel/tree_modes_nb.py``; no
 per-scene or per-mode compile) and :func:`tree_modes_nb.tree_mode_segment` integrates it
-(dopri5, dop853, a RODAS method, tsit5 or vern6), checks the witnesses after every step and
+(dopri5, dop853, a RODAS method, tsit5, vern6, vern7 or vern8), checks the witnesses after every step and
 locates the earliest crossing on the dense output (Brent), in one compiled call per mode. The discrete decisions (stick or
 slip, release, the shift schedule's triggers, gear commands and their refusals, the
 momentum-conserving locks, the stall) and the samples are the oracle's own methods, so the
@@ -39,7 +39,7 @@ END_NONE, END_WHEEL, END_SPRING, END_DIFF, END_LINK = 0, 1, 2, 3, 4
  TW_PACK_SLIP, TW_PACK_FWD, TW_PACK_BWD, TW_SHIFT) = range(11)
 _ENDS = {'wheel': END_WHEEL, 'spring': END_SPRING, 'diff': END_DIFF, 'link': END_LINK}
 KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5',
-                            'vern6')
+                            'vern6', 'vern7', 'vern8')
 
 
 class _Gear:

@@ -336,7 +336,7 @@ def test_fuzzed_grades_masses_and_schedules_more(monkeypatch, seed: int) -> None
 # states (with numpy/BLAS dot products vern6 differed by 1.4e-11; 3.0e-12 in event times and
 # 6.6e-9; 2.5e-10 in speeds: its coefficients, up to ~200, amplified the sums' last bits).
 # Bounds: the hard cases' (TOL, TOL_STATE).
-ERK_TREE_TOL = {'tsit5': (TOL, TOL_STATE), 'vern6': (TOL, TOL_STATE)}
+ERK_TREE_TOL = {m: (TOL, TOL_STATE) for m in ('tsit5', 'vern6', 'vern7', 'vern8')}
 
 
 def _erk_twin(sim: HybridTreeSimulation, method: str, monkeypatch):
@@ -349,7 +349,8 @@ def _erk_twin(sim: HybridTreeSimulation, method: str, monkeypatch):
     return rk
 
 
-@pytest.mark.parametrize('method', ['tsit5', 'vern6'])
+@pytest.mark.parametrize('method', ['tsit5', 'vern6', pytest.param('vern7', marks=pytest.mark.slow),
+                                    pytest.param('vern8', marks=pytest.mark.slow)])
 def test_launch_clutch_on_tsit5_vern6(monkeypatch, method: str) -> None:
     """launch_clutch's first 4 s (brake hold, release, clutch engagement to lock, the 1 -> 2
     shift) on the explicit pairs with interpolants (kernel/segment_nb.py's M_ERK) against
@@ -362,7 +363,7 @@ def test_launch_clutch_on_tsit5_vern6(monkeypatch, method: str) -> None:
     assert rk.max_energy_residual < 1e-8
 
 
-@pytest.mark.parametrize('method', ['tsit5', 'vern6'])
+@pytest.mark.parametrize('method', ['tsit5', 'vern6', 'vern7', 'vern8'])
 def test_fwd_axle_manual_on_tsit5_vern6(monkeypatch, method: str) -> None:
     """The commanded 3 -> 4 shift under load on tsit5 / vern6, its first 2 s, as
     test_fwd_axle_manual."""

@@ -8,7 +8,7 @@ t_stop with one of
 * M_DOPRI5, M_DOP853: Dormand-Prince 5(4) / 8(5,3), the step control and dense output of
   ``steppers_nb.dopri5_step`` / ``dop853_step``;
 * M_ERK: an efficient explicit FSAL pair with interpolant (``tsit5``, Tsitouras 2011;
-  ``vern6``, Verner 2010; ``physics/erk_tableaux.py``), the step control of
+  ``vern6``, ``vern7``, ``vern8``, Verner 2010; ``physics/erk_tableaux.py``), the step control of
   ``steppers_rk_nb.erk_step`` and the pair's own interpolant (its extra stages once per
   step), as ``solvers._ErkStepper``;
 * M_ROSENBROCK: an adaptive RODAS method whose tableau is passed in (``rodas3``, ``rodas4``,
@@ -23,6 +23,8 @@ t_stop with one of
   RODAS5P's continuous extension (``steppers_nb.ros_dense_h``), RODAS3/4 the cubic Hermite
   of ``solvers._hermite`` from f at both step ends.
 
+The segment writes t_stop into the mode's command ramps (``modes_nb.set_ramp_end``), so its
+last stage and witnesses see a command step at t_stop from the left (``commands.Ramp.at``).
 After every accepted step the mode's witnesses are checked (a crossing in the witness's
 direction, scipy's ``find_active_events``), the earliest is located by Brent's method
 (scipy's ``brentq``, Brent 1973, xtol = rtol = 4 eps) on the dense output and the segment

@@ -432,7 +432,8 @@ class _ErkStepper(_ExplicitRK):
     attempt (the last f(t + h, y_new): S - 1 fev), DOPRI5's error norm and PI controller
     with the embedded order's exponent; dense output of the pair's interpolant, its extra
     stages (vern6: 3 fev) once per step. The Python oracle of the compiled
-    ``kernel/steppers_rk_nb.py``."""
+    ``kernel/steppers_rk_nb.py`` and ``kernel/segment_nb.py``'s M_ERK: every sum adds in
+    their order (:meth:`_ordered`), so the two give the same bytes on the same mesh."""
 
     beta = 0.04
     fac_min = 0.2
@@ -451,16 +452,55 @@ class _ErkStepper(_ExplicitRK):
         cls._B = tab['B'][:S - 1]
         cls._EXTRA_ROWS = tab['C'].size - S
         cls._E_EXT = np.r_[0.0, tab['E'], np.zeros(cls._EXTRA_ROWS)]   # over KE rows
+        # the KE rows (0: the start value, j + 1: k_j) and coefficients of each ordered sum:
+        # stages 1 .. S-2, then y_new (row S-1 of A is B), then the interpolant's extra stages
+        A = tab['A']
+        sums = []
+        for r in range(1, tab['C'].size):
+            nz = np.flatnonzero(A[r, :r])
+            sums.append((np.r_[0, nz + 1], A[r, nz].copy()))
+        cls._SUMS = sums
+        cls._E_ROWS = tab['E'][:, None]
+
+    def _ordered(self, h: float, r: int, start: np.ndarray) -> np.ndarray:
+        """start + sum_j (h a_rj) k_j over the nonzero a_rj in the order of j, each product
+        rounded, then added left to right: the kernel's loops (``steppers_rk_nb._attempt``,
+        ``segment_nb._erk_step``), not a BLAS dot whose order of additions is its own."""
+        rows, a = self._SUMS[r - 1]
+        terms = self._KE[rows]
+        terms[0] = start
+        terms[1:] *= (h * a)[:, None]
+        return np.add.accumulate(terms, axis=0)[-1]
+
+    def _stages(self, h: float) -> np.ndarray:
+        """Fill KE for a step of size h in the kernel's order of additions; returns y_new."""
+        KE = self._KE
+        y = self.y
+        KE[0] = y
+        KE[1] = self._first_derivative()
+        t = self.t
+        fun = self.fun
+        C = self._C
+        s = self._S
+        for i in range(1, s):
+            KE[i + 1] = fun(t + C[i] * h, self._ordered(h, i, y))
+        y_new = self._ordered(h, s, y)
+        KE[s + 1] = fun(t + h, y_new)
+        self.nfev += s
+        return y_new
 
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        """Scaled RMS of h sum_j E_j k_j (the kernel's order: the sum over j left to right
+        per component, then the squares summed left to right)."""
         y_new = self._stages(h)
-        e = np.dot(self._E_EXT, self._KE)
+        e = np.add.accumulate(self._E_ROWS * self._KE[1:self._S + 2], axis=0)[-1]
         sc = np.abs(self.y)
         np.maximum(sc, np.abs(y_new), out=sc)
         sc *= self.rtol
         sc += self.atol
         e /= sc
-        return abs(h) * math.sqrt(float(np.dot(e, e)) / self.n), y_new
+        e *= e
+        return abs(h) * math.sqrt(float(np.add.accumulate(e)[-1]) / self.n), y_new
 
     def dense(self, t: float) -> np.ndarray:
         """y(t) inside the last accepted step (the pair's interpolant)."""
@@ -471,15 +511,19 @@ class _ErkStepper(_ExplicitRK):
         K = self._KE[1:]   # k_0 .. k_{S-1}, then the extra stages
         tab = self._TAB
         if self._dense_cache is None:
-            A, C = tab['A'], tab['C']
+            C = tab['C']
             for s in range(self._S + 1, C.size):
-                K[s] = self.fun(self.t_old + C[s] * h, self.y_old + h * np.dot(A[s, :s], K[:s]))
+                K[s] = self.fun(self.t_old + C[s] * h, self._ordered(h, s, self.y_old))
             self.nfev += C.size - self._S - 1
             self._dense_cache = True
         x = (t - self.t_old) / h
         P = tab['P']
-        powers = x ** np.arange(1, P.shape[1] + 1)
-        return self.y_old + h * np.dot(P @ powers, K[:P.shape[0]])
+        # b_j(x) by Horner, then sum_j b_j k_j left to right: the kernel's order (_erk_dense)
+        q = np.zeros(P.shape[0])
+        for d in range(P.shape[1] - 1, -1, -1):
+            q += P[:, d]
+            q *= x
+        return self.y_old + h * np.add.accumulate(q[:, None] * K[:P.shape[0]], axis=0)[-1]
 
 
 class Tsit5Stepper(_ErkStepper):

@@ -3,7 +3,8 @@
 Rows ``(t, {channel: value})`` in ascending time. ``throttle`` (0..1), ``clutch`` (pedal,
 0 engaged .. 1 open) and ``brake`` (0..1 of capacity) are piecewise linear between the
 rows that set them and held before the first and after the last; two rows at the same
-time make a step (the later row holds from that time on). ``gear`` (-1 reverse,
+time make a step (the later row holds from that time on; an integration segment that ends
+on the step sees it from the left: ``Ramp.at``). ``gear`` (-1 reverse,
 0 neutral, 1..N) is a step: the last row at or before t. Every row time is a breakpoint
 of the integration (the inputs are smooth between rows).
 """
@@ -40,6 +41,18 @@ class Ramp:
         t0, t1 = ts[k - 1], ts[k]
         v0, v1 = self.values[k - 1], self.values[k]
         return v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+
+    def at(self, t: float, t_end: float = math.inf) -> float:
+        """The value at t (s) inside an integrated segment that ends at t_end (s): at or
+        beyond t_end a jump there (two rows at t_end) is seen from the left, the value of
+        its first row, so the segment's last stage and its witnesses see the command before
+        the jump; otherwise the value at t."""
+        ts = self.times
+        if t >= t_end and ts:
+            j = bisect.bisect_left(ts, t_end)
+            if j + 1 < len(ts) and ts[j] == t_end and ts[j + 1] == t_end:
+                return self.values[j]
+        return self(t)
 
 
 class CommandSchedule:
@@ -85,9 +98,10 @@ class CommandSchedule:
             return bool(self._gear_times)
         return bool(self.channels[channel].times)
 
-    def value(self, channel: str, t: float) -> float:
-        """Channel ``throttle``, ``clutch`` or ``brake`` at t (s)."""
-        return self.channels[channel](t)
+    def value(self, channel: str, t: float, t_end: float = math.inf) -> float:
+        """Channel ``throttle``, ``clutch`` or ``brake`` at t (s); inside a segment that ends
+        at t_end, a jump at t_end seen from the left (:meth:`Ramp.at`)."""
+        return self.channels[channel].at(t, t_end)
 
     def gear(self, t: float) -> int:
         """Commanded gear at t (s): the last row at or before t (0 before any)."""

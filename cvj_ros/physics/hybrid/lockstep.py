@@ -60,7 +60,7 @@ class HeldCommands:
     def has(self, channel: str) -> bool:
         return channel != 'throttle'       # the engine node applies the throttle
 
-    def value(self, channel: str, t: float) -> float:
+    def value(self, channel: str, t: float, t_end: float = math.inf) -> float:
         return float(getattr(self.now, channel))
 
     def gear(self, t: float) -> int:

@@ -19,7 +19,8 @@ __all__ = ['BRAKE_KEYS', 'CLUTCH_KEYS', 'DENSE_METHODS', 'GEARBOX_KEYS', 'MODE_T
 
 MODE_TYPES = ('clutch', 'gearbox', 'brake')
 #: steppers with an error-controlled step and dense output (the events need both)
-DENSE_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6')
+DENSE_METHODS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6', 'vern7',
+                 'vern8')
 PACK_KEYS = ('mu_static', 'mu_kinetic', 'cgeo_m', 'normal_force_max')
 CLUTCH_KEYS = ('type', 'name', 'J_input', 'J_output') + PACK_KEYS
 GEARBOX_KEYS = ('type', 'name', 'J_input', 'J_output', 'ratios', 'reverse_ratio', 'max_input_rpm')

@@ -156,8 +156,8 @@ class AutoShift:
     def has(self, channel: str) -> bool:
         return channel in ('throttle', 'clutch', 'gear') or self.base.has(channel)
 
-    def value(self, channel: str, t: float) -> float:
-        v = self.base.value(channel, t)
+    def value(self, channel: str, t: float, t_end: float = math.inf) -> float:
+        v = self.base.value(channel, t, t_end)
         e = self._envelope(t)
         if channel == 'clutch':
             return v + (1.0 - v) * e

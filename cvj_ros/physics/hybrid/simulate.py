@@ -140,11 +140,15 @@ class HybridSimulation:
 
     # --- capacities ----------------------------------------------------------------------
 
+    #: the end of the segment being integrated (s): the rhs and witnesses see a command jump
+    #: there from the left (commands.Ramp.at); inf during the discrete transitions
+    _t_end = math.inf
+
     def _clutch_fn(self, t: float) -> float:
-        return Clutch.normal_force(self.schedule.value('clutch', t))
+        return Clutch.normal_force(self.schedule.value('clutch', t, self._t_end))
 
     def _brake_fn(self, t: float) -> float:
-        return min(1.0, max(0.0, self.schedule.value('brake', t)))
+        return min(1.0, max(0.0, self.schedule.value('brake', t, self._t_end)))
 
     def _capacities(self, t: float) -> tuple[float, float, float, float]:
         """(clutch kinetic, clutch static, brake kinetic, brake static) at t (N m)."""
@@ -160,7 +164,7 @@ class HybridSimulation:
 
     def _eval(self, asm: Assembly, mode: Mode, t: float, y: FloatArray) -> Evaluation:
         if self._throttle:
-            self.engine.set_throttle(self.schedule.value('throttle', t))
+            self.engine.set_throttle(self.schedule.value('throttle', t, self._t_end))
         ck, _cs, bk, _bs = self._capacities(t)
         return self.chain.evaluate(asm, mode, t, y, engine=self.engine, load=self.load,
                                    clutch_kinetic=ck, brake_kinetic=bk)
@@ -169,7 +173,7 @@ class HybridSimulation:
         """Analytic d(ydot)/dy of the mode at (t, y) (hybrid/chain_jac.py), for the
         Rosenbrock methods."""
         if self._throttle:
-            self.engine.set_throttle(self.schedule.value('throttle', t))
+            self.engine.set_throttle(self.schedule.value('throttle', t, self._t_end))
         ck, _cs, bk, _bs = self._capacities(t)
         return mode_jacobian(self.chain, asm, mode, t, y, engine=self.engine, load=self.load,
                              clutch_kinetic=ck, brake_kinetic=bk)
@@ -474,6 +478,7 @@ class HybridSimulation:
 
     def run(self) -> HybridResult:
         ch = self.chain
+        self._t_end = math.inf
         mode, st = self._initial()
         st.lock_loss = 0.0
         kin, el = ch.energy(st)
@@ -507,6 +512,7 @@ class HybridSimulation:
         t = 0.0
         mode, st = self._shift(0.0, mode, st)
         while t < self.duration and stall is None:
+            self._t_end = math.inf
             t_stop = min(self.schedule.next_breakpoint(t), self.duration)
             if t_stop - t <= 1e-12 * max(1.0, abs(t)):
                 # an event a rounding error before a command row: the row acts now (a step
@@ -523,6 +529,7 @@ class HybridSimulation:
             jac = None
             if self.method in ROSENBROCK_METHODS:
                 jac = lambda tt, yy, asm=asm, mode=mode: self._jac(asm, mode, tt, yy)  # noqa: E731
+            self._t_end = t_stop      # a jump at t_stop is seen from the left until it
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
                                    max_step=self.max_step, jac=jac)
             if jac is not None:
@@ -557,6 +564,7 @@ class HybridSimulation:
                 if hits:
                     t_ev, i = min(hits)
                     y_ev = stepper.y if t_ev == stepper.t else stepper.dense(t_ev)
+                    self._t_end = math.inf
                     st = ch.to_sections(asm, y_ev, st)
                     t = t_ev
                     stats['events'] += 1
@@ -577,6 +585,7 @@ class HybridSimulation:
                     break
                 g_old = g_new
                 if stepper.t >= t_stop:
+                    self._t_end = math.inf
                     t = t_stop
                     st = ch.to_sections(asm, stepper.y, st)
                     if t < self.duration:
@@ -584,6 +593,7 @@ class HybridSimulation:
                         mode, st = self._settle(t, mode, st)
                     break
             stats['nfev'] += stepper.nfev
+        self._t_end = math.inf
         if stall is not None:
             self.statuses.append(stall)
         keep = k_sample

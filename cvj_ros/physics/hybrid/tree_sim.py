@@ -124,20 +124,24 @@ class HybridTreeSimulation:
         mt.mode = mode          # the slip directions (FORWARD / BACKWARD) are read at evaluation
         return mt
 
+    #: the end of the segment being integrated (s): the rhs and witnesses see a command jump
+    #: there from the left (commands.Ramp.at); inf during the discrete transitions
+    _t_end = math.inf
+
     def _capacities(self, t: float) -> tuple[float, float, dict[str, float], dict[str, float]]:
         """(clutch kinetic, clutch static, brake kinetic by name, brake static by name) (N m)."""
         ck = cs = 0.0
         if self._clutch_pack is not None:
-            f = Clutch.normal_force(self.schedule.value('clutch', t))
+            f = Clutch.normal_force(self.schedule.value('clutch', t, self._t_end))
             ck, cs = self._clutch_pack.kinetic(f), self._clutch_pack.static(f)
-        b = min(1.0, max(0.0, self.schedule.value('brake', t)))
+        b = min(1.0, max(0.0, self.schedule.value('brake', t, self._t_end)))
         bk = {n: el.pack.kinetic(b) for n, el in self.brake_els.items()}
         bs = {n: el.pack.static(b) for n, el in self.brake_els.items()}
         return ck, cs, bk, bs
 
     def _eval(self, mt: ModeTree, t: float, x: FloatArray, torques: bool = True) -> TreeEvaluation:
         if self._throttle:
-            self.engine.set_throttle(self.schedule.value('throttle', t))
+            self.engine.set_throttle(self.schedule.value('throttle', t, self._t_end))
         ck, _cs, bk, _bs = self._capacities(t)
         return mt.evaluate(t, x, self.engine, ck, bk, torques=torques)
 
@@ -520,6 +524,7 @@ class HybridTreeSimulation:
         mode, st = self._shift(0.0, mode, st)
         while t < self.duration and stall is None:
             self._t_now = t
+            self._t_end = math.inf
             t_stop = min(self.schedule.next_breakpoint(t), self.duration)
             if t_stop - t <= 1e-12 * max(1.0, abs(t)):
                 t = t_stop
@@ -533,6 +538,7 @@ class HybridTreeSimulation:
             jac = None
             if self.method in ROSENBROCK_METHODS:
                 jac = lambda tt, yy, mt=mt: self._jac(mt, tt, yy)  # noqa: E731
+            self._t_end = t_stop      # a jump at t_stop is seen from the left until it
             stepper = make_stepper(self.method, fun, t, y0, rtol=self.rtol, atol=self.atol,
                                    max_step=self.max_step, jac=jac)
             if hasattr(stepper, 'ft_window'):
@@ -580,6 +586,7 @@ class HybridTreeSimulation:
                 if hits:
                     t_ev, i = min(hits)
                     y_ev = stepper.y if t_ev == stepper.t else stepper.dense(t_ev)
+                    self._t_end = math.inf
                     st = mt.to_state(y_ev, st.lock_loss)
                     t = t_ev
                     self._t_now = t
@@ -608,6 +615,7 @@ class HybridTreeSimulation:
                     break
                 g_old = g_new
                 if stepper.t >= t_stop:
+                    self._t_end = math.inf
                     t = t_stop
                     st = mt.to_state(stepper.y, st.lock_loss)
                     if t < self.duration:
@@ -616,6 +624,7 @@ class HybridTreeSimulation:
                         mode, st = self._settle(t, mode, st)
                     break
             stats['nfev'] += stepper.nfev
+        self._t_end = math.inf
         if stall is not None:
             self.statuses.append(stall)
         keep = k_sample

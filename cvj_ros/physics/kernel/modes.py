@@ -28,7 +28,8 @@ from cvj_ros.physics.kernel import layout as L
 
 __all__ = ['KERNEL_MODE_METHODS', 'KernelHybridSimulation']
 
-KERNEL_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5', 'vern6')
+KERNEL_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5', 'vern6',
+                       'vern7', 'vern8')
 
 # codes of kernel/modes_nb.py (repeated here so building the arrays does not import numba)
 OP_COUPLING = -1
@@ -48,7 +49,7 @@ KIND_CHAIN, KIND_TREE = 0, 1          # segment_nb's right-hand sides
 # segment_nb's method codes: the Rosenbrock family shares one, the explicit pairs with
 # interpolants (erk_tableaux) another; their tableaux are passed in
 _METHOD_CODE = {'dopri5': 0, 'dop853': 1, 'rodas3': 2, 'rodas4': 2, 'rosenbrock': 2,
-                'tsit5': 3, 'vern6': 3}
+                'tsit5': 3, 'vern6': 3, 'vern7': 3, 'vern8': 3}
 
 
 def _segment_entry(args: tuple) -> Any:
@@ -69,7 +70,7 @@ def _coefficients(method: str) -> tuple:
     (C, A, B, E5, E3, D, A_EXTRA, C_EXTRA), then the Rosenbrock tableau (A, C, M, E, alpha,
     gamma_sum, H; H without rows for the Hermite dense output of rodas3/rodas4) and
     (gamma, order, fac_max); a method that does not use them gets RODAS3's (same types:
-    one compiled code). tsit5 and vern6 (erk_tableaux) pass their pair in DOP853's slots:
+    one compiled code). tsit5, vern6, vern7 and vern8 (erk_tableaux) pass their pair in DOP853's slots:
     C, A, B, E, DOP853's E3, then P and the rows of A and C of the interpolant's extra
     stages; their embedded order in the second entry of the last array."""
     from cvj_ros.physics.kernel.stepper import _dop853_args, _rosenbrock_args
@@ -180,6 +181,7 @@ class KernelHybridSimulation(HybridSimulation):
             fp.append(float(len(r.times)))
             fp.extend(float(v) for v in r.times)
             fp.extend(float(v) for v in r.values)
+            fp.append(math.inf)     # the segment's end (modes_nb.ramp), set by each segment
         head = [0] * N_MHEADER
         head[MH_ENGINE], head[MH_ENGINE_F], head[MH_LOAD], head[MH_LOAD_F] = e_code, e_f, l_code, l_f
         head[MH_CHAN_F], head[MH_RAMP_T], head[MH_RAMP_C], head[MH_RAMP_B] = chan, *ramps

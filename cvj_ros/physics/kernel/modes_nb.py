@@ -23,7 +23,8 @@ code and fp offset; load code and fp offset; pinned 0/1; brake mode sign (0: no 
 torque); witness count and table offset (rows (kind W_*, reference, direction));
 stuck-slot count and table offset (rows (group, global op index of the clutch coupling));
 fp offset of the channel block CH_* (flags, packs, stall speed) and of the three ramps
-(throttle, clutch pedal, brake: [m, t_0..t_m-1, v_0..v_m-1], commands.Ramp).
+(throttle, clutch pedal, brake: [m, t_0..t_m-1, v_0..v_m-1, t_end], commands.Ramp; t_end:
+the integrated segment's end, where a jump is seen from the left, inf outside a segment).
 """
 from __future__ import annotations
 
@@ -57,13 +58,27 @@ FS_HUSED = 7            # fs slot: the size of the last accepted attempt (s), fo
 
 @njit(cache=True, inline='always')
 def ramp(t, fp, off):
-    """commands.Ramp at t: piecewise linear through (t_j, v_j), held outside, 0 without rows;
-    k = rows at or before t (bisect_right)."""
+    """commands.Ramp.at(t, t_end): piecewise linear through (t_j, v_j), held outside, 0
+    without rows; k = rows at or before t (bisect_right). Block [m, t_0.., v_0.., t_end]:
+    at or beyond t_end (the integrated segment's end, :func:`set_ramp_end`) a jump there (two
+    rows at t_end) is seen from the left, the value of its first row."""
     m = int(fp[off])
     if m == 0:
         return 0.0
     ts = off + 1
     vs = ts + m
+    te = fp[vs + m]
+    if t >= te:
+        lo = 0
+        hi = m
+        while lo < hi:               # rows before t_end (bisect_left)
+            mid = (lo + hi) // 2
+            if fp[ts + mid] < te:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo + 1 < m and fp[ts + lo] == te and fp[ts + lo + 1] == te:
+            return fp[vs + lo]
     lo = 0
     hi = m
     while lo < hi:
@@ -82,6 +97,13 @@ def ramp(t, fp, off):
     v0 = fp[vs + k - 1]
     v1 = fp[vs + k]
     return v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+
+
+@njit(cache=True)
+def set_ramp_end(fp, off, t_end):
+    """Write the segment end t_end (s) into the ramp block at fp[off] (:func:`ramp`)."""
+    m = int(fp[off])
+    fp[off + 1 + 2 * m] = t_end
 
 
 @njit(cache=True, inline='always')

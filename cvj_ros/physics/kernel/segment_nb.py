@@ -8,7 +8,7 @@ t_stop with one of
 * M_DOPRI5, M_DOP853: Dormand-Prince 5(4) / 8(5,3), the step control and dense output of
   ``steppers_nb.dopri5_step`` / ``dop853_step``;
 * M_ERK: an efficient explicit FSAL pair with interpolant (``tsit5``, Tsitouras 2011;
-  ``vern6``, Verner 2010; ``physics/erk_tableaux.py``), the step control of
+  ``vern6``, ``vern7``, ``vern8``, Verner 2010; ``physics/erk_tableaux.py``), the step control of
   ``steppers_rk_nb.erk_step`` and the pair's own interpolant (its extra stages once per
   step), as ``solvers._ErkStepper``;
 * M_ROSENBROCK: an adaptive RODAS method whose tableau is passed in (``rodas3``, ``rodas4``,
@@ -22,6 +22,8 @@ t_stop with one of
   RODAS5P's continuous extension (``steppers_nb.ros_dense_h``), RODAS3/4 the cubic Hermite
   of ``solvers._hermite`` from f at both step ends.
 
+The segment writes t_stop into the mode's command ramps (``modes_nb.set_ramp_end``), so its
+last stage and witnesses see a command step at t_stop from the left (``commands.Ramp.at``).
 After every accepted step the mode's witnesses are checked (a crossing in the witness's
 direction, scipy's ``find_active_events``), the earliest is located by Brent's method
 (scipy's ``brentq``, Brent 1973, xtol = rtol = 4 eps) on the dense output and the segment
@@ -41,7 +43,8 @@ from numba import njit
 
 from cvj_ros.physics.kernel.modes_jac_nb import mode_jac
 from cvj_ros.physics.kernel.modes_nb import (FS_HUSED, M_DOP853, M_DOPRI5, MH_N, MH_NWIT,
-                                             MH_WIT, N_SCRATCH_EXTRA, mode_eval,
+                                             MH_RAMP_B, MH_RAMP_C, MH_RAMP_T, MH_WIT,
+                                             N_SCRATCH_EXTRA, mode_eval, set_ramp_end,
                                              witness_values)
 from cvj_ros.physics.kernel.steppers_nb import (BETA, C_DENSE, C_LASTREJ, C_LUM, C_NACC,
                                                 C_NFEV, C_NREJ, D8_FAC_MAX, D8_FAC_MIN,
@@ -53,7 +56,8 @@ from cvj_ros.physics.kernel.steppers_nb import (BETA, C_DENSE, C_LASTREJ, C_LUM,
                                                 _proposal_nobeta, _stage_at_start,
                                                 dopri5_dense, lu_factor, lu_solve, ros_dense_h)
 from cvj_ros.physics.kernel.tree_modes_jac_nb import tm_jac
-from cvj_ros.physics.kernel.tree_modes_nb import MB_NWIT, MB_WIT, WIT_STRIDE, tm_eval
+from cvj_ros.physics.kernel.tree_modes_nb import (MB_NWIT, MB_RAMP_B, MB_RAMP_C, MB_RAMP_T,
+                                                  MB_WIT, WIT_STRIDE, tm_eval)
 
 __all__ = ['KIND_CHAIN', 'KIND_TREE', 'M_DOP853', 'M_DOPRI5', 'M_ERK', 'M_ROSENBROCK',
            'mode_segment']
@@ -725,12 +729,19 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
         w0 = ip[MH_WIT]
         wstride = 3
         sc = np.zeros(ip[MH_N] + N_SCRATCH_EXTRA)
+        r_t, r_c, r_b = ip[MH_RAMP_T], ip[MH_RAMP_C], ip[MH_RAMP_B]
     else:
         mb = ip[ip.shape[0] - 1]
         nw = ip[mb + MB_NWIT]
         w0 = ip[mb + MB_WIT]
         wstride = WIT_STRIDE
         sc = np.zeros(max(nw, 1))
+        r_t, r_c, r_b = ip[mb + MB_RAMP_T], ip[mb + MB_RAMP_C], ip[mb + MB_RAMP_B]
+    # the commands at and beyond t_stop (the last stage, the witnesses there): a jump at
+    # t_stop seen from the left, as the reference (commands.Ramp.at)
+    set_ramp_end(fp, r_t, t_stop)
+    set_ramp_end(fp, r_c, t_stop)
+    set_ramp_end(fp, r_b, t_stop)
     RH = ros[6]
     if method == M_DOPRI5:
         nk = 7

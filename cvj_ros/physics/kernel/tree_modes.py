@@ -6,7 +6,7 @@ compiled kernel.
 :class:`~cvj_ros.physics.hybrid.tree.ModeTree` becomes ``ip``/``fp`` arrays (the event-free
 tree tables of ``kernel/layout.py`` plus the mode block of ``kernel/tree_modes_nb.py``; no
 per-scene or per-mode compile) and :func:`tree_modes_nb.tree_mode_segment` integrates it
-(dopri5, dop853, a RODAS method, tsit5 or vern6), checks the witnesses after every step and
+(dopri5, dop853, a RODAS method, tsit5, vern6, vern7 or vern8), checks the witnesses after every step and
 locates the earliest crossing on the dense output (Brent), in one compiled call per mode. The discrete decisions (stick or
 slip, release, the shift schedule's triggers, gear commands and their refusals, the
 momentum-conserving locks, the stall) and the samples are the oracle's own methods, so the
@@ -39,7 +39,7 @@ END_NONE, END_WHEEL, END_SPRING, END_DIFF, END_LINK = 0, 1, 2, 3, 4
  TW_PACK_SLIP, TW_PACK_FWD, TW_PACK_BWD, TW_SHIFT) = range(11)
 _ENDS = {'wheel': END_WHEEL, 'spring': END_SPRING, 'diff': END_DIFF, 'link': END_LINK}
 KERNEL_TREE_MODE_METHODS = ('dopri5', 'dop853', 'rodas3', 'rodas4', 'rosenbrock', 'tsit5',
-                            'vern6')
+                            'vern6', 'vern7', 'vern8')
 
 
 class _Gear:
@@ -188,6 +188,7 @@ def tree_mode_arrays(sim: HybridTreeSimulation, mt: ModeTree, mode: Mode, engine
         fp.append(float(len(times)))
         fp.extend(float(v) for v in times)
         fp.extend(float(v) for v in values)
+        fp.append(math.inf)         # the segment's end (modes_nb.ramp), set by each segment
     vals = {MB_NLINK: len(mt.links), MB_NBRAKE: len(brake_index), MB_NPACK: len(pack_index),
             MB_NWIT: len(wit) // 4, MB_CHAN_F: chan, MB_RAMP_T: ramps[0], MB_RAMP_C: ramps[1],
             MB_RAMP_B: ramps[2]}

@@ -395,8 +395,11 @@ def _spinning_recorder(path: Path, *, coalesce: float) -> Iterator[SimpleNamespa
                                   daemon=True)
         thread.start()
         pub = pub_node.create_publisher(WrenchStamped, '/load/wrench', bag.recorder_qos())
+        # both sides matched: the writer knowing the recorder's reader does not mean the
+        # reader (another participant) knows the writer, and it drops samples until it does
+        reader = next(s for s in node.subscriptions if s.topic_name == '/load/wrench')
         deadline = time.monotonic() + 10
-        while pub.get_subscription_count() == 0:
+        while pub.get_subscription_count() == 0 or reader.get_publisher_count() == 0:
             assert time.monotonic() < deadline, 'recorder subscription not matched'
             time.sleep(0.01)
 

@@ -89,10 +89,12 @@ def run(ctx, tmp_path, *, behave=None, timeout=8.0, peers_cls=None, **params):
             assert time.monotonic() - t0 < timeout, 'coupling node did not finish'
             ex.spin_once(timeout_sec=0.05)
         # deliver what is still in flight: every state the node published (a free-run burst
-        # publishes several in one callback; the executor runs one callback per spin_once),
-        # then the answers to the last ones
+        # publishes several in one callback; the executor runs one callback per spin_once)
+        # and its /clock (one per state, published before it on another topic: the two
+        # subscriptions' callbacks run in no fixed order), then the answers to the last ones
         t1 = time.monotonic()
-        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+        while (len(peers.js) < node.joint_states_published
+               or len(peers.clock) < node.joint_states_published) and time.monotonic() - t1 < 10.0:
             ex.spin_once(timeout_sec=0.01)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)

@@ -44,6 +44,11 @@ def _run(ctx, load_torque: float, wrenches: dict[str, list] | None = None
         while node.exit_code is None:
             assert time.monotonic() - t0 < 120, 'coupling node did not finish'
             ex.spin_once(timeout_sec=0.05)
+        # every state the node published is delivered (its exit follows the publication of
+        # the last one; a fixed number of spins stood for "long enough")
+        t1 = time.monotonic()
+        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+            ex.spin_once(timeout_sec=0.01)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)
         t1 = time.monotonic()       # the last step's wrenches go out after its joint state
@@ -220,6 +225,11 @@ def _run_wheels(ctx, skip: tuple[str, ...] = (), before=None, **params):
         while node.exit_code is None:
             assert time.monotonic() - t0 < 120, 'coupling node did not finish'
             ex.spin_once(timeout_sec=0.05)
+        # every state the node published is delivered (its exit follows the publication of
+        # the last one; a fixed number of spins stood for "long enough")
+        t1 = time.monotonic()
+        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+            ex.spin_once(timeout_sec=0.01)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)
     finally:

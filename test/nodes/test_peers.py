@@ -124,6 +124,11 @@ def run_coupling(ctx, tmp_path: Path, peers_: Answerers, timeout: float = 8.0, *
         while node.exit_code is None:
             assert time.monotonic() - t0 < timeout, 'coupling node did not finish'
             ex.spin_once(timeout_sec=0.05)
+        # every state the node published is delivered (its exit follows the publication of
+        # the last one; a fixed number of spins stood for "long enough")
+        t1 = time.monotonic()
+        while len(peers_.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+            ex.spin_once(timeout_sec=0.01)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)
     finally:

@@ -62,7 +62,10 @@ def _run_hosted(tmp_path: Path, domain: int, n: int,
     try:
         rec.host('monitor_node', ['--ros-args', '-p', 'publish_every:=10'], log=tmp_path / 'monitor_node.log')
         ctx, node, pub = _publisher(domain)
-        assert _wait(lambda: pub.get_subscription_count() >= 1)   # the recorder's
+        # the recorder's reader, matched from both sides (another participant: the writer's
+        # count alone does not say the reader knows the writer, and it drops samples until then)
+        assert _wait(lambda: pub.get_subscription_count() >= 1
+                     and rec.publisher_count(bagmod.JOINT_STATES_TOPIC) >= 1)
         time.sleep(0.2)
         assert pub.get_subscription_count() == 1      # the monitor's is fed by it: no reader of its own
         for k in range(n):

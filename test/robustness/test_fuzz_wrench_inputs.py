@@ -163,6 +163,11 @@ def run_fuzzed(ctx, tmp_path, seed: int, inject: tuple[int, str] | None):
         while node.exit_code is None:
             assert time.monotonic() - t0 < 20.0, 'coupling node did not finish'
             ex.spin_once(timeout_sec=0.05)
+        # every state the node published is delivered (its exit follows the publication of
+        # the last one; a fixed number of spins stood for "long enough")
+        t1 = time.monotonic()
+        while len(states) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+            ex.spin_once(timeout_sec=0.01)
         for _ in range(5):
             ex.spin_once(timeout_sec=0.01)
     finally:

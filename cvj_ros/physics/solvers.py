@@ -34,13 +34,17 @@ method          order  stability                        source
 
 Implementation notes (measured on the project machine, n = 4):
 
-* State vectors are small numpy arrays. Each stage argument is one ``np.dot``
-  of an h-scaled coefficient row with an extended stage matrix whose row 0 is y
-  (so ``y + h sum a_ij k_j`` is a single C call, ~1.5 us, plus ~0.4 us to store
-  the stage). Python-float lists were measured and rejected: a 6-term stage
+* State vectors are small numpy arrays. The explicit pairs form every stage
+  argument, error estimate and dense output in the compiled kernel's order of
+  operations (each product rounded, then added left to right with
+  ``np.add.accumulate``: :func:`_ordered_rows`), not with ``np.dot``, whose
+  order of additions follows the CPU's BLAS kernel: on one mesh the two
+  backends give the same bytes. That costs ~2-3x a dot product per sum.
+  Python-float lists were measured and rejected: a 6-term stage
   combination as a list comprehension costs ~1.9 us, plus ~0.65 us to build the
   ndarray that ``fun`` takes and ~0.2 us for ``tolist()`` of its result.
-  Overhead per step without fun: dopri5 ~15 us, dop853 ~22 us, RODAS ~34 us.
+  Overhead per step without fun (with np.dot sums): dopri5 ~15 us, dop853
+  ~22 us, RODAS ~34 us.
 * Step-size control: Hairer's PI controller (Gustafsson, "Lund stabilisation"),
   ``h_new = h * safe * err^-(1/(q+1) - 0.75 beta) * err_old^beta`` (q: order of
   the error estimator), clamped, with no
@@ -235,13 +239,35 @@ class _AdaptiveStepper(_StepperBase):
 # ------------------------------------------------------------------------ DOPRI5
 
 
+def _ordered_rows(coef: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """sum_j coef_j rows_j per component, each product rounded, then added left to right
+    from 0.0: the compiled kernel's loop ``acc = 0.0; acc += c[j] * K[j, i]``
+    (``kernel/steppers_nb.py``), not a BLAS dot, whose order of additions (and use of
+    fused multiply-adds) is its own. ``coef`` is a column (m, 1), ``rows`` (m, n)."""
+    terms = np.empty((rows.shape[0] + 1, rows.shape[1]))
+    terms[0] = 0.0
+    np.multiply(coef, rows, out=terms[1:])
+    return np.add.accumulate(terms, axis=0)[-1]
+
+
+def _nonzero_sums(rows: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per coefficient row a: the KE rows of y + sum_j a_j k_j (0 for y, j + 1 for k_j)
+    and the nonzero a_j, in the order of j."""
+    out = []
+    for a in rows:
+        nz = np.flatnonzero(a)
+        out.append((np.r_[0, nz + 1], a[nz].copy()))
+    return out
+
+
 class _ExplicitRK(_AdaptiveStepper):
     """Explicit FSAL Runge-Kutta pair on an extended stage matrix.
 
     Rows of ``KE``: 0 = y at the step start, 1..s+1 = stage derivatives k_0..k_s
     (k_s = f(t + h, y_new), the FSAL value). Stage i is then a single product
     ``hA[i, :i+1] @ KE[:i+1]`` with the coefficient row pre-scaled by h once per
-    attempt and a leading 1 for y: one numpy call per stage.
+    attempt and a leading 1 for y: one numpy call per stage. The pairs shipped
+    override :meth:`_stages` with the compiled kernel's order of additions.
     """
 
     _C: np.ndarray
@@ -334,27 +360,62 @@ class Dopri5Stepper(_ExplicitRK):
     _E_EXT = np.r_[0.0, _SCIPY_RK45.E]          # over KE rows (y, k0..k6)
     _P = np.ascontiguousarray(_SCIPY_RK45.P)
 
+    # KE rows (0: the start value, j + 1: k_j) and h-free coefficients of each stage sum
+    # (stages 1 .. 5, then y_new), zero coefficients left out as the kernel's loops skip them
+    _SUMS = _nonzero_sums([_A_FULL[1, :1], _A_FULL[2, :2], _A_FULL[3, :3], _A_FULL[4, :4],
+                           _A_FULL[5, :5], _B])
+
+    def _stages(self, h: float) -> np.ndarray:
+        """Fill KE for a step of size h; returns y_new. Each stage argument is
+        y + (h a_r0) k_0 + (h a_r1) k_1 + ..., every product rounded and added left to right
+        over the nonzero a_rj: ``kernel/steppers_nb._dopri5_attempt``'s order (and
+        ``segment_nb._attempt``'s), not a BLAS dot whose order of additions is its own."""
+        KE = self._KE
+        y = self.y
+        KE[0] = y
+        KE[1] = self._first_derivative()
+        t = self.t
+        fun = self.fun
+        C = self._C
+        for i, (rows, a) in enumerate(self._SUMS, start=1):
+            terms = KE[rows]
+            terms[1:] *= (h * a)[:, None]
+            arg = np.add.accumulate(terms, axis=0)[-1]
+            if i < 6:
+                KE[i + 1] = fun(t + C[i] * h, arg)
+        KE[7] = fun(t + h, arg)
+        self.nfev += 6
+        return arg
+
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        """Scaled RMS of sum_j E_j k_j times |h|, in the kernel's order: per component the
+        products summed left to right from 0, then the squares left to right."""
         y_new = self._stages(h)
         y = self.y
-        e = np.dot(self._E_EXT, self._KE)
+        e = _ordered_rows(self._E_EXT[1:, None], self._KE[1:8])
         sc = np.abs(y)
         np.maximum(sc, np.abs(y_new), out=sc)
         sc *= self.rtol
         sc += self.atol
         e /= sc
-        return abs(h) * math.sqrt(float(np.dot(e, e)) / self.n), y_new
+        e *= e
+        return abs(h) * math.sqrt(float(np.add.accumulate(e)[-1]) / self.n), y_new
 
     def dense(self, t: float) -> np.ndarray:
-        """y(t) (4th order) for t inside the last accepted step."""
+        """y(t) (4th order) for t inside the last accepted step: y_old + h sum_j q_j(x) k_j,
+        q_j(x) = P_j0 x + P_j1 x^2 + P_j2 x^3 + P_j3 x^4, in ``steppers_nb.dopri5_dense``'s
+        order of operations."""
         t = self._check_dense_t(t)
         h = self._h_last
         if h == 0.0 or t == self.t:
             return self.y.copy()
-        if self._dense_cache is None:
-            self._dense_cache = self._KE[1:8].T @ self._P
         x = (t - self.t_old) / h
-        return self.y_old + h * (self._dense_cache @ np.array([x, x * x, x ** 3, x ** 4]))
+        x2 = x * x
+        x3 = x2 * x
+        x4 = x3 * x
+        P = self._P
+        q = P[:, 0] * x + P[:, 1] * x2 + P[:, 2] * x3 + P[:, 3] * x4
+        return self.y_old + h * _ordered_rows(q[:, None], self._KE[1:8])
 
 
 class Dop853Stepper(_ExplicitRK):
@@ -384,24 +445,54 @@ class Dop853Stepper(_ExplicitRK):
     _A_EXTRA = _SCIPY_DOP853.A_EXTRA
     _C_EXTRA = _SCIPY_DOP853.C_EXTRA
 
+    def _stages(self, h: float) -> np.ndarray:
+        """Fill KE for a step of size h; returns y_new. Each stage argument is
+        y + h (a_r0 k_0 + a_r1 k_1 + ...), the sum over every j < r (zeros included) added
+        left to right from 0: ``kernel/steppers_nb.dop853_step``'s order (and
+        ``segment_nb._d8_step``'s), not a BLAS dot."""
+        KE = self._KE
+        y = self.y
+        KE[0] = y
+        KE[1] = self._first_derivative()
+        K = KE[1:]
+        t = self.t
+        fun = self.fun
+        C = self._C
+        A = self._A_FULL
+        s = self._S
+        for i in range(1, s):
+            KE[i + 1] = fun(t + C[i] * h, y + h * _ordered_rows(A[i, :i, None], K[:i]))
+        y_new = y + h * _ordered_rows(self._B[:, None], K[:s])
+        KE[s + 1] = fun(t + h, y_new)
+        self.nfev += s
+        return y_new
+
     def _attempt(self, h: float) -> tuple[float, np.ndarray]:
+        """Hairer's DOP853 error |h| e5^2 / sqrt((e5^2 + 0.01 e3^2) n) from the scaled 5th-
+        and 3rd-order estimates, each sum in the kernel's order (as :meth:`_stages`, then
+        the squares left to right)."""
         y_new = self._stages(h)
         y = self.y
-        n_step = self._S + 2   # KE rows a step fills (y, k0..k12); dense rows excluded
-        e = np.dot(self._E35[:, :n_step], self._KE[:n_step])  # rows: err5, err3
+        K = self._KE[1:self._S + 2]   # k0..k12; dense rows excluded
+        e5 = _ordered_rows(self._E35[0, 1:14, None], K)
+        e3 = _ordered_rows(self._E35[1, 1:14, None], K)
         sc = np.abs(y)
         np.maximum(sc, np.abs(y_new), out=sc)
         sc *= self.rtol
         sc += self.atol
-        e /= sc
-        e5n = float(np.dot(e[0], e[0]))
-        e3n = float(np.dot(e[1], e[1]))
+        e5 /= sc
+        e3 /= sc
+        e5 *= e5
+        e3 *= e3
+        e5n = float(np.add.accumulate(e5)[-1])
+        e3n = float(np.add.accumulate(e3)[-1])
         if e5n == 0.0 and e3n == 0.0:
             return 0.0, y_new
         return abs(h) * e5n / math.sqrt((e5n + 0.01 * e3n) * self.n), y_new
 
     def dense(self, t: float) -> np.ndarray:
-        """y(t) (7th order) inside the last accepted step; costs 3 extra fev once per step."""
+        """y(t) (7th order) inside the last accepted step; costs 3 extra fev once per step.
+        Sums in ``steppers_nb.dop853_dense``'s order (:meth:`_stages`)."""
         t = self._check_dense_t(t)
         h = self._h_last
         if h == 0.0 or t == self.t:
@@ -409,7 +500,8 @@ class Dop853Stepper(_ExplicitRK):
         if self._dense_cache is None:
             K = self._KE[1:]  # k0..k12, then the three extra stages
             for s, (a, c) in enumerate(zip(self._A_EXTRA, self._C_EXTRA), start=13):
-                K[s] = self.fun(self.t_old + c * h, self.y_old + h * np.dot(a[:s], K[:s]))
+                K[s] = self.fun(self.t_old + c * h,
+                                self.y_old + h * _ordered_rows(a[:s, None], K[:s]))
             self.nfev += 3
             F = np.empty((7, self.n))
             dy = self.y - self.y_old
@@ -417,7 +509,8 @@ class Dop853Stepper(_ExplicitRK):
             F[0] = dy
             F[1] = h * f_old - dy
             F[2] = 2 * dy - h * (K[12] + f_old)
-            F[3:] = h * np.dot(self._D, K)
+            for r in range(4):
+                F[3 + r] = h * _ordered_rows(self._D[r, :, None], K[:16])
             self._dense_cache = F
         x = (t - self.t_old) / h
         y = np.zeros(self.n)

@@ -10,7 +10,7 @@ controller turns rounding differences of the error norm, numpy/BLAS sums in the 
 fixed loops in the kernel, into different accept/reject decisions after a few hundred
 steps, hence different meshes and tolerance-sized differences) the compiled run must
 reproduce the reference's event sequence, every event time to 1e-12 relative
-(|t_k - t_p| <= 1e-12 max(1 s, t_p); launch_clutch_chain: TOL_STATE, below), every sampled
+(|t_k - t_p| <= 1e-12 max(1 s, t_p)), every sampled
 shaft speed relative to that shaft's largest speed over the run
 (|w_k - w_p| / max(max |w_p|, 1 rad/s)) and the final section angles, speeds and work
 integrals relative (floor 1) to TOL_STATE. Free-running (each
@@ -34,10 +34,11 @@ pytest.importorskip('numba')
 from cvj_ros.physics.kernel.modes import KernelHybridSimulation  # noqa: E402
 
 TOL = 1e-12          # event times
-# sampled speeds and final states: measured <= 1e-12 in every case but two, where the
-# integration is stability-bound and amplifies the last bits of either backend (the clutch
-# disc on its damper while slipping, launch_clutch_chain 2.0-2.5 s: 2.8e-11; the undamped
-# judder's final angles after 135 events: 6.3e-12); docs/clutch_gearbox.md
+# sampled speeds and final states: the reference adds in the kernel's order
+# (solvers._ordered_rows); measured dop853 0.0, dopri5 <= 7.1e-12 (a random chain;
+# launch_clutch_chain 5.2e-12). With numpy/BLAS dot products the stability-bound stretches
+# amplified their last bits (launch_clutch_chain's slipping disc, 2.0-2.5 s: 2.8e-11; the
+# undamped judder's final angles after 135 events: 6.3e-12); docs/clutch_gearbox.md
 TOL_STATE = 1e-10
 
 
@@ -145,10 +146,11 @@ def test_launch_clutch_chain_matches_the_reference(monkeypatch) -> None:
     rk = k.run()
     rp = replay(hybrid_simulation(scene), k.step_log, monkeypatch)
     assert len(rp.events) >= 9
-    # the clutch locks at 2.96 s after the stability-bound slip stretch (TOL_STATE):
-    # its time carries that stretch's amplified rounding, measured 0.7-2.1e-12 (the
-    # reference's BLAS sums differ from process to process in the last bit)
-    assert_same_run(rp, rk, tol_t=TOL_STATE)
+    # the reference's dopri5 adds in the kernel's order (solvers._ordered_rows): measured
+    # event times 3.2e-14, speeds 5.2e-12, final 4.9e-13 (the first difference at the clutch
+    # slipping at 4.46 s; with numpy/BLAS dot products 0.7-2.1e-12 at the lock at 2.96 s,
+    # varying between processes): the hard cases' bounds
+    assert_same_run(rp, rk)
     assert rk.max_energy_residual < 1e-7
     # free-running: each its own mesh (rtol 1e-8): the same events, times to ~1e-10 s
     rf = hybrid_simulation(scene).run()
@@ -205,10 +207,12 @@ def test_launch_clutch_chain_on_dop853_matches_the_reference(monkeypatch) -> Non
                                               step_log=True)
     rk = k.run()
     rp = replay(hybrid_simulation(scene, method='dop853'), k.step_log, monkeypatch)
-    # dop853's 4x longer steps at the stability edge of the slipping stretch (2.0-2.5 s)
-    # amplify more: measured 3.7e-10 (event times), 5.3e-7 (disc speed at 2.37 s), 6.5e-10
-    # (final state); the bounds are these with a margin, not the 1e-12 of the hard cases
-    assert_same_run(rp, rk, tol_t=5e-9, tol_x=5e-6)
+    # the reference's dop853 adds its stage sums, error estimates and dense output in the
+    # kernel's order (solvers._ordered_rows): measured 0.0 in event times, speeds and final
+    # states (with numpy/BLAS dot products 3.7e-10, 5.3e-7, 6.5e-10: dop853's 4x longer
+    # steps at the stability edge of the slipping stretch, 2.0-2.5 s, amplified the last
+    # bits); the hard cases' bounds
+    assert_same_run(rp, rk)
     assert rk.max_energy_residual < 1e-7
 
 
@@ -291,14 +295,15 @@ def _random_chain_sim(seed: int):
 
 @pytest.mark.parametrize('seed', range(12))
 def test_random_chains_and_schedules_match_the_reference(seed: int, monkeypatch) -> None:
-    """Fuzz over structure and commands. Measured: event times <= 6.3e-14, speeds and final
-    states <= 3.7e-12 in 11 of 12, 1.0e-7 / 4.5e-9 in seed 7 (a stability-bound stretch as
-    in launch_clutch_chain); the bound for states is that with a margin."""
+    """Fuzz over structure and commands. Measured with the reference adding in the kernel's
+    order (solvers._ordered_rows): 0.0 in 8 of 12; event times <= 2.5e-13, speeds <= 7.1e-12,
+    final states <= 3.8e-13 in the others (with numpy/BLAS dot products seed 7's
+    stability-bound stretch reached 1.0e-7 / 4.5e-9): the hard cases' bounds."""
     mk = _random_chain_sim(seed)
     k = KernelHybridSimulation.from_reference(mk(), step_log=True)
     rk = k.run()
     rp = replay(mk(), k.step_log, monkeypatch)
-    assert_same_run(rp, rk, tol_x=1e-6)
+    assert_same_run(rp, rk)
 
 
 def _fuzzed_launch_chain(seed: int) -> dict:
@@ -338,10 +343,9 @@ def chain_fuzz_case(seed: int, method: str, monkeypatch, tol_t: float = TOL,
     return got
 
 
-# bounds per method: dopri5 those of the random chains above (event times TOL; states 1e-6,
-# a stability-bound stretch amplifying the last bits), dop853 those of launch_clutch_chain
-# on dop853 (its 4x longer steps at the stability edge): 5e-9, 5e-6
-_CHAIN_FUZZ_TOL = {'dopri5': (TOL, 1e-6), 'dop853': (5e-9, 5e-6)}
+# bounds per method: the hard cases' (TOL, TOL_STATE) for both, the reference adding in the
+# kernel's order (solvers._ordered_rows; test_fuzzed_launch_chain's docstring)
+_CHAIN_FUZZ_TOL = {'dopri5': (TOL, TOL_STATE), 'dop853': (TOL, TOL_STATE)}
 
 
 @pytest.mark.parametrize('method', ['dopri5', 'dop853'])
@@ -350,9 +354,11 @@ def test_fuzzed_launch_chain(seed: int, method: str, monkeypatch) -> None:
     """Kernel = reference on fuzzed launch_clutch_chain scenes (random grade, mass and
     14-row schedule, rows on the exchange-step grid and at the same time), on both methods
     that the kernel runs with an explicit stepper; more seeds under ``-m slow``. Measured
-    (seeds 0..15, 1-11 events each, 72 in all, 10 runs stalling, the same on both):
-    dopri5 event times <= 7.8e-14, samples <= 3.8e-10 (seed 11; the others 2.1e-13), final
-    states 1.6e-12; dop853 4.7e-11, 5.5e-7 (seed 11), 8.9e-10."""
+    (seeds 0..15, 1-11 events each, 72 in all, 10 runs stalling, the same on both), the
+    reference adding in the kernel's order: dop853 0.0 everywhere; dopri5 0.0 in 11 seeds,
+    event times <= 7.2e-15, samples <= 8.9e-14, final states <= 2.1e-12 in the others
+    (with numpy/BLAS dot products: dopri5 7.8e-14, 3.8e-10, 1.6e-12; dop853 4.7e-11,
+    5.5e-7, 8.9e-10)."""
     chain_fuzz_case(seed, method, monkeypatch, *_CHAIN_FUZZ_TOL[method])
 
 

@@ -114,19 +114,16 @@ def test_launch_clutch_first_4_s(monkeypatch) -> None:
 @pytest.mark.slow
 def test_launch_clutch_whole_run(monkeypatch) -> None:
     """The shipped 10 s: shifts 1 -> 2 -> 3, the last second in 3rd with the clutch locked.
-    Measured on the same mesh: event times <= 8.4e-14 up to 4.31 s, then 2.1e-12 from the
-    shift to 3 (its witness, the synchronous speed, crosses 3400 rpm slowly after 3.4 s in
-    2nd: a shallow crossing turns the last bits of the state into time), and sampled speeds
-    1.2e-9 in the engagement of 3rd that follows (a 1.6e-11 s shift of its events under
-    accelerations of that stretch). Bounds as launch_clutch_chain's whole run, whose lock
-    carries the same kind of amplification (test_modes_kernel.py): times 1e-10; samples and
-    final states those of its dop853 case, 5e-6."""
+    Measured on the same mesh with the reference's dopri5 adding in the kernel's order
+    (solvers._ordered_rows): event times 5.2e-15, sampled speeds 3.1e-12, final states
+    3.8e-12 (with numpy/BLAS dot products 2.1e-12 from the shift to 3 on, whose witness
+    crosses 3400 rpm slowly, and 1.2e-9 in the engagement of 3rd). The hard cases' bounds."""
     sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']))
     fresh = copy.deepcopy(sim)
     k = KernelHybridTreeSimulation.from_reference(sim, step_log=True)
     rk = k.run()
     rp = replay(sim, k.step_log, monkeypatch)
-    assert_same_run(rp, rk, tol_t=TOL_STATE, tol_x=5e-6)
+    assert_same_run(rp, rk)
     rf = KernelHybridTreeSimulation.from_reference(fresh).run()
     assert [(e.element, e.after) for e in rf.events] == [(e.element, e.after) for e in rk.events]
     assert [e.after for e in rk.events if e.element == 'gearbox'].count('shift to 3') == 1
@@ -200,18 +197,18 @@ def test_random_trees_and_command_schedules(monkeypatch, seed: int) -> None:
 
 
 def test_dop853_brake_hold_and_release(monkeypatch) -> None:
-    """dop853 on launch_clutch's first 2 s: measured event times 3.6e-13, final states
-    3.4e-12, but one sampled speed 6.8e-8 (differential_left at 1.45 s, both wheels pinned,
-    the step-end states agreeing to ~1e-12 around it), where both backends' dense output is
-    1.2e-5 off a dopri5 rtol 1e-13 run (neighbours 1e-9, 3e-8): a poor interpolant there
-    amplifies its coefficients' rounding. Bounds: those of dop853 on launch_clutch_chain's
-    stability-bound stretch (test_modes_kernel.py): 5e-9 (times), 5e-6 (states)."""
+    """dop853 on launch_clutch's first 2 s: the reference adds its stage sums, error
+    estimates and dense output in the kernel's order (solvers._ordered_rows), measured 0.0
+    in event times, samples and final states (with numpy/BLAS dot products event times
+    3.6e-13, final states 3.4e-12 and one sampled speed 6.8e-8, differential_left at 1.45 s,
+    where both backends' dense output is 1.2e-5 off a dopri5 rtol 1e-13 run: a poor
+    interpolant there amplified its coefficients' rounding). Bounds: the hard cases'."""
     sim = hybrid_simulation(load_scene(shipped_scenes()['launch_clutch']), duration=2.0,
                             method='dop853')
     k = KernelHybridTreeSimulation.from_reference(sim, step_log=True)
     rk = k.run()
     rp = replay(sim, k.step_log, monkeypatch)
-    assert_same_run(rp, rk, tol_t=5e-9, tol_x=5e-6)
+    assert_same_run(rp, rk)
     assert [e.after for e in rk.events] == ['stuck', 'stuck', 'slip+', 'slip+']
 
 

@@ -126,6 +126,30 @@ def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
     return idle >= until_idle and (not behind or idle >= until_idle + BEHIND_WAIT_S)
 
 
+class ReadyAnnouncer:
+    """Says once on /driveline/recorder_ready (latched std_msgs/String: node name and pid)
+    that the recorder has the scene message and its readers have matched every publisher
+    the graph shows on its topics (BagRecorder.unmatched_publishers); a hand-started coupling
+    node waits for it before step 0, since only the reader's side knows."""
+
+    def __init__(self, recorder: Any) -> None:
+        from std_msgs.msg import String
+
+        from cvj_ros.nodes.qos import LATCHED_QOS, RECORDER_READY_TOPIC
+        self.recorder = recorder
+        self.sent = False
+        self._msg = String(data=f'{recorder.node.get_fully_qualified_name()} pid {os.getpid()}')
+        self._pub = recorder.node.create_publisher(String, RECORDER_READY_TOPIC, LATCHED_QOS)
+
+    def poll(self) -> bool:
+        if not self.sent:
+            rec = self.recorder.recorder
+            if rec.scene_text is not None and not rec.unmatched_publishers():
+                self._pub.publish(self._msg)
+                self.sent = True
+        return self.sent
+
+
 def _last_run_message(rec: Any) -> float:
     """Wall time (monotonic s) of the newest message recorded on any topic but the latched
     /driveline/scene (0 before the first): the coupling node publishes the scene as it
@@ -158,8 +182,10 @@ def run(args: argparse.Namespace) -> int:
         recorder = _Recorder(writer, list(args.topics), domain, run_only=args.run_only)
         print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
               f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
+        ready = ReadyAnnouncer(recorder)
         idle = IdleClock()
         while not stop:
+            ready.poll()
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break

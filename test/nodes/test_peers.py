@@ -253,6 +253,57 @@ def test_coupling_node_counts_graph_subscriptions_its_writers_have_not_matched(
         node.destroy_node()
 
 
+def test_recorder_ready_waits_for_its_readers_and_the_coupling_node_for_the_recorder(
+        ctx, tmp_path: Path) -> None:
+    """The reader side of the hand-start gate: BagRecorder.unmatched_publishers lists a graph
+    publisher its reader has not matched (a best-effort one, which never matches a reliable
+    reader, is not waited for); `cvj-sim record`'s ReadyAnnouncer says ready once, with the
+    scene message in and nothing unmatched; the coupling node counts the recorders in the
+    graph that have not said so (CouplingNode.recorders_not_ready)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from cvj_ros.commands.record import ReadyAnnouncer
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)])
+    rec_node = rclpy.create_node('cvj_recorder', context=ctx)
+    other = rclpy.create_node('best_effort_clock', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    ex = make_executor('events', ctx)
+    try:
+        rec = bag.BagRecorder(rec_node, writer, discover_period=0.0)
+        other.create_publisher(Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+        class _Host:        # what cvj-sim record's loop holds: .node and .recorder
+            pass
+        host = _Host()
+        host.node, host.recorder = rec_node, rec
+        ready = ReadyAnnouncer(host)
+        for n in (node, rec_node, other):
+            ex.add_node(n)
+        deadline = time.monotonic() + 30.0       # discovery within one process (generous)
+        while not node.recorders_not_ready():    # the announcer's publisher is in the graph
+            assert time.monotonic() < deadline, 'the ready publisher was not discovered'
+            ex.spin_once(timeout_sec=0.02)
+        assert node.recorders_not_ready() == ['/driveline/recorder_ready (0 of 1 recorders ready)']
+        while rec.scene_text is None or rec.unmatched_publishers():
+            assert time.monotonic() < deadline, (rec.scene_text, rec.unmatched_publishers())
+            assert not ready.sent or rec.scene_text is not None
+            ready.poll()
+            ex.spin_once(timeout_sec=0.02)
+        # the best-effort /clock publisher is in the graph but never matches: not waited for
+        assert any(i.node_name == 'best_effort_clock' for i in rec_node.get_publishers_info_by_topic('/clock'))
+        assert ready.poll() and ready.sent
+        while node.recorders_not_ready():
+            assert time.monotonic() < deadline, 'the ready message did not arrive'
+            ex.spin_once(timeout_sec=0.02)
+        assert len(node.recorders_ready) == 1 and 'cvj_recorder pid' in next(iter(node.recorders_ready))
+    finally:
+        ex.shutdown()
+        writer.close()
+        for n in (other, rec_node, node):
+            n.destroy_node()
+
+
 def test_load_node_answers_with_its_shaft_frame_and_not_beside_a_second_publisher(ctx, tmp_path: Path) -> None:
     """load_node answers every joint state with frame_id = its shaft whatever the state's
     frame_id; while /driveline/joint_states has two publishers it answers none (counted in

@@ -1748,27 +1748,13 @@ class BagRecorder:
                 for fn in fns:
                     fn(data)
 
-    def unmatched_publishers(self) -> list[str]:
-        """What keeps this recorder from having every message from now on: a topic the ROS
-        graph shows that it records but has not subscribed yet, and a subscribed topic whose
-        reader has matched fewer publishers than the graph shows (same type, compatible
-        reliability and durability). Empty: ready (`cvj-sim record` says so on
-        /driveline/recorder_ready)."""
-        from cvj_ros.nodes.qos import qos_match
+    def matched_publishers(self) -> dict[str, int]:
+        """Per subscribed topic, the publishers its DDS reader has matched (the reader's side
+        of each match; `cvj-sim record` reports them on /driveline/recorder_ready)."""
         with self._lock:
             subs = dict(self._subs)
-        out = [f'{topic} (not subscribed yet)' for topic, _types in self.node.get_topic_names_and_types()
-               if topic not in subs and topic_type(topic) is not None]
-        for topic, sub in subs.items():
-            if not hasattr(sub, 'get_publisher_count'):     # an in-process bus leg
-                continue
-            want = self._types.get(topic)
-            shown = sum(1 for i in self.node.get_publishers_info_by_topic(topic)
-                        if i.topic_type == want and qos_match(i.qos_profile, sub.qos_profile))
-            matched = sub.get_publisher_count()
-            if matched < shown:
-                out.append(f'{topic} ({matched} of {shown} publishers matched)')
-        return out
+        return {topic: sub.get_publisher_count() for topic, sub in sorted(subs.items())
+                if hasattr(sub, 'get_publisher_count')}    # not an in-process bus leg
 
     def discover(self) -> None:
         """Subscribe to pattern topics (``/coupling/*/wrench``) that appeared in the graph."""

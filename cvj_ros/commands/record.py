@@ -127,27 +127,28 @@ def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
 
 
 class ReadyAnnouncer:
-    """Says once on /driveline/recorder_ready (latched std_msgs/String: node name and pid)
-    that the recorder has the scene message and its readers have matched every publisher
-    the graph shows on its topics (BagRecorder.unmatched_publishers); a hand-started coupling
-    node waits for it before step 0, since only the reader's side knows."""
+    """Reports on /driveline/recorder_ready (latched std_msgs/String, JSON ``{"recorder":
+    "<node> pid <pid>", "matched": {topic: publishers}}``) how many publishers each of the
+    recorder's readers has matched, whenever that changes: the reader's side of a match,
+    which a hand-started coupling node compares with the publishers it sees before step 0
+    (CouplingNode.recorders_not_ready)."""
 
     def __init__(self, recorder: Any) -> None:
         from std_msgs.msg import String
 
         from cvj_ros.nodes.qos import LATCHED_QOS, RECORDER_READY_TOPIC
         self.recorder = recorder
-        self.sent = False
-        self._msg = String(data=f'{recorder.node.get_fully_qualified_name()} pid {os.getpid()}')
+        self.token = f'{recorder.node.get_fully_qualified_name()} pid {os.getpid()}'
+        self.sent: dict[str, int] | None = None
+        self._string = String
         self._pub = recorder.node.create_publisher(String, RECORDER_READY_TOPIC, LATCHED_QOS)
 
-    def poll(self) -> bool:
-        if not self.sent:
-            rec = self.recorder.recorder
-            if rec.scene_text is not None and not rec.unmatched_publishers():
-                self._pub.publish(self._msg)
-                self.sent = True
-        return self.sent
+    def poll(self) -> None:
+        import json
+        matched = self.recorder.recorder.matched_publishers()
+        if matched != self.sent:
+            self._pub.publish(self._string(data=json.dumps({'recorder': self.token, 'matched': matched})))
+            self.sent = matched
 
 
 def _last_run_message(rec: Any) -> float:

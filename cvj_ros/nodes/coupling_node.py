@@ -150,9 +150,9 @@ OBSERVER_SETTLE_S = 2.0
 # After that settle, a hand-started lockstep run also waits until every subscription the ROS
 # graph shows on this node's own data topics (/clock, the joint states, /diagnostics, the
 # coupling wrenches, same type, compatible QoS) is matched by its writer, and until every
-# `cvj-sim record` in the graph said on /driveline/recorder_ready that its readers matched
-# every publisher (the reader's side of a match is not visible here; a volatile reader
-# that matches late skips what was written before). Seen: a recorder whose /clock and
+# `cvj-sim record` in the graph reports on /driveline/recorder_ready that its readers matched
+# every publisher this node sees (the reader's side of a match is not visible here; a
+# volatile reader that matches late skips what was written before). Seen: a recorder whose /clock and
 # coupling-wrench readers matched 12 steps after step 0 (CI), and 290 steps after it
 # (launch-equivalent run, load ~25 with two CPU burners). Bounded (this long past the
 # settle, then one WARN line naming them and the run starts): an endpoint the graph lists
@@ -428,10 +428,11 @@ class CouplingNode(CvjNode):
         self._t_wall0 = 0.0
         self._cpu0 = 0.0
 
-        # hand-started recorders that said their readers matched (RECORDER_READY_TOPIC)
-        self.recorders_ready: set[str] = set()
-        self.ready_sub = self.create_subscription(
-            String, RECORDER_READY_TOPIC, lambda m: self.recorders_ready.add(m.data), LATCHED_QOS)
+        # hand-started recorders' latest report of their readers' matches (RECORDER_READY_TOPIC):
+        # recorder -> {topic: publishers matched}
+        self.recorder_matches: dict[str, dict[str, int]] = {}
+        self.ready_sub = self.create_subscription(String, RECORDER_READY_TOPIC, self._on_recorder_ready,
+                                                  LATCHED_QOS)
         self._publish_scene()
         self._wait_t0 = time.monotonic()
         self._start_deadline = self._wait_t0 + p['start_timeout'] if p['start_timeout'] > 0 else math.inf
@@ -684,14 +685,44 @@ class CouplingNode(CvjNode):
                 out.append(f'{topic} ({matched} of {shown} subscriptions matched)')
         return out
 
+    def _on_recorder_ready(self, msg: String) -> None:
+        """A recorder's report (commands/record.ReadyAnnouncer); anything else is ignored."""
+        import json
+        try:
+            report = json.loads(msg.data)
+            token, matched = str(report['recorder']), report['matched']
+            if not (isinstance(matched, dict) and all(
+                    isinstance(t, str) and type(n) is int for t, n in matched.items())):
+                return
+        except (ValueError, KeyError, TypeError):
+            return
+        self.recorder_matches[token] = matched
+
     def recorders_not_ready(self) -> list[str]:
-        """'/driveline/recorder_ready (k of n)' while fewer hand-started recorders said their
-        readers matched every publisher than the graph shows publishers of that topic. A
-        reader that matches a (volatile) writer after step 0 misses the states before; only
-        the reader's side can tell, so `cvj-sim record` says it (commands/record.py)."""
+        """What the recorders in the graph (`cvj-sim record`, publishers of
+        /driveline/recorder_ready) have not matched yet: a recorder not heard from, a
+        recordable topic with more publishers in this node's graph (same type, compatible
+        QoS) than the recorder's reader has matched, or one it has not subscribed. Only the
+        reader's side knows its matches, and a volatile reader that matches a writer late
+        skips what was written before."""
+        from cvj_ros.bag import topic_type
+        from cvj_ros.nodes.qos import RECORDER_QOS
         n = self.count_publishers(RECORDER_READY_TOPIC)
-        k = len(self.recorders_ready)
-        return [f'{RECORDER_READY_TOPIC} ({k} of {n} recorders ready)'] if k < n else []
+        if len(self.recorder_matches) < n:
+            return [f'{RECORDER_READY_TOPIC} ({len(self.recorder_matches)} of {n} recorders heard)']
+        shown: dict[str, int] = {}
+        for topic, _types in self.get_topic_names_and_types():
+            want = topic_type(topic)
+            if want is None:
+                continue
+            qos = LATCHED_QOS if topic == SCENE_TOPIC else RECORDER_QOS
+            shown[topic] = sum(1 for i in self.get_publishers_info_by_topic(topic)
+                               if i.topic_type == want and qos_match(i.qos_profile, qos))
+        out = []
+        for token, matched in sorted(self.recorder_matches.items()):
+            out += [f'{topic} ({matched.get(topic, 0)} of {k} publishers matched by recorder {token})'
+                    for topic, k in sorted(shown.items()) if matched.get(topic, 0) < k]
+        return out
 
     def _engine_node_listens(self) -> bool:
         """An engine_node (ours: it takes /engine/throttle_scale, and in lockstep waits for

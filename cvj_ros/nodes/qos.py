@@ -70,8 +70,8 @@ SCENE_TOPIC = '/driveline/scene'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 # the run's recorder: record time (rosgraph_msgs/Clock) of what its bag holds on disk
 RECORDED_TOPIC = '/driveline/recorded'
-#: a hand-started recorder (`cvj-sim record`) says here, once (std_msgs/String: its node name,
-#: latched), that its readers have matched every publisher the graph shows on its topics
+#: a hand-started recorder (`cvj-sim record`) reports here (std_msgs/String, latched, JSON)
+#: how many publishers each of its readers has matched, whenever that changes
 RECORDER_READY_TOPIC = '/driveline/recorder_ready'
 
 

@@ -22,7 +22,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from std_msgs.msg import Float64, String  # noqa: E402
 
 from cvj_ros import bag  # noqa: E402
 from cvj_ros.nodes import peers  # noqa: E402
@@ -253,22 +253,29 @@ def test_coupling_node_counts_graph_subscriptions_its_writers_have_not_matched(
         node.destroy_node()
 
 
-def test_recorder_ready_waits_for_its_readers_and_the_coupling_node_for_the_recorder(
-        ctx, tmp_path: Path) -> None:
-    """The reader side of the hand-start gate: BagRecorder.unmatched_publishers lists a graph
-    publisher its reader has not matched (a best-effort one, which never matches a reliable
-    reader, is not waited for); `cvj-sim record`'s ReadyAnnouncer says ready once, with the
-    scene message in and nothing unmatched; the coupling node counts the recorders in the
-    graph that have not said so (CouplingNode.recorders_not_ready)."""
+def test_coupling_node_waits_until_the_recorders_readers_match_what_it_sees(ctx, tmp_path: Path) -> None:
+    """The reader side of the hand-start gate: `cvj-sim record`'s ReadyAnnouncer reports its
+    readers' matches whenever they change; the coupling node compares them with the
+    publishers in its graph (CouplingNode.recorders_not_ready): a recorder not heard from, a
+    publisher not matched yet (here a throttle publisher that appears after the recorder
+    said all matched), a best-effort publisher (never matches a reliable reader: not waited
+    for); malformed reports are ignored."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from cvj_ros.commands.record import ReadyAnnouncer
     node = CouplingNode(context=ctx, parameter_overrides=[
         Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)])
     rec_node = rclpy.create_node('cvj_recorder', context=ctx)
-    other = rclpy.create_node('best_effort_clock', context=ctx)
+    other = rclpy.create_node('late_driver', context=ctx)
     writer = bag.BagWriter(tmp_path / 'b')
     ex = make_executor('events', ctx)
+
+    def spin_until(cond, what: str) -> None:
+        deadline = time.monotonic() + 30.0       # discovery within one process (generous)
+        while not cond():
+            assert time.monotonic() < deadline, what
+            ready.poll()
+            ex.spin_once(timeout_sec=0.02)
     try:
         rec = bag.BagRecorder(rec_node, writer, discover_period=0.0)
         other.create_publisher(Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
@@ -277,26 +284,24 @@ def test_recorder_ready_waits_for_its_readers_and_the_coupling_node_for_the_reco
             pass
         host = _Host()
         host.node, host.recorder = rec_node, rec
-        ready = ReadyAnnouncer(host)
         for n in (node, rec_node, other):
             ex.add_node(n)
-        deadline = time.monotonic() + 30.0       # discovery within one process (generous)
-        while not node.recorders_not_ready():    # the announcer's publisher is in the graph
-            assert time.monotonic() < deadline, 'the ready publisher was not discovered'
-            ex.spin_once(timeout_sec=0.02)
-        assert node.recorders_not_ready() == ['/driveline/recorder_ready (0 of 1 recorders ready)']
-        while rec.scene_text is None or rec.unmatched_publishers():
-            assert time.monotonic() < deadline, (rec.scene_text, rec.unmatched_publishers())
-            assert not ready.sent or rec.scene_text is not None
-            ready.poll()
-            ex.spin_once(timeout_sec=0.02)
-        # the best-effort /clock publisher is in the graph but never matches: not waited for
-        assert any(i.node_name == 'best_effort_clock' for i in rec_node.get_publishers_info_by_topic('/clock'))
-        assert ready.poll() and ready.sent
-        while node.recorders_not_ready():
-            assert time.monotonic() < deadline, 'the ready message did not arrive'
-            ex.spin_once(timeout_sec=0.02)
-        assert len(node.recorders_ready) == 1 and 'cvj_recorder pid' in next(iter(node.recorders_ready))
+        assert node.recorders_not_ready() == []          # no recorder in the graph
+        ready = ReadyAnnouncer(host)
+        spin_until(lambda: node.count_publishers('/driveline/recorder_ready') == 1, 'ready publisher')
+        spin_until(lambda: not node.recorders_not_ready(), str(node.recorders_not_ready()))
+        assert any(i.node_name == 'best_effort_clock' or i.node_name == 'late_driver'
+                   for i in node.get_publishers_info_by_topic('/clock'))
+        (token, matched), = node.recorder_matches.items()
+        assert 'cvj_recorder pid' in token and matched['/clock'] == 1    # the coupling node's own
+        other.create_publisher(Float64, '/engine/throttle', DATA_QOS)     # a driver appears
+        spin_until(lambda: node.count_publishers('/engine/throttle') == 1, 'throttle publisher')
+        if node.recorder_matches[token].get('/engine/throttle', 0) < 1:  # not matched by the recorder yet
+            assert any('/engine/throttle (0 of 1 publishers matched' in line for line in node.recorders_not_ready())
+        spin_until(lambda: not node.recorders_not_ready(), str(node.recorders_not_ready()))
+        for bad in ('', 'not json', '[]', '{"recorder": "x"}', '{"recorder": "x", "matched": {"/clock": "1"}}'):
+            node._on_recorder_ready(String(data=bad))
+        assert list(node.recorder_matches) == [token]
     finally:
         ex.shutdown()
         writer.close()

@@ -1748,6 +1748,14 @@ class BagRecorder:
                 for fn in fns:
                     fn(data)
 
+    def matched_publishers(self) -> dict[str, int]:
+        """Per subscribed topic, the publishers its DDS reader has matched (the reader's side
+        of each match; `cvj-sim record` reports them on /driveline/recorder_ready)."""
+        with self._lock:
+            subs = dict(self._subs)
+        return {topic: sub.get_publisher_count() for topic, sub in sorted(subs.items())
+                if hasattr(sub, 'get_publisher_count')}    # not an in-process bus leg
+
     def discover(self) -> None:
         """Subscribe to pattern topics (``/coupling/*/wrench``) that appeared in the graph."""
         for topic, _types in self.node.get_topic_names_and_types():

@@ -126,6 +126,31 @@ def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
     return idle >= until_idle and (not behind or idle >= until_idle + BEHIND_WAIT_S)
 
 
+class ReadyAnnouncer:
+    """Reports on /driveline/recorder_ready (latched std_msgs/String, JSON ``{"recorder":
+    "<node> pid <pid>", "matched": {topic: publishers}}``) how many publishers each of the
+    recorder's readers has matched, whenever that changes: the reader's side of a match,
+    which a hand-started coupling node compares with the publishers it sees before step 0
+    (CouplingNode.recorders_not_ready)."""
+
+    def __init__(self, recorder: Any) -> None:
+        from std_msgs.msg import String
+
+        from cvj_ros.nodes.qos import LATCHED_QOS, RECORDER_READY_TOPIC
+        self.recorder = recorder
+        self.token = f'{recorder.node.get_fully_qualified_name()} pid {os.getpid()}'
+        self.sent: dict[str, int] | None = None
+        self._string = String
+        self._pub = recorder.node.create_publisher(String, RECORDER_READY_TOPIC, LATCHED_QOS)
+
+    def poll(self) -> None:
+        import json
+        matched = self.recorder.recorder.matched_publishers()
+        if matched != self.sent:
+            self._pub.publish(self._string(data=json.dumps({'recorder': self.token, 'matched': matched})))
+            self.sent = matched
+
+
 def _last_run_message(rec: Any) -> float:
     """Wall time (monotonic s) of the newest message recorded on any topic but the latched
     /driveline/scene (0 before the first): the coupling node publishes the scene as it
@@ -158,8 +183,10 @@ def run(args: argparse.Namespace) -> int:
         recorder = _Recorder(writer, list(args.topics), domain, run_only=args.run_only)
         print(f'cvj-sim record: recording domain {domain} to {out / "bag"} '
               f'({args.storage}); Ctrl-C to stop', file=sys.stderr, flush=True)
+        ready = ReadyAnnouncer(recorder)
         idle = IdleClock()
         while not stop:
+            ready.poll()
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break

@@ -114,8 +114,8 @@ from cvj_ros.nodes.common import (ERROR, NS_PER_S, OK, WARN, ClockEncoder, CvjNo
                                   scene_seed)
 from cvj_ros.nodes.qos import (CLOCK_TOPIC, DATA_QOS, DIAGNOSTICS_TOPIC,
                                ENGINE_THROTTLE_SCALE_TOPIC, ENGINE_WRENCH_TOPIC, JOINT_STATES_TOPIC,
-                               LATCHED_QOS, LOAD_WRENCH_TOPIC, RECORDED_TOPIC, SCENE_TOPIC,
-                               coupling_wrench_topic)
+                               LATCHED_QOS, LOAD_WRENCH_TOPIC, RECORDED_TOPIC, RECORDER_READY_TOPIC,
+                               SCENE_TOPIC, coupling_wrench_topic, qos_match, type_name)
 
 _CLOCK_STAMP = struct.Struct('<iI')    # rosgraph_msgs/Clock: int32 sec, uint32 nanosec at byte 4
 _CLOCK_STAMP_BE = struct.Struct('>iI')
@@ -149,11 +149,14 @@ START_SETTLE_S = 0.3
 OBSERVER_SETTLE_S = 2.0
 # After that settle, a hand-started lockstep run also waits until every subscription the ROS
 # graph shows on this node's own data topics (/clock, the joint states, /diagnostics, the
-# coupling wrenches, same type, compatible QoS) is matched by its writer: a state written
-# before the writer matched a (volatile) reader never reaches it. Seen: a recorder started
-# before the coupling node whose /clock and coupling-wrench readers matched 12 steps after
-# step 0. Bounded (this long past the settle, then one WARN line naming them and the run
-# starts): an endpoint the graph lists can fail to match for reasons not visible here.
+# coupling wrenches, same type, compatible QoS) is matched by its writer, and until every
+# `cvj-sim record` in the graph reports on /driveline/recorder_ready that its readers matched
+# every publisher this node sees (the reader's side of a match is not visible here; a
+# volatile reader that matches late skips what was written before). Seen: a recorder whose /clock and
+# coupling-wrench readers matched 12 steps after step 0 (CI), and 290 steps after it
+# (launch-equivalent run, load ~25 with two CPU burners). Bounded (this long past the
+# settle, then one WARN line naming them and the run starts): an endpoint the graph lists
+# can fail to match for reasons not visible here.
 UNMATCHED_WAIT_S = 10.0
 # A stall during which only wrong-stamped answers came from a topic ends after this many
 # seconds (or peer_timeout, if shorter) with the stamp line: a peer that stamps wrongly
@@ -268,17 +271,6 @@ def wait_for_go(logger: Any = None, stream: Any = None) -> None:
         line = ''
     if line.strip() != 'go':
         raise StartCancelled('start_gate: no "go" on standard input; not started')
-
-
-def _qos_match(pub: Any, sub: Any) -> bool:
-    """The request/offer rules of reliability and durability (the policies these topics set;
-    rclpy's qos_check_compatible also compares deadline and liveliness, which the graph
-    reports in another form and calls incompatible)."""
-    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
-    if pub.reliability == ReliabilityPolicy.BEST_EFFORT and sub.reliability == ReliabilityPolicy.RELIABLE:
-        return False
-    return not (pub.durability == DurabilityPolicy.VOLATILE
-                and sub.durability == DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class CouplingNode(CvjNode):
@@ -436,6 +428,11 @@ class CouplingNode(CvjNode):
         self._t_wall0 = 0.0
         self._cpu0 = 0.0
 
+        # hand-started recorders' latest report of their readers' matches (RECORDER_READY_TOPIC):
+        # recorder -> {topic: publishers matched}
+        self.recorder_matches: dict[str, dict[str, int]] = {}
+        self.ready_sub = self.create_subscription(String, RECORDER_READY_TOPIC, self._on_recorder_ready,
+                                                  LATCHED_QOS)
         self._publish_scene()
         self._wait_t0 = time.monotonic()
         self._start_deadline = self._wait_t0 + p['start_timeout'] if p['start_timeout'] > 0 else math.inf
@@ -680,13 +677,51 @@ class CouplingNode(CvjNode):
                 infos = self.get_subscriptions_info_by_topic(topic)
             except Exception:  # noqa: BLE001 (graph query during shutdown)
                 return []
-            cls = pub.msg_type
-            type_name = f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+            name = type_name(pub.msg_type)
             shown = sum(1 for i in infos
-                        if i.topic_type == type_name and _qos_match(pub.qos_profile, i.qos_profile))
+                        if i.topic_type == name and qos_match(pub.qos_profile, i.qos_profile))
             matched = pub.get_subscription_count()
             if matched < shown:
                 out.append(f'{topic} ({matched} of {shown} subscriptions matched)')
+        return out
+
+    def _on_recorder_ready(self, msg: String) -> None:
+        """A recorder's report (commands/record.ReadyAnnouncer); anything else is ignored."""
+        import json
+        try:
+            report = json.loads(msg.data)
+            token, matched = str(report['recorder']), report['matched']
+            if not (isinstance(matched, dict) and all(
+                    isinstance(t, str) and type(n) is int for t, n in matched.items())):
+                return
+        except (ValueError, KeyError, TypeError):
+            return
+        self.recorder_matches[token] = matched
+
+    def recorders_not_ready(self) -> list[str]:
+        """What the recorders in the graph (`cvj-sim record`, publishers of
+        /driveline/recorder_ready) have not matched yet: a recorder not heard from, a
+        recordable topic with more publishers in this node's graph (same type, compatible
+        QoS) than the recorder's reader has matched, or one it has not subscribed. Only the
+        reader's side knows its matches, and a volatile reader that matches a writer late
+        skips what was written before."""
+        from cvj_ros.bag import topic_type
+        from cvj_ros.nodes.qos import RECORDER_QOS
+        n = self.count_publishers(RECORDER_READY_TOPIC)
+        if len(self.recorder_matches) < n:
+            return [f'{RECORDER_READY_TOPIC} ({len(self.recorder_matches)} of {n} recorders heard)']
+        shown: dict[str, int] = {}
+        for topic, _types in self.get_topic_names_and_types():
+            want = topic_type(topic)
+            if want is None:
+                continue
+            qos = LATCHED_QOS if topic == SCENE_TOPIC else RECORDER_QOS
+            shown[topic] = sum(1 for i in self.get_publishers_info_by_topic(topic)
+                               if i.topic_type == want and qos_match(i.qos_profile, qos))
+        out = []
+        for token, matched in sorted(self.recorder_matches.items()):
+            out += [f'{topic} ({matched.get(topic, 0)} of {k} publishers matched by recorder {token})'
+                    for topic, k in sorted(shown.items()) if matched.get(topic, 0) < k]
         return out
 
     def _engine_node_listens(self) -> bool:
@@ -809,7 +844,7 @@ class CouplingNode(CvjNode):
             settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
             if now - self._ready_since < settle:
                 return
-            unmatched = self.unmatched_subscriptions() if by_hand else []
+            unmatched = self.unmatched_subscriptions() + self.recorders_not_ready() if by_hand else []
             if unmatched:
                 if now - self._ready_since < settle + UNMATCHED_WAIT_S:
                     return

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -69,6 +70,26 @@ SCENE_TOPIC = '/driveline/scene'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 # the run's recorder: record time (rosgraph_msgs/Clock) of what its bag holds on disk
 RECORDED_TOPIC = '/driveline/recorded'
+#: a hand-started recorder (`cvj-sim record`) reports here (std_msgs/String, latched, JSON)
+#: how many publishers each of its readers has matched, whenever that changes
+RECORDER_READY_TOPIC = '/driveline/recorder_ready'
+
+
+def qos_match(pub: Any, sub: Any) -> bool:
+    """The request/offer rules of reliability and durability between a publisher's and a
+    subscription's QoS (the policies these topics set; rclpy's qos_check_compatible also
+    compares deadline and liveliness, which the ROS graph reports in another form and calls
+    incompatible)."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+    if pub.reliability == ReliabilityPolicy.BEST_EFFORT and sub.reliability == ReliabilityPolicy.RELIABLE:
+        return False
+    return not (pub.durability == DurabilityPolicy.VOLATILE
+                and sub.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def type_name(cls: Any) -> str:
+    """``pkg/msg/Name`` of a message class, as the ROS graph names topic types."""
+    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
 
 
 def coupling_wrench_topic(joint: str) -> str:

@@ -22,7 +22,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from std_msgs.msg import Float64, String  # noqa: E402
 
 from cvj_ros import bag  # noqa: E402
 from cvj_ros.nodes import peers  # noqa: E402
@@ -256,6 +256,62 @@ def test_coupling_node_counts_graph_subscriptions_its_writers_have_not_matched(
         ex.shutdown()
         reader.destroy_node()
         node.destroy_node()
+
+
+def test_coupling_node_waits_until_the_recorders_readers_match_what_it_sees(ctx, tmp_path: Path) -> None:
+    """The reader side of the hand-start gate: `cvj-sim record`'s ReadyAnnouncer reports its
+    readers' matches whenever they change; the coupling node compares them with the
+    publishers in its graph (CouplingNode.recorders_not_ready): a recorder not heard from, a
+    publisher not matched yet (here a throttle publisher that appears after the recorder
+    said all matched), a best-effort publisher (never matches a reliable reader: not waited
+    for); malformed reports are ignored."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from cvj_ros.commands.record import ReadyAnnouncer
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)])
+    rec_node = rclpy.create_node('cvj_recorder', context=ctx)
+    other = rclpy.create_node('late_driver', context=ctx)
+    writer = bag.BagWriter(tmp_path / 'b')
+    ex = make_executor('events', ctx)
+
+    def spin_until(cond, what: str) -> None:
+        deadline = time.monotonic() + 30.0       # discovery within one process (generous)
+        while not cond():
+            assert time.monotonic() < deadline, what
+            ready.poll()
+            ex.spin_once(timeout_sec=0.02)
+    try:
+        rec = bag.BagRecorder(rec_node, writer, discover_period=0.0)
+        other.create_publisher(Clock, '/clock', QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+        class _Host:        # what cvj-sim record's loop holds: .node and .recorder
+            pass
+        host = _Host()
+        host.node, host.recorder = rec_node, rec
+        for n in (node, rec_node, other):
+            ex.add_node(n)
+        assert node.recorders_not_ready() == []          # no recorder in the graph
+        ready = ReadyAnnouncer(host)
+        spin_until(lambda: node.count_publishers('/driveline/recorder_ready') == 1, 'ready publisher')
+        spin_until(lambda: not node.recorders_not_ready(), str(node.recorders_not_ready()))
+        assert any(i.node_name == 'best_effort_clock' or i.node_name == 'late_driver'
+                   for i in node.get_publishers_info_by_topic('/clock'))
+        (token, matched), = node.recorder_matches.items()
+        assert 'cvj_recorder pid' in token and matched['/clock'] == 1    # the coupling node's own
+        other.create_publisher(Float64, '/engine/throttle', DATA_QOS)     # a driver appears
+        spin_until(lambda: node.count_publishers('/engine/throttle') == 1, 'throttle publisher')
+        if node.recorder_matches[token].get('/engine/throttle', 0) < 1:  # not matched by the recorder yet
+            assert any('/engine/throttle (0 of 1 publishers matched' in line for line in node.recorders_not_ready())
+        spin_until(lambda: not node.recorders_not_ready(), str(node.recorders_not_ready()))
+        for bad in ('', 'not json', '[]', '{"recorder": "x"}', '{"recorder": "x", "matched": {"/clock": "1"}}'):
+            node._on_recorder_ready(String(data=bad))
+        assert list(node.recorder_matches) == [token]
+    finally:
+        ex.shutdown()
+        writer.close()
+        for n in (other, rec_node, node):
+            n.destroy_node()
 
 
 def test_load_node_answers_with_its_shaft_frame_and_not_beside_a_second_publisher(ctx, tmp_path: Path) -> None:

@@ -23,8 +23,7 @@ def _math_fmod(x, y):
 
 from cvj_ros.physics.joints.double_cardan import double_cardan_scalar
 from cvj_ros.physics.joints.hooke import hooke_phased_scalar, hooke_stage_scalar
-from cvj_ros.physics.joints.tripod import (TWO_PI_3, tripod_closed_scalar, tripod_series_reduced,
-                                           tripod_series_scalar)
+from cvj_ros.physics.joints.tripod import TWO_PI_3, tripod_closed_scalar, tripod_series_reduced
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
 from cvj_ros.physics.joints.runout import runout_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_HOOKE_PHASED, OP_JOINT_IDENTITY,
@@ -47,15 +46,22 @@ double_cardan_nb = njit(cache=True)(double_cardan_scalar)
 lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
 lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
 tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
-tripod_series_nb = njit(cache=True)(tripod_series_scalar)
 runout_nb = njit(cache=True)(runout_scalar)
 # the two commonest exact stages, inlined into joint_eval (and so into the rhs): no call,
 # no tuple return; the same source, the same bits
 hooke_stage_inline_nb = njit(cache=True, inline='always')(hooke_stage_scalar)
-tripod_series_inline_nb = njit(cache=True, inline='always')(tripod_series_scalar)
-
-
 tripod_series_reduced_inline_nb = njit(cache=True, inline='always')(tripod_series_reduced)
+
+
+def _tripod_series_libm(phi_in, coeffs):
+    """tripod_series_scalar compiled: the period reduced by libm fmod, as the Python joint
+    does (tripod_series_scalar itself calls the plain tripod_series_reduced, which numba
+    cannot resolve from a compiled caller), then the series."""
+    return tripod_series_reduced_inline_nb(phi_in, math.fmod(phi_in, TWO_PI_3), coeffs)
+
+
+tripod_series_nb = njit(cache=True)(_tripod_series_libm)
+tripod_series_inline_nb = njit(cache=True, inline='always')(_tripod_series_libm)
 
 #: TWO_PI_3 = C_HI + C_LO exactly, C_HI with 26 significant bits (the low 27 of the
 #: mantissa cleared) and so C_LO with at most 27: k C_HI and k C_LO are exact for |k| < 2^25

@@ -88,11 +88,21 @@ RUN_ONLY_TOPICS = frozenset({JOINT_STATES_TOPIC, '/engine/wrench', '/load/wrench
                              '/engine/throttle_scale'})
 
 
+def exchange_wrench_topic(topic: str) -> bool:
+    """A wrench topic with one message per exchange, stamped with the joint state it answers,
+    from one node of the run: /engine/wrench, /load/wrench, /coupling/<joint>/wrench,
+    /load/<wheel>/wrench."""
+    return (topic in ('/engine/wrench', '/load/wrench') or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
+            or fnmatch.fnmatchcase(topic, '/load/*/wrench'))
+
+
 def _one_publisher_topic(topic: str) -> bool:
     """A topic with exactly one publisher in a run (RUN_ONLY_TOPICS, /coupling/*/wrench,
-    /load/*/wrench)."""
-    return (topic in RUN_ONLY_TOPICS or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
-            or fnmatch.fnmatchcase(topic, '/load/*/wrench'))
+    /load/*/wrench). Not /clock: one writer too, but the recorder attributes its samples by
+    value (``_is_ours``). ``commands/record.loop_topic`` differs on purpose: the topics with
+    one message per exchange (/clock and the exchange wrenches, not the scene or
+    /engine/throttle_scale)."""
+    return topic in RUN_ONLY_TOPICS or exchange_wrench_topic(topic)
 STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9
 

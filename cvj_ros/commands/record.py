@@ -102,22 +102,29 @@ BEHIND_WAIT_S = 15.0
 
 def loop_topic(topic: str) -> bool:
     """A topic with one message per exchange stamped like the joint state it belongs to:
-    /clock and the answers (/engine/wrench, /load/wrench, /load/<wheel>/wrench,
-    /coupling/<joint>/wrench)."""
-    from fnmatch import fnmatchcase
-    return (topic in ('/clock', '/engine/wrench', '/load/wrench')
-            or fnmatchcase(topic, '/coupling/*/wrench') or fnmatchcase(topic, '/load/*/wrench'))
+    /clock and the exchange wrenches (:func:`cvj_ros.bag.exchange_wrench_topic`). Not the
+    recorder's one-publisher set (``bag._one_publisher_topic``): that one adds the scene and
+    /engine/throttle_scale (one publisher, not one message per exchange) and leaves out
+    /clock (attributed by value)."""
+    from cvj_ros.bag import exchange_wrench_topic
+    return topic == '/clock' or exchange_wrench_topic(topic)
+
+
+def run_end(last_stamp: dict[str, int]) -> tuple[int, dict[str, int]]:
+    """(newest, behind): the newest recorded stamp (ns) of the joint states and the loop
+    topics, and those of them whose newest stamp is older, with that stamp: their last
+    messages are still on the way (or their publisher stopped). Every exchange t_k has a
+    joint state, a /clock and the answers stamped t_k. (0, {}) before the first joint state."""
+    stamps = {t: v for t, v in list(last_stamp.items()) if t == '/driveline/joint_states' or loop_topic(t)}
+    if '/driveline/joint_states' not in stamps:
+        return 0, {}
+    newest = max(stamps.values())
+    return newest, {t: v for t, v in stamps.items() if v < newest}
 
 
 def behind_topics(last_stamp: dict[str, int]) -> list[str]:
-    """The joint states and loop topics whose newest recorded stamp (ns) is older than the
-    newest of them all: their last messages are still on the way (or their publisher
-    stopped). Every exchange t_k has a joint state, a /clock and the answers stamped t_k."""
-    stamps = {t: v for t, v in list(last_stamp.items()) if t == '/driveline/joint_states' or loop_topic(t)}
-    if '/driveline/joint_states' not in stamps:
-        return []
-    newest = max(stamps.values())
-    return sorted(t for t, v in stamps.items() if v < newest)
+    """The joint states and loop topics behind the newest of them (:func:`run_end`), sorted."""
+    return sorted(run_end(last_stamp)[1])
 
 
 def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
@@ -209,11 +216,10 @@ def run(args: argparse.Namespace) -> int:
           + (f' (stopped by {signal.Signals(stop[0]).name})' if stop else ''), file=sys.stderr)
     for topic in sorted(counts):
         print(f'  {topic:32s} {counts[topic]:8d}', file=sys.stderr)
-    behind = behind_topics(recorder.recorder.last_stamp) if recorder is not None else []
+    newest, behind = run_end(recorder.recorder.last_stamp) if recorder is not None else (0, {})
     if behind:
-        stamps = recorder.recorder.last_stamp
-        print('cvj-sim record: note: ' + ', '.join(f'{t} ends at t={stamps[t] / 1e9:.9g} s' for t in behind)
-              + f', the run at t={max(stamps[t] for t in stamps if t == "/driveline/joint_states" or loop_topic(t)) / 1e9:.9g} s '
+        print('cvj-sim record: note: ' + ', '.join(f'{t} ends at t={behind[t] / 1e9:.9g} s' for t in sorted(behind))
+              + f', the run at t={newest / 1e9:.9g} s '
               '(their publisher stopped early, or their last messages never arrived)', file=sys.stderr)
     foreign = dict(recorder.recorder.foreign) if recorder is not None else {}
     if foreign:

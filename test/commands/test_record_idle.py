@@ -39,3 +39,27 @@ def test_loop_topics_behind_the_joint_states_hold_the_stop() -> None:
     assert idle_stop(2.0, 2.0, [])
     assert not idle_stop(1.9, 2.0, [])
 
+
+
+def test_run_end_gives_the_newest_stamp_with_the_topics_behind_it() -> None:
+    """The end-of-run note prints each behind topic's stamp and the run's newest stamp: the
+    newest over the joint states and loop topics only (a later /diagnostics stamp is not)."""
+    from cvj_ros.commands.record import run_end
+    stamps = {'/driveline/joint_states': 300, '/clock': 300, '/engine/wrench': 239,
+              '/load/wrench': 300, '/diagnostics': 400, '/driveline/scene': 0}
+    assert run_end(stamps) == (300, {'/engine/wrench': 239})
+    assert run_end({'/clock': 5, '/engine/wrench': 4}) == (0, {})   # no joint state yet
+
+
+def test_loop_topics_and_one_publisher_topics_share_the_exchange_wrenches() -> None:
+    """commands/record.loop_topic (one message per exchange) and the recorder's
+    one-publisher set differ on purpose, and share bag.exchange_wrench_topic."""
+    from cvj_ros.bag import _one_publisher_topic, exchange_wrench_topic
+    from cvj_ros.commands.record import loop_topic
+    for topic in ('/engine/wrench', '/load/wrench', '/coupling/tripod/wrench', '/load/front_left/wrench'):
+        assert exchange_wrench_topic(topic) and loop_topic(topic) and _one_publisher_topic(topic)
+    assert loop_topic('/clock') and not _one_publisher_topic('/clock')
+    for topic in ('/driveline/scene', '/engine/throttle_scale', '/driveline/joint_states'):
+        assert _one_publisher_topic(topic) and not loop_topic(topic)
+    for topic in ('/diagnostics', '/engine/throttle', '/driveline/recorder_ready'):
+        assert not loop_topic(topic) and not _one_publisher_topic(topic)

@@ -218,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'  {topic:32s} {counts[topic]:8d}', file=sys.stderr)
     newest, behind = run_end(recorder.recorder.last_stamp) if recorder is not None else (0, {})
     if behind:
-        print('cvj-sim record: note: ' + ', '.join(f'{t} ends at t={behind[t] / 1e9:.9g} s' for t in sorted(behind))
+        print('cvj-sim record: note: '
+              + ', '.join(f'{t} ends at t={behind[t] / 1e9:.9g} s' for t in sorted(behind))
               + f', the run at t={newest / 1e9:.9g} s '
               '(their publisher stopped early, or their last messages never arrived)', file=sys.stderr)
     foreign = dict(recorder.recorder.foreign) if recorder is not None else {}

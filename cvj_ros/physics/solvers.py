@@ -264,10 +264,9 @@ class _ExplicitRK(_AdaptiveStepper):
     """Explicit FSAL Runge-Kutta pair on an extended stage matrix.
 
     Rows of ``KE``: 0 = y at the step start, 1..s+1 = stage derivatives k_0..k_s
-    (k_s = f(t + h, y_new), the FSAL value). Stage i is then a single product
-    ``hA[i, :i+1] @ KE[:i+1]`` with the coefficient row pre-scaled by h once per
-    attempt and a leading 1 for y: one numpy call per stage. The pairs shipped
-    override :meth:`_stages` with the compiled kernel's order of additions.
+    (k_s = f(t + h, y_new), the FSAL value), then the dense-output stages. Each pair
+    fills KE in its ``_stages(h)`` (returning y_new) with the compiled kernel's order
+    of additions, and ``_accept`` keeps k_s as the next step's first derivative.
     """
 
     _C: np.ndarray
@@ -281,14 +280,6 @@ class _ExplicitRK(_AdaptiveStepper):
         # zeros, not empty: DOP853's error estimate multiplies the (not yet computed) dense
         # rows by zero weights, and 0 * NaN from stale memory made every step non-finite
         self._KE = np.zeros((s + 2 + self._EXTRA_ROWS, n))
-        A_ext = np.zeros((s + 1, s + 2))
-        A = self._A_FULL[:s, :s]
-        A_ext[:s, 1:1 + A.shape[1]] = A
-        A_ext[s, 1:s + 1] = self._B
-        self._A_EXT = A_ext
-        self._hA = np.empty_like(A_ext)
-        self._rows = [self._hA[i, :i + 1] for i in range(s + 1)]
-        self._views = [self._KE[:i + 1] for i in range(s + 1)]
         self._f = None
         self._h_last = 0.0
         self._dense_cache = None
@@ -305,28 +296,6 @@ class _ExplicitRK(_AdaptiveStepper):
     def restart(self) -> None:
         """Drop the FSAL derivative (inputs changed discontinuously); keep h."""
         self._f = None
-
-    def _stages(self, h: float) -> np.ndarray:
-        """Fill KE for a step of size h; returns y_new. Stage derivatives in KE[1:]."""
-        KE = self._KE
-        KE[0] = self.y
-        KE[1] = self._first_derivative()
-        hA = self._hA
-        np.multiply(self._A_EXT, h, out=hA)
-        hA[:, 0] = 1.0
-        t = self.t
-        fun = self.fun
-        C = self._C
-        rows = self._rows
-        views = self._views
-        dot = np.dot
-        s = self._S
-        for i in range(1, s):
-            KE[i + 1] = fun(t + C[i] * h, dot(rows[i], views[i]))
-        y_new = dot(rows[s], views[s])
-        KE[s + 1] = fun(t + h, y_new)
-        self.nfev += s
-        return y_new
 
     def _accept(self, h: float, t_new: float, y_new: np.ndarray) -> None:
         self.t_old, self.y_old = self.t, self.y

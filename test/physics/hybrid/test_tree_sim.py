@@ -178,7 +178,8 @@ def test_pack_stuck_again_beside_a_clutch_slipping_the_wrong_way() -> None:
     stuck no clutch mode is consistent (stuck it is over its capacity, slipping either way its
     slip turns against its friction). The clutch cannot stick (a mode passed through) and the
     settle ends with it slipping backwards while its slip rises. (The former rule cycled and
-    left the pack stuck over its capacity.) Found in 2 of 5400 random settles of such trees."""
+    left the pack stuck over its capacity.) The same pattern ended 2 of 5400 random settles
+    of such trees (docs/clutch_gearbox.md); this scene, found the same way, is rounded."""
     sim = _pack_sim(27.0, bias=0.6, static_ratio=1.8, left=(0.013, -1.4), right=(0.078, 0.47),
                     engine_torque=70.0, clutch=dict(CLUTCH, mu_static=0.24, mu_kinetic=0.234))
     assert _consistent_modes(sim) == {(BACKWARD, FORWARD)}

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from cvj_ros.errors import SceneError
 from cvj_ros.physics.hybrid.chain import Mode
 from cvj_ros.physics.hybrid.elements import Clutch
-from cvj_ros.physics.hybrid.events import Witness, crossed, locate
+from cvj_ros.physics.hybrid.events import Witness, crossed, locate, same_instant
 from cvj_ros.physics.hybrid.friction import BACKWARD, FORWARD, STUCK, decide_mode, mode_name
 from cvj_ros.physics.hybrid.simulate import ROSENBROCK_METHODS, HybridResult, ModeEvent
 from cvj_ros.physics.hybrid.tree import ModeTree, TreeEvaluation, TreeState
@@ -50,12 +50,6 @@ from cvj_ros.physics.solvers import make_stepper
 __all__ = ['HybridTreeSimulation']
 
 FloatArray = NDArray[np.float64]
-
-
-def _same_instant(t: float, t0: float) -> bool:
-    """t and t0 are one instant: within the run loop's rounding rule for an event just
-    before a command row (1e-12 max(1 s, |t|))."""
-    return abs(t - t0) <= 1e-12 * max(1.0, abs(t))
 
 
 class HybridTreeSimulation:
@@ -89,6 +83,7 @@ class HybridTreeSimulation:
         self.events: list[ModeEvent] = []
         self.statuses: list[str] = []
         self._cache: dict[tuple, ModeTree] = {}
+        self._seen: tuple[float, set[tuple]] = (-math.inf, set())   # modes at one instant
         self._released: tuple[float, set[str]] = (-math.inf, set())   # _release, _settle
         els = list(iter_elements(scene.driveline))
         self.clutches = {el.name: el for el in els if getattr(el, 'type', '') == 'clutch'}
@@ -296,8 +291,27 @@ class HybridTreeSimulation:
             self._log(t, name, mode_name(before), mode_name(new), cause)
         return out, st
 
+    @staticmethod
+    def _mode_key(mode: Mode) -> tuple:
+        """The discrete part of ``mode`` (every element's mode and the gears, no offsets)."""
+        return (tuple(sorted(mode.clutch.items())), tuple(sorted(mode.gear.items())),
+                tuple(sorted(mode.brakes.items())), tuple(sorted(mode.packs.items())))
+
+    def _mark(self, t: float, mode: Mode) -> None:
+        """Note ``mode`` as passed through at the instant t (events.same_instant)."""
+        if not same_instant(t, self._seen[0]):
+            self._seen = (t, set())
+        self._seen[1].add(self._mode_key(mode))
+
+    def _revisits(self, t: float, mode: Mode, kind: str, name: str) -> bool:
+        """Sticking ``name`` would return to a mode already passed through at t."""
+        cand = mode.copy()
+        {'clutch': cand.clutch, 'brake': cand.brakes, 'pack': cand.packs}[kind][name] = STUCK
+        return same_instant(t, self._seen[0]) and self._mode_key(cand) in self._seen[1]
+
     def _release(self, t: float, mode: Mode, kind: str, name: str, new: int, cause: str) -> Mode:
-        if not _same_instant(t, self._released[0]):
+        self._mark(t, mode)
+        if not same_instant(t, self._released[0]):
             self._released = (t, set())
         self._released[1].add(name)
         out = mode.copy()
@@ -314,15 +328,20 @@ class HybridTreeSimulation:
 
     def _settle(self, t: float, mode: Mode, st: TreeState, fresh: tuple[str, ...] = ()
                 ) -> tuple[Mode, TreeState]:
-        """As the chain's: release stuck elements whose capacity no longer holds, stick
-        slipping ones at exactly zero slip that can hold (at most 16 rounds). An element
-        released at this instant is not stuck again at it (as ``fresh``): two brakes behind
-        an open differential reach their capacity together, each one's release raising the
-        other's holding torque; re-sticking the first when the second lets go would repeat
-        at the same instant for ever, both slipping is the consistent mode."""
-        if _same_instant(t, self._released[0]):
+        """Release stuck elements whose capacity no longer holds, stick slipping ones at
+        exactly zero slip that can hold, repeated until no mode changes (at most 16 rounds).
+        Not stuck again at this instant: an element in ``fresh`` (the event's) or released
+        at it before this call (two brakes behind an open differential reach their capacity
+        together: the second one's witness fires at the same instant, and re-sticking the
+        first, its hold equal to its capacity to rounding, only releases it again); nor, as
+        on the chain (HybridSimulation._settle), an element whose stick returns to a mode
+        already passed through at this instant (a clutch and a clutch-pack differential can
+        cycle stick, release, stick, ...), while a stick to a mode not passed through yet
+        stays allowed (a clutch released before the pack holds again once the pack slips)."""
+        if same_instant(t, self._released[0]):
             fresh = tuple(fresh) + tuple(sorted(self._released[1]))
         for _ in range(16):
+            self._mark(t, mode)
             mt, x, st = self._apply(mode, st, False)
             ev = self._eval(mt, t, x)
             _ck, cs, _bk, bs = self._capacities(t)
@@ -334,7 +353,8 @@ class HybridTreeSimulation:
                         mode = self._release(t, mode, 'clutch', name, new, 'capacity below torque')
                         changed = True
                         break
-                elif ev.slip[name] == 0.0 and cs > 0.0 and name not in fresh:
+                elif (ev.slip[name] == 0.0 and cs > 0.0 and name not in fresh
+                      and not self._revisits(t, mode, 'clutch', name)):
                     m2, st2 = self._try_stick(t, mode, st, 'clutch', name, 'zero slip')
                     if m2.clutch[name] != m:
                         mode, st, changed = m2, st2, True
@@ -348,7 +368,8 @@ class HybridTreeSimulation:
                         mode = self._release(t, mode, 'brake', name, new, 'capacity below torque')
                         changed = True
                         break
-                elif ev.wheel_speed[name] == 0.0 and bs[name] > 0.0 and name not in fresh:
+                elif (ev.wheel_speed[name] == 0.0 and bs[name] > 0.0 and name not in fresh
+                      and not self._revisits(t, mode, 'brake', name)):
                     m2, st2 = self._try_stick(t, mode, st, 'brake', name, 'zero speed')
                     if m2.brakes[name] != m:
                         mode, st, changed = m2, st2, True
@@ -362,7 +383,8 @@ class HybridTreeSimulation:
                         mode = self._release(t, mode, 'pack', name, new, 'capacity below torque')
                         changed = True
                         break
-                elif ev.pack_slip[name] == 0.0 and name not in fresh:
+                elif (ev.pack_slip[name] == 0.0 and name not in fresh
+                      and not self._revisits(t, mode, 'pack', name)):
                     m2, st2 = self._try_stick(t, mode, st, 'pack', name, 'zero slip')
                     if m2.packs[name] != m:
                         mode, st, changed = m2, st2, True
@@ -439,6 +461,7 @@ class HybridTreeSimulation:
 
     def _initial(self) -> tuple[Mode, ModeTree, FloatArray]:
         sc = self.scene
+        self._seen, self._released = (-math.inf, set()), (-math.inf, set())
         gear0 = self.schedule.gear(0.0)
         for name, gb in self.gearboxes.items():
             if not gb.valid_gear(gear0):

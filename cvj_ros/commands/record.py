@@ -5,8 +5,9 @@ time = the message's simulated stamp, every contract topic plus ``/coupling/*/wr
 ``/load/*/wrench`` as they appear, the latched ``/driveline/scene`` message stored in the bag and in its
 metadata). It records on the current ``ROS_DOMAIN_ID`` until Ctrl-C / SIGTERM, until
 ``--duration`` wall seconds have passed, or (``--until-idle S``) until nothing arrived for
-S seconds after the first message (up to BEHIND_WAIT_S more while the joint states, /clock or an
-answer topic end before the others: their last messages are still on the way); on every one
+S seconds after the first message and no joint-state publisher is left on the graph (up to
+BEHIND_WAIT_S more while the joint states, /clock or an answer topic end before the others:
+their last messages are still on the way); on every one
 of these paths the bag is finalised
 (metadata.yaml written), so everything recorded stays readable.
 """
@@ -28,7 +29,9 @@ HELP = 'record the driveline topics of nodes started elsewhere to a bag'
 DESCRIPTION = """Record every cvj_ros topic on this ROS domain to a rosbag2 bag (mcap or sqlite3),
 for nodes started by hand (`ros2 run` / console scripts) or by launch/driveline.launch.py.
 Stops on Ctrl-C or SIGTERM (bag finalised, exit 0), after --duration wall seconds, or
-with --until-idle S once no message arrived for S seconds.
+with --until-idle S once no message arrived for S seconds and the loop's coupling node has
+left the graph (a loop that pauses - a coupling node compiling or starved of the CPU - is
+waited for).
 
 examples:
   cvj-sim record runs/manual                      # Ctrl-C to stop
@@ -46,8 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
                         help='stop once no message arrived for S wall seconds (after the run\'s '
                              'first one; the latched scene message, sent while the coupling node '
-                             'still waits for its peers, does not count; up to 15 s more while '
-                             'the joint states, /clock or an answer topic end before the others)')
+                             'still waits for its peers, does not count) and no node publishes '
+                             '/driveline/joint_states any more (a paused loop is waited for); up to '
+                             '15 s more while the joint states, /clock or an answer topic end '
+                             'before the others')
     parser.add_argument('--run-only', action='store_true',
                         help='record one run\'s publishers only: a loop topic\'s messages while it has '
                              'one publisher, /clock attributed by value (docs/ros.md "Run identity"); '
@@ -127,10 +132,21 @@ def behind_topics(last_stamp: dict[str, int]) -> list[str]:
     return sorted(run_end(last_stamp)[1])
 
 
-def idle_stop(idle: float, until_idle: float, behind: list[str]) -> bool:
+def idle_stop(idle: float, until_idle: float, behind: list[str], loop_alive: bool = False) -> bool:
     """--until-idle: stop after ``until_idle`` s without a message, unless a topic is
-    :func:`behind_topics`; then after ``until_idle`` + BEHIND_WAIT_S."""
+    :func:`behind_topics`; then after ``until_idle`` + BEHIND_WAIT_S. Never while
+    ``loop_alive`` (a joint-state publisher is still on the graph): the loop has paused - a
+    coupling node compiling, swapped out or starved of the CPU -, not ended, and what it
+    sends next belongs in the bag."""
+    if loop_alive:
+        return False
     return idle >= until_idle and (not behind or idle >= until_idle + BEHIND_WAIT_S)
+
+
+def loop_alive(node: Any) -> bool:
+    """A publisher of /driveline/joint_states (the coupling node, a replay) is on the graph."""
+    from cvj_ros.nodes.qos import JOINT_STATES_TOPIC
+    return node.count_publishers(JOINT_STATES_TOPIC) > 0
 
 
 class ReadyAnnouncer:
@@ -197,10 +213,12 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if args.duration is not None and now - wall0 >= args.duration:
                 break
-            if args.until_idle is not None and idle_stop(
-                    idle.tick(now, _last_run_message(recorder.recorder)), args.until_idle,
-                    behind_topics(recorder.recorder.last_stamp)):
-                break
+            if args.until_idle is not None:
+                quiet = idle.tick(now, _last_run_message(recorder.recorder))
+                if quiet >= args.until_idle and idle_stop(
+                        quiet, args.until_idle, behind_topics(recorder.recorder.last_stamp),
+                        loop_alive(recorder.node)):
+                    break
             time.sleep(0.02)
     finally:
         try:

@@ -63,3 +63,55 @@ def test_loop_topics_and_one_publisher_topics_share_the_exchange_wrenches() -> N
         assert _one_publisher_topic(topic) and not loop_topic(topic)
     for topic in ('/diagnostics', '/engine/throttle', '/driveline/recorder_ready'):
         assert not loop_topic(topic) and not _one_publisher_topic(topic)
+
+
+def test_idle_does_not_end_a_loop_whose_coupling_node_is_still_there() -> None:
+    """A joint-state publisher still on the graph means the loop paused (a coupling node
+    compiling its kernel mid-run, swapped out): the silence is not the end of the run."""
+    from cvj_ros.commands.record import BEHIND_WAIT_S, idle_stop
+    assert not idle_stop(100.0, 2.0, [], loop_alive=True)
+    assert not idle_stop(2.0 + BEHIND_WAIT_S, 2.0, ['/clock'], loop_alive=True)
+    assert idle_stop(2.0, 2.0, [], loop_alive=False)
+
+
+def test_recorder_waits_out_a_paused_loop_and_stops_once_it_left(ctx, tmp_path) -> None:
+    """`cvj-sim record --until-idle 0.5` records a joint-state publisher's messages, keeps
+    recording through 3 s of its silence (here the old rule stopped after 0.5 s and lost the
+    rest of a run whose coupling node stalled after step 0), and stops once the publisher
+    has left the graph, with a finalised bag."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from cvj_ros.bag import plain_mcap_bag
+    out = tmp_path / 'rec'
+    proc = subprocess.Popen([str(Path(sys.executable).parent / 'cvj-sim'), 'record', str(out),
+                             '--until-idle', '0.5'], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        node = rclpy.create_node('paused_coupling', context=ctx)
+        pub = node.create_publisher(JointState, '/driveline/joint_states', 10)
+        deadline = time.monotonic() + 120     # the recorder's start on a loaded machine
+        while pub.get_subscription_count() < 1:
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stdout.read()
+            time.sleep(0.05)
+        for k in range(10):                   # 1 s of joint states
+            msg = JointState(name=['s'], position=[0.0], velocity=[1.0], effort=[0.0])
+            msg.header.stamp.nanosec = k * 1_000_000
+            pub.publish(msg)
+            time.sleep(0.1)
+        time.sleep(3.0)                       # the loop pauses: 6x the idle limit
+        assert proc.poll() is None, 'the recorder stopped while the loop was still there'
+        node.destroy_node()                   # the coupling node leaves
+        rc = proc.wait(timeout=60)            # endpoint removal: immediate on a clean exit
+        assert rc == 0, proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    plain = plain_mcap_bag(out / 'bag')          # metadata.yaml written: finalised
+    assert plain is not None and plain[1]['/driveline/joint_states'][1] >= 1

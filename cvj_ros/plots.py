@@ -35,6 +35,9 @@ _STYLE = {'figure.dpi': 110, 'axes.grid': True, 'grid.alpha': 0.3, 'axes.titlesi
 # -- series styles, labels and speed levels --------------------------------------------------
 
 _COLORS = tuple(plt.get_cmap('tab10').colors)
+# the work-precision figure's methods (13-14 with numbalsoda and solve_ivp): tab10, then six
+# colours unlike any of it (black, plum, periwinkle, mustard, maroon, pale olive)
+_METHOD_COLORS = _COLORS + ('#000000', '#7b4173', '#6b6ecf', '#e7ba52', '#843c39', '#b5cf6b')
 _LINESTYLES = ('-', '--', '-.', ':')
 _HATCHES = ('', '////', '....', 'xxxx')
 _MARKERS = ('o', 's', '^', 'D', 'v', 'P', 'X', '*', '<', '>')
@@ -833,7 +836,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     markers = {'exact': 'o', 'auto': '*', 'closed': 'D', 'ideal': 'v'}
     methods = sorted({method(rs[0]) for rs in groups.values()},
                      key=lambda m: (m[:1].isupper(), m))   # project methods, then solve_ivp's
-    colors = {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(methods)}
+    colors = {m: _METHOD_COLORS[i % len(_METHOD_COLORS)] for i, m in enumerate(methods)}
     used_variants: list[str] = []
     used_fids: list[str] = []
     # ideal/closed runs are drawn faint beside exact ones; a scene whose modes are all one

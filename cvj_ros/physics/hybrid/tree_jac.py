@@ -6,12 +6,23 @@ r_s, dr_s/du_j = b_p r_p[j] r_p + a_p dr_p/du_j, the bias k_s likewise), forces 
 slopes (engine: ``chain_jac.torque_slopes``; springs: ``SpringLaw.evaluate``; viscous
 couplings; tyres: ``MagicFormula.slope`` with the normal loads' load transfer differentiated
 in closed form, zero where clamped; body), the mode's slipping clutch, slipping brakes and a
-pack's constant bias; per group d uddot/dy = M^-1 sum_s [dr_s/dy (G_s - M_s r_s.uddot)
+pack's bias; per group d uddot/dy = M^-1 sum_s [dr_s/dy (G_s - M_s r_s.uddot)
 + r_s (dG_s/dy - dM_s/dq dq_s/dy r_s.uddot - M_s (dr_s/dy).uddot)] with G_s = Q_s - C_s
-qdot_s^2 - M_s k_s; a pinned coordinate's rows 0. db_end/dq and dC_s/dq (a joint's third
-derivative) are central differences of the section's end kinematics (increment 1e-6 max(1,
-|q_s|)), as in ``chain_jac``; a slipping torque-sensing pack (its bias solves two backward
-walks) takes the whole Jacobian by central differences of the mode rhs (increment 1e-6
+qdot_s^2 - M_s k_s; a pinned coordinate's rows 0.
+
+A slipping torque-sensing pack's bias T_b = m (T_p + k s T_c), s = sign T_c
+(``ModeTree._pack_bias``), by implicit differentiation of its two backward walks: the
+carrier torque T_c = T_L + T_R = sum_s w_s (M_s qddot_s + C_s qdot_s^2 + a_s T_end,s) over
+both sides and the sections hung on them rigidly (w = 1 on a side, w_s = w_p a_p below),
+affine in T_b (T_c = T_c0 + B T_b); dT_c/dy at fixed T_b by the chain rule above (with the
+acceleration rows at fixed T_b), B = sum_s w_s M_s r_s.g, g = d uddot/dT_b (the group solve
+of the unit bias), so dT_b/dy = m k s (dT_c/dy) / (1 - m k s B), added as g dT_b/dy to the
+accelerations and (omega_L - omega_R) dT_b/dy to the friction power.
+
+Difference quotients: db_end/dq and dC_s/dq (a joint's third derivative), central
+differences of the section's end kinematics (increment 1e-6 max(1, |q_s|)), as in
+``chain_jac``; where |m k B| >= 1 (no consistent sign: the rhs's fallback) or with two
+sensing packs, the whole Jacobian by central differences of the mode rhs (increment 1e-6
 max(1, |x_j|)). The compiled twin is ``kernel/tree_modes_jac_nb.tm_jac`` (the same formula,
 term by term).
 """
@@ -53,6 +64,34 @@ def _section_end(ops: tuple[Op, ...], q: float
     return phi, a, b, m, c, dm, hj
 
 
+def _carrier_weights(mt: ModeTree, di: Any, end: list[tuple[float, ...]],
+                     coords: list[list[int]], dq_row: Any
+                     ) -> tuple[list[float], FloatArray, list[int]]:
+    """Weights w_s of the sections a pack's carrier torque T_c = T_L + T_R sums in the
+    backward walk (both sides and everything hung on them rigidly: w = 1 on a side, w_s =
+    w_p a_p below), their derivatives dw_s/dy = a_p dw_p/dy + w_p b_p dq_p/dy, and those
+    sections in tree order."""
+    ns = len(mt.sections)
+    nst = mt._n_state
+    w = [0.0] * ns
+    dw = np.zeros((ns, nst))
+    inside = [False] * ns
+    out = []
+    for s, sec in enumerate(mt.sections):
+        if s in (di.left, di.right):
+            w[s] = 1.0
+        elif sec.parent >= 0 and inside[sec.parent]:
+            p = sec.parent
+            w[s] = w[p] * end[p][1]
+            dw[s] = end[p][1] * dw[p]
+            dq_row(p, w[p] * end[p][2], dw[s])
+        else:
+            continue
+        inside[s] = True
+        out.append(s)
+    return w, dw, out
+
+
 def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutch_kinetic: float,
                        brake_kinetic: Mapping[str, float]) -> FloatArray:
     """d(xdot)/dx of ``mt.evaluate(t, x, engine, clutch_kinetic, brake_kinetic)`` (the
@@ -66,16 +105,18 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
     def rhs(xx: FloatArray) -> FloatArray:
         return mt.evaluate(t, xx, engine, clutch_kinetic, brake_kinetic, torques=False).ydot
 
-    for _name, (el, d) in mt.packs.items():
-        if mt.diffs[d].coord >= 0 and el.torque_bias != 0.0:
-            jac = np.empty((nst, nst))
-            for j in range(nst):
-                h = 1e-6 * max(1.0, abs(xl[j]))
-                xp, xm = x.copy(), x.copy()
-                xp[j] += h
-                xm[j] -= h
-                jac[:, j] = (rhs(xp) - rhs(xm)) / (2.0 * h)
-            return jac
+    def central() -> FloatArray:
+        jac = np.empty((nst, nst))
+        for j in range(nst):
+            h = 1e-6 * max(1.0, abs(xl[j]))
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            xm[j] -= h
+            jac[:, j] = (rhs(xp) - rhs(xm)) / (2.0 * h)
+        return jac
+
+    sensing = [(el, mt.diffs[d], mt.mode.packs[name]) for name, (el, d) in mt.packs.items()
+               if mt.diffs[d].coord >= 0 and el.torque_bias != 0.0]
     acc = rhs(x)[n:2 * n].tolist()
     J = np.zeros((nst, nst))
     ns = len(mt.sections)
@@ -142,6 +183,8 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
 
     qf = [0.0] * ns
     DQ = np.zeros((ns, nst))
+    t_end = [0.0] * ns                  # torque at a section's end (the walk's t_end)
+    dt_end = np.zeros((ns, nst))
     dpd = np.zeros(nst)
     dps = np.zeros(nst)
     dpf = np.zeros(nst)
@@ -165,6 +208,8 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
         qf[right] += ts
         dq_row(left, -ts * b_l, DQ[left])
         dts = k_th * d1 + k_d * d2
+        t_end[left] = ts
+        dt_end[left] = dts
         DQ[left] -= a_l * dts
         DQ[right] += dts
         if law.d != 0.0:
@@ -236,6 +281,8 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
         qf[s] -= f * r * a_w
         dq_row(s, -f * r * b_w, DQ[s])
         DQ[s] -= (r * a_w) * d1
+        t_end[s] = f * r
+        dt_end[s] = r * d1
         dps += d1 * (om * r - v) + (f * r) * d2
         dsum += d1
         J[2 * n + i] = (r / w.tyre.sigma) * d2
@@ -258,28 +305,45 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
         qf[left] -= ts * a_l
         qf[right] += ts
         dq_row(left, -ts * b_l, DQ[left])
+        t_end[left] = ts
     for name, (_br, w) in mt.brakes.items():
         if name in mt.pinned:
             continue
         s = mt.wheels[w].section
         tq = mt.mode.brakes[name] * brake_kinetic[name]
+        t_end[s] += tq
         qf[s] -= tq * end[s][1]
         dq_row(s, -tq * end[s][2], DQ[s])
         dq_row(s, tq * end[s][2] * qd[s], dpf)
         dqd_row(s, tq * end[s][1], dpf)
+    if len(sensing) > 1:
+        return central()
+    if sensing:
+        el, di, m_p = sensing[0]
+        w_c, dw_c, x_c = _carrier_weights(mt, di, end, coords, dq_row)
+        tc = 0.0
+        for s in x_c:
+            a_s = sum(R[s][i] * acc[c] for i, c in enumerate(coords[s])) + bias[s]
+            tc += w_c[s] * (end[s][3] * a_s + end[s][4] * qd[s] * qd[s] + end[s][1] * t_end[s])
+        tb_sense = m_p * (el.preload + el.torque_bias * abs(tc))
+        s_c = 1.0 if tc >= 0.0 else -1.0
     for name, (el, d) in mt.packs.items():
         di = mt.diffs[d]
         if di.coord < 0:
             continue
-        tbp = mt.mode.packs[name] * el.preload
+        tbp = mt.mode.packs[name] * el.preload if el.torque_bias == 0.0 else tb_sense
         qf[di.left] -= tbp
         qf[di.right] += tbp
         dqd_row(di.left, tbp, dpf)
         dqd_row(di.right, -tbp, dpf)
     # accelerations, group by group
+    g_b = [0.0] * n                     # d uddot / d T_b of a torque-sensing pack
+    side: dict[int, float] = {}
+    if sensing:
+        side = {sensing[0][1].left: -1.0, sensing[0][1].right: 1.0}
     for (gc, secs), spiders in zip(mt._groups, mt._group_spiders):
         k = len(gc)
-        rm = np.zeros((k, nst))
+        rm = np.zeros((k, nst + 1))
         mg = [[0.0] * k for _ in range(k)]
         for s in secs:
             ms, cs_, dm = end[s][3], end[s][4], end[s][5]
@@ -294,7 +358,9 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
                 hs[gc[j]] -= ms * (dku[s][j] + da)
                 hs[n + gc[j]] -= ms * dkw[s][j]
             for i in range(k):
-                rm[i] += R[s][i] * hs
+                rm[i, :nst] += R[s][i] * hs
+                if s in side:
+                    rm[i, nst] += side[s] * R[s][i]
                 for j in range(k):
                     rm[i, gc[j]] += D[s][i][j] * e_s
                     mg[i][j] += ms * R[s][i] * R[s][j]
@@ -307,7 +373,7 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
                 for m in range(j):
                     a -= lo[i][m] * lo[j][m]
                 lo[i][j] = math.sqrt(a) if i == j else a / lo[j][j]
-        z = np.zeros((k, nst))
+        z = np.zeros((k, nst + 1))
         for i in range(k):
             a_v = rm[i].copy()
             for m in range(i):
@@ -319,7 +385,37 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
                 a_v -= lo[m][i] * z[m]
             z[i] = a_v / lo[i][i]
         for i in range(k):
-            J[n + gc[i]] = z[i]
+            J[n + gc[i]] = z[i, :nst]
+            g_b[gc[i]] = z[i, nst]
+    if sensing:
+        el, di, m_p = sensing[0]
+        bb = 0.0
+        dtc = np.zeros(nst)
+        for s in x_c:
+            gc = coords[s]
+            k = len(gc)
+            ms, cs_, dm = end[s][3], end[s][4], end[s][5]
+            a_s = sum(R[s][i] * acc[gc[i]] for i in range(k)) + bias[s]
+            xs = ms * a_s + cs_ * qd[s] * qd[s] + end[s][1] * t_end[s]
+            bb += w_c[s] * ms * sum(R[s][i] * g_b[gc[i]] for i in range(k))
+            dx = end[s][1] * dt_end[s]
+            dq_row(s, dm * a_s + dcq[s] * qd[s] * qd[s] + end[s][2] * t_end[s], dx)
+            dqd_row(s, 2.0 * cs_ * qd[s], dx)
+            for i in range(k):
+                dx += (ms * R[s][i]) * J[n + gc[i]]
+            for j in range(k):
+                da = sum(D[s][i][j] * acc[gc[i]] for i in range(k))
+                dx[gc[j]] += ms * (dku[s][j] + da)
+                dx[n + gc[j]] += ms * dkw[s][j]
+            dtc += w_c[s] * dx + xs * dw_c[s]
+        mk = m_p * el.torque_bias * s_c
+        if abs(mk * bb) >= 1.0:            # no consistent sign: tm_eval's fallback branch
+            return central()
+        dtb = (mk / (1.0 - mk * bb)) * dtc
+        for c in range(n):
+            if g_b[c] != 0.0:
+                J[n + c] += g_b[c] * dtb
+        dpf += (qd[di.left] - qd[di.right]) * dtb
     for c in mt._pinned_coords:
         J[n + c] = 0.0
     for i in range(n):

@@ -10,16 +10,24 @@ the chain rule through the tree's equations (cvj_ros.physics.tree module docstri
 * forces: engine slopes (``sources_nb``), springs by ``rhs_nb.spring_eval``'s slopes, the
   viscous couplings, the tyres (magic formula slope, normal loads with load transfer
   differentiated in closed form, zero where clamped), the body; the mode's slipping clutch
-  (-ts b_l dq_l), slipping brakes (-T_b b_w dq_w), a pack's constant bias; friction power;
+  (-ts b_l dq_l), slipping brakes (-T_b b_w dq_w), a pack's bias; friction power;
 * per group M uddot = f: d uddot/dy = M^-1 sum_s [dr_s/dy (G_s - M_s r_s.uddot)
   + r_s (dG_s/dy - dM_s/dq dq_s/dy r_s.uddot - M_s (dr_s/dy).uddot)], G_s = Q_s - C_s
-  qdot_s^2 - M_s k_s, solved with the group's Cholesky factor; a pinned coordinate's rows 0.
+  qdot_s^2 - M_s k_s, solved with the group's Cholesky factor; a pinned coordinate's rows 0;
+* a slipping torque-sensing pack: T_b = m (T_p + k s T_c), s = sign T_c, T_c = T_L + T_R the
+  backward walk's carrier torque = sum_s w_s (M_s qddot_s + C_s qdot_s^2 + a_s T_end,s) over
+  both sides and the sections hung on them rigidly (w = 1 on a side, w_s = w_p a_p below),
+  affine in T_b (T_c = T_c0 + B T_b, ``ModeTree._pack_bias``). Implicitly differentiated:
+  dT_b/dy = m k s (dT_c/dy) / (1 - m k s B) with dT_c/dy at fixed T_b (the chain rule above,
+  the acceleration rows at fixed T_b) and B = sum_s w_s M_s r_s.g, g = d uddot/dT_b (one
+  more column in the group solve); then d uddot/dy += g dT_b/dy, dW_friction'/dy +=
+  (omega_L - omega_R) dT_b/dy.
 
 Difference quotients, as in the chain's ``modes_jac_nb.mode_jac``: db_end/dq and dC_s/dq need
 a joint's third derivative (not in the joint contract): central differences of the section's
-end kinematics, increment 1e-6 max(1, |q_s|). A slipping clutch pack with torque sensing
-(its bias solves two backward walks, ``ModeTree._pack_bias``) takes the whole Jacobian by
-central differences of :func:`tm_eval` (increment 1e-6 max(1, |y_j|), ``tree_nb.tree_jac``).
+end kinematics, increment 1e-6 max(1, |q_s|). Where |m k B| >= 1 (no consistent sign:
+:func:`tm_eval`'s fallback) or with two sensing packs, the whole Jacobian by central
+differences of :func:`tm_eval` (increment 1e-6 max(1, |y_j|), ``tree_nb.tree_jac``).
 The Python reference's twin is ``hybrid/tree_jac.tree_mode_jacobian`` (the same formula, term
 by term).
 """
@@ -120,11 +128,14 @@ def tm_jac(t, y, ip, fp, J):
     for i in range(nst):
         for j in range(nst):
             J[i, j] = 0.0
+    prow = -1                                  # the slipping torque-sensing pack's row
     for pi in range(ip[mb + MB_NPACK]):
         row = ip[mb + MB_PACK] + PACK_STRIDE * pi
         if ip[row + 2] == 0 and fp[ip[row + 4] + 1] != 0.0:
-            _central(t, y, ip, fp, J)
-            return
+            if prow >= 0:
+                _central(t, y, ip, fp, J)
+                return
+            prow = row
     dy = np.empty(nst)
     wv = np.empty(max(ip[mb + MB_NWIT], 1))
     tm_eval(t, y, ip, fp, dy, wv, False)        # uddot; sets the throttle
@@ -139,6 +150,8 @@ def tm_jac(t, y, ip, fp, J):
     CL = np.zeros(ns, dtype=np.int64)
     K = np.zeros(ns, dtype=np.int64)
     DQ = np.zeros((ns, nst))
+    TE = np.zeros(ns)                          # torque at a section's end (the walk's t_end)
+    DTE = np.zeros((ns, nst))
     for s in range(ns):
         o = sec + SEC_STRIDE * s
         x = sx + SECX_STRIDE * s
@@ -232,10 +245,12 @@ def tm_jac(t, y, ip, fp, J):
         S[11, left] -= ts * a_l
         S[11, right] += ts
         _add_dq(DQ[left], -ts * b_l, left, R, CL, K, ip)
+        TE[left] = ts
         for i in range(nst):
             dts = k_th * d1[i] + k_d * d2[i]
             DQ[left, i] -= a_l * dts
             DQ[right, i] += dts
+            DTE[left, i] = dts
         dd = fp[off + 1]
         if dd != 0.0:
             _e, de, dde = _rhs.spring_deflection(th, fp[off + 3], fp[off + 4])
@@ -357,8 +372,10 @@ def tm_jac(t, y, ip, fp, J):
         _add_dqd(d2, a_w, s, R, DQD, CL, K, ip, n)
         S[11, s] -= f * r * a_w
         _add_dq(DQ[s], -f * r * b_w, s, R, CL, K, ip)
+        TE[s] = f * r
         for j in range(nst):
             DQ[s, j] -= r * a_w * d1[j]
+            DTE[s, j] = r * d1[j]
             dps[j] += d1[j] * (om * r - v) + f * r * d2[j]
             dsum[j] += d1[j]
             J[2 * n + i, j] = r * d2[j] / fp[wf + 5]
@@ -383,6 +400,7 @@ def tm_jac(t, y, ip, fp, J):
         S[11, left] -= ts * a_l
         S[11, right] += ts
         _add_dq(DQ[left], -ts * S[5, left], left, R, CL, K, ip)
+        TE[left] = ts
     for bi in range(ip[mb + MB_NBRAKE]):
         row = ip[mb + MB_BRAKE] + BRAKE_STRIDE * bi
         if ip[row + 2] != 0:
@@ -390,27 +408,59 @@ def tm_jac(t, y, ip, fp, J):
         s = ip[row + 1]
         pk = ip[row + 4]
         tq = ip[row + 3] * (fp[pk + 1] * fp[pk + 2] * fp[pk + 3] * fb)
+        TE[s] += tq
         S[11, s] -= tq * S[4, s]
         _add_dq(DQ[s], -tq * S[5, s], s, R, CL, K, ip)
         _add_dq(dpf, tq * S[5, s] * S[1, s], s, R, CL, K, ip)
         _add_dqd(dpf, tq * S[4, s], s, R, DQD, CL, K, ip, n)
+    # a torque-sensing pack's carrier torque T_c = sum_s w_s X_s (the backward walk), its
+    # bias T_b = m (T_p + k |T_c|) (tree_modes_nb.tm_eval's consistent sign s = sign T_c)
+    WC = np.zeros(ns)
+    DW = np.zeros((ns, nst))
+    INS = np.zeros(ns, dtype=np.bool_)
+    tb_sense = 0.0
+    s_c = 1.0
+    if prow >= 0:
+        pl = ip[prow]
+        pr = ip[prow + 1]
+        tc = 0.0
+        for s in range(ns):
+            parent = ip[sec + SEC_STRIDE * s + 2]
+            if s == pl or s == pr:
+                WC[s] = 1.0
+            elif parent >= 0 and INS[parent]:
+                WC[s] = WC[parent] * S[4, parent]
+                for j in range(nst):
+                    DW[s, j] = S[4, parent] * DW[parent, j]
+                _add_dq(DW[s], WC[parent] * S[5, parent], parent, R, CL, K, ip)
+            else:
+                continue
+            INS[s] = True
+            a_s = 0.0
+            for i in range(K[s]):
+                a_s += R[s, i] * dy[n + ip[CL[s] + i]]
+            a_s += S[2, s]
+            tc += WC[s] * (S[6, s] * a_s + S[7, s] * S[1, s] * S[1, s] + S[4, s] * TE[s])
+        tb_sense = ip[prow + 3] * (fp[ip[prow + 4]] + fp[ip[prow + 4] + 1] * abs(tc))
+        s_c = 1.0 if tc >= 0.0 else -1.0
     for pi in range(ip[mb + MB_NPACK]):
         row = ip[mb + MB_PACK] + PACK_STRIDE * pi
         if ip[row + 2] != 0:
             continue
         left = ip[row]
         right = ip[row + 1]
-        tbp = ip[row + 3] * fp[ip[row + 4]]                  # no torque sensing here
+        tbp = ip[row + 3] * fp[ip[row + 4]] if fp[ip[row + 4] + 1] == 0.0 else tb_sense
         S[11, left] -= tbp
         S[11, right] += tbp
         _add_dqd(dpf, tbp, left, R, DQD, CL, K, ip, n)
         _add_dqd(dpf, -tbp, right, R, DQD, CL, K, ip, n)
     # accelerations, group by group
     kk = max(kmax, 1)
-    Rm = np.zeros((kk, nst))
+    Rm = np.zeros((kk, nst + 1))               # last column: d/dT_b (unit bias)
     Mg = np.zeros((kk, kk))
     L = np.zeros((kk, kk))
-    Z = np.zeros((kk, nst))
+    Z = np.zeros((kk, nst + 1))
+    G = np.zeros(n)                            # d uddot / d T_b
     p = ip[tb + TB_GRP]
     for _g in range(ip[tb + TB_NG]):
         k = ip[p]
@@ -421,7 +471,7 @@ def tm_jac(t, y, ip, fp, J):
         spd = ss + nsec
         p = spd + 2 * nsp
         for i in range(k):
-            for j in range(nst):
+            for j in range(nst + 1):
                 Rm[i, j] = 0.0
             for j in range(k):
                 Mg[i, j] = 0.0
@@ -449,6 +499,10 @@ def tm_jac(t, y, ip, fp, J):
                 ri = R[s, i]
                 for j in range(nst):
                     Rm[i, j] += ri * d1[j]
+                if prow >= 0 and s == ip[prow]:
+                    Rm[i, nst] += -1.0 * ri
+                elif prow >= 0 and s == ip[prow + 1]:
+                    Rm[i, nst] += 1.0 * ri
                 for j in range(k):
                     Rm[i, ip[cs + j]] += D[s, i, j] * e_s
                     Mg[i, j] += ms * ri * R[s, j]
@@ -461,7 +515,7 @@ def tm_jac(t, y, ip, fp, J):
                 for m in range(j):
                     a -= L[i, m] * L[j, m]
                 L[i, j] = math.sqrt(a) if i == j else a / L[j, j]
-        for c in range(nst):
+        for c in range(nst + 1):
             for i in range(k):
                 a = Rm[i, c]
                 for m in range(i):
@@ -475,6 +529,56 @@ def tm_jac(t, y, ip, fp, J):
         for i in range(k):
             for c in range(nst):
                 J[n + ip[cs + i], c] = Z[i, c]
+            G[ip[cs + i]] = Z[i, nst]
+    if prow >= 0:
+        # dT_b/dy = m k s (dT_c/dy at fixed T_b) / (1 - m k s B), B = dT_c/dT_b
+        bb = 0.0
+        dtc = np.zeros(nst)
+        for s in range(ns):
+            if not INS[s]:
+                continue
+            cl = CL[s]
+            k = K[s]
+            ms = S[6, s]
+            qd = S[1, s]
+            a_s = 0.0
+            for i in range(k):
+                a_s += R[s, i] * dy[n + ip[cl + i]]
+            a_s += S[2, s]
+            xs = ms * a_s + S[7, s] * qd * qd + S[4, s] * TE[s]
+            gs = 0.0
+            for i in range(k):
+                gs += R[s, i] * G[ip[cl + i]]
+            bb += WC[s] * ms * gs
+            for j in range(nst):
+                d1[j] = S[4, s] * DTE[s, j]
+            _add_dq(d1, S[8, s] * a_s + S[10, s] * qd * qd + S[5, s] * TE[s], s, R, CL, K, ip)
+            _add_dqd(d1, 2.0 * S[7, s] * qd, s, R, DQD, CL, K, ip, n)
+            for i in range(k):
+                ci = n + ip[cl + i]
+                for j in range(nst):
+                    d1[j] += (ms * R[s, i]) * J[ci, j]
+            for j in range(k):
+                c = ip[cl + j]
+                da = 0.0
+                for i in range(k):
+                    da += D[s, i, j] * dy[n + ip[cl + i]]
+                d1[c] += ms * (DKU[s, j] + da)
+                d1[n + c] += ms * DKW[s, j]
+            for j in range(nst):
+                dtc[j] += WC[s] * d1[j] + xs * DW[s, j]
+        mk = ip[prow + 3] * fp[ip[prow + 4] + 1] * s_c
+        if abs(mk * bb) >= 1.0:                # no consistent sign: tm_eval's fallback
+            _central(t, y, ip, fp, J)
+            return
+        f = mk / (1.0 - mk * bb)
+        for c in range(n):
+            if G[c] != 0.0:
+                for j in range(nst):
+                    J[n + c, j] += G[c] * (f * dtc[j])
+        s_lr = S[1, ip[prow]] - S[1, ip[prow + 1]]
+        for j in range(nst):
+            dpf[j] += s_lr * (f * dtc[j])
     for bi in range(ip[mb + MB_NBRAKE]):
         row = ip[mb + MB_BRAKE] + BRAKE_STRIDE * bi
         if ip[row + 2] != 0:

@@ -1,8 +1,9 @@
 """The analytic Jacobian of a vehicle tree mode (kernel/tree_modes_jac_nb.py,
 hybrid/tree_jac.py) against central differences of the mode's right-hand side, and the two
 backends against each other, at the start of every mode of launch_clutch (brakes pinned and
-slipping, clutch slipping and stuck, gears, neutral, shifts) and fwd_axle_manual (a shift
-under load), and at states with random angles, slip speeds, tyre slips and vehicle speed
+slipping, clutch slipping and stuck, gears, neutral, shifts), fwd_axle_manual (a shift
+under load) and a clutch-pack differential on split mu (stuck, then slipping with its
+torque-sensing bias), and at states with random angles, slip speeds, tyre slips and vehicle speed
 around each.
 
 Bound: a fourth-order central difference of increment h (1e-5 rad on the angles, 1e-5
@@ -10,9 +11,10 @@ max(1, |y_j|) on the rest) errs by h^4 |f^(5)| / 30 (truncation; the sharpest fe
 the lash's dead zone, w = 4.4e-4 rad: (h / w)^4 / 30 ~ 1e-8) plus ~eps |y| |f| / h
 (rounding; twists are differences of angles up to ~1e3 rad: ~2e-8); both are below 1e-6 of
 the column's scale max(max_i |J_ij|, max_i |f_i| / max(1, |y_j|)), so an entry off by a
-missing term (relative 1) fails (measured: 6.5e-9 launch_clutch, 1.3e-8 fwd_axle_manual).
-The two backends' Jacobians are the same formula term by term: bound 1e-12 of the column's
-scale max(max_i |J_ij|, 1) (measured: 5.8e-18, 1.6e-18).
+missing term (relative 1) fails (measured: 6.5e-9 launch_clutch, 1.3e-8 fwd_axle_manual,
+5.6e-9 the torque-sensing pack). The two backends' Jacobians are the same formula term by
+term: bound 1e-12 of the column's scale max(max_i |J_ij|, 1) (measured: 5.8e-18, 1.6e-18,
+0.0).
 """
 from __future__ import annotations
 
@@ -153,16 +155,64 @@ def test_fwd_axle_manual_mode_jacobians() -> None:
     assert len(got['modes']) >= 3, got
 
 
-@pytest.mark.parametrize('bias', [0.0, 0.2])
-def test_clutch_pack_mode_jacobians(bias: float) -> None:
-    """A clutch-pack differential on split mu (fwd_axle_split_mu, full throttle, 0.3 s):
-    stuck (the locked pack's offset), then slipping with its preload (torque_bias 0: the
-    analytic path) or with torque sensing (0.2: the central-difference fallback, the same
-    increments in both backends)."""
+def _split_mu_pack(bias: float) -> dict:
+    """fwd_axle_split_mu (left wheel on ice) at full throttle with a clutch-pack differential
+    (preload 100 N m, torque_bias ``bias``)."""
     with open(shipped_scenes()['fwd_axle_split_mu'], encoding='utf-8') as f:
         d = yaml.safe_load(f)
     d['engine'] = {'model': 'map', 'throttle': 1.0}
     d['driveline'][4] = dict(d['driveline'][4], kind='clutch_pack', preload_nm=100.0,
                              torque_bias=bias)
-    got = _check_run(d, 0.3, 13)
+    return d
+
+
+@pytest.mark.parametrize('bias', [0.0, 0.2])
+def test_clutch_pack_mode_jacobians(bias: float) -> None:
+    """A clutch-pack differential on split mu (0.3 s): stuck (the locked pack's offset),
+    then slipping with its preload (torque_bias 0) or with torque sensing (0.2: the bias's
+    analytic derivative through the two backward walks; the random states around the slip
+    mode's start give carrier torques of both signs, s = +1 and -1). Measured (0.2): 5.6e-9
+    against central differences, the backends' Jacobians equal (0.0)."""
+    got = _check_run(_split_mu_pack(bias), 0.3, 13)
     assert {m[3] for m in got['modes']} >= {(('differential', 0),), (('differential', 1),)}, got
+
+
+def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
+    """The reference's Jacobian of the slipping torque-sensing pack's mode evaluates the
+    mode rhs once (the analytic path; central differences of the whole rhs took two per
+    state component, 36 here), and equals the kernel's there."""
+    from cvj_ros.physics.hybrid.tree import ModeTree
+    sim = hybrid_simulation(parse_scene(_split_mu_pack(0.2)), duration=0.3)
+    starts = []
+    plain_tree, plain_stepper = sim.tree, ts.make_stepper
+    now = {}
+
+    def tree(mode):
+        now['mt'] = plain_tree(mode)
+        return now['mt']
+
+    def spy(method, fun, t, y0, **kw):
+        starts.append((now['mt'], t, np.array(y0, dtype=float)))
+        return plain_stepper(method, fun, t, y0, **kw)
+
+    sim.tree = tree
+    monkeypatch.setattr(ts, 'make_stepper', spy)
+    sim.run()
+    slipping = [(mt, t, y) for mt, t, y in starts if mt.mode.packs['differential'] != 0]
+    assert slipping
+    mt, t, y = slipping[0]
+    calls = []
+    plain_eval = ModeTree.evaluate
+
+    def evaluate(self, *args, **kw):
+        calls.append(1)
+        return plain_eval(self, *args, **kw)
+
+    monkeypatch.setattr(ModeTree, 'evaluate', evaluate)
+    Jp = sim._jac(mt, t, y)
+    assert len(calls) == 1
+    ip, fp = tree_mode_arrays(sim, mt, mt.mode)
+    Jk = np.zeros_like(Jp)
+    tm_jac(t, y, ip, fp, Jk)
+    scale = np.maximum(np.max(np.abs(Jp), axis=0), 1.0)
+    assert float(np.max(np.abs(Jk - Jp) / scale)) <= TWIN_TOL

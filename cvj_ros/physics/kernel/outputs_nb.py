@@ -26,7 +26,7 @@ from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
                                           OP_INERTIA, OP_JOINT_IDENTITY,
                                           SPRING_STRIDE)
-from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs, section,
+from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs,
                                           spring_deflection, spring_eval,
                                           spring_vary_eval, imbalance_force,
                                           imbalance_torque)
@@ -204,7 +204,10 @@ def reaction_table(driveline: Any, joints: list[str]
 def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
     """One state y at time t: shaft angle, speed and torque before/after every kernel op
     into st_phi/st_om/st_tq[g, position] (the walk of ``Driveline._walk``). Returns (engine
-    torque N m, kinetic energy J, elastic energy J, last shaft angle rad, its ratio a)."""
+    torque N m, kinetic energy J, elastic energy J, last shaft angle rad, its ratio a).
+    The section's reduced inertia M = sum J a^2 (for the kinetic energy) is summed during
+    the walk, over the same ops with the same a in the same order as ``rhs_nb.section``, so
+    the same float, without evaluating every joint of the section a second time."""
     n = ip[H_NDOF]
     sec = ip[H_SEC]
     ops = sec + n + 1
@@ -218,6 +221,7 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
     for g in range(n):
         q, v, acc = y[g], y[n + g], dy[n + g]
         phi, a, b = q, 1.0, 0.0
+        m = 0.0
         torque = carry
         p = 0
         st_phi[g, 0], st_om[g, 0], st_tq[g, 0] = phi, v, torque
@@ -225,7 +229,9 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
             code = ip[ops + 2 * kk]
             off = ip[ops + 2 * kk + 1]
             if code == OP_INERTIA:
-                torque -= fp[off] * (a * acc + b * v * v)
+                jv = fp[off]
+                m += jv * a * a         # rhs_nb.section's M, term by term
+                torque -= jv * (a * acc + b * v * v)
                 torque -= imbalance_torque(kk, phi, ip, fp)
             else:
                 po, r, s = joint_eval(code, phi, fp, off)
@@ -235,7 +241,6 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
                 torque = torque / r
             p += 1
             st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
-        m = section(g, q, ip, fp)[3]
         kin += 0.5 * m * v * v
         if ip[H_IMBALANCE] != 0:
             el += imbalance_force(g, q, ip, fp)[2]

@@ -52,3 +52,43 @@ def test_fill_of_a_lever_hinge_run_is_unchanged():
     assert np.isfinite(pos_a).all() and np.isfinite(vel_a).all()
     assert pos_a.tobytes() == pos_b.tobytes() and vel_a.tobytes() == vel_b.tobytes()
     assert pos_a.tobytes() == tr.position.tobytes() and vel_a.tobytes() == tr.velocity.tobytes()
+
+
+def test_walk_energy_residual_uses_the_rhs_sections_inertia_bit_for_bit():
+    """sample_outputs sums each section's reduced inertia M = sum J a^2 during its own walk
+    over the ops (the lever law evaluated once per sample there, not again by
+    rhs_nb.section). Its energy residual over a kavz685_lever run (the driven shaft's inertia
+    sits behind the lever hinge, so M varies with the angle) equals bit for bit the residual
+    built here from rhs_nb.section's M and phi_end (the rhs's own evaluation) and the linear
+    spring's potential c (e^2/2 + k2 e^4/4), in the walk's order of operations."""
+    from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SPRING_F,
+                                               SPRING_STRIDE)
+    from cvj_ros.physics.kernel.rhs_nb import section
+    sim = Simulation(load_scene(find_scene('kavz685_lever')))
+    tr = sim.run(0.5, sample_dt=0.001, reuse_trace=True)
+    plan = next(iter(sim._plans.values()))
+    X = plan.kept[1][0]
+    ip, fp = plan.model.ip, plan.model.fp
+    n, sp0 = int(ip[H_NDOF]), int(ip[H_SPRING_F])
+    assert ip[H_ENERGY] != 0 and ip[H_IMBALANCE] == 0 and n == 2
+    e0 = sim._initial_energy(sim.driveline.x0)
+    ms = set()
+    for k in range(X.shape[0]):
+        y = X[k]
+        kin, el = 0.0, 0.0
+        for g in range(n):
+            phi, _a, _b, m, _c, _mp, _hj = section(g, y[g], ip, fp)
+            v = float(y[n + g])
+            kin += 0.5 * m * v * v
+            ms.add(m)
+            if g < n - 1:
+                off = sp0 + SPRING_STRIDE * g
+                assert fp[off + 3] == 0.0 and fp[off + 5] == 0.0    # linear, no lash
+                e = phi - float(y[g + 1])
+                el += float(fp[off]) * (0.5 * e * e + 0.25 * float(fp[off + 2]) * e * e * e * e)
+        tot = kin + el
+        we, wl, wd = (float(y[2 * n + i]) for i in range(3))
+        scale = max(abs(tot), abs(e0), abs(we), abs(wl), abs(wd), 1e-12)
+        want = (tot - e0 - we + wl + wd) / scale
+        assert _bits(tr.energy_residual[k]) == _bits(want), k
+    assert len(ms) > 100        # M(q) does vary over the run (the test sees the joint)

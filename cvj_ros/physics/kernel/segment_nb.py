@@ -117,9 +117,15 @@ def _hermite(t, y, y_old, fs, f0, f1, out):
 
 @njit(cache=True)
 def _dense(kind, method, tau, y, y_old, ip, fp, fs, cnt, K, sc, D8, AX, CX, RH, out):
-    """The method's dense output at tau inside the last accepted step."""
+    """The method's dense output at tau inside the last accepted step. dopri5: y itself at
+    the step's end (and before a step), as the reference's ``Dopri5Stepper.dense``, not the
+    interpolant's last-bit rounding of it."""
     if method == M_DOPRI5:
-        dopri5_dense(tau, y_old, fs, K, out)
+        if tau == fs[FS_T] or fs[FS_HLAST] == 0.0:
+            for i in range(y.shape[0]):
+                out[i] = y[i]
+        else:
+            dopri5_dense(tau, y_old, fs, K, out)
     elif method == M_DOP853:
         _d8_dense(kind, tau, y, y_old, ip, fp, fs, cnt, D8, AX, CX, K, out, sc)
     elif method == M_ERK:     # D8, AX, CX: the pair's P and its extra stages' A rows, C

@@ -35,11 +35,17 @@ from cvj_ros.physics.kernel.modes import KernelHybridSimulation  # noqa: E402
 
 TOL = 1e-12          # event times
 # sampled speeds and final states: the reference adds in the kernel's order
-# (solvers._ordered_rows); measured dop853 0.0, dopri5 <= 7.1e-12 (a random chain;
-# launch_clutch_chain 5.2e-12). With numpy/BLAS dot products the stability-bound stretches
+# (solvers._ordered_rows); measured dop853 0.0, dopri5 0.0 (DOPRI5_EXACT below; before,
+# <= 7.1e-12). With numpy/BLAS dot products the stability-bound stretches
 # amplified their last bits (launch_clutch_chain's slipping disc, 2.0-2.5 s: 2.8e-11; the
 # undamped judder's final angles after 135 events: 6.3e-12); docs/clutch_gearbox.md
 TOL_STATE = 1e-10
+# dopri5 on the kernel's mesh: the same bits. The kernel's dense output returns y at a step's
+# end as the reference's Dopri5Stepper.dense does (segment_nb._dense; the interpolant there
+# differs from y in the last bits and moved Brent's bracket: launch_clutch_chain 3.2e-14 /
+# 5.2e-12 / 4.9e-13 before), so every event time, sample and final state is equal: measured
+# 0.0 on launch_clutch_chain, every hard case, the 12 random chains and fuzzed launches 0-15
+DOPRI5_EXACT = (0.0, 0.0)
 
 
 def assert_same_run(rp, rk, tol_t: float = TOL, tol_x: float = TOL_STATE) -> dict[str, float]:
@@ -118,7 +124,8 @@ def _patch_twin(monkeypatch, method: str | None = None) -> list[dict[str, float]
         free = KernelHybridSimulation.from_reference(self)
         rk = k.run()
         rp = replay(self, k.step_log, monkeypatch)
-        seen.append(assert_same_run(rp, rk))
+        seen.append(assert_same_run(rp, rk, *(DOPRI5_EXACT if self.method == 'dopri5'
+                                              else (TOL, TOL_STATE))))
         self.events.clear()
         self.statuses.clear()
         self._gear_seen = None
@@ -146,11 +153,10 @@ def test_launch_clutch_chain_matches_the_reference(monkeypatch) -> None:
     rk = k.run()
     rp = replay(hybrid_simulation(scene), k.step_log, monkeypatch)
     assert len(rp.events) >= 9
-    # the reference's dopri5 adds in the kernel's order (solvers._ordered_rows): measured
-    # event times 3.2e-14, speeds 5.2e-12, final 4.9e-13 (the first difference at the clutch
-    # slipping at 4.46 s; with numpy/BLAS dot products 0.7-2.1e-12 at the lock at 2.96 s,
-    # varying between processes): the hard cases' bounds
-    assert_same_run(rp, rk)
+    # the reference's dopri5 adds in the kernel's order (solvers._ordered_rows) and both
+    # return y at a step's end: equal (DOPRI5_EXACT; with numpy/BLAS dot products 0.7-2.1e-12
+    # at the lock at 2.96 s, varying between processes)
+    assert_same_run(rp, rk, *DOPRI5_EXACT)
     assert rk.max_energy_residual < 1e-7
     # free-running: each its own mesh (rtol 1e-8): the same events, times to ~1e-10 s
     rf = hybrid_simulation(scene).run()
@@ -295,15 +301,14 @@ def _random_chain_sim(seed: int):
 
 @pytest.mark.parametrize('seed', range(12))
 def test_random_chains_and_schedules_match_the_reference(seed: int, monkeypatch) -> None:
-    """Fuzz over structure and commands. Measured with the reference adding in the kernel's
-    order (solvers._ordered_rows): 0.0 in 8 of 12; event times <= 2.5e-13, speeds <= 7.1e-12,
-    final states <= 3.8e-13 in the others (with numpy/BLAS dot products seed 7's
-    stability-bound stretch reached 1.0e-7 / 4.5e-9): the hard cases' bounds."""
+    """Fuzz over structure and commands, dopri5: equal (DOPRI5_EXACT; before the kernel
+    returned y at a step's end, 0.0 in 8 of 12 and event times <= 2.5e-13, speeds <= 7.1e-12,
+    final states <= 3.8e-13 in the others)."""
     mk = _random_chain_sim(seed)
     k = KernelHybridSimulation.from_reference(mk(), step_log=True)
     rk = k.run()
     rp = replay(mk(), k.step_log, monkeypatch)
-    assert_same_run(rp, rk)
+    assert_same_run(rp, rk, *DOPRI5_EXACT)
 
 
 def _fuzzed_launch_chain(seed: int) -> dict:
@@ -343,9 +348,9 @@ def chain_fuzz_case(seed: int, method: str, monkeypatch, tol_t: float = TOL,
     return got
 
 
-# bounds per method: the hard cases' (TOL, TOL_STATE) for both, the reference adding in the
-# kernel's order (solvers._ordered_rows; test_fuzzed_launch_chain's docstring)
-_CHAIN_FUZZ_TOL = {'dopri5': (TOL, TOL_STATE), 'dop853': (TOL, TOL_STATE)}
+# bounds per method: dopri5 equal (DOPRI5_EXACT), dop853 the hard cases' (TOL, TOL_STATE),
+# the reference adding in the kernel's order (solvers._ordered_rows; test_fuzzed_launch_chain)
+_CHAIN_FUZZ_TOL = {'dopri5': DOPRI5_EXACT, 'dop853': (TOL, TOL_STATE)}
 
 
 @pytest.mark.parametrize('method', ['dopri5', 'dop853'])
@@ -355,10 +360,10 @@ def test_fuzzed_launch_chain(seed: int, method: str, monkeypatch) -> None:
     14-row schedule, rows on the exchange-step grid and at the same time), on both methods
     that the kernel runs with an explicit stepper; more seeds under ``-m slow``. Measured
     (seeds 0..15, 1-11 events each, 72 in all, 10 runs stalling, the same on both), the
-    reference adding in the kernel's order: dop853 0.0 everywhere; dopri5 0.0 in 11 seeds,
-    event times <= 7.2e-15, samples <= 8.9e-14, final states <= 2.1e-12 in the others
-    (with numpy/BLAS dot products: dopri5 7.8e-14, 3.8e-10, 1.6e-12; dop853 4.7e-11,
-    5.5e-7, 8.9e-10)."""
+    reference adding in the kernel's order: dop853 0.0 everywhere; dopri5 0.0 in seeds 0-15
+    since the kernel returns y at a step's end (before: 0.0 in 11 of 16, event times <= 7.2e-15,
+    samples <= 8.9e-14, final states <= 2.1e-12 in the others; with numpy/BLAS dot products:
+    dopri5 7.8e-14, 3.8e-10, 1.6e-12; dop853 4.7e-11, 5.5e-7, 8.9e-10)."""
     chain_fuzz_case(seed, method, monkeypatch, *_CHAIN_FUZZ_TOL[method])
 
 

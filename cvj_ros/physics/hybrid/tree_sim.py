@@ -29,6 +29,7 @@ ModeTree.equilibrium_slip), so a held car is at rest, not settling.
 """
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -337,7 +338,10 @@ class HybridTreeSimulation:
         on the chain (HybridSimulation._settle), an element whose stick returns to a mode
         already passed through at this instant (a clutch and a clutch-pack differential can
         cycle stick, release, stick, ...), while a stick to a mode not passed through yet
-        stays allowed (a clutch released before the pack holds again once the pack slips)."""
+        stays allowed (a clutch released before the pack holds again once the pack slips).
+        Ending in a mode inconsistent at t (_violations: the settle never turns a slip's
+        direction), or after its rounds, the deciding elements' modes are chosen together
+        (_joint)."""
         if same_instant(t, self._released[0]):
             fresh = tuple(fresh) + tuple(sorted(self._released[1]))
         for _ in range(16):
@@ -390,8 +394,141 @@ class HybridTreeSimulation:
                         mode, st, changed = m2, st2, True
                         break
             if not changed:
+                if not self._violations(t, mode, st, (mt, x, ev)):
+                    return mode, st
                 break
-        return mode, st
+        # inconsistent, or the rounds used up (the mode changed after its last evaluation)
+        return self._joint(t, mode, st, fresh)
+
+    #: at most this many elements (stuck, or slipping at zero slip) are chosen together by
+    #: :meth:`_joint` (3**n modes); beyond it the one-at-a-time result stands with a status
+    JOINT_MAX = 6
+
+    #: the step (s) along a mode's derivative that reads a zero slip's direction
+    _H_DIRECTION = 1e-7
+
+    def _at_zero(self, t: float, mode: Mode, ev: TreeEvaluation) -> list[tuple[str, str]]:
+        """(kind, name) of the elements deciding at t: stuck, or slipping at exactly zero
+        slip (zero wheel speed) with a static capacity > 0; clutches, brakes, packs in
+        scene order."""
+        _ck, cs, _bk, bs = self._capacities(t)
+        out: list[tuple[str, str]] = []
+        for name, m in mode.clutch.items():
+            if m == STUCK or (ev.slip[name] == 0.0 and cs > 0.0):
+                out.append(('clutch', name))
+        for name, m in mode.brakes.items():
+            if m == STUCK or (ev.wheel_speed[name] == 0.0 and bs[name] > 0.0):
+                out.append(('brake', name))
+        for name, m in mode.packs.items():
+            if m == STUCK or ev.pack_slip[name] == 0.0:
+                out.append(('pack', name))
+        return out
+
+    def _violations(self, t: float, mode: Mode, st: TreeState,
+                    held: tuple[ModeTree, FloatArray, TreeEvaluation] | None = None
+                    ) -> list[str]:
+        """Names of the elements ``mode`` is inconsistent for at (t, st): stuck beyond its
+        static capacity (decide_mode), or slipping at zero slip with a static capacity > 0
+        while its slip, one step _H_DIRECTION along the mode's derivative, has the sign
+        opposite to its mode (its friction assumes the other direction). ``held``: (tree,
+        state, evaluation) of ``mode`` at st from _apply(mode, st, False), its stuck elements
+        already known to hold (the settle's last round); None evaluates and checks all."""
+        full = held is None
+        if held is None:
+            mt, x, _st = self._apply(mode, st, False)
+            ev = self._eval(mt, t, x)
+        else:
+            mt, x, ev = held
+        _ck, cs, _bk, bs = self._capacities(t)
+        bad: list[str] = []
+        moving: list[tuple[str, str, int]] = []
+        for kind, name in self._at_zero(t, mode, ev):
+            m = {'clutch': mode.clutch, 'brake': mode.brakes, 'pack': mode.packs}[kind][name]
+            if m != STUCK:
+                moving.append((kind, name, m))
+            elif full:
+                if kind == 'clutch':
+                    torque, cap = ev.stuck_torque[name], cs
+                elif kind == 'brake':
+                    torque, cap = ev.hold[name], bs[name]
+                else:
+                    torque, cap = ev.pack_stuck[name], ev.pack_static[name]
+                if decide_mode(0.0, torque, cap) != STUCK:
+                    bad.append(name)
+        if moving:
+            ev_h = self._eval(mt, t, x + self._H_DIRECTION * ev.ydot)
+            for kind, name, m in moving:
+                s = {'clutch': ev_h.slip, 'brake': ev_h.wheel_speed, 'pack': ev_h.pack_slip}[kind]
+                if s[name] * m < 0.0:
+                    bad.append(name)
+        return bad
+
+    def _joint(self, t: float, mode: Mode, st: TreeState, fresh: tuple[str, ...]
+               ) -> tuple[Mode, TreeState]:
+        """The one-at-a-time settle ended inconsistent (or used up its rounds): choose the
+        modes of the elements deciding at t (_at_zero) together. Of their 3**n stick / slip+
+        / slip- combinations (an element in ``fresh``, not stuck, only slips) the consistent
+        ones (_violations) are ranked by the most elements kept as the one-at-a-time result
+        had them, then the most stuck (stuck wherever static friction can hold: maximal
+        sticking, a common choice among the several solutions a complementarity formulation
+        of stick-slip friction can have), then the first in scene order (clutches, brakes,
+        packs; each stuck, slip+, slip-). None consistent, or more than
+        JOINT_MAX elements: the one-at-a-time result stands, with a status line; so does a
+        consistent one (rounds used up)."""
+        if not self._violations(t, mode, st):
+            return mode, st
+        mt, x, _st = self._apply(mode, st, False)
+        ev = self._eval(mt, t, x)
+        deciding = self._at_zero(t, mode, ev)
+        if len(deciding) > self.JOINT_MAX:
+            self._status(t, f'{len(deciding)} friction elements decide at once (at most '
+                            f'{self.JOINT_MAX} are chosen together): '
+                            f'{", ".join(self._violations(t, mode, st))} left inconsistent')
+            return mode, st
+        table = {'clutch': 'clutch', 'brake': 'brakes', 'pack': 'packs'}
+        have = [getattr(mode, table[k])[n] for k, n in deciding]
+        choices = [(FORWARD, BACKWARD) if n in fresh and m != STUCK else (STUCK, FORWARD, BACKWARD)
+                   for (_k, n), m in zip(deciding, have)]
+        base = self.tree(mode)
+        best: tuple[tuple[int, int], Mode, TreeState] | None = None
+        for combo in itertools.product(*choices):
+            cand = mode.copy()
+            for (kind, name), m_old, m in zip(deciding, have, combo):
+                getattr(cand, table[kind])[name] = m
+                if kind == 'clutch':
+                    i = self.probe.clutch_link[name]
+                    cand.offsets.pop(i, None)
+                    if m == STUCK:
+                        cand.offsets[i] = (mode.offsets[i] if m_old == STUCK
+                                           else base.lock_offset(i, st, 1.0))
+                elif kind == 'pack':
+                    d = self.probe.packs[name][1]
+                    cand.offsets.pop(-(d + 1), None)
+                    if m == STUCK:
+                        cand.offsets[-(d + 1)] = (mode.offsets[-(d + 1)] if m_old == STUCK
+                                                  else st.delta[d])
+            _mt, _x, st2 = self._apply(cand, st, True)
+            if self._violations(t, cand, st2):
+                continue
+            score = (sum(a == b for a, b in zip(combo, have)), sum(m == STUCK for m in combo))
+            if best is None or score > best[0]:
+                best = (score, cand, st2)
+        if best is None:
+            self._status(t, f'no consistent mode of {", ".join(n for _k, n in deciding)}: '
+                            f'{", ".join(self._violations(t, mode, st))} left inconsistent')
+            return mode, st
+        _score, cand, st2 = best
+        self._mark(t, mode)
+        for (kind, name), m_old in zip(deciding, have):
+            m = getattr(cand, table[kind])[name]
+            if m == m_old:
+                continue
+            if m_old == STUCK:
+                if not same_instant(t, self._released[0]):
+                    self._released = (t, set())
+                self._released[1].add(name)
+            self._log(t, name, mode_name(m_old), mode_name(m), 'modes chosen together')
+        return cand, st2
 
     def _shift(self, t: float, mode: Mode, st: TreeState) -> tuple[Mode, TreeState]:
         """Apply the gear command at t: neutral always; a gear only with no clutch stuck and

@@ -50,7 +50,8 @@ from cvj_ros.errors import SceneError
 from cvj_ros.physics.fidelity import choose_fidelity
 from cvj_ros.physics.scene import Scene, Spring
 from cvj_ros.physics.sections import (  # noqa: F401  (SpringLaw, Shaft re-exported)
-    ScalarFn, Shaft, SpringLaw, build_sections, section_imbalance, section_kinematics)
+    ScalarFn, Shaft, SpringLaw, build_sections, section_imbalance, section_kinematics,
+    section_slopes)
 
 FloatArray = NDArray[np.float64]
 
@@ -268,19 +269,7 @@ class Driveline:
         sec = []
         for g in range(n):
             q = xl[g]
-            phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
-            has_joint = False
-            for jv, fn in self._ops[g]:
-                if fn is None:
-                    m += jv * a * a
-                    c += jv * a * b
-                    mp += 2.0 * jv * a * b
-                else:
-                    has_joint = True
-                    po, r, s = fn(phi)
-                    b = s * a * a + r * b
-                    a = r * a
-                    phi = po
+            phi, a, b, m, c, mp, has_joint = section_slopes(self._ops[g], q)
             if has_joint:
                 h = 1e-6 * max(1.0, abs(q))
                 cp = (self._section(g, q + h)[4] - self._section(g, q - h)[4]) / (2.0 * h)

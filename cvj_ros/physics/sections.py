@@ -244,3 +244,24 @@ def section_kinematics(ops: tuple[Op, ...], q: float) -> tuple[float, float, flo
             a = r * a
             phi = po
     return phi, a, b, m, c
+
+
+def section_slopes(ops: tuple[Op, ...], q: float
+                   ) -> tuple[float, float, float, float, float, float, bool]:
+    """(phi_end, a_end, b_end, M, C, dM/dq, has a joint op) of one section's op list at q:
+    :func:`section_kinematics` plus dM/dq = sum 2 J a b (kg m^2/rad), for the analytic
+    Jacobians (a section without joints has constant M, C = 0)."""
+    phi, a, b, m, c, dm = q, 1.0, 0.0, 0.0, 0.0, 0.0
+    has_joint = False
+    for jv, fn in ops:
+        if fn is None:
+            m += jv * a * a
+            c += jv * a * b
+            dm += 2.0 * jv * a * b
+        else:
+            has_joint = True
+            po, r, s = fn(phi)
+            b = s * a * a + r * b
+            a = r * a
+            phi = po
+    return phi, a, b, m, c, dm, has_joint

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from cvj_ros.physics.engine import MapEngine, map_engine_eval
 from cvj_ros.physics.hybrid.chain import Assembly, HybridChain, Mode
-from cvj_ros.physics.sections import Op, section_kinematics
+from cvj_ros.physics.sections import section_kinematics, section_slopes
 
 __all__ = ['mode_jacobian', 'torque_slopes']
 
@@ -38,24 +38,6 @@ def torque_slopes(src: Any, t: float, omega: float, phi: float) -> tuple[float, 
     return src.torque(t, omega, phi), src.slope(t, omega, phi), dphi
 
 
-def _group(ops: tuple[Op, ...], q: float) -> tuple[float, float, float, float, float, float, bool]:
-    """(phi_end, a, b, M, C, dM/dq, has a joint or coupling) of one group at q."""
-    phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
-    hj = False
-    for jv, fn in ops:
-        if fn is None:
-            m += jv * a * a
-            c += jv * a * b
-            mp += 2.0 * jv * a * b
-        else:
-            hj = True
-            po, r, s = fn(phi)
-            b = s * a * a + r * b
-            a = r * a
-            phi = po
-    return phi, a, b, m, c, mp, hj
-
-
 def mode_jacobian(chain: HybridChain, asm: Assembly, mode: Mode, t: float, y: FloatArray, *,
                   engine: Any, load: Any, clutch_kinetic: float,
                   brake_kinetic: float) -> FloatArray:
@@ -68,7 +50,7 @@ def mode_jacobian(chain: HybridChain, asm: Assembly, mode: Mode, t: float, y: Fl
     sec = []
     for g, grp in enumerate(groups):
         q = yl[g]
-        phi, a, b, m, c, mp, hj = _group(grp.ops, q)
+        phi, a, b, m, c, mp, hj = section_slopes(grp.ops, q)
         if hj:
             h = 1e-6 * max(1.0, abs(q))
             cp = (section_kinematics(grp.ops, q + h)[4]

@@ -38,30 +38,11 @@ from numpy.typing import NDArray
 from cvj_ros.physics.hybrid.chain_jac import torque_slopes
 from cvj_ros.physics.hybrid.elements import Clutch
 from cvj_ros.physics.hybrid.tree import ModeTree
-from cvj_ros.physics.sections import Op, section_kinematics
+from cvj_ros.physics.sections import section_kinematics, section_slopes
 
 __all__ = ['tree_mode_jacobian']
 
 FloatArray = NDArray[np.float64]
-
-
-def _section_end(ops: tuple[Op, ...], q: float
-                 ) -> tuple[float, float, float, float, float, float, bool]:
-    """(phi, a, b, M, C, dM/dq = sum 2 J a b, has a joint op) at the section's end."""
-    phi, a, b, m, c, dm = q, 1.0, 0.0, 0.0, 0.0, 0.0
-    hj = False
-    for jv, fn in ops:
-        if fn is None:
-            m += jv * a * a
-            c += jv * a * b
-            dm += 2.0 * jv * a * b
-        else:
-            hj = True
-            po, r, sl = fn(phi)
-            b = sl * a * a + r * b
-            a = r * a
-            phi = po
-    return phi, a, b, m, c, dm, hj
 
 
 def _carrier_weights(mt: ModeTree, di: Any, end: list[tuple[float, ...]],
@@ -163,7 +144,7 @@ def tree_mode_jacobian(mt: ModeTree, t: float, x: FloatArray, engine: Any, clutc
             kw = [ap * dkw[p][j] + 2.0 * bp * qdp * rp[j] for j in range(k)]
         R[s], D[s], dku[s], dkw[s] = row, dd, ku, kw
         dqd[s] = [sum(dd[i][j] * xl[n + coords[s][i]] for i in range(k)) for j in range(k)]
-        e = _section_end(mt._sec_ops[s], q[s])
+        e = section_slopes(mt._sec_ops[s], q[s])
         end[s] = e
         if e[6]:
             h = 1e-6 * max(1.0, abs(q[s]))

@@ -304,10 +304,15 @@ class HybridTreeSimulation:
             self._seen = (t, set())
         self._seen[1].add(self._mode_key(mode))
 
+    @staticmethod
+    def _modes_of(mode: Mode, kind: str) -> dict[str, int]:
+        """``mode``'s modes of one kind of friction element ('clutch', 'brake', 'pack')."""
+        return {'clutch': mode.clutch, 'brake': mode.brakes, 'pack': mode.packs}[kind]
+
     def _revisits(self, t: float, mode: Mode, kind: str, name: str) -> bool:
         """Sticking ``name`` would return to a mode already passed through at t."""
         cand = mode.copy()
-        {'clutch': cand.clutch, 'brake': cand.brakes, 'pack': cand.packs}[kind][name] = STUCK
+        self._modes_of(cand, kind)[name] = STUCK
         return same_instant(t, self._seen[0]) and self._mode_key(cand) in self._seen[1]
 
     def _release(self, t: float, mode: Mode, kind: str, name: str, new: int, cause: str) -> Mode:
@@ -443,7 +448,7 @@ class HybridTreeSimulation:
         bad: list[str] = []
         moving: list[tuple[str, str, int]] = []
         for kind, name in self._at_zero(t, mode, ev):
-            m = {'clutch': mode.clutch, 'brake': mode.brakes, 'pack': mode.packs}[kind][name]
+            m = self._modes_of(mode, kind)[name]
             if m != STUCK:
                 moving.append((kind, name, m))
             elif full:
@@ -485,8 +490,7 @@ class HybridTreeSimulation:
                             f'{self.JOINT_MAX} are chosen together): '
                             f'{", ".join(self._violations(t, mode, st))} left inconsistent')
             return mode, st
-        table = {'clutch': 'clutch', 'brake': 'brakes', 'pack': 'packs'}
-        have = [getattr(mode, table[k])[n] for k, n in deciding]
+        have = [self._modes_of(mode, k)[n] for k, n in deciding]
         choices = [(FORWARD, BACKWARD) if n in fresh and m != STUCK else (STUCK, FORWARD, BACKWARD)
                    for (_k, n), m in zip(deciding, have)]
         base = self.tree(mode)
@@ -494,7 +498,7 @@ class HybridTreeSimulation:
         for combo in itertools.product(*choices):
             cand = mode.copy()
             for (kind, name), m_old, m in zip(deciding, have, combo):
-                getattr(cand, table[kind])[name] = m
+                self._modes_of(cand, kind)[name] = m
                 if kind == 'clutch':
                     i = self.probe.clutch_link[name]
                     cand.offsets.pop(i, None)
@@ -520,7 +524,7 @@ class HybridTreeSimulation:
         _score, cand, st2 = best
         self._mark(t, mode)
         for (kind, name), m_old in zip(deciding, have):
-            m = getattr(cand, table[kind])[name]
+            m = self._modes_of(cand, kind)[name]
             if m == m_old:
                 continue
             if m_old == STUCK:

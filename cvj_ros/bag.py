@@ -29,7 +29,6 @@ the reading helpers work without a ROS installation.
 """
 from __future__ import annotations
 
-import fnmatch
 import functools
 import heapq
 import shutil
@@ -46,6 +45,7 @@ import yaml
 
 from cvj_ros.bag_qos import fix_metadata_file, offered_qos, patch_ros_distro
 from cvj_ros.errors import BagError
+from cvj_ros.topic_pattern import topic_match, topic_selected
 
 SCENE_TOPIC = '/driveline/scene'
 CLOCK_TOPIC = '/clock'
@@ -92,8 +92,8 @@ def exchange_wrench_topic(topic: str) -> bool:
     """A wrench topic with one message per exchange, stamped with the joint state it answers,
     from one node of the run: /engine/wrench, /load/wrench, /coupling/<joint>/wrench,
     /load/<wheel>/wrench."""
-    return (topic in ('/engine/wrench', '/load/wrench') or fnmatch.fnmatchcase(topic, '/coupling/*/wrench')
-            or fnmatch.fnmatchcase(topic, '/load/*/wrench'))
+    return (topic in ('/engine/wrench', '/load/wrench') or topic_match(topic, '/coupling/*/wrench')
+            or topic_match(topic, '/load/*/wrench'))
 
 
 def _one_publisher_topic(topic: str) -> bool:
@@ -151,7 +151,7 @@ def topic_type(topic: str) -> str | None:
     if topic in TOPIC_TYPES:
         return TOPIC_TYPES[topic]
     for pattern, msgtype in PATTERN_TYPES.items():
-        if fnmatch.fnmatchcase(topic, pattern):
+        if topic_match(topic, pattern):
             return msgtype
     return None
 
@@ -733,9 +733,9 @@ def _select(reader: Any, topics: Iterable[str] | None, path: str | Path) -> list
     wanted = list(topics)
     present = {c.topic for c in reader.connections}
     for topic in wanted:
-        if not any(fnmatch.fnmatchcase(t, topic) for t in present):
+        if not any(topic_selected(t, topic) for t in present):
             raise BagError(f'{topic}: topic not in bag {path}')
-    return [c for c in reader.connections if any(fnmatch.fnmatchcase(c.topic, w) for w in wanted)]
+    return [c for c in reader.connections if any(topic_selected(c.topic, w) for w in wanted)]
 
 
 def _stamp_s(stamp: Any) -> float:
@@ -787,7 +787,8 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
 
     Args:
         path: bag directory.
-        topics: topic names or glob patterns (``'/coupling/*/wrench'``); ``None`` = all.
+        topics: topic names or glob patterns (``'/coupling/*/wrench'``, read per name
+            segment: :mod:`cvj_ros.topic_pattern`); ``None`` = all.
         columns: the JointState arrays to read (others are left as zero-width arrays),
             e.g. ``('velocity', 'effort')`` for the report's metrics (a third less memory).
         joint_names: the run's joint names; default :func:`run_joint_names` (else the first
@@ -850,7 +851,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None, *,
             done = {topic: b.finish() for topic, b in builders.items()}
         for conn in reader.connections:  # topics with zero messages
             if topics is None or conn.topic in rows or any(
-                    fnmatch.fnmatchcase(conn.topic, w) for w in topics):
+                    topic_selected(conn.topic, w) for w in topics):
                 types.setdefault(conn.topic, conn.msgtype)
                 if conn.topic not in done:
                     rows.setdefault(conn.topic, [])
@@ -976,10 +977,10 @@ def _select_plain(topic_types: dict[str, tuple[str, int]], topics: Iterable[str]
         return {t: ty for t, (ty, _n) in topic_types.items()}
     wanted = list(topics)
     for topic in wanted:
-        if not any(fnmatch.fnmatchcase(t, topic) for t in topic_types):
+        if not any(topic_selected(t, topic) for t in topic_types):
             raise BagError(f'{topic}: topic not in bag {path}')
     return {t: ty for t, (ty, _n) in topic_types.items()
-            if any(fnmatch.fnmatchcase(t, w) for w in wanted)}
+            if any(topic_selected(t, w) for w in wanted)}
 
 
 def _plain_mcap_files(reader: Any) -> list[Path] | None:

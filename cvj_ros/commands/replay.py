@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor (default 1.0)')
     parser.add_argument('--loop', action='store_true', help='start over at the end')
     parser.add_argument('--topics', nargs='+', default=[], metavar='T',
-                        help='topics or glob patterns to replay (default: all)')
+                        help='topics or glob patterns to replay (* within one name segment, '
+                             '** across segments; default: all)')
     parser.add_argument('--start-delay', type=float, default=0.5,
                         help='wall seconds before the first message, for discovery (default 0.5)')
     parser.add_argument('--no-clock', action='store_true', help='do not publish /clock')
@@ -36,9 +37,9 @@ def replay_ros_args(args: argparse.Namespace) -> list[str]:
     if not args.start_delay >= 0:
         raise CvjError(f'--start-delay: must be >= 0, got {args.start_delay}')
     info = bagmod.bag_info(args.bag)  # BagError names a missing/unreadable bag
-    import fnmatch
+    from cvj_ros.topic_pattern import topic_selected
     for t in args.topics:
-        if not any(fnmatch.fnmatchcase(x, t) for x in info.types):
+        if not any(topic_selected(x, t) for x in info.types):
             raise CvjError(f'--topics: {t}: topic not in bag {args.bag}')
     ros = ['--ros-args', '-p', f'bag:={args.bag}', '-p', f'rate:={float(args.rate)}',
            '-p', f'loop:={str(bool(args.loop)).lower()}',

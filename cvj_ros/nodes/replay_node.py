@@ -112,11 +112,11 @@ class ReplayNode(CvjNode):
             info = bagmod.bag_info(p['bag'])
             selected = [t for t in info.types if t != CLOCK_TOPIC]
             if wanted:
-                import fnmatch
+                from cvj_ros.topic_pattern import topic_selected
                 for w in wanted:
-                    if not any(fnmatch.fnmatchcase(t, w) for t in info.types):
+                    if not any(topic_selected(t, w) for t in info.types):
                         raise ParameterError('topics', f'{w}: topic not in bag {p["bag"]}')
-                selected = [t for t in selected if any(fnmatch.fnmatchcase(t, w) for w in wanted)]
+                selected = [t for t in selected if any(topic_selected(t, w) for w in wanted)]
             messages = bagmod.read_raw(p['bag'], selected) if selected else []
         except BagError as exc:
             raise ParameterError('bag', str(exc)) from None

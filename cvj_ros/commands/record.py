@@ -5,7 +5,8 @@ time = the message's simulated stamp, every contract topic plus ``/coupling/*/wr
 ``/load/*/wrench`` as they appear, the latched ``/driveline/scene`` message stored in the bag and in its
 metadata). It records on the current ``ROS_DOMAIN_ID`` until Ctrl-C / SIGTERM, until
 ``--duration`` wall seconds have passed, or (``--until-idle S``) until nothing arrived for
-S seconds after the first message and no joint-state publisher is left on the graph (up to
+S seconds after the first message and the run's coupling node (``--coupling-node``, by its
+fully qualified node name) no longer publishes joint states on the graph (up to
 BEHIND_WAIT_S more while the joint states, /clock or an answer topic end before the others:
 their last messages are still on the way); on every one
 of these paths the bag is finalised
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import sys
 import time
@@ -29,14 +31,33 @@ HELP = 'record the driveline topics of nodes started elsewhere to a bag'
 DESCRIPTION = """Record every cvj_ros topic on this ROS domain to a rosbag2 bag (mcap or sqlite3),
 for nodes started by hand (`ros2 run` / console scripts) or by launch/driveline.launch.py.
 Stops on Ctrl-C or SIGTERM (bag finalised, exit 0), after --duration wall seconds, or
-with --until-idle S once no message arrived for S seconds and the loop's coupling node has
-left the graph (a loop that pauses - a coupling node compiling or starved of the CPU - is
-waited for).
+with --until-idle S once no message arrived for S seconds and the run's coupling node
+(--coupling-node, default /coupling_node) has left the graph (a loop that pauses - a coupling
+node compiling or starved of the CPU - is waited for; another node's joint-state publisher
+is not).
 
 examples:
   cvj-sim record runs/manual                      # Ctrl-C to stop
   cvj-sim record runs/manual --storage sqlite3 --until-idle 2
 """
+
+
+# The coupling node's fully qualified name in every run the project starts: cvj-sim run
+# (separate processes and composed), the launch file (Node(name='coupling_node'), no
+# namespace) and the hand-started `ros2 run cvj_ros coupling_node` of the README.
+COUPLING_NODE = '/coupling_node'
+_NODE_NAME = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')
+
+
+def node_name(text: str) -> str:
+    """A fully qualified ROS node name (``/coupling_node``, ``/car/coupling_node``; a bare
+    ``coupling_node`` is taken in the root namespace). Raises CvjError naming
+    --coupling-node otherwise."""
+    name = text if text.startswith('/') else '/' + text
+    if not _NODE_NAME.fullmatch(name):
+        raise CvjError(f'--coupling-node: not a ROS node name (/NAME or /NS/NAME of letters, '
+                       f'digits, _): {text!r}')
+    return name
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,10 +70,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--until-idle', type=float, default=None, metavar='S',
                         help='stop once no message arrived for S wall seconds (after the run\'s '
                              'first one; the latched scene message, sent while the coupling node '
-                             'still waits for its peers, does not count) and no node publishes '
-                             '/driveline/joint_states any more (a paused loop is waited for); up to '
+                             'still waits for its peers, does not count) and the run\'s coupling '
+                             'node (--coupling-node) publishes /driveline/joint_states no more (a '
+                             'paused loop is waited for, other publishers are not); up to '
                              '15 s more while the joint states, /clock or an answer topic end '
                              'before the others')
+    parser.add_argument('--coupling-node', default=COUPLING_NODE, metavar='NAME',
+                        help='fully qualified node name of the run\'s coupling node, which '
+                             '--until-idle waits for (default %(default)s: as cvj-sim run, the '
+                             'launch file and `ros2 run cvj_ros coupling_node` name it; '
+                             '/NS/NAME after -r __ns:=/NS -r __node:=NAME)')
     parser.add_argument('--run-only', action='store_true',
                         help='record one run\'s publishers only: a loop topic\'s messages while it has '
                              'one publisher, /clock attributed by value (docs/ros.md "Run identity"); '
@@ -67,6 +94,7 @@ def _check(args: argparse.Namespace) -> None:
     for opt, value in (('--duration', args.duration), ('--until-idle', args.until_idle)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise CvjError(f'{opt}: must be a finite number > 0, got {value}')
+    args.coupling_node = node_name(args.coupling_node)
 
 
 # Most wall time one poll of the --until-idle loop counts as idle: a process starved of the
@@ -135,7 +163,7 @@ def behind_topics(last_stamp: dict[str, int]) -> list[str]:
 def idle_stop(idle: float, until_idle: float, behind: list[str], loop_alive: bool = False) -> bool:
     """--until-idle: stop after ``until_idle`` s without a message, unless a topic is
     :func:`behind_topics`; then after ``until_idle`` + BEHIND_WAIT_S. Never while
-    ``loop_alive`` (a joint-state publisher is still on the graph): the loop has paused - a
+    ``loop_alive`` (the run's coupling node is still on the graph): the loop has paused - a
     coupling node compiling, swapped out or starved of the CPU -, not ended, and what it
     sends next belongs in the bag."""
     if loop_alive:
@@ -143,10 +171,18 @@ def idle_stop(idle: float, until_idle: float, behind: list[str], loop_alive: boo
     return idle >= until_idle and (not behind or idle >= until_idle + BEHIND_WAIT_S)
 
 
-def loop_alive(node: Any) -> bool:
-    """A publisher of /driveline/joint_states (the coupling node, a replay) is on the graph."""
+def loop_alive(node: Any, coupling_node: str = COUPLING_NODE) -> bool:
+    """The run's coupling node (fully qualified name ``coupling_node``) publishes
+    /driveline/joint_states on the graph. Other publishers of that topic (a stack's, a
+    replay, a finished run's lingering node) do not count: they would hold the recorder
+    forever."""
     from cvj_ros.nodes.qos import JOINT_STATES_TOPIC
-    return node.count_publishers(JOINT_STATES_TOPIC) > 0
+    return any(_qualified(info.node_namespace, info.node_name) == coupling_node
+               for info in node.get_publishers_info_by_topic(JOINT_STATES_TOPIC))
+
+
+def _qualified(namespace: str, name: str) -> str:
+    return f'{namespace.rstrip("/")}/{name}'
 
 
 class ReadyAnnouncer:
@@ -217,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
                 quiet = idle.tick(now, _last_run_message(recorder.recorder))
                 if quiet >= args.until_idle and idle_stop(
                         quiet, args.until_idle, behind_topics(recorder.recorder.last_stamp),
-                        loop_alive(recorder.node)):
+                        loop_alive(recorder.node, args.coupling_node)):
                     break
             time.sleep(0.02)
     finally:

@@ -74,11 +74,61 @@ def test_idle_does_not_end_a_loop_whose_coupling_node_is_still_there() -> None:
     assert idle_stop(2.0, 2.0, [], loop_alive=False)
 
 
+def _wait_graph(node, until) -> None:
+    """Poll the graph until ``until(node)`` holds (discovery of this process's own nodes:
+    the deadline only turns a hang into a failure, it bounds no measured time)."""
+    import time
+    deadline = time.monotonic() + 60
+    while not until(node):
+        assert time.monotonic() < deadline, 'graph never showed the expected publishers'
+        time.sleep(0.01)
+
+
+def test_loop_alive_counts_only_the_runs_coupling_node(ctx) -> None:
+    """Only the run's coupling node (by its fully qualified name: /coupling_node as cvj-sim
+    run, the launch file and `ros2 run` name it, or the one given) keeps the recorder
+    waiting; another joint-state publisher on the graph (a stack's, a finished run's
+    lingering node) does not: it held the recorder until Ctrl-C."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from cvj_ros.commands.record import loop_alive
+    topic = '/driveline/joint_states'
+    observer = rclpy.create_node('recorder_probe', context=ctx)
+    stack = rclpy.create_node('stack', context=ctx)
+    stack.create_publisher(JointState, topic, 10)
+    _wait_graph(observer, lambda n: n.count_publishers(topic) >= 1)
+    assert not loop_alive(observer)                       # the old rule: True, for ever
+    coupling = rclpy.create_node('coupling_node', context=ctx)
+    coupling.create_publisher(JointState, topic, 10)
+    other_ns = rclpy.create_node('coupling_node', namespace='/car', context=ctx)
+    other_ns.create_publisher(JointState, topic, 10)
+    _wait_graph(observer, lambda n: n.count_publishers(topic) >= 3)
+    assert loop_alive(observer) and loop_alive(observer, '/coupling_node')
+    assert loop_alive(observer, '/car/coupling_node')
+    assert not loop_alive(observer, '/truck/coupling_node')
+    coupling.destroy_node()                               # the run's coupling node leaves
+    _wait_graph(observer, lambda n: n.count_publishers(topic) == 2)
+    assert not loop_alive(observer)
+    assert loop_alive(observer, '/car/coupling_node')
+
+
+def test_coupling_node_option_takes_ros_node_names() -> None:
+    from cvj_ros.commands.record import node_name
+    from cvj_ros.errors import CvjError
+    assert node_name('coupling_node') == '/coupling_node'
+    assert node_name('/car/coupling_node') == '/car/coupling_node'
+    for bad in ('/', '/car/', '/1node', '/a b', ''):
+        with pytest.raises(CvjError, match='^--coupling-node: not a ROS node name'):
+            node_name(bad)
+
+
 def test_recorder_waits_out_a_paused_loop_and_stops_once_it_left(ctx, tmp_path) -> None:
-    """`cvj-sim record --until-idle 0.5` records a joint-state publisher's messages, keeps
+    """`cvj-sim record --until-idle 0.5` records the coupling node's joint states, keeps
     recording through 3 s of its silence (here the old rule stopped after 0.5 s and lost the
-    rest of a run whose coupling node stalled after step 0), and stops once the publisher
-    has left the graph, with a finalised bag."""
+    rest of a run whose coupling node stalled after step 0), and stops once the coupling
+    node has left the graph, with a finalised bag, although another node's joint-state
+    publisher stays on the graph (it held the recorder until Ctrl-C)."""
     import subprocess
     import sys
     import time
@@ -93,7 +143,9 @@ def test_recorder_waits_out_a_paused_loop_and_stops_once_it_left(ctx, tmp_path) 
                              '--until-idle', '0.5'], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
-        node = rclpy.create_node('paused_coupling', context=ctx)
+        stack = rclpy.create_node('stack', context=ctx)      # stays to the end, never publishes
+        stack.create_publisher(JointState, '/driveline/joint_states', 10)
+        node = rclpy.create_node('coupling_node', context=ctx)
         pub = node.create_publisher(JointState, '/driveline/joint_states', 10)
         deadline = time.monotonic() + 120     # the recorder's start on a loaded machine
         while pub.get_subscription_count() < 1:
@@ -106,7 +158,7 @@ def test_recorder_waits_out_a_paused_loop_and_stops_once_it_left(ctx, tmp_path) 
             time.sleep(0.1)
         time.sleep(3.0)                       # the loop pauses: 6x the idle limit
         assert proc.poll() is None, 'the recorder stopped while the loop was still there'
-        node.destroy_node()                   # the coupling node leaves
+        node.destroy_node()                   # the coupling node leaves, the stack stays
         rc = proc.wait(timeout=60)            # endpoint removal: immediate on a clean exit
         assert rc == 0, proc.stdout.read()
     finally:

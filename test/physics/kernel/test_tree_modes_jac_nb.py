@@ -4,7 +4,7 @@ backends against each other, at the start of every mode of launch_clutch (brakes
 slipping, clutch slipping and stuck, gears, neutral, shifts), fwd_axle_manual (a shift
 under load) and a clutch-pack differential on split mu (stuck, then slipping with its
 torque-sensing bias), and at states with random angles, slip speeds, tyre slips and vehicle speed
-around each.
+around each; the torque-sensing pack's central-difference fallback (|m k B| >= 1) too.
 
 Bound: a fourth-order central difference of increment h (1e-5 rad on the angles, 1e-5
 max(1, |y_j|) on the rest) errs by h^4 |f^(5)| / 30 (truncation; the sharpest feature is
@@ -216,3 +216,74 @@ def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
     tm_jac(t, y, ip, fp, Jk)
     scale = np.maximum(np.max(np.abs(Jp), axis=0), 1.0)
     assert float(np.max(np.abs(Jk - Jp) / scale)) <= TWIN_TOL
+
+
+def test_torque_sensing_pack_fallback_matches_central_differences(monkeypatch) -> None:
+    """Where |m k B| >= 1 (the bias's implicit derivative has no consistent sign) both
+    backends fall back to second-order central differences of the mode rhs (increment 1e-6
+    max(1, |y_j|)). Reached here at the split-mu pack's slip start, where |B| = 0.28
+    (measured: the analytic path holds up to k = 3.53), with the pack's torque_bias set to
+    20 in the built mode tree (|m k B| = 5.7; the scene check caps torque_bias at 0.9, which
+    needs |B| > 1.1 to get there), at that state and two random ones around it. The kernel
+    took the branch when its Jacobian is bit for bit its ``_central``, the reference when it
+    evaluated the rhs once per difference (2 per state component + 1, not once). Against the
+    fourth-order differences of the module docstring, bound FD_TOL (the fallback's own
+    truncation h^2 |f'''| / 6 and rounding eps |f| / h, h = 1e-6: ~1e-10 of the column's
+    scale; measured 2.2e-10 .. 5.1e-10); the two backends' fallbacks equal within TWIN_TOL
+    (measured 0.0)."""
+    import dataclasses
+
+    from cvj_ros.physics.hybrid.tree import ModeTree
+    from cvj_ros.physics.kernel.tree_modes_jac_nb import _central as kernel_central
+    sim = hybrid_simulation(parse_scene(_split_mu_pack(0.2)), duration=0.3)
+    starts = []
+    plain_tree, plain_stepper = sim.tree, ts.make_stepper
+    now = {}
+
+    def tree(mode):
+        now['mt'] = plain_tree(mode)
+        return now['mt']
+
+    def spy(method, fun, t, y0, **kw):
+        starts.append((now['mt'], fun, t, np.array(y0, dtype=float)))
+        return plain_stepper(method, fun, t, y0, **kw)
+
+    sim.tree = tree
+    monkeypatch.setattr(ts, 'make_stepper', spy)
+    sim.run()
+    slipping = [s for s in starts if s[0].mode.packs['differential'] != 0]
+    assert slipping
+    mt, fun, t, y0 = slipping[0]
+    el, d = mt.packs['differential']
+    monkeypatch.setitem(mt.packs, 'differential', (dataclasses.replace(el, torque_bias=20.0), d))
+    ip, fp = tree_mode_arrays(sim, mt, mt.mode)
+    ns = y0.size
+    wv = np.zeros(max(ip[ip[-1] + MB_NWIT], 1))
+
+    def f_kernel(tt, yy):
+        dy = np.zeros(ns)
+        tm_eval(tt, yy, ip, fp, dy, wv, False)
+        return dy
+
+    calls = []
+    plain_eval = ModeTree.evaluate
+
+    def evaluate(self, *args, **kw):
+        calls.append(1)
+        return plain_eval(self, *args, **kw)
+
+    monkeypatch.setattr(ModeTree, 'evaluate', evaluate)
+    for y in _states(mt, y0, np.random.default_rng(14)):
+        Jk = np.zeros((ns, ns))
+        tm_jac(t, y, ip, fp, Jk)
+        Jc = np.zeros((ns, ns))
+        kernel_central(t, y, ip, fp, Jc)
+        assert np.array_equal(Jk, Jc)                       # the kernel's fallback branch
+        calls.clear()
+        Jp = sim._jac(mt, t, y)
+        assert len(calls) == 2 * ns + 1                     # the reference's fallback branch
+        f0 = f_kernel(t, y)
+        assert _fd_error(Jk, _central(f_kernel, t, y, mt.n_dof), f0, y, mt) <= FD_TOL
+        assert _fd_error(Jp, _central(fun, t, y, mt.n_dof), f0, y, mt) <= FD_TOL
+        scale = np.maximum(np.max(np.abs(Jp), axis=0), 1.0)
+        assert float(np.max(np.abs(Jk - Jp) / scale)) <= TWIN_TOL

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from cvj_ros.physics.kernel.borrow_nb import borrowed_all
+from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, borrowed_all, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
@@ -200,7 +200,7 @@ def reaction_table(driveline: Any, joints: list[str]
             python)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
     """One state y at time t: shaft angle, speed and torque before/after every kernel op
     into st_phi/st_om/st_tq[g, position] (the walk of ``Driveline._walk``). Returns (engine
@@ -232,7 +232,8 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
                 jv = fp[off]
                 m += jv * a * a         # rhs_nb.section's M, term by term
                 torque -= jv * (a * acc + b * v * v)
-                torque -= imbalance_torque(kk, phi, ip, fp)
+                if ip[H_IMBALANCE] != 0:    # else imbalance_torque is 0.0: x - 0.0 is x
+                    torque -= imbalance_torque(kk, phi, ip, fp)
             else:
                 po, r, s = joint_eval(code, phi, fp, off)
                 b = s * a * a + r * b
@@ -261,15 +262,23 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
     return tk_e, kin, el, phi_l, a_l
 
 
-@njit(cache=True)
-def _walk_buffers(ip, ns):
-    """Scratch arrays of :func:`_walk_sample`: dy (ns,), and (n, max positions) for the
-    per-op angle, speed and torque."""
+@njit(cache=True, inline='always')
+def _max_positions(ip):
+    """Most positions of any section's walk (its kernel ops + 1)."""
     n = ip[H_NDOF]
     sec = ip[H_SEC]
     max_pos = 1
     for g in range(n):
         max_pos = max(max_pos, ip[sec + g + 1] - ip[sec + g] + 1)
+    return max_pos
+
+
+@njit(cache=True)
+def _walk_buffers(ip, ns):
+    """Scratch arrays of :func:`_walk_sample`: dy (ns,), and (n, max positions) for the
+    per-op angle, speed and torque."""
+    n = ip[H_NDOF]
+    max_pos = _max_positions(ip)
     return np.empty(ns), np.empty((n, max_pos)), np.empty((n, max_pos)), np.empty((n, max_pos))
 
 
@@ -283,7 +292,16 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
         T, X, ip, fp, tab, pos, vel, eff, te, tl, res))
     n = ip[H_NDOF]
     ns = X.shape[1]
-    dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
+    max_pos = _max_positions(ip)
+    if ns + 3 * n * max_pos <= STACK_MAX_DOUBLES:
+        # on the stack: no NRT allocation and no reference counts (the heap arrays' were 4
+        # allocations per run); every entry read is written first, as with np.empty
+        dy = stack_zeros_2d(1, ns)[0]
+        st_phi = stack_zeros_2d(n, max_pos)
+        st_om = stack_zeros_2d(n, max_pos)
+        st_tq = stack_zeros_2d(n, max_pos)
+    else:
+        dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
     for k in range(T.shape[0]):
         y = X[k]
         for i in range(ns):

@@ -26,7 +26,8 @@ fidelity levels, and the slots (and energy parts) two keys change must be disjoi
 every probe made. Anything else runs the variant on the per-variant path
 (:func:`~cvj_ros.sweep.run.run_variant`): a key that changes structure, a variant whose
 fidelity decision has no template yet (it becomes one), a mode scene, the Python backend,
-a run that raises. Each variant is still parsed (validation) and its fidelity chosen.
+a run that raises. Each variant is still validated and its fidelity chosen; the
+validation parses only the elements its keys change (:mod:`cvj_ros.sweep.reparse`).
 """
 from __future__ import annotations
 
@@ -120,6 +121,8 @@ class _Template:
     energy_owner: dict[int, int] = field(default_factory=dict)  # part (0 kin, 1 ela) -> axis
     separable: bool = True
     lean: Any = None        # the plan's one-call run without the members (bind_lean)
+    vkeys: tuple[tuple[str, str], ...] = ()     # _value_key of each of ``values``
+    x0_key: bytes = b''     # x0's bytes (Simulation._initial_energy's key)
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -140,6 +143,7 @@ class BatchRunner:
         self.templates: dict[tuple[tuple[str, str], ...], _Template] = {}
         self.seen: set[tuple[int, tuple[str, str]]] = set()     # (axis, value) met before
         self.stats = {'batched': 0, 'full': 0, 'templates': 0, 'probes': 0}
+        self.reparser: Any = None       # parse_scene of the changed elements (sweep.reparse)
 
     # --- the per-variant path and a full build ------------------------------------------
 
@@ -225,20 +229,23 @@ class BatchRunner:
     def run(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
         """(row, wall s) of the variant ``values``: the same row as run_variant."""
         from cvj_ros.physics.fidelity import choose_fidelity
-        from cvj_ros.physics.scene import parse_scene
         t0 = time.perf_counter()
         values = tuple(values)
         if not self.enabled:
             return self._full(values)
         # a probe pays only for a value that comes again: a value's first variant runs in
         # full (a random sweep of continuous ranges, every value new, costs what it did)
-        new = [(axis, _value_key(v)) for axis, v in enumerate(values)
-               if self.local[axis] and (axis, _value_key(v)) not in self.seen]
+        vkeys = tuple(_value_key(v) for v in values)
+        new = [(axis, vk) for axis, vk in enumerate(vkeys)
+               if self.local[axis] and (axis, vk) not in self.seen]
         if new:
             self.seen.update(new)
             return self._full(values)
         try:
-            scene = parse_scene(variant_dict(self.job.base, self.job.keys, values))
+            if self.reparser is None:
+                from cvj_ros.sweep.reparse import Reparser
+                self.reparser = Reparser(self.job.base, self.job.keys, values, self.local)
+            scene = self.reparser.parse(values, vkeys)
             if scene.has_modes or scene.is_tree:
                 return self._full(values)
             levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
@@ -251,12 +258,12 @@ class BatchRunner:
         if not tpl.separable:
             return self._full(values)
         parts: list[tuple[int, _Probe]] = []
-        for axis, (v, tv) in enumerate(zip(values, tpl.values)):
-            if _value_key(v) == _value_key(tv):
+        for axis, (v, vk, tvk) in enumerate(zip(values, vkeys, tpl.vkeys)):
+            if vk == tvk:
                 continue
             if not self.local[axis]:
                 return self._full(values)
-            pk = (axis, _value_key(v))
+            pk = (axis, vk)
             if pk not in tpl.probes:
                 pr = self._probe(tpl, axis, v)
                 tpl.probes[pk] = pr
@@ -278,7 +285,7 @@ class BatchRunner:
                 if owner == axis:
                     energy[part] = pr.energy[part]
         sim = tpl.sim
-        sim._e0 = (_bits(tpl.x0).tobytes(), energy[0] + energy[1])
+        sim._e0 = (tpl.x0_key, energy[0] + energy[1])
         try:
             row = self._reduce(sim, tpl.lean)
         except Exception:       # noqa: BLE001  (the per-variant path gives the row)
@@ -303,6 +310,8 @@ class BatchRunner:
         except Exception:       # noqa: BLE001
             return self._full(values)
         tpl = self._template(sim, values, levels)
+        tpl.vkeys = tuple(_value_key(v) for v in values)
+        tpl.x0_key = _bits(tpl.x0).tobytes()
         plan = next(iter(sim._plans.values()))
         tpl.fp = plan.model.fp          # the arrays the bound run reads
         tpl.mfp = sim._mid_table[1]

@@ -76,12 +76,12 @@ class Reparser:
     def _element(self, index: int, axis: int, value: Any, vk: tuple[str, str]) -> Any:
         """The parsed element ``index`` with ``axis`` at ``value`` (kept), or raises its
         SceneError (not kept: an invalid value is parsed again, as the full path does)."""
-        from cvj_ros.physics.scene import _element
+        from cvj_ros.physics.scene import parse_element
         key = (index, vk)
         el = self.elements.get(key)
         if el is None:
             raw = variant_dict(self.ref_dict, [self.keys[axis]], [value])['driveline'][index]
-            el = _element(raw, f'driveline[{index}]')      # raises as parse_scene would
+            el = parse_element(raw, f'driveline[{index}]')     # raises as parse_scene would
             if len(self.elements) >= MAX_ELEMENTS:
                 self.elements.clear()
             self.elements[key] = el

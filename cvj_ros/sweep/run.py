@@ -206,7 +206,7 @@ def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False,
             if compiled or reduced is not None:
                 from cvj_ros.sweep.orders import order_amplitudes_cached
                 row.update(order_amplitudes_cached(trace, options.orders, options.orders_shaft,
-                                                   window))
+                                                   window, increasing=reduced is not None))
             else:
                 row.update(order_amplitudes(trace, options.orders, options.transient,
                                             options.orders_shaft, window))

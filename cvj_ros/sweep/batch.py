@@ -13,7 +13,8 @@ variant of that structure differ from the template's only where a sweep key ente
   bit for bit: the model's ``fp`` (kernel/layout.py), the intermediate members'
   parameters ``mfp`` (outputs_nb.mid_table) and the two parts of the initial energy; a value is
   probed when it comes a second time (its first variant runs in full), so a sweep whose
-  values never repeat (random sampling of ranges) runs as before;
+  values never repeat (random sampling of ranges) runs as before; a value of an axis the
+  job lists as repeated (``Job.listed``: a grid axis) is probed on its first variant;
 * a variant is the template's arrays with each key's slots written from its probe, run
   by the template's one-call run bound without the intermediate members
   (:func:`bind_lean`), whose rows are filled from the row before the steady window on
@@ -139,6 +140,8 @@ class BatchRunner:
         opts: RunOptions = job.options
         self.options = opts
         self.local = element_local(job.keys)
+        listed = tuple(getattr(job, 'listed', ()) or ())
+        self.listed = listed if len(listed) == len(self.local) else (False,) * len(self.local)
         self.enabled = opts.backend == 'kernel' and any(self.local)
         self.templates: dict[tuple[tuple[str, str], ...], _Template] = {}
         self.seen: set[tuple[int, tuple[str, str]]] = set()     # (axis, value) met before
@@ -234,13 +237,15 @@ class BatchRunner:
         if not self.enabled:
             return self._full(values)
         # a probe pays only for a value that comes again: a value's first variant runs in
-        # full (a random sweep of continuous ranges, every value new, costs what it did)
+        # full (a random sweep of continuous ranges, every value new, costs what it did),
+        # unless its axis is a listed one the sweep repeats (Job.listed): mapped at once
         vkeys = tuple(_value_key(v) for v in values)
         new = [(axis, vk) for axis, vk in enumerate(vkeys)
                if self.local[axis] and (axis, vk) not in self.seen]
         if new:
             self.seen.update(new)
-            return self._full(values)
+            if not all(self.listed[axis] for axis, _vk in new):
+                return self._full(values)
         try:
             if self.reparser is None:
                 from cvj_ros.sweep.reparse import Reparser

@@ -124,6 +124,7 @@ class _Template:
     lean: Any = None        # the plan's one-call run without the members (bind_lean)
     vkeys: tuple[tuple[str, str], ...] = ()     # _value_key of each of ``values``
     x0_key: bytes = b''     # x0's bytes (Simulation._initial_energy's key)
+    slices: Any = None      # reduce.checked_slices of the plan's sample times (every run's)
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -292,7 +293,7 @@ class BatchRunner:
         sim = tpl.sim
         sim._e0 = (tpl.x0_key, energy[0] + energy[1])
         try:
-            row = self._reduce(sim, tpl.lean)
+            row = self._reduce(sim, tpl.lean, tpl.slices)
         except Exception:       # noqa: BLE001  (the per-variant path gives the row)
             del self.templates[skey]
             return self._full(values)
@@ -324,16 +325,19 @@ class BatchRunner:
             return row, time.perf_counter() - t0
         self.templates[skey] = tpl
         tpl.lean = bind_lean(sim, plan, self.options.sampling)
+        from cvj_ros.sweep.reduce import checked_slices
+        tpl.slices = checked_slices(plan.times)
         self.stats['templates'] += 1
         self.stats['full'] += 1
         return row, time.perf_counter() - t0
 
-    def _reduce(self, sim: Any, lean: Any = None) -> dict[str, Any]:
+    def _reduce(self, sim: Any, lean: Any = None, slices: Any = None) -> dict[str, Any]:
         """Run ``sim`` and reduce it to the row (run_variant's steps after the build; the
         window and metrics compiled, cvj_ros.sweep.reduce). A template's later runs make
         the plan's one compiled call (Simulation._run_one_call) without Simulation.run's
         option handling; with ``lean`` (:func:`bind_lean`) that run without the members,
-        filled from the row before the steady window on (the rows the metrics read)."""
+        filled from the row before the steady window on (the rows the metrics read);
+        ``slices``: reduce.checked_slices of the plan's times (the lean run's trace's)."""
         from cvj_ros.sweep.run import simulation_row, trace_row
         plan = next(iter(sim._plans.values()), None)
         if plan is None or plan.run is None:
@@ -343,7 +347,7 @@ class BatchRunner:
                              compiled=True)
         from cvj_ros.sweep.reduce import compiled_reduction
         trace, fill = lean_run(sim, plan, lean)
-        reduced = compiled_reduction(trace, self.options, fill=fill)
+        reduced = compiled_reduction(trace, self.options, fill=fill, slices=slices)
         if reduced is None:
             fill(0)         # the numpy path reads every row
         return trace_row(trace, self.options, compiled=reduced is not None, reduced=reduced)

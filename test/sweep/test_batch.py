@@ -175,3 +175,21 @@ def test_lean_run_fills_the_same_rows_as_the_one_call_run() -> None:
         for name in ('position', 'velocity'):
             assert getattr(trace, name)[first:].tobytes() == getattr(ref, name)[first:].tobytes()
     assert ref.velocity.tobytes() == full.velocity.tobytes()
+
+
+def test_template_slices_give_the_same_reduction() -> None:
+    """reduce.checked_slices once per template: compiled_reduction with them gives what it
+    computes itself, and times it does not cover give None."""
+    from cvj_ros.sweep.reduce import checked_slices, compiled_reduction
+    data = apply_keys(load_scene_data(find_scene('kavz685_lever')),
+                      [('duration',), ('driveline', 2, 'params', 'alpha_deg')], [0.3, 30.0])
+    trace = Simulation(parse_scene(data)).run(sampling='dense')
+    slices = checked_slices(trace.t)
+    assert slices is not None
+    own = compiled_reduction(trace, RunOptions())
+    given = compiled_reduction(trace, RunOptions(), slices=slices)
+    assert own is not None and given is not None
+    assert repr(own[1]) == repr(given[1]) and own[0].start_s == given[0].start_s
+    t = trace.t.copy()
+    t[5] = t[4]
+    assert checked_slices(t) is None and checked_slices(trace.t[:2]) is None

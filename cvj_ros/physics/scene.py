@@ -594,6 +594,13 @@ def _element(raw: Any, path: str, *, tree: bool = False, depth: int = 0) -> Elem
                               for k, v in raw_params.items()}, limits=limits)
 
 
+def parse_element(raw: Any, path: str) -> Element:
+    """One chain scene's ``driveline`` element validated as :func:`parse_scene` validates it
+    (the element alone: the chain checks are the caller's); ``path`` (``driveline[i]``)
+    names it in errors. Raises SceneError."""
+    return _element(raw, path)
+
+
 def _wheel(el: Mapping[str, Any], path: str, name: str, limits: dict[str, float]) -> Wheel:
     _check_keys(el, WHEEL_KEYS, path)
     for key, unit in (('J', 'kg m^2'), ('radius', 'm'), ('mu', '-'), ('load_share', '-')):

@@ -13,7 +13,8 @@ variant of that structure differ from the template's only where a sweep key ente
   bit for bit: the model's ``fp`` (kernel/layout.py), the intermediate members'
   parameters ``mfp`` (outputs_nb.mid_table) and the two parts of the initial energy; a value is
   probed when it comes a second time (its first variant runs in full), so a sweep whose
-  values never repeat (random sampling of ranges) runs as before;
+  values never repeat (random sampling of ranges) runs as before; a value of an axis the
+  job lists as repeated (``Job.listed``: a grid axis) is probed on its first variant;
 * a variant is the template's arrays with each key's slots written from its probe, run
   by the template's one-call run bound without the intermediate members
   (:func:`bind_lean`), whose rows are filled from the row before the steady window on
@@ -26,7 +27,8 @@ fidelity levels, and the slots (and energy parts) two keys change must be disjoi
 every probe made. Anything else runs the variant on the per-variant path
 (:func:`~cvj_ros.sweep.run.run_variant`): a key that changes structure, a variant whose
 fidelity decision has no template yet (it becomes one), a mode scene, the Python backend,
-a run that raises. Each variant is still parsed (validation) and its fidelity chosen.
+a run that raises. Each variant is still validated and its fidelity chosen; the
+validation parses only the elements its keys change (:mod:`cvj_ros.sweep.reparse`).
 """
 from __future__ import annotations
 
@@ -120,6 +122,9 @@ class _Template:
     energy_owner: dict[int, int] = field(default_factory=dict)  # part (0 kin, 1 ela) -> axis
     separable: bool = True
     lean: Any = None        # the plan's one-call run without the members (bind_lean)
+    vkeys: tuple[tuple[str, str], ...] = ()     # _value_key of each of ``values``
+    x0_key: bytes = b''     # x0's bytes (Simulation._initial_energy's key)
+    slices: Any = None      # reduce.checked_slices of the plan's sample times (every run's)
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -136,10 +141,13 @@ class BatchRunner:
         opts: RunOptions = job.options
         self.options = opts
         self.local = element_local(job.keys)
+        listed = tuple(getattr(job, 'listed', ()) or ())
+        self.listed = listed if len(listed) == len(self.local) else (False,) * len(self.local)
         self.enabled = opts.backend == 'kernel' and any(self.local)
         self.templates: dict[tuple[tuple[str, str], ...], _Template] = {}
         self.seen: set[tuple[int, tuple[str, str]]] = set()     # (axis, value) met before
         self.stats = {'batched': 0, 'full': 0, 'templates': 0, 'probes': 0}
+        self.reparser: Any = None       # parse_scene of the changed elements (sweep.reparse)
 
     # --- the per-variant path and a full build ------------------------------------------
 
@@ -225,20 +233,25 @@ class BatchRunner:
     def run(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
         """(row, wall s) of the variant ``values``: the same row as run_variant."""
         from cvj_ros.physics.fidelity import choose_fidelity
-        from cvj_ros.physics.scene import parse_scene
         t0 = time.perf_counter()
         values = tuple(values)
         if not self.enabled:
             return self._full(values)
         # a probe pays only for a value that comes again: a value's first variant runs in
-        # full (a random sweep of continuous ranges, every value new, costs what it did)
-        new = [(axis, _value_key(v)) for axis, v in enumerate(values)
-               if self.local[axis] and (axis, _value_key(v)) not in self.seen]
+        # full (a random sweep of continuous ranges, every value new, costs what it did),
+        # unless its axis is a listed one the sweep repeats (Job.listed): mapped at once
+        vkeys = tuple(_value_key(v) for v in values)
+        new = [(axis, vk) for axis, vk in enumerate(vkeys)
+               if self.local[axis] and (axis, vk) not in self.seen]
         if new:
             self.seen.update(new)
-            return self._full(values)
+            if not all(self.listed[axis] for axis, _vk in new):
+                return self._full(values)
         try:
-            scene = parse_scene(variant_dict(self.job.base, self.job.keys, values))
+            if self.reparser is None:
+                from cvj_ros.sweep.reparse import Reparser
+                self.reparser = Reparser(self.job.base, self.job.keys, values, self.local)
+            scene = self.reparser.parse(values, vkeys)
             if scene.has_modes or scene.is_tree:
                 return self._full(values)
             levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
@@ -251,12 +264,12 @@ class BatchRunner:
         if not tpl.separable:
             return self._full(values)
         parts: list[tuple[int, _Probe]] = []
-        for axis, (v, tv) in enumerate(zip(values, tpl.values)):
-            if _value_key(v) == _value_key(tv):
+        for axis, (v, vk, tvk) in enumerate(zip(values, vkeys, tpl.vkeys)):
+            if vk == tvk:
                 continue
             if not self.local[axis]:
                 return self._full(values)
-            pk = (axis, _value_key(v))
+            pk = (axis, vk)
             if pk not in tpl.probes:
                 pr = self._probe(tpl, axis, v)
                 tpl.probes[pk] = pr
@@ -278,9 +291,9 @@ class BatchRunner:
                 if owner == axis:
                     energy[part] = pr.energy[part]
         sim = tpl.sim
-        sim._e0 = (_bits(tpl.x0).tobytes(), energy[0] + energy[1])
+        sim._e0 = (tpl.x0_key, energy[0] + energy[1])
         try:
-            row = self._reduce(sim, tpl.lean)
+            row = self._reduce(sim, tpl.lean, tpl.slices)
         except Exception:       # noqa: BLE001  (the per-variant path gives the row)
             del self.templates[skey]
             return self._full(values)
@@ -303,6 +316,8 @@ class BatchRunner:
         except Exception:       # noqa: BLE001
             return self._full(values)
         tpl = self._template(sim, values, levels)
+        tpl.vkeys = tuple(_value_key(v) for v in values)
+        tpl.x0_key = _bits(tpl.x0).tobytes()
         plan = next(iter(sim._plans.values()))
         tpl.fp = plan.model.fp          # the arrays the bound run reads
         tpl.mfp = sim._mid_table[1]
@@ -310,16 +325,19 @@ class BatchRunner:
             return row, time.perf_counter() - t0
         self.templates[skey] = tpl
         tpl.lean = bind_lean(sim, plan, self.options.sampling)
+        from cvj_ros.sweep.reduce import checked_slices
+        tpl.slices = checked_slices(plan.times)
         self.stats['templates'] += 1
         self.stats['full'] += 1
         return row, time.perf_counter() - t0
 
-    def _reduce(self, sim: Any, lean: Any = None) -> dict[str, Any]:
+    def _reduce(self, sim: Any, lean: Any = None, slices: Any = None) -> dict[str, Any]:
         """Run ``sim`` and reduce it to the row (run_variant's steps after the build; the
         window and metrics compiled, cvj_ros.sweep.reduce). A template's later runs make
         the plan's one compiled call (Simulation._run_one_call) without Simulation.run's
         option handling; with ``lean`` (:func:`bind_lean`) that run without the members,
-        filled from the row before the steady window on (the rows the metrics read)."""
+        filled from the row before the steady window on (the rows the metrics read);
+        ``slices``: reduce.checked_slices of the plan's times (the lean run's trace's)."""
         from cvj_ros.sweep.run import simulation_row, trace_row
         plan = next(iter(sim._plans.values()), None)
         if plan is None or plan.run is None:
@@ -329,7 +347,7 @@ class BatchRunner:
                              compiled=True)
         from cvj_ros.sweep.reduce import compiled_reduction
         trace, fill = lean_run(sim, plan, lean)
-        reduced = compiled_reduction(trace, self.options, fill=fill)
+        reduced = compiled_reduction(trace, self.options, fill=fill, slices=slices)
         if reduced is None:
             fill(0)         # the numpy path reads every row
         return trace_row(trace, self.options, compiled=reduced is not None, reduced=reduced)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['amplitudes_over_angle', 'order_amplitudes_cached']
+__all__ = ['amplitudes_over_angle', 'order_amplitudes_cached', 'window_rows']
 
 #: grids kept per process (a sweep's windows start at a few multiples of 2 pi / m)
 MAX_GRIDS = 64
@@ -61,15 +61,30 @@ def amplitudes_over_angle(phi: np.ndarray, values: np.ndarray, n_harmonics: int,
     return np.hypot(a, b).tolist()
 
 
-def order_amplitudes_cached(trace: Any, orders: int, shaft: str | None, window: Any
-                            ) -> dict[str, float]:
+def window_rows(t: np.ndarray, window: Any) -> slice:
+    """The rows ``window.mask(t)`` selects (steady.SteadyWindow.mask: start_s <= t <= end_s,
+    else the last two) as a slice, for strictly increasing ``t``: the selected rows are then
+    one contiguous run [first t >= start_s, last t <= end_s]."""
+    m = t.size
+    i0 = int(np.searchsorted(t, window.start_s, 'left'))
+    i1 = int(np.searchsorted(t, window.end_s, 'right'))
+    if i1 - i0 < 2 and m >= 2:
+        return slice(m - 2, m)
+    return slice(i0, max(i0, i1))
+
+
+def order_amplitudes_cached(trace: Any, orders: int, shaft: str | None, window: Any, *,
+                            increasing: bool = False) -> dict[str, float]:
     """``order_amplitudes(trace, orders, transient, shaft, window)`` (the row's
     ``SHAFT.torque_order1..K``, N m; NaN below one revolution) through
-    :func:`amplitudes_over_angle`. Raises KeyError for an unknown ``shaft`` as it does."""
+    :func:`amplitudes_over_angle`. Raises KeyError for an unknown ``shaft`` as it does.
+    ``increasing``: the caller knows ``trace.t`` strictly increasing (the compiled reduction
+    checked it), so the window's rows are taken as a slice (:func:`window_rows`; the same
+    values in the same order as the mask's)."""
     shaft = shaft or trace.names[0]
     col = trace.column(shaft)
-    mask = window.mask(trace.t)
-    amps = amplitudes_over_angle(trace.position[mask, 0], trace.effort[mask, col], orders,
+    rows = window_rows(trace.t, window) if increasing else window.mask(trace.t)
+    amps = amplitudes_over_angle(trace.position[rows, 0], trace.effort[rows, col], orders,
                                  max(72, 2 * orders + 2))
     if amps is None:
         amps = [math.nan] * orders

@@ -29,11 +29,14 @@ def warm() -> None:
 
 
 def warm_batch() -> None:
-    """Import the batched path (cvj_ros.sweep.batch, run, spec) and load its compiled
-    reduction (kernel/reduce_nb.py) on a tiny record, so a forked worker has both."""
+    """Import the batched path (cvj_ros.sweep.batch, run, spec, reparse, orders) and load
+    its compiled reduction (kernel/reduce_nb.py) on a tiny record, so a forked worker has
+    both."""
     import numpy as np
 
     import cvj_ros.sweep.batch  # noqa: F401
+    import cvj_ros.sweep.orders  # noqa: F401
+    import cvj_ros.sweep.reparse  # noqa: F401
     import cvj_ros.sweep.spec  # noqa: F401
     from cvj_ros.physics.simulate import Trace
     from cvj_ros.sweep.reduce import compiled_reduction

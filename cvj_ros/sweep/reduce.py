@@ -25,7 +25,7 @@ import numpy as np
 from cvj_ros.physics import steady
 from cvj_ros.physics.steady import SteadyWindow, hann_mean, slice_bounds
 
-__all__ = ['MAX_SAMPLES', 'compiled_reduction']
+__all__ = ['MAX_SAMPLES', 'checked_slices', 'compiled_reduction']
 
 #: longest record reduced compiled (numpy's reduction buffer, 8192 elements)
 MAX_SAMPLES = 8192
@@ -58,27 +58,43 @@ def _slices(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return entry[1], entry[2]
 
 
-def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | None = None
+def checked_slices(t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The slices' (lo, hi) of the sample times ``t`` when the compiled reduction covers
+    them (3..MAX_SAMPLES samples, strictly increasing, enough slices of >= 2 samples), else
+    None. A caller whose runs share ``t`` (a batched template's) computes it once."""
+    m = t.size
+    if not 3 <= m <= MAX_SAMPLES or not bool(np.all(t[1:] > t[:-1])):
+        return None
+    lo, hi = _slices(t)
+    if not (lo.size >= steady.MIN_SLICES and bool(np.all(hi - lo >= 2))):
+        return None
+    return lo, hi
+
+
+def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | None = None,
+                       slices: tuple[np.ndarray, np.ndarray] | None = None
                        ) -> tuple[SteadyWindow, dict[str, Any]] | None:
     """(window, summary) of ``trace`` as simulation_row computes them (the window's start,
     end and verdict; the summary's 'window', 'energy_residual', 'solver' and 'shafts'), or
     None when the record is not one the compiled reduction covers (module docstring).
     ``fill(i)``, if given, completes the speeds of every shaft but the first from row i on
-    (called once the window is known, with the row before it)."""
+    (called once the window is known, with the row before it). ``slices``: what
+    :func:`checked_slices` gave for these very times (the caller vouches; not checked
+    again)."""
     if options.transient is not None:
         return None
     t = trace.t
     m = t.size
-    if not 3 <= m <= MAX_SAMPLES or not bool(np.all(t[1:] > t[:-1])):
-        return None
+    if slices is None:
+        slices = checked_slices(t)
+        if slices is None:
+            return None
+    lo, hi = slices
     vel, eff = trace.velocity, trace.effort
     names = trace.names
     n_sh = len(names)
     if n_sh < 1 or vel.shape != (m, n_sh) or eff.shape != (m, n_sh) \
             or not (vel.flags.c_contiguous and eff.flags.c_contiguous):
-        return None
-    lo, hi = _slices(t)
-    if not (lo.size >= steady.MIN_SLICES and bool(np.all(hi - lo >= 2))):
         return None
     w = vel[:, 0]
     means = np.array([hann_mean(w[a:b]) for a, b in zip(lo, hi)])

@@ -76,11 +76,15 @@ class RunOptions:
 
 @dataclass(frozen=True)
 class Job:
-    """What a worker needs: the base scene dict, each axis's keys, and the options."""
+    """What a worker needs: the base scene dict, each axis's keys, and the options.
+    ``listed``: per axis, True when its values come from a list that the sweep repeats
+    (a grid axis beside others; empty: not known) - the batched path then maps a value on
+    its first variant instead of its second (cvj_ros.sweep.batch)."""
 
     base: Mapping[str, Any]
     keys: tuple[tuple[str | int, ...], ...]
     options: RunOptions
+    listed: tuple[bool, ...] = ()
 
 
 @dataclass
@@ -206,7 +210,7 @@ def trace_row(trace: Any, options: RunOptions, *, compiled: bool = False,
             if compiled or reduced is not None:
                 from cvj_ros.sweep.orders import order_amplitudes_cached
                 row.update(order_amplitudes_cached(trace, options.orders, options.orders_shaft,
-                                                   window))
+                                                   window, increasing=reduced is not None))
             else:
                 row.update(order_amplitudes(trace, options.orders, options.transient,
                                             options.orders_shaft, window))
@@ -508,7 +512,9 @@ def execute(sweep: Any, options: RunOptions, out_dir: str | os.PathLike[str], *,
     manifest.update(definition=definition, versions=versions())
     manifest.setdefault('runs', [])
     store.write_manifest(manifest)
-    job = Job(base=sweep.base, keys=tuple(a.keys for a in sweep.axes), options=options)
+    job = Job(base=sweep.base, keys=tuple(a.keys for a in sweep.axes), options=options,
+              listed=tuple(a.range is None and 1 < len(a.values) < len(sweep.variants)
+                           for a in sweep.axes))
     work = chunks(todo, chunk_size(len(todo), executor.workers))
     t_run = time.perf_counter()
     ran = 0

@@ -79,6 +79,25 @@ def test_batched_rows_and_arrays_equal_the_per_variant_path() -> None:
     assert runner.stats['full'] == 32 - 14
 
 
+def test_listed_axes_are_mapped_on_a_values_first_variant() -> None:
+    """Job.listed (grid axes): a new value is probed on its first variant instead of running
+    in full; the rows are the per-variant path's, and only the templates and the invalid
+    variants run in full."""
+    sw = sweep()
+    keys = tuple(a.keys for a in sw.axes)
+    listed = tuple(a.range is None and 1 < len(a.values) < len(sw.variants) for a in sw.axes)
+    assert listed == (False, False, True, True)     # duration and accuracy target fixed
+    job = Job(base=sw.base, keys=keys, options=RunOptions(), listed=listed)
+    items = list(enumerate(sw.variants))
+    reference = run_chunk(job, items, batched=False)
+    runner = BatchRunner(job)
+    rows = [runner.run(values)[0] for _i, values in items]
+    assert [repr(r) for r in rows] == [repr(o.row) for o in reference]
+    assert runner.stats['templates'] == 4
+    assert runner.stats['full'] == 4 + 4           # the templates' first runs, the invalid
+    assert runner.stats['batched'] == 16 - 8
+
+
 def test_values_that_never_repeat_are_not_probed() -> None:
     """Random sampling of ranges: every value is new, every variant runs in full (no probe
     costs on top), the rows are the per-variant path's."""
@@ -156,3 +175,21 @@ def test_lean_run_fills_the_same_rows_as_the_one_call_run() -> None:
         for name in ('position', 'velocity'):
             assert getattr(trace, name)[first:].tobytes() == getattr(ref, name)[first:].tobytes()
     assert ref.velocity.tobytes() == full.velocity.tobytes()
+
+
+def test_template_slices_give_the_same_reduction() -> None:
+    """reduce.checked_slices once per template: compiled_reduction with them gives what it
+    computes itself, and times it does not cover give None."""
+    from cvj_ros.sweep.reduce import checked_slices, compiled_reduction
+    data = apply_keys(load_scene_data(find_scene('kavz685_lever')),
+                      [('duration',), ('driveline', 2, 'params', 'alpha_deg')], [0.3, 30.0])
+    trace = Simulation(parse_scene(data)).run(sampling='dense')
+    slices = checked_slices(trace.t)
+    assert slices is not None
+    own = compiled_reduction(trace, RunOptions())
+    given = compiled_reduction(trace, RunOptions(), slices=slices)
+    assert own is not None and given is not None
+    assert repr(own[1]) == repr(given[1]) and own[0].start_s == given[0].start_s
+    t = trace.t.copy()
+    t[5] = t[4]
+    assert checked_slices(t) is None and checked_slices(trace.t[:2]) is None

@@ -42,3 +42,35 @@ def test_none_where_harmonics_over_angle_raises() -> None:
     assert orders.amplitudes_over_angle(phi, tq, 4, 72) is None
     assert orders.amplitudes_over_angle(phi[:1], tq[:1], 4, 72) is None
     assert orders.amplitudes_over_angle(phi, tq, 4, 8) is None     # too few points per revolution
+
+
+class _Trace:
+    """What order_amplitudes_cached reads of a Trace."""
+
+    def __init__(self, t: np.ndarray, phi: np.ndarray, tq: np.ndarray) -> None:
+        self.t = t
+        self.names = ['engine', 'out']
+        self.position = np.stack([phi, 0.5 * phi], axis=1)
+        self.effort = np.stack([tq, 2.0 * tq], axis=1)
+
+    def column(self, name: str) -> int:
+        return self.names.index(name)
+
+
+@pytest.mark.parametrize('start', [0.0, 0.25, 0.5005, 0.5, 0.9995, 0.9999, 1.5, math.nan])
+def test_window_rows_select_the_masks_rows(start: float) -> None:
+    """On strictly increasing times the slice holds the mask's rows (a start on a sample,
+    between samples, on the last two, past the end, NaN: the last two), so the amplitudes
+    are the same floats."""
+    from cvj_ros.physics.steady import SteadyWindow
+    n = 2001
+    t = np.linspace(0.0, 1.0, n)
+    phi, tq = signal(n, 30.0, 0.4, 1.0)
+    window = SteadyWindow(start, float(t[-1]), False, math.nan, math.nan, '', 0.0, 0, '')
+    mask = window.mask(t)
+    assert np.array_equal(np.flatnonzero(mask), np.arange(n)[orders.window_rows(t, window)])
+    trace = _Trace(t, phi, tq)
+    for shaft in (None, 'out'):
+        a = orders.order_amplitudes_cached(trace, 4, shaft, window, increasing=True)
+        b = orders.order_amplitudes_cached(trace, 4, shaft, window)
+        assert np.array(list(a.values())).tobytes() == np.array(list(b.values())).tobytes()

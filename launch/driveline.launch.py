@@ -134,6 +134,55 @@ def recorder_arguments(arguments: dict[str, str]) -> list[str] | None:
             '--run-only']
 
 
+def _param_text(name: str, value: Any) -> str:
+    """``name:=value`` for ``-p``, which reads the value as YAML: a string that YAML would read
+    as another type (``'123'``, ``'true'``) is quoted."""
+    import yaml
+    text = str(value).lower() if isinstance(value, bool) else str(value)
+    if isinstance(value, str) and not isinstance(yaml.safe_load(value or "''"), str):
+        text = "'" + value.replace("'", "''") + "'"
+    return f'{name}:={text}'
+
+
+def equivalent_commands(arguments: dict[str, str]) -> list[list[str]]:
+    """The processes ``ros2 launch cvj_ros driveline.launch.py <arguments>`` starts, as command
+    lines of the installed executables (recorder first, each node under its name with its
+    parameters as ``-p``): what to type into one shell each where launch_ros is missing."""
+    lines: list[list[str]] = []
+    rec = recorder_arguments(arguments)
+    if rec is not None:
+        lines.append([RECORDER_EXECUTABLE, *rec])
+    for name, params in node_parameters(arguments).items():
+        cmd = [name, '--ros-args', '-r', f'__node:={name}']
+        for key, value in params.items():
+            cmd += ['-p', _param_text(key, value)]
+        lines.append(cmd)
+    return lines
+
+
+def main(argv: list[str]) -> int:
+    """``python launch/driveline.launch.py [name:=value ...]``: print :func:`equivalent_commands`,
+    one shell line per process; a bad argument: one line on stderr, exit 2."""
+    import shlex
+    import sys
+    arguments: dict[str, str] = {}
+    for item in argv:
+        name, sep, value = item.partition(':=')
+        if not sep or name not in ARGUMENTS:
+            print(f'driveline.launch.py: error: {item}: expected NAME:=VALUE with NAME one of '
+                  f'{", ".join(ARGUMENTS)}', file=sys.stderr)
+            return 2
+        arguments[name] = value
+    try:
+        lines = equivalent_commands(arguments)
+    except ValueError as exc:
+        print(f'driveline.launch.py: error: {exc}', file=sys.stderr)
+        return 2
+    for cmd in lines:
+        print(' '.join(shlex.quote(part) for part in cmd))
+    return 0
+
+
 def generate_launch_description() -> Any:
     from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument, OpaqueFunction
@@ -154,3 +203,8 @@ def generate_launch_description() -> Any:
     return LaunchDescription(
         [DeclareLaunchArgument(k, default_value=d, description=x) for k, (d, x) in ARGUMENTS.items()]
         + [OpaqueFunction(function=setup)])
+
+
+if __name__ == '__main__':
+    import sys as _sys
+    _sys.exit(main(_sys.argv[1:]))

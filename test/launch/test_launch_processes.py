@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -154,6 +155,59 @@ def test_cvj_sim_accepts_what_launch_appends(tmp_path: Path) -> None:
     rec = dict(launch_command_lines({'out': str(tmp_path)}, tmp_path))['cvj-sim']
     ns = build_parser('record').parse_args(remove_ros_args(rec[1:]))
     assert ns.out == str(tmp_path) and ns.until_idle == 2.0
+
+
+def _parsed_p(cmd: list[str]) -> dict[str, Any]:
+    """The ``-p name:=value`` pairs of a command line, each value read as YAML as rcl reads it."""
+    return {cmd[i + 1].partition(':=')[0]: yaml.safe_load(cmd[i + 1].partition(':=')[2])
+            for i, part in enumerate(cmd) if part == '-p'}
+
+
+def _without(cmd: list[str], option: str) -> list[str]:
+    """A command line without ``--ros-args`` and without each ``option VALUE`` pair."""
+    out, skip = [], False
+    for part in cmd:
+        if skip:
+            skip = False
+        elif part == option:
+            skip = True
+        elif part != '--ros-args':
+            out.append(part)
+    return out
+
+
+@pytest.mark.parametrize('arguments', [
+    {'scene': 'kavz685_lever'},
+    {'scene': 'launch_clutch_chain', 'driver': 'true', 'mode': 'free-run', 'catch_up': 'burst'},
+    {'scene': '123', 'external': 'load', 'record': 'false', 'monitor': 'false', 'duration': '1.5'},
+], ids=['default', 'driver-free-run', 'external-no-record'])
+def test_printed_equivalent_is_the_launch_ros_lines(arguments: dict[str, str], tmp_path: Path) -> None:
+    """`python launch/driveline.launch.py ARG:=VALUE ...` prints, per process, the executable,
+    arguments and node name launch_ros builds, with the parameter file's values as `-p` (a
+    string YAML would read as a number stays a string): shell lines a stranger without
+    launch_ros can run instead."""
+    out = subprocess.run([sys.executable, str(LAUNCH), *(f'{k}:={v}' for k, v in arguments.items())],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stderr == '', out.stderr
+    printed = [shlex.split(line) for line in out.stdout.splitlines()]
+    built = launch_command_lines(arguments, tmp_path)
+    assert [cmd[0] for cmd in printed] == [Path(cmd[0]).name for _, cmd in built]
+    for mine, (_, theirs) in zip(printed, built):
+        files = [theirs[i + 1] for i, part in enumerate(theirs) if part == '--params-file']
+        params = {}
+        for f in files:
+            params.update(yaml.safe_load(Path(f).read_text())['/**']['ros__parameters'])
+        assert _parsed_p(mine) == params
+        assert _without(mine[1:], '-p') == _without(theirs[1:], '--params-file')
+
+
+def test_printed_equivalent_bad_argument_is_one_line() -> None:
+    for args, words in ((['mode:=fast'], 'mode: must be one of lockstep, free-run'),
+                        (['scen:=x'], 'scen:=x: expected NAME:=VALUE')):
+        out = subprocess.run([sys.executable, str(LAUNCH), *args], capture_output=True, text=True,
+                             timeout=60)
+        assert out.returncode == 2 and out.stdout == ''
+        assert out.stderr.count('\n') == 1 and words in out.stderr, out.stderr
 
 
 def _start(cmd: list[str], log: Path) -> subprocess.Popen:

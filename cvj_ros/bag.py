@@ -645,6 +645,9 @@ def _check_bag(path: str | Path) -> Path:
         if any(p.glob('*.mcap')) or any(p.glob('*.db3')):
             raise BagError(f'{p}: no metadata.yaml (recording killed before it was finalised?); '
                            f'rebuild it from the data on disk with: cvj-sim reindex {p}')
+        if (p / 'bag' / 'metadata.yaml').exists() or any((p / 'bag').glob('*.mcap')) \
+                or any((p / 'bag').glob('*.db3')):     # a run's --out directory
+            raise BagError(f'{p}: not a rosbag2 bag but a run directory; its bag is {p / "bag"}')
         raise BagError(f'{p}: not a rosbag2 bag (no metadata.yaml; was the recording finalised?)')
     return p
 

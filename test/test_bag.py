@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import re
 import struct
 import time
 from collections.abc import Iterator
@@ -125,6 +126,12 @@ def test_errors_name_the_bag_or_topic(tmp_path: Path) -> None:
         bag.read_bag(tmp_path / 'empty')
     path = tmp_path / 'b'
     _write_sample(path, 'mcap')
+    run_dir = tmp_path / 'run'                 # `cvj-sim run --out run` writes run/bag
+    run_dir.mkdir()
+    _write_sample(run_dir / 'bag', 'mcap')
+    with pytest.raises(BagError, match=rf'^{re.escape(str(run_dir))}: not a rosbag2 bag but a run '
+                                       rf'directory; its bag is {re.escape(str(run_dir / "bag"))}$'):
+        bag.read_bag(run_dir)
     with pytest.raises(BagError, match=r'^/engine/wrench: topic not in bag'):
         bag.load_torque_series(path, '/engine/wrench')
     with pytest.raises(BagError, match='exists already'):

@@ -1307,6 +1307,7 @@ class BagRecorder:
         self._js_names: bytes | None = None   # names of the run's joint states (CDR bytes)
         self._joint_names = list(joint_names) if joint_names else None
         self._js_decoder: Any = None          # cvj_ros.nodes.cdr.JointStateDecoder (lazy)
+        self._checked: Any = None             # (checked_length, CdrError), with the decoder
         # run_only: topics seen with two publishers -> reception time (ns) of the first
         # sample dropped for it; samples received before the last time the topic was seen
         # with one publisher (_clear_ns) are still the run's
@@ -1505,12 +1506,14 @@ class BagRecorder:
             self.held += 1
             return False
         if not own_clock:
-            from cvj_ros.nodes.cdr import CdrError, JointStateDecoder, checked_length
-            if self._js_decoder is None:
-                self._js_decoder = JointStateDecoder()
+            if self._js_decoder is None:     # imported once, not per message (~1 us each)
+                from cvj_ros.nodes import cdr
+                self._js_decoder = cdr.JointStateDecoder()
+                self._checked = (cdr.checked_length, cdr.CdrError)
+            checked_length, cdr_error = self._checked
             try:
                 keep = checked_length(msgtype, data, self._js_decoder)
-            except CdrError:
+            except cdr_error:
                 self._malformed[topic] = self._malformed.get(topic, 0) + 1
                 return False
             if keep < len(data):

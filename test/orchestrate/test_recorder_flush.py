@@ -58,3 +58,59 @@ def test_every_hand_off_of_loop_messages_asks_for_a_flush() -> None:
         assert min(w.durable_topics[t] for t in GATE_TOPICS) == step * MS
     assert w.calls.count('flush') == 6
     assert front.flush_lag_ns is not None and front.flush_lag_ns < bagmod.MAX_LAG_S * 1e9
+
+
+class _FlushingWriter:
+    """The writer side of ``_Recorder._report_recorded``: a script of flushes, each one the
+    durable_topics it leaves; ``wait_flush`` hands out the next one only when asked for a flush
+    beyond those seen, and records what it was asked."""
+
+    def __init__(self, flushes: list[dict[str, int]]) -> None:
+        self.script = flushes
+        self.flushes = 0
+        self.durable_topics: dict[str, int] = {}
+        self.durable_ns = -1
+        self.asked: list[int] = []
+        self._thread = self            # is_alive()
+        self.stop: object = None
+
+    def is_alive(self) -> bool:
+        return True
+
+    def wait_flush(self, seen: int, timeout: float) -> int:
+        self.asked.append(seen)
+        if seen < self.flushes:        # a flush it has not seen yet: at once
+            return self.flushes
+        if self.flushes == len(self.script):
+            self.stop.set()            # nothing more: end the loop
+            return self.flushes
+        self.durable_topics = self.script[self.flushes]
+        self.durable_ns = max(self.durable_topics.values())
+        self.flushes += 1
+        return self.flushes
+
+
+def test_recorded_thread_waits_for_each_next_flush_and_reports_the_oldest_loop_topic() -> None:
+    """/clock is flushed ahead of the answers (its stamp is the newest): the thread must still
+    ask for the flush after the last one it has seen each time (a real writer then blocks),
+    never spin on a stamp that is already in, and publish the oldest loop topic's stamp once
+    per advance."""
+    import threading
+    from types import SimpleNamespace
+
+    from cvj_ros.orchestrate.recorder import _Recorder
+    loop = {t: 0 for t in GATE_TOPICS}
+    script = []
+    for k in (1, 2, 2, 3):       # the third flush moves /clock only: nothing new to report
+        script.append({**loop, **{t: k * MS for t in GATE_TOPICS if t != '/load/wrench'},
+                       '/load/wrench': (k - 1) * MS, '/clock': (k + 1) * MS})
+    w = _FlushingWriter(script)
+    published: list[int] = []
+    stop = threading.Event()
+    w.stop = stop
+    fake = SimpleNamespace(_stop=stop, ctx=SimpleNamespace(ok=lambda: True), writer=w,
+                           recorded_pub=SimpleNamespace(publish=lambda m: published.append(
+                               m.clock.sec * 1_000_000_000 + m.clock.nanosec)))
+    _Recorder._report_recorded(fake)
+    assert w.asked == [0, 1, 2, 3, 4]          # each wait: for a flush beyond those seen
+    assert published == [0, 1 * MS, 2 * MS]    # the oldest loop topic (/load/wrench), per advance

@@ -221,6 +221,7 @@ class BagWriter:
         self.durable_ns = -1
         # per topic, the newest record stamp (ns) on the OS side (a copy made at each flush)
         self.durable_topics: dict[str, int] = {}
+        self.flushes = 0          # flushes so far (each one updates durable_ns/durable_topics)
         self._written_topics: dict[str, int] = {}     # writer thread: newest stamp per topic
         self._durable = threading.Condition()
         self._opened = threading.Event()
@@ -297,6 +298,7 @@ class BagWriter:
             if stamp_ns > self.durable_ns:
                 self.durable_ns = stamp_ns
             self.durable_topics = dict(self._written_topics)
+            self.flushes += 1
             self._durable.notify_all()
 
     def wait_durable(self, stamp_ns: int, timeout: float) -> bool:
@@ -306,6 +308,15 @@ class BagWriter:
         with self._durable:
             return self._durable.wait_for(lambda: self.durable_ns >= stamp_ns
                                           or not self._thread.is_alive(), timeout)
+
+    def wait_flush(self, seen: int, timeout: float) -> int:
+        """Block until the writer has flushed more than ``seen`` times (:attr:`flushes`), or
+        its thread ended, at most ``timeout`` s of wall time; the count of flushes then. Waits
+        for :attr:`durable_topics` to change, which :meth:`wait_durable` cannot: the newest
+        stamp of any topic can be ahead of a topic's (a /clock ahead of the answers)."""
+        with self._durable:
+            self._durable.wait_for(lambda: self.flushes > seen or not self._thread.is_alive(), timeout)
+            return self.flushes
 
     def request_flush(self) -> None:
         """Ask the writer thread to put everything queued so far on disk now."""
@@ -1299,6 +1310,7 @@ class BagRecorder:
         self._js_names: bytes | None = None   # names of the run's joint states (CDR bytes)
         self._joint_names = list(joint_names) if joint_names else None
         self._js_decoder: Any = None          # cvj_ros.nodes.cdr.JointStateDecoder (lazy)
+        self._checked: Any = None             # (checked_length, CdrError), with the decoder
         # run_only: topics seen with two publishers -> reception time (ns) of the first
         # sample dropped for it; samples received before the last time the topic was seen
         # with one publisher (_clear_ns) are still the run's
@@ -1497,12 +1509,14 @@ class BagRecorder:
             self.held += 1
             return False
         if not own_clock:
-            from cvj_ros.nodes.cdr import CdrError, JointStateDecoder, checked_length
-            if self._js_decoder is None:
-                self._js_decoder = JointStateDecoder()
+            if self._js_decoder is None:     # imported once, not per message (~1 us each)
+                from cvj_ros.nodes import cdr
+                self._js_decoder = cdr.JointStateDecoder()
+                self._checked = (cdr.checked_length, cdr.CdrError)
+            checked_length, cdr_error = self._checked
             try:
                 keep = checked_length(msgtype, data, self._js_decoder)
-            except CdrError:
+            except cdr_error:
                 self._malformed[topic] = self._malformed.get(topic, 0) + 1
                 return False
             if keep < len(data):

@@ -301,6 +301,32 @@ def test_writer_accepts_writes_from_other_threads(tmp_path: Path, storage: str) 
     np.testing.assert_array_equal(tz, np.arange(100.0))
 
 
+def test_wait_flush_wakes_on_a_flush_that_moves_only_an_older_topic(tmp_path: Path) -> None:
+    """BagWriter.wait_flush waits for the next flush, not for a newer stamp of any topic: a
+    flush of /load/wrench at t = 1 ms behind a /clock at 2 ms leaves durable_ns at 2 ms but
+    moves durable_topics (what the recorder gate reports), and must wake the waiter. Waiting
+    for durable_ns + 1 there returned at once and made cvj-sim's /driveline/recorded
+    thread spin."""
+    w = bag.BagWriter(tmp_path / 'b')
+    try:
+        w.add_topic('/clock')
+        w.add_topic('/load/wrench')
+        w.write('/clock', 2_000_000, _stamped_cdr(2_000_000, b''))
+        w.request_flush()
+        first = w.wait_flush(0, 30.0)        # 30 s: only a stuck writer thread reaches it
+        assert first >= 1 and w.durable_ns == 2_000_000
+        w.write('/load/wrench', 1_000_000, _wrench(1e-3, 5.0))
+        w.request_flush()
+        second = w.wait_flush(first, 30.0)
+        assert second > first
+        assert w.durable_topics['/load/wrench'] == 1_000_000
+        assert w.durable_ns == 2_000_000          # the newest stamp did not move
+        # no flush asked for: the wait ends at its timeout with the same count
+        assert w.wait_flush(second, 0.05) == second
+    finally:
+        w.close()
+
+
 def test_run_report_metrics_from_bag_match_closed_form(tmp_path: Path) -> None:
     """A bag with omega = W (1 + e sin(2 pi f t)) and torque T0 + A cos(...): delta = 2 e, amplitude A."""
     from cvj_ros.orchestrate import bag_metrics

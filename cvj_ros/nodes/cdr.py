@@ -696,8 +696,11 @@ def checked_length(type_name: str, data: bytes | memoryview,
     end: int | None = None
     if type_name == 'sensor_msgs/msg/JointState':
         dec = js_decoder or JointStateDecoder()
-        dec._decode(data)
+        view = dec._decode(data)
         end = None if big else dec.end
+        # the view of these very bytes: a later decode() of them (the recorder's joint-name
+        # check) reuses it instead of decoding the message a second time
+        JointStateDecoder._last = (data, view)
     elif type_name == 'geometry_msgs/msg/WrenchStamped':
         frame = _wrench_fields(data)[2]
         try:

@@ -43,6 +43,26 @@ GATE_TOPICS = frozenset({bagmod.JOINT_STATES_TOPIC, bagmod.CLOCK_TOPIC, '/engine
                          '/load/wrench'})
 
 
+# The recorder asks its writer to flush at a hand-off whose newest loop message is this far
+# (s of record time) past what is on disk: 0 = at every hand-off, i.e. once per wake of the
+# take loop. The gate (record_lag_max = MAX_LAG_S) holds the loop while it is more than
+# 0.15 s past the disk; between two flushes the disk falls behind by this lead plus one
+# wake's worth of loop (RECORDER_COALESCE_S of wall time = 0.05 s of record time at 2.5x
+# real time) plus the take and the flush. With the lead at 0.1 s that reached 0.15 s at
+# about 2x real time on an idle machine, so the gate held an unloaded loop every few wakes
+# (docs/benchmark.md, "Lockstep in separate processes: the recorder gate (2026-11-28)").
+# A flush closes the mcap chunk (fsync still at most every FLUSH_WALL_S) or commits the
+# sqlite3 transaction: writer thread CPU per exchange unchanged within the spread.
+RECORDER_FLUSH_LAG_S = 0.0
+
+
+def recorder_front(writer: bagmod.BagWriter) -> bagmod.BatchingWriter:
+    """The recorder's front of ``writer``: one hand-off per wake of the take loop, and a flush
+    requested at each hand-off that is :data:`RECORDER_FLUSH_LAG_S` past the disk (measured
+    on the loop topics, :data:`GATE_TOPICS`)."""
+    return bagmod.BatchingWriter(writer, flush_lag_s=RECORDER_FLUSH_LAG_S, lag_topics=GATE_TOPICS)
+
+
 class _Recorder:
     """BagRecorder on its own rclpy context, taking messages in a background thread of this process."""
 
@@ -55,8 +75,7 @@ class _Recorder:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('cvj_recorder', context=self.ctx)
         # one hand-off to the writer thread per wake of the take loop, not one per message
-        self.batching = bagmod.BatchingWriter(
-            writer, flush_lag_s=bagmod.MAX_LAG_S - bagmod.HANDOFF_SPAN_S, lag_topics=GATE_TOPICS)
+        self.batching = recorder_front(writer)
         self.recorder = bagmod.BagRecorder(self.node, self.batching, topics=topics, run_only=run_only)
         self.recorder.hold = frozenset(hold)     # before the first message can arrive
         self._stop = threading.Event()
@@ -89,12 +108,16 @@ class _Recorder:
         flushed stamps (:data:`GATE_TOPICS`, :attr:`BagWriter.durable_topics`): a topic whose
         samples reach the recorder late (a repaired joint state) holds it back, not the
         newest /clock. Woken by the writer thread's flush (no polling delay on the loop's
-        critical path)."""
+        critical path). It waits for the writer's next flush (:meth:`BagWriter.wait_flush`),
+        not for a newer stamp of any topic: that one is usually in already (/clock t_(k+1) is
+        ahead of the answers for t_k), and waiting for it made this loop spin (measured,
+        kavz685_lever 5 s at load 4-6: 160-300 us of CPU per exchange beside the loop)."""
         from rosgraph_msgs.msg import Clock
         sent = -1
+        flushes = 0
         msg = Clock()
         while not self._stop.is_set() and self.ctx.ok():
-            self.writer.wait_durable(sent + 1, 0.1)
+            flushes = self.writer.wait_flush(flushes, 0.1)
             if not self.writer._thread.is_alive():
                 return             # closed
             now = self.writer.durable_ns

@@ -50,7 +50,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='cvj-sim',
         description='cvj_ros virtual driveline: kinematics, offline simulation, ROS runs, '
-                    'bag replay and analysis, benchmark.')
+                    'bag recording, replay and analysis, parameter sweeps, fits to '
+                    'measurements, benchmark.')
     parser.add_argument('--debug', action='store_true',
                         help='print the traceback of an error (also: CVJ_DEBUG=1)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')

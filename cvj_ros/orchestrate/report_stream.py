@@ -321,8 +321,11 @@ def _stream(path: Path, counts: dict[str, int], types: dict[str, str],
     width = len(names or [])
     if streaming:
         edges, lo, hi = steady.slice_bounds(t)
+        first_slice = steady.usable_tail(lo, hi)
+        usable = first_slice is not None
+        if usable:        # the slices after the last one in a gap of the record
+            edges, lo, hi = edges[first_slice:], lo[first_slice:], hi[first_slice:]
         n_sl = edges.size - 1
-        usable = n_sl >= steady.MIN_SLICES and bool(np.all(hi - lo >= 2))
         fb = int(np.searchsorted(t, steady.fallback_start(t), side='left'))
         starts = np.unique(np.concatenate(([0], lo, [fb, n - 2]))).astype(np.int64)
         bounds_t = t[starts]

@@ -24,7 +24,9 @@ of the record with ``steady`` False, and every report says so (``describe()``). 
 slices are equal parts of the record (``n_slices``, default :data:`N_SLICES`) or
 ``slice_s`` seconds each, ending at the last sample; a slice must span at least one period
 of the slowest oscillation of interest, or its amplitude depends on the phase. The
-window's start resolution is one slice, 10 % of the record by default.
+window's start resolution is one slice, 10 % of the record by default. A slice with fewer
+than 2 samples (it fell in a gap of the record: ticks not recorded) cannot be compared, so
+the window is a tail of the slices after the last such slice (:func:`usable_tail`).
 
 Pure numpy, no ROS. Units: times s, speeds rad/s, torques N m.
 """
@@ -102,10 +104,12 @@ class SteadyWindow:
         else:
             verdict = 'steady' if self.steady else (
                 f'NOT STEADY (criterion never met; last {FALLBACK_FRACTION:.0%} of the record used)')
-        if not (math.isfinite(self.drift) and math.isfinite(self.amplitude_change)):
-            # too few samples per slice to compare slices (a step as long as the slices)
-            measured = (f'drift and amplitude change not measurable (fewer than 2 samples per '
-                        f'slice of {self.slice_s:.4g} s)')
+        if math.isnan(self.drift) and math.isnan(self.amplitude_change):
+            # no slices compared (usable_tail): the record is too short, or a gap in it (or
+            # a step as long as the slices) leaves too few slices of >= 2 samples at its end
+            measured = (f'drift and amplitude change not measurable (fewer than '
+                        f'{self.min_slices} slices of {self.slice_s:.4g} s with 2 samples or more '
+                        f'each at the end of the record)')
         else:
             measured = (f'drift {self.drift:.2e} (<= {self.drift_tol:g}), amplitude change '
                         f'{self.amplitude_change:.2e} (<= {self.amplitude_tol:g}, '
@@ -198,11 +202,12 @@ def find_steady_window(t: ArrayLike, reference_speed: ArrayLike, *,
     torque_scale = max((float(np.max(np.abs(x))) for k, (x, _) in amps.items() if k != reference),
                        default=0.0)
     edges, lo, hi = slice_bounds(tt, n_slices, slice_s)
-    n = edges.size - 1
-    if not (n >= min_slices and bool(np.all(hi - lo >= 2))):
+    first = usable_tail(lo, hi, min_slices)
+    if first is None:
         return window_from_slices(tt, w, lo, hi, edges, None, reference=reference,
                                   drift_tol=drift_tol, amplitude_tol=amplitude_tol,
                                   min_slices=min_slices, signals=list(amps))
+    edges, lo, hi = edges[first:], lo[first:], hi[first:]
     # Slice extrema of all signals at once: the slices tile [lo[0], end) (hi[k] = lo[k+1]),
     # so reduceat at lo gives each slice's max / min (exact, as np.max of the slice)
     spans = slice_spans(np.stack([x for x, _ in amps.values()], axis=1), lo)
@@ -223,6 +228,16 @@ def slice_bounds(t: FloatArray, n_slices: int | None = None,
     hi = np.searchsorted(t, edges[1:] - 1e-12 * max(1.0, abs(edges[-1])), side='left')
     hi[-1] = t.size
     return edges, lo, hi
+
+
+def usable_tail(lo: NDArray[np.intp], hi: NDArray[np.intp], min_slices: int = MIN_SLICES) -> int | None:
+    """Index of the first slice of the longest run of slices holding >= 2 samples each that
+    ends with the last slice (``lo``/``hi`` from :func:`slice_bounds`), or None when that run
+    is shorter than ``min_slices``. A window is a tail of slices, so it can only start after
+    the last slice that fell in a gap of the record (a pause in the recorded samples)."""
+    bad = np.flatnonzero(hi - lo < 2)
+    first = int(bad[-1]) + 1 if bad.size else 0
+    return first if lo.size - first >= min_slices else None
 
 
 def fallback_start(t: FloatArray) -> float:

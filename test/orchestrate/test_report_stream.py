@@ -25,12 +25,14 @@ NAMES = ['engine_crank', 'cpl_input', 'cpl_output', 'wheel']
 
 
 def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = 'mcap',
-                  scene: bool = False, late_record: int | None = None) -> Path:
+                  scene: bool = False, late_record: int | None = None,
+                  gap: range = range(0)) -> Path:
     """A run-like bag: per step /clock, joint states (4 shafts, 2nd-order ripple, speed
     ramp ``ramp`` rad/s^2), an engine and a load answer; /diagnostics every 50 steps with a
     WARN every 1000; the project's own encoders (fast). ``scene``: the run's joint names in
     metadata.yaml (as a run's recorder stores them); ``late_record``: that joint state
-    recorded 1 ns after its stamp (not what cvj_ros records)."""
+    recorded 1 ns after its stamp (not what cvj_ros records); ``gap``: steps not recorded at
+    all (a free run's recorder missing ticks)."""
     from cvj_ros.nodes.cdr import ClockEncoder, JointStateEncoder, WrenchStampedEncoder
     from cvj_ros.nodes.diagnostics import diagnostic_array_encoder, plain_status
     js, eng, load, clock = (JointStateEncoder(NAMES, 'driveline'), WrenchStampedEncoder('engine_crank'),
@@ -49,6 +51,8 @@ def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = '
     phi = 40.0 * t + 0.5 * ramp * t ** 2
     omega = 40.0 + ramp * t
     for i in range(steps):
+        if i in gap:
+            continue
         sec, nsec = divmod(i * H_NS, 1_000_000_000)
         ripple = np.array([0.0, 0.1, 0.4, 0.3]) * np.sin(2 * phi[i] + np.arange(4))
         eff = 100.0 + np.array([5.0, 3.0, 2.0, 1.0]) * np.cos(2 * phi[i])
@@ -105,6 +109,22 @@ def test_stream_equals_in_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     for fn in (report.loop_counters, report.loop_timing, report.monitor_statuses):
         assert fn(path, diags=side['diagnostics']) == fn(path, diags=diags), fn.__name__
     assert report.monitor_statuses(path, diags=side['diagnostics'])['warn'] == 4
+
+
+def test_a_gap_at_the_start_leaves_the_later_slices_measurable(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """Steps 5..599 of 3001 (1 ms) not recorded, as the free run of a clutch launch whose
+    report said 'not measurable (fewer than 2 samples per slice)' with 472 samples: the
+    first two 0.3 s slices hold 5 and 0 samples, the eight after them 300 each. Both paths
+    compare those eight (steady.usable_tail): the same window, steady, drift measured."""
+    path = write_run_bag(tmp_path / 'b', 3001, gap=range(5, 600))
+    full = report.bag_metrics(path)
+    monkeypatch.setattr(bag_decode, 'BATCH', 97)
+    streamed, _side = stream_bag_metrics(path)
+    _same(full, streamed)
+    assert streamed['window']['steady'] is True and streamed['window']['slices'] == 8
+    assert streamed['window_s'][0] == pytest.approx(0.6)
+    assert 'not measurable' not in streamed['window_text'] and 'drift ' in streamed['window_text']
 
 
 @pytest.mark.parametrize('late_record', [None, 1234], ids=['indexed', 'record_time_differs'])

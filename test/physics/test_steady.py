@@ -150,6 +150,32 @@ def test_slice_seconds_and_bad_input() -> None:
     assert not short.steady and math.isnan(short.drift)
 
 
+def test_a_gap_in_the_record_starves_its_slices_only() -> None:
+    """The steady oscillation above with no samples between 0 s and 2.5 s (ticks not
+    recorded, as a free run's recorder can miss): slices 0..1 s and 1..2 s hold 1 and 0
+    samples, 2..3 s holds those from 2.5 s on. The criterion compares the 8 slices after the
+    starved ones (usable_tail), so the window is 2.5..10 s, steady, with drift and change
+    measured; only when fewer than min_slices slices of >= 2 samples end the record is it
+    not measurable, and the report says that, not that every slice is short."""
+    keep = (T < 0.5 * DT) | (T >= 2.5)
+    t = T[keep]
+    w = (200.0 + 3.0 * np.sin(2 * math.pi * F_OSC * T))[keep]
+    tq = {'shaft torque': (50.0 + 7.0 * np.cos(2 * math.pi * 3 * F_OSC * T))[keep]}
+    _edges, lo, hi = steady.slice_bounds(t)
+    assert list(hi - lo)[:3] == [1, 0, 1000] and steady.usable_tail(lo, hi) == 2
+    win = find_steady_window(t, w, amplitude_signals=tq)
+    assert win.steady and win.start_s == pytest.approx(2.5) and win.slices == 8
+    assert win.drift < 1e-12 and win.amplitude_change < 1e-9
+    assert 'not measurable' not in win.describe() and 'drift ' in win.describe()
+    # a gap that leaves only 2 slices (8..10 s) after it: min_slices 3 cannot be met
+    keep = (T < 0.5 * DT) | (T >= 8.0)
+    short = find_steady_window(T[keep], np.full(np.count_nonzero(keep), 200.0))
+    assert steady.usable_tail(*steady.slice_bounds(T[keep])[1:]) is None
+    assert not short.steady and math.isnan(short.drift) and math.isnan(short.amplitude_change)
+    assert ('not measurable (fewer than 3 slices of 1 s with 2 samples or more each at the end '
+            'of the record)') in short.describe()
+
+
 def test_user_skip_window_reports_the_criterion_on_it() -> None:
     """--skip 5 on the decaying oscillation above (a_s 1, a_d 10, tau 1 s): 5..10 s in 10
     slices of 0.5 s; half ranges as in the closed form above: the first 1 + 10 e^-5 ~ 1.067,

@@ -32,7 +32,7 @@ def write_run_bag(path: Path, steps: int, *, ramp: float = 0.0, storage: str = '
     WARN every 1000; the project's own encoders (fast). ``scene``: the run's joint names in
     metadata.yaml (as a run's recorder stores them); ``late_record``: that joint state
     recorded 1 ns after its stamp (not what cvj_ros records); ``gap``: steps not recorded at
-    all (a free run's recorder missing ticks)."""
+    all (ticks a free run skipped to catch up)."""
     from cvj_ros.nodes.cdr import ClockEncoder, JointStateEncoder, WrenchStampedEncoder
     from cvj_ros.nodes.diagnostics import diagnostic_array_encoder, plain_status
     js, eng, load, clock = (JointStateEncoder(NAMES, 'driveline'), WrenchStampedEncoder('engine_crank'),

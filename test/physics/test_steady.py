@@ -151,8 +151,8 @@ def test_slice_seconds_and_bad_input() -> None:
 
 
 def test_a_gap_in_the_record_starves_its_slices_only() -> None:
-    """The steady oscillation above with no samples between 0 s and 2.5 s (ticks not
-    recorded, as a free run's recorder can miss): slices 0..1 s and 1..2 s hold 1 and 0
+    """The steady oscillation above with no samples between 0 s and 2.5 s (ticks a free
+    run skipped to catch up after a late step): slices 0..1 s and 1..2 s hold 1 and 0
     samples, 2..3 s holds those from 2.5 s on. The criterion compares the 8 slices after the
     starved ones (usable_tail), so the window is 2.5..10 s, steady, with drift and change
     measured; only when fewer than min_slices slices of >= 2 samples end the record is it

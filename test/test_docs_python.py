@@ -5,7 +5,7 @@ other than the shipped scenes it names, and exits 0.
 
 A block that reads a bag a reader records with ROS first (``make demo``, ``cvj-sim run ...
 --out``) is listed in :data:`NEEDS_RECORDED_BAG` with the run that writes it; it is only
-compiled here. A block deliberately a fragment or a signature summary is fenced with
+compiled and checked for names it reads without defining or importing them (every block is). A block deliberately a fragment or a signature summary is fenced with
 another language tag (``text``) in the docs and is not collected. :data:`HEAVY` blocks
 run with ``-m slow``.
 """
@@ -88,10 +88,32 @@ def test_blocks_found() -> None:
     assert {'README.md', 'docs/solvers.md', 'docs/kinematics.md', 'docs/engine_load.md'} <= files
 
 
+def undefined_names(code: str, where: str = '<block>') -> set[str]:
+    """Global names the block reads but neither assigns, imports nor finds in builtins
+    (its module scope and every function in it, by :mod:`symtable`)."""
+    import builtins
+    import symtable
+    top = symtable.symtable(code, where, 'exec')
+    defined = {s.get_name() for s in top.get_symbols() if s.is_assigned() or s.is_imported()}
+    defined |= set(dir(builtins))
+    used: set[str] = set()
+    tables = [top]
+    while tables:
+        table = tables.pop()
+        tables.extend(table.get_children())
+        used |= {s.get_name() for s in table.get_symbols() if s.is_referenced()
+                 and (table is top or s.is_global())}
+    return used - defined
+
+
 @pytest.mark.parametrize('where,code', [pytest.param(w, c, id=w) for w, c in BLOCKS])
-def test_block_compiles(where: str, code: str) -> None:
-    """Every block, the skipped ones too, is valid Python."""
+def test_block_compiles_and_defines_what_it_reads(where: str, code: str) -> None:
+    """Every block, the skipped ones too, is valid Python and reads no name it does not
+    define or import (the NameError a reader would get: ``ev = j.evaluate(phi)`` with no
+    ``phi``)."""
     compile(code, where, 'exec')
+    assert not undefined_names(code, where), where
+    assert undefined_names('import numpy as np\nev = j.evaluate(phi)\n') == {'j', 'phi'}
 
 
 @pytest.mark.parametrize('where,code', _params())

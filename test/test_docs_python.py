@@ -113,7 +113,12 @@ def test_block_compiles_and_defines_what_it_reads(where: str, code: str) -> None
     ``phi``)."""
     compile(code, where, 'exec')
     assert not undefined_names(code, where), where
+
+
+def test_undefined_names_finds_what_a_reader_would_miss() -> None:
     assert undefined_names('import numpy as np\nev = j.evaluate(phi)\n') == {'j', 'phi'}
+    assert undefined_names('def f(t, y):\n    return k * y\nk = 2\nprint(f(0, 1))\n') == set()
+    assert undefined_names('def f(t):\n    return g(t)\n') == {'g'}
 
 
 @pytest.mark.parametrize('where,code', _params())

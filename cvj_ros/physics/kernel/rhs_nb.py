@@ -242,7 +242,11 @@ def section_accel(t, y, ip, fp, g, phi, a, m, c, te, carry):
     and the torque carried in from the spring to its left: qddot = (Q - C v^2) / M with
     Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g in the oracle's order of additions.
     carry is the torque the spring to its right carries into section g + 1 (unchanged in
-    the last section), Tl is 0.0 except in the last section, the power 0.0 in it."""
+    the last section), Tl is 0.0 except in the last section, the power 0.0 in it.
+    The per-section body of :func:`rhs`, written out again for the sample walk
+    (outputs_nb) so that rhs keeps its own loop and speed: it must stay equal to rhs bit for
+    bit (test/physics/kernel/test_outputs_nb.py compares both on every shipped chain scene
+    and joint kind)."""
     n = ip[H_NDOF]
     qf = 0.0
     tl = 0.0
@@ -290,6 +294,7 @@ def rhs(t, y, ip, fp, dy):
         _tree.tree_rhs(t, y, ip, fp, dy)
         return
     n = ip[H_NDOF]
+    sp0 = ip[H_SPRING_F]
     te, _dte, _dtep = engine_torque(t, y, ip, fp)
     tl = 0.0
     a_load = 1.0
@@ -297,15 +302,39 @@ def rhs(t, y, ip, fp, dy):
     p_damp = 0.0
     for g in range(n):
         phi, a, _b, m, c, _mp, _hj = section(g, y[g], ip, fp)
+        qf = 0.0
+        if g == 0:
+            qf += te
         if g == n - 1:
             a_load = a
-        acc, carry, tl_g, pd = section_accel(t, y, ip, fp, g, phi, a, m, c, te, carry)
-        if g == n - 1:
-            tl = tl_g
+            tl, _dtl, _dtlp = load_torque(t, y, ip, fp, phi, a)
+            qf -= tl * a
+        if ip[H_IMBALANCE] != 0:
+            qf += imbalance_force(g, y[g], ip, fp)[0]
+        if g > 0:
+            qf += carry
         if g < n - 1:
-            p_damp += pd
-        dy[g] = y[n + g]
-        dy[n + g] = acc
+            off = sp0 + SPRING_STRIDE * g
+            th = phi - y[g + 1]
+            thd = a * y[n + g] - y[n + g + 1]
+            extra = 0.0
+            if fp[off + 5] != 0.0:      # varying stiffness: extra torque on the right side
+                vs = spring_vary_eval(th, thd, y[g + 1], fp, off)
+                ts = vs[0]
+                extra = vs[1]
+                p_damp += vs[8]
+            elif fp[off + 3] == 0.0:
+                d = fp[off + 1]
+                ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
+                p_damp += d * thd * thd
+            else:
+                ts, pd = spring_torque(th, thd, fp, off)
+                p_damp += pd
+            qf -= ts * a
+            carry = ts + extra
+        v = y[n + g]
+        dy[g] = v
+        dy[n + g] = (qf - c * v * v) / m
     if ip[H_ENERGY] != 0:
         dy[2 * n] = te * y[n]
         dy[2 * n + 1] = tl * a_load * y[2 * n - 1]

@@ -250,11 +250,36 @@ def _fidelities(scene):
     return out
 
 
+def _check_section_accel_is_rhs(T, X, ip, fp):
+    """rhs_nb.section_accel, chained over the sections on rhs_nb.section's values, gives
+    rhs_nb.rhs's accelerations, load power and damping power bit for bit at every state."""
+    from cvj_ros.physics.kernel.layout import H_ENERGY, H_NDOF
+    from cvj_ros.physics.kernel.rhs_nb import engine_torque, rhs, section, section_accel
+    n = int(ip[H_NDOF])
+    dy = np.empty(X.shape[1])
+    for k in range(X.shape[0]):
+        t, y = float(T[k]), X[k]
+        rhs(t, y, ip, fp, dy)
+        te = engine_torque(t, y, ip, fp)[0]
+        carry, p_damp = 0.0, 0.0
+        for g in range(n):
+            phi, a, _b, m, c, _mp, _hj = section(g, y[g], ip, fp)
+            acc, carry, tl, pd = section_accel(t, y, ip, fp, g, phi, a, m, c, te, carry)
+            assert _bits(acc) == _bits(dy[n + g]), (k, g)
+            if g < n - 1:
+                p_damp += pd
+            elif ip[H_ENERGY] != 0:
+                assert _bits(tl * a * y[2 * n - 1]) == _bits(dy[2 * n + 1]), k
+        if ip[H_ENERGY] != 0:
+            assert _bits(p_damp) == _bits(dy[2 * n + 2]), k
+
+
 @pytest.mark.parametrize('name', CHAIN_SCENES)
 def test_walk_with_one_joint_evaluation_equals_the_walk_on_the_rhs_bit_for_bit(name):
     """sample_outputs evaluates each joint once per sample: the accelerations the torques
-    need come from rhs_nb.section_accel (the formula rhs_nb.rhs uses) on the M, C, phi_end
-    and a of the walk's own pass. Every output (angles, speeds, torques, engine and load
+    need come from rhs_nb.section_accel (rhs_nb.rhs's per-section body written out again)
+    on the M, C, phi_end and a of the walk's own pass. section_accel equals rhs bit for bit
+    at every state (accelerations, load and damping power), and every output (angles, speeds, torques, engine and load
     torque, energy residual) equals bit for bit a walk that calls rhs_nb.rhs for the
     accelerations, over a run's states of every shipped chain scene, at the scene's own
     fidelity and with every joint at each fidelity its kind takes (Hooke, double cardan,
@@ -279,6 +304,7 @@ def test_walk_with_one_joint_evaluation_equals_the_walk_on_the_rhs_bit_for_bit(n
         ref(T, X, ip, fp, sim._shaft_table, e0, *want)
         for a, b in zip(got, want):
             assert a.tobytes() == b.tobytes(), (name, fid)
+        _check_section_accel_is_rhs(T, X, ip, fp)
         assert np.ptp(got[2]) > 0.0         # the torques move over the run
         checked += m
     assert checked > 100

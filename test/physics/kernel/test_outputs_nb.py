@@ -279,9 +279,9 @@ def test_walk_with_one_joint_evaluation_equals_the_walk_on_the_rhs_bit_for_bit(n
     """sample_outputs evaluates each joint once per sample: the accelerations the torques
     need come from rhs_nb.section_accel (rhs_nb.rhs's per-section body written out again)
     on the M, C, phi_end and a of the walk's own pass. section_accel equals rhs bit for bit
-    at every state (accelerations, load and damping power), and every output (angles, speeds, torques, engine and load
-    torque, energy residual) equals bit for bit a walk that calls rhs_nb.rhs for the
-    accelerations, over a run's states of every shipped chain scene, at the scene's own
+    at every state (accelerations, load and damping power), and every output (angles,
+    speeds, torques, engine and load torque, energy residual) equals bit for bit a walk
+    that calls rhs_nb.rhs for the accelerations, over a run's states of every shipped chain scene, at the scene's own
     fidelity and with every joint at each fidelity its kind takes (Hooke, double cardan,
     tripod, Rzeppa, lever hinge, gear)."""
     if not _REF:

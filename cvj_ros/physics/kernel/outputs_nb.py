@@ -26,7 +26,7 @@ from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
                                           OP_INERTIA, OP_JOINT_IDENTITY,
                                           SPRING_STRIDE)
-from cvj_ros.physics.kernel.rhs_nb import (engine_torque, load_torque, rhs,
+from cvj_ros.physics.kernel.rhs_nb import (engine_torque, rhs, section_accel,
                                           spring_deflection, spring_eval,
                                           spring_vary_eval, imbalance_force,
                                           imbalance_torque)
@@ -201,47 +201,64 @@ def reaction_table(driveline: Any, joints: list[str]
 
 
 @njit(cache=True, inline='always')
-def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
+def _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq):
     """One state y at time t: shaft angle, speed and torque before/after every kernel op
     into st_phi/st_om/st_tq[g, position] (the walk of ``Driveline._walk``). Returns (engine
-    torque N m, kinetic energy J, elastic energy J, last shaft angle rad, its ratio a).
-    The section's reduced inertia M = sum J a^2 (for the kinetic energy) is summed during
-    the walk, over the same ops with the same a in the same order as ``rhs_nb.section``, so
-    the same float, without evaluating every joint of the section a second time."""
+    torque N m, kinetic energy J, elastic energy J, load torque N m).
+    Each joint is evaluated once per sample: a first pass over a section's ops maps
+    (phi, a, b) by the chain rule and sums M = sum J a^2 and C = sum J a b over the same ops
+    with the same a, b in the same order as ``rhs_nb.section`` (so the same floats), keeping
+    a, b at each inertia and the ratio r of each joint in wk (3, positions); the section's
+    acceleration is ``rhs_nb.section_accel``'s, the formula ``rhs_nb.rhs`` uses; a second
+    pass takes the torque J (a acc + b v^2) out at each inertia and divides by r at each
+    joint."""
     n = ip[H_NDOF]
     sec = ip[H_SEC]
     ops = sec + n + 1
     sp0 = ip[H_SPRING_F]
-    rhs(t, y, ip, fp, dy)
     tk_e = engine_torque(t, y, ip, fp)[0]
-    phi_l, a_l = 0.0, 1.0
+    tl = 0.0
     kin = 0.0
     el = 0.0
-    carry = tk_e
+    carry = tk_e        # the walk's torque into the section's first shaft
+    carry_q = 0.0       # the right-hand side's spring torque carried into the section
     for g in range(n):
-        q, v, acc = y[g], y[n + g], dy[n + g]
+        q, v = y[g], y[n + g]
         phi, a, b = q, 1.0, 0.0
-        m = 0.0
-        torque = carry
+        m, c = 0.0, 0.0
         p = 0
-        st_phi[g, 0], st_om[g, 0], st_tq[g, 0] = phi, v, torque
+        st_phi[g, 0], st_om[g, 0] = phi, v
         for kk in range(ip[sec + g], ip[sec + g + 1]):
             code = ip[ops + 2 * kk]
             off = ip[ops + 2 * kk + 1]
             if code == OP_INERTIA:
                 jv = fp[off]
-                m += jv * a * a         # rhs_nb.section's M, term by term
-                torque -= jv * (a * acc + b * v * v)
-                if ip[H_IMBALANCE] != 0:    # else imbalance_torque is 0.0: x - 0.0 is x
-                    torque -= imbalance_torque(kk, phi, ip, fp)
+                wk[0, p] = a
+                wk[1, p] = b
+                m += jv * a * a         # rhs_nb.section's M and C, term by term
+                c += jv * a * b
             else:
                 po, r, s = joint_eval(code, phi, fp, off)
+                wk[2, p] = r
                 b = s * a * a + r * b
                 a = r * a
                 phi = po
-                torque = torque / r
             p += 1
-            st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
+            st_phi[g, p], st_om[g, p] = phi, a * v
+        acc, carry_q, tl_g, _pd = section_accel(t, y, ip, fp, g, phi, a, m, c, tk_e, carry_q)
+        torque = carry
+        st_tq[g, 0] = torque
+        p = 0
+        for kk in range(ip[sec + g], ip[sec + g + 1]):
+            code = ip[ops + 2 * kk]
+            if code == OP_INERTIA:
+                torque -= fp[ip[ops + 2 * kk + 1]] * (wk[0, p] * acc + wk[1, p] * v * v)
+                if ip[H_IMBALANCE] != 0:    # else imbalance_torque is 0.0: x - 0.0 is x
+                    torque -= imbalance_torque(kk, st_phi[g, p], ip, fp)
+            else:
+                torque = torque / wk[2, p]
+            p += 1
+            st_tq[g, p] = torque
         kin += 0.5 * m * v * v
         if ip[H_IMBALANCE] != 0:
             el += imbalance_force(g, q, ip, fp)[2]
@@ -258,8 +275,8 @@ def _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq):
                 e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
                 el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
         else:
-            phi_l, a_l = phi, a
-    return tk_e, kin, el, phi_l, a_l
+            tl = tl_g
+    return tk_e, kin, el, tl
 
 
 @njit(cache=True, inline='always')
@@ -274,12 +291,13 @@ def _max_positions(ip):
 
 
 @njit(cache=True)
-def _walk_buffers(ip, ns):
-    """Scratch arrays of :func:`_walk_sample`: dy (ns,), and (n, max positions) for the
-    per-op angle, speed and torque."""
+def _walk_buffers(ip):
+    """Scratch arrays of :func:`_walk_sample`: wk (3, max positions) for the per-op a, b and
+    ratio, and (n, max positions) for the per-op angle, speed and torque."""
     n = ip[H_NDOF]
     max_pos = _max_positions(ip)
-    return np.empty(ns), np.empty((n, max_pos)), np.empty((n, max_pos)), np.empty((n, max_pos))
+    return (np.empty((3, max_pos)), np.empty((n, max_pos)), np.empty((n, max_pos)),
+            np.empty((n, max_pos)))
 
 
 @njit(cache=True)
@@ -293,24 +311,24 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     n = ip[H_NDOF]
     ns = X.shape[1]
     max_pos = _max_positions(ip)
-    if ns + 3 * n * max_pos <= STACK_MAX_DOUBLES:
+    if 3 * max_pos + 3 * n * max_pos <= STACK_MAX_DOUBLES:
         # on the stack: no NRT allocation and no reference counts (the heap arrays' were 4
         # allocations per run); every entry read is written first, as with np.empty
-        dy = stack_zeros_2d(1, ns)[0]
+        wk = stack_zeros_2d(3, max_pos)
         st_phi = stack_zeros_2d(n, max_pos)
         st_om = stack_zeros_2d(n, max_pos)
         st_tq = stack_zeros_2d(n, max_pos)
     else:
-        dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
+        wk, st_phi, st_om, st_tq = _walk_buffers(ip)
     for k in range(T.shape[0]):
         y = X[k]
         for i in range(ns):
             if not np.isfinite(y[i]):
                 return k
         t = T[k]
-        tk_e, kin, el, phi_l, a_l = _walk_sample(t, y, ip, fp, dy, st_phi, st_om, st_tq)
+        tk_e, kin, el, tk_l = _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq)
         te[k] = tk_e
-        tl[k] = load_torque(t, y, ip, fp, phi_l, a_l)[0]
+        tl[k] = tk_l
         for i in range(tab.shape[0]):
             g, p = tab[i, 0], tab[i, 1]
             pos[k, i] = st_phi[g, p]
@@ -337,8 +355,8 @@ def joint_state_one(y, ip, fp, tab, mtab, mfp, pos, vel, eff):
     for i in range(ns):
         if not np.isfinite(y[i]):
             return False
-    dy, st_phi, st_om, st_tq = _walk_buffers(ip, ns)
-    _walk_sample(0.0, y, ip, fp, dy, st_phi, st_om, st_tq)
+    wk, st_phi, st_om, st_tq = _walk_buffers(ip)
+    _walk_sample(0.0, y, ip, fp, wk, st_phi, st_om, st_tq)
     for i in range(tab.shape[0]):
         g, p = tab[i, 0], tab[i, 1]
         pos[i] = st_phi[g, p]

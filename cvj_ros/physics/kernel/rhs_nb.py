@@ -235,6 +235,53 @@ def load_torque(t, y, ip, fp, phi_load, a_load):
     return load_eval(t, wl, phi_load, ip, fp, H_LOAD, ip[H_LOAD_F])
 
 
+@njit(cache=True, inline='always')
+def section_accel(t, y, ip, fp, g, phi, a, m, c, te, carry):
+    """(acceleration rad/s^2, carry N m, Tl N m, damping power W) of section g given its
+    end angle phi, ratio a, reduced inertia M and C (:func:`section`), the engine torque Te
+    and the torque carried in from the spring to its left: qddot = (Q - C v^2) / M with
+    Q_g = ((0 + Te) - Tl a_load) + T_s,g-1 - T_s,g a_g in the oracle's order of additions.
+    carry is the torque the spring to its right carries into section g + 1 (unchanged in
+    the last section), Tl is 0.0 except in the last section, the power 0.0 in it.
+    The per-section body of :func:`rhs`, written out again for the sample walk
+    (outputs_nb) so that rhs keeps its own loop and speed: it must stay equal to rhs bit for
+    bit (test/physics/kernel/test_outputs_nb.py compares both on every shipped chain scene
+    and joint kind)."""
+    n = ip[H_NDOF]
+    qf = 0.0
+    tl = 0.0
+    pd = 0.0
+    if g == 0:
+        qf += te
+    if g == n - 1:
+        tl, _dtl, _dtlp = load_torque(t, y, ip, fp, phi, a)
+        qf -= tl * a
+    if ip[H_IMBALANCE] != 0:
+        qf += imbalance_force(g, y[g], ip, fp)[0]
+    if g > 0:
+        qf += carry
+    if g < n - 1:
+        off = ip[H_SPRING_F] + SPRING_STRIDE * g
+        th = phi - y[g + 1]
+        thd = a * y[n + g] - y[n + g + 1]
+        extra = 0.0
+        if fp[off + 5] != 0.0:      # varying stiffness: extra torque on the right side
+            vs = spring_vary_eval(th, thd, y[g + 1], fp, off)
+            ts = vs[0]
+            extra = vs[1]
+            pd = vs[8]
+        elif fp[off + 3] == 0.0:
+            d = fp[off + 1]
+            ts = fp[off] * (th + fp[off + 2] * th * th * th) + d * thd
+            pd = d * thd * thd
+        else:
+            ts, pd = spring_torque(th, thd, fp, off)
+        qf -= ts * a
+        carry = ts + extra
+    v = y[n + g]
+    return (qf - c * v * v) / m, carry, tl, pd
+
+
 @njit(cache=True, _nrt=False)
 def rhs(t, y, ip, fp, dy):
     """dy/dt (filled in place, length n_state) of the driveline state y.

@@ -136,3 +136,175 @@ def test_sample_outputs_allocates_nothing_per_run():
     for got, want in zip(outs, (tr.position, tr.velocity, tr.effort, tr.engine_torque,
                                 tr.load_torque, tr.energy_residual)):
         assert got.tobytes() == want.tobytes()
+
+
+def _reference_sample_outputs():
+    """The walk as it was with the right-hand side called for the accelerations (each
+    joint evaluated twice per sample): rhs_nb.rhs fills dy, the walk reads dy[n + g]. Not
+    cached, compiled once per test session."""
+    from numba import njit
+
+    from cvj_ros.physics.kernel.joints_nb import joint_eval
+    from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC,
+                                               H_SPRING_F, OP_INERTIA, SPRING_STRIDE)
+    from cvj_ros.physics.kernel.rhs_nb import (engine_torque, imbalance_force,
+                                               imbalance_torque, load_torque, rhs,
+                                               spring_deflection, spring_eval,
+                                               spring_vary_eval)
+
+    @njit
+    def ref(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
+        n = ip[H_NDOF]
+        sec = ip[H_SEC]
+        ops = sec + n + 1
+        sp0 = ip[H_SPRING_F]
+        mp = 1
+        for g in range(n):
+            mp = max(mp, ip[sec + g + 1] - ip[sec + g] + 1)
+        dy = np.empty(X.shape[1])
+        st_phi = np.empty((n, mp))
+        st_om = np.empty((n, mp))
+        st_tq = np.empty((n, mp))
+        for k in range(T.shape[0]):
+            t, y = T[k], X[k]
+            rhs(t, y, ip, fp, dy)
+            tk_e = engine_torque(t, y, ip, fp)[0]
+            phi_l, a_l, kin, el, carry = 0.0, 1.0, 0.0, 0.0, tk_e
+            for g in range(n):
+                q, v, acc = y[g], y[n + g], dy[n + g]
+                phi, a, b, m, torque, p = q, 1.0, 0.0, 0.0, carry, 0
+                st_phi[g, 0], st_om[g, 0], st_tq[g, 0] = phi, v, torque
+                for kk in range(ip[sec + g], ip[sec + g + 1]):
+                    code = ip[ops + 2 * kk]
+                    off = ip[ops + 2 * kk + 1]
+                    if code == OP_INERTIA:
+                        jv = fp[off]
+                        m += jv * a * a
+                        torque -= jv * (a * acc + b * v * v)
+                        if ip[H_IMBALANCE] != 0:
+                            torque -= imbalance_torque(kk, phi, ip, fp)
+                    else:
+                        po, r, s = joint_eval(code, phi, fp, off)
+                        b = s * a * a + r * b
+                        a = r * a
+                        phi = po
+                        torque = torque / r
+                    p += 1
+                    st_phi[g, p], st_om[g, p], st_tq[g, p] = phi, a * v, torque
+                kin += 0.5 * m * v * v
+                if ip[H_IMBALANCE] != 0:
+                    el += imbalance_force(g, q, ip, fp)[2]
+                if g < n - 1:
+                    off = sp0 + SPRING_STRIDE * g
+                    th = phi - y[g + 1]
+                    thd = a * v - y[n + g + 1]
+                    if fp[off + 5] != 0.0:
+                        vs = spring_vary_eval(th, thd, y[g + 1], fp, off)
+                        carry = vs[0] + vs[1]
+                        el += vs[7]
+                    else:
+                        carry = spring_eval(th, thd, fp, off)[0]
+                        e = spring_deflection(th, fp[off + 3], fp[off + 4])[0]
+                        el += fp[off] * (0.5 * e * e + 0.25 * fp[off + 2] * e * e * e * e)
+                else:
+                    phi_l, a_l = phi, a
+            te[k] = tk_e
+            tl[k] = load_torque(t, y, ip, fp, phi_l, a_l)[0]
+            for i in range(tab.shape[0]):
+                g, p = tab[i, 0], tab[i, 1]
+                pos[k, i] = st_phi[g, p]
+                vel[k, i] = st_om[g, p]
+                eff[k, i] = 0.0 if tab[i, 2] == 1 else st_tq[g, p]
+            if ip[H_ENERGY] != 0:
+                tot = kin + el
+                we, wl, wd = y[2 * n], y[2 * n + 1], y[2 * n + 2]
+                scale = max(abs(tot), abs(e0), abs(we), abs(wl), abs(wd), 1e-12)
+                res[k] = (tot - e0 - we + wl + wd) / scale
+            else:
+                res[k] = np.nan
+    return ref
+
+
+_REF: list = []
+
+#: every shipped chain scene without a clutch's stick/slip modes (the vehicle scenes walk
+#: in tree_outputs_nb, launch_clutch_chain runs on the mode model)
+CHAIN_SCENES = ['cardan_truck', 'fwd_halfshaft', 'kavz685_lever', 'stiff', 'tripod_xiu2024']
+
+
+def _fidelities(scene):
+    """None (the scene's own), then every joint at each fidelity its kind takes."""
+    from cvj_ros.physics.scene import Joint
+    out = [None]
+    joints = [el for el in scene.driveline if isinstance(el, Joint)]
+    for fid in ('ideal', 'closed', 'exact'):
+        over = {}
+        for el in joints:
+            try:
+                Simulation(scene, fidelity={el.name: fid})
+            except Exception:       # this kind has no such fidelity
+                continue
+            over[el.name] = fid
+        if over:
+            out.append(over)
+    return out
+
+
+def _check_section_accel_is_rhs(T, X, ip, fp):
+    """rhs_nb.section_accel, chained over the sections on rhs_nb.section's values, gives
+    rhs_nb.rhs's accelerations, load power and damping power bit for bit at every state."""
+    from cvj_ros.physics.kernel.layout import H_ENERGY, H_NDOF
+    from cvj_ros.physics.kernel.rhs_nb import engine_torque, rhs, section, section_accel
+    n = int(ip[H_NDOF])
+    dy = np.empty(X.shape[1])
+    for k in range(X.shape[0]):
+        t, y = float(T[k]), X[k]
+        rhs(t, y, ip, fp, dy)
+        te = engine_torque(t, y, ip, fp)[0]
+        carry, p_damp = 0.0, 0.0
+        for g in range(n):
+            phi, a, _b, m, c, _mp, _hj = section(g, y[g], ip, fp)
+            acc, carry, tl, pd = section_accel(t, y, ip, fp, g, phi, a, m, c, te, carry)
+            assert _bits(acc) == _bits(dy[n + g]), (k, g)
+            if g < n - 1:
+                p_damp += pd
+            elif ip[H_ENERGY] != 0:
+                assert _bits(tl * a * y[2 * n - 1]) == _bits(dy[2 * n + 1]), k
+        if ip[H_ENERGY] != 0:
+            assert _bits(p_damp) == _bits(dy[2 * n + 2]), k
+
+
+@pytest.mark.parametrize('name', CHAIN_SCENES)
+def test_walk_with_one_joint_evaluation_equals_the_walk_on_the_rhs_bit_for_bit(name):
+    """sample_outputs evaluates each joint once per sample: the accelerations the torques
+    need come from rhs_nb.section_accel (rhs_nb.rhs's per-section body written out again)
+    on the M, C, phi_end and a of the walk's own pass. section_accel equals rhs bit for bit
+    at every state (accelerations, load and damping power), and every output (angles,
+    speeds, torques, engine and load torque, energy residual) equals bit for bit a walk
+    that calls rhs_nb.rhs for the accelerations, over a run's states of every shipped chain scene, at the scene's own
+    fidelity and with every joint at each fidelity its kind takes (Hooke, double cardan,
+    tripod, Rzeppa, lever hinge, gear)."""
+    if not _REF:
+        _REF.append(_reference_sample_outputs())
+    ref = _REF[0]
+    from cvj_ros.physics.kernel.outputs_nb import sample_outputs
+    scene = load_scene(find_scene(name))
+    checked = 0
+    for fid in _fidelities(scene):
+        sim = Simulation(scene, fidelity=fid)
+        sim.run(0.3, sample_dt=0.002, reuse_trace=True)
+        plan = next(iter(sim._plans.values()))
+        T, X = plan.times, plan.kept[1][0]
+        ip, fp = plan.model.ip, plan.model.fp
+        m, n_sh = X.shape[0], sim._shaft_table.shape[0]
+        e0 = sim._initial_energy(sim.driveline.x0)
+        got = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        want = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        assert sample_outputs(T, X, ip, fp, sim._shaft_table, e0, *got) == -1
+        ref(T, X, ip, fp, sim._shaft_table, e0, *want)
+        for a, b in zip(got, want):
+            assert a.tobytes() == b.tobytes(), (name, fid)
+        _check_section_accel_is_rhs(T, X, ip, fp)
+        assert np.ptp(got[2]) > 0.0         # the torques move over the run
+        checked += m
+    assert checked > 100

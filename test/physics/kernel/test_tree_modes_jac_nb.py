@@ -177,11 +177,9 @@ def test_clutch_pack_mode_jacobians(bias: float) -> None:
     assert {m[3] for m in got['modes']} >= {(('differential', 0),), (('differential', 1),)}, got
 
 
-def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
-    """The reference's Jacobian of the slipping torque-sensing pack's mode evaluates the
-    mode rhs once (the analytic path; central differences of the whole rhs took two per
-    state component, 36 here), and equals the kernel's there."""
-    from cvj_ros.physics.hybrid.tree import ModeTree
+def _pack_slip_start(monkeypatch) -> tuple:
+    """(sim, mode tree, mode rhs, t, y) at the first start of a stepper with the split-mu pack
+    slipping (torque_bias 0.2, 0.3 s): the make_stepper calls of a run, spied."""
     sim = hybrid_simulation(parse_scene(_split_mu_pack(0.2)), duration=0.3)
     starts = []
     plain_tree, plain_stepper = sim.tree, ts.make_stepper
@@ -192,15 +190,20 @@ def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
         return now['mt']
 
     def spy(method, fun, t, y0, **kw):
-        starts.append((now['mt'], t, np.array(y0, dtype=float)))
+        starts.append((now['mt'], fun, t, np.array(y0, dtype=float)))
         return plain_stepper(method, fun, t, y0, **kw)
 
     sim.tree = tree
     monkeypatch.setattr(ts, 'make_stepper', spy)
     sim.run()
-    slipping = [(mt, t, y) for mt, t, y in starts if mt.mode.packs['differential'] != 0]
+    slipping = [s for s in starts if s[0].mode.packs['differential'] != 0]
     assert slipping
-    mt, t, y = slipping[0]
+    return (sim, *slipping[0])
+
+
+def _count_evaluations(monkeypatch) -> list:
+    """A list that gets one entry per ModeTree.evaluate call from now on."""
+    from cvj_ros.physics.hybrid.tree import ModeTree
     calls = []
     plain_eval = ModeTree.evaluate
 
@@ -209,6 +212,15 @@ def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
         return plain_eval(self, *args, **kw)
 
     monkeypatch.setattr(ModeTree, 'evaluate', evaluate)
+    return calls
+
+
+def test_torque_sensing_pack_jacobian_is_analytic(monkeypatch) -> None:
+    """The reference's Jacobian of the slipping torque-sensing pack's mode evaluates the
+    mode rhs once (the analytic path; central differences of the whole rhs took two per
+    state component, 36 here), and equals the kernel's there."""
+    sim, mt, _fun, t, y = _pack_slip_start(monkeypatch)
+    calls = _count_evaluations(monkeypatch)
     Jp = sim._jac(mt, t, y)
     assert len(calls) == 1
     ip, fp = tree_mode_arrays(sim, mt, mt.mode)
@@ -233,27 +245,8 @@ def test_torque_sensing_pack_fallback_matches_central_differences(monkeypatch) -
     (measured 0.0)."""
     import dataclasses
 
-    from cvj_ros.physics.hybrid.tree import ModeTree
     from cvj_ros.physics.kernel.tree_modes_jac_nb import _central as kernel_central
-    sim = hybrid_simulation(parse_scene(_split_mu_pack(0.2)), duration=0.3)
-    starts = []
-    plain_tree, plain_stepper = sim.tree, ts.make_stepper
-    now = {}
-
-    def tree(mode):
-        now['mt'] = plain_tree(mode)
-        return now['mt']
-
-    def spy(method, fun, t, y0, **kw):
-        starts.append((now['mt'], fun, t, np.array(y0, dtype=float)))
-        return plain_stepper(method, fun, t, y0, **kw)
-
-    sim.tree = tree
-    monkeypatch.setattr(ts, 'make_stepper', spy)
-    sim.run()
-    slipping = [s for s in starts if s[0].mode.packs['differential'] != 0]
-    assert slipping
-    mt, fun, t, y0 = slipping[0]
+    sim, mt, fun, t, y0 = _pack_slip_start(monkeypatch)
     el, d = mt.packs['differential']
     monkeypatch.setitem(mt.packs, 'differential', (dataclasses.replace(el, torque_bias=20.0), d))
     ip, fp = tree_mode_arrays(sim, mt, mt.mode)
@@ -265,14 +258,7 @@ def test_torque_sensing_pack_fallback_matches_central_differences(monkeypatch) -
         tm_eval(tt, yy, ip, fp, dy, wv, False)
         return dy
 
-    calls = []
-    plain_eval = ModeTree.evaluate
-
-    def evaluate(self, *args, **kw):
-        calls.append(1)
-        return plain_eval(self, *args, **kw)
-
-    monkeypatch.setattr(ModeTree, 'evaluate', evaluate)
+    calls = _count_evaluations(monkeypatch)
     for y in _states(mt, y0, np.random.default_rng(14)):
         Jk = np.zeros((ns, ns))
         tm_jac(t, y, ip, fp, Jk)

@@ -649,6 +649,8 @@ def _main(args: Sequence[str] | None) -> int:
     opts = _parse_args(remove_ros_args(argv)[1:])
     if opts.record is not None and opts.record.exists():
         raise CvjError(f'--record: {opts.record} exists')
+    from cvj_ros.nodes.qos import domain_id
+    domain_id()             # a bad ROS_DOMAIN_ID: one line, before DDS logs its own
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     stop: list[int] = []

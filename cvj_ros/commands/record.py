@@ -221,8 +221,9 @@ def _last_run_message(rec: Any) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from cvj_ros import bag as bagmod
-    from cvj_ros.nodes.qos import node_dds_defaults
+    from cvj_ros.nodes.qos import domain_id, node_dds_defaults
     _check(args)
+    domain = domain_id()
     node_dds_defaults()     # before the recorder's participant: 20 ms heartbeats (repairs)
     out = Path(args.out)
     writer = bagmod.BagWriter(out / 'bag', storage=args.storage, overwrite=args.overwrite)
@@ -236,7 +237,6 @@ def run(args: argparse.Namespace) -> int:
         previous[sig] = signal.signal(sig, on_signal)
     recorder = None
     wall0 = time.monotonic()
-    domain = int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
     try:
         from cvj_ros.orchestrate import _Recorder
         recorder = _Recorder(writer, list(args.topics), domain, run_only=args.run_only)

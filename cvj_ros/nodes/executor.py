@@ -113,7 +113,8 @@ def _run_node(factory: Callable[..., CvjNode], args: Sequence[str] | None, *, pr
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
-    from cvj_ros.nodes.qos import node_dds_defaults
+    from cvj_ros.nodes.qos import domain_id, node_dds_defaults
+    domain_id()             # a bad ROS_DOMAIN_ID: one line, before DDS logs its own
     node_dds_defaults()     # a hand-started node: `cvj-sim run`'s delivery settings
     ctx = Context()
     # Own SIGINT/SIGTERM handling: finish the spin loop cleanly and exit 0.

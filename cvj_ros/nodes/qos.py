@@ -202,6 +202,32 @@ def write_profile(profile_dir: str) -> str:
     return path
 
 
+#: the largest ROS_DOMAIN_ID whose DDS ports fit: Fast DDS's ports are 7400 + 250 x domain +
+#: offsets (up to 11), at most 65535 (ROS 2 documentation, "The ROS_DOMAIN_ID")
+MAX_DOMAIN_ID = 232
+
+
+def domain_id(env: dict[str, str] | None = None, default: int = 0) -> int:
+    """The ROS_DOMAIN_ID of ``env`` (default: this process's environment) as an integer,
+    ``default`` when unset or empty; a :class:`~cvj_ros.errors.CvjError` naming the variable
+    when it is not an integer from 0 to :data:`MAX_DOMAIN_ID` (where the DDS layer would
+    otherwise fail with its own log lines and no message of ours)."""
+    import os
+
+    from cvj_ros.errors import CvjError
+    raw = (os.environ if env is None else env).get('ROS_DOMAIN_ID', '')
+    if not raw.strip():
+        return default
+    try:
+        domain = int(raw)
+    except ValueError:
+        raise CvjError(f'ROS_DOMAIN_ID: must be an integer, got {raw!r}') from None
+    if not 0 <= domain <= MAX_DOMAIN_ID:
+        raise CvjError(f'ROS_DOMAIN_ID: must be from 0 to {MAX_DOMAIN_ID} (DDS ports '
+                       f'7400 + 250 x domain must stay under 65536), got {domain}')
+    return domain
+
+
 def node_dds_defaults() -> None:
     """In a node process started by hand (console script, ``ros2 run``, the launch file) or
     in ``cvj-sim record``: the two DDS settings of `cvj-sim run`'s processes that make

@@ -269,13 +269,9 @@ def check_writable_out(out: Path) -> None:
 
 
 def _domain_env() -> tuple[dict[str, str], int]:
-    from cvj_ros.nodes.qos import dds_environment
+    from cvj_ros.nodes.qos import dds_environment, domain_id
     # localhost discovery, Fast DDS, synchronous publication (cvj_ros.nodes.qos.dds_environment)
     env = dds_environment(dict(os.environ))
-    if not env.get('ROS_DOMAIN_ID'):
+    if not env.get('ROS_DOMAIN_ID', '').strip():
         env['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
-    try:
-        domain = int(env['ROS_DOMAIN_ID'])
-    except ValueError:
-        raise CvjError(f'ROS_DOMAIN_ID: must be an integer, got {env["ROS_DOMAIN_ID"]!r}') from None
-    return env, domain
+    return env, domain_id(env)

@@ -136,17 +136,20 @@ def _stop_processes(procs: dict[str, subprocess.Popen[bytes]], names: Sequence[s
 
 
 _LOG_LEVEL = re.compile(r'\[(ERROR|FATAL)\]')
+# rclpy's console format: "[ERROR] [1795891544.977407028] [coupling_node]: message"
+_ROS_LOG_PREFIX = re.compile(r'^\[(ERROR|FATAL)\] \[[0-9.]+\] \[[^\]]*\]: ')
 
 
 def error_line(log_path: Path) -> str | None:
-    """The last ERROR/FATAL line (rclpy logging) or ``<prog>: error:`` line of a node log."""
+    """The last ERROR/FATAL line (rclpy logging, its level, stamp and logger name taken off:
+    the caller names the node) or ``<prog>: error:`` line of a node log."""
     try:
         lines = log_path.read_text(errors='replace').splitlines()
     except OSError:
         return None
     for line in reversed(lines):
         if _LOG_LEVEL.search(line) or ': error:' in line:
-            return line.strip()
+            return _ROS_LOG_PREFIX.sub('', line.strip())
     rest = [line.strip() for line in lines if line.strip()]
     return rest[-1] if rest else None  # e.g. the last line of a traceback
 

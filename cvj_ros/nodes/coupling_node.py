@@ -52,9 +52,13 @@ has no deadline by default (``start_timeout`` 0: nodes started by hand in any or
 any pause); every START_REPORT_S it logs who is connected and who is missing. After t_N = duration it publishes
 the final joint state and exits 0.
 
-Free-run: exchange steps on wall time - tick j is due at w0 + j h (w0 = wall time of the
-initial state, CLOCK_MONOTONIC) and integrates to t_j = j h with the latest torques held
-(zero-order hold at the coupling level); /clock carries the simulated time. The node
+Free-run: exchange steps on wall time - tick j is due at w0 + j h (CLOCK_MONOTONIC) and
+integrates to t_j = j h with the latest torques held (zero-order hold at the coupling
+level); /clock carries the simulated time. The start is a handshake: the initial state goes
+out, and once every answer to it is in (at most ``peer_timeout``, then one WARN line) the
+first exchange t_0 -> t_1 runs with those answers; the clock starts as the state t_1 goes
+out (w0 = then - h), so what the first exchange costs once delays no tick and the record
+starts at t_0 with every sample time. The node
 re-arms a steady-clock timer for the next due time after each wake-up (an rclpy periodic
 timer re-arms from its call time, so its phase slips: measured here 970-990 of 1000
 ticks of 2 ms in 2 s). Missed ticks follow ``catch_up`` (``skip``: drop them, one step
@@ -169,6 +173,9 @@ WRONG_STAMP_STALL_S = 1.0
 # watchdog; free-run at a wake-up;
 # three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
 GRAPH_CHECK_S = 0.01
+# Free-run, while the answers to state 0 are awaited: how often the node looks for a stop
+# signal, another run's publisher and peer_timeout (s).
+PRIME_CHECK_S = 0.02
 # While a step waits for the recorder (record_lag_max), SIGINT/SIGTERM is looked for this often (s).
 HOLD_SIGNAL_CHECK_S = 0.02
 # While waiting for its peers before step 0, the node says who is there and who is missing
@@ -190,7 +197,9 @@ PARAMS = (
     ParamSpec('exchange_step', 0.0, 'exchange step h [s]; 0 = the scene exchange_step',
               lo=0.0, hi=10.0),
     ParamSpec('duration', 0.0, 'simulated duration [s]; 0 = the scene duration', lo=0.0, hi=1e7),
-    ParamSpec('peer_timeout', 5.0, 'lockstep: longest wait for an engine/load answer [s]',
+    ParamSpec('peer_timeout', 5.0, 'longest wait for an engine/load answer [s] (lockstep: each '
+              'one, else the run stops; free-run: the answers to state 0, then the clock starts '
+              'without them)',
               lo=0.0, hi=3600.0, lo_open=True),
     ParamSpec('start_timeout', 0.0, 'longest wait for peers to connect before step 0 [s]; '
               '0 = no limit (wait, naming who is missing every few seconds)', lo=0.0, hi=1e6),
@@ -442,6 +451,11 @@ class CouplingNode(CvjNode):
         self._watchdog = None
         self._free_timer = None
         self.scheduler: FreeRunScheduler | None = None   # free-run only
+        # free-run start: the answer topics still awaited for state 0 (None: not waiting)
+        self._prime_wait: set[str] | None = None
+        self._prime_t0 = 0.0
+        self._prime_timer = None
+        self._first_state_ns = 0          # monotonic ns at which the state t_1 went out
         self.realtime_priority = 0                       # SCHED_FIFO priority in force (free-run)
         self._diag_k = 0                                 # k of the last periodic diagnostics
         # the SIGINT/SIGTERM caught in this process (0: none), read at every exchange:
@@ -864,14 +878,65 @@ class CouplingNode(CvjNode):
             self._watchdog = self.create_timer(period, self._check_peers)
             self._begin_wait()
         else:
-            self.scheduler = FreeRunScheduler(self.h_ns, self.n_steps, catch_up=self.params['catch_up'],
-                                              burst_max=self.params['burst_max'])
-            self.realtime_priority = self._set_realtime_priority(self.params['realtime_priority'])
-            self.scheduler.start(time.monotonic_ns())    # the initial state just went out
-            from rclpy.clock import Clock as RosClock, ClockType
-            # CLOCK_MONOTONIC, the scheduler's clock; one-shot use: re-armed in _free_tick
-            self._free_timer = self.create_timer(self.h_ns / NS_PER_S, self._free_tick,
-                                                 clock=RosClock(clock_type=ClockType.STEADY_TIME))
+            # the clock starts once state 0 is answered and the first exchange ran (_prime_done)
+            self._prime_wait = {topic for topic, _sub in self._answer_subs()}
+            self._prime_t0 = time.monotonic()
+            self._prime_timer = self.create_timer(PRIME_CHECK_S, self._check_prime)
+
+    # --- free-run start -----------------------------------------------------------------------
+
+    def _prime_answer(self, topic: str, stamp_ns: int) -> None:
+        """Free-run, before the clock starts: an answer on ``topic``; one stamped t_0 ticks
+        it off, and the last one runs the first exchange (:meth:`_prime_done`)."""
+        if self._prime_wait is None or stamp_ns != 0:
+            return
+        self._prime_wait.discard(topic)
+        if not self._prime_wait:
+            self._prime_done()
+
+    def _check_prime(self) -> None:
+        """Free-run, waiting for the answers to state 0: a stop signal ends the run; after
+        ``peer_timeout`` the clock starts without them (one WARN line naming them)."""
+        if self._prime_wait is None or self.exit_code is not None:
+            return
+        if self.stop_signal():
+            self.stop_by_signal(self.stop_signal())
+            return
+        foreign = self._extra_publishers()
+        if foreign:
+            self._stop_with_error(foreign)
+            return
+        waited = time.monotonic() - self._prime_t0
+        if waited > self.params['peer_timeout']:
+            line = (f'free-run: no answer to state 0 on {" and ".join(sorted(self._prime_wait))} '
+                    f'within peer_timeout={self.params["peer_timeout"]:g} s; starting the clock '
+                    f'without it (torques held at their last value, 0 N m before the first)')
+            self.get_logger().warning(line)
+            self.publish_diagnostics(WARN, line)
+            self._prime_done()
+
+    def _prime_done(self) -> None:
+        """State 0 is answered: run the first exchange t_0 -> t_1 now, with those answers, and
+        start the wall clock as its state goes out (tick 1 due then, tick j at + (j - 1) h).
+        What a first exchange costs once (compiled code loaded on first use, the peers' and
+        the recorder's first callbacks) then delays no tick: started at step 0 instead, a
+        slow first step made the next wake-up skip every tick up to
+        wall time, so the record lost its start (docs/ros.md, "Free-run")."""
+        self._prime_wait = None
+        if self._prime_timer is not None:
+            self._prime_timer.cancel()
+        self.scheduler = FreeRunScheduler(self.h_ns, self.n_steps, catch_up=self.params['catch_up'],
+                                          burst_max=self.params['burst_max'])
+        self.realtime_priority = self._set_realtime_priority(self.params['realtime_priority'])
+        self._run_free_step(Step(ticks=1, lateness_ns=0))
+        if self.exit_code is not None:
+            return
+        self.scheduler.start(self._first_state_ns, ticks_done=1)
+        from rclpy.clock import Clock as RosClock, ClockType
+        # CLOCK_MONOTONIC, the scheduler's clock; one-shot use: re-armed in _free_tick
+        delay_ns = max(self.scheduler.due_ns(2) - time.monotonic_ns(), 1_000)
+        self._free_timer = self.create_timer(delay_ns / NS_PER_S, self._free_tick,
+                                             clock=RosClock(clock_type=ClockType.STEADY_TIME))
 
     def _set_realtime_priority(self, priority: int) -> int:
         """Free-run: put every thread of this process under SCHED_FIFO ``priority`` - the loop
@@ -979,7 +1044,8 @@ class CouplingNode(CvjNode):
         self._cancel_timers()
 
     def _cancel_timers(self) -> None:
-        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer):
+        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer,
+                   self._prime_timer):
             if tm is not None:
                 tm.cancel()
 
@@ -1063,6 +1129,8 @@ class CouplingNode(CvjNode):
         if self.mode != 'lockstep':
             wheels.values[i] = value
             self.driveline.set_wheel_torques(wheels.values)
+            if self._prime_wait is not None:
+                self._prime_answer(topic, stamp_ns)
             return
         if not self.waiting or self._have_load or stamp_ns != self.t_ns or wheels.answered(i, stamp_ns):
             self.ignored_stamps += 1     # late, duplicate or out-of-order answer
@@ -1112,6 +1180,8 @@ class CouplingNode(CvjNode):
                 self.T_engine = value
             else:
                 self.T_load = value
+            if self._prime_wait is not None:
+                self._prime_answer(ENGINE_WRENCH_TOPIC if engine else LOAD_WRENCH_TOPIC, stamp_ns)
             return
         have = self._have_engine if engine else self._have_load
         if not self.waiting or have or stamp_ns != self.t_ns:
@@ -1345,7 +1415,10 @@ class CouplingNode(CvjNode):
             self.js_pub.publish(msg)
         self._wait_start = time.perf_counter()   # the lockstep wait starts here
         if self.scheduler is not None:
-            self.scheduler.published(time.monotonic_ns())   # free-run drift at publication
+            if self.scheduler.start_ns is None:        # the first exchange: the clock starts now
+                self._first_state_ns = time.monotonic_ns()
+            else:
+                self.scheduler.published(time.monotonic_ns())   # free-run drift at publication
         self.state_total += self._wait_start - c0
         self.joint_states_published += 1
         if self.reaction_pubs:

@@ -54,11 +54,9 @@ the final joint state and exits 0.
 
 Free-run: exchange steps on wall time - tick j is due at w0 + j h (CLOCK_MONOTONIC) and
 integrates to t_j = j h with the latest torques held (zero-order hold at the coupling
-level); /clock carries the simulated time. The start is a handshake: the initial state goes
-out, and once every answer to it is in (at most ``peer_timeout``, then one WARN line) the
-first exchange t_0 -> t_1 runs with those answers; the clock starts as the state t_1 goes
-out (w0 = then - h), so what the first exchange costs once delays no tick and the record
-starts at t_0 with every sample time. The node
+level); /clock carries the simulated time. The initial state goes out, the first exchange
+runs once every answer to it is in (at most ``peer_timeout``), and the clock starts as the
+state t_1 goes out (w0 = then - h; docs/ros.md, "Free-run"). The node
 re-arms a steady-clock timer for the next due time after each wake-up (an rclpy periodic
 timer re-arms from its call time, so its phase slips: measured here 970-990 of 1000
 ticks of 2 ms in 2 s). Missed ticks follow ``catch_up`` (``skip``: drop them, one step

@@ -23,7 +23,8 @@ from cvj_ros import bag as bagmod
 
 def grid_topic(topic: str) -> bool:
     """A topic with one sample per exchange step, stamped t_k (module docstring)."""
-    return topic in (bagmod.CLOCK_TOPIC, bagmod.JOINT_STATES_TOPIC) or bagmod.exchange_wrench_topic(topic)
+    return (topic in (bagmod.CLOCK_TOPIC, bagmod.JOINT_STATES_TOPIC)
+            or bagmod.exchange_wrench_topic(topic))
 
 
 def record_times(bag: Path, topics: list[str]) -> dict[str, np.ndarray]:
@@ -51,7 +52,8 @@ def record_times(bag: Path, topics: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
-def gap_summary(times: Mapping[str, np.ndarray], h_ns: int, end_ns: int) -> dict[str, dict[str, Any]]:
+def gap_summary(times: Mapping[str, np.ndarray], h_ns: int,
+                end_ns: int) -> dict[str, dict[str, Any]]:
     """Per topic with any sample time of the grid t_k = k ``h_ns`` (k = 0 .. ``end_ns`` // h)
     missing: ``expected`` grid times, ``missing`` of them, and the longest run of missing
     times, ``gap_from_s`` (its first missing time, s) and ``gap_s`` (its length, missing
@@ -106,7 +108,8 @@ def run_gaps(bag: Path, h: float, *, counts: Mapping[str, int]) -> dict[str, Any
     if js.size == 0:
         return {}
     h_ns = int(round(h * 1e9))
-    out: dict[str, Any] = {'topics': gap_summary(times, h_ns, int(js[-1])), 'grid_topics': len(topics)}
+    out: dict[str, Any] = {'topics': gap_summary(times, h_ns, int(js[-1])),
+                           'grid_topics': len(topics)}
     t = (js // 1_000_000_000).astype(float) + (js % 1_000_000_000).astype(float) * 1e-9
     n_bad, n_slices, until = starved_slices(t)
     out.update(starved_slices=n_bad, slices=n_slices, starved_until_s=until)
@@ -123,9 +126,11 @@ def gap_line(gaps: Mapping[str, Any], ticks_skipped: int = 0) -> str | None:
     found = gaps.get('topics', {})
     groups: dict[tuple[int, int, float, float], list[str]] = {}
     for topic, g in sorted(found.items()):
-        groups.setdefault((g['missing'], g['expected'], g['gap_from_s'], g['gap_s']), []).append(topic)
+        key = (g['missing'], g['expected'], g['gap_from_s'], g['gap_s'])
+        groups.setdefault(key, []).append(topic)
     n_grid = int(gaps.get('grid_topics', 0))
-    for (missing, expected, start, length), topics in sorted(groups.items(), key=lambda kv: -kv[0][0]):
+    for (missing, expected, start, length), topics in sorted(groups.items(),
+                                                             key=lambda kv: -kv[0][0]):
         who = f'all {n_grid} loop topics' if len(topics) == n_grid > 1 else ', '.join(topics)
         parts.append(f'{who} miss {missing} of {expected} sample times (longest run '
                      f'{length:.6g} s from t = {start:.6g} s)')

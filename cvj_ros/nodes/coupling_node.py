@@ -883,10 +883,11 @@ class CouplingNode(CvjNode):
 
     # --- free-run start -----------------------------------------------------------------------
 
-    def _prime_answer(self, topic: str, stamp_ns: int) -> None:
-        """Free-run, before the clock starts: an answer on ``topic``; one stamped t_0 ticks
-        it off, and the last one runs the first exchange (:meth:`_prime_done`)."""
-        if self._prime_wait is None or stamp_ns != 0:
+    def _prime_answer(self, topic: str) -> None:
+        """Free-run, before the clock starts: an answer on ``topic`` ticks it off (only state
+        0 is out, so it answers state 0 whatever its stamp: free-run holds every answer), and
+        the last one runs the first exchange (:meth:`_prime_done`)."""
+        if self._prime_wait is None:
             return
         self._prime_wait.discard(topic)
         if not self._prime_wait:
@@ -1128,7 +1129,7 @@ class CouplingNode(CvjNode):
             wheels.values[i] = value
             self.driveline.set_wheel_torques(wheels.values)
             if self._prime_wait is not None:
-                self._prime_answer(topic, stamp_ns)
+                self._prime_answer(topic)
             return
         if not self.waiting or self._have_load or stamp_ns != self.t_ns or wheels.answered(i, stamp_ns):
             self.ignored_stamps += 1     # late, duplicate or out-of-order answer
@@ -1179,7 +1180,7 @@ class CouplingNode(CvjNode):
             else:
                 self.T_load = value
             if self._prime_wait is not None:
-                self._prime_answer(ENGINE_WRENCH_TOPIC if engine else LOAD_WRENCH_TOPIC, stamp_ns)
+                self._prime_answer(ENGINE_WRENCH_TOPIC if engine else LOAD_WRENCH_TOPIC)
             return
         have = self._have_engine if engine else self._have_load
         if not self.waiting or have or stamp_ns != self.t_ns:

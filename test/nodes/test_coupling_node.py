@@ -509,3 +509,19 @@ def test_free_run_clock_starts_without_answers_after_peer_timeout(ctx, tmp_path)
     assert node.exit_code == 0
     assert [ns(m.header.stamp) for m in peers.js][:2] == [0, 1_000_000]
     assert node.scheduler.stats()['ticks_handled'] == 20
+
+
+def test_free_run_start_takes_an_answer_to_state_0_whatever_its_stamp(ctx, tmp_path):
+    """Only state 0 is out when the clock waits, so any answer answers it: peers stamping 1 s
+    off (free-run holds answers whatever their stamp) start the run at once, not after
+    peer_timeout (60 s here, beyond the helper's 8 s bound), and the first exchange
+    integrates their torques (momentum balance over t_0 -> t_1)."""
+    off = Clock().clock
+    off.sec = 1
+
+    node, peers, _ = run(ctx, tmp_path, mode='free-run', peer_timeout=60.0,
+                         behave=lambda topic, k, stamp: [(off, T_ENGINE if topic == 'engine' else T_LOAD)])
+    assert node.exit_code == 0
+    first = next(m for m in peers.js if ns(m.header.stamp) == 1_000_000)
+    momentum = J1 * first.velocity[0] + J2 * first.velocity[1]
+    assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * 0.001, rel=1e-8)

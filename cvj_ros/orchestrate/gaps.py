@@ -136,7 +136,8 @@ def gap_line(gaps: Mapping[str, Any], ticks_skipped: int = 0) -> str | None:
                      f'{length:.6g} s from t = {start:.6g} s)')
     worst = max((g['missing'] for g in found.values()), default=0)
     if ticks_skipped:
-        parts.append(f'{ticks_skipped} ticks skipped by free-run catch-up'
+        parts.append(f'{ticks_skipped} tick{"s" if ticks_skipped != 1 else ""} skipped by '
+                     'free-run catch-up'
                      + (f', {worst - ticks_skipped} more lost before the recorder'
                         if worst > ticks_skipped else ''))
     elif worst:

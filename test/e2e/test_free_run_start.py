@@ -95,4 +95,4 @@ def test_free_run_bag_starts_at_zero_after_a_slow_first_exchange(tmp_path: Path,
     gaps = report['metrics']['gaps']['topics']
     assert gaps.get('/driveline/joint_states', {'missing': 0})['missing'] == skipped
     if skipped:
-        assert f'{skipped} ticks skipped by free-run catch-up' in r.stdout, r.stdout
+        assert f'{skipped} tick{"s" if skipped != 1 else ""} skipped by free-run catch-up' in r.stdout, r.stdout

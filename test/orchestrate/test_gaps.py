@@ -75,6 +75,7 @@ def test_gap_line_one_line_only_with_something_to_say() -> None:
         'no tick skipped: lost before the recorder')
     # skipped ticks are said even when the bag shows no gap of its own
     assert gap_line({'topics': {}, 'grid_topics': 4}, 3) == '  gaps: 3 ticks skipped by free-run catch-up'
+    assert gap_line({'topics': {}, 'grid_topics': 4}, 1) == '  gaps: 1 tick skipped by free-run catch-up'
 
 
 def test_run_gaps_from_a_written_bag(tmp_path: Path) -> None:

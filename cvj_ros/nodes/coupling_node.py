@@ -44,10 +44,10 @@ arrives while its topic has two matched publishers is never integrated. An answe
 not decode is dropped and counted (``malformed_messages``, first one per topic in one WARN
 line). Before step 0 the node waits until ``min_subscribers`` subscribers
 see /driveline/joint_states (default 4: engine, load, monitor and the recorder ``cvj-sim
-record``) and both wrench topics have a publisher, so no message is lost, and in lockstep
-until that has held for START_SETTLE_S with no other run's publisher discovered
-(OBSERVER_SETTLE_S when observers such as the recorder are awaited without a gated start:
-their matches with the engine's and load's writers are not visible here). The wait
+record``) and both wrench topics have a publisher, so no message is lost, and until that
+has held for START_SETTLE_S with no other run's publisher discovered, in both modes
+(lockstep: OBSERVER_SETTLE_S when observers such as the recorder are awaited without a
+gated start: their matches with the engine's and load's writers are not visible here). The wait
 has no deadline by default (``start_timeout`` 0: nodes started by hand in any order, with
 any pause); every START_REPORT_S it logs who is connected and who is missing. After t_N = duration it publishes
 the final joint state and exits 0.
@@ -130,7 +130,7 @@ SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas
 NONFINITE_POLICIES = ('stop', 'hold')
 #: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
 JOINT_STATES_FRAME = 'driveline'
-# Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
+# How long the peers must stay connected, with no other run's publisher in sight (both modes),
 # before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell
 # this run's engine/load from another run's on the same domain, and a state published before
 # our own peers matched is lost to them (volatile QoS): the run then waits out peer_timeout
@@ -444,7 +444,7 @@ class CouplingNode(CvjNode):
         self._wait_t0 = time.monotonic()
         self._start_deadline = self._wait_t0 + p['start_timeout'] if p['start_timeout'] > 0 else math.inf
         self._next_report = self._wait_t0 + START_REPORT_S
-        self._ready_since: float | None = None     # lockstep: peers connected since (monotonic s)
+        self._ready_since: float | None = None     # peers connected since (monotonic s)
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._watchdog = None
         self._free_timer = None
@@ -764,7 +764,7 @@ class CouplingNode(CvjNode):
         return (f': {", ".join(names) or "none"}' + (f'; not yet: {", ".join(absent)}' if absent else ''))
 
     def foreign_publishers(self) -> str | None:
-        """Lockstep: the line naming extra publishers on the loop topics, else None.
+        """The line naming extra publishers on the loop topics, else None (both modes).
 
         The loop needs exactly one publisher of /driveline/joint_states (this node), of
         /engine/wrench and of /load/wrench: the peers are the publishers matched when step 0
@@ -772,10 +772,9 @@ class CouplingNode(CvjNode):
         node shares this ROS domain: the line names every publisher); more after it is an
         intruder, named against the peer matched at step 0. Messages on a topic with two
         publishers cannot be told apart (rclpy gives no per-message publisher), so neither
-        case integrates anything from that topic any more.
+        case integrates anything from that topic any more. Both modes refuse the ambiguity
+        before step 0 (free-run would otherwise hold the other run's answers as its torques).
         """
-        if self.mode != 'lockstep':
-            return None
         return self._extra_publishers()
 
     def _guarded_topics(self) -> list[tuple[str, Any]]:
@@ -802,7 +801,7 @@ class CouplingNode(CvjNode):
             return self._intruder_line(extra[0][0])
         named = '; '.join(f'{topic} has {n} publishers: {describe(publisher_endpoints(self, topic))}'
                           for topic, n in extra)
-        return (f'lockstep: {named} (expected 1) on ROS_DOMAIN_ID='
+        return (f'{self.mode}: {named} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
                 f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
 
@@ -846,23 +845,23 @@ class CouplingNode(CvjNode):
                     f'waiting for peers ({now - self._wait_t0:.0f} s): {"; ".join(missing)} '
                     f'(min_subscribers={self.params["min_subscribers"]})')
             return
-        if self.mode == 'lockstep':
-            now = time.monotonic()
-            if self._ready_since is None:
-                self._ready_since = now
-            # (composed: the in-process bus reports its DDS matches, missing_peers)
-            by_hand = (self.params['min_subscribers'] > 2 and not self.params['start_gate']
-                       and bus_for(self.context) is None)
-            settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
-            if now - self._ready_since < settle:
+        now = time.monotonic()
+        if self._ready_since is None:
+            self._ready_since = now
+        # lockstep by hand: the observers' matches too (composed: the in-process bus reports
+        # its DDS matches, missing_peers); free-run: the other-run settle only
+        by_hand = (self.mode == 'lockstep' and self.params['min_subscribers'] > 2
+                   and not self.params['start_gate'] and bus_for(self.context) is None)
+        settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
+        if now - self._ready_since < settle:
+            return
+        unmatched = self.unmatched_subscriptions() + self.recorders_not_ready() if by_hand else []
+        if unmatched:
+            if now - self._ready_since < settle + UNMATCHED_WAIT_S:
                 return
-            unmatched = self.unmatched_subscriptions() + self.recorders_not_ready() if by_hand else []
-            if unmatched:
-                if now - self._ready_since < settle + UNMATCHED_WAIT_S:
-                    return
-                self.get_logger().warning(
-                    f'start: {"; ".join(unmatched)} after {settle + UNMATCHED_WAIT_S:g} s; '
-                    'starting: those subscribers may miss the first states')
+            self.get_logger().warning(
+                f'start: {"; ".join(unmatched)} after {settle + UNMATCHED_WAIT_S:g} s; '
+                'starting: those subscribers may miss the first states')
         self._start_timer.cancel()
         self._note_peers()
         self.started = True

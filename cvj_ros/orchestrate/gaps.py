@@ -66,8 +66,8 @@ def gap_summary(times: Mapping[str, np.ndarray], h_ns: int,
     out: dict[str, dict[str, Any]] = {}
     for topic, ts in times.items():
         ts = np.asarray(ts, dtype=np.int64)
-        on = ts[(ts >= 0) & (ts <= end_ns) & (ts % h_ns == 0)]
-        k = np.unique(on // h_ns)
+        k = np.sort(ts[(ts >= 0) & (ts <= end_ns) & (ts % h_ns == 0)] // h_ns)
+        k = k[np.concatenate(([True], k[1:] != k[:-1]))] if k.size else k   # distinct
         missing = n - int(k.size)
         if missing <= 0:
             continue

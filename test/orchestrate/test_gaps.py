@@ -104,3 +104,31 @@ def test_run_gaps_from_a_written_bag(tmp_path: Path) -> None:
         assert g['topics']['/driveline/joint_states'] == g['topics']['/clock'] == {
             'expected': 201, 'missing': 30, 'gap_from_s': 0.01, 'gap_s': 0.03}, storage
         assert g['topics']['/engine/wrench']['missing'] == 31, storage
+
+
+def test_gap_summary_matches_a_set_reference_on_random_stamps() -> None:
+    """Unsorted stamps with repeats, off-grid and out-of-range ones: the counts and the
+    longest run equal those of a plain Python set of the grid indices present."""
+    rng = np.random.default_rng(3)
+    n = 500
+    for _ in range(20):
+        ts = rng.integers(-5, n + 20, size=rng.integers(0, 2 * n)) * H_NS
+        ts[rng.random(ts.size) < 0.1] += 7                  # off the grid
+        present = {int(t) // H_NS for t in ts if 0 <= t <= (n - 1) * H_NS and t % H_NS == 0}
+        runs, best, start = [], (0, 0), 0
+        run = 0
+        for k in range(n + 1):
+            if k < n and k not in present:
+                if run == 0:
+                    start = k
+                run += 1
+                continue
+            if run > best[0]:
+                best = (run, start)
+            run = 0
+        got = gap_summary({'/a': ts}, H_NS, (n - 1) * H_NS)
+        if len(present) == n:
+            assert got == {}
+            continue
+        assert got['/a'] == {'expected': n, 'missing': n - len(present),
+                             'gap_from_s': best[1] * H_NS / 1e9, 'gap_s': best[0] * H_NS / 1e9}

@@ -8,7 +8,9 @@ the geometric and kinematic nonuniformity (Bugaru & Vasile 2021, eqs. 20-23); en
 energy residual and wait times found on ``/diagnostics``; for a scene with clutch, gearbox
 or brakes its mode events and final modes (``/diagnostics``); per ``/coupling/<joint>/wrench``
 (a chain's joints or every branch's of a vehicle scene) the mean and amplitude of each
-reaction force and torque component in the joint's housing frame; and lockstep statistics.
+reaction force and torque component in the joint's housing frame; lockstep statistics; and,
+for a bag of the ROS loop, the sample times its loop topics lack (the gaps line of ``cvj-sim
+run``'s report, :mod:`cvj_ros.orchestrate.gaps`).
 
 Steady window: :mod:`cvj_ros.physics.steady`, the one definition shared with ``cvj-sim
 simulate`` and ``run`` (same bag -> same window -> same numbers): the slices of the record
@@ -68,6 +70,8 @@ class BagSignals:
     foreign: dict[str, int] = field(default_factory=dict)
     # per joint of /coupling/<joint>/wrench: (t s, force (n, 3) N, torque (n, 3) N m, frame_id)
     reactions: dict[str, tuple[FloatArray, FloatArray, FloatArray, str]] = field(default_factory=dict)
+    # missing sample times on the loop topics of a ROS loop's bag (cvj_ros.orchestrate.gaps.run_gaps)
+    gaps: dict[str, Any] = field(default_factory=dict)
 
     def column(self, name: str) -> int:
         return self.joint_names.index(name)
@@ -112,7 +116,50 @@ def read_bag_signals(path: str | Path) -> BagSignals:
         sig.scene_yaml = data[SCENE].data[0]
     elif 'cvj_ros.scene' in info.custom_data:
         sig.scene_yaml = info.custom_data['cvj_ros.scene']
+    h = loop_exchange_step(sig.scene_yaml, info.custom_data)
+    if h is not None:
+        from cvj_ros.errors import CvjError
+        from cvj_ros.orchestrate.gaps import run_gaps
+        try:
+            sig.gaps = run_gaps(Path(path), h, counts=info.counts)
+        except CvjError:      # a summary line: never the reason the analysis fails
+            sig.gaps = {}
     return sig
+
+
+def loop_exchange_step(scene_yaml: str | None, custom_data: dict[str, str]) -> float | None:
+    """The exchange step h (s) of a bag recorded from the ROS loop (lockstep or free-run),
+    whose loop topics then hold one sample per t_k = k h: from the coupling node's
+    /driveline/scene, else the metadata `cvj-sim run` writes; None for other bags (an
+    offline `cvj-sim simulate` bag samples at its own period)."""
+    import yaml
+    try:
+        data = yaml.safe_load(scene_yaml) if scene_yaml else None
+    except yaml.YAMLError:
+        data = None
+    if isinstance(data, dict) and data.get('mode') in ('lockstep', 'free-run'):
+        h = data.get('exchange_step')
+    elif custom_data.get('cvj_ros.mode') in ('lockstep', 'free-run'):
+        h = custom_data.get('cvj_ros.exchange_step')
+    else:
+        return None
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        return None
+    return h if math.isfinite(h) and h > 0 else None
+
+
+def ticks_skipped(diags: list[tuple[float, str, int, str, dict[str, str]]]) -> int:
+    """The free-run ticks skipped to catch up with wall time, from the coupling node's last
+    loop diagnostics holding the count (0 when none is recorded)."""
+    for _t, name, _level, _msg, values in reversed(diags):
+        if name == 'coupling_node: loop' and 'ticks_skipped' in values:
+            try:
+                return int(float(values['ticks_skipped']))
+            except ValueError:
+                return 0
+    return 0
 
 
 def _f(x: float) -> float | None:
@@ -306,6 +353,8 @@ def analyze_signals(sig: BagSignals, *, skip_s: float | None = None,
     if modes:
         report['modes'] = modes
     report['scene'] = _scene_summary(sig.scene_yaml)
+    if sig.gaps:   # the same figures as `cvj-sim run`'s report.json metrics.gaps
+        report['gaps'] = dict(sig.gaps, ticks_skipped=ticks_skipped(sig.diagnostics))
     return report
 
 
@@ -428,6 +477,11 @@ def format_report(report: dict[str, Any]) -> str:
         if f'{key}_echo_fraction' in ls:
             lines.append(f"  {key} answers: {ls[f'{key}_answers']}, echoing "
                          f"{100 * ls[f'{key}_echo_fraction']:.1f} % of joint-state stamps")
+    if report.get('gaps'):   # `cvj-sim run`'s gaps line, when there is something to say
+        from cvj_ros.orchestrate.gaps import gap_line
+        line = gap_line(report['gaps'], int(report['gaps'].get('ticks_skipped', 0)))
+        if line:
+            lines.append(line)
     d = report['diagnostics']
     lev = d['levels']
     lines.append(f"diagnostics: {lev['ok']} OK, {lev['warn']} WARN, {lev['error']} ERROR")

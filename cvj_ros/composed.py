@@ -323,11 +323,11 @@ class ComposedDriveline:
 # --- cvj-sim run --composed ------------------------------------------------------------------
 
 def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeout: float,
-                    lockstep: bool, domain: int, external: Sequence[str],
+                    mode: str, domain: int, external: Sequence[str],
                     external_timeout: float,
                     peers: tuple[dict[str, str], dict[str, str]] | None = None) -> str | None:
     """Spin until the recorder sees one engine and one load publisher (ours or the outside
-    node's) and, in lockstep, no other run's publishers for DISCOVERY_SETTLE_S; an error line
+    node's) and no other run's publishers for DISCOVERY_SETTLE_S (both modes); an error line
     otherwise (same rules and wording as cvj_ros.orchestrate._wait_for_peers)."""
     from cvj_ros import bag as bagmod
     from cvj_ros.orchestrate import DISCOVERY_SETTLE_S, EXTERNAL_PEERS, PEER_TOPICS
@@ -342,15 +342,15 @@ def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeou
         extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
             [f'{topic} has {n} publishers' for topic in topics.values()
              if (n := comp.publisher_count(topic)) > 1]
-        if extra and lockstep:
-            return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
+        if extra:
+            return (f'{mode}: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
                     f'{domain} before the loop started: another run or node shares this domain; '
                     'give each run its own ROS_DOMAIN_ID')
         missing = [n for n, topic in topics.items() if comp.publisher_count(topic) < 1]
         now = time.monotonic()
         if not missing:
             settled_since = now if settled_since is None else settled_since
-            if not lockstep or now - settled_since >= DISCOVERY_SETTLE_S:
+            if now - settled_since >= DISCOVERY_SETTLE_S:
                 return None
             continue
         settled_since = None
@@ -461,8 +461,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
         comp = ComposedDriveline(ctx, executor=executor_kind, hosted=prep.nodes,
                                  intra_process=getattr(options, 'intra_process', True))
         comp.add_recorder(writer, prep.coupling_topics,
-                          hold=(tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
-                          if options.mode == 'lockstep' else ())
+                          hold=tuple(orch.LOOP_TOPICS) + tuple(prep.coupling_topics))
         comp.recorder.set_command_stamps(orch.command_record_stamps(prep))
         for name in prep.nodes:
             if stop_signal or error is not None:
@@ -474,7 +473,7 @@ def run_composed(options: Any, *, stream: TextIO | None = None) -> Any:
                                                   prep.peers),
                           file=stream, flush=True)
                 error = _wait_for_peers(comp, lambda: bool(stop_signal), timeout=options.start_timeout,
-                                        lockstep=options.mode == 'lockstep', domain=domain,
+                                        mode=options.mode, domain=domain,
                                         external=options.external,
                                         external_timeout=options.external_timeout, peers=prep.peers)
                 mark('peers_connected')

@@ -40,12 +40,17 @@ def crank_torque(phi: np.ndarray) -> np.ndarray:
 
 def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = DURATION,
                         diagnostics: bool = True, joint_states: bool = True,
-                        foreign_every: int = 0, reaction: bool = False) -> Path:
+                        foreign_every: int = 0, reaction: bool = False,
+                        scene: str = 'name: synthetic\nseed: 7\n', missing: range = range(0),
+                        ticks_skipped: int | None = None) -> Path:
     """Write a lockstep-like bag with the signals of the module docstring; returns ``path``.
     ``foreign_every`` > 0: after every that many joint states another publisher's JointState
     (other names, other sizes) on the same topic, as `cvj-sim record` keeps them.
     ``reaction``: also ``/coupling/hooke/wrench`` (frame hooke_housing), force
-    (3 cos phi_in, 2, 0) N and torque (0, 0, 50 + sin 2 phi_in) N m."""
+    (3 cos phi_in, 2, 0) N and torque (0, 0, 50 + sin 2 phi_in) N m. ``scene``: the
+    /driveline/scene text. ``missing``: sample indices left out of the joint states and
+    wrenches (as ticks a free run skipped). ``ticks_skipped``: with every diagnostics array
+    also a ``coupling_node: loop`` status holding it, as a free run's coupling node sends."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -69,13 +74,13 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
         cs = w.add_connection('/driveline/scene', 'std_msgs/msg/String', typestore=ts)
         cr = (w.add_connection('/coupling/hooke/wrench', 'geometry_msgs/msg/WrenchStamped', typestore=ts)
               if reaction else None)
-        w.write(cs, 0, ts.serialize_cdr(T['std_msgs/msg/String'](data='name: synthetic\nseed: 7\n'),
-                                        'std_msgs/msg/String'))
+        w.write(cs, 0, ts.serialize_cdr(T['std_msgs/msg/String'](data=scene), 'std_msgs/msg/String'))
         for i in range(n):
             ns = i * 1_000_000
             stamp = T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
             hdr = T['std_msgs/msg/Header'](stamp=stamp, frame_id='')
-            if joint_states:
+            gone = i in missing
+            if joint_states and not gone:
                 js = T['sensor_msgs/msg/JointState'](
                     header=hdr, name=names,
                     position=np.array([phi_c[i], phi_in[i], phi_out[i], phi_out[i]]),
@@ -87,13 +92,13 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
                         header=hdr, name=['intruder_a', 'intruder_b'], position=np.zeros(2),
                         velocity=np.ones(1), effort=np.zeros(0))
                     w.write(cj, ns, ts.serialize_cdr(other, 'sensor_msgs/msg/JointState'))
-            for conn, tz in ((ce, tq_c[i]), (cl, 40.0 + 3.0 * math.cos(2 * phi_out[i]))):
+            for conn, tz in ((ce, tq_c[i]), (cl, 40.0 + 3.0 * math.cos(2 * phi_out[i]))) if not gone else ():
                 v = T['geometry_msgs/msg/Vector3']
                 wr = T['geometry_msgs/msg/WrenchStamped'](
                     header=hdr, wrench=T['geometry_msgs/msg/Wrench'](force=v(x=0.0, y=0.0, z=0.0),
                                                                     torque=v(x=0.0, y=0.0, z=float(tz))))
                 w.write(conn, ns, ts.serialize_cdr(wr, 'geometry_msgs/msg/WrenchStamped'))
-            if cr is not None:
+            if cr is not None and not gone:
                 v = T['geometry_msgs/msg/Vector3']
                 rh = T['std_msgs/msg/Header'](stamp=stamp, frame_id='hooke_housing')
                 wr = T['geometry_msgs/msg/WrenchStamped'](
@@ -112,6 +117,10 @@ def write_synthetic_bag(path: Path, *, storage: str = 'mcap', duration: float = 
                     statuses.append(T['diagnostic_msgs/msg/DiagnosticStatus'](
                         level=2, name='coupling_node', message='T_load: NaN rejected', hardware_id='',
                         values=[]))
+                if ticks_skipped is not None:
+                    statuses.append(T['diagnostic_msgs/msg/DiagnosticStatus'](
+                        level=0, name='coupling_node: loop', message='running', hardware_id='',
+                        values=[kv(key='ticks_skipped', value=str(ticks_skipped))]))
                 arr = T['diagnostic_msgs/msg/DiagnosticArray'](header=hdr, status=statuses)
                 w.write(cd, ns, ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
     return path
@@ -259,3 +268,55 @@ def test_scene_summary_shows_fidelity_as_name_level_pairs(fidelity, shown) -> No
     import yaml
     summary = analysis._scene_summary(yaml.safe_dump({'name': 's', 'fidelity': fidelity}))
     assert summary.get('fidelity') == shown
+
+
+FREE_RUN_SCENE = 'name: synthetic\nseed: 7\nmode: free-run\nexchange_step: 0.001\n'
+
+
+def test_gaps_line_for_a_loop_bag_with_missing_samples(tmp_path: Path) -> None:
+    """A free run's bag lacking t = 1.000 .. 1.049 s on its three loop topics (50 ticks
+    skipped, as its loop diagnostics say): `analyze` prints `cvj-sim run`'s gaps line, with
+    the figures of cvj_ros.orchestrate.gaps (50 of 4001 grid times, the run of 0.05 s)."""
+    bag = write_synthetic_bag(tmp_path / 'gaps', scene=FREE_RUN_SCENE, missing=range(1000, 1050),
+                              ticks_skipped=50)
+    rep = analysis.analyze_bag(bag)
+    g = rep['gaps']
+    assert g['grid_topics'] == 3 and g['ticks_skipped'] == 50
+    for topic in ('/driveline/joint_states', '/engine/wrench', '/load/wrench'):
+        assert g['topics'][topic] == {'expected': 4001, 'missing': 50, 'gap_from_s': 1.0, 'gap_s': 0.05}
+    text = analysis.format_report(rep)
+    line = ('  gaps: all 3 loop topics miss 50 of 4001 sample times (longest run 0.05 s from '
+            't = 1 s); 50 ticks skipped by free-run catch-up')
+    assert line in text.splitlines()
+    # in the loop's block: after its line and the answers, before the diagnostics
+    lines = text.splitlines()
+    i = lines.index(line)
+    assert lines[i - 3].startswith('free-run: 3951 steps over 4 s') and lines[i - 1].startswith(
+        '  load answers: 3951') and lines[i + 1].startswith('diagnostics: ')
+    # lost without a skip: said so (no loop diagnostics with the count)
+    rep = analysis.analyze_bag(write_synthetic_bag(tmp_path / 'lost', scene=FREE_RUN_SCENE,
+                                                   missing=range(1000, 1003)))
+    assert ('  gaps: all 3 loop topics miss 3 of 4001 sample times (longest run 0.003 s from '
+            't = 1 s); no tick skipped: lost before the recorder') in analysis.format_report(rep)
+
+
+def test_no_gaps_line_without_gaps_or_for_bags_not_of_the_loop(report: dict, tmp_path: Path) -> None:
+    # a complete loop bag: nothing to say
+    rep = analysis.analyze_bag(write_synthetic_bag(tmp_path / 'full', scene=FREE_RUN_SCENE))
+    assert not rep.get('gaps', {}).get('topics') and 'gaps:' not in analysis.format_report(rep)
+    # no loop mode in the bag (the synthetic bag's scene, an offline `simulate` bag): no grid
+    assert 'gaps' not in report and 'gaps:' not in analysis.format_report(report)
+    rep = analysis.analyze_bag(write_synthetic_bag(
+        tmp_path / 'offline', scene='name: s\nmode: offline\nexchange_step: 0.001\n',
+        missing=range(1000, 1050)))
+    assert 'gaps' not in rep
+
+
+def test_loop_exchange_step_from_the_scene_message_or_the_run_metadata() -> None:
+    assert analysis.loop_exchange_step('mode: lockstep\nexchange_step: 0.002\n', {}) == 0.002
+    assert analysis.loop_exchange_step(None, {'cvj_ros.mode': 'free-run',
+                                              'cvj_ros.exchange_step': '0.005'}) == 0.005
+    for scene, meta in (('mode: offline\nexchange_step: 0.001\n', {}), (None, {}),
+                        ('mode: lockstep\nexchange_step: -1\n', {}), ('mode: lockstep\n', {}),
+                        (': [', {'cvj_ros.mode': 'lockstep', 'cvj_ros.exchange_step': 'nan'})):
+        assert analysis.loop_exchange_step(scene, meta) is None, (scene, meta)

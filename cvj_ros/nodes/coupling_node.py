@@ -44,17 +44,19 @@ arrives while its topic has two matched publishers is never integrated. An answe
 not decode is dropped and counted (``malformed_messages``, first one per topic in one WARN
 line). Before step 0 the node waits until ``min_subscribers`` subscribers
 see /driveline/joint_states (default 4: engine, load, monitor and the recorder ``cvj-sim
-record``) and both wrench topics have a publisher, so no message is lost, and in lockstep
-until that has held for START_SETTLE_S with no other run's publisher discovered
-(OBSERVER_SETTLE_S when observers such as the recorder are awaited without a gated start:
-their matches with the engine's and load's writers are not visible here). The wait
+record``) and both wrench topics have a publisher, so no message is lost, and until that
+has held for START_SETTLE_S with no other run's publisher discovered, in both modes
+(lockstep: OBSERVER_SETTLE_S when observers such as the recorder are awaited without a
+gated start: their matches with the engine's and load's writers are not visible here). The wait
 has no deadline by default (``start_timeout`` 0: nodes started by hand in any order, with
 any pause); every START_REPORT_S it logs who is connected and who is missing. After t_N = duration it publishes
 the final joint state and exits 0.
 
-Free-run: exchange steps on wall time - tick j is due at w0 + j h (w0 = wall time of the
-initial state, CLOCK_MONOTONIC) and integrates to t_j = j h with the latest torques held
-(zero-order hold at the coupling level); /clock carries the simulated time. The node
+Free-run: exchange steps on wall time - tick j is due at w0 + j h (CLOCK_MONOTONIC) and
+integrates to t_j = j h with the latest torques held (zero-order hold at the coupling
+level); /clock carries the simulated time. The initial state goes out, the first exchange
+runs once every answer to it is in (at most ``peer_timeout``), and the clock starts as the
+state t_1 goes out (w0 = then - h; docs/ros.md, "Free-run"). The node
 re-arms a steady-clock timer for the next due time after each wake-up (an rclpy periodic
 timer re-arms from its call time, so its phase slips: measured here 970-990 of 1000
 ticks of 2 ms in 2 s). Missed ticks follow ``catch_up`` (``skip``: drop them, one step
@@ -128,7 +130,7 @@ SOLVERS = ('', 'dopri5', 'dop853', 'rosenbrock', 'rk4', 'ros2', 'rodas4', 'rodas
 NONFINITE_POLICIES = ('stop', 'hold')
 #: header.frame_id of /driveline/joint_states (REP-103 frame name; no run token)
 JOINT_STATES_FRAME = 'driveline'
-# Lockstep: how long the peers must stay connected, with no other run's publisher in sight,
+# How long the peers must stay connected, with no other run's publisher in sight (both modes),
 # before step 0 goes out (s). The subscriber count that says "peers connected" cannot tell
 # this run's engine/load from another run's on the same domain, and a state published before
 # our own peers matched is lost to them (volatile QoS): the run then waits out peer_timeout
@@ -169,6 +171,9 @@ WRONG_STAMP_STALL_S = 1.0
 # watchdog; free-run at a wake-up;
 # three publisher counts (one from the graph), ~20 us per check: 0.2 % of the wall time.
 GRAPH_CHECK_S = 0.01
+# Free-run, while the answers to state 0 are awaited: how often the node looks for a stop
+# signal, another run's publisher and peer_timeout (s).
+PRIME_CHECK_S = 0.02
 # While a step waits for the recorder (record_lag_max), SIGINT/SIGTERM is looked for this often (s).
 HOLD_SIGNAL_CHECK_S = 0.02
 # While waiting for its peers before step 0, the node says who is there and who is missing
@@ -190,7 +195,9 @@ PARAMS = (
     ParamSpec('exchange_step', 0.0, 'exchange step h [s]; 0 = the scene exchange_step',
               lo=0.0, hi=10.0),
     ParamSpec('duration', 0.0, 'simulated duration [s]; 0 = the scene duration', lo=0.0, hi=1e7),
-    ParamSpec('peer_timeout', 5.0, 'lockstep: longest wait for an engine/load answer [s]',
+    ParamSpec('peer_timeout', 5.0, 'longest wait for an engine/load answer [s] (lockstep: each '
+              'one, else the run stops; free-run: the answers to state 0, then the clock starts '
+              'without them)',
               lo=0.0, hi=3600.0, lo_open=True),
     ParamSpec('start_timeout', 0.0, 'longest wait for peers to connect before step 0 [s]; '
               '0 = no limit (wait, naming who is missing every few seconds)', lo=0.0, hi=1e6),
@@ -437,11 +444,16 @@ class CouplingNode(CvjNode):
         self._wait_t0 = time.monotonic()
         self._start_deadline = self._wait_t0 + p['start_timeout'] if p['start_timeout'] > 0 else math.inf
         self._next_report = self._wait_t0 + START_REPORT_S
-        self._ready_since: float | None = None     # lockstep: peers connected since (monotonic s)
+        self._ready_since: float | None = None     # peers connected since (monotonic s)
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._watchdog = None
         self._free_timer = None
         self.scheduler: FreeRunScheduler | None = None   # free-run only
+        # free-run start: the answer topics still awaited for state 0 (None: not waiting)
+        self._prime_wait: set[str] | None = None
+        self._prime_t0 = 0.0
+        self._prime_timer = None
+        self._first_state_ns = 0          # monotonic ns at which the state t_1 went out
         self.realtime_priority = 0                       # SCHED_FIFO priority in force (free-run)
         self._diag_k = 0                                 # k of the last periodic diagnostics
         # the SIGINT/SIGTERM caught in this process (0: none), read at every exchange:
@@ -752,7 +764,7 @@ class CouplingNode(CvjNode):
         return (f': {", ".join(names) or "none"}' + (f'; not yet: {", ".join(absent)}' if absent else ''))
 
     def foreign_publishers(self) -> str | None:
-        """Lockstep: the line naming extra publishers on the loop topics, else None.
+        """The line naming extra publishers on the loop topics, else None (both modes).
 
         The loop needs exactly one publisher of /driveline/joint_states (this node), of
         /engine/wrench and of /load/wrench: the peers are the publishers matched when step 0
@@ -760,10 +772,9 @@ class CouplingNode(CvjNode):
         node shares this ROS domain: the line names every publisher); more after it is an
         intruder, named against the peer matched at step 0. Messages on a topic with two
         publishers cannot be told apart (rclpy gives no per-message publisher), so neither
-        case integrates anything from that topic any more.
+        case integrates anything from that topic any more. Both modes refuse the ambiguity
+        before step 0 (free-run would otherwise hold the other run's answers as its torques).
         """
-        if self.mode != 'lockstep':
-            return None
         return self._extra_publishers()
 
     def _guarded_topics(self) -> list[tuple[str, Any]]:
@@ -790,7 +801,7 @@ class CouplingNode(CvjNode):
             return self._intruder_line(extra[0][0])
         named = '; '.join(f'{topic} has {n} publishers: {describe(publisher_endpoints(self, topic))}'
                           for topic, n in extra)
-        return (f'lockstep: {named} (expected 1) on ROS_DOMAIN_ID='
+        return (f'{self.mode}: {named} (expected 1) on ROS_DOMAIN_ID='
                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}: another run or node shares this domain '
                 f'and its messages would mix into this loop; give each run its own ROS_DOMAIN_ID')
 
@@ -834,23 +845,23 @@ class CouplingNode(CvjNode):
                     f'waiting for peers ({now - self._wait_t0:.0f} s): {"; ".join(missing)} '
                     f'(min_subscribers={self.params["min_subscribers"]})')
             return
-        if self.mode == 'lockstep':
-            now = time.monotonic()
-            if self._ready_since is None:
-                self._ready_since = now
-            # (composed: the in-process bus reports its DDS matches, missing_peers)
-            by_hand = (self.params['min_subscribers'] > 2 and not self.params['start_gate']
-                       and bus_for(self.context) is None)
-            settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
-            if now - self._ready_since < settle:
+        now = time.monotonic()
+        if self._ready_since is None:
+            self._ready_since = now
+        # lockstep by hand: the observers' matches too (composed: the in-process bus reports
+        # its DDS matches, missing_peers); free-run: the other-run settle only
+        by_hand = (self.mode == 'lockstep' and self.params['min_subscribers'] > 2
+                   and not self.params['start_gate'] and bus_for(self.context) is None)
+        settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
+        if now - self._ready_since < settle:
+            return
+        unmatched = self.unmatched_subscriptions() + self.recorders_not_ready() if by_hand else []
+        if unmatched:
+            if now - self._ready_since < settle + UNMATCHED_WAIT_S:
                 return
-            unmatched = self.unmatched_subscriptions() + self.recorders_not_ready() if by_hand else []
-            if unmatched:
-                if now - self._ready_since < settle + UNMATCHED_WAIT_S:
-                    return
-                self.get_logger().warning(
-                    f'start: {"; ".join(unmatched)} after {settle + UNMATCHED_WAIT_S:g} s; '
-                    'starting: those subscribers may miss the first states')
+            self.get_logger().warning(
+                f'start: {"; ".join(unmatched)} after {settle + UNMATCHED_WAIT_S:g} s; '
+                'starting: those subscribers may miss the first states')
         self._start_timer.cancel()
         self._note_peers()
         self.started = True
@@ -864,14 +875,66 @@ class CouplingNode(CvjNode):
             self._watchdog = self.create_timer(period, self._check_peers)
             self._begin_wait()
         else:
-            self.scheduler = FreeRunScheduler(self.h_ns, self.n_steps, catch_up=self.params['catch_up'],
-                                              burst_max=self.params['burst_max'])
-            self.realtime_priority = self._set_realtime_priority(self.params['realtime_priority'])
-            self.scheduler.start(time.monotonic_ns())    # the initial state just went out
-            from rclpy.clock import Clock as RosClock, ClockType
-            # CLOCK_MONOTONIC, the scheduler's clock; one-shot use: re-armed in _free_tick
-            self._free_timer = self.create_timer(self.h_ns / NS_PER_S, self._free_tick,
-                                                 clock=RosClock(clock_type=ClockType.STEADY_TIME))
+            # the clock starts once state 0 is answered and the first exchange ran (_prime_done)
+            self._prime_wait = {topic for topic, _sub in self._answer_subs()}
+            self._prime_t0 = time.monotonic()
+            self._prime_timer = self.create_timer(PRIME_CHECK_S, self._check_prime)
+
+    # --- free-run start -----------------------------------------------------------------------
+
+    def _prime_answer(self, topic: str) -> None:
+        """Free-run, before the clock starts: an answer on ``topic`` ticks it off (only state
+        0 is out, so it answers state 0 whatever its stamp: free-run holds every answer), and
+        the last one runs the first exchange (:meth:`_prime_done`)."""
+        if self._prime_wait is None:
+            return
+        self._prime_wait.discard(topic)
+        if not self._prime_wait:
+            self._prime_done()
+
+    def _check_prime(self) -> None:
+        """Free-run, waiting for the answers to state 0: a stop signal ends the run; after
+        ``peer_timeout`` the clock starts without them (one WARN line naming them)."""
+        if self._prime_wait is None or self.exit_code is not None:
+            return
+        if self.stop_signal():
+            self.stop_by_signal(self.stop_signal())
+            return
+        foreign = self._extra_publishers()
+        if foreign:
+            self._stop_with_error(foreign)
+            return
+        waited = time.monotonic() - self._prime_t0
+        if waited > self.params['peer_timeout']:
+            line = (f'free-run: no answer to state 0 on {" and ".join(sorted(self._prime_wait))} '
+                    f'within peer_timeout={self.params["peer_timeout"]:g} s; starting the clock '
+                    f'without it (torques held at their last value, 0 N m before the first)')
+            self.get_logger().warning(line)
+            self.publish_diagnostics(WARN, line)
+            self._prime_done()
+
+    def _prime_done(self) -> None:
+        """State 0 is answered: run the first exchange t_0 -> t_1 now, with those answers, and
+        start the wall clock as its state goes out (tick 1 due then, tick j at + (j - 1) h).
+        What a first exchange costs once (compiled code loaded on first use, the peers' and
+        the recorder's first callbacks) then delays no tick: started at step 0 instead, a
+        slow first step made the next wake-up skip every tick up to
+        wall time, so the record lost its start (docs/ros.md, "Free-run")."""
+        self._prime_wait = None
+        if self._prime_timer is not None:
+            self._prime_timer.cancel()
+        self.scheduler = FreeRunScheduler(self.h_ns, self.n_steps, catch_up=self.params['catch_up'],
+                                          burst_max=self.params['burst_max'])
+        self.realtime_priority = self._set_realtime_priority(self.params['realtime_priority'])
+        self._run_free_step(Step(ticks=1, lateness_ns=0))
+        if self.exit_code is not None:
+            return
+        self.scheduler.start(self._first_state_ns, ticks_done=1)
+        from rclpy.clock import Clock as RosClock, ClockType
+        # CLOCK_MONOTONIC, the scheduler's clock; one-shot use: re-armed in _free_tick
+        delay_ns = max(self.scheduler.due_ns(2) - time.monotonic_ns(), 1_000)
+        self._free_timer = self.create_timer(delay_ns / NS_PER_S, self._free_tick,
+                                             clock=RosClock(clock_type=ClockType.STEADY_TIME))
 
     def _set_realtime_priority(self, priority: int) -> int:
         """Free-run: put every thread of this process under SCHED_FIFO ``priority`` - the loop
@@ -979,7 +1042,8 @@ class CouplingNode(CvjNode):
         self._cancel_timers()
 
     def _cancel_timers(self) -> None:
-        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer):
+        for tm in (self._watchdog, self._free_timer, self._start_timer, self._hold_timer,
+                   self._prime_timer):
             if tm is not None:
                 tm.cancel()
 
@@ -1063,6 +1127,8 @@ class CouplingNode(CvjNode):
         if self.mode != 'lockstep':
             wheels.values[i] = value
             self.driveline.set_wheel_torques(wheels.values)
+            if self._prime_wait is not None:
+                self._prime_answer(topic)
             return
         if not self.waiting or self._have_load or stamp_ns != self.t_ns or wheels.answered(i, stamp_ns):
             self.ignored_stamps += 1     # late, duplicate or out-of-order answer
@@ -1112,6 +1178,8 @@ class CouplingNode(CvjNode):
                 self.T_engine = value
             else:
                 self.T_load = value
+            if self._prime_wait is not None:
+                self._prime_answer(ENGINE_WRENCH_TOPIC if engine else LOAD_WRENCH_TOPIC)
             return
         have = self._have_engine if engine else self._have_load
         if not self.waiting or have or stamp_ns != self.t_ns:
@@ -1345,7 +1413,10 @@ class CouplingNode(CvjNode):
             self.js_pub.publish(msg)
         self._wait_start = time.perf_counter()   # the lockstep wait starts here
         if self.scheduler is not None:
-            self.scheduler.published(time.monotonic_ns())   # free-run drift at publication
+            if self.scheduler.start_ns is None:        # the first exchange: the clock starts now
+                self._first_state_ns = time.monotonic_ns()
+            else:
+                self.scheduler.published(time.monotonic_ns())   # free-run drift at publication
         self.state_total += self._wait_start - c0
         self.joint_states_published += 1
         if self.reaction_pubs:

@@ -7,7 +7,9 @@ with a fake clock (test/nodes/test_freerun_scheduler.py); the coupling node runs
 Schedule. The loop starts at wall time ``w0`` (ns). Tick j (j = 1..N) is due at
 ``w0 + j h`` and advances simulated time from t_(j-1) = (j-1) h to t_j = j h, so simulated
 time tracks wall time: at the wall instant the state t_j is published, wall time since
-``w0`` minus t_j (the *drift*, s) is that tick's lateness plus the work done for it.
+``w0`` minus t_j (the *drift*, s) is that tick's lateness plus the work done for it. Ticks
+run before the clock starts (``start(now, ticks_done)``: the coupling node's first exchange)
+count as run on time, and the clock is set so that the last of them was due at ``now``.
 
 Lateness of a tick = wall time at which its work starts - its due time (ns, >= 0 as the
 scheduler never starts a tick before it is due). A tick whose lateness is at least one
@@ -143,9 +145,19 @@ class FreeRunScheduler:
         self.drift_max_ns = 0      # largest |drift| seen
         self._in_burst = 0         # ticks run back to back in the current wake-up
 
-    def start(self, now_ns: int) -> None:
-        """Step 0 (the initial state) goes out at ``now_ns``; tick j is due at now_ns + j h."""
-        self.start_ns = int(now_ns)
+    def start(self, now_ns: int, ticks_done: int = 0) -> None:
+        """Start the clock: tick j is due at ``now_ns + (j - ticks_done) h``.
+
+        ``ticks_done`` ticks (at most all) already ran before the clock started, each on its
+        own with lateness 0 (the coupling node runs the first exchange as soon as the
+        answers to the initial state are in, and starts the clock when its state goes out),
+        so the last of them is due at ``now_ns``. With 0, step 0 (the initial state) goes
+        out at ``now_ns``."""
+        ticks_done = min(max(int(ticks_done), 0), self.total_ticks)
+        self.start_ns = int(now_ns) - ticks_done * self.period_ns
+        for _ in range(ticks_done):
+            self.lateness.add(0)
+        self.done = self.ticks_run = self.steps = ticks_done
 
     def due_ns(self, tick: int) -> int:
         """Wall time (ns) at which tick ``tick`` (1-based) is due."""

@@ -137,11 +137,11 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
     # simulated time, real-time factor, ETA on stderr at most once a second, only on a terminal
     progress = Progress(prep.duration, label='cvj-sim run')
     try:
-        # lockstep: nothing of ours flows on the loop topics before our coupling node starts
+        # nothing of ours flows on the loop topics before our coupling node starts (both
+        # modes): held until then, a refused run's bag gets none of another run's messages
         with process_dds_profile(env):   # the recorder announces itself every 0.25 s too
             recorder = _Recorder(writer, prep.coupling_topics, domain,
-                                 hold=(tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
-                                 if options.mode == 'lockstep' else ())
+                                 hold=tuple(LOOP_TOPICS) + tuple(prep.coupling_topics))
             # the driver's samples at their step's time, whenever they arrive (docs/ros.md "Commands")
             recorder.recorder.set_command_stamps(command_record_stamps(prep))
         # the observers run in this process, subscribed before any loop node starts
@@ -186,7 +186,7 @@ def run(options: RunOptions, *, stream: TextIO | None = None,
                 print(external_wait_line(options.external, domain, options.external_timeout, prep.peers),
                       file=stream, flush=True)
             error = _wait_for_peers(recorder, procs, logs, stop_signal, options.start_timeout,
-                                    lockstep=options.mode == 'lockstep', domain=domain,
+                                    mode=options.mode, domain=domain,
                                     external=options.external,
                                     external_timeout=options.external_timeout, peers=prep.peers)
             mark('peers_connected')

@@ -238,7 +238,7 @@ class _Recorder:
 
 
 PEER_TOPICS = {'engine_node': '/engine/wrench', 'load_node': '/load/wrench'}
-# How long "our peers are up, nobody else is" must hold before a lockstep loop starts (s).
+# How long "our peers are up, nobody else is" must hold before the loop starts (s), both modes.
 # The recorder's participant exists from before the peers were started (>= ~1 s of process
 # start), so another run's endpoints have usually been discovered already; this covers a
 # slow discovery under load at the cost of 0.3 s per run.
@@ -283,7 +283,7 @@ def external_wait_line(external: Sequence[str], domain: int, timeout: float,
 
 
 def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes]], logs: Path,
-                    stop_signal: list[int], timeout: float, *, lockstep: bool = True,
+                    stop_signal: list[int], timeout: float, *, mode: str = 'lockstep',
                     domain: int | None = None, external: Sequence[str] = (),
                     external_timeout: float = 30.0,
                     peers: tuple[dict[str, str], dict[str, str]] | None = None) -> str | None:
@@ -311,8 +311,8 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
         extra = ([f'{bagmod.JOINT_STATES_TOPIC} has {n_js} publishers'] if n_js > 0 else []) + \
             [f'{topic} has {n} publishers' for topic in topics.values()
              if (n := recorder.publisher_count(topic)) > 1]
-        if extra and lockstep:
-            return (f'lockstep: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
+        if extra:
+            return (f'{mode}: {", ".join(extra)} (expected {0 if n_js else 1}) on ROS_DOMAIN_ID='
                     f'{dom} before the loop started: another run or '
                     'node shares this domain; give each run its own ROS_DOMAIN_ID')
         missing = [n for n, topic in topics.items() if recorder.publisher_count(topic) < 1]
@@ -321,7 +321,7 @@ def _wait_for_peers(recorder: _Recorder, procs: dict[str, subprocess.Popen[bytes
             # domain may still be arriving
             now = time.monotonic()
             settled_since = now if settled_since is None else settled_since
-            if not lockstep or now - settled_since >= DISCOVERY_SETTLE_S:
+            if now - settled_since >= DISCOVERY_SETTLE_S:
                 return None
             time.sleep(0.02)
             continue

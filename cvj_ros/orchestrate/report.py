@@ -44,7 +44,7 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
                   foreign_dropped: dict[str, int], malformed_dropped: dict[str, int] | None = None,
                   settings: dict[str, Any] | None = None) -> RunResult:
     """The tail of every run (separate processes or composed): metrics read back from the bag,
-    loop counters, run identity, free-run timing, monitor statuses, settings, --fail-on,
+    loop counters, run identity, free-run timing, gaps in the record, monitor statuses, settings, --fail-on,
     report.json and the printed report."""
     loop_wall = result.loop_wall_time
     t_report = time.monotonic()
@@ -92,6 +92,13 @@ def finish_result(result: RunResult, options: RunOptions, prep: _Prepared, *, st
                 result.sim_duration = timing['ticks_handled'] * prep.exchange_step
                 if loop_wall:
                     result.real_time_factor = result.sim_duration / loop_wall
+    try:   # missing sample times on the loop topics, starved steady-window slices
+        from cvj_ros.orchestrate.gaps import run_gaps
+        gaps = run_gaps(result.bag, prep.exchange_step, counts=result.counts)
+    except (CvjError, Exception):  # noqa: BLE001 (never lose the report to it)
+        gaps = {}
+    if gaps:
+        result.metrics['gaps'] = gaps
     if diags_read:
         result.metrics['monitor'] = monitor_statuses(result.bag, diags=diags)
     result.settings = {'seed': prep.seed if prep.seed is not None else prep.scene.seed,
@@ -460,6 +467,10 @@ def print_report(r: RunResult, stream: TextIO) -> None:
     fr = r.metrics.get('free_run', {})
     if fr:
         p(free_run_line(fr))
+    from cvj_ros.orchestrate.gaps import gap_line
+    line = gap_line(r.metrics.get('gaps', {}), int(fr.get('ticks_skipped', 0)))
+    if line:
+        p(line)
     mon = r.metrics.get('monitor', {})
     if mon.get('warn') or mon.get('error'):
         p(f'  monitor: {mon.get("error", 0)} ERROR and {mon.get("warn", 0)} WARN statuses; '

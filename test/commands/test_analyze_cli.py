@@ -73,3 +73,13 @@ def test_analyze_leaves_out_another_publishers_joint_states(bag: Path, tmp_path:
     assert [line for line in out if 'not the run' in line] == [
         "left out as not the run's (other joint names, undecodable): 20 on /driveline/joint_states "
         '(20 messages)']
+
+
+def test_analyze_text_names_gaps(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The gaps line of `cvj-sim run`'s report, printed by `analyze` for a free run's bag
+    lacking 20 sample times (t = 0.5 .. 0.519 s, 20 ticks skipped)."""
+    bag = _synth.write_synthetic_bag(tmp_path / 'bag', duration=2.0, scene=_synth.FREE_RUN_SCENE,
+                                     missing=range(500, 520), ticks_skipped=20)
+    assert main(['analyze', str(bag)]) == 0
+    assert ('  gaps: all 3 loop topics miss 20 of 2001 sample times (longest run 0.02 s from '
+            't = 0.5 s); 20 ticks skipped by free-run catch-up') in capsys.readouterr().out.splitlines()

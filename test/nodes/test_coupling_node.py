@@ -442,3 +442,86 @@ def test_nonfinite_torque_policy_is_a_checked_parameter(ctx, tmp_path):
         CouplingNode(context=ctx, parameter_overrides=[
             Parameter('scene', value=scene_file(tmp_path)), Parameter('nonfinite_torque', value='skip')])
     assert 'nonfinite_torque' in str(err.value)
+
+
+def test_free_run_bag_starts_at_t0_after_a_slow_first_exchange(ctx, tmp_path):
+    """A first exchange that costs far more than h (a mode scene's compiled code loaded on
+    first use took 0.31-0.74 s) must not make the run skip its start. The clock starts when
+    state 0 is answered and the first exchange t_0 -> t_1 ran, so tick 2 is due h after the
+    state t_1 went out. Before, tick 1 was due h after step 0: a slow first step left every
+    tick up to wall time due at the next wake-up, which skipped them (stamps 0, h, then
+    about SLOW s). Asserted: states t_0 and t_1 published (the design guarantees both, on a
+    busy machine too), no stamp gap and no tick lateness of SLOW or more (only a stall of this
+    process as long as the injected cost would make one), the first exchange integrated the
+    answers to state 0 (the momentum balance of the two-mass scene over t_0 -> t_1), every
+    tick accounted."""
+    SLOW = 0.5                               # s, injected cost of the first exchange
+    h = 0.005
+    peers = FakePeers(ctx)
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path, duration=1.0, h=h)),
+        Parameter('min_subscribers', value=1), Parameter('mode', value='free-run')])
+    advance = node.stepper.advance
+    calls = []
+
+    def slow_first(*args):
+        calls.append(args)
+        if len(calls) == 1:
+            time.sleep(SLOW)
+        return advance(*args)
+    node.stepper.advance = slow_first
+    ex = make_executor('events', ctx)
+    ex.add_node(peers.node)
+    ex.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while node.exit_code is None:
+            assert time.monotonic() - t0 < 30.0, 'coupling node did not finish'
+            ex.spin_once(timeout_sec=0.05)
+        t1 = time.monotonic()
+        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+        peers.node.destroy_node()
+        node.destroy_node()
+    assert node.exit_code == 0
+    stamps = sorted(ns(m.header.stamp) for m in peers.js)
+    h_ns = int(h * 1e9)
+    assert stamps[:2] == [0, h_ns]
+    assert max(b - a for a, b in zip(stamps, stamps[1:])) < SLOW * 1e9
+    # t_0 -> t_1 integrated T_ENGINE and T_LOAD (the answers to state 0), not 0 N m
+    assert calls[0][1:] == (T_ENGINE, T_LOAD)
+    first = next(m for m in peers.js if ns(m.header.stamp) == h_ns)
+    momentum = J1 * first.velocity[0] + J2 * first.velocity[1]
+    assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * h, rel=1e-8)
+    st = node.scheduler.stats()
+    assert st['ticks_run'] + st['ticks_skipped'] == st['ticks_handled'] == 200
+    assert st['ticks_run'] == len(stamps) - 1          # every run tick published one state
+    assert st['lateness_us_max'] < SLOW * 1e6          # the slow exchange made no tick late
+
+
+def test_free_run_clock_starts_without_answers_after_peer_timeout(ctx, tmp_path):
+    """Free-run waits for the answers to state 0 at most peer_timeout, then starts the clock
+    with one WARN line naming the topic (torques held: 0 N m before the first answer)."""
+    node, peers, _ = run(ctx, tmp_path, mode='free-run', peer_timeout=0.2,
+                         behave=lambda topic, k, stamp: [] if topic == 'load' else [(stamp, T_ENGINE)])
+    assert node.exit_code == 0
+    assert [ns(m.header.stamp) for m in peers.js][:2] == [0, 1_000_000]
+    assert node.scheduler.stats()['ticks_handled'] == 20
+
+
+def test_free_run_start_takes_an_answer_to_state_0_whatever_its_stamp(ctx, tmp_path):
+    """Only state 0 is out when the clock waits, so any answer answers it: peers stamping 1 s
+    off (free-run holds answers whatever their stamp) start the run at once, not after
+    peer_timeout (60 s here, beyond the helper's 8 s bound), and the first exchange
+    integrates their torques (momentum balance over t_0 -> t_1)."""
+    off = Clock().clock
+    off.sec = 1
+
+    node, peers, _ = run(ctx, tmp_path, mode='free-run', peer_timeout=60.0,
+                         behave=lambda topic, k, stamp: [(off, T_ENGINE if topic == 'engine' else T_LOAD)])
+    assert node.exit_code == 0
+    first = next(m for m in peers.js if ns(m.header.stamp) == 1_000_000)
+    momentum = J1 * first.velocity[0] + J2 * first.velocity[1]
+    assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * 0.001, rel=1e-8)

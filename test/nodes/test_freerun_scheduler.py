@@ -175,3 +175,14 @@ def test_bad_arguments_raise():
         FreeRunScheduler(MS, 10, catch_up='drop')
     with pytest.raises(ValueError):
         FreeRunScheduler(0, 10)
+
+
+def test_start_with_ticks_done_accounts_them_run_on_time():
+    """start(now, ticks_done=1): the first exchange ran before the clock started; it counts as
+    run with lateness 0, and tick 2 is due one period after ``now``."""
+    s = FreeRunScheduler(1_000, 5)
+    s.start(50_000, ticks_done=1)
+    assert (s.done, s.ticks_run, s.steps, s.lateness.n, s.lateness.max_ns) == (1, 1, 1, 1, 0)
+    assert s.due_ns(2) == 51_000 and s.due_count(50_999) == 0 and s.due_count(51_000) == 1
+    s.start(50_000, ticks_done=9)      # never more than the run's ticks
+    assert s.finished() and s.done == 5

@@ -353,6 +353,93 @@ def test_running_loop_stops_for_another_runs_messages_with_its_stamps(tmp_path: 
     np.testing.assert_allclose(js.velocity, offline_speeds(scene, n), rtol=1e-6, atol=1e-9)
 
 
+# the other run's joint states (as its coupling node sends them): every OTHER_RUN_PERIOD_S
+OTHER_RUN_PERIOD_S = 0.02
+
+
+def _other_run_main() -> None:
+    """``python test_run_identity.py other_run``: another run's coupling node as the domain
+    sees it before this run starts - a /driveline/joint_states publisher sending a state of
+    this run's shape every OTHER_RUN_PERIOD_S - until EOF on stdin; prints ``ready`` once
+    its publisher exists."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from cvj_ros.nodes.qos import DATA_QOS
+    rclpy.init()
+    node = rclpy.create_node('other_run')
+    pub = node.create_publisher(JointState, '/driveline/joint_states', DATA_QOS)
+    sent = [0]
+
+    def tick() -> None:
+        msg = JointState(name=['crank', 'driven'], position=[0.0, 0.0], velocity=[31.4, 31.4],
+                         effort=[0.0, 0.0])
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(sent[0] * H_NS, 1_000_000_000)
+        msg.header.frame_id = 'driveline'
+        pub.publish(msg)
+        sent[0] += 1
+    node.create_timer(OTHER_RUN_PERIOD_S, tick)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    print('ready', flush=True)
+    try:
+        sys.stdin.read()
+    finally:
+        stop.set()
+        thread.join(2.0)
+        node.destroy_node()
+        rclpy.shutdown()
+
+
+@pytest.mark.parametrize('mode,composed', [('free-run', False), ('free-run', True),
+                                           ('lockstep', False)])
+def test_run_is_refused_before_its_loop_beside_another_runs_publisher(
+        tmp_path: Path, mode: str, composed: bool) -> None:
+    """Another run's joint-state publisher is on the domain when a run starts: the run is
+    refused before its coupling node publishes anything, in lockstep and in free-run,
+    separate and composed - one line naming the publisher count and the domain, no state of
+    its own and none of the other run's in its bag (the recorder holds the loop topics until
+    its own loop starts). Before free-run had this check its loop started and stopped at
+    its first graph check with an 'intruder' line, state 0 recorded."""
+    import io
+
+    from cvj_ros.orchestrate import RunOptions, run
+    path = tmp_path / 'identity.yaml'
+    path.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    from cvj_ros.nodes.qos import dds_environment
+    env = dds_environment(dict(os.environ), profile_dir=str(tmp_path))
+    other = subprocess.Popen([sys.executable, __file__, 'other_run'], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True, start_new_session=True, env=env)
+    try:
+        assert other.stdout is not None and other.stdout.readline().strip() == 'ready'
+        result = run(RunOptions(scene=str(path), out=tmp_path / 'run', mode=mode, composed=composed),
+                     stream=io.StringIO())
+    finally:
+        other.communicate('', timeout=30)     # EOF on stdin: it stops
+    domain = f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}'
+    assert result.exit_code == 1, (result.exit_code, result.error)
+    line = result.error or ''
+    assert '\n' not in line and ': intruder ' not in line, line
+    # cvj-sim's check (its recorder saw the publisher first), or the coupling node's own
+    # check before step 0 (discovered only after cvj-sim's settle)
+    assert line.startswith((f'{mode}: /driveline/joint_states has 1 publishers (expected 0) on {domain} '
+                            'before the loop started: another run or node shares this domain',
+                            f'coupling_node: {mode}: /driveline/joint_states has 2 publishers: ')), line
+    counts = (bag.bag_info(tmp_path / 'run' / 'bag').counts
+              if (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists() else {})
+    assert counts.get('/driveline/joint_states', 0) == 0, counts
+
+
 def _intruder_main() -> None:
     """``python test_run_identity.py intruder``: an :class:`Intruder` until EOF on stdin;
     prints ``ready`` once created and ``sent N`` at the end."""
@@ -367,3 +454,5 @@ def _intruder_main() -> None:
 
 if __name__ == '__main__' and sys.argv[1:] == ['intruder']:
     _intruder_main()
+elif __name__ == '__main__' and sys.argv[1:] == ['other_run']:
+    _other_run_main()

@@ -7,7 +7,9 @@ compare with).
 
 The window reads only the first shaft's speed and the torques, so a caller may fill the
 other speeds (the lever hinge's earring: ``fill``) only from the row before the window on,
-all the metrics read. The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
+all the metrics read. A ``fill`` that names its members (``fill.members``: pos, mtab, mfp)
+has the window, their speeds (``reduce_nb.fill_mid_speeds``, without the member angles)
+and the metrics computed in one compiled call (``reduce_nb.reduce_lean``). The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
 see reduce_nb). Records the compiled reduction does not cover return None and take the
 numpy path: a ``--transient`` start, fewer than 3 or more than :data:`MAX_SAMPLES`
 samples (numpy's reductions of longer series sum in buffer-sized blocks, not replicated),
@@ -78,7 +80,8 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     end and verdict; the summary's 'window', 'energy_residual', 'solver' and 'shafts'), or
     None when the record is not one the compiled reduction covers (module docstring).
     ``fill(i)``, if given, completes the speeds of every shaft but the first from row i on
-    (called once the window is known, with the row before it). ``slices``: what
+    (called once the window is known, with the row before it); one with ``members``
+    (module docstring) is not called: the compiled call fills the members' speeds. ``slices``: what
     :func:`checked_slices` gave for these very times (the caller vouches; not checked
     again)."""
     if options.transient is not None:
@@ -99,15 +102,24 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     w = vel[:, 0]
     means = np.array([hann_mean(w[a:b]) for a, b in zip(lo, hi)])
     out = np.empty(3 + 6 * n_sh)
-    if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
-                              steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
-                              steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, out)) != 0:
-        return None
-    if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
-        fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
     res = np.ascontiguousarray(trace.energy_residual, dtype=np.float64)
-    if _call('window_metrics', (t, vel, eff, res, out)) != 0:
-        return None
+    members = getattr(fill, 'members', None)
+    if members is not None:     # window, the members' speeds and metrics in one call
+        pos, mtab, mfp = members
+        if _call('reduce_lean', (t, pos, vel, eff, res, lo, hi, means, steady.DRIFT_TOL,
+                                 steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
+                                 steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, mtab, mfp,
+                                 out)) != 0:
+            return None
+    else:
+        if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
+                                  steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
+                                  steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, out)) != 0:
+            return None
+        if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
+            fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
+        if _call('window_metrics', (t, vel, eff, res, out)) != 0:
+            return None
     vals = out.tolist()
     is_steady = vals[0] == 1.0
     window = SteadyWindow(vals[1], float(t[-1]), is_steady, math.nan, math.nan, '', 0.0, 0, '')

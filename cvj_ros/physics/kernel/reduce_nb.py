@@ -18,6 +18,11 @@ Hann-weighted means (``np.dot``, i.e. OpenBLAS's ``ddot``, whose strided loop su
 products into two accumulators and whose rounding depends on the CPU kernel OpenBLAS picks
 and its FMA contraction: a plain replica differed in 4 of 3000 sums here), so the caller
 computes them with numpy and passes them in.
+
+:func:`reduce_lean` is the batched sweep's one call per variant: the window, the
+intermediate members' speeds from the row before it on (:func:`fill_mid_speeds`, the
+speeds of ``outputs_nb.fill_mid_one`` without the member angles, which the metrics do not
+read) and the metrics.
 """
 from __future__ import annotations
 
@@ -26,8 +31,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['pairwise_sum', 'series_sum', 'steady_start', 'warm', 'window_first_row',
-           'window_metrics']
+from cvj_ros.physics.kernel.outputs_nb import _mid_angle, fill_mid_one
+
+__all__ = ['fill_mid_speeds', 'pairwise_sum', 'reduce_lean', 'series_sum', 'steady_start',
+           'warm', 'window_first_row', 'window_metrics']
 
 PW_BLOCKSIZE = 128
 
@@ -279,9 +286,60 @@ def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
     return 0
 
 
+@njit(cache=True)
+def fill_mid_speeds(pos: np.ndarray, vel: np.ndarray, i0: int, mtab: np.ndarray,
+                    mfp: np.ndarray) -> None:
+    """The intermediate members' speeds of rows i0.. of (samples, shafts) arrays pos/vel as
+    ``outputs_nb.fill_mid_one`` computes them: the Richardson-extrapolated central
+    difference (h = 1e-3 rad) of phi_mid = _mid_angle(op, phi_in) times omega_in, the same
+    operations, without the member angle itself (pos of a member is left as it is). When a
+    member's input is another member (its angle is read), every row is filled in full by
+    fill_mid_one instead."""
+    n = mtab.shape[0]
+    chained = False
+    for i in range(n):
+        for j in range(n):
+            if mtab[i, 1] == mtab[j, 0]:
+                chained = True
+    h = 1e-3
+    for k in range(i0, pos.shape[0]):
+        if chained:
+            fill_mid_one(pos[k], vel[k], mtab, mfp)
+            continue
+        for i in range(n):
+            i_mid, i_in, code, off = mtab[i, 0], mtab[i, 1], mtab[i, 2], mtab[i, 3]
+            phi = pos[k, i_in]
+            mp = _mid_angle(code, phi + h, mfp, off)
+            mm = _mid_angle(code, phi - h, mfp, off)
+            mp2 = _mid_angle(code, phi + h / 2, mfp, off)
+            mm2 = _mid_angle(code, phi - h / 2, mfp, off)
+            d_h = (mp - mm) / (2 * h)
+            d_h2 = (mp2 - mm2) / h
+            vel[k, i_mid] = (4.0 * d_h2 - d_h) / 3.0 * vel[k, i_in]
+
+
+@njit(cache=True)
+def reduce_lean(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray,
+                res: np.ndarray, lo: np.ndarray, hi: np.ndarray, means: np.ndarray,
+                drift_tol: float, amplitude_tol: float, min_slices: int, speed_floor: float,
+                torque_floor: float, fallback_fraction: float, mtab: np.ndarray,
+                mfp: np.ndarray, out: np.ndarray) -> int:
+    """:func:`steady_start`, then :func:`fill_mid_speeds` of the members ``mtab`` from the
+    row before the window on (:func:`window_first_row` - 1, at least 0), then
+    :func:`window_metrics`, in one call (same arguments and ``out``). Returns 0; -1 when
+    steady_start declined (nothing filled), -2 when window_metrics did (speeds filled)."""
+    if steady_start(t, vel, eff, lo, hi, means, drift_tol, amplitude_tol, min_slices,
+                    speed_floor, torque_floor, fallback_fraction, out) != 0:
+        return -1
+    fill_mid_speeds(pos, vel, max(0, window_first_row(t, out[1]) - 1), mtab, mfp)
+    if window_metrics(t, vel, eff, res, out) != 0:
+        return -2
+    return 0
+
+
 def warm() -> None:
-    """Compile or load :func:`steady_start` and :func:`window_metrics` for the argument
-    types the sweep passes
+    """Compile or load :func:`steady_start`, :func:`window_metrics` and
+    :func:`reduce_lean` for the argument types the sweep passes
     (``python -m cvj_ros.physics.kernel.warmup``)."""
     t = np.linspace(0.0, 1.0, 31)
     ones = np.ones((31, 1))
@@ -290,3 +348,5 @@ def warm() -> None:
     out = np.empty(9)
     steady_start(t, ones, ones, lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6, 1e-3, 0.5, out)
     window_metrics(t, ones, ones, np.zeros(31), out)
+    reduce_lean(t, ones, ones, ones, np.zeros(31), lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6,
+                1e-3, 0.5, np.zeros((0, 4), np.int64), np.zeros(1), out)

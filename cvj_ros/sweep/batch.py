@@ -377,12 +377,15 @@ def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
                   np.array([math.nan if b is None else b for _k, _ke, b in plan.segments]))
     run = plan.stepper.bind_run(sim.driveline.x0, times, (*arrays, np.zeros(2), np.zeros((2, n))),
                                 sim._shaft_table, None)
-    # fill's entry point loaded now, not in a later chunk (zero rows, the types fill passes)
+    # fill's and the compiled reduction's entry points loaded now, not in a later chunk
+    # (zero rows, the types fill passes; a tiny record: reduce.load_entries)
     from cvj_ros.physics.kernel import entry_point_once
     from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    from cvj_ros.sweep.reduce import load_entries
     n_sh = plan.shape[2]
     args = (np.empty((0, n_sh)), np.empty((0, n_sh)), mtab, _mfp)
     entry_point_once(fill_mid_samples, args)(*args)
+    load_entries()
     return run
 
 

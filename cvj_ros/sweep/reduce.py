@@ -27,7 +27,7 @@ import numpy as np
 from cvj_ros.physics import steady
 from cvj_ros.physics.steady import SteadyWindow, hann_mean, slice_bounds
 
-__all__ = ['MAX_SAMPLES', 'checked_slices', 'compiled_reduction']
+__all__ = ['MAX_SAMPLES', 'checked_slices', 'compiled_reduction', 'load_entries']
 
 #: longest record reduced compiled (numpy's reduction buffer, 8192 elements)
 MAX_SAMPLES = 8192
@@ -131,3 +131,17 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     summary = {'window': {'steady': is_steady, 'start_s': vals[1]},
                'energy_residual': vals[2], 'solver': trace.solver, 'shafts': shafts}
     return window, summary
+
+
+def load_entries() -> None:
+    """Load the compiled reduction's entry points (both forms: with and without the
+    members' speeds) on a tiny record of no members, for the argument types the sweep
+    passes: a worker then loads them with its first template, not in a later chunk."""
+    from types import SimpleNamespace
+    t = np.linspace(0.0, 1.0, 31)
+    ones = np.ones((31, 1))
+    trace = SimpleNamespace(t=t, names=['a'], velocity=ones, effort=ones,
+                            energy_residual=np.zeros(31), solver={})
+    compiled_reduction(trace, SimpleNamespace(transient=None))
+    compiled_reduction(trace, SimpleNamespace(transient=None), fill=SimpleNamespace(
+        members=(ones, np.zeros((0, 4), np.int64), np.zeros(1))))

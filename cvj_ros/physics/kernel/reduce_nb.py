@@ -161,6 +161,49 @@ def _gradient_at(t: np.ndarray, f: np.ndarray, col: int, r: int, uniform: bool) 
 
 
 @njit(cache=True)
+def _gradient_coefs(t: np.ndarray, r: int, uniform: bool, co: np.ndarray) -> int:
+    """Row r of :func:`_gradient_at` as coefficients of any column f: returns x0 >= 0 with
+    the row's value co[0] f[x0] + co[1] f[x0+1] + co[2] f[x0+2] (the same products and
+    additions in the same order), or -1 for a uniform interior row, whose value is
+    (f[r+1] - f[r-1]) / co[3]."""
+    m = t.size
+    if uniform:
+        h = t[1] - t[0]
+        if r == 0:
+            co[0] = -1.5 / h
+            co[1] = 2. / h
+            co[2] = -0.5 / h
+            return 0
+        if r == m - 1:
+            co[0] = 0.5 / h
+            co[1] = -2. / h
+            co[2] = 1.5 / h
+            return m - 3
+        co[3] = 2. * h
+        return -1
+    if r == 0:
+        dx1 = t[1] - t[0]
+        dx2 = t[2] - t[1]
+        co[0] = -(2. * dx1 + dx2) / (dx1 * (dx1 + dx2))
+        co[1] = (dx1 + dx2) / (dx1 * dx2)
+        co[2] = -dx1 / (dx2 * (dx1 + dx2))
+        return 0
+    if r == m - 1:
+        dx1 = t[m - 2] - t[m - 3]
+        dx2 = t[m - 1] - t[m - 2]
+        co[0] = dx2 / (dx1 * (dx1 + dx2))
+        co[1] = -(dx2 + dx1) / (dx1 * dx2)
+        co[2] = (2. * dx2 + dx1) / (dx2 * (dx1 + dx2))
+        return m - 3
+    dx1 = t[r] - t[r - 1]
+    dx2 = t[r + 1] - t[r]
+    co[0] = -dx2 / (dx1 * (dx1 + dx2))
+    co[1] = (dx2 - dx1) / (dx1 * dx2)
+    co[2] = dx1 / (dx2 * (dx1 + dx2))
+    return r - 1
+
+
+@njit(cache=True)
 def steady_start(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, lo: np.ndarray,
                  hi: np.ndarray, means: np.ndarray, drift_tol: float, amplitude_tol: float,
                  min_slices: int, speed_floor: float, torque_floor: float,
@@ -266,21 +309,32 @@ def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
         if t[i + 1] - t[i] != h0:
             uniform = False
             break
+    # the acceleration's extrema: row by row, its coefficients (_gradient_coefs) once for
+    # every shaft, each shaft's max / min over the rows in the same order as row by shaft
+    gmax = np.empty(n_sh)
+    gmin = np.empty(n_sh)
+    co = np.empty(4)
+    for r in range(i0, m):
+        x0 = _gradient_coefs(t, r, uniform, co)
+        for j in range(n_sh):
+            if x0 < 0:      # uniform spacing, an interior row: numpy's central difference
+                g = (vel[r + 1, j] - vel[r - 1, j]) / co[3]
+            else:
+                g = co[0] * vel[x0, j] + co[1] * vel[x0 + 1, j] + co[2] * vel[x0 + 2, j]
+            if r == i0:
+                gmax[j] = g
+                gmin[j] = g
+            else:
+                gmax[j] = max(gmax[j], g)
+                gmin[j] = min(gmin[j], g)
     for j in range(n_sh):
         mean = series_sum(vel, i0, cnt, j) / cnt
         span = _max(vel, i0, m, j) - _min(vel, i0, m, j)
-        g = _gradient_at(t, vel, j, i0, uniform)
-        gmax = g
-        gmin = g
-        for r in range(i0 + 1, m):
-            g = _gradient_at(t, vel, j, r, uniform)
-            gmax = max(gmax, g)
-            gmin = min(gmin, g)
         o = 3 + 6 * j
         out[o] = mean
         out[o + 1] = span / abs(mean) if mean != 0.0 else math.inf
         out[o + 2] = 0.5 * span
-        out[o + 3] = 0.5 * (gmax - gmin)
+        out[o + 3] = 0.5 * (gmax[j] - gmin[j])
         out[o + 4] = series_sum(eff, i0, cnt, j) / cnt
         out[o + 5] = 0.5 * (_max(eff, i0, m, j) - _min(eff, i0, m, j))
     return 0

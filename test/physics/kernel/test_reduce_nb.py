@@ -220,3 +220,26 @@ def test_one_call_reduction_with_members_equals_the_fill_path() -> None:
         i0 = max(0, int(np.flatnonzero(got_a[0].mask(full.t))[0]) - 1)
         assert fill_b.done == i0 and fill_a.done == full.t.size      # angles not filled
         assert trace_a.velocity[i0:].tobytes() == full.velocity[i0:].tobytes()
+
+
+def test_gradient_coefficients_give_gradient_at() -> None:
+    """window_metrics' per-row coefficients (reduce_nb._gradient_coefs, once for all
+    shafts) give reduce_nb._gradient_at's value (numpy's np.gradient arithmetic) bit for
+    bit in every row, uniform and non-uniform spacing, and np.gradient's own."""
+    from cvj_ros.physics.kernel.reduce_nb import _gradient_at, _gradient_coefs
+    rng = np.random.default_rng(5)
+    for t in (np.arange(40) * 0.001, np.linspace(0.0, 2.0, 2001), np.cumsum(rng.uniform(0.1, 2, 30)),
+              np.arange(3) * 0.5):
+        d = np.diff(t)
+        uniform = bool(np.all(d == d[0]))
+        f = rng.standard_normal((t.size, 3)) * 10.0 ** rng.integers(-3, 4, (t.size, 3))
+        co = np.empty(4)
+        for r in range(t.size):
+            x0 = _gradient_coefs(t, r, uniform, co)
+            for j in range(3):
+                if x0 < 0:
+                    g = (f[r + 1, j] - f[r - 1, j]) / co[3]
+                else:
+                    g = co[0] * f[x0, j] + co[1] * f[x0 + 1, j] + co[2] * f[x0 + 2, j]
+                assert g == _gradient_at(t, f, j, r, uniform), (t.size, r, j)
+                assert g == np.gradient(f[:, j], t, edge_order=2)[r]

@@ -1,5 +1,6 @@
 """A run's steady window, shaft metrics and energy residual in two compiled calls
-(:func:`cvj_ros.physics.kernel.reduce_nb.steady_start` and ``window_metrics``), the same
+(:func:`cvj_ros.physics.kernel.reduce_nb.steady_start` and ``window_metrics``; one,
+``reduce_lean``, with the members' speeds), the same
 floats bit for bit as the numpy path of :func:`cvj_ros.sweep.run.simulation_row`
 (steady.joint_state_window, metrics.summarize, Trace.max_energy_residual). The batched
 sweep uses it; the per-variant path keeps the numpy functions (the reference the tests
@@ -9,7 +10,8 @@ The window reads only the first shaft's speed and the torques, so a caller may f
 other speeds (the lever hinge's earring: ``fill``) only from the row before the window on,
 all the metrics read. A ``fill`` that names its members (``fill.members``: pos, mtab, mfp)
 has the window, their speeds (``reduce_nb.fill_mid_speeds``, without the member angles)
-and the metrics computed in one compiled call (``reduce_nb.reduce_lean``). The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
+and the metrics computed in one compiled call (``reduce_nb.reduce_lean``). The slices'
+Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
 see reduce_nb). Records the compiled reduction does not cover return None and take the
 numpy path: a ``--transient`` start, fewer than 3 or more than :data:`MAX_SAMPLES`
 samples (numpy's reductions of longer series sum in buffer-sized blocks, not replicated),

@@ -228,8 +228,8 @@ def test_gradient_coefficients_give_gradient_at() -> None:
     bit in every row, uniform and non-uniform spacing, and np.gradient's own."""
     from cvj_ros.physics.kernel.reduce_nb import _gradient_at, _gradient_coefs
     rng = np.random.default_rng(5)
-    for t in (np.arange(40) * 0.001, np.linspace(0.0, 2.0, 2001), np.cumsum(rng.uniform(0.1, 2, 30)),
-              np.arange(3) * 0.5):
+    for t in (np.arange(40) * 0.001, np.linspace(0.0, 2.0, 2001),
+              np.cumsum(rng.uniform(0.1, 2, 30)), np.arange(3) * 0.5):
         d = np.diff(t)
         uniform = bool(np.all(d == d[0]))
         f = rng.standard_normal((t.size, 3)) * 10.0 ** rng.integers(-3, 4, (t.size, 3))

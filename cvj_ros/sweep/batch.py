@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-__all__ = ['BatchRunner', 'bind_lean', 'element_local', 'lean_run', 'variant_dict']
+__all__ = ['BatchRunner', 'MemberFill', 'bind_lean', 'element_local', 'lean_run', 'variant_dict']
 
 _NOT_LOCAL = ('kind', 'name', 'fidelity', 'type')
 
@@ -346,7 +346,9 @@ class BatchRunner:
             return trace_row(sim._run_one_call(plan, sim.driveline.x0), self.options,
                              compiled=True)
         from cvj_ros.sweep.reduce import compiled_reduction
-        trace, fill = lean_run(sim, plan, lean)
+        # a row reads no member angle (the orders' angle is the first shaft's, never a
+        # member: bind_lean), so the compiled reduction fills the members' speeds alone
+        trace, fill = lean_run(sim, plan, lean, speeds_only=True)
         reduced = compiled_reduction(trace, self.options, fill=fill, slices=slices)
         if reduced is None:
             fill(0)         # the numpy path reads every row
@@ -375,23 +377,49 @@ def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
                   np.array([math.nan if b is None else b for _k, _ke, b in plan.segments]))
     run = plan.stepper.bind_run(sim.driveline.x0, times, (*arrays, np.zeros(2), np.zeros((2, n))),
                                 sim._shaft_table, None)
-    # fill's entry point loaded now, not in a later chunk (zero rows, the types fill passes)
+    # fill's and the compiled reduction's entry points loaded now, not in a later chunk
+    # (zero rows, the types fill passes; a tiny record: reduce.load_entries)
     from cvj_ros.physics.kernel import entry_point_once
     from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    from cvj_ros.sweep.reduce import load_entries
     n_sh = plan.shape[2]
     args = (np.empty((0, n_sh)), np.empty((0, n_sh)), mtab, _mfp)
     entry_point_once(fill_mid_samples, args)(*args)
+    load_entries()
     return run
 
 
-def lean_run(sim: Any, plan: Any, run: Any) -> tuple[Any, Callable[[int], None]]:
+class MemberFill:
+    """``fill(i)`` of :func:`lean_run`: the intermediate members' angles and speeds from row
+    i on, where not filled yet. ``members`` (pos, mtab, mfp), or None: what
+    ``reduce.compiled_reduction`` needs to fill their speeds alone in its compiled call."""
+
+    __slots__ = ('pos', 'vel', 'mtab', 'mfp', 'done', 'members')
+
+    def __init__(self, pos: np.ndarray, vel: np.ndarray, mtab: np.ndarray, mfp: np.ndarray,
+                 speeds_only: bool) -> None:
+        self.pos, self.vel, self.mtab, self.mfp = pos, vel, mtab, mfp
+        self.done = pos.shape[0]
+        self.members = (pos, mtab, mfp) if speeds_only else None
+
+    def __call__(self, i: int) -> None:
+        if i < self.done:
+            from cvj_ros.physics.kernel import entry_point_once
+            from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+            args = (self.pos[i:self.done], self.vel[i:self.done], self.mtab, self.mfp)
+            entry_point_once(fill_mid_samples, args)(*args)
+            self.done = i
+
+
+def lean_run(sim: Any, plan: Any, run: Any, speeds_only: bool = False
+             ) -> tuple[Any, MemberFill]:
     """Simulation._run_one_call of ``sim``'s plan with the lean bound ``run``
     (:func:`bind_lean`): (trace, fill). ``fill(i)`` fills the intermediate members' angles
     and speeds (the lever hinge's earring: ``outputs_nb.fill_mid_samples``, the function
     the full run calls per row) from row i on, where not filled yet: each row from its own
-    input angle and speed, so the rows filled are the full run's floats."""
-    from cvj_ros.physics.kernel import entry_point_once
-    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
+    input angle and speed, so the rows filled are the full run's floats. ``speeds_only``:
+    the caller reads no member angle, so compiled_reduction may fill the members' speeds
+    alone (``fill.members``; the angles of those rows stay unwritten)."""
     m, n, n_sh = plan.shape
     X = np.empty((m, n))
     pos = np.empty((m, n_sh))
@@ -409,12 +437,5 @@ def lean_run(sim: Any, plan: Any, run: Any) -> tuple[Any, Callable[[int], None]]
     trace = sim._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                         wall, wall)
     mtab, mfp, _py = sim._mid_table
-    done = [m]
-
-    def fill(i: int) -> None:
-        if i < done[0]:
-            args = (pos[i:done[0]], vel[i:done[0]], mtab, mfp)
-            entry_point_once(fill_mid_samples, args)(*args)
-            done[0] = i
-    return trace, fill
+    return trace, MemberFill(pos, vel, mtab, mfp, speeds_only)
 

@@ -33,8 +33,8 @@ def amplitudes_over_angle(phi: np.ndarray, values: np.ndarray, n_harmonics: int,
     v = np.asarray(values, dtype=float)
     if p.shape != v.shape or p.ndim != 1:
         return None
-    d = np.diff(p)
-    if p.size < 2 or not (np.all(d > 0) or np.all(d < 0)):
+    d = p[1:] - p[:-1]      # np.diff's values; the array methods skip numpy's wrappers
+    if p.size < 2 or not (bool((d > 0).all()) or bool((d < 0).all())):
         return None
     if d[0] < 0:
         p, v = p[::-1], v[::-1]

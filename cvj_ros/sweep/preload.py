@@ -30,20 +30,14 @@ def warm() -> None:
 
 def warm_batch() -> None:
     """Import the batched path (cvj_ros.sweep.batch, run, spec, reparse, orders) and load
-    its compiled reduction (kernel/reduce_nb.py) on a tiny record, so a forked worker has
-    both."""
-    import numpy as np
-
+    its compiled reduction (kernel/reduce_nb.py, both forms) on a tiny record, so a forked
+    worker has both."""
     import cvj_ros.sweep.batch  # noqa: F401
     import cvj_ros.sweep.orders  # noqa: F401
     import cvj_ros.sweep.reparse  # noqa: F401
     import cvj_ros.sweep.spec  # noqa: F401
-    from cvj_ros.physics.simulate import Trace
-    from cvj_ros.sweep.reduce import compiled_reduction
-    from cvj_ros.sweep.run import RunOptions
-    t = np.linspace(0.0, 1.0, 31)
-    ones = np.ones((31, 1))
-    compiled_reduction(Trace(t, ['a'], ones, ones, ones, t, t, np.zeros(31)), RunOptions())
+    from cvj_ros.sweep.reduce import load_entries
+    load_entries()
 
 
 try:

@@ -1,5 +1,6 @@
 """A run's steady window, shaft metrics and energy residual in two compiled calls
-(:func:`cvj_ros.physics.kernel.reduce_nb.steady_start` and ``window_metrics``), the same
+(:func:`cvj_ros.physics.kernel.reduce_nb.steady_start` and ``window_metrics``; one,
+``reduce_lean``, with the members' speeds), the same
 floats bit for bit as the numpy path of :func:`cvj_ros.sweep.run.simulation_row`
 (steady.joint_state_window, metrics.summarize, Trace.max_energy_residual). The batched
 sweep uses it; the per-variant path keeps the numpy functions (the reference the tests
@@ -7,7 +8,10 @@ compare with).
 
 The window reads only the first shaft's speed and the torques, so a caller may fill the
 other speeds (the lever hinge's earring: ``fill``) only from the row before the window on,
-all the metrics read. The slices' Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
+all the metrics read. A ``fill`` that names its members (``fill.members``: pos, mtab, mfp)
+has the window, their speeds (``reduce_nb.fill_mid_speeds``, without the member angles)
+and the metrics computed in one compiled call (``reduce_nb.reduce_lean``). The slices'
+Hann-weighted means stay numpy's ``np.dot`` (OpenBLAS;
 see reduce_nb). Records the compiled reduction does not cover return None and take the
 numpy path: a ``--transient`` start, fewer than 3 or more than :data:`MAX_SAMPLES`
 samples (numpy's reductions of longer series sum in buffer-sized blocks, not replicated),
@@ -25,7 +29,7 @@ import numpy as np
 from cvj_ros.physics import steady
 from cvj_ros.physics.steady import SteadyWindow, hann_mean, slice_bounds
 
-__all__ = ['MAX_SAMPLES', 'checked_slices', 'compiled_reduction']
+__all__ = ['MAX_SAMPLES', 'checked_slices', 'compiled_reduction', 'load_entries']
 
 #: longest record reduced compiled (numpy's reduction buffer, 8192 elements)
 MAX_SAMPLES = 8192
@@ -78,7 +82,8 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     end and verdict; the summary's 'window', 'energy_residual', 'solver' and 'shafts'), or
     None when the record is not one the compiled reduction covers (module docstring).
     ``fill(i)``, if given, completes the speeds of every shaft but the first from row i on
-    (called once the window is known, with the row before it). ``slices``: what
+    (called once the window is known, with the row before it); one with ``members``
+    (module docstring) is not called: the compiled call fills the members' speeds. ``slices``: what
     :func:`checked_slices` gave for these very times (the caller vouches; not checked
     again)."""
     if options.transient is not None:
@@ -99,15 +104,24 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     w = vel[:, 0]
     means = np.array([hann_mean(w[a:b]) for a, b in zip(lo, hi)])
     out = np.empty(3 + 6 * n_sh)
-    if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
-                              steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
-                              steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, out)) != 0:
-        return None
-    if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
-        fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
     res = np.ascontiguousarray(trace.energy_residual, dtype=np.float64)
-    if _call('window_metrics', (t, vel, eff, res, out)) != 0:
-        return None
+    members = getattr(fill, 'members', None)
+    if members is not None:     # window, the members' speeds and metrics in one call
+        pos, mtab, mfp = members
+        if _call('reduce_lean', (t, pos, vel, eff, res, lo, hi, means, steady.DRIFT_TOL,
+                                 steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
+                                 steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, mtab, mfp,
+                                 out)) != 0:
+            return None
+    else:
+        if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
+                                  steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
+                                  steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, out)) != 0:
+            return None
+        if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
+            fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
+        if _call('window_metrics', (t, vel, eff, res, out)) != 0:
+            return None
     vals = out.tolist()
     is_steady = vals[0] == 1.0
     window = SteadyWindow(vals[1], float(t[-1]), is_steady, math.nan, math.nan, '', 0.0, 0, '')
@@ -119,3 +133,17 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
     summary = {'window': {'steady': is_steady, 'start_s': vals[1]},
                'energy_residual': vals[2], 'solver': trace.solver, 'shafts': shafts}
     return window, summary
+
+
+def load_entries() -> None:
+    """Load the compiled reduction's entry points (both forms: with and without the
+    members' speeds) on a tiny record of no members, for the argument types the sweep
+    passes: a worker then loads them with its first template, not in a later chunk."""
+    from types import SimpleNamespace
+    t = np.linspace(0.0, 1.0, 31)
+    ones = np.ones((31, 1))
+    trace = SimpleNamespace(t=t, names=['a'], velocity=ones, effort=ones,
+                            energy_residual=np.zeros(31), solver={})
+    compiled_reduction(trace, SimpleNamespace(transient=None))
+    compiled_reduction(trace, SimpleNamespace(transient=None), fill=SimpleNamespace(
+        members=(ones, np.zeros((0, 4), np.int64), np.zeros(1))))

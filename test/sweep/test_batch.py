@@ -5,6 +5,7 @@ bit."""
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -193,3 +194,24 @@ def test_template_slices_give_the_same_reduction() -> None:
     t = trace.t.copy()
     t[5] = t[4]
     assert checked_slices(t) is None and checked_slices(trace.t[:2]) is None
+
+
+def test_orders_of_the_earring_with_its_speeds_alone() -> None:
+    """The batched path fills only the members' speeds (no member angle): the torque orders
+    of the first shaft and of the earring (--orders-shaft coupling_earring, over the first
+    shaft's angle) are the per-variant path's."""
+    sw = build_sweep(load_scene_data(find_scene('kavz685_lever')),
+                     ['duration=0.4', 'driveline[coupling].params.alpha_deg=10,25',
+                      'driveline[bushings].stiffness=900,3000'])
+    keys = tuple(a.keys for a in sw.axes)
+    items = list(enumerate(sw.variants))
+    for shaft in (None, 'coupling_earring'):
+        job = Job(base=sw.base, keys=keys, options=RunOptions(orders=3, orders_shaft=shaft),
+                  listed=(False, True, True))
+        reference = run_chunk(job, items, batched=False)
+        runner = BatchRunner(job)
+        rows = [runner.run(values)[0] for _i, values in items]
+        assert runner.stats['batched'] == 3
+        assert [repr(r) for r in rows] == [repr(o.row) for o in reference]
+        col = f'{shaft or "drive_shaft"}.torque_order2'
+        assert all(math.isfinite(r[col]) for r in rows)

@@ -18,6 +18,11 @@ Hann-weighted means (``np.dot``, i.e. OpenBLAS's ``ddot``, whose strided loop su
 products into two accumulators and whose rounding depends on the CPU kernel OpenBLAS picks
 and its FMA contraction: a plain replica differed in 4 of 3000 sums here), so the caller
 computes them with numpy and passes them in.
+
+:func:`reduce_lean` is the batched sweep's one call per variant: the window, the
+intermediate members' speeds from the row before it on (:func:`fill_mid_speeds`, the
+speeds of ``outputs_nb.fill_mid_one`` without the member angles, which the metrics do not
+read) and the metrics.
 """
 from __future__ import annotations
 
@@ -26,8 +31,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['pairwise_sum', 'series_sum', 'steady_start', 'warm', 'window_first_row',
-           'window_metrics']
+from cvj_ros.physics.kernel.outputs_nb import _mid_angle, fill_mid_one
+
+__all__ = ['fill_mid_speeds', 'pairwise_sum', 'reduce_lean', 'series_sum', 'steady_start',
+           'warm', 'window_first_row', 'window_metrics']
 
 PW_BLOCKSIZE = 128
 
@@ -154,6 +161,49 @@ def _gradient_at(t: np.ndarray, f: np.ndarray, col: int, r: int, uniform: bool) 
 
 
 @njit(cache=True)
+def _gradient_coefs(t: np.ndarray, r: int, uniform: bool, co: np.ndarray) -> int:
+    """Row r of :func:`_gradient_at` as coefficients of any column f: returns x0 >= 0 with
+    the row's value co[0] f[x0] + co[1] f[x0+1] + co[2] f[x0+2] (the same products and
+    additions in the same order), or -1 for a uniform interior row, whose value is
+    (f[r+1] - f[r-1]) / co[3]."""
+    m = t.size
+    if uniform:
+        h = t[1] - t[0]
+        if r == 0:
+            co[0] = -1.5 / h
+            co[1] = 2. / h
+            co[2] = -0.5 / h
+            return 0
+        if r == m - 1:
+            co[0] = 0.5 / h
+            co[1] = -2. / h
+            co[2] = 1.5 / h
+            return m - 3
+        co[3] = 2. * h
+        return -1
+    if r == 0:
+        dx1 = t[1] - t[0]
+        dx2 = t[2] - t[1]
+        co[0] = -(2. * dx1 + dx2) / (dx1 * (dx1 + dx2))
+        co[1] = (dx1 + dx2) / (dx1 * dx2)
+        co[2] = -dx1 / (dx2 * (dx1 + dx2))
+        return 0
+    if r == m - 1:
+        dx1 = t[m - 2] - t[m - 3]
+        dx2 = t[m - 1] - t[m - 2]
+        co[0] = dx2 / (dx1 * (dx1 + dx2))
+        co[1] = -(dx2 + dx1) / (dx1 * dx2)
+        co[2] = (2. * dx2 + dx1) / (dx2 * (dx1 + dx2))
+        return m - 3
+    dx1 = t[r] - t[r - 1]
+    dx2 = t[r + 1] - t[r]
+    co[0] = -dx2 / (dx1 * (dx1 + dx2))
+    co[1] = (dx2 - dx1) / (dx1 * dx2)
+    co[2] = dx1 / (dx2 * (dx1 + dx2))
+    return r - 1
+
+
+@njit(cache=True)
 def steady_start(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, lo: np.ndarray,
                  hi: np.ndarray, means: np.ndarray, drift_tol: float, amplitude_tol: float,
                  min_slices: int, speed_floor: float, torque_floor: float,
@@ -259,29 +309,91 @@ def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
         if t[i + 1] - t[i] != h0:
             uniform = False
             break
+    # the acceleration's extrema: row by row, its coefficients (_gradient_coefs) once for
+    # every shaft, each shaft's max / min over the rows in the same order as row by shaft
+    gmax = np.empty(n_sh)
+    gmin = np.empty(n_sh)
+    co = np.empty(4)
+    for r in range(i0, m):
+        x0 = _gradient_coefs(t, r, uniform, co)
+        for j in range(n_sh):
+            if x0 < 0:      # uniform spacing, an interior row: numpy's central difference
+                g = (vel[r + 1, j] - vel[r - 1, j]) / co[3]
+            else:
+                g = co[0] * vel[x0, j] + co[1] * vel[x0 + 1, j] + co[2] * vel[x0 + 2, j]
+            if r == i0:
+                gmax[j] = g
+                gmin[j] = g
+            else:
+                gmax[j] = max(gmax[j], g)
+                gmin[j] = min(gmin[j], g)
     for j in range(n_sh):
         mean = series_sum(vel, i0, cnt, j) / cnt
         span = _max(vel, i0, m, j) - _min(vel, i0, m, j)
-        g = _gradient_at(t, vel, j, i0, uniform)
-        gmax = g
-        gmin = g
-        for r in range(i0 + 1, m):
-            g = _gradient_at(t, vel, j, r, uniform)
-            gmax = max(gmax, g)
-            gmin = min(gmin, g)
         o = 3 + 6 * j
         out[o] = mean
         out[o + 1] = span / abs(mean) if mean != 0.0 else math.inf
         out[o + 2] = 0.5 * span
-        out[o + 3] = 0.5 * (gmax - gmin)
+        out[o + 3] = 0.5 * (gmax[j] - gmin[j])
         out[o + 4] = series_sum(eff, i0, cnt, j) / cnt
         out[o + 5] = 0.5 * (_max(eff, i0, m, j) - _min(eff, i0, m, j))
     return 0
 
 
+@njit(cache=True)
+def fill_mid_speeds(pos: np.ndarray, vel: np.ndarray, i0: int, mtab: np.ndarray,
+                    mfp: np.ndarray) -> None:
+    """The intermediate members' speeds of rows i0.. of (samples, shafts) arrays pos/vel as
+    ``outputs_nb.fill_mid_one`` computes them: the Richardson-extrapolated central
+    difference (h = 1e-3 rad) of phi_mid = _mid_angle(op, phi_in) times omega_in, the same
+    operations, without the member angle itself (pos of a member is left as it is). When a
+    member's input is another member (its angle is read), every row is filled in full by
+    fill_mid_one instead."""
+    n = mtab.shape[0]
+    chained = False
+    for i in range(n):
+        for j in range(n):
+            if mtab[i, 1] == mtab[j, 0]:
+                chained = True
+    h = 1e-3
+    for k in range(i0, pos.shape[0]):
+        if chained:
+            fill_mid_one(pos[k], vel[k], mtab, mfp)
+            continue
+        for i in range(n):
+            i_mid, i_in, code, off = mtab[i, 0], mtab[i, 1], mtab[i, 2], mtab[i, 3]
+            phi = pos[k, i_in]
+            mp = _mid_angle(code, phi + h, mfp, off)
+            mm = _mid_angle(code, phi - h, mfp, off)
+            mp2 = _mid_angle(code, phi + h / 2, mfp, off)
+            mm2 = _mid_angle(code, phi - h / 2, mfp, off)
+            d_h = (mp - mm) / (2 * h)
+            d_h2 = (mp2 - mm2) / h
+            vel[k, i_mid] = (4.0 * d_h2 - d_h) / 3.0 * vel[k, i_in]
+
+
+@njit(cache=True)
+def reduce_lean(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray,
+                res: np.ndarray, lo: np.ndarray, hi: np.ndarray, means: np.ndarray,
+                drift_tol: float, amplitude_tol: float, min_slices: int, speed_floor: float,
+                torque_floor: float, fallback_fraction: float, mtab: np.ndarray,
+                mfp: np.ndarray, out: np.ndarray) -> int:
+    """:func:`steady_start`, then :func:`fill_mid_speeds` of the members ``mtab`` from the
+    row before the window on (:func:`window_first_row` - 1, at least 0), then
+    :func:`window_metrics`, in one call (same arguments and ``out``). Returns 0; -1 when
+    steady_start declined (nothing filled), -2 when window_metrics did (speeds filled)."""
+    if steady_start(t, vel, eff, lo, hi, means, drift_tol, amplitude_tol, min_slices,
+                    speed_floor, torque_floor, fallback_fraction, out) != 0:
+        return -1
+    fill_mid_speeds(pos, vel, max(0, window_first_row(t, out[1]) - 1), mtab, mfp)
+    if window_metrics(t, vel, eff, res, out) != 0:
+        return -2
+    return 0
+
+
 def warm() -> None:
-    """Compile or load :func:`steady_start` and :func:`window_metrics` for the argument
-    types the sweep passes
+    """Compile or load :func:`steady_start`, :func:`window_metrics` and
+    :func:`reduce_lean` for the argument types the sweep passes
     (``python -m cvj_ros.physics.kernel.warmup``)."""
     t = np.linspace(0.0, 1.0, 31)
     ones = np.ones((31, 1))
@@ -290,3 +402,5 @@ def warm() -> None:
     out = np.empty(9)
     steady_start(t, ones, ones, lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6, 1e-3, 0.5, out)
     window_metrics(t, ones, ones, np.zeros(31), out)
+    reduce_lean(t, ones, ones, ones, np.zeros(31), lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6,
+                1e-3, 0.5, np.zeros((0, 4), np.int64), np.zeros(1), out)

@@ -142,3 +142,104 @@ def test_slices_kept_per_times() -> None:
         lo, hi = _slices(t)
         _e, lo_ref, hi_ref = slice_bounds(t)
         assert np.array_equal(lo, lo_ref) and np.array_equal(hi, hi_ref)
+
+
+def test_member_speeds_alone_are_fill_mid_samples_speeds() -> None:
+    """reduce_nb.fill_mid_speeds (the members' speeds without their angles) writes the speeds
+    outputs_nb.fill_mid_samples writes, bit for bit, from the row it is given on, and no
+    member angle; members chained (one's input another's member) are filled in full (angles
+    too), as fill_mid_samples does. Members: the lever hinge's earring and the compiled
+    joint ops of the other kinds (Hooke stage, identity) on a real run's angles and speeds."""
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.kernel.layout import OP_HOOKE, OP_JOINT_IDENTITY
+    from cvj_ros.physics.kernel.outputs_nb import MID_EARRING, fill_mid_samples
+    from cvj_ros.physics.kernel.reduce_nb import fill_mid_speeds
+    from cvj_ros.physics.scene import find_scene, parse_scene
+    from cvj_ros.physics.simulate import Simulation
+    data = load_scene_data(find_scene('kavz685_lever'))
+    data['duration'] = 0.3
+    tr = Simulation(parse_scene(data)).run(sampling='dense')
+    rng = np.random.default_rng(3)
+    m = tr.t.size
+    base_pos = np.ascontiguousarray(tr.position)
+    base_vel = np.ascontiguousarray(tr.velocity)
+    n_sh = base_pos.shape[1]
+    pos0 = np.concatenate([base_pos, rng.uniform(-9, 9, (m, 2))], axis=1)
+    vel0 = np.concatenate([base_vel, rng.uniform(-9, 9, (m, 2))], axis=1)
+    mfp = np.array([math.cos(math.radians(25.0)), 0.0, 0.0, 1.0, 0.0, 0.93])
+    tables = {'earring': [(n_sh, 1, MID_EARRING, 0)],
+              'hooke and identity': [(n_sh, 0, OP_HOOKE, 5), (n_sh + 1, 1, OP_JOINT_IDENTITY, 0)],
+              'earring and hooke': [(n_sh, 0, MID_EARRING, 0), (n_sh + 1, 2, OP_HOOKE, 5)],
+              'chained': [(n_sh, 0, MID_EARRING, 0), (n_sh + 1, n_sh, OP_HOOKE, 5)]}
+    for label, rows in tables.items():
+        mtab = np.array(rows, dtype=np.int64)
+        members = mtab[:, 0]
+        for i0 in (0, 1, m // 3, m - 1, m):
+            pos_a, vel_a = pos0.copy(), vel0.copy()
+            fill_mid_samples(pos_a[i0:], vel_a[i0:], mtab, mfp)
+            pos_b, vel_b = pos0.copy(), vel0.copy()
+            fill_mid_speeds(pos_b, vel_b, i0, mtab, mfp)
+            assert vel_b.tobytes() == vel_a.tobytes(), (label, i0)
+            if label == 'chained':
+                assert pos_b.tobytes() == pos_a.tobytes(), (label, i0)
+            else:
+                assert pos_b.tobytes() == pos0.tobytes(), (label, i0)
+                assert not np.array_equal(pos_a[i0:, members], pos0[i0:, members]) or i0 == m
+
+
+def test_one_call_reduction_with_members_equals_the_fill_path() -> None:
+    """compiled_reduction with a fill that names its members (one compiled call: window,
+    speeds, metrics) gives the summary and window of the two-call path with the full fill
+    and of the numpy path on the complete record; the speeds are filled from the row before
+    the window on and the summary's earring speeds are the full run's."""
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene, parse_scene
+    from cvj_ros.physics.simulate import Simulation
+    from cvj_ros.sweep.batch import bind_lean, lean_run
+    for alpha, dur in ((30.0, 0.4), (5.0, 0.3), (20.0, 2.0)):
+        data = load_scene_data(find_scene('kavz685_lever'))
+        data['duration'] = dur
+        data['driveline'][2]['params']['alpha_deg'] = alpha
+        sim = Simulation(parse_scene(data))
+        full = sim.run(sampling='dense')
+        plan = next(iter(sim._plans.values()))
+        lean = bind_lean(sim, plan, 'dense')
+        assert lean is not None
+        ref = _numpy_summary(full)
+        trace_a, fill_a = lean_run(sim, plan, lean, speeds_only=True)
+        assert fill_a.members is not None
+        got_a = compiled_reduction(trace_a, RunOptions(), fill=fill_a)
+        trace_b, fill_b = lean_run(sim, plan, lean)
+        assert fill_b.members is None
+        got_b = compiled_reduction(trace_b, RunOptions(), fill=fill_b)
+        assert got_a is not None and got_b is not None
+        def metrics(summary: dict) -> str:     # the solver's counters hold the run's wall
+            return repr({k: v for k, v in summary.items() if k != 'solver'})
+        assert metrics(got_a[1]) == metrics(got_b[1]) == metrics(ref), alpha
+        assert got_a[0].start_s == got_b[0].start_s
+        i0 = max(0, int(np.flatnonzero(got_a[0].mask(full.t))[0]) - 1)
+        assert fill_b.done == i0 and fill_a.done == full.t.size      # angles not filled
+        assert trace_a.velocity[i0:].tobytes() == full.velocity[i0:].tobytes()
+
+
+def test_gradient_coefficients_give_gradient_at() -> None:
+    """window_metrics' per-row coefficients (reduce_nb._gradient_coefs, once for all
+    shafts) give reduce_nb._gradient_at's value (numpy's np.gradient arithmetic) bit for
+    bit in every row, uniform and non-uniform spacing, and np.gradient's own."""
+    from cvj_ros.physics.kernel.reduce_nb import _gradient_at, _gradient_coefs
+    rng = np.random.default_rng(5)
+    for t in (np.arange(40) * 0.001, np.linspace(0.0, 2.0, 2001),
+              np.cumsum(rng.uniform(0.1, 2, 30)), np.arange(3) * 0.5):
+        d = np.diff(t)
+        uniform = bool(np.all(d == d[0]))
+        f = rng.standard_normal((t.size, 3)) * 10.0 ** rng.integers(-3, 4, (t.size, 3))
+        co = np.empty(4)
+        for r in range(t.size):
+            x0 = _gradient_coefs(t, r, uniform, co)
+            for j in range(3):
+                if x0 < 0:
+                    g = (f[r + 1, j] - f[r - 1, j]) / co[3]
+                else:
+                    g = co[0] * f[x0, j] + co[1] * f[x0 + 1, j] + co[2] * f[x0 + 2, j]
+                assert g == _gradient_at(t, f, j, r, uniform), (t.size, r, j)
+                assert g == np.gradient(f[:, j], t, edge_order=2)[r]

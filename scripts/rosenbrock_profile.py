@@ -19,7 +19,8 @@ ROUNDS rounds), and per run (x the run's count of that piece):
   evaluations;
 - ``stages_hoisted``: a candidate ``_ros_stages`` dividing C_sj by h once per (s, j) (not
   the kernel's code; its bytes are checked against the kernel's, ``hoisted_same_bytes``);
-- ``dense``: one ``hermite_dense`` call (rodas3 / rodas4 samples between steps);
+- ``dense``: one cubic Hermite sample (rodas3 / rodas4 samples between steps), the body
+  ``ros_sample`` inlines (``_hermite_into``);
 - ``rhs``, ``jac``: one evaluation each, to subtract.
 
     PYTHONPATH=. python scripts/rosenbrock_profile.py [SCENE [METHOD [TOL [ROUNDS]]]]
@@ -209,7 +210,7 @@ def _step_loop(reps, y, y0, fs, fs0, cnt, cnt0, y_old, ip, fp, rtol, atol, auton
 def _dense_loop(reps, t, y, y_old, ip, fp, fs, cnt, K, out, frow):
     acc = 0.0
     for _ in range(reps):
-        nb.hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow)
+        nb._hermite_into(t, y, y_old, ip, fp, fs, cnt, K, out, frow)
         acc += out[0]
     return acc
 

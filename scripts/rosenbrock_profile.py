@@ -37,6 +37,7 @@ from numba import njit
 
 from cvj_ros import bench
 from cvj_ros.physics.kernel import run_nb, steppers_nb as nb
+from cvj_ros.physics.kernel.borrow_nb import borrowed_all
 from cvj_ros.physics.kernel.rhs_nb import jac as JAC
 from cvj_ros.physics.kernel.rhs_nb import rhs as RHS
 from cvj_ros.physics.simulate import Simulation
@@ -208,6 +209,8 @@ def _step_loop(reps, y, y0, fs, fs0, cnt, cnt0, y_old, ip, fp, rtol, atol, auton
 
 @njit
 def _dense_loop(reps, t, y, y_old, ip, fp, fs, cnt, K, out, frow):
+    # borrowed as ros_sample's arrays are (the inlined body's views count no references)
+    y, y_old, ip, fp, fs, cnt, K, out = borrowed_all((y, y_old, ip, fp, fs, cnt, K, out))
     acc = 0.0
     for _ in range(reps):
         nb._hermite_into(t, y, y_old, ip, fp, fs, cnt, K, out, frow)

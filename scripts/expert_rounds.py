@@ -44,8 +44,19 @@ def _time(prob: bench.SceneProblem, r: dict, cfg: bench.BenchConfig) -> float:
 
 
 def main() -> None:
-    rows = list(csv.DictReader(open(sys.argv[1])))
-    rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+    if len(sys.argv) < 2 or sys.argv[1].startswith('-'):
+        sys.exit('usage: PYTHONPATH=. python scripts/expert_rounds.py BENCH_CSV [ROUNDS]')
+    try:
+        with open(sys.argv[1]) as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        sys.exit(f'{sys.argv[1]}: cannot read the bench CSV ({exc.strerror})')
+    if not rows or 'family' not in rows[0]:
+        sys.exit(f'{sys.argv[1]}: not a `cvj-sim bench` CSV (no family column)')
+    try:
+        rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+    except ValueError:
+        sys.exit(f'ROUNDS: an integer, got {sys.argv[2]!r}')
     cfg = bench.BenchConfig(repeats=3, passes=1, min_timed_s=0.02, max_repeats=60, horizon=1.0)
     scenes = list(dict.fromkeys(r['scene'] for r in rows))
     print('| scene | level | project config | expert config | project s/s (median) | expert s/s (median) '

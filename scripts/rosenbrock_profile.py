@@ -19,7 +19,8 @@ ROUNDS rounds), and per run (x the run's count of that piece):
   evaluations;
 - ``stages_hoisted``: a candidate ``_ros_stages`` dividing C_sj by h once per (s, j) (not
   the kernel's code; its bytes are checked against the kernel's, ``hoisted_same_bytes``);
-- ``dense``: one ``hermite_dense`` call (rodas3 / rodas4 samples between steps);
+- ``dense``: one cubic Hermite sample (rodas3 / rodas4 samples between steps), the body
+  ``ros_sample`` inlines (``_hermite_into``);
 - ``rhs``, ``jac``: one evaluation each, to subtract.
 
     PYTHONPATH=. python scripts/rosenbrock_profile.py [SCENE [METHOD [TOL [ROUNDS]]]]
@@ -36,6 +37,7 @@ from numba import njit
 
 from cvj_ros import bench
 from cvj_ros.physics.kernel import run_nb, steppers_nb as nb
+from cvj_ros.physics.kernel.borrow_nb import borrowed_all
 from cvj_ros.physics.kernel.rhs_nb import jac as JAC
 from cvj_ros.physics.kernel.rhs_nb import rhs as RHS
 from cvj_ros.physics.simulate import Simulation
@@ -207,9 +209,11 @@ def _step_loop(reps, y, y0, fs, fs0, cnt, cnt0, y_old, ip, fp, rtol, atol, auton
 
 @njit
 def _dense_loop(reps, t, y, y_old, ip, fp, fs, cnt, K, out, frow):
+    # borrowed as ros_sample's arrays are (the inlined body's views count no references)
+    y, y_old, ip, fp, fs, cnt, K, out = borrowed_all((y, y_old, ip, fp, fs, cnt, K, out))
     acc = 0.0
     for _ in range(reps):
-        nb.hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow)
+        nb._hermite_into(t, y, y_old, ip, fp, fs, cnt, K, out, frow)
         acc += out[0]
     return acc
 

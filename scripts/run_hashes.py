@@ -8,10 +8,13 @@ state) and counters (nfev, njev, nlu, naccept, nreject, t, h) go into one sha256
 Rosenbrock methods run the non-stiff scenes at the loose tolerance only (as the bench).
 
     PYTHONPATH=. python scripts/run_hashes.py OUT.txt [SCENE ...] [--pairs] [--reuse]
+        [--fidelity ideal]
 
-then ``diff`` two OUT files: 76 lines for the five methods of the original check, 116 with
-tsit5 and vern6 (``--pairs``). ``--reuse``: every run with ``reuse_trace=True`` (the second
-run rewrites the first's Trace in place), whose hashes must equal the runs' without it.
+then ``diff`` two OUT files: 90 lines for the five methods on the six scenes, 138 with
+tsit5 and vern6 (``--pairs``). ``--fidelity``: the bench's fidelity column (default exact;
+the bench's stiff rows run ideal). ``--reuse``: every run with ``reuse_trace=True`` (the
+second run rewrites the first's Trace in place), whose hashes must equal the runs' without
+it.
 """
 from __future__ import annotations
 
@@ -27,13 +30,14 @@ __all__ = ['FIELDS', 'run_hashes']
 
 FIELDS = ('t', 'position', 'velocity', 'effort', 'engine_torque', 'load_torque',
           'energy_residual')
-SCENES = ('stiff', 'fwd_halfshaft', 'kavz685_lever', 'cardan_truck', 'tripod_xiu2024')
+SCENES = ('stiff', 'fwd_halfshaft', 'kavz685_lever', 'cardan_truck', 'tripod_xiu2024',
+          'fwd_axle')
 METHODS = ('rodas3', 'rosenbrock', 'rodas4', 'dopri5', 'dop853')
 PAIRS = ('tsit5', 'vern6')
 
 
 def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METHODS,
-               reuse: bool = False) -> dict[str, str]:
+               reuse: bool = False, fidelity: str = 'exact') -> dict[str, str]:
     """{'scene method tol sampling': sha256 prefix of two runs' outputs and counters}."""
     out: dict[str, str] = {}
     for name in scenes:
@@ -44,7 +48,7 @@ def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METH
                     if method.startswith('ro') and name != 'stiff' and tol == 1e-6:
                         continue
                     sim = Simulation(scene, method=method, rtol=tol, atol=tol,
-                                     fidelity=bench.forced_levels(scene, 'exact'))
+                                     fidelity=bench.forced_levels(scene, fidelity))
                     h = hashlib.sha256()
                     for _rep in range(2):
                         tr = sim.run(1.0, sample_dt=0.05, sampling=sampling,
@@ -62,8 +66,14 @@ def run_hashes(scenes: tuple[str, ...] = SCENES, methods: tuple[str, ...] = METH
 
 def main() -> None:
     args = [a for a in sys.argv[1:] if a not in ('--pairs', '--reuse')]
+    fidelity = 'exact'
+    if '--fidelity' in args:
+        i = args.index('--fidelity')
+        fidelity = args[i + 1]
+        del args[i:i + 2]
     methods = METHODS + PAIRS if '--pairs' in sys.argv else METHODS
-    out = run_hashes(tuple(args[1:]) or SCENES, methods, reuse='--reuse' in sys.argv)
+    out = run_hashes(tuple(args[1:]) or SCENES, methods, reuse='--reuse' in sys.argv,
+                     fidelity=fidelity)
     with open(args[0], 'w') as fh:
         for k, v in out.items():
             fh.write(f'{k} {v}\n')

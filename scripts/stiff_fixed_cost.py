@@ -21,7 +21,6 @@ sampling='dense', reuse_trace=True)``) and times, in compiled loops over the sam
 """
 from __future__ import annotations
 
-import functools
 import sys
 
 import numpy as np
@@ -30,12 +29,11 @@ from numba.core.runtime import rtsys
 
 from cvj_ros import bench
 from cvj_ros.physics.kernel import run_nb
-from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples, sample_outputs
-from cvj_ros.physics.kernel.rhs_nb import jac as JAC
-from cvj_ros.physics.kernel.rhs_nb import rhs as RHS
 from cvj_ros.physics.kernel.steppers_nb import ST_OK, ros_land, ros_sample
 from cvj_ros.physics.simulate import Simulation
-from run_profile import _min_cpu   # scripts/ is on the path when run as a script
+from run_profile import (   # scripts/ is on the path when run as a script
+    _jac_loop, _min_cpu, _outputs_loop, _rhs_loop)
+from run_profile import _run_loop as _loop
 
 
 # A copy of run_nb.ros_run without its last line (the outputs): keep it in step with ros_run.
@@ -78,45 +76,6 @@ def _ros_run_no_outputs(fpk, ipk, fbuf, ibuf, y, ip, fp, mfp, h0, rtol, max_step
                 if st != ST_OK:
                     return st, -1
     return ST_OK, -1
-
-
-@njit
-def _loop(n, fn, args):
-    bad = 0
-    for _ in range(n):
-        st, b = fn(*args)
-        bad += b + st
-    return bad
-
-
-@njit
-def _outputs_loop(n, times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, mtab, mfp):
-    bad = 0
-    for _ in range(n):
-        bad += sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
-        if mtab.shape[0] > 0:
-            fill_mid_samples(pos, vel, mtab, mfp)
-    return bad
-
-
-@njit
-def _rhs_loop(n, X, ip, fp, times, dy):
-    acc = 0.0
-    for r in range(n):
-        k = r % X.shape[0]
-        RHS(times[k], X[k], ip, fp, dy)
-        acc += dy[0]
-    return acc
-
-
-@njit
-def _jac_loop(n, X, ip, fp, times, J):
-    acc = 0.0
-    for r in range(n):
-        k = r % X.shape[0]
-        JAC(times[k], X[k], ip, fp, J)
-        acc += J[0, 0]
-    return acc
 
 
 def _allocs(loop, reps: int = 100) -> float:

@@ -180,3 +180,20 @@ def test_a_cfunc_that_does_not_compile_skips_the_family_with_one_line(
         '[bench] baseline_expert skipped: numbalsoda is installed but its cfunc did not compile '
         '(typing failed)']
     assert not [r for r in res['rows'] if r['family'] == 'baseline_expert']
+
+
+@pytest.mark.parametrize('args, message', [
+    ([], 'usage:'),
+    (['/nonexistent/bench.csv'], '/nonexistent/bench.csv: cannot read the bench CSV'),
+    (['README.md'], 'README.md: not a `cvj-sim bench` CSV'),
+])
+def test_expert_rounds_bad_input_is_one_line(args: list[str], message: str) -> None:
+    """scripts/expert_rounds.py on a missing or wrong CSV: one line naming it, exit != 0."""
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / 'scripts' / 'expert_rounds.py'), *args],
+                         cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0
+    assert out.stderr.strip().startswith(message) and len(out.stderr.strip().splitlines()) == 1
+    assert 'Traceback' not in out.stderr

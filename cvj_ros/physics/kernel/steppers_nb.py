@@ -429,6 +429,12 @@ def hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, out, frow=4):
     step start (K[frow]) and f at the step end (computed once into K[0], reused by
     the next step as its first stage: cnt[C_HAVEF] = 1)."""
     y, y_old, ip, fp, fs, cnt, K, out = borrowed_all((y, y_old, ip, fp, fs, cnt, K, out))
+    _hermite_into(t, y, y_old, ip, fp, fs, cnt, K, out, frow)
+
+
+@njit(cache=True, inline='always')
+def _hermite_into(t, y, y_old, ip, fp, fs, cnt, K, out, frow):
+    """:func:`hermite_dense`'s body, inlined where a sampled loop calls it per sample."""
     n = y.shape[0]
     h = fs[FS_HLAST]
     if h == 0.0 or t == fs[FS_T]:
@@ -474,7 +480,7 @@ def rk4_sample(t_eval, y, y_old, ip, fp, fs, cnt, K, work, Y):
                 for i in range(n):
                     Y[k, i] = y[i]
             else:
-                hermite_dense(t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k])
+                _hermite_into(t_eval[k], y, y_old, ip, fp, fs, cnt, K, Y[k], 4)
             k += 1
     return ST_OK, k
 
@@ -854,6 +860,12 @@ def ros_advance(t_end, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, autonomo
 def ros_dense_h(t, y, y_old, fs, H, K, out):
     """RODAS5P continuous extension inside the last accepted step:
     y(x) = (1-x) y0 + x (y1 + (1-x) (D1 + x (D2 + x D3))), D = H K (solvers)."""
+    _ros_dense_h_into(t, y, y_old, fs, H, K, out)
+
+
+@njit(cache=True, inline='always')
+def _ros_dense_h_into(t, y, y_old, fs, H, K, out):
+    """:func:`ros_dense_h`'s body, inlined where ros_sample calls it per sample."""
     n = y.shape[0]
     h = fs[FS_HLAST]
     x = (t - fs[FS_TOLD]) / h
@@ -1072,9 +1084,9 @@ def ros_sample(t_eval, Y, y, y_old, ip, fp, fs, cnt, rtol, atol, max_step, auton
         if t == fs[FS_T] or fs[FS_HLAST] == 0.0:
             _store_row(Y, k, y)
         elif hermite_row < 0:
-            ros_dense_h(t, y, y_old, fs, H, K, Y[k])
+            _ros_dense_h_into(t, y, y_old, fs, H, K, Y[k])
         else:
-            hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, Y[k], hermite_row)
+            _hermite_into(t, y, y_old, ip, fp, fs, cnt, K, Y[k], hermite_row)
     return ST_OK, t_eval.size
 
 
@@ -1095,7 +1107,7 @@ def ros2_sample(t_eval, Y, y, y_old, ip, fp, fs, cnt, autonomous, constant_jac, 
         if t == fs[FS_T]:
             _store_row(Y, k, y)
         else:
-            hermite_dense(t, y, y_old, ip, fp, fs, cnt, K, Y[k])
+            _hermite_into(t, y, y_old, ip, fp, fs, cnt, K, Y[k], 4)
     return ST_OK, t_eval.size
 
 

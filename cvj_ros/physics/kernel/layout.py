@@ -9,11 +9,16 @@ ip header (``H_*`` indices):
     H_ENGINE engine code, H_LOAD load code, H_ENGINE_I / H_ENGINE_F engine ip/fp offsets,
     H_LOAD_I / H_LOAD_F load ip/fp offsets, H_SEC section table offset, H_SPRING_F spring
     parameter offset (fp), H_INPUT_F input block offset (fp), H_TREE tree block offset
-    (0 for a chain), H_IMBALANCE imbalance table offset (0: none).
+    (0 for a chain), H_IMBALANCE imbalance table offset (0: none), H_SEC_PRE section prefix
+    table offset (0: none).
 imbalance table at ip[H_IMBALANCE]: count, then per unbalanced inertia (section, op index in
     the op list, fp offset of [m g e N m, angle rad]) (sections.section_imbalance).
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
     follows at ip[H_SEC] + n + 1 as pairs (op code, fp offset).
+section prefix table at ip[H_SEC_PRE] (chains): per section (op index where the chain rule
+    resumes, 1 if the prefix holds a joint else 0, fp offset of [k, a, M]): the section's
+    leading run of inertias, identity joints and at most one gear folded at build time
+    (:func:`section_prefix`; rhs_nb.section starts from phi = q k, a, b = 0, M, C = 0).
 ops: OP_INERTIA fp[off] = J (kg m^2); OP_JOINT_IDENTITY (ideal fidelity of any joint, ideal CV:
     phi_out = phi_in); OP_HOOKE fp[off] = cos(beta); OP_GEAR fp[off] = ratio k
     (phi_out = k phi_in); OP_LEVER_CLOSED fp = [ca, sa2, ta, twist, da], OP_LEVER_EXACT
@@ -76,7 +81,8 @@ H_ENGINE_I, H_ENGINE_F, H_LOAD_I, H_LOAD_F = 5, 6, 7, 8
 H_SEC, H_SPRING_F, H_INPUT_F = 9, 10, 11
 H_TREE = 12          # 0: a chain; else the ip offset of the tree block (vehicle scenes)
 H_IMBALANCE = 13     # 0: no imbalance; else the ip offset of the imbalance table
-N_HEADER = 14
+H_SEC_PRE = 14       # 0: none (vehicle scenes); else the ip offset of the section prefix table
+N_HEADER = 15
 
 # op codes
 OP_INERTIA = 0
@@ -247,6 +253,33 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
                               'is not covered yet')
 
 
+def section_prefix(ops: list[tuple[int, int]], fp: list[float]
+                   ) -> tuple[int, int, float, float, float]:
+    """(ops folded, 1 if a joint among them else 0, k, a, M) of a section's leading constant
+    run: inertias, identity joints and at most one gear (a second gear would change the
+    rounding of phi = (q k1) k2). Over that run the chain rule of rhs_nb.section is
+    phi = q k, a = k (1 before the gear), b = 0 and M = sum J a^2 term by term; the same
+    products and sums in the same order as the kernel's loop, so the same bits (C and dM/dq
+    are sums of J a b = 0 from +0.0: +0.0)."""
+    k, a, m = 1.0, 1.0, 0.0
+    has_joint = 0
+    gears = 0
+    for i, (code, off) in enumerate(ops):
+        if code == OP_INERTIA:
+            jv = fp[off]
+            m += jv * a * a
+        elif code == OP_JOINT_IDENTITY:
+            has_joint = 1
+        elif code == OP_GEAR and gears == 0:
+            gears = 1
+            has_joint = 1
+            k = fp[off]
+            a = k * a
+        else:
+            return i, has_joint, k, a, m
+    return len(ops), has_joint, k, a, m
+
+
 def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
                 horizon: float | None = None) -> ModelData:
     """Pack ``driveline`` (a Driveline, or a vehicle scene's TreeDriveline: its engine must
@@ -303,6 +336,13 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     head[H_LOAD], head[H_LOAD_F], head[H_LOAD_I] = l_code, l_f, 0
     head[H_SEC], head[H_SPRING_F], head[H_INPUT_F] = N_HEADER, spring_f, input_f
     ip = head + sec_start + [v for op in ops for v in op]
+    ip[H_SEC_PRE] = len(ip)
+    pre_rows = []
+    for g in range(n):
+        resume, has_joint, k, a, m = section_prefix(ops[sec_start[g]:sec_start[g + 1]], fp)
+        pre_rows += [sec_start[g] + resume, has_joint, len(fp)]
+        fp.extend([k, a, m])
+    ip += pre_rows
     if imb:
         ip[H_IMBALANCE] = len(ip)
         ip += [len(imb) // 3] + imb

@@ -18,7 +18,7 @@ from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
     ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_IMBALANCE, H_INPUT_F, H_LOAD, H_LOAD_F,
-    H_NDOF, H_SEC,
+    H_NDOF, H_SEC, H_SEC_PRE,
     H_SPRING_F, H_TREE, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
     LOAD_INPUTS, OP_INERTIA, SPRING_STRIDE)
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
@@ -27,13 +27,17 @@ from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
 @njit(cache=True, inline='always')
 def section(g, q, ip, fp):
     """(phi_end rad, a_end -, b_end 1/rad, M kg m^2, C kg m^2/rad, dM/dq, has_joint) of
-    section g at angle q: chain rule a <- r a, b <- s a^2 + r b over the section's ops."""
+    section g at angle q: chain rule a <- r a, b <- s a^2 + r b over the section's ops,
+    from the end of its constant prefix (layout.section_prefix: phi = q k, a, b = 0, M, the
+    same bits as the loop over those ops)."""
     n = ip[H_NDOF]
     tab = ip[H_SEC]
     ops = tab + n + 1
-    phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
-    has_joint = False
-    for k in range(ip[tab + g], ip[tab + g + 1]):
+    pre = ip[H_SEC_PRE] + 3 * g
+    po = ip[pre + 2]
+    phi, a, b, m, c, mp = q * fp[po], fp[po + 1], 0.0, fp[po + 2], 0.0, 0.0
+    has_joint = ip[pre + 1] != 0
+    for k in range(ip[pre], ip[tab + g + 1]):
         code = ip[ops + 2 * k]
         off = ip[ops + 2 * k + 1]
         if code == OP_INERTIA:

@@ -13,10 +13,13 @@ import zlib
 
 import numpy as np
 import pytest
+from numba import njit
 
 from cvj_ros.physics.driveline import Driveline
 from cvj_ros.physics.engine import engine_from_spec
-from cvj_ros.physics.kernel.layout import build_model, set_throttle, set_torque_inputs
+from cvj_ros.physics.kernel.joints_nb import joint_eval
+from cvj_ros.physics.kernel.layout import (H_NDOF, H_SEC, H_SEC_PRE, OP_INERTIA, build_model,
+                                          set_throttle, set_torque_inputs)
 from cvj_ros.physics.kernel.rhs_nb import jac, rhs
 from cvj_ros.physics.load import load_from_spec
 from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes
@@ -408,3 +411,105 @@ def test_rhs_spring_torque_has_the_bits_of_the_full_spring_evaluation():
                 t_law, _k, _kd, _v, p_law = law.evaluate(th, thd)
                 assert spring_torque(th, thd, fp, 0) == (t_full, p_full) == (t_law, p_law), \
                     (smoothing, k2, th, thd)
+
+
+@njit(cache=False)
+def _section_op_loop(g, q, ip, fp):
+    """rhs_nb.section as it was before the constant prefix: the chain rule over every op of
+    section g from phi = q, a = 1, b = M = C = dM/dq = 0 (the reference of the fold)."""
+    n = ip[H_NDOF]
+    tab = ip[H_SEC]
+    ops = tab + n + 1
+    phi, a, b, m, c, mp = q, 1.0, 0.0, 0.0, 0.0, 0.0
+    has_joint = False
+    for k in range(ip[tab + g], ip[tab + g + 1]):
+        code = ip[ops + 2 * k]
+        off = ip[ops + 2 * k + 1]
+        if code == OP_INERTIA:
+            jv = fp[off]
+            m += jv * a * a
+            c += jv * a * b
+            mp += 2.0 * jv * a * b
+        else:
+            has_joint = True
+            po, r, s = joint_eval(code, phi, fp, off)
+            b = s * a * a + r * b
+            a = r * a
+            phi = po
+    return phi, a, b, m, c, mp, has_joint
+
+
+def _bits(values):
+    """The float64 bit patterns of a tuple (signed zeros and NaN payloads count)."""
+    return np.array([float(v) for v in values], dtype=np.float64).view(np.uint64).tolist()
+
+
+GEARS = {'two_gears_identity_first': [
+    {'type': 'inertia', 'name': 'a', 'J': 0.3},
+    {'type': 'joint', 'name': 'cv', 'kind': 'ideal_cv'},
+    {'type': 'inertia', 'name': 'b', 'J': 0.07},
+    {'type': 'joint', 'name': 'g1', 'kind': 'gear', 'params': {'gear_ratio': 3.7}},
+    {'type': 'inertia', 'name': 'c', 'J': 0.011},
+    {'type': 'joint', 'name': 'g2', 'kind': 'gear', 'params': {'gear_ratio': -1.3}},
+    {'type': 'inertia', 'name': 'd', 'J': 2.0},
+    {'type': 'spring', 'name': 's', 'stiffness': 800.0, 'damping': 1.0},
+    {'type': 'joint', 'name': 'g3', 'kind': 'gear', 'params': {'gear_ratio': 0.3}},
+    HOOKE, {'type': 'inertia', 'name': 'e', 'J': 0.4}]}
+
+
+def _prefix_models():
+    """(label, model) of every case above, the extra gear case, and every shipped chain
+    scene at every fidelity (the prefixes that occur: none, inertias only, through an
+    identity joint, through a gear, up to a second gear, a whole section)."""
+    from cvj_ros import bench
+    from cvj_ros.physics.simulate import Simulation
+    for case, dl in {**CASES, **GEARS}.items():
+        sc = _scene(dl)
+        yield case, build_model(Driveline.from_scene(sc), horizon=1.0)
+    for name, path in sorted(shipped_scenes().items()):
+        sc = load_scene(path)
+        if sc.is_tree or sc.has_modes:
+            continue
+        for fid in ('ideal', 'closed', 'exact', 'auto'):
+            sim = Simulation(sc, fidelity=bench.forced_levels(sc, fid))
+            yield f'{name} {fid}', build_model(sim.driveline, engine=sim.engine,
+                                               load=sim.load, horizon=1.0)
+
+
+def test_section_from_its_constant_prefix_has_the_bits_of_the_op_loop():
+    """rhs_nb.section starts from the section's constant prefix folded at build time
+    (layout.section_prefix: inertias, identity joints, one gear): phi_end, a, b, M, C, dM/dq
+    and has_joint are those of the loop over every op, bit for bit (signed zeros too), at
+    angles from 0 and -0 to 1e6 rad of either sign. A fold that reordered the sum of M, took
+    a second gear into phi = q k or dropped a prefix joint's has_joint fails here."""
+    from cvj_ros.physics.kernel.rhs_nb import section
+    rng = np.random.default_rng(11)
+    qs = [0.0, -0.0, 1e-300, -2.5, math.pi, *rng.uniform(-10.0, 10.0, 60),
+          *rng.uniform(-1e6, 1e6, 20)]
+    folded = 0
+    for label, model in _prefix_models():
+        ip, fp = model.ip, model.fp
+        for g in range(model.n_dof):
+            folded += int(ip[ip[H_SEC_PRE] + 3 * g]) - int(ip[ip[H_SEC] + g])
+            for q in qs:
+                got = section(g, q, ip, fp)
+                ref = _section_op_loop(g, q, ip, fp)
+                assert got[6] == ref[6] and _bits(got[:6]) == _bits(ref[:6]), (label, g, q)
+    assert folded > 40      # the prefixes are not empty (the test would pass vacuously)
+
+
+def test_section_prefix_folds_inertias_identities_and_one_gear():
+    """layout.section_prefix stops at the first joint that is not the identity or a gear,
+    and at a second gear (phi = (q k1) k2 is not q (k1 k2) in floating point)."""
+    from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_JOINT_IDENTITY,
+                                               section_prefix)
+    fp = [0.0, 0.3, 3.7, 0.07, -1.3, 0.9]
+    I0, I1, G0, G1, H = (OP_INERTIA, 1), (OP_INERTIA, 3), (OP_GEAR, 2), (OP_GEAR, 4), (OP_HOOKE, 5)
+    ident = (OP_JOINT_IDENTITY, 0)
+    assert section_prefix([I0], fp) == (1, 0, 1.0, 1.0, 0.3)
+    assert section_prefix([I0, ident, I1], fp) == (3, 1, 1.0, 1.0, 0.3 + 0.07)
+    assert section_prefix([I0, G0, I1], fp) == (3, 1, 3.7, 3.7, 0.3 + 0.07 * 3.7 * 3.7)
+    assert section_prefix([I0, G0, I1, G1, I0], fp)[:2] == (3, 1)
+    assert section_prefix([I0, H, I1], fp) == (1, 0, 1.0, 1.0, 0.3)
+    assert section_prefix([H, I0], fp) == (0, 0, 1.0, 1.0, 0.0)
+    assert section_prefix([ident, H, G0], fp)[:2] == (1, 1)

@@ -2,8 +2,8 @@
 schedule) as real processes, separate and composed: every shaft of both branches, every
 engine answer and every throttle scale are the offline exchange loop's bit for bit
 (KernelHybridTreeLockstep with the scene's command plan and the engine model answering each t_k
-at pedal x throttle_scale(), the shift's throttle cut), two composed runs give the same bag,
-and the run follows `cvj-sim simulate` within a stated bound.
+at pedal x throttle_scale(), the shift's throttle cut), the separate and the composed run
+give the same bag, and the run follows `cvj-sim simulate` within a stated bound.
 
 Runs are shortened to 4.6 s, over the first shift: both brakes hold the car on the 10 %
 grade exactly at rest, the brakes release at ~1.74 s, the clutch locks at ~2.69 s in 1st,
@@ -41,8 +41,7 @@ COMMAND_TOPICS = ('/engine/throttle', '/driveline/clutch', '/driveline/brake',
 def runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, Path]]:
     work = tmp_path_factory.mktemp('e2e_launch_clutch')
     out = {}
-    for name, extra in (('separate', []), ('composed', ['--composed']),
-                        ('composed_again', ['--composed'])):
+    for name, extra in (('separate', []), ('composed', ['--composed'])):
         r = subprocess.run([CVJ_SIM, 'run', 'launch_clutch', '--out', str(work / name),
                             '--duration', str(DURATION), *extra],
                            capture_output=True, text=True, timeout=900)
@@ -106,12 +105,18 @@ def test_runs_finish_in_second_gear_with_the_clutch_locked(runs) -> None:
                 'brake_right slip+') in r.stdout, r.stdout
 
 
-def test_two_composed_runs_give_the_same_bag(runs) -> None:
-    a, b = raw_messages(runs['composed'][1]), raw_messages(runs['composed_again'][1])
+def test_separate_and_composed_runs_give_the_same_bag(runs) -> None:
+    """Two runs, one process per node and all in one process, record the same messages
+    (record stamp and canonical CDR) on every loop and command topic: the run does not
+    depend on the layout nor on anything a second run could change."""
+    a, b = raw_messages(runs['separate'][1]), raw_messages(runs['composed'][1])
     for topic in ('/clock', '/driveline/joint_states', '/driveline/scene', '/engine/wrench',
                   '/load/wrench', *COMMAND_TOPICS):
-        assert a[topic] == b[topic], topic
-        assert a[topic], topic
+        ma, mb = a[topic], b[topic]
+        if topic in ('/engine/wrench', '/load/wrench') and {len(ma), len(mb)} == {N, N + 1}:
+            ma, mb = ma[:N], mb[:N]   # separate mode may lose the unawaited answer to t_N
+        assert ma == mb, topic
+        assert ma, topic
 
 
 @pytest.mark.parametrize('name', ['separate', 'composed'])

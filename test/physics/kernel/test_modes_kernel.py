@@ -178,8 +178,12 @@ def _hard_cases():
             marks = getattr(fn, 'pytestmark', [])
             seeds = [m.args[1] for m in marks if m.name == 'parametrize']
             if seeds:      # the reference's seeds and as many more random schedules
+                # (the extra seeds n..2n-1 under -m slow: make test runs the n seeds the
+                # hard case itself runs on the reference)
                 n = len(list(seeds[0]))
-                out += [pytest.param(fn, {'seed': s}, id=f'{name}[{s}]') for s in range(2 * n)]
+                out += [pytest.param(fn, {'seed': s}, id=f'{name}[{s}]',
+                                     marks=(pytest.mark.slow,) if s >= n else ())
+                        for s in range(2 * n)]
             else:
                 out.append(pytest.param(fn, {}, id=name))
     return out

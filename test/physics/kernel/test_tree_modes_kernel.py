@@ -156,9 +156,11 @@ def _split_mu_pack(**pack) -> dict:
     return d
 
 
-@pytest.mark.parametrize('method', ['dopri5', 'dop853'])
+@pytest.mark.parametrize('method', ['dopri5', 'dop853', 'vern7', 'vern8'])
 def test_clutch_pack_breakaway_and_torque_sensing(monkeypatch, method: str) -> None:
-    """Stuck at the start, breaks away, slips with T_b = T_p + k |T_L + T_R|."""
+    """Stuck at the start, breaks away, slips with T_b = T_p + k |T_L + T_R|. vern7 and
+    vern8 (kernel/segment_nb.py's M_ERK on a tree, the reference solvers._ErkStepper) to the
+    hard cases' bounds (TOL, TOL_STATE), as ERK_TREE_TOL."""
     sim = hybrid_simulation(parse_scene(_split_mu_pack(preload_nm=100.0, torque_bias=0.2)),
                             method=method, sample_dt=0.01)
     _got, rk = twin(sim, monkeypatch)
@@ -401,10 +403,12 @@ def test_launch_clutch_on_tsit5_vern6(monkeypatch, method: str) -> None:
     assert rk.max_energy_residual < 1e-8
 
 
-@pytest.mark.parametrize('method', ['tsit5', 'vern6', 'vern7', 'vern8'])
+@pytest.mark.parametrize('method', ['tsit5', 'vern6', pytest.param('vern7', marks=pytest.mark.slow),
+                                    pytest.param('vern8', marks=pytest.mark.slow)])
 def test_fwd_axle_manual_on_tsit5_vern6(monkeypatch, method: str) -> None:
     """The commanded 3 -> 4 shift under load on tsit5 / vern6, its first 2 s, as
-    test_fwd_axle_manual."""
+    test_fwd_axle_manual (vern7 / vern8 under -m slow, as on launch_clutch; on a tree in
+    make test: :func:`test_clutch_pack_breakaway_and_torque_sensing`)."""
     sim = hybrid_simulation(load_scene(shipped_scenes()['fwd_axle_manual']), duration=2.0,
                             method=method)
     rk = _erk_twin(sim, method, monkeypatch)

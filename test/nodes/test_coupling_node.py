@@ -75,11 +75,17 @@ class FakePeers:
                 pub.publish(w)
 
 
-def run(ctx, tmp_path, *, behave=None, timeout=8.0, peers_cls=None, **params):
-    overrides = [Parameter('scene', value=scene_file(tmp_path)), Parameter('min_subscribers', value=1)]
+def run(ctx, tmp_path, *, behave=None, timeout=8.0, peers_cls=None, scene=None, prepare=None,
+        **params):
+    """Spin a CouplingNode on ``scene`` (default: the two-mass scene file) beside FakePeers
+    until it exits; ``prepare(node)`` runs before the first spin."""
+    overrides = [Parameter('scene', value=scene or scene_file(tmp_path)),
+                 Parameter('min_subscribers', value=1)]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
     peers = (peers_cls or FakePeers)(ctx, behave)
     node = CouplingNode(context=ctx, parameter_overrides=overrides)
+    if prepare is not None:
+        prepare(node)
     ex = make_executor('events', ctx)
     ex.add_node(peers.node)
     ex.add_node(node)
@@ -457,34 +463,19 @@ def test_free_run_bag_starts_at_t0_after_a_slow_first_exchange(ctx, tmp_path):
     tick accounted."""
     SLOW = 0.5                               # s, injected cost of the first exchange
     h = 0.005
-    peers = FakePeers(ctx)
-    node = CouplingNode(context=ctx, parameter_overrides=[
-        Parameter('scene', value=scene_file(tmp_path, duration=1.0, h=h)),
-        Parameter('min_subscribers', value=1), Parameter('mode', value='free-run')])
-    advance = node.stepper.advance
     calls = []
 
-    def slow_first(*args):
-        calls.append(args)
-        if len(calls) == 1:
-            time.sleep(SLOW)
-        return advance(*args)
-    node.stepper.advance = slow_first
-    ex = make_executor('events', ctx)
-    ex.add_node(peers.node)
-    ex.add_node(node)
-    t0 = time.monotonic()
-    try:
-        while node.exit_code is None:
-            assert time.monotonic() - t0 < 30.0, 'coupling node did not finish'
-            ex.spin_once(timeout_sec=0.05)
-        t1 = time.monotonic()
-        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
-            ex.spin_once(timeout_sec=0.01)
-    finally:
-        ex.shutdown()
-        peers.node.destroy_node()
-        node.destroy_node()
+    def slow_first_exchange(node):
+        advance = node.stepper.advance
+
+        def slow_first(*args):
+            calls.append(args)
+            if len(calls) == 1:
+                time.sleep(SLOW)
+            return advance(*args)
+        node.stepper.advance = slow_first
+    node, peers, _ = run(ctx, tmp_path, timeout=30.0, scene=scene_file(tmp_path, duration=1.0, h=h),
+                         prepare=slow_first_exchange, mode='free-run')
     assert node.exit_code == 0
     stamps = sorted(ns(m.header.stamp) for m in peers.js)
     h_ns = int(h * 1e9)

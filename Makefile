@@ -40,8 +40,11 @@ kernel: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/cvj-sim run $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) $(DEMO_MODE) --overwrite
 
+# The suite in TEST_WORKERS pytest-xdist processes (one per core of the 2-core machines it is
+# sized for; 1 = one process), a test file per process at a time, so a module's fixtures run once.
+TEST_WORKERS ?= 2
 test: kernel
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: kernel
 	$(PY) -m pytest -m "not e2e and not colcon"

@@ -14,6 +14,9 @@ The block:
 
 Ids are capped at 232 (the largest the default RTPS port mapping allows). A block of ten
 means a domain is reused only ten tests later, long after that test's processes ended.
+Under pytest-xdist (``make test``: two workers) the block is ten ids per worker and each
+worker takes every N-th id of it (worker k of N: ids k, k + N, ...), so no two workers ever
+share a domain; the pid-derived block is derived from the run's id, which the workers share.
 Module-scoped fixtures that start processes (e2e runs) run between tests, one at a time,
 on the block's first id.
 
@@ -45,16 +48,31 @@ def _domain_block() -> list[int]:
         lo_s, _, hi_s = spec.partition('-')
         lo, hi = int(lo_s), int(hi_s or lo_s)
     else:
-        span = int(os.environ.get('CVJ_TEST_DOMAIN_SPAN', '10'))
+        span = int(os.environ.get('CVJ_TEST_DOMAIN_SPAN', '10')) * _xdist_worker()[1]
         if os.environ.get('ROS_DOMAIN_ID') and not os.environ.get('CVJ_TEST_FRESH_DOMAIN'):
             lo = int(os.environ['ROS_DOMAIN_ID'])
         else:
-            lo = 1 + (os.getpid() % 10) * 10
+            run = os.environ.get('PYTEST_XDIST_TESTRUNUID')   # shared by the workers
+            lo = 1 + ((int(run, 16) if run else os.getpid()) % 10) * 10
         hi = lo + span - 1
     lo, hi = max(0, lo), min(MAX_DOMAIN_ID, hi)
     if hi < lo:
         raise ValueError(f'CVJ_TEST_DOMAINS: empty block {lo}-{hi}')
-    return list(range(lo, hi + 1))
+    ids = list(range(lo, hi + 1))
+    worker, count = _xdist_worker()
+    if count > 1:
+        if len(ids) < count:
+            raise ValueError(f'CVJ_TEST_DOMAINS: block {lo}-{hi} has fewer ids than the '
+                             f'{count} pytest-xdist workers')
+        ids = ids[worker::count]
+    return ids
+
+
+def _xdist_worker() -> tuple[int, int]:
+    """(index, count) of this pytest-xdist worker (``gw0`` -> 0), (0, 1) without xdist."""
+    name = os.environ.get('PYTEST_XDIST_WORKER', '')
+    count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1') or 1)
+    return (int(name[2:]) if name.startswith('gw') else 0), max(1, count)
 
 
 DOMAINS = _domain_block()

@@ -626,3 +626,26 @@ def test_hand_started_free_run_starts_after_the_bound_with_one_warn_line(ctx, tm
     assert 'matched by recorder cvj_recorder pid 1' in start[0]
     assert start[0].endswith('after 0.8 s; starting: those subscribers may miss the first states')
     assert ns(peers.js[0].header.stamp) == 0
+
+
+def test_hand_started_free_run_refuses_another_publisher_during_the_wait(ctx, tmp_path):
+    """The observers' wait keeps the free-run refusal before state 0: a second /engine/wrench
+    publisher that appears while a hand-started free run waits for the recorder's report
+    stops it with the line naming both publishers, and no state goes out."""
+    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
+    other = rclpy.create_node('other_engine', context=ctx)
+    try:
+        obs.report({})                                   # never covers: the run keeps waiting
+        # discovery within one process (generous, as in test_peers)
+        _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
+        other.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+        ex.add_node(other)
+        _spin_until(ex, lambda: node.exit_code is not None, 30.0, 'not refused')
+    finally:
+        ex.shutdown()
+        obs.destroy()
+        for n in (other, peers.node, node):
+            n.destroy_node()
+    assert node.exit_code == 1 and not peers.js and node.joint_states_published == 0
+    assert node.error_message.startswith('free-run: /engine/wrench has 2 publishers: ')
+    assert '/other_engine (gid ' in node.error_message

@@ -46,8 +46,9 @@ line). Before step 0 the node waits until ``min_subscribers`` subscribers
 see /driveline/joint_states (default 4: engine, load, monitor and the recorder ``cvj-sim
 record``) and both wrench topics have a publisher, so no message is lost, and until that
 has held for START_SETTLE_S with no other run's publisher discovered, in both modes
-(lockstep: OBSERVER_SETTLE_S when observers such as the recorder are awaited without a
-gated start: their matches with the engine's and load's writers are not visible here). The wait
+(OBSERVER_SETTLE_S when observers such as the recorder are awaited without a gated start:
+their matches with the engine's and load's writers are not visible here; then also until
+the graph's subscriptions and recorders matched, at most UNMATCHED_WAIT_S). The wait
 has no deadline by default (``start_timeout`` 0: nodes started by hand in any order, with
 any pause); every START_REPORT_S it logs who is connected and who is missing. After t_N = duration it publishes
 the final joint state and exits 0.
@@ -149,7 +150,7 @@ START_SETTLE_S = 0.3
 # matched the peers' writers before "go", and in composed mode the in-process bus reports
 # the hosted nodes' matches (missing_peers): both keep START_SETTLE_S.
 OBSERVER_SETTLE_S = 2.0
-# After that settle, a hand-started lockstep run also waits until every subscription the ROS
+# After that settle, a hand-started run (either mode) also waits until every subscription the ROS
 # graph shows on this node's own data topics (/clock, the joint states, /diagnostics, the
 # coupling wrenches, same type, compatible QoS) is matched by its writer, and until every
 # `cvj-sim record` in the graph reports on /driveline/recorder_ready that its readers matched
@@ -848,10 +849,11 @@ class CouplingNode(CvjNode):
         now = time.monotonic()
         if self._ready_since is None:
             self._ready_since = now
-        # lockstep by hand: the observers' matches too (composed: the in-process bus reports
-        # its DDS matches, missing_peers); free-run: the other-run settle only
-        by_hand = (self.mode == 'lockstep' and self.params['min_subscribers'] > 2
-                   and not self.params['start_gate'] and bus_for(self.context) is None)
+        # by hand (both modes): the observers' matches too; cvj-sim run gates the start after
+        # its recorder matched, composed the in-process bus reports its DDS matches
+        # (missing_peers). Free-run: this is before state 0 and its wall clock (_prime_done)
+        by_hand = (self.params['min_subscribers'] > 2 and not self.params['start_gate']
+                   and bus_for(self.context) is None)
         settle = OBSERVER_SETTLE_S if by_hand else START_SETTLE_S
         if now - self._ready_since < settle:
             return

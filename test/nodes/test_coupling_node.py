@@ -516,3 +516,136 @@ def test_free_run_start_takes_an_answer_to_state_0_whatever_its_stamp(ctx, tmp_p
     first = next(m for m in peers.js if ns(m.header.stamp) == 1_000_000)
     momentum = J1 * first.velocity[0] + J2 * first.velocity[1]
     assert momentum == pytest.approx((J1 + J2) * W0 + (T_ENGINE - T_LOAD) * 0.001, rel=1e-8)
+
+
+class _HandStartObservers:
+    """A monitor and a `cvj-sim record` stand-in beside FakePeers: each reads the joint
+    states (with FakePeers: 3 subscribers), the recorder also publishes its readers' matches
+    on /driveline/recorder_ready as commands/record.ReadyAnnouncer does (JSON, latched)."""
+
+    def __init__(self, ctx):
+        self.monitor = rclpy.create_node('fake_monitor', context=ctx)
+        self.monitor.create_subscription(JointState, '/driveline/joint_states', lambda m: None, DATA_QOS)
+        self.recorder = rclpy.create_node('cvj_recorder', context=ctx)
+        self.recorder.create_subscription(JointState, '/driveline/joint_states', lambda m: None, DATA_QOS)
+        self.ready_pub = self.recorder.create_publisher(String, '/driveline/recorder_ready', LATCHED_QOS)
+
+    def report(self, matched: dict[str, int]) -> None:
+        import json
+        self.ready_pub.publish(String(data=json.dumps({'recorder': 'cvj_recorder pid 1',
+                                                       'matched': matched})))
+
+    def destroy(self) -> None:
+        self.monitor.destroy_node()
+        self.recorder.destroy_node()
+
+
+def _hand_started_free_run(ctx, tmp_path):
+    """A free-run CouplingNode as a hand start makes it (min_subscribers 3, no start_gate,
+    not composed), FakePeers, the observers and an executor spinning them all."""
+    peers = FakePeers(ctx)
+    obs = _HandStartObservers(ctx)
+    node = CouplingNode(context=ctx, parameter_overrides=[
+        Parameter('scene', value=scene_file(tmp_path)), Parameter('mode', value='free-run'),
+        Parameter('min_subscribers', value=3)])
+    ex = make_executor('events', ctx)
+    for n in (peers.node, obs.monitor, obs.recorder, node):
+        ex.add_node(n)
+    return node, peers, obs, ex
+
+
+def _spin_until(ex, cond, bound: float, what: str) -> None:
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < bound, what
+        ex.spin_once(timeout_sec=0.02)
+
+
+def test_hand_started_free_run_waits_for_the_recorders_report_before_state_0(ctx, tmp_path):
+    """A hand-started free run (min_subscribers 3) publishes no state while the recorder's
+    report leaves a publisher unmatched (a volatile reader that matches late skips what
+    was written before: the bag would not start at t = 0), here for OBSERVER_SETTLE_S + 1 s
+    after its peers connected - beyond both settles and within UNMATCHED_WAIT_S, after which
+    it would start anyway. Once a report covers every publisher, state 0 goes out and the
+    run records from t = 0. (Before, free-run started after START_SETTLE_S whatever the
+    recorder said.)"""
+    from cvj_ros.nodes import coupling_node as cn
+    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
+    try:
+        obs.report({'/driveline/joint_states': 1})       # nothing else matched yet
+        # discovery within one process (generous, as in test_peers)
+        _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
+        _spin_until(ex, lambda: node.recorder_matches, 30.0, 'the report never arrived')
+        hold = cn.OBSERVER_SETTLE_S + 1.0
+        assert hold < cn.OBSERVER_SETTLE_S + cn.UNMATCHED_WAIT_S
+        while time.monotonic() - node._ready_since < hold:
+            ex.spin_once(timeout_sec=0.02)
+        assert not node.started and not peers.js and node.joint_states_published == 0
+        assert any('/engine/wrench (0 of 1 publishers matched by recorder cvj_recorder pid 1)' in line
+                   for line in node.recorders_not_ready()), node.recorders_not_ready()
+        # the recorder's readers now match every publisher on the graph
+        obs.report({topic: 99 for topic, _types in obs.recorder.get_topic_names_and_types()})
+        # a 20 ms free run after the report: a hung run, not a timing budget; then what is in
+        # flight (the 10 s of run() above)
+        _spin_until(ex, lambda: node.exit_code is not None, 60.0, 'the run did not finish')
+        _spin_until(ex, lambda: len(peers.js) >= node.joint_states_published, 10.0, 'states in flight')
+    finally:
+        ex.shutdown()
+        obs.destroy()
+        peers.node.destroy_node()
+        node.destroy_node()
+    assert node.exit_code == 0
+    stamps = [ns(m.header.stamp) for m in peers.js]
+    assert stamps[:2] == [0, 1_000_000] and stamps[-1] == 20_000_000
+
+
+def test_hand_started_free_run_starts_after_the_bound_with_one_warn_line(ctx, tmp_path, monkeypatch):
+    """A recorder whose report never covers the publishers holds a hand-started free run at
+    most OBSERVER_SETTLE_S + UNMATCHED_WAIT_S (shortened here to 0.3 + 0.5 s); then one WARN
+    line names what is unmatched and the run starts from state 0, as in lockstep."""
+    from cvj_ros.nodes import coupling_node as cn
+    monkeypatch.setattr(cn, 'OBSERVER_SETTLE_S', 0.3)
+    monkeypatch.setattr(cn, 'UNMATCHED_WAIT_S', 0.5)
+    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
+    warnings: list[str] = []
+    monkeypatch.setattr(node.get_logger(), 'warning', lambda msg, *a, **k: warnings.append(msg))
+    try:
+        obs.report({})
+        # discovery within one process (generous, as in test_peers), the 0.8 s bound and the
+        # 20 ms run: a hung start, not a timing budget
+        _spin_until(ex, lambda: node.exit_code is not None, 60.0, 'the run did not finish')
+        _spin_until(ex, lambda: len(peers.js) >= node.joint_states_published, 10.0, 'states in flight')
+    finally:
+        ex.shutdown()
+        obs.destroy()
+        peers.node.destroy_node()
+        node.destroy_node()
+    assert node.exit_code == 0
+    start = [w for w in warnings if w.startswith('start: ')]
+    assert len(start) == 1, warnings
+    assert 'matched by recorder cvj_recorder pid 1' in start[0]
+    assert start[0].endswith('after 0.8 s; starting: those subscribers may miss the first states')
+    assert ns(peers.js[0].header.stamp) == 0
+
+
+def test_hand_started_free_run_refuses_another_publisher_during_the_wait(ctx, tmp_path):
+    """The observers' wait keeps the free-run refusal before state 0: a second /engine/wrench
+    publisher that appears while a hand-started free run waits for the recorder's report
+    stops it with the line naming both publishers, and no state goes out."""
+    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
+    other = rclpy.create_node('other_engine', context=ctx)
+    try:
+        obs.report({})                                   # never covers: the run keeps waiting
+        # discovery within one process (generous, as in test_peers)
+        _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
+        other.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+        ex.add_node(other)
+        _spin_until(ex, lambda: node.exit_code is not None, 30.0, 'not refused')
+    finally:
+        ex.shutdown()
+        obs.destroy()
+        for n in (other, peers.node, node):
+            n.destroy_node()
+    assert node.exit_code == 1 and not peers.js and node.joint_states_published == 0
+    assert node.error_message.startswith('free-run: /engine/wrench has 2 publishers: ')
+    assert '/other_engine (gid ' in node.error_message

@@ -10,7 +10,9 @@ sampling='dense', reuse_trace=True)``) and times, in compiled loops over the sam
 - ``no_outputs``: the same integration without the samples' outputs (a copy of ``ros_run``'s
   body up to its last line);
 - ``outputs``: ``sample_outputs`` (+ ``fill_mid_samples``) alone over the run's samples;
-- ``rhs``, ``jac``: the run's evaluations x ns per call at the run's states;
+- ``rhs``, ``jac``: the run's evaluations x ns per call at the run's states (arrays borrowed
+  as the stepper passes them); a model whose Jacobian block is kept (layout.H_JAC_CONST):
+  one ``jac`` and njev - 1 ``jac_energy_rows``; ``jac_ns``, ``rows_ns``: ns per call;
 - ``allocs_run``, ``allocs_outputs``: NRT allocations per run (numba's
   ``rtsys.get_allocation_stats`` over a loop of runs), in the run and in the outputs alone;
   only with ``NUMBA_NRT_STATS=1`` (the counters are off by default).
@@ -29,10 +31,11 @@ from numba.core.runtime import rtsys
 
 from cvj_ros import bench
 from cvj_ros.physics.kernel import run_nb
+from cvj_ros.physics.kernel.layout import H_JAC_CONST
 from cvj_ros.physics.kernel.steppers_nb import ST_OK, ros_land, ros_sample
 from cvj_ros.physics.simulate import Simulation
 from run_profile import (   # scripts/ is on the path when run as a script
-    _jac_loop, _min_cpu, _outputs_loop, _rhs_loop)
+    _jac_loop, _min_cpu, _outputs_loop, _rhs_loop, _rows_loop)
 from run_profile import _run_loop as _loop
 
 
@@ -119,8 +122,14 @@ def profile(scene_name: str = 'stiff', method: str = 'rodas3', tol: float = 1e-3
     _rhs_loop(1, X, ip, fp, times, dy)
     _jac_loop(1, X, ip, fp, times, J)
     nfev, njev = int(tr.solver['nfev']), int(tr.solver.get('njev', 0))
+    # a model whose Jacobian block is kept (layout.H_JAC_CONST): one whole jac, then the
+    # work integrals' rows at each later evaluation (steppers_nb._ros_jacobian)
+    kept = bool(ip[H_JAC_CONST]) and njev > 0
+    n_full, n_rows = (1, njev - 1) if kept else (njev, 0)
+    if kept:
+        _rows_loop(1, X, ip, fp, times, J)
     out: dict[str, list[float]] = {k: [] for k in ('whole', 'run', 'no_outputs', 'outputs',
-                                                   'rhs', 'jac')}
+                                                   'rhs', 'jac', 'jac_ns', 'rows_ns')}
     k = 20
     for _ in range(rounds):
         out['whole'].append(_min_cpu(whole, 2000))
@@ -129,8 +138,12 @@ def profile(scene_name: str = 'stiff', method: str = 'rodas3', tol: float = 1e-3
         out['outputs'].append(_min_cpu(lambda: _outputs_loop(k, *out_args), 200) / k)
         out['rhs'].append(_min_cpu(lambda: _rhs_loop(10_000, X, ip, fp, times, dy), 10)
                           / 10_000 * nfev)
-        out['jac'].append(_min_cpu(lambda: _jac_loop(10_000, X, ip, fp, times, J), 10)
-                          / 10_000 * njev)
+        jac_s = _min_cpu(lambda: _jac_loop(10_000, X, ip, fp, times, J), 10) / 10_000
+        rows_s = (_min_cpu(lambda: _rows_loop(10_000, X, ip, fp, times, J), 10) / 10_000
+                  if kept else 0.0)
+        out['jac'].append(jac_s * n_full + rows_s * n_rows)
+        out['jac_ns'].append(jac_s * 1e3)
+        out['rows_ns'].append(rows_s * 1e3)
     med = {key: float(np.median(v)) * 1e6 for key, v in out.items()}
     med['rest'] = med['no_outputs'] - med['rhs'] - med['jac']
     if config.NRT_STATS:    # NUMBA_NRT_STATS=1 (counters off by default: timed without)

@@ -10,7 +10,8 @@ ip header (``H_*`` indices):
     H_LOAD_I / H_LOAD_F load ip/fp offsets, H_SEC section table offset, H_SPRING_F spring
     parameter offset (fp), H_INPUT_F input block offset (fp), H_TREE tree block offset
     (0 for a chain), H_IMBALANCE imbalance table offset (0: none), H_SEC_PRE section prefix
-    table offset (0: none).
+    table offset (0: none), H_JAC_CONST 1 when every Jacobian entry but the work integrals'
+    rows is the same at every (t, y) (:func:`jacobian_block_constant`).
 imbalance table at ip[H_IMBALANCE]: count, then per unbalanced inertia (section, op index in
     the op list, fp offset of [m g e N m, angle rad]) (sections.section_imbalance).
 section table at ip[H_SEC]: n+1 op start indices (into the op list), then the op list
@@ -82,7 +83,8 @@ H_SEC, H_SPRING_F, H_INPUT_F = 9, 10, 11
 H_TREE = 12          # 0: a chain; else the ip offset of the tree block (vehicle scenes)
 H_IMBALANCE = 13     # 0: no imbalance; else the ip offset of the imbalance table
 H_SEC_PRE = 14       # 0: none (vehicle scenes); else the ip offset of the section prefix table
-N_HEADER = 15
+H_JAC_CONST = 15     # 1: the Jacobian's coupled block is constant (jacobian_block_constant)
+N_HEADER = 16
 
 # op codes
 OP_INERTIA = 0
@@ -346,9 +348,48 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     if imb:
         ip[H_IMBALANCE] = len(ip)
         ip += [len(imb) // 3] + imb
-    return ModelData(np.asarray(ip, dtype=np.int64), np.asarray(fp, dtype=np.float64),
+    fpa = np.asarray(fp, dtype=np.float64)
+    ip[H_JAC_CONST] = 1 if jacobian_block_constant(ip, fpa) else 0
+    return ModelData(np.asarray(ip, dtype=np.int64), fpa,
                      n, driveline._n_state, bool(driveline.track_energy),
                      np.array(driveline.x0, dtype=np.float64))
+
+
+def jacobian_block_constant(ip: Any, fp: NDArray[np.float64]) -> bool:
+    """True when rhs_nb.jac's rows and columns of the 2n mechanical states (the coupled
+    block; the work integrals' columns are zero) are the same bits at every (t, y) where
+    f(t, y) is finite: a chain without imbalance whose every section is its constant
+    prefix (phi = q k, a, b = 0, M > 0: no joint with a varying ratio), every spring linear
+    (k2 = 0, no lash, no stiffness variation; c, d finite), the linear engine and a
+    constant load without a speed sign (finite parameters). Then every entry of that block
+    is a constant, or a constant plus terms that are +-0 (a product with b = 0, C = 0,
+    dM/dq = 0 or d2e/dtheta2 = 0) summed from +0.0, which leave it as it is; only the work
+    integrals' rows (te w, tl a w, damping power) vary (rhs_nb.jac_energy_rows). Any other
+    model: False (conservative)."""
+    h = [int(v) for v in ip[:N_HEADER]]
+    if h[H_TREE] != 0 or h[H_IMBALANCE] != 0 or h[H_SEC_PRE] == 0:
+        return False
+    if h[H_ENGINE] != ENGINE_LINEAR or h[H_LOAD] != LOAD_CONSTANT:
+        return False
+    ef, lf = h[H_ENGINE_F], h[H_LOAD_F]
+    if not (np.isfinite(fp[ef:ef + 3]).all() and math.isfinite(fp[lf])
+            and fp[lf + 1] == 0.0):
+        return False
+    n = h[H_NDOF]
+    tab = h[H_SEC]
+    pre = h[H_SEC_PRE]
+    for g in range(n):
+        if int(ip[pre + 3 * g]) != int(ip[tab + g + 1]):     # ops after the prefix
+            return False
+        if not float(fp[int(ip[pre + 3 * g + 2]) + 2]) > 0.0:   # M
+            return False
+    for k in range(n - 1):
+        off = h[H_SPRING_F] + SPRING_STRIDE * k
+        c, d, k2, gap, _w, vary = (float(v) for v in fp[off:off + SPRING_STRIDE])
+        if k2 != 0.0 or gap != 0.0 or vary != 0.0 or not (math.isfinite(c)
+                                                          and math.isfinite(d)):
+            return False
+    return True
 
 
 def _tree_model(dl: Any, engine: Any) -> ModelData:

@@ -18,7 +18,7 @@ from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.layout import (
     ENGINE_INPUTS, H_ENERGY, H_ENGINE, H_ENGINE_F, H_IMBALANCE, H_INPUT_F, H_LOAD, H_LOAD_F,
-    H_NDOF, H_SEC, H_SEC_PRE,
+    H_JAC_CONST, H_NDOF, H_SEC, H_SEC_PRE,
     H_SPRING_F, H_TREE, IN_KE, IN_KL, IN_TE, IN_TE_RATE, IN_TK, IN_TL, IN_TL_RATE, IN_WE, IN_WL,
     LOAD_INPUTS, OP_INERTIA, SPRING_STRIDE)
 from cvj_ros.physics.kernel.sources_nb import engine_eval, load_eval
@@ -359,14 +359,14 @@ def jac(t, y, ip, fp, J):
     ns = J.shape[0]
     sp0 = ip[H_SPRING_F]
     energy = ip[H_ENERGY] != 0
-    for i in range(ns):
+    for i in range(n2):     # the work integrals' rows: _energy_rows
         for j in range(ns):
             J[i, j] = 0.0
     # one scratch for all per-section values, indexed by row (each np.empty/np.zeros is an
     # NRT allocation with atomic counters - ten were half of a small jac - and so is every
     # view of it: rows are indexed, not sliced), on the stack unless it is large. Rows:
-    # phi_end, a, b, M, C, dM/dq, dC/dq, generalised force (per section), d(damping
-    # power)/dy (2n), then dQ_g/dy.
+    # phi_end, a, b, M, C, dM/dq, dC/dq, generalised force (per section), unused, then
+    # dQ_g/dy.
     if (9 + n) * n2 <= STACK_MAX_DOUBLES:
         sc = stack_zeros_2d(9 + n, n2)
     else:
@@ -435,15 +435,6 @@ def jac(t, y, ip, fp, J):
         sc[9 + k + 1, k + 1] += d_qk1
         sc[9 + k + 1, n + k] += d_vk
         sc[9 + k + 1, n + k + 1] += d_vk1
-        d = fp[off + 1]
-        if energy and d != 0.0:
-            _e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
-            dp_dth = d * dde * thd * thd
-            dp_dthd = 2.0 * d * de * thd
-            sc[8, k] += dp_dth * a_l + dp_dthd * dthd_qk
-            sc[8, k + 1] -= dp_dth
-            sc[8, n + k] += dp_dthd * a_l
-            sc[8, n + k + 1] -= dp_dthd
     for g in range(n):
         J[g, n + g] = 1.0
     for g in range(n):
@@ -455,12 +446,75 @@ def jac(t, y, ip, fp, J):
         J[r, g] += -sc[6, g] * v * v * inv - (sc[7, g] - sc[4, g] * v * v) * sc[5, g] * inv * inv
         J[r, n + g] += -2.0 * sc[4, g] * v * inv
     if energy:
-        J[n2, n] = te + dte * y[n]
-        J[n2, 0] += dtep * y[n]
-        J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl + dtlp * al * al * vl
-        J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
-        for j in range(n2):
-            J[n2 + 2, j] = sc[8, j]
+        _energy_rows(y, ip, fp, J, sc, te, dte, dtep, tl, dtl, dtlp)
+
+
+@njit(cache=True, inline='always')
+def _energy_rows(y, ip, fp, J, sc, te, dte, dtep, tl, dtl, dtlp):
+    """Rows 2n, 2n+1, 2n+2 of J (overwritten): d/dy of the work integrals' rates te w_e,
+    tl a w_l and the springs' damping power sum d e'(theta)^2 thetadot^2, given every
+    section's phi_end, a, b in sc[0..2, g] and the engine's and the load's torque and
+    slopes (:func:`jac` and :func:`jac_energy_rows`: one source, the same bits)."""
+    n = ip[H_NDOF]
+    n2 = 2 * n
+    ns = J.shape[0]
+    sp0 = ip[H_SPRING_F]
+    for i in range(n2, n2 + 3):
+        for j in range(ns):
+            J[i, j] = 0.0
+    for k in range(n - 1):
+        off = sp0 + SPRING_STRIDE * k
+        d = fp[off + 1]
+        if d != 0.0:
+            a_l = sc[1, k]
+            th = sc[0, k] - y[k + 1]
+            thd = a_l * y[n + k] - y[n + k + 1]
+            dthd_qk = sc[2, k] * y[n + k]
+            _e, de, dde = spring_deflection(th, fp[off + 3], fp[off + 4])
+            dp_dth = d * dde * thd * thd
+            dp_dthd = 2.0 * d * de * thd
+            J[n2 + 2, k] += dp_dth * a_l + dp_dthd * dthd_qk
+            J[n2 + 2, k + 1] -= dp_dth
+            J[n2 + 2, n + k] += dp_dthd * a_l
+            J[n2 + 2, n + k + 1] -= dp_dthd
+    al = sc[1, n - 1]
+    bl = sc[2, n - 1]
+    vl = y[n2 - 1]
+    J[n2, n] = te + dte * y[n]
+    J[n2, 0] += dtep * y[n]
+    J[n2 + 1, n - 1] = tl * bl * vl + dtl * bl * vl * al * vl + dtlp * al * al * vl
+    J[n2 + 1, n2 - 1] = tl * al + dtl * al * al * vl
+
+
+@njit(cache=True)
+def jac_energy_rows(t, y, ip, fp, J):
+    """:func:`jac`'s rows of the work integrals (2n .. 2n+2) alone, the same bits, the
+    other rows of J left as they are; nothing without work integrals. For a model whose
+    other rows do not depend on (t, y) (layout.jacobian_block_constant: ip[H_JAC_CONST]),
+    J of the step before plus these rows is jac(t, y, ip, fp, J) bit for bit wherever
+    f(t, y) is finite (the Rosenbrock steppers keep that block: steppers_nb._ros_jacobian)."""
+    if ip[H_ENERGY] == 0:
+        return
+    n = ip[H_NDOF]
+    if 3 * n <= STACK_MAX_DOUBLES:
+        sc = stack_zeros_2d(3, n)
+    else:
+        sc = np.zeros((3, n))
+    for g in range(n):
+        phi, a, b, _m, _c, _mp, _hj = section(g, y[g], ip, fp)
+        sc[0, g] = phi
+        sc[1, g] = a
+        sc[2, g] = b
+    te, dte, dtep = engine_torque(t, y, ip, fp)
+    tl, dtl, dtlp = load_torque(t, y, ip, fp, sc[0, n - 1], sc[1, n - 1])
+    _energy_rows(y, ip, fp, J, sc, te, dte, dtep, tl, dtl, dtlp)
+
+
+@njit(cache=True, inline='always')
+def jac_keeps_block(ip):
+    """1 when the Rosenbrock steppers may keep J's coupled block across steps and refresh
+    only :func:`jac_energy_rows` (layout.H_JAC_CONST), else 0."""
+    return ip[H_JAC_CONST]
 
 
 # at the end: tree_nb uses this module's spring and engine functions (either import order works)

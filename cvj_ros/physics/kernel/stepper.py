@@ -79,6 +79,7 @@ def steppers_for(rhs, jac=None, module=None):
                 obj._cache = NullCache()
         mod.RHS = rhs
         mod.JAC = jac if jac is not None else rhs_nb.jac
+        mod.JAC_KEEP = mod.keep_none    # a toy's J is evaluated whole at every step
         _COPIES[key] = (mod, rhs, jac)   # keep rhs/jac alive so their ids stay unique
     else:
         mod = mod[0]
@@ -563,10 +564,12 @@ class KernelStepper(_StepperBase):
         return run
 
     def restart(self) -> None:
-        """Inputs changed discontinuously: drop the FSAL derivative; keep h."""
+        """Inputs changed discontinuously: drop the FSAL derivative, the Jacobian (also a
+        kept block) and its LU; keep h."""
         self._cnt[nb.C_HAVEF] = 0
         self._cnt[nb.C_HAVEJ] = 0
         self._cnt[nb.C_HAVELU] = 0
+        self._cnt[nb.C_JKEPT] = 0
 
 
 _NO_H = np.zeros((3, 0))   # ros_sample's H for rodas4/3 (not read: their dense output is Hermite)

@@ -7,8 +7,10 @@ depend on ``OPENBLAS_CORETYPE`` or the machine.
 
 The right-hand side and its Jacobian are the module globals ``RHS`` and ``JAC``:
 ``kernel/rhs_nb.py``'s ``rhs(t, y, ip, fp, dy)`` / ``jac(t, y, ip, fp, J)`` (filled in
-place; ip: int64 codes, fp: float64 parameters - the scene as data). Globals, not
-arguments: a numba function with a dispatcher among its arguments is compiled afresh in
+place; ip: int64 codes, fp: float64 parameters - the scene as data); ``JAC_KEEP(ip)`` (1:
+the model's Jacobian varies only in its work integrals' rows) and ``JAC_ROWS(t, y, ip, fp,
+J)`` (those rows alone) let the Rosenbrock steppers keep the rest (:func:`_ros_jacobian`).
+Globals, not arguments: a numba function with a dispatcher among its arguments is compiled afresh in
 every process (the disk cache keys on the dispatcher object; measured 20-30 s per method
 per process), while calls to a global dispatcher are linked into the cached code. Toy
 right-hand sides (tests) get a private, uncached copy of this module with other globals:
@@ -24,7 +26,8 @@ a stepper is not restarted at each exchange step:
     FSAL derivative K[0] / f is valid), C_LASTREJ (1 = last attempt rejected),
     C_BADIDX (index of the first non-finite state for the error message), C_HAVEJ,
     C_HAVELU (Rosenbrock: Jacobian, LU valid), C_DENSE (dop853: dense stages valid),
-    C_LUM (Rosenbrock: size of the block the LU factors, see _coupled_size).
+    C_LUM (Rosenbrock: size of the block the LU factors, see _coupled_size), C_JKEPT
+    (Rosenbrock: J's coupled block is the model's constant one, see _ros_jacobian).
 
 Step-size control copies ``solvers._AdaptiveStepper`` (Hairer's HINIT initial
 step, PI controller with safety 0.9, fac_min 0.2, fac_max 10, beta 0.04, step
@@ -47,14 +50,16 @@ from numba import njit
 
 from .borrow_nb import borrowed_all
 from .rhs_nb import jac as JAC
+from .rhs_nb import jac_energy_rows as JAC_ROWS
+from .rhs_nb import jac_keeps_block as JAC_KEEP
 from .rhs_nb import rhs as RHS
 
 # ------------------------------------------------------------------ layout
 FS_T, FS_H, FS_TOLD, FS_ERROLD, FS_HLAST, FS_TBAD = 0, 1, 2, 3, 4, 5
 NFS = 8
 (C_NFEV, C_NJEV, C_NLU, C_NACC, C_NREJ, C_HAVEF, C_LASTREJ, C_BADIDX, C_HAVEJ, C_HAVELU,
- C_DENSE, C_LUM) = range(12)
-NCNT = 12
+ C_DENSE, C_LUM, C_JKEPT) = range(13)
+NCNT = 13
 FS_LUH = 6      # h of the current LU factors (Rosenbrock)
 ST_SINGULAR = 3  # I/(h gamma) - J singular or non-finite
 ST_OK, ST_NONFINITE, ST_UNDERFLOW = 0, 1, 2
@@ -582,6 +587,27 @@ def _coupled_size(J):
     return 0
 
 
+@njit(cache=True)
+def keep_none(ip):
+    """JAC_KEEP of a toy right-hand side (stepper.steppers_for): never keep J."""
+    return 0
+
+
+@njit(cache=True, inline='always')
+def _ros_jacobian(t, y, ip, fp, cnt, J):
+    """J = JAC(t, y). For a model whose Jacobian varies only in the work integrals' rows
+    (JAC_KEEP(ip) = 1: layout.jacobian_block_constant), J's other rows are kept from the
+    first evaluation of the run (C_JKEPT) and only those rows refreshed (JAC_ROWS): the
+    same bits as JAC at a (t, y) where f is finite, which the callers have checked
+    (K[0] = f(t, y) first). Counted in C_NJEV either way."""
+    if cnt[C_JKEPT] != 0:
+        JAC_ROWS(t, y, ip, fp, J)
+    else:
+        JAC(t, y, ip, fp, J)
+        cnt[C_JKEPT] = JAC_KEEP(ip)
+    cnt[C_NJEV] += 1
+
+
 @njit(cache=True, inline='always')
 def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, work):
     """Jacobian and f_t at (t, y) if stale, LU of I/(h gamma) - J if h changed
@@ -598,8 +624,7 @@ def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, wo
             return ST_NONFINITE
         cnt[C_HAVEF] = 1
     if cnt[C_HAVEJ] == 0:
-        JAC(t, y, ip, fp, J)
-        cnt[C_NJEV] += 1
+        _ros_jacobian(t, y, ip, fp, cnt, J)
         cnt[C_HAVELU] = 0
         if autonomous:
             for i in range(n):
@@ -620,7 +645,10 @@ def _ros_prepare(h, gamma, y, ip, fp, fs, cnt, autonomous, J, LU, piv, ft, K, wo
                 LU[i, j] = -J[i, j]
             LU[i, i] += d
         cnt[C_NLU] += 1
-        cnt[C_LUM] = _coupled_size(J)
+        if cnt[C_JKEPT] == 0 or cnt[C_LUM] == 0:
+            # a kept block fixes it: the refreshed work integrals' rows have entries in the
+            # mechanical states' columns only, which J[n-1, 2n-1] = 1 already covers
+            cnt[C_LUM] = _coupled_size(J)
         if not lu_factor(LU, piv, cnt[C_LUM]):
             fs[FS_TBAD] = t
             return ST_SINGULAR

@@ -8,13 +8,13 @@ state) and counters (nfev, njev, nlu, naccept, nreject, t, h) go into one sha256
 Rosenbrock methods run the non-stiff scenes at the loose tolerance only (as the bench).
 
     PYTHONPATH=. python scripts/run_hashes.py OUT.txt [SCENE ...] [--pairs] [--reuse]
-        [--fidelity ideal]
+        [--fidelity ideal] [--methods vern6,vern7,...]
 
 then ``diff`` two OUT files: 90 lines for the five methods on the six scenes, 138 with
-tsit5 and vern6 (``--pairs``). ``--fidelity``: the bench's fidelity column (default exact;
-the bench's stiff rows run ideal). ``--reuse``: every run with ``reuse_trace=True`` (the
-second run rewrites the first's Trace in place), whose hashes must equal the runs' without
-it.
+tsit5 and vern6 (``--pairs``); ``--methods m1,m2,..``: these methods instead. ``--fidelity``:
+the bench's fidelity column (default exact; the bench's stiff rows run ideal). ``--reuse``:
+every run with ``reuse_trace=True`` (the second run rewrites the first's Trace in place),
+whose hashes must equal the runs' without it.
 """
 from __future__ import annotations
 
@@ -72,6 +72,10 @@ def main() -> None:
         fidelity = args[i + 1]
         del args[i:i + 2]
     methods = METHODS + PAIRS if '--pairs' in sys.argv else METHODS
+    if '--methods' in args:
+        i = args.index('--methods')
+        methods = tuple(args[i + 1].split(','))
+        del args[i:i + 2]
     out = run_hashes(tuple(args[1:]) or SCENES, methods, reuse='--reuse' in sys.argv,
                      fidelity=fidelity)
     with open(args[0], 'w') as fh:

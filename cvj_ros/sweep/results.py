@@ -30,6 +30,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 FORMAT = 'cvj_ros.sweep/1'
 RESULTS = 'results.csv'
 TIMING = 'timing.csv'
@@ -39,9 +41,11 @@ MANIFEST = 'sweep.json'
 
 def fmt(value: Any) -> str:
     """CSV text of a cell: floats by ``repr`` (exact round trip; 'nan', 'inf'), ints by
-    ``str``, None as empty."""
+    ``str``, None as empty; numpy scalars as their Python values."""
     if value is None:
         return ''
+    if isinstance(value, np.generic):
+        value = value.item()        # its Python value: repr(np.float64(0.3)) is 'np.float64(0.3)'
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, float):

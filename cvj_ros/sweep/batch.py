@@ -359,7 +359,8 @@ def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
     """The plan's one-call run (``KernelStepper.bind_run``, the same compiled function, packs
     and stepper) bound without the intermediate members (``mids`` None): it integrates and
     fills every sample's shaft outputs as ``plan.run`` does and leaves the members' columns
-    unwritten. None when the members cannot wait for the window: none compiled, some filled
+    unwritten, except the angles no row reads (after a joint that feeds neither the first
+    shaft's angle nor a member's input: ``outputs_nb.unread_angles``), which are NaN. None when the members cannot wait for the window: none compiled, some filled
     in Python, or one of them is the first shaft (the steady window reads its speed)."""
     mtab, _mfp, python_members = sim._mid_table
     if not mtab.shape[0] or python_members or 0 in mtab[:, 0].tolist():
@@ -375,8 +376,13 @@ def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
         arrays = (np.zeros(0), np.zeros(0, np.int64),
                   np.array([(k, k_end) for k, k_end, _b in plan.segments], dtype=np.int64),
                   np.array([math.nan if b is None else b for _k, _ke, b in plan.segments]))
+    # angles a row reads: the first shaft's (the torque orders') and the members' inputs; a
+    # joint whose output angle feeds none of them gives its ratio alone (unread_angles)
+    from cvj_ros.physics.kernel.outputs_nb import unread_angles
+    tab = sim._shaft_table
+    skip = unread_angles(plan.stepper.ip, tab, sorted({0, *mtab[:, 1].tolist()}))
     run = plan.stepper.bind_run(sim.driveline.x0, times, (*arrays, np.zeros(2), np.zeros((2, n))),
-                                sim._shaft_table, None)
+                                tab, None, skip if skip.any() else None)
     # fill's and the compiled reduction's entry points loaded now, not in a later chunk
     # (zero rows, the types fill passes; a tiny record: reduce.load_entries)
     from cvj_ros.physics.kernel import entry_point_once

@@ -46,37 +46,44 @@ def _call(name: str, args: tuple[Any, ...]) -> Any:
     return entry(*args)
 
 
-_SLICES: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+Slices = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+_SLICES: list[tuple[np.ndarray, Slices]] = []
 
 
-def _slices(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) of steady.slice_bounds(t) as int64, kept for the last times seen (a
-    template's variants share their sample times; one tuple, replaced whole, so threads
-    sharing it read a consistent entry)."""
+def _slices(t: np.ndarray) -> Slices:
+    """(lo, hi) of steady.slice_bounds(t) as int64 and the acceleration's coefficients
+    (reduce_nb.gradient_table), kept for the last times seen (a template's variants share
+    their sample times; one tuple, replaced whole, so threads sharing it read a consistent
+    entry). ``t``: 3..MAX_SAMPLES strictly increasing times."""
     last = _SLICES[0] if _SLICES else None
     if last is not None and last[0].size == t.size and np.array_equal(last[0], t):
-        return last[1], last[2]
+        return last[1]
     _edges, lo, hi = slice_bounds(t)
-    entry = (t.copy(), lo.astype(np.int64), hi.astype(np.int64))
+    t = np.ascontiguousarray(t, dtype=np.float64).copy()
+    gco, gx0 = _call('gradient_table', (t,))
+    entry = (t, (lo.astype(np.int64), hi.astype(np.int64), gco, gx0))
     _SLICES[:] = [entry]
-    return entry[1], entry[2]
+    return entry[1]
 
 
-def checked_slices(t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The slices' (lo, hi) of the sample times ``t`` when the compiled reduction covers
-    them (3..MAX_SAMPLES samples, strictly increasing, enough slices of >= 2 samples), else
-    None. A caller whose runs share ``t`` (a batched template's) computes it once."""
+def checked_slices(t: np.ndarray) -> Slices | None:
+    """The slices' (lo, hi) of the sample times ``t`` and their gradient table (gco, gx0:
+    reduce_nb.gradient_table) when the compiled reduction covers them (3..MAX_SAMPLES
+    samples, strictly increasing, enough slices of >= 2 samples), else None. A caller
+    whose runs share ``t`` (a batched template's) computes it once."""
     m = t.size
     if not 3 <= m <= MAX_SAMPLES or not bool(np.all(t[1:] > t[:-1])):
         return None
-    lo, hi = _slices(t)
+    slices = _slices(t)
+    lo, hi = slices[0], slices[1]
     if not (lo.size >= steady.MIN_SLICES and bool(np.all(hi - lo >= 2))):
         return None
-    return lo, hi
+    return slices
 
 
 def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | None = None,
-                       slices: tuple[np.ndarray, np.ndarray] | None = None
+                       slices: Slices | None = None
                        ) -> tuple[SteadyWindow, dict[str, Any]] | None:
     """(window, summary) of ``trace`` as simulation_row computes them (the window's start,
     end and verdict; the summary's 'window', 'energy_residual', 'solver' and 'shafts'), or
@@ -94,7 +101,7 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
         slices = checked_slices(t)
         if slices is None:
             return None
-    lo, hi = slices
+    lo, hi, gco, gx0 = slices
     vel, eff = trace.velocity, trace.effort
     names = trace.names
     n_sh = len(names)
@@ -111,7 +118,7 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
         if _call('reduce_lean', (t, pos, vel, eff, res, lo, hi, means, steady.DRIFT_TOL,
                                  steady.AMPLITUDE_TOL, steady.MIN_SLICES, steady.SPEED_FLOOR,
                                  steady.TORQUE_FLOOR, steady.FALLBACK_FRACTION, mtab, mfp,
-                                 out)) != 0:
+                                 gco, gx0, out)) != 0:
             return None
     else:
         if _call('steady_start', (t, vel, eff, lo, hi, means, steady.DRIFT_TOL,
@@ -120,7 +127,7 @@ def compiled_reduction(trace: Any, options: Any, fill: Callable[[int], None] | N
             return None
         if fill is not None:    # from the row before the window (reduce_nb.window_first_row)
             fill(max(0, min(int(np.searchsorted(t, out[1])), m - 2) - 1))
-        if _call('window_metrics', (t, vel, eff, res, out)) != 0:
+        if _call('window_metrics', (t, vel, eff, res, gco, gx0, out)) != 0:
             return None
     vals = out.tolist()
     is_steady = vals[0] == 1.0

@@ -23,8 +23,10 @@ from numba import njit
 from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, borrowed_all, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import joint_eval
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
-from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_NDOF, H_SEC, H_SPRING_F, OP_HOOKE,
-                                          OP_INERTIA, OP_JOINT_IDENTITY,
+from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_LOAD, H_NDOF, H_SEC,
+                                          H_SPRING_F, H_TREE, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
+                                          LOAD_INPUTS, LOAD_RANDOM, LOAD_ROAD, LOAD_TIME_SERIES,
+                                          OP_HOOKE, OP_INERTIA, OP_JOINT_IDENTITY, OP_LEVER_EXACT,
                                           SPRING_STRIDE)
 from cvj_ros.physics.kernel.rhs_nb import (engine_torque, rhs, section_accel,
                                           spring_deflection, spring_eval,
@@ -201,10 +203,70 @@ def reaction_table(driveline: Any, joints: list[str]
 
 
 @njit(cache=True, inline='always')
-def _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq):
+def lever_exact_ratio(phi_in, ca, sa2, twist, ca2, sa22):
+    """(ratio -, ratio_slope 1/rad) of ``lever_hinge_exact_scalar`` (Davidbaev et al. 2023:
+    two cross stages in series, tan(c) = tan(phi) / cos a, then the tilted second stage):
+    the same operations in the same order without the output angle's last atan2, so the
+    same two floats (test/physics/kernel/test_outputs_nb.py)."""
+    s, c = math.sin(phi_in), math.cos(phi_in)
+    den1 = 1.0 - sa2 * c * c
+    h1 = ca / den1
+    h2 = -ca * sa2 * 2.0 * s * c / (den1 * den1)
+    c2 = phi_in + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + twist
+    s_, c_ = math.sin(c2), math.cos(c2)
+    den2 = 1.0 - sa22 * s_ * s_
+    g1 = ca2 / den2
+    g2 = ca2 * sa22 * 2.0 * s_ * c_ / (den2 * den2)
+    return g1 * h1, g2 * h1 * h1 + g1 * h2
+
+
+@njit(cache=True, inline='always')
+def joint_ratio(code, phi, fp, off):
+    """(ratio, ratio_slope) of ``joint_eval(code, phi, fp, off)``, the same floats; the exact
+    lever hinge without its output angle (:func:`lever_exact_ratio`)."""
+    if code == OP_LEVER_EXACT:
+        return lever_exact_ratio(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3],
+                                 fp[off + 4])
+    _po, r, s = joint_eval(code, phi, fp, off)
+    return r, s
+
+
+#: load codes whose torque does not depend on the load shaft's angle (sources_nb.load_eval)
+_LOADS_WITHOUT_ANGLE = (LOAD_INPUTS, LOAD_CONSTANT, LOAD_ROAD, LOAD_RANDOM, LOAD_BRAKE_STEPS,
+                        LOAD_TIME_SERIES)
+
+
+def unread_angles(ip: np.ndarray, tab: np.ndarray, read: list[int]) -> np.ndarray:
+    """Per kernel op (int64, the length of the op list): 1 at a joint whose output angle
+    nothing reads when only the shaft columns ``read`` (rows of ``tab``, :func:`shaft_table`)
+    are read for their angle: a joint of the last section with no joint after it, no shaft
+    of ``read`` after it, no imbalance, and a load whose torque does not depend on its
+    angle; else 0. A chain layout only (all zeros for a vehicle scene)."""
+    n = int(ip[H_NDOF])
+    sec = int(ip[H_SEC])
+    ops = sec + n + 1
+    flags = np.zeros(int(ip[sec + n]), np.int64)
+    if ip[H_TREE] != 0 or ip[H_IMBALANCE] != 0 or int(ip[H_LOAD]) not in _LOADS_WITHOUT_ANGLE:
+        return flags
+    g = n - 1
+    k0, k1 = int(ip[sec + g]), int(ip[sec + g + 1])
+    joints = [kk for kk in range(k0, k1) if ip[ops + 2 * kk] != OP_INERTIA]
+    if not joints:
+        return flags
+    kk = joints[-1]     # position after it: kk - k0 + 1; a read shaft there or later needs it
+    if any(int(tab[c, 0]) == g and int(tab[c, 1]) > kk - k0 for c in read):
+        return flags
+    flags[kk] = 1
+    return flags
+
+
+@njit(cache=True, inline='always')
+def _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq, skip):
     """One state y at time t: shaft angle, speed and torque before/after every kernel op
     into st_phi/st_om/st_tq[g, position] (the walk of ``Driveline._walk``). Returns (engine
-    torque N m, kinetic energy J, elastic energy J, load torque N m).
+    torque N m, kinetic energy J, elastic energy J, load torque N m). ``skip`` (int per
+    kernel op, :func:`unread_angles`, or empty): a joint flagged 1 gives its ratio and slope
+    alone (:func:`joint_ratio`) and the angles after it are NaN.
     Each joint is evaluated once per sample: a first pass over a section's ops maps
     (phi, a, b) by the chain rule and sums M = sum J a^2 and C = sum J a b over the same ops
     with the same a, b in the same order as ``rhs_nb.section`` (so the same floats), keeping
@@ -237,6 +299,12 @@ def _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq):
                 wk[1, p] = b
                 m += jv * a * a         # rhs_nb.section's M and C, term by term
                 c += jv * a * b
+            elif skip.shape[0] != 0 and skip[kk] != 0:
+                r, s = joint_ratio(code, phi, fp, off)
+                wk[2, p] = r
+                b = s * a * a + r * b
+                a = r * a
+                phi = math.nan
             else:
                 po, r, s = joint_eval(code, phi, fp, off)
                 wk[2, p] = r
@@ -300,6 +368,10 @@ def _walk_buffers(ip):
             np.empty((n, max_pos)))
 
 
+#: no joint angle skipped (:func:`_walk_sample`)
+_NO_SKIP = np.zeros(0, np.int64)
+
+
 @njit(cache=True)
 def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     """For every sample k (time T[k], state X[k]): shaft positions, speeds and torques
@@ -308,6 +380,22 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
     first non-finite state, or -1."""
     T, X, ip, fp, tab, pos, vel, eff, te, tl, res = borrowed_all((
         T, X, ip, fp, tab, pos, vel, eff, te, tl, res))
+    return _sample_rows(T, X, ip, fp, tab, e0, _NO_SKIP, pos, vel, eff, te, tl, res)
+
+
+@njit(cache=True)
+def sample_outputs_lean(T, X, ip, fp, tab, e0, skip, pos, vel, eff, te, tl, res):
+    """:func:`sample_outputs` with the joints flagged in ``skip`` (:func:`unread_angles`)
+    giving their ratio and slope alone: the same speeds, torques, engine and load torques
+    and energy residual bit for bit, NaN angles after those joints."""
+    T, X, ip, fp, tab, skip, pos, vel, eff, te, tl, res = borrowed_all((
+        T, X, ip, fp, tab, skip, pos, vel, eff, te, tl, res))
+    return _sample_rows(T, X, ip, fp, tab, e0, skip, pos, vel, eff, te, tl, res)
+
+
+@njit(cache=True, inline='always')
+def _sample_rows(T, X, ip, fp, tab, e0, skip, pos, vel, eff, te, tl, res):
+    """The body of :func:`sample_outputs` (and of :func:`sample_outputs_lean`)."""
     n = ip[H_NDOF]
     ns = X.shape[1]
     max_pos = _max_positions(ip)
@@ -326,7 +414,7 @@ def sample_outputs(T, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res):
             if not np.isfinite(y[i]):
                 return k
         t = T[k]
-        tk_e, kin, el, tk_l = _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq)
+        tk_e, kin, el, tk_l = _walk_sample(t, y, ip, fp, wk, st_phi, st_om, st_tq, skip)
         te[k] = tk_e
         tl[k] = tk_l
         for i in range(tab.shape[0]):
@@ -356,7 +444,7 @@ def joint_state_one(y, ip, fp, tab, mtab, mfp, pos, vel, eff):
         if not np.isfinite(y[i]):
             return False
     wk, st_phi, st_om, st_tq = _walk_buffers(ip)
-    _walk_sample(0.0, y, ip, fp, wk, st_phi, st_om, st_tq)
+    _walk_sample(0.0, y, ip, fp, wk, st_phi, st_om, st_tq, _NO_SKIP)
     for i in range(tab.shape[0]):
         g, p = tab[i, 0], tab[i, 1]
         pos[i] = st_phi[g, p]

@@ -33,8 +33,8 @@ from numba import njit
 
 from cvj_ros.physics.kernel.outputs_nb import _mid_angle, fill_mid_one
 
-__all__ = ['fill_mid_speeds', 'pairwise_sum', 'reduce_lean', 'series_sum', 'steady_start',
-           'warm', 'window_first_row', 'window_metrics']
+__all__ = ['fill_mid_speeds', 'gradient_table', 'pairwise_sum', 'reduce_lean', 'series_sum',
+           'steady_start', 'warm', 'window_first_row', 'window_metrics']
 
 PW_BLOCKSIZE = 128
 
@@ -219,33 +219,55 @@ def steady_start(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, lo: np.ndarray
     m = t.size
     n_sh = vel.shape[1]
     n = lo.size
-    for i in range(m):
-        if not math.isfinite(vel[i, 0]):
-            return -1
-        for j in range(n_sh):
-            if not math.isfinite(eff[i, j]):
-                return -1
+    # one pass over the rows: finite, the speed's peak and each torque's peak |value|
     speed_peak = 0.0
+    pk = np.zeros(n_sh)
     for i in range(m):
-        speed_peak = max(speed_peak, abs(vel[i, 0]))
+        x = vel[i, 0]
+        if not math.isfinite(x):
+            return -1
+        speed_peak = max(speed_peak, abs(x))
+        for j in range(n_sh):
+            e = eff[i, j]
+            if not math.isfinite(e):
+                return -1
+            pk[j] = max(pk[j], abs(e))
     torque_scale = 0.0
     for j in range(n_sh):
-        pk = 0.0
-        for i in range(m):
-            pk = max(pk, abs(eff[i, j]))
-        torque_scale = max(torque_scale, pk)
+        torque_scale = max(torque_scale, pk[j])
+    # each slice's half range of every signal (the reference speed, then every shaft's
+    # torque), row by row: a value replaces the max (min) only when greater (less), as
+    # _max / _min, so the same floats (signed zeros included)
+    amp = np.empty((n, n_sh + 1))
+    mx = np.empty(n_sh + 1)
+    mn = np.empty(n_sh + 1)
+    for k in range(n):
+        i0, i1 = lo[k], hi[k]
+        mx[0] = mn[0] = vel[i0, 0]
+        for j in range(n_sh):
+            mx[j + 1] = mn[j + 1] = eff[i0, j]
+        for i in range(i0 + 1, i1):
+            x = vel[i, 0]
+            if x > mx[0]:
+                mx[0] = x
+            if x < mn[0]:
+                mn[0] = x
+            for j in range(n_sh):
+                e = eff[i, j]
+                if e > mx[j + 1]:
+                    mx[j + 1] = e
+                if e < mn[j + 1]:
+                    mn[j + 1] = e
+        for sig in range(n_sh + 1):
+            amp[k, sig] = 0.5 * (mx[sig] - mn[sig])
     change = np.zeros(n)
-    a = np.empty(n)
-    for sig in range(n_sh + 1):     # the reference speed, then every shaft's torque
-        src = vel if sig == 0 else eff
-        col = 0 if sig == 0 else sig - 1
+    for sig in range(n_sh + 1):
         floor = max((speed_floor * speed_peak) if sig == 0 else (torque_floor * torque_scale),
                     1e-300)
+        last = amp[n - 1, sig]
         for k in range(n):
-            a[k] = 0.5 * (_max(src, lo[k], hi[k], col) - _min(src, lo[k], hi[k], col))
-        last = a[n - 1]
-        for k in range(n):
-            rel = abs(a[k] - last) / max(max(a[k], last), floor)
+            a = amp[k, sig]
+            rel = abs(a - last) / max(max(a, last), floor)
             if rel > change[k]:
                 change[k] = rel
     best = -1
@@ -281,14 +303,36 @@ def window_first_row(t: np.ndarray, start: float) -> int:
 
 
 @njit(cache=True)
+def gradient_table(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every row's :func:`_gradient_coefs` of ``np.gradient(f, t, edge_order=2)`` (m >= 3
+    strictly increasing times ``t``, numpy's uniform branch when every step equals the
+    first): (co (m, 4), x0 (m,)), row r's value co[r, 0] f[x0] + co[r, 1] f[x0+1] +
+    co[r, 2] f[x0+2], or (f[r+1] - f[r-1]) / co[r, 3] where x0 is -1. A function of the
+    times alone: a batched template computes it once for all its runs."""
+    m = t.size
+    uniform = True
+    h0 = t[1] - t[0]
+    for i in range(1, m - 1):
+        if t[i + 1] - t[i] != h0:
+            uniform = False
+            break
+    co = np.zeros((m, 4))
+    x0 = np.empty(m, np.int64)
+    for r in range(m):
+        x0[r] = _gradient_coefs(t, r, uniform, co[r])
+    return co, x0
+
+
+@njit(cache=True)
 def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndarray,
-                   out: np.ndarray) -> int:
+                   gco: np.ndarray, gx0: np.ndarray, out: np.ndarray) -> int:
     """:func:`cvj_ros.physics.metrics.shaft_metrics` over the window starting at ``out[1]``
-    (s) and the energy residual, of a record as :func:`steady_start`'s. Reads every
-    speed and torque from the row before the window on (the acceleration's central
-    difference) and all of ``res``. ``out[2]`` = max |energy residual| ignoring NaN (NaN if
-    all are), then per shaft mean_speed, delta, speed_amplitude, acceleration_amplitude,
-    mean_torque, torque_amplitude. Returns 0, or -1 for a non-finite speed or torque."""
+    (s) and the energy residual, of a record as :func:`steady_start`'s, with ``gco, gx0``
+    the :func:`gradient_table` of ``t``. Reads every speed and torque from the row before
+    the window on (the acceleration's central difference) and all of ``res``. ``out[2]`` =
+    max |energy residual| ignoring NaN (NaN if all are), then per shaft mean_speed, delta,
+    speed_amplitude, acceleration_amplitude, mean_torque, torque_amplitude. Returns 0, or -1
+    for a non-finite speed or torque."""
     m = t.size
     n_sh = vel.shape[1]
     i0 = window_first_row(t, out[1])
@@ -303,40 +347,52 @@ def window_metrics(t: np.ndarray, vel: np.ndarray, eff: np.ndarray, res: np.ndar
             emax = x
     out[2] = emax
     cnt = m - i0
-    uniform = True
-    h0 = t[1] - t[0]
-    for i in range(1, m - 1):
-        if t[i + 1] - t[i] != h0:
-            uniform = False
-            break
-    # the acceleration's extrema: row by row, its coefficients (_gradient_coefs) once for
-    # every shaft, each shaft's max / min over the rows in the same order as row by shaft
+    # one pass over the window's rows: the acceleration's extrema (each row's coefficients
+    # for every shaft) and the speeds' and torques' extrema (replaced only when greater /
+    # less, as _max / _min)
     gmax = np.empty(n_sh)
     gmin = np.empty(n_sh)
-    co = np.empty(4)
+    vmax = np.empty(n_sh)
+    vmin = np.empty(n_sh)
+    emx = np.empty(n_sh)
+    emn = np.empty(n_sh)
+    for j in range(n_sh):
+        vmax[j] = vmin[j] = vel[i0, j]
+        emx[j] = emn[j] = eff[i0, j]
     for r in range(i0, m):
-        x0 = _gradient_coefs(t, r, uniform, co)
+        x0 = gx0[r]
         for j in range(n_sh):
             if x0 < 0:      # uniform spacing, an interior row: numpy's central difference
-                g = (vel[r + 1, j] - vel[r - 1, j]) / co[3]
+                g = (vel[r + 1, j] - vel[r - 1, j]) / gco[r, 3]
             else:
-                g = co[0] * vel[x0, j] + co[1] * vel[x0 + 1, j] + co[2] * vel[x0 + 2, j]
+                g = gco[r, 0] * vel[x0, j] + gco[r, 1] * vel[x0 + 1, j] + \
+                    gco[r, 2] * vel[x0 + 2, j]
             if r == i0:
                 gmax[j] = g
                 gmin[j] = g
             else:
                 gmax[j] = max(gmax[j], g)
                 gmin[j] = min(gmin[j], g)
+            v = vel[r, j]
+            if v > vmax[j]:
+                vmax[j] = v
+            if v < vmin[j]:
+                vmin[j] = v
+            e = eff[r, j]
+            if e > emx[j]:
+                emx[j] = e
+            if e < emn[j]:
+                emn[j] = e
     for j in range(n_sh):
         mean = series_sum(vel, i0, cnt, j) / cnt
-        span = _max(vel, i0, m, j) - _min(vel, i0, m, j)
+        span = vmax[j] - vmin[j]
         o = 3 + 6 * j
         out[o] = mean
         out[o + 1] = span / abs(mean) if mean != 0.0 else math.inf
         out[o + 2] = 0.5 * span
         out[o + 3] = 0.5 * (gmax[j] - gmin[j])
         out[o + 4] = series_sum(eff, i0, cnt, j) / cnt
-        out[o + 5] = 0.5 * (_max(eff, i0, m, j) - _min(eff, i0, m, j))
+        out[o + 5] = 0.5 * (emx[j] - emn[j])
     return 0
 
 
@@ -377,7 +433,7 @@ def reduce_lean(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray
                 res: np.ndarray, lo: np.ndarray, hi: np.ndarray, means: np.ndarray,
                 drift_tol: float, amplitude_tol: float, min_slices: int, speed_floor: float,
                 torque_floor: float, fallback_fraction: float, mtab: np.ndarray,
-                mfp: np.ndarray, out: np.ndarray) -> int:
+                mfp: np.ndarray, gco: np.ndarray, gx0: np.ndarray, out: np.ndarray) -> int:
     """:func:`steady_start`, then :func:`fill_mid_speeds` of the members ``mtab`` from the
     row before the window on (:func:`window_first_row` - 1, at least 0), then
     :func:`window_metrics`, in one call (same arguments and ``out``). Returns 0; -1 when
@@ -386,7 +442,7 @@ def reduce_lean(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray
                     speed_floor, torque_floor, fallback_fraction, out) != 0:
         return -1
     fill_mid_speeds(pos, vel, max(0, window_first_row(t, out[1]) - 1), mtab, mfp)
-    if window_metrics(t, vel, eff, res, out) != 0:
+    if window_metrics(t, vel, eff, res, gco, gx0, out) != 0:
         return -2
     return 0
 
@@ -401,6 +457,7 @@ def warm() -> None:
     hi = np.array([10, 20, 31], np.int64)
     out = np.empty(9)
     steady_start(t, ones, ones, lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6, 1e-3, 0.5, out)
-    window_metrics(t, ones, ones, np.zeros(31), out)
+    gco, gx0 = gradient_table(t)
+    window_metrics(t, ones, ones, np.zeros(31), gco, gx0, out)
     reduce_lean(t, ones, ones, ones, np.zeros(31), lo, hi, np.ones(3), 2e-3, 0.05, 3, 1e-6,
-                1e-3, 0.5, np.zeros((0, 4), np.int64), np.zeros(1), out)
+                1e-3, 0.5, np.zeros((0, 4), np.int64), np.zeros(1), gco, gx0, out)

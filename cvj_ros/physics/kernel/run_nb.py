@@ -24,7 +24,8 @@ landings and the grid row of every sample, empty when every landing is a sample;
 empty for dense sampling) and ``seg, brk, tb, two`` (dense: sample rows [seg[i, 0], seg[i, 1])
 read by dense output up to breakpoint brk[i] (NaN: none), on which a step lands; ``tb`` (2,)
 and ``two`` (2, n) are that landing's scratch) -, ``atol``, the method's tableau,
-``sample_outputs``' shaft table ``tab`` and ``fill_mid_samples``' ``mtab``). Unpacking them in compiled code is a few slices;
+``sample_outputs``' shaft table ``tab``, ``fill_mid_samples``' ``mtab`` and the lean
+outputs' ``skip``, empty for ``sample_outputs``). Unpacking them in compiled code is a few slices;
 unboxing each as an argument cost ~60-90 ns (a meminfo allocated and freed, two atomic
 reference counts): 39 array arguments were ~3 of a 19 us stiff run, 15 are ~1.
 
@@ -40,15 +41,15 @@ import numpy as np
 from numba import njit
 
 from .borrow_nb import borrowed_all
-from .outputs_nb import fill_mid_samples, sample_outputs
+from .outputs_nb import fill_mid_samples, sample_outputs, sample_outputs_lean
 from .steppers_nb import (
     FS_ERROLD, FS_H, FS_T, FS_TOLD, ST_OK, dop853_land, dop853_sample, dopri5_land,
     dopri5_sample, rk4_land, rk4_sample, ros2_land, ros2_sample, ros_land, ros_sample)
 
 # entries of the pack table (pack(): the arrays in this order); the method's own from E_M0
 (E_X0, E_TIMES, E_GRID, E_BRK, E_TB, E_TWO, E_ATOL, E_FS, E_YOLD, E_K, E_WORK, E_ROWS, E_SEG,
- E_TAB, E_CNT, E_MTAB) = range(16)
-E_M0 = 16
+ E_TAB, E_CNT, E_MTAB, E_SKIP) = range(17)
+E_M0 = 17
 # Rosenbrock (ros2 uses the first four): J, LU, ft, piv, then A, C, M, E, alpha, gsum, H
 E_J, E_LU, E_FT, E_PIV, E_A, E_C, E_MW, E_E, E_ALPHA, E_GSUM, E_H = range(E_M0, E_M0 + 11)
 # dop853: C, A, B, E5, E3, D, A_EXTRA, C_EXTRA
@@ -144,9 +145,14 @@ def _i2(e, ipk, ibuf):
 def _outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res, ipk, ibuf, mfp):
     """``sample_outputs`` and, when every sample is finite, the intermediate members'
     angles and speeds (``fill_mid_samples`` with the pack's ``mtab`` and ``mfp``): what
-    ``Simulation.run`` did after the call, in the same order. Returns sample_outputs'
-    first non-finite sample, or -1."""
-    bad = sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
+    ``Simulation.run`` did after the call, in the same order. With a non-empty ``skip``
+    entry (a sweep's lean run, ``outputs_nb.unread_angles``): ``sample_outputs_lean``
+    instead. Returns the first non-finite sample, or -1."""
+    skip = _i1(E_SKIP, ipk, ibuf)
+    if skip.shape[0] > 0:
+        bad = sample_outputs_lean(times, X, ip, fp, tab, e0, skip, pos, vel, eff, te, tl, res)
+    else:
+        bad = sample_outputs(times, X, ip, fp, tab, e0, pos, vel, eff, te, tl, res)
     mtab = _i2(E_MTAB, ipk, ibuf)
     if bad < 0 and mtab.shape[0] > 0:
         fill_mid_samples(pos, vel, mtab, mfp)

@@ -507,7 +507,8 @@ class KernelStepper(_StepperBase):
                 (*linear, A, C, M, E, alpha, gsum, _NO_H if hermite else self._H))
 
     def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray,
-                 mids: tuple[np.ndarray, np.ndarray] | None = None):
+                 mids: tuple[np.ndarray, np.ndarray] | None = None,
+                 skip: np.ndarray | None = None):
         """A whole offline run in one compiled call (``run_nb``), bound to what is fixed for a
         Simulation's options: ``run(e0, X, XG, pos, vel, eff, te, tl, res)`` starts again at
         (0, x0) as :meth:`reset` does, integrates over ``times`` (s) into ``X`` (X[0] = x0)
@@ -515,8 +516,10 @@ class KernelStepper(_StepperBase):
         the samples' outputs as ``outputs_nb.sample_outputs(times, X, ip, fp, tab, e0,
         pos, ...)`` does, then - every sample finite - the intermediate members of
         ``mids = (mtab, mfp)`` (``outputs_nb.mid_table``) as ``fill_mid_samples(pos, vel,
-        mtab, mfp)`` does (none when None). Same steps and bytes as reset + land / sample +
-        sample_outputs + fill_mid_samples (test_run_nb.py). It raises SolverError as
+        mtab, mfp)`` does (none when None). ``skip`` (``outputs_nb.unread_angles``; None:
+        none): ``sample_outputs_lean`` instead, NaN angles after the joints it flags. Same
+        steps and bytes as reset + land / sample + sample_outputs + fill_mid_samples
+        (test_run_nb.py). It raises SolverError as
         :meth:`advance_to` and returns the first sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
         array (C-contiguous float64 / int64, fixed ndim): nothing is checked per run, and a
         run that succeeds leaves the Python attributes (t, y, counters: ~1.1 us to refresh)
@@ -532,12 +535,13 @@ class KernelStepper(_StepperBase):
         fn, scalars, entries = self._run_call()
         grid, rows, seg, brk, tb, two = plan
         mtab, mfp = mids if mids is not None else (np.zeros((0, 4), np.int64), np.zeros(0))
+        skip = np.zeros(0, np.int64) if skip is None else np.ascontiguousarray(skip, np.int64)
         if not (isinstance(mfp, np.ndarray) and mfp.dtype == np.float64 and mfp.ndim == 1
                 and mfp.flags.c_contiguous):
             raise SolverOptionError('mids', 'mfp must be a 1-d C-contiguous float64 array')
         fpk, ipk = pack([x0, times, grid, brk, tb, two, self._atol, self._fs, self._y_old,
                          self._K, self._work, rows, seg, tab, self._cnt,
-                         np.ascontiguousarray(mtab, dtype=np.int64), *entries],
+                         np.ascontiguousarray(mtab, dtype=np.int64), skip, *entries],
                         self._fbuf, self._ibuf)
         # mfp is read where it is, as fp is (a sweep patches both between runs)
         head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp, mfp,

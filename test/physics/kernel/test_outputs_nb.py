@@ -308,3 +308,105 @@ def test_walk_with_one_joint_evaluation_equals_the_walk_on_the_rhs_bit_for_bit(n
         assert np.ptp(got[2]) > 0.0         # the torques move over the run
         checked += m
     assert checked > 100
+
+
+@pytest.mark.parametrize('alpha_deg,delta_deg,twist', [(0.0, 0.0, 0.0), (15.0, 1.72, 0.0),
+                                                       (30.0, -3.0, 0.02), (60.0, 20.0, -0.1)])
+def test_lever_ratio_alone_is_the_exact_laws_ratio_and_slope_bit_for_bit(alpha_deg, delta_deg,
+                                                                         twist):
+    """lever_exact_ratio (the lean walk's exact lever law without the output angle) gives
+    lever_exact_nb's ratio and slope bit for bit; joint_ratio of every other op is
+    joint_eval's."""
+    from cvj_ros.physics.kernel.outputs_nb import joint_ratio, lever_exact_ratio
+    a, d = math.radians(alpha_deg), math.radians(alpha_deg + delta_deg)
+    args = (math.cos(a), math.sin(a) ** 2, twist, math.cos(d), math.sin(d) ** 2)
+    rng = np.random.default_rng(int(alpha_deg * 100 + delta_deg * 10))
+    phis = [0.0, -0.0, 1e-300, math.pi / 2, -math.pi / 2, math.pi, 1e6,
+            *rng.uniform(-100.0, 100.0, 3000).tolist()]
+    fp = np.array([0.0, *args])
+    for phi in phis:
+        _po, r, s = lever_exact_nb(phi, *args)
+        got = lever_exact_ratio(phi, *args)
+        assert (_bits(got[0]), _bits(got[1])) == (_bits(r), _bits(s)), phi
+        got = joint_ratio(OP_LEVER_EXACT, phi, fp, 1)
+        assert (_bits(got[0]), _bits(got[1])) == (_bits(r), _bits(s)), phi
+
+
+def _lean_flags(sim):
+    """unread_angles of a Simulation's model for the sweep's reads: the first shaft's
+    angle and the intermediate members' inputs."""
+    from cvj_ros.physics.kernel.outputs_nb import unread_angles
+    plan = next(iter(sim._plans.values()))
+    mtab = sim._mid_table[0]
+    return unread_angles(plan.model.ip, sim._shaft_table, sorted({0, *mtab[:, 1].tolist()}))
+
+
+@pytest.mark.parametrize('name', CHAIN_SCENES)
+def test_lean_walk_gives_the_same_outputs_but_the_unread_angles(name):
+    """sample_outputs_lean with unread_angles' flags for the sweep's reads (the first shaft's
+    angle, the members' inputs) gives sample_outputs' speeds, torques, engine and load
+    torques and energy residual bit for bit, the same angles in every column before a
+    flagged joint and NaN after it, on every shipped chain scene at each fidelity. The
+    kavz685_lever's exact lever hinge (a joint at the driven end, a random load) is
+    flagged."""
+    from cvj_ros.physics.kernel.outputs_nb import sample_outputs, sample_outputs_lean
+    scene = load_scene(find_scene(name))
+    flagged = 0
+    for fid in _fidelities(scene):
+        sim = Simulation(scene, fidelity=fid)
+        sim.run(0.3, sample_dt=0.002, reuse_trace=True)
+        plan = next(iter(sim._plans.values()))
+        T, X = plan.times, plan.kept[1][0]
+        ip, fp, tab = plan.model.ip, plan.model.fp, sim._shaft_table
+        skip = _lean_flags(sim)
+        m, n_sh = X.shape[0], tab.shape[0]
+        e0 = sim._initial_energy(sim.driveline.x0)
+        got = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        want = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        assert sample_outputs(T, X, ip, fp, tab, e0, *want) == -1
+        assert sample_outputs_lean(T, X, ip, fp, tab, e0, skip, *got) == -1
+        for a, b in zip(got[1:], want[1:]):
+            assert a.tobytes() == b.tobytes(), (name, fid)
+        n = int(ip[0])
+        sec = int(ip[9])
+        nan_cols = []
+        for kk in np.flatnonzero(skip):
+            g = n - 1
+            nan_cols += [c for c in range(n_sh)
+                         if tab[c, 0] == g and tab[c, 1] > kk - ip[sec + g]]
+        for c in range(n_sh):
+            if c in nan_cols:
+                assert np.isnan(got[0][:, c]).all(), (name, fid, c)
+            else:
+                assert got[0][:, c].tobytes() == want[0][:, c].tobytes(), (name, fid, c)
+        flagged += int(skip.sum())
+        if name == 'kavz685_lever' and fid is None:
+            assert skip.sum() == 1 and nan_cols == [3, 4]
+    if name == 'kavz685_lever':
+        assert flagged >= 2
+
+
+def test_unread_angles_keeps_the_angles_something_reads():
+    """No joint is flagged when a read shaft sits after it, when the load's torque depends on
+    its angle (a Fourier load), with imbalance, or for a joint a spring follows
+    (cardan_truck's first joints)."""
+    from cvj_ros.physics.kernel.layout import H_IMBALANCE, H_LOAD, LOAD_FOURIER
+    from cvj_ros.physics.kernel.outputs_nb import unread_angles
+    sim = Simulation(load_scene(find_scene('kavz685_lever')), fidelity={'coupling': 'exact'})
+    sim.run(0.01)
+    plan = next(iter(sim._plans.values()))
+    ip, tab = plan.model.ip, sim._shaft_table
+    assert unread_angles(ip, tab, [0, 1]).tolist() == [0, 1, 0]
+    assert not unread_angles(ip, tab, [0, 1, 3]).any()      # coupling_output's angle read
+    assert not unread_angles(ip, tab, [0, 4]).any()         # driven_shaft's angle read
+    for slot, value in ((H_LOAD, LOAD_FOURIER), (H_IMBALANCE, 1)):
+        other = ip.copy()
+        other[slot] = value
+        assert not unread_angles(other, tab, [0, 1]).any()
+    sim = Simulation(load_scene(find_scene('cardan_truck')))
+    sim.run(0.01)
+    plan = next(iter(sim._plans.values()))
+    ip = plan.model.ip
+    flags = unread_angles(ip, sim._shaft_table, [0])
+    n, sec = int(ip[0]), int(ip[9])
+    assert not flags[:int(ip[sec + n - 1])].any()       # every section but the last

@@ -138,10 +138,13 @@ def test_slices_kept_per_times() -> None:
     records of one length and other times (uniform, then stretched) each get their own."""
     from cvj_ros.physics.steady import slice_bounds
     from cvj_ros.sweep.reduce import _slices
+    from cvj_ros.physics.kernel.reduce_nb import gradient_table
     for t in (np.arange(500) * 0.5, np.linspace(0.0, 1.0, 500) ** 2, np.arange(500) * 0.5):
-        lo, hi = _slices(t)
+        lo, hi, gco, gx0 = _slices(t)
         _e, lo_ref, hi_ref = slice_bounds(t)
         assert np.array_equal(lo, lo_ref) and np.array_equal(hi, hi_ref)
+        co_ref, x0_ref = gradient_table(t)
+        assert gco.tobytes() == co_ref.tobytes() and np.array_equal(gx0, x0_ref)
 
 
 def test_member_speeds_alone_are_fill_mid_samples_speeds() -> None:
@@ -226,7 +229,7 @@ def test_gradient_coefficients_give_gradient_at() -> None:
     """window_metrics' per-row coefficients (reduce_nb._gradient_coefs, once for all
     shafts) give reduce_nb._gradient_at's value (numpy's np.gradient arithmetic) bit for
     bit in every row, uniform and non-uniform spacing, and np.gradient's own."""
-    from cvj_ros.physics.kernel.reduce_nb import _gradient_at, _gradient_coefs
+    from cvj_ros.physics.kernel.reduce_nb import _gradient_at, _gradient_coefs, gradient_table
     rng = np.random.default_rng(5)
     for t in (np.arange(40) * 0.001, np.linspace(0.0, 2.0, 2001),
               np.cumsum(rng.uniform(0.1, 2, 30)), np.arange(3) * 0.5):
@@ -234,8 +237,12 @@ def test_gradient_coefficients_give_gradient_at() -> None:
         uniform = bool(np.all(d == d[0]))
         f = rng.standard_normal((t.size, 3)) * 10.0 ** rng.integers(-3, 4, (t.size, 3))
         co = np.empty(4)
+        table, x0s = gradient_table(t)      # what window_metrics reads: every row's
         for r in range(t.size):
             x0 = _gradient_coefs(t, r, uniform, co)
+            assert x0 == x0s[r]
+            assert (co[3] if x0 < 0 else co[:3]).tobytes() == \
+                (table[r, 3] if x0 < 0 else table[r, :3]).tobytes()
             for j in range(3):
                 if x0 < 0:
                     g = (f[r + 1, j] - f[r - 1, j]) / co[3]
@@ -243,3 +250,27 @@ def test_gradient_coefficients_give_gradient_at() -> None:
                     g = co[0] * f[x0, j] + co[1] * f[x0 + 1, j] + co[2] * f[x0 + 2, j]
                 assert g == _gradient_at(t, f, j, r, uniform), (t.size, r, j)
                 assert g == np.gradient(f[:, j], t, edge_order=2)[r]
+
+
+def test_extrema_keep_the_first_of_equal_values() -> None:
+    """window_metrics takes the window's extrema in one pass over the rows (steady_start
+    its slices' likewise): a value replaces the max (min) only when greater (less), as the
+    column-by-column _max / _min they replace: the same half ranges with torques of +0.0
+    and -0.0 in either order."""
+    from cvj_ros.physics.kernel.reduce_nb import _max, _min, gradient_table, window_metrics
+    m = 300
+    t = np.linspace(0.0, 1.0, m)
+    vel = np.ones((m, 2)) + np.sin(np.arange(m))[:, None]
+    for first, then in ((-0.0, 0.0), (0.0, -0.0)):
+        eff = np.full((m, 2), then)
+        eff[:, 1] = np.cos(np.arange(m))
+        eff[: m // 2, 0] = first
+        out = np.empty(3 + 6 * 2)
+        out[1] = 0.0
+        gco, gx0 = gradient_table(t)
+        assert window_metrics(t, vel, eff, np.zeros(m), gco, gx0, out) == 0
+        for j in range(2):
+            want = 0.5 * (_max(eff, 0, m, j) - _min(eff, 0, m, j))
+            assert repr(float(out[3 + 6 * j + 5])) == repr(float(want)), (first, j)
+            span = _max(vel, 0, m, j) - _min(vel, 0, m, j)
+            assert repr(float(out[3 + 6 * j + 2])) == repr(float(0.5 * span))

@@ -79,7 +79,8 @@ def steppers_for(rhs, jac=None, module=None):
                 obj._cache = NullCache()
         mod.RHS = rhs
         mod.JAC = jac if jac is not None else rhs_nb.jac
-        mod.JAC_KEEP = mod.keep_none    # a toy's J is evaluated whole at every step
+        if hasattr(mod, 'keep_none'):   # steppers_nb: a toy's J is evaluated whole at every step
+            mod.JAC_KEEP = mod.keep_none
         _COPIES[key] = (mod, rhs, jac)   # keep rhs/jac alive so their ids stay unique
     else:
         mod = mod[0]

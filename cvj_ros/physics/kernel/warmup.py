@@ -9,15 +9,15 @@ clutch/gearbox/brake mode segment (kernel/segment_nb.py, chains and trees, every
 warmed after the outputs.
 
 On a machine with two or more cores the cold compile runs in two processes sharing the
-cache: this one compiles dopri5, dop853, rk4 and the outputs, a child (``--methods``) the
-Rosenbrock family (:data:`CHILD_METHODS`), about equal halves. numba writes every cache file
+cache: this one compiles dopri5, dop853, rk4 and the mode segment, a child (``--methods``) the
+Rosenbrock family, the four explicit pairs and the outputs (:data:`CHILD_METHODS`), about
+equal halves of the compile time. numba writes every cache file
 through a temporary file and a rename, so a file is never half written; what two processes
 can race on is a function's index when both add a signature to it within the same
 milliseconds (here only ``rhs``, compiled by both with the same signature at the start, and
 ``hermite_dense``, ~10 s apart). A lost index entry costs a recompile at that function's
 first call from Python, never a wrong result: numba loads an entry only for its exact
-signature. Measured on the 2-core machine: 107-118 s in one process, 63-76 s in two.
-``CVJ_WARMUP_SERIAL=1`` keeps it in one process.
+signature. ``CVJ_WARMUP_SERIAL=1`` keeps it in one process.
 """
 from __future__ import annotations
 
@@ -28,8 +28,12 @@ import time
 
 from cvj_ros.physics.kernel.stepper import KERNEL_METHODS
 
-#: what the child process compiles when the warm-up runs in two processes
-CHILD_METHODS = ('ros2', 'rosenbrock', 'rodas4', 'rodas3')   # rodas3: rodas4's functions, loaded
+#: what the child process compiles when the warm-up runs in two processes (rodas3: rodas4's
+#: functions, vern6-8: tsit5's, loaded; 'outputs': :func:`warm_outputs`)
+CHILD_METHODS = ('ros2', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6', 'vern7', 'vern8',
+                 'outputs')
+#: what ``--methods`` accepts beside the kernel's methods
+PARTS = ('outputs',)
 
 
 def tiny_scene():
@@ -162,17 +166,20 @@ def warm_modes(*, out=sys.stdout) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     """``warmup`` (everything; two processes on >= 2 cores) or ``warmup --methods a,b``
-    (those methods only: the child of the two-process warm-up). Exit status 1 when the
+    (those methods, and the outputs when ``outputs`` is named: the child of the two-process
+    warm-up). Exit status 1 when the
     child failed (its own output says why)."""
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ['--methods'] and len(argv) == 2:
         methods = tuple(m for m in argv[1].split(',') if m)
-        unknown = [m for m in methods if m not in KERNEL_METHODS]
+        unknown = [m for m in methods if m not in KERNEL_METHODS + PARTS]
         if unknown:
             print(f'warmup: --methods: unknown {", ".join(unknown)} (compiled: '
-                  f'{", ".join(KERNEL_METHODS)})', file=sys.stderr)
+                  f'{", ".join(KERNEL_METHODS + PARTS)})', file=sys.stderr)
             return 2
-        warm(methods)
+        warm(tuple(m for m in methods if m in KERNEL_METHODS))
+        if 'outputs' in methods:
+            warm_outputs()
         return 0
     if argv:
         print('usage: python -m cvj_ros.physics.kernel.warmup [--methods M1,M2,..]',
@@ -189,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         mine = KERNEL_METHODS
     warm(mine)
-    warm_outputs()
+    if child is None:
+        warm_outputs()
     warm_modes()
     status = 0 if child is None else child.wait()
     how = 'one process' if child is None else 'two processes'

@@ -3,6 +3,7 @@ count and stamps, names, momentum balance, peer timeout, NaN rejection, ignored 
 free-run, parameter errors."""
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -540,9 +541,11 @@ class _HandStartObservers:
         self.recorder.destroy_node()
 
 
+@contextlib.contextmanager
 def _hand_started_free_run(ctx, tmp_path):
     """A free-run CouplingNode as a hand start makes it (min_subscribers 3, no start_gate,
-    not composed), FakePeers, the observers and an executor spinning them all."""
+    not composed), FakePeers, the observers and an executor spinning them all; all shut
+    down and destroyed on leaving."""
     peers = FakePeers(ctx)
     obs = _HandStartObservers(ctx)
     node = CouplingNode(context=ctx, parameter_overrides=[
@@ -551,7 +554,20 @@ def _hand_started_free_run(ctx, tmp_path):
     ex = make_executor('events', ctx)
     for n in (peers.node, obs.monitor, obs.recorder, node):
         ex.add_node(n)
-    return node, peers, obs, ex
+    try:
+        yield node, peers, obs, ex
+    finally:
+        ex.shutdown()
+        obs.destroy()
+        peers.node.destroy_node()
+        node.destroy_node()
+
+
+def _run_to_the_end(ex, node, peers) -> None:
+    """Spin until the run exits and its published states arrived (bounds: a hung run, not a
+    timing budget)."""
+    _spin_until(ex, lambda: node.exit_code is not None, 60.0, 'the run did not finish')
+    _spin_until(ex, lambda: len(peers.js) >= node.joint_states_published, 10.0, 'states in flight')
 
 
 def _spin_until(ex, cond, bound: float, what: str) -> None:
@@ -570,8 +586,7 @@ def test_hand_started_free_run_waits_for_the_recorders_report_before_state_0(ctx
     run records from t = 0. (Before, free-run started after START_SETTLE_S whatever the
     recorder said.)"""
     from cvj_ros.nodes import coupling_node as cn
-    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
-    try:
+    with _hand_started_free_run(ctx, tmp_path) as (node, peers, obs, ex):
         obs.report({'/driveline/joint_states': 1})       # nothing else matched yet
         # discovery within one process (generous, as in test_peers)
         _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
@@ -585,15 +600,7 @@ def test_hand_started_free_run_waits_for_the_recorders_report_before_state_0(ctx
                    for line in node.recorders_not_ready()), node.recorders_not_ready()
         # the recorder's readers now match every publisher on the graph
         obs.report({topic: 99 for topic, _types in obs.recorder.get_topic_names_and_types()})
-        # a 20 ms free run after the report: a hung run, not a timing budget; then what is in
-        # flight (the 10 s of run() above)
-        _spin_until(ex, lambda: node.exit_code is not None, 60.0, 'the run did not finish')
-        _spin_until(ex, lambda: len(peers.js) >= node.joint_states_published, 10.0, 'states in flight')
-    finally:
-        ex.shutdown()
-        obs.destroy()
-        peers.node.destroy_node()
-        node.destroy_node()
+        _run_to_the_end(ex, node, peers)                 # a 20 ms free run after the report
     assert node.exit_code == 0
     stamps = [ns(m.header.stamp) for m in peers.js]
     assert stamps[:2] == [0, 1_000_000] and stamps[-1] == 20_000_000
@@ -606,20 +613,13 @@ def test_hand_started_free_run_starts_after_the_bound_with_one_warn_line(ctx, tm
     from cvj_ros.nodes import coupling_node as cn
     monkeypatch.setattr(cn, 'OBSERVER_SETTLE_S', 0.3)
     monkeypatch.setattr(cn, 'UNMATCHED_WAIT_S', 0.5)
-    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
     warnings: list[str] = []
-    monkeypatch.setattr(node.get_logger(), 'warning', lambda msg, *a, **k: warnings.append(msg))
-    try:
+    with _hand_started_free_run(ctx, tmp_path) as (node, peers, obs, ex):
+        monkeypatch.setattr(node.get_logger(), 'warning', lambda msg, *a, **k: warnings.append(msg))
         obs.report({})
         # discovery within one process (generous, as in test_peers), the 0.8 s bound and the
-        # 20 ms run: a hung start, not a timing budget
-        _spin_until(ex, lambda: node.exit_code is not None, 60.0, 'the run did not finish')
-        _spin_until(ex, lambda: len(peers.js) >= node.joint_states_published, 10.0, 'states in flight')
-    finally:
-        ex.shutdown()
-        obs.destroy()
-        peers.node.destroy_node()
-        node.destroy_node()
+        # 20 ms run
+        _run_to_the_end(ex, node, peers)
     assert node.exit_code == 0
     start = [w for w in warnings if w.startswith('start: ')]
     assert len(start) == 1, warnings
@@ -632,20 +632,17 @@ def test_hand_started_free_run_refuses_another_publisher_during_the_wait(ctx, tm
     """The observers' wait keeps the free-run refusal before state 0: a second /engine/wrench
     publisher that appears while a hand-started free run waits for the recorder's report
     stops it with the line naming both publishers, and no state goes out."""
-    node, peers, obs, ex = _hand_started_free_run(ctx, tmp_path)
     other = rclpy.create_node('other_engine', context=ctx)
     try:
-        obs.report({})                                   # never covers: the run keeps waiting
-        # discovery within one process (generous, as in test_peers)
-        _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
-        other.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
-        ex.add_node(other)
-        _spin_until(ex, lambda: node.exit_code is not None, 30.0, 'not refused')
+        with _hand_started_free_run(ctx, tmp_path) as (node, peers, obs, ex):
+            obs.report({})                               # never covers: the run keeps waiting
+            # discovery within one process (generous, as in test_peers)
+            _spin_until(ex, lambda: node._ready_since is not None, 30.0, 'peers never connected')
+            other.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+            ex.add_node(other)
+            _spin_until(ex, lambda: node.exit_code is not None, 30.0, 'not refused')
     finally:
-        ex.shutdown()
-        obs.destroy()
-        for n in (other, peers.node, node):
-            n.destroy_node()
+        other.destroy_node()
     assert node.exit_code == 1 and not peers.js and node.joint_states_published == 0
     assert node.error_message.startswith('free-run: /engine/wrench has 2 publishers: ')
     assert '/other_engine (gid ' in node.error_message

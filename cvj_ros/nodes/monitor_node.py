@@ -94,6 +94,10 @@ PARAMS = (
 MAX_COLLECTED = 1000
 
 
+#: loop statuses held ahead of the joint states at most (one per diagnostics_every steps)
+MAX_PENDING_LOOP = 256
+
+
 class MonitorNode(CvjNode):
     """Rolling-window run monitor (see module docstring). Parameters: :data:`PARAMS`."""
 
@@ -117,6 +121,9 @@ class MonitorNode(CvjNode):
         self._engine_torque = RollingWindow(cap, 1)
         self._load_torque = RollingWindow(cap, 1)
         self.loop_values: dict[str, float] = {}
+        # coupling node statuses stamped after the latest joint state taken, held until the
+        # monitor's time reaches them (_take_loop_status)
+        self._pending_loop: list[tuple[int, dict[str, str]]] = []
         self.samples = 0
         self.last_ns = 0
         self.published = 0
@@ -388,22 +395,48 @@ class MonitorNode(CvjNode):
                           stamp_ns: int | None = None) -> None:
         """Keep the float values of the coupling node's statuses (name, key/values) of one
         /diagnostics message with header.frame_id ``frame_id`` and stamp ``stamp_ns`` (the
-        loop's t_k), and its modes (:class:`DrivelineStates`)."""
+        loop's t_k), and its modes (:class:`DrivelineStates`).
+
+        A status stamped after the latest joint state taken is held and used once the
+        monitor's time reaches its stamp: a publication at t_j sees the loop statuses stamped
+        <= t_j, whichever arrived first (a busy monitor used to see the status of t_100 in its
+        statuses of t_99, an idle one not)."""
         for name, values in statuses:
             if not name.startswith('coupling_node'):
                 continue
-            self.states.take(self.last_ns if stamp_ns is None else stamp_ns, dict(values))
-            for key, value in values:
-                try:
-                    self.loop_values[key] = float(value)
-                except ValueError:
-                    pass
+            stamp = self.last_ns if stamp_ns is None else stamp_ns
+            if stamp <= self.last_ns:
+                self._use_loop_status(stamp, dict(values))
+            else:
+                self._pending_loop.append((stamp, dict(values)))
+                if len(self._pending_loop) > MAX_PENDING_LOOP:   # no joint states: stamps never reached
+                    self._pending_loop.sort(key=lambda p: p[0])
+                    self._use_loop_status(*self._pending_loop.pop(0))
+
+    def _use_loop_status(self, stamp_ns: int, values: dict[str, str]) -> None:
+        self.states.take(stamp_ns, values)
+        for key, value in values.items():
+            try:
+                self.loop_values[key] = float(value)
+            except ValueError:
+                pass
+
+    def _take_pending_loop_statuses(self) -> None:
+        """The held loop statuses stamped <= the latest joint state, in stamp order."""
+        if not self._pending_loop:
+            return
+        due = sorted((p for p in self._pending_loop if p[0] <= self.last_ns), key=lambda p: p[0])
+        if due:
+            self._pending_loop = [p for p in self._pending_loop if p[0] > self.last_ns]
+            for stamp, values in due:
+                self._use_loop_status(stamp, values)
 
     # --- output -----------------------------------------------------------------------------
 
     def compute(self) -> list[Status]:
         """The statuses of one /diagnostics message from the current windows."""
         self.take_samples()
+        self._take_pending_loop_statuses()
         p = self.params
         out: list[Status] = []
         if self.speeds is not None and self.efforts is not None and len(self.speeds):

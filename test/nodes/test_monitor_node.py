@@ -170,3 +170,36 @@ def test_a_standing_start_is_a_state_and_steady_running_is_judged_about_the_tren
     assert last['monitor: modes'].level == DiagnosticStatus.WARN
     assert last['monitor: modes'].message == 'engine stalled at t=1.600000 s'
     node.destroy_node()
+
+
+def test_a_loop_status_is_used_from_its_stamp_on_whichever_arrived_first(ctx):
+    """The coupling node publishes its loop status of t_100 after the joint state of t_100;
+    a monitor whose executor took that status before the joint state of t_99 (busy, separate
+    processes) must publish the same statuses at t_99 as one that took them in stamp order
+    (composed): the status counts from its stamp on, not from its arrival."""
+    from cvj_ros.nodes.diagnostics import status_message
+    node = MonitorNode(context=ctx, parameter_overrides=[Parameter('publish_every', value=100)])
+
+    def feed(k0: int, k1: int) -> None:
+        for k in range(k0, k1):
+            msg = JointState()
+            msg.header.stamp = ns_to_stamp(k * 1_000_000)
+            msg.name, msg.position, msg.effort = ['a'], [0.0], [0.0]
+            msg.velocity = [40.0]
+            node._on_joint_states(msg, publish=False)
+
+    def names() -> set[str]:
+        return {status_message(x).name for x in node.compute()}
+
+    loop = [('coupling_node: loop', [('energy_residual', '1e-9'), ('real_time_factor', '12')])]
+    feed(0, 50)
+    node._take_loop_status('coupling_node', loop, 100_000_000)   # early: stamped t_100
+    feed(50, 100)
+    assert 'monitor: loop' not in names() and node.loop_values == {}   # publication at t_99
+    feed(100, 101)
+    assert 'monitor: loop' in names() and node.loop_values['real_time_factor'] == 12.0
+    # in stamp order, an already reached stamp is used at once
+    node._take_loop_status('coupling_node', [('coupling_node: loop', [('real_time_factor', '7')])],
+                           50_000_000)
+    assert node.loop_values['real_time_factor'] == 7.0
+    node.destroy_node()

@@ -34,7 +34,7 @@ def _time(prob: bench.SceneProblem, r: dict, cfg: bench.BenchConfig) -> float:
     if r['family'] == 'project':
         out = bench.run_project(prob, solver=r['solver'], tol=tol, h=None, fidelity=r['fidelity'],
                                 cfg=cfg, breakpoints=r['breakpoints'] in ('True', ''),
-                                sampling=r['sampling'] or 'land')
+                                sampling=r['sampling'] or 'land', energy=r.get('energy') != 'off')
     else:
         out = bench.run_expert(prob, method=r['solver'], tol=tol, cfg=cfg,
                                restart=r['breakpoints'] == 'True')

@@ -3,8 +3,9 @@
 For each reference scene, each project solver (cvj_ros.physics.solvers via
 cvj_ros.physics.simulate.Simulation: dopri5, dop853, rosenbrock adaptive over tolerances;
 rk4 over fixed steps) and each joint fidelity (ideal / closed / exact forced on every joint
-with springs elastic, and 'auto' = the fidelity chooser's pick from the scene's accuracy
-target), it measures
+with springs elastic, 'auto' = the fidelity chooser's pick from the scene's accuracy
+target, 'rigid' = exact joints with every spring rigid), with and without the work
+integrals (``energy`` on / off), it measures
 
 * wall seconds per simulated second (min of ``repeats`` runs, spread over ``passes`` passes
   of each scene's configurations; spread (max - min)/min),
@@ -36,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import itertools
 import math
 import os
 import platform
@@ -56,7 +58,8 @@ REFERENCE_SCENES = ('kavz685_lever', 'fwd_halfshaft', 'cardan_truck', 'tripod_xi
 ADAPTIVE_SOLVERS = ('dopri5', 'dop853', 'rosenbrock', 'rodas4', 'rodas3', 'tsit5', 'vern6',
                     'vern7', 'vern8')
 BASELINES = ('RK45', 'LSODA', 'Radau')
-FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto')
+FIDELITY_MODES = ('ideal', 'closed', 'exact', 'auto', 'rigid')
+ENERGY_MODES = ('on', 'off')   # project runs with / without the work integrals (track_energy)
 COUPLING_SCHEMES = ('zoh', 'extrapolate', 'linear_implicit')
 ERROR_LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 
@@ -71,6 +74,8 @@ class BenchConfig:
     tolerances: Sequence[float] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
     rk4_steps: Sequence[float] = (1e-3, 3e-4, 1e-4, 3e-5)
     fidelities: Sequence[str] = FIDELITY_MODES
+    energy: Sequence[str] = ENERGY_MODES  # 'off': every project configuration once more without
+                                         # the work integrals (Simulation(track_energy=False))
     baselines: Sequence[str] = BASELINES
     horizon: float | None = 1.0          # s simulated per run (None: the scene's duration)
     samples: int = 20                    # sample points on the horizon (error grid)
@@ -147,20 +152,24 @@ def resolve_scene(spec: Any) -> Any:
 
 def forced_levels(scene: Any, mode: str) -> dict[str, str] | None:
     """Per-element overrides for fidelity ``mode``: every joint at ``mode`` where the joint
-    has it (else its nearest richer level), every spring elastic; None for 'auto'."""
+    has it (else its nearest richer level), every spring elastic; None for 'auto'. 'rigid':
+    every joint at its richest level (as 'exact') and every spring rigid (its two sections
+    one inertia, cvj_ros.physics.fidelity), a model without the drivetrain's torsional
+    modes."""
     from cvj_ros.physics.joints import JOINTS
     from cvj_ros.physics.scene import Joint, Spring, iter_elements
     if mode == 'auto':
         return None
     order = ('ideal', 'closed', 'exact')
+    joint_mode = 'exact' if mode == 'rigid' else mode
     out: dict[str, str] = {}
     for el in iter_elements(scene.driveline):     # a vehicle scene's branches too
         if isinstance(el, Joint):
             have = JOINTS[el.kind].fidelities
-            level = next((lv for lv in order[order.index(mode):] if lv in have), have[-1])
+            level = next((lv for lv in order[order.index(joint_mode):] if lv in have), have[-1])
             out[el.name] = level
         elif isinstance(el, Spring):
-            out[el.name] = 'elastic'
+            out[el.name] = 'rigid' if mode == 'rigid' else 'elastic'
     return out
 
 
@@ -281,7 +290,7 @@ def retime_passes(rows: list[dict[str, Any]], cfg: BenchConfig, *,
 
 def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float | None,
                 fidelity: str, cfg: BenchConfig, breakpoints: bool = True,
-                sampling: str = 'land') -> dict[str, Any]:
+                sampling: str = 'land', energy: bool = True) -> dict[str, Any]:
     """Time one project configuration: ``Simulation.run`` (the project's own path: persistent
     stepper landing on every sample - or with ``sampling='dense'`` reading the samples from
     the method's dense output, as solve_ivp's ``t_eval`` does - and, with ``breakpoints``, on
@@ -289,16 +298,19 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
     Simulation (fidelity choice, joint set-up) is not timed, for project and baseline alike;
     the runs after the first reuse its plan (``Simulation._run_kernel``: sample times,
     stepper) and write one Trace in place (``run(reuse_trace=True)``: the result of the last
-    run is the one measured), as a user's repeated runs of one Simulation do."""
+    run is the one measured), as a user's repeated runs of one Simulation do. ``energy``
+    False: the run without the work integrals (``Simulation(track_energy=False)``: 2 n_dof
+    states, energy residual NaN; label suffix ' no-energy', CSV column energy = 'off')."""
     from cvj_ros.physics.simulate import Simulation
     scene = _scene_for(prob.scene, h=h)
     row: dict[str, Any] = {'scene': prob.scene.name, 'family': 'project', 'solver': solver,
                            'fidelity': fidelity, 'tol': tol, 'h': h, 'breakpoints': breakpoints,
-                           'sampling': sampling}
+                           'sampling': sampling, 'energy': 'on' if energy else 'off'}
     row['label'] = f'{solver} {fidelity}{_run_kind(row)}'
     tol_ = tol if tol is not None else 1e-6
     try:
-        sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity))
+        sim = Simulation(scene, method=solver, rtol=tol_, atol=tol_, fidelity=forced_levels(scene, fidelity),
+                         track_energy=energy)
     except CvjError as exc:
         return {**row, 'ok': False, 'note': str(exc).splitlines()[0][:160]}
     row['levels'] = ' '.join(f'{k}={v}' for k, v in sim.fidelity_report.levels.items())
@@ -803,7 +815,7 @@ def machine_description() -> dict[str, str]:
 
 CSV_FIELDS = ('scene', 'family', 'solver', 'fidelity', 'tol', 'h', 'label', 'ok', 'wall_s',
               'wall_spread', 'repeats', 'wall_per_sim_s', 'nfev', 'njev', 'err_speed_rel', 'err_angle_rad',
-              'levels', 'breakpoints', 'sampling', 'note')
+              'levels', 'breakpoints', 'sampling', 'note', 'energy')
 LOCKSTEP_FIELDS = ('scene', 'scheme', 'exchange_step', 'ok', 'err_speed_rel', 'rtf', 'us_per_exchange', 'note')
 
 
@@ -819,7 +831,7 @@ def planned_runs(cfg: BenchConfig) -> int:
         # adaptive runs: landing on the samples (and, on a load with breakpoints, once more
         # stepping across them) and dense sampling
         variants = 3 if _may_have_breakpoints(scene) else 2
-        total += (len(cfg.fidelities) * (fixed + variants * adaptive)
+        total += (len(cfg.fidelities) * len(cfg.energy) * (fixed + variants * adaptive)
                   + families * len(cfg.baselines) * len(cfg.tolerances)
                   + experts * (variants - 1) * len(cfg.tolerances))
     return total
@@ -921,9 +933,10 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                     if tol is not None:
                         variants += [(False, 'land')] if prob.has_breakpoints else []
                         variants += [(True, 'dense')]
-                    for breaks, sampling in variants:
+                    for (breaks, sampling), energy in itertools.product(variants, cfg.energy):
                         rows.append(run_project(prob, solver=solver, tol=tol, h=h, fidelity=fid,
-                                                cfg=cfg, breakpoints=breaks, sampling=sampling))
+                                                cfg=cfg, breakpoints=breaks, sampling=sampling,
+                                                energy=energy == 'on'))
                         if progress is not None:
                             progress(len(rows))
         for compiled in ((False, True) if cfg.compiled_baselines else (False,)):
@@ -1044,10 +1057,12 @@ def _config_label(r: dict[str, Any] | None) -> str:
 
 def _run_kind(r: dict[str, Any]) -> str:
     """A project row's label suffix: ' across-breaks' (stepping across the load's
-    breakpoints), ' dense' (dense sampling), or '' (landing on samples and breakpoints); rows
-    read back from the CSV hold the flags as strings."""
+    breakpoints), ' dense' (dense sampling), or '' (landing on samples and breakpoints), then
+    ' no-energy' for a run without the work integrals; rows read back from the CSV hold the
+    flags as strings (a CSV from before the energy column: all 'on')."""
     across = '' if r.get('breakpoints', True) in (True, 'True', '') else ' across-breaks'
-    return across + (' dense' if r.get('sampling') == 'dense' else '')
+    return (across + (' dense' if r.get('sampling') == 'dense' else '')
+            + (' no-energy' if r.get('energy') == 'off' else ''))
 
 
 def _real_lockstep_lines(real: Sequence[dict[str, Any]], rt: dict[str, Any]) -> list[str]:
@@ -1249,6 +1264,11 @@ def check_config(cfg: BenchConfig) -> None:
     for f in cfg.fidelities:
         if f not in FIDELITY_MODES:
             raise SceneError('--fidelities', f'unknown fidelity {f!r}; one of {", ".join(FIDELITY_MODES)}')
+    if not cfg.energy:
+        raise SceneError('--energy', 'give on, off or both')
+    for e in cfg.energy:
+        if e not in ENERGY_MODES:
+            raise SceneError('--energy', f'unknown value {e!r}; one of {", ".join(ENERGY_MODES)}')
     if cfg.repeats < 1:
         raise SceneError('--repeats', f'must be >= 1, got {cfg.repeats}')
     if cfg.passes < 1:

@@ -833,7 +833,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
 
     def method(r: dict[str, Any]) -> str:
         return f'numbalsoda {r["solver"]}' if r.get('family') == 'baseline_expert' else r['solver']
-    markers = {'exact': 'o', 'auto': '*', 'closed': 'D', 'ideal': 'v'}
+    markers = {'exact': 'o', 'auto': '*', 'closed': 'D', 'ideal': 'v', 'rigid': 'P'}
     methods = sorted({method(rs[0]) for rs in groups.values()},
                      key=lambda m: (m[:1].isupper(), m))   # project methods, then solve_ivp's
     colors = {m: _METHOD_COLORS[i % len(_METHOD_COLORS)] for i, m in enumerate(methods)}
@@ -874,7 +874,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         key += [Line2D([], [], ls='none', label=''),
                 Line2D([], [], ls='none', label='marker: fidelity')]
         key += [Line2D([], [], ls='none', marker=markers[f], color='0.3', ms=9 if f == 'auto' else 6,
-                       label=f) for f in ('exact', 'auto', 'closed', 'ideal') if f in used_fids]
+                       label=f) for f in ('exact', 'auto', 'closed', 'ideal', 'rigid') if f in used_fids]
         key += [Line2D([], [], ls='none', marker='s', color='0.3', ms=6, label='solve_ivp')]
         if any(v.startswith('numbalsoda') for v in used_variants):
             key += [Line2D([], [], ls='none', marker='^', color='0.3', ms=6, label='numbalsoda')]

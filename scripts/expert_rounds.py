@@ -29,12 +29,18 @@ def _best(rows: list[dict], family: str, level: float) -> dict | None:
     return min(cand, key=lambda r: float(r['wall_per_sim_s'])) if cand else None
 
 
+def _knob(r: dict) -> str:
+    """'tol=1e-06', or 'h=0.001' for a fixed-step row (rk4: no tolerance)."""
+    return f'tol={float(r["tol"]):.0e}' if r['tol'] else f'h={float(r["h"]):g}'
+
+
 def _time(prob: bench.SceneProblem, r: dict, cfg: bench.BenchConfig) -> float:
-    tol = float(r['tol'])
+    tol = float(r['tol']) if r['tol'] else None
+    h = float(r['h']) if r.get('h') else None
     if r['family'] == 'project':
-        out = bench.run_project(prob, solver=r['solver'], tol=tol, h=None, fidelity=r['fidelity'],
+        out = bench.run_project(prob, solver=r['solver'], tol=tol, h=h, fidelity=r['fidelity'],
                                 cfg=cfg, breakpoints=r['breakpoints'] in ('True', ''),
-                                sampling=r['sampling'] or 'land')
+                                sampling=r['sampling'] or 'land', energy=r.get('energy') != 'off')
     else:
         out = bench.run_expert(prob, method=r['solver'], tol=tol, cfg=cfg,
                                restart=r['breakpoints'] == 'True')
@@ -69,15 +75,15 @@ def main() -> None:
         for lv in LEVELS:
             p, e = _best(srows, 'project', lv), _best(srows, 'baseline_expert', lv)
             if p and e:
-                pairs.setdefault((p['label'] + p['tol'], e['label'] + e['tol']), (p, e, []))[2].append(lv)
+                pairs.setdefault((p['label'] + _knob(p), e['label'] + _knob(e)), (p, e, []))[2].append(lv)
         for p, e, lvs in pairs.values():
             tp, te = [], []
             for _ in range(rounds):
                 tp.append(_time(prob, p, cfg))
                 te.append(_time(prob, e, cfg))
             ratio = np.array(te) / np.array(tp)
-            print(f'| {name} | {", ".join(f"{lv:.0e}" for lv in lvs)} | {p["label"]} tol={float(p["tol"]):.0e} '
-                  f'| {e["label"]} tol={float(e["tol"]):.0e} | {np.median(tp):.3g} | {np.median(te):.3g} '
+            print(f'| {name} | {", ".join(f"{lv:.0e}" for lv in lvs)} | {p["label"]} {_knob(p)} '
+                  f'| {e["label"]} {_knob(e)} | {np.median(tp):.3g} | {np.median(te):.3g} '
                   f'| {np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}) |', flush=True)
     print()
     print('| scene | compiled rhs ns per call: median (min-max) |')

@@ -34,7 +34,7 @@ def result(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     out = tmp_path_factory.mktemp('bench')
     cfg = bench.BenchConfig(scenes=[parse_scene(SCENE)], solvers=('dopri5', 'dop853', 'rk4'),
                             tolerances=TOLS, rk4_steps=(2e-3, 5e-4), fidelities=('ideal', 'exact', 'auto'),
-                            baselines=('RK45', 'LSODA'), horizon=0.2, samples=20, repeats=2,
+                            energy=('on',), baselines=('RK45', 'LSODA'), horizon=0.2, samples=20, repeats=2,
                             min_timed_s=0.0, exchange_steps=(1e-3, 4e-3), lockstep_scenes=None, round_trip_n=0)
     return bench.run_bench(cfg, out, log=lambda m: None), out
 
@@ -177,6 +177,70 @@ def test_cli_bad_scene_and_option(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(['bench', '--passes', '0', '--no-ros']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ['cvj-sim: error: --passes: must be >= 1, got 0']
+
+
+def test_rigid_fidelity_and_no_energy_rows(tmp_path: Path) -> None:
+    """The 'rigid' fidelity (exact joints, every spring rigid) and the runs without the work
+    integrals (energy 'off') are extra project rows, labelled in the CSV and the report; the
+    default runs ('on') keep their labels; a scene without a spring runs 'rigid' as 'exact'
+    (the same model: not rerun)."""
+    no_spring = dict(SCENE, name='mini_rigid', driveline=[d for d in SCENE['driveline']
+                                                          if d['type'] != 'spring'])
+    cfg = bench.BenchConfig(scenes=[parse_scene(SCENE), parse_scene(no_spring)], solvers=('dopri5',),
+                            tolerances=(1e-4, 1e-7), fidelities=('exact', 'rigid'), energy=('on', 'off'),
+                            baselines=('RK45',), compiled_baselines=False, expert_methods=(), horizon=0.2,
+                            samples=10, repeats=1, min_timed_s=0.0, exchange_steps=(), lockstep_scenes=(),
+                            round_trip_n=0)
+    res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
+    assert len(res['rows']) <= bench.planned_runs(cfg)
+    with (tmp_path / 'bench.csv').open() as fh:
+        rows = [r for r in csv.DictReader(fh) if r['family'] == 'project']
+    # mini_lever: 2 fidelities x 2 tol x (land, dense) x (on, off); mini_rigid: exact only
+    assert len(rows) == 16 + 8
+    for r in rows:
+        assert r['ok'] == 'True', r
+        assert r['energy'] in ('on', 'off')
+        assert r['label'].endswith(' no-energy') == (r['energy'] == 'off'), r
+        assert (r['levels'] == 'hooke=exact bush=rigid') == (r['fidelity'] == 'rigid'), r
+    assert {r['fidelity'] for r in rows if r['scene'] == 'mini_rigid'} == {'exact'}
+    from cvj_ros.bench_report import read_bench_csv   # the report's labels, from the CSV
+    for r in read_bench_csv(tmp_path / 'bench.csv'):
+        if r['family'] == 'project':
+            assert bench._config_label(r).endswith(' no-energy') == (r['energy'] == 'off')
+    # the rigid model loses the spring's twist: its error is the model's, not the tolerance's
+    lever = [r for r in rows if r['scene'] == 'mini_lever']
+    rigid = min(float(r['err_speed_rel']) for r in lever if r['fidelity'] == 'rigid')
+    exact = min(float(r['err_speed_rel']) for r in lever if r['fidelity'] == 'exact')
+    assert rigid > 100 * exact
+    md = (tmp_path / 'bench.md').read_text()
+    assert 'no-energy' in md and 'rigid' in md
+
+
+def test_run_without_work_integrals_keeps_the_speeds() -> None:
+    """``Simulation(track_energy=False)`` (the bench's energy 'off' rows) integrates 2 n_dof
+    states instead of 2 n_dof + 3; the work integrals' absence changes the error norm (its
+    RMS over fewer components) and so the steps, not the equations: the speeds stay within
+    the tolerance (relative to the largest speed) of the default run's. Measured up to
+    0.49 tol over dopri5, dop853, vern6 and rosenbrock at 1e-3, 1e-6 and 1e-9."""
+    from cvj_ros.physics.simulate import Simulation
+    sc = parse_scene(SCENE)
+    for method in ('dopri5', 'dop853', 'vern6', 'rosenbrock'):
+        for tol in (1e-3, 1e-6, 1e-9):
+            on, off = (Simulation(sc, method=method, rtol=tol, atol=tol, track_energy=te)
+                       for te in (True, False))
+            assert off.driveline.x0.size == on.driveline.x0.size - 3 == 2 * on.driveline.n_dof
+            a, b = on.run(1.0, sample_dt=0.05), off.run(1.0, sample_dt=0.05)
+            scale = float(np.max(np.abs(a.velocity)))
+            assert float(np.max(np.abs(a.velocity - b.velocity))) <= tol * scale, (method, tol)
+            assert np.all(np.isnan(b.energy_residual)) and np.all(np.isfinite(a.energy_residual))
+
+
+def test_energy_option_checked(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(['bench', '--energy', 'maybe', '--no-ros']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["cvj-sim: error: --energy: unknown value 'maybe'; one of on, off"]
+    assert main(['bench', '--fidelities', 'stiff', '--no-ros']) == 2
+    assert capsys.readouterr().err.startswith("cvj-sim: error: --fidelities: unknown fidelity 'stiff'")
 
 
 def test_budget_exceeded_is_recorded_not_fatal(tmp_path: Path) -> None:

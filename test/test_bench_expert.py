@@ -25,7 +25,7 @@ SCENE = {'name': 'mini_lever', 'duration': 1.0, 'engine': {'model': 'linear'},
 def _cfg(**kw: object) -> bench.BenchConfig:
     base = dict(scenes=[parse_scene(SCENE)], solvers=('dop853',), tolerances=(1e-4, 1e-8),
                 fidelities=('exact',), baselines=('RK45',), compiled_baselines=False, horizon=0.2,
-                samples=10, repeats=1, passes=1, min_timed_s=0.0, exchange_steps=(),
+                samples=10, repeats=1, passes=1, min_timed_s=0.0, exchange_steps=(), energy=('on',),
                 lockstep_scenes=(), round_trip_n=0)
     base.update(kw)
     return bench.BenchConfig(**base)

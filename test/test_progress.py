@@ -125,8 +125,8 @@ def test_bench_cli_progress_counts_runs(tmp_path, monkeypatch, capsys) -> None:
                '--repeats', '1', '--exchange-steps', '1e-3', '--no-ros', '--out', str(tmp_path / 'out')])
     assert rc == 0
     err = tty.getvalue()
-    # 1 scene x (1 fidelity x 2 tolerances x (landing, dense sampling) + 1 baseline x 2
-    # tolerances x 2 families: Python and compiled rhs) = 8 runs
-    assert '\rcvj-sim bench: 8/8 runs (100%), ETA 0 s' in err
+    # 1 scene x (1 fidelity x 2 tolerances x (landing, dense sampling) x (with, without the
+    # work integrals) + 1 baseline x 2 tolerances x 2 families: Python and compiled rhs) = 12 runs
+    assert '\rcvj-sim bench: 12/12 runs (100%), ETA 0 s' in err
     assert '[bench] done in' in err
     capsys.readouterr()

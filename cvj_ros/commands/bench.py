@@ -13,7 +13,8 @@ HELP = 'work-precision benchmark: project solvers and fidelities vs solve_ivp, l
 DESCRIPTION = """\
 For each reference scene, solver (dopri5, dop853, rosenbrock, rodas4, rodas3, tsit5, vern6,
 vern7, vern8, rk4 fixed step), tolerance
-and fidelity (ideal/closed/exact and the fidelity chooser's pick 'auto'): wall seconds per
+and fidelity (ideal/closed/exact, the fidelity chooser's pick 'auto', and 'rigid': exact
+joints with every spring rigid), with and without the work integrals: wall seconds per
 simulated second, rhs evaluations, max relative error of the output speed and max error of
 the output angle against a dop853 reference at exact fidelity. The same equations are solved
 by plain scipy.integrate.solve_ivp (RK45, LSODA, Radau) as the baseline in the same run.
@@ -37,7 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', default='runs/bench', metavar='DIR', help='output directory (default runs/bench)')
     parser.add_argument('--scenes', nargs='+', metavar='SCENE', help='scene names or YAML paths')
     parser.add_argument('--solvers', nargs='+', metavar='SOLVER', help='dopri5 dop853 rosenbrock rodas4 rodas3 tsit5 vern6 vern7 vern8 rk4 ros2')
-    parser.add_argument('--fidelities', nargs='+', metavar='LEVEL', help='ideal closed exact auto')
+    parser.add_argument('--fidelities', nargs='+', metavar='LEVEL',
+                        help='ideal closed exact auto rigid (rigid: exact joints, every spring rigid)')
+    parser.add_argument('--energy', nargs='+', metavar='ON_OFF',
+                        help='project runs with (on) and/or without (off) the work integrals '
+                             '[on off]; off rows are labelled no-energy')
     parser.add_argument('--baselines', nargs='+', metavar='METHOD', help='solve_ivp methods (RK45 LSODA Radau)')
     parser.add_argument('--tolerances', type=_floats, metavar='T1,T2,..', help='rtol = atol values')
     parser.add_argument('--rk4-steps', type=_floats, metavar='H1,H2,..', help='fixed steps for rk4, s')
@@ -78,6 +83,7 @@ def config_from_args(args: argparse.Namespace) -> object:
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     updates = {k: v for k, v in {
         'scenes': args.scenes, 'solvers': args.solvers, 'fidelities': args.fidelities,
+        'energy': getattr(args, 'energy', None),
         'baselines': args.baselines, 'tolerances': args.tolerances, 'rk4_steps': args.rk4_steps,
         'exchange_steps': args.exchange_steps, 'horizon': args.horizon, 'samples': args.samples,
         'repeats': args.repeats, 'passes': args.passes}.items() if v is not None}

@@ -38,7 +38,7 @@ Bounds and where they come from (measured numbers: 200 scenes, this machine, 202
   accept/reject decision; after that the step sequences differ and the traces agree only
   to the tolerance. Scenes with equal counters agreeing to REL_ADAPT_SAME = 1e-10 count
   as rounding-level agreement (measured 180 of 200; asserted >= 80 %); for each other
-  scene both runs are compared with a tight reference (Python dop853, rtol 1e-12) and the
+  scene both runs are compared with a tight reference (Python dop853, rtol = atol = 1e-12) and the
   kernel's error must be < ADAPT_ERR_RATIO = 10 times the Python run's error (floored at
   rtol): two solutions along different step sequences at one tolerance have errors of
   the same size; measured ratio <= 2.1 (worst difference between the two 6.4e-6 relative,
@@ -432,7 +432,7 @@ def _check_adaptive(results: list[dict[str, Any]], rtol: float) -> tuple[int, fl
     """Adaptive runs: a scene whose two runs took the same steps (equal counters and
     agreement to REL_ADAPT_SAME) counts as agreeing to rounding. Otherwise both runs are
     tolerance-controlled solutions along different step sequences; each is compared with
-    a tight reference (Python dop853, rtol 1e-12) and the kernel's error must be within
+    a tight reference (Python dop853, rtol = atol = 1e-12) and the kernel's error must be within
     ADAPT_ERR_RATIO of the Python one's (floored at rtol: errors below the tolerance are
     all acceptable). Returns (scenes agreeing to rounding, worst error ratio)."""
     same, worst = 0, 0.0
@@ -441,7 +441,10 @@ def _check_adaptive(results: list[dict[str, Any]], rtol: float) -> tuple[int, fl
         if r['same_steps'] and max(r['velocity'], r['position']) < REL_ADAPT_SAME:
             same += 1
             continue
-        tight = Simulation(r['scene'], method='dop853', rtol=1e-12, atol=1e-14,
+        # atol 1e-12, not 1e-14: a state near zero (a work integral, a twist) crossing a kink
+        # of the rhs held the steps of fuzzed seeds 395 and 407 (0.2 s,
+        # rosenbrock) under 10 eps t; 1e-12 is still 1e5 below the ADAPT_RTOL floor
+        tight = Simulation(r['scene'], method='dop853', rtol=1e-12, atol=1e-12,
                            backend='python').run(float(a.t[-1]), sample_dt=SAMPLE)
 
         def err(tr: Any) -> float:

@@ -952,10 +952,13 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
         from cvj_ros.bench_modes import mode_study, write_mode_outputs
         for name in cfg.mode_scenes:
             modes.append(mode_study(name, tolerances=tuple(cfg.tolerances) + (1e-11,),
-                                    samples=cfg.samples, log=log))
+                                    samples=cfg.samples, expert_methods=tuple(cfg.expert_methods),
+                                    log=log))
             for e in modes[-1]['levels']:
                 sp = f"{e['speedup']:.1f}x" if e['speedup'] else 'not reached by both'
-                log(f"[bench] {name}: error level {e['level']:g}: kernel vs solve_ivp + events {sp}")
+                ex = (f"; vs numbalsoda (oracle events) {e['speedup_expert']:.2f}x"
+                      if e.get('speedup_expert') else '')
+                log(f"[bench] {name}: error level {e['level']:g}: kernel vs solve_ivp + events {sp}{ex}")
         mode_paths = write_mode_outputs(modes, out)
     rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
     if 'compiled_ns' in rhs_reference:

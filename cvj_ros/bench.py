@@ -967,7 +967,8 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
-                           work_precision_plot, startup=startup, rhs_reference=rhs_reference)
+                           work_precision_plot, startup=startup, rhs_reference=rhs_reference,
+                           modes=modes)
     if modes:
         paths = [*mode_paths, *paths]     # the report (bench.md) stays last
     log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
@@ -1105,7 +1106,8 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                    studies: dict[str, Any] | None, duration: float, ref_tol: float,
                    plot: Callable[..., Path], *, partial: bool = False,
                    startup: dict[str, Any] | None = None,
-                   rhs_reference: dict[str, Any] | None = None) -> list[Path]:
+                   rhs_reference: dict[str, Any] | None = None,
+                   modes: Sequence[dict[str, Any]] = ()) -> list[Path]:
     paths = []
     p = out / 'bench.csv'
     with p.open('w', newline='') as fh:
@@ -1235,6 +1237,16 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                       f'min of {startup["warm_runs"]} (target <= 1.5 s)')
         if 'note' in startup:
             md.append(f'- {startup["note"]}')
+    expert_modes = [m for m in modes if m.get('expert_skipped') or
+                    any(r['family'] == 'baseline_expert' for r in m['rows'])]
+    if expert_modes:
+        from cvj_ros.bench_modes import expert_verdict
+        md += ['', '## Mode scenes against baseline_expert (oracle events)', '',
+               'Kernel against numbalsoda on the same compiled mode rhs, each mode segment ending at '
+               'the oracle run\'s event (a lower bound on the expert\'s cost); tables in modes.md.', '']
+        md += [f"- {m['scene']}: " + (f"baseline_expert skipped: {m['expert_skipped']}"
+                                      if m.get('expert_skipped') else expert_verdict(m))
+               for m in expert_modes]
     p = out / 'bench.md'
     p.write_text('\n'.join(md) + '\n')
     paths.append(p)

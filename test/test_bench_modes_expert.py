@@ -175,8 +175,8 @@ def test_expert_skip_line_when_numbalsoda_is_missing(monkeypatch, tmp_path: Path
 
 
 def test_run_bench_hands_the_expert_methods_to_the_mode_study(tmp_path, monkeypatch) -> None:
-    """run_bench asks the mode study for the configured numbalsoda methods and its log and
-    modes.md show the expert ratio per level."""
+    """run_bench asks the mode study for the configured numbalsoda methods; its log and
+    modes.md show the expert ratio per level, bench.md the verdict line per mode scene."""
     from cvj_ros import bench
     from cvj_ros.physics.scene import parse_scene
     rows = [_row('project', 'kernel dopri5', 1e-6, 0.010, 0.008),
@@ -207,3 +207,5 @@ def test_run_bench_hands_the_expert_methods_to_the_mode_study(tmp_path, monkeypa
     assert '| numbalsoda lsoda | 1e-06 | 24.0 | 30.0 | 3.00x | 3.00x | yes |' in md
     assert 'launch_clutch_chain,baseline_expert,numbalsoda lsoda (oracle events)' in \
         (tmp_path / 'modes.csv').read_text()
+    assert ('- launch_clutch_chain: >= 2x against baseline_expert (CPU time and wall): held at '
+            'every level.') in (tmp_path / 'bench.md').read_text()

@@ -353,6 +353,9 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
         raise ValueError(f"reference: 'auto', 'python' or 'kernel', not {reference!r}")
     method, rtol, _atol = KERNEL_REFERENCE if backend == 'kernel' else PYTHON_REFERENCE
     skipped: str | None = None
+    bad = [m for m in expert_methods if m not in ('lsoda', 'dop853')]
+    if bad:
+        raise ValueError(f"expert_methods: 'lsoda' or 'dop853', not {', '.join(map(repr, bad))}")
     if expert_methods:
         from cvj_ros.bench_expert import mode_expert_cfunc, unavailable_reason
         skipped = unavailable_reason()

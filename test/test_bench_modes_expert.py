@@ -132,6 +132,11 @@ def test_mode_study_expert_rows_csv_and_report(tmp_path: Path) -> None:
     assert '>= 2x against baseline_expert (CPU time and wall): ' in md
 
 
+def test_mode_study_refuses_an_unknown_expert_method() -> None:
+    with pytest.raises(ValueError, match="expert_methods: 'lsoda' or 'dop853', not 'rk45'"):
+        bench_modes.mode_study('launch_clutch_chain', expert_methods=('rk45',), log=lambda m: None)
+
+
 def _row(family: str, label: str, tol: float, wall: float, cpu: float, err: float = 1e-9) -> dict:
     return {'scene': 'launch_clutch_chain', 'family': family, 'label': label, 'tol': tol,
             'ok': True, 'err_speed_rel': err, 'wall_s': wall, 'cpu_s': cpu,

@@ -88,6 +88,29 @@ def test_expert_segments_agree_with_the_reference_on_launch_clutch_chain() -> No
         assert r.stats['nfev'] > 100
 
 
+def test_witness_bisection_expert_finds_the_references_events() -> None:
+    """The expert with its own event location (witnesses on the 1 ms grid, refinement to
+    1e-12 s) on launch_clutch_chain's first 2 s: the reference's events, their times within
+    1e-6 s, samples within 1e-6 (as the oracle expert) at rtol 1e-8; it does not read the
+    oracle (an empty one is fine)."""
+    pytest.importorskip('numbalsoda')
+    scene = _chain()
+    ref = bench_modes.reference_run(scene, 2.0, 0.05, 'python')
+    for method in ('lsoda-bisect', 'dop853-bisect'):
+        r = _expert_run(scene, method, 1e-8, [], 2.0, 0.05)
+        assert [(e.element, e.after) for e in r.events] == [(e.element, e.after) for e in ref.events]
+        assert max(abs(a.t - b.t) for a, b in zip(r.events, ref.events)) < 1e-6
+        assert bench_modes._speed_error(r, ref) < 1e-6, method
+
+
+def test_first_crossing_takes_the_earliest_row_in_the_witness_direction() -> None:
+    W = np.array([[1.0, -1.0], [0.5, -0.5], [0.0, 0.2], [-1.0, 0.3]])
+    assert bench_modes._first_crossing(W, np.array([-1, 1])) == (2, 0)      # both in row 2
+    assert bench_modes._first_crossing(W, np.array([1, 1])) == (2, 1)       # only witness 1 rises
+    assert bench_modes._first_crossing(W, np.array([1, -1])) == (-1, -1)
+    assert bench_modes._first_crossing(W[:, :0], np.array([], dtype=int)) == (-1, -1)
+
+
 def test_expert_stops_when_it_leaves_the_oracles_sequence() -> None:
     """An oracle that does not fit the run (its first segment starts elsewhere, or its event
     is no witness of the mode) stops the run with OracleMismatch: the expert never integrates
@@ -133,7 +156,8 @@ def test_mode_study_expert_rows_csv_and_report(tmp_path: Path) -> None:
 
 
 def test_mode_study_refuses_an_unknown_expert_method() -> None:
-    with pytest.raises(ValueError, match="expert_methods: 'lsoda' or 'dop853', not 'rk45'"):
+    with pytest.raises(ValueError, match="expert_methods: 'lsoda', 'dop853', 'lsoda-bisect', "
+                                         "'dop853-bisect', not 'rk45'"):
         bench_modes.mode_study('launch_clutch_chain', expert_methods=('rk45',), log=lambda m: None)
 
 
@@ -161,6 +185,15 @@ def test_expert_table_verdict_per_level() -> None:
     assert '26 segments, 14 located events' in table
     assert table.rstrip().endswith('held at 1e-07, 1e-08; not at 0.001, 0.0001, 1e-05, 1e-06.')
     assert bench_modes.format_expert_table(dict(s, rows=rows[:1])) == ''
+    assert bench_modes.format_expert_table(s, 'baseline_expert_bisect') == ''
+    rows.append(_row('baseline_expert_bisect', 'numbalsoda lsoda (witness bisection, 1 ms grid)',
+                     1e-6, 0.025, 0.020))
+    s = dict(s, rows=rows, levels=bench_modes.mode_levels(rows))
+    bis = bench_modes.format_expert_table(s, 'baseline_expert_bisect')
+    assert 'on a 1 ms grid' in bis and '| numbalsoda lsoda | 1e-06 | 20.0 | 25.0 | 2.50x | 2.50x | yes |' in bis
+    assert bis.rstrip().endswith('>= 2x against baseline_expert_bisect (CPU time and wall): held at '
+                                 'every level.')
+    assert bench_modes.format_expert_table(s) == table       # the oracle's table is its own
 
 
 def test_expert_skip_line_when_numbalsoda_is_missing(monkeypatch, tmp_path: Path) -> None:
@@ -206,7 +239,7 @@ def test_run_bench_hands_the_expert_methods_to_the_mode_study(tmp_path, monkeypa
                             expert_methods=('lsoda',), mode_scenes=('launch_clutch_chain',))
     lines: list[str] = []
     bench.run_bench(cfg, tmp_path, log=lines.append)
-    assert calls == [('lsoda',)]
+    assert calls == [('lsoda', 'lsoda-bisect')]
     assert any('vs numbalsoda (oracle events) 3.00x' in ln for ln in lines)
     md = (tmp_path / 'modes.md').read_text()
     assert '| numbalsoda lsoda | 1e-06 | 24.0 | 30.0 | 3.00x | 3.00x | yes |' in md

@@ -964,11 +964,15 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     if cfg.mode_scenes:
         from cvj_ros.bench_modes import mode_study, write_mode_outputs
         for name in cfg.mode_scenes:
+            mode_experts = tuple(cfg.expert_methods)
             modes.append(mode_study(name, tolerances=tuple(cfg.tolerances) + (1e-11,),
-                                    samples=cfg.samples, log=log))
+                                    samples=cfg.samples, log=log,
+                                    expert_methods=mode_experts + tuple(m + '-bisect' for m in mode_experts)))
             for e in modes[-1]['levels']:
                 sp = f"{e['speedup']:.1f}x" if e['speedup'] else 'not reached by both'
-                log(f"[bench] {name}: error level {e['level']:g}: kernel vs solve_ivp + events {sp}")
+                ex = (f"; vs numbalsoda (oracle events) {e['speedup_expert']:.2f}x"
+                      if e.get('speedup_expert') else '')
+                log(f"[bench] {name}: error level {e['level']:g}: kernel vs solve_ivp + events {sp}{ex}")
         mode_paths = write_mode_outputs(modes, out)
     rhs_reference = _rhs_cost_or_note(hooke_2dof_scene())
     if 'compiled_ns' in rhs_reference:
@@ -977,7 +981,8 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
     startup = kernel_startup() if cfg.startup else None
     duration = time.perf_counter() - t_start
     paths = _write_outputs(out, cfg, rows, lock_rows, problems, rt, real, studies, duration, ref_tol,
-                           work_precision_plot, startup=startup, rhs_reference=rhs_reference)
+                           work_precision_plot, startup=startup, rhs_reference=rhs_reference,
+                           modes=modes)
     if modes:
         paths = [*mode_paths, *paths]     # the report (bench.md) stays last
     log(f'[bench] done in {duration:.1f} s; wrote {", ".join(str(p) for p in paths)}')
@@ -1117,7 +1122,8 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                    studies: dict[str, Any] | None, duration: float, ref_tol: float,
                    plot: Callable[..., Path], *, partial: bool = False,
                    startup: dict[str, Any] | None = None,
-                   rhs_reference: dict[str, Any] | None = None) -> list[Path]:
+                   rhs_reference: dict[str, Any] | None = None,
+                   modes: Sequence[dict[str, Any]] = ()) -> list[Path]:
     paths = []
     p = out / 'bench.csv'
     with p.open('w', newline='') as fh:
@@ -1247,6 +1253,19 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
                       f'min of {startup["warm_runs"]} (target <= 1.5 s)')
         if 'note' in startup:
             md.append(f'- {startup["note"]}')
+    expert_modes = [m for m in modes if m.get('expert_skipped') or
+                    any(r['family'] == 'baseline_expert' for r in m['rows'])]
+    if expert_modes:
+        from cvj_ros.bench_modes import expert_verdict
+        md += ['', '## Mode scenes against baseline_expert (oracle events)', '',
+               'Kernel against numbalsoda on the same compiled mode rhs, each mode segment ending at '
+               'the oracle run\'s event (a lower bound on the expert\'s cost); tables in modes.md.', '']
+        for m in expert_modes:
+            md.append(f"- {m['scene']}: " + (f"baseline_expert skipped: {m['expert_skipped']}"
+                                             if m.get('expert_skipped') else expert_verdict(m)))
+            if any(r['family'] == 'baseline_expert_bisect' for r in m['rows']):
+                md.append(f"- {m['scene']} (numbalsoda with its own witness bisection): "
+                          + expert_verdict(m, 'baseline_expert_bisect'))
     p = out / 'bench.md'
     p.write_text('\n'.join(md) + '\n')
     paths.append(p)

@@ -22,14 +22,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['EXPERT_METHODS', 'P_COUNT', 'P_FP', 'P_IP', 'P_LEN', 'P_NFP', 'P_NIP', 'P_NSTATE',
-           'expert_cfunc', 'expert_data', 'quiet_stdout', 'skip_line', 'solve_expert',
+__all__ = ['EXPERT_METHODS', 'P_COUNT', 'P_FP', 'P_IP', 'P_KIND', 'P_LEN', 'P_NFP', 'P_NIP',
+           'P_NSC', 'P_NSTATE', 'P_SC', 'PM_LEN', 'expert_cfunc', 'expert_data',
+           'mode_expert_cfunc', 'mode_expert_data', 'quiet_stdout', 'skip_line', 'solve_expert',
            'unavailable_reason']
 
 EXPERT_METHODS = ('lsoda', 'dop853')
 # layout of the parameter block p: addresses (exact in a double below 2**53) and lengths
 P_IP, P_NIP, P_FP, P_NFP, P_NSTATE, P_COUNT = range(6)
 P_LEN = 6
+# the mode scenes' block (mode_expert_cfunc): the same six, then which mode right-hand side
+# (segment_nb.KIND_CHAIN 0 / KIND_TREE 1) and the address and length of a scratch array
+P_KIND, P_SC, P_NSC = 6, 7, 8
+PM_LEN = 9
 
 
 @functools.lru_cache(maxsize=1)
@@ -130,6 +135,65 @@ def expert_data(ip: np.ndarray, fp: np.ndarray, n_state: int) -> np.ndarray:
     p[P_IP], p[P_NIP] = float(ip.ctypes.data), float(ip.size)
     p[P_FP], p[P_NFP] = float(fp.ctypes.data), float(fp.size)
     p[P_NSTATE] = float(n_state)
+    return p
+
+
+@functools.lru_cache(maxsize=1)
+def mode_expert_cfunc() -> Any:
+    """The numba cfunc (numbalsoda's rhs signature) over one mode's compiled right-hand side,
+    the one the project's mode segments integrate: a chain's kernel/modes_nb.mode_eval
+    (P_KIND 0) or a vehicle tree's kernel/tree_modes_nb.tm_eval (P_KIND 1), the mode's
+    ``ip``/``fp`` (kernel/modes.py, kernel/tree_modes.py) read through the parameter block
+    (:func:`mode_expert_data`); witnesses not evaluated (want=False)."""
+    import numba as nb
+    from numba import types
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    from cvj_ros.physics.kernel.modes_nb import mode_eval
+    from cvj_ros.physics.kernel.tree_modes_nb import tm_eval
+
+    @intrinsic
+    def _as_pointer(typingctx: Any, addr: Any) -> Any:
+        """An int64 address as a void pointer (for numba.carray)."""
+        sig = types.voidptr(addr)
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            return builder.inttoptr(args[0], cgutils.voidptr_t)
+        return sig, codegen
+
+    sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
+                     types.CPointer(types.double))
+
+    @nb.cfunc(sig, cache=True)
+    def f(t, u, du, p):   # pragma: no cover - compiled
+        n = np.int64(p[P_NSTATE])
+        ip = nb.carray(_as_pointer(np.int64(p[P_IP])), (np.int64(p[P_NIP]),), dtype=np.int64)
+        fp = nb.carray(_as_pointer(np.int64(p[P_FP])), (np.int64(p[P_NFP]),), dtype=np.float64)
+        sc = nb.carray(_as_pointer(np.int64(p[P_SC])), (np.int64(p[P_NSC]),), dtype=np.float64)
+        y = nb.carray(u, (n,))
+        dy = nb.carray(du, (n,))
+        p[P_COUNT] += 1.0
+        if p[P_KIND] == 0.0:
+            mode_eval(t, y, ip, fp, dy, sc, False)
+        else:
+            tm_eval(t, y, ip, fp, dy, sc, False)
+    return f
+
+
+def mode_expert_data(kind: int, ip: np.ndarray, fp: np.ndarray, n_state: int,
+                     sc: np.ndarray) -> np.ndarray:
+    """The parameter block for :func:`mode_expert_cfunc`: ``kind`` 0 (chain) or 1 (vehicle
+    tree), the mode's arrays and a float64 scratch ``sc`` (the caller keeps the arrays
+    alive and unmoved while it is used)."""
+    if kind not in (0, 1):
+        raise ValueError(f'mode_expert_data: kind 0 (chain) or 1 (tree), not {kind!r}')
+    if sc.dtype != np.float64 or not sc.flags.c_contiguous or sc.size < 1:
+        raise ValueError('mode_expert_data: sc must be a non-empty C-contiguous float64 array')
+    p = np.zeros(PM_LEN)
+    p[:P_LEN] = expert_data(ip, fp, n_state)
+    p[P_KIND] = float(kind)
+    p[P_SC], p[P_NSC] = float(sc.ctypes.data), float(sc.size)
     return p
 
 

@@ -18,9 +18,25 @@ error over the run relative to the largest reference shaft speed (as ``cvj_ros.b
 ``err_speed_rel``). At each error level 1e-3..1e-8 the cheapest run of each family reaching
 it is taken; the speedup is baseline wall / project wall, and the same with the process's
 CPU time (``time.process_time``: on a loaded machine the fairer ratio).
+
+Expert baseline (family ``baseline_expert``, when numbalsoda imports): numbalsoda's LSODA
+(Petzold 1983) or DOP853 (Hairer, Norsett & Wanner 1993) on the kernel's compiled
+right-hand side of each mode (``modes_nb.mode_eval``, ``tree_modes_nb.tm_eval``, through
+:func:`cvj_ros.bench_expert.mode_expert_cfunc`) with **oracle events**: numbalsoda has no
+event location, so each mode segment ends at the time and witness the oracle run (the
+kernel at :data:`KERNEL_REFERENCE`) ended it (:class:`ExpertHybridSimulation`,
+:class:`ExpertHybridTreeSimulation`). The expert gets the event times for free: a lower
+bound on its cost. The mode loop around the segments (the discrete decisions, the
+sampling, the recording) is the project's own, so both pay the same Python per transition.
+A second expert family, ``baseline_expert_bisect`` (methods 'lsoda-bisect',
+'dop853-bisect'), locates its own events: the witnesses (``segment_nb._witness_at``) on a
+GRID_DT grid of numbalsoda's output, the earliest crossing in its direction refined on
+REFINE_POINTS-point grids (bisection by subdivision) to 1e-12 s.
 """
 from __future__ import annotations
 
+import functools
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -32,9 +48,10 @@ import numpy as np
 from cvj_ros.physics.kernel.modes import KernelHybridSimulation
 from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
 
-__all__ = ['KERNEL_REFERENCE', 'MODE_SCENES', 'PYTHON_REFERENCE', 'SolveIvpHybridSimulation',
-           'SolveIvpHybridTreeSimulation', 'format_mode_table', 'mode_levels', 'mode_study',
-           'reference_run']
+__all__ = ['ExpertHybridSimulation', 'ExpertHybridTreeSimulation', 'KERNEL_REFERENCE',
+           'MODE_SCENES', 'OracleMismatch', 'PYTHON_REFERENCE', 'SolveIvpHybridSimulation',
+           'SolveIvpHybridTreeSimulation', 'expert_verdict', 'format_expert_table', 'format_mode_table',
+           'mode_levels', 'mode_study', 'oracle_run', 'reference_run']
 
 MODE_SCENES = ('launch_clutch_chain', 'launch_clutch')
 LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
@@ -129,6 +146,307 @@ class SolveIvpHybridTreeSimulation(KernelHybridTreeSimulation):
                                   self.atol, stats)
 
 
+#: the expert's methods on the mode scenes: numbalsoda with oracle events, or with its own
+#: witness bisection (family baseline_expert_bisect)
+EXPERT_MODE_METHODS = ('lsoda', 'dop853', 'lsoda-bisect', 'dop853-bisect')
+#: one oracle segment: (start time, end time, the witness key that ended it or None: t_stop)
+OracleSegment = tuple[float, float, Any]
+
+
+class OracleMismatch(RuntimeError):
+    """The expert's run left the oracle's sequence of mode segments."""
+
+
+class _OracleChain(KernelHybridSimulation):
+    """The chain kernel recording each segment's (start, end, witness key) in ``oracle``."""
+
+    oracle: list[OracleSegment]
+
+    def _segment(self, asm, mode, t, t_stop, y0, times, k_sample):
+        out = super()._segment(asm, mode, t, t_stop, y0, times, k_sample)
+        ev_i = out[2]
+        self.oracle.append((t, out[1], self._witnesses(asm, mode)[ev_i].key if ev_i >= 0 else None))
+        return out
+
+
+class _OracleTree(KernelHybridTreeSimulation):
+    """The tree kernel recording each segment's (start, end, witness key) in ``oracle``."""
+
+    oracle: list[OracleSegment]
+
+    def _segment(self, mt, mode, t, t_stop, y0, times, k_sample, stats):
+        out = super()._segment(mt, mode, t, t_stop, y0, times, k_sample, stats)
+        ev_i = out[2]
+        self.oracle.append((t, out[1], self._witnesses(mode)[ev_i].key if ev_i >= 0 else None))
+        return out
+
+
+def _expert_segment(sim: Any, kind: int, ip: np.ndarray, fp: np.ndarray, ramps: Sequence[int],
+                    keys: list[tuple], t: float, t_stop: float, y0: np.ndarray,
+                    times: np.ndarray, k_sample: int, stats: dict[str, int]
+                    ) -> tuple[np.ndarray, float, int, int, np.ndarray]:
+    """One mode segment by numbalsoda ``sim.expert_method`` from (t, y0) to the oracle's end
+    of the segment starting at t (its witness index among ``keys``, or t_stop): (state at
+    the end, end time, witness index or -1, next sample index, the samples' states). The
+    commands' ramps end at t_stop, as in the kernel's segment (a jump there seen from the
+    left); samples within 1e-12 s (relative) of an end take that end's state."""
+    import numbalsoda
+
+    from cvj_ros.bench_expert import P_COUNT, mode_expert_data
+    i = sim._oracle_next
+    if i >= len(sim.oracle):
+        raise OracleMismatch(f'oracle events: a segment at t={t:.9f} s after the oracle run ended')
+    t0, t_end, key = sim.oracle[i]
+    if abs(t0 - t) > 1e-9 * max(1.0, abs(t)):
+        raise OracleMismatch(f'oracle events: a segment at t={t:.9f} s, the oracle\'s at {t0:.9f} s')
+    if key is None:
+        ev_i, t_end = -1, t_stop
+    elif key in keys:
+        ev_i = keys.index(key)
+    else:
+        raise OracleMismatch(f'oracle events: the oracle\'s event {key} at t={t_end:.9f} s is not '
+                             f'a witness of the mode at t={t:.9f} s')
+    sim._oracle_next = i + 1
+    for off in ramps:
+        fp[off + 1 + 2 * int(fp[off])] = t_stop
+    y0 = np.ascontiguousarray(y0, dtype=np.float64)
+    ns = y0.size
+    k_new = k_sample
+    while k_new < times.size and times[k_new] <= t_end:
+        k_new += 1
+    samp = times[k_sample:k_new]
+    eps = 1e-12 * max(1.0, abs(t_end))
+    Y = np.empty((samp.size, ns))
+    if t_end - t <= eps:
+        Y[:] = y0
+        return y0.copy(), t_end, ev_i, k_new, Y
+    inner = (samp > t + eps) & (samp < t_end - eps)
+    t_eval = np.concatenate(([t], samp[inner], [t_end]))
+    sc = sim._expert_sc
+    data = mode_expert_data(kind, ip, fp, ns, sc)
+    sol, ok = getattr(numbalsoda, sim.expert_method)(
+        sim.expert_address, y0, t_eval, data=data, rtol=float(sim.rtol), atol=sim._expert_atol,
+        mxstep=1_000_000)
+    if not ok:
+        raise RuntimeError(f'numbalsoda {sim.expert_method}: integration failed near t={t:.6f} s')
+    stats['nfev'] += int(data[P_COUNT])
+    y = sol[-1].copy()
+    Y[samp <= t + eps] = y0
+    Y[samp >= t_end - eps] = y
+    Y[inner] = sol[1:-1]
+    return y, t_end, ev_i, k_new, Y
+
+
+#: the witness-bisection expert's detection grid (s): witnesses checked every GRID_DT
+GRID_DT = 0.001
+#: points per refinement round of a crossing's grid interval (rounds until 1e-12 s relative)
+REFINE_POINTS = 64
+
+
+@functools.lru_cache(maxsize=1)
+def _witness_rows() -> Any:
+    """A compiled loop: the mode's witness values (segment_nb._witness_at) at each row of a
+    numbalsoda solution (not disk-cached: compiled on first use, outside the timing)."""
+    from numba import njit
+
+    from cvj_ros.physics.kernel.segment_nb import _witness_at
+
+    @njit
+    def rows(kind, ts, Y, ip, fp, sc, W):   # pragma: no cover - compiled
+        dy = np.zeros(Y.shape[1])
+        wv = np.zeros(max(W.shape[1], 1))
+        for k in range(ts.shape[0]):
+            _witness_at(kind, ts[k], Y[k], ip, fp, dy, sc, wv)
+            for i in range(W.shape[1]):
+                W[k, i] = wv[i]
+    return rows
+
+
+def _first_crossing(W: np.ndarray, dirs: np.ndarray) -> tuple[int, int]:
+    """(row k, witness i) of the earliest crossing between rows k-1 and k in the witness's
+    direction (the kernel's rule: direction < 0 from > 0 to <= 0, else from < 0 to >= 0);
+    (-1, -1) without one. Ties in a row: the lowest witness index."""
+    if W.shape[1] == 0 or W.shape[0] < 2:
+        return -1, -1
+    a, b = W[:-1], W[1:]
+    hit = np.where(dirs < 0, (a > 0.0) & (b <= 0.0), (a < 0.0) & (b >= 0.0))
+    rows = np.flatnonzero(hit.any(axis=1))
+    if rows.size == 0:
+        return -1, -1
+    k = int(rows[0]) + 1
+    return k, int(np.flatnonzero(hit[k - 1])[0])
+
+
+def _bisect_segment(sim: Any, kind: int, ip: np.ndarray, fp: np.ndarray, ramps: Sequence[int],
+                    dirs: np.ndarray, t: float, t_stop: float, y0: np.ndarray,
+                    times: np.ndarray, k_sample: int, stats: dict[str, int]
+                    ) -> tuple[np.ndarray, float, int, int, np.ndarray]:
+    """One mode segment by numbalsoda with its own event location: the solution on the
+    samples and a GRID_DT grid up to t_stop, the witnesses at every grid row (compiled), and
+    for the earliest crossing in its direction REFINE_POINTS-point refinements of its grid
+    interval (one numbalsoda call each, from the interval's left state) until the interval
+    is within 1e-12 s (relative) of the crossing; the event is its right end. Returns as
+    the kernel's segment."""
+    import numbalsoda
+
+    from cvj_ros.bench_expert import P_COUNT, mode_expert_data
+    for off in ramps:
+        fp[off + 1 + 2 * int(fp[off])] = t_stop
+    y0 = np.ascontiguousarray(y0, dtype=np.float64)
+    ns = y0.size
+    eps = 1e-12 * max(1.0, abs(t_stop))
+    solve = getattr(numbalsoda, sim.expert_method)
+    data = mode_expert_data(kind, ip, fp, ns, sim._expert_sc)
+    rows = _witness_rows()
+    nw = dirs.size
+
+    def run(a: float, ya: np.ndarray, ts: np.ndarray) -> np.ndarray:
+        data[P_COUNT] = 0.0
+        sol, ok = solve(sim.expert_address, ya, ts, data=data, rtol=float(sim.rtol),
+                        atol=sim._expert_atol, mxstep=1_000_000)
+        stats['nfev'] += int(data[P_COUNT])
+        if not ok:
+            raise RuntimeError(f'numbalsoda {sim.expert_method}: integration failed near t={a:.6f} s')
+        return sol
+    k_end = k_sample
+    while k_end < times.size and times[k_end] <= t_stop:
+        k_end += 1
+    samp = times[k_sample:k_end]
+    if t_stop - t <= eps:
+        return y0.copy(), t_stop, -1, k_end, np.tile(y0, (samp.size, 1))
+    n_grid = max(1, int(math.ceil((t_stop - t) / GRID_DT)))
+    grid = np.linspace(t, t_stop, n_grid + 1)
+    ts = np.unique(np.concatenate((grid, samp[(samp > t + eps) & (samp < t_stop - eps)])))
+    sol = run(t, y0, ts)
+    ev_i, t_end, y_end = -1, t_stop, sol[-1]
+    if nw:
+        W = np.empty((ts.size, nw))
+        rows(kind, ts, sol, ip, fp, sim._expert_sc, W)
+        k, i = _first_crossing(W, dirs)
+        if k >= 0:
+            a, b, ya, yb = ts[k - 1], ts[k], sol[k - 1], sol[k]
+            while b - a > eps:
+                sub = np.linspace(a, b, REFINE_POINTS + 1)
+                part = run(a, ya, sub)
+                Wp = np.empty((sub.size, nw))
+                rows(kind, sub, part, ip, fp, sim._expert_sc, Wp)
+                kp, ip_ = _first_crossing(Wp, dirs)
+                if kp < 0:          # the crossing vanished on the finer grid: take the old end
+                    break
+                i = ip_
+                a, b, ya, yb = sub[kp - 1], sub[kp], part[kp - 1], part[kp]
+            ev_i, t_end, y_end = i, float(b), yb
+    k_new = k_sample
+    while k_new < times.size and times[k_new] <= t_end:
+        k_new += 1
+    Y = np.empty((k_new - k_sample, ns))
+    for j, tsj in enumerate(times[k_sample:k_new]):
+        if tsj <= t + eps:
+            Y[j] = y0
+        elif tsj >= t_end - eps:
+            Y[j] = y_end
+        else:
+            Y[j] = sol[int(np.searchsorted(ts, tsj))]
+    return np.array(y_end), t_end, ev_i, k_new, Y
+
+
+class _ExpertMixin:
+    """The expert's settings: numbalsoda method, the cfunc's address, the oracle."""
+
+    expert_method = 'dop853'
+    expert_events = 'oracle'
+    expert_address = 0
+    oracle: Sequence[OracleSegment] = ()
+
+    def _expert_setup(self, method: str, oracle: Sequence[OracleSegment]) -> None:
+        """``method`` 'lsoda' or 'dop853' (oracle events: ``oracle`` the segments), or with
+        '-bisect' (its own event location, :func:`_bisect_segment`; ``oracle`` unused)."""
+        from cvj_ros.bench_expert import mode_expert_cfunc
+        method, _, events = method.partition('-')
+        if method not in ('lsoda', 'dop853') or events not in ('', 'bisect'):
+            raise ValueError(f"expert method: 'lsoda' or 'dop853' (+ '-bisect'), not {method!r}")
+        self.expert_events = events or 'oracle'
+        if events:
+            _witness_rows()          # compiled outside the timing
+        atol = getattr(self, 'atol')
+        if np.ndim(atol) != 0:
+            raise NotImplementedError('numbalsoda takes one scalar atol')
+        self.expert_method = method
+        self.expert_address = mode_expert_cfunc().address
+        self.oracle = oracle
+        self._oracle_next = 0
+        self._expert_atol = float(atol)
+        self._expert_sc = np.zeros(256)
+
+
+class ExpertHybridSimulation(_ExpertMixin, KernelHybridSimulation):
+    """The chain's mode loop with each mode integrated by numbalsoda on the mode's compiled
+    rhs (``modes_nb.mode_eval``) up to the oracle's end of the segment."""
+
+    @classmethod
+    def expert(cls, sim: Any, method: str, oracle: Sequence[OracleSegment]) -> ExpertHybridSimulation:
+        """The expert twin of a (not yet run) Python-reference simulation."""
+        out = cls.from_reference(sim)
+        out._expert_setup(method, oracle)
+        return out
+
+    def run(self) -> Any:
+        self._oracle_next = 0
+        return super().run()
+
+    def _segment(self, asm, mode, t, t_stop, y0, times, k_sample):
+        from cvj_ros.physics.kernel.modes_nb import MH_RAMP_B, MH_RAMP_C, MH_RAMP_T
+        ip, fp, _ns = self.mode_arrays(asm, mode)
+        ws = self._witnesses(asm, mode)
+        ramps = (ip[MH_RAMP_T], ip[MH_RAMP_C], ip[MH_RAMP_B])
+        if self.expert_events == 'bisect':
+            return _bisect_segment(self, 0, ip, fp, ramps, np.array([w.direction for w in ws]),
+                                   t, t_stop, y0, times, k_sample, self.stats)
+        return _expert_segment(self, 0, ip, fp, ramps, [w.key for w in ws], t, t_stop, y0,
+                               times, k_sample, self.stats)
+
+
+class ExpertHybridTreeSimulation(_ExpertMixin, KernelHybridTreeSimulation):
+    """The vehicle's mode loop with each mode integrated by numbalsoda on the mode's
+    compiled rhs (``tree_modes_nb.tm_eval``) up to the oracle's end of the segment."""
+
+    @classmethod
+    def expert(cls, sim: Any, method: str, oracle: Sequence[OracleSegment]) -> ExpertHybridTreeSimulation:
+        """The expert twin of a (not yet run) Python-reference simulation."""
+        out = cls.from_reference(sim)
+        out._expert_setup(method, oracle)
+        return out
+
+    def run(self) -> Any:
+        self._oracle_next = 0
+        return super().run()
+
+    def _segment(self, mt, mode, t, t_stop, y0, times, k_sample, stats):
+        from cvj_ros.physics.kernel.tree_modes import tree_mode_arrays
+        from cvj_ros.physics.kernel.tree_modes_nb import MB_RAMP_B, MB_RAMP_C, MB_RAMP_T
+        ip, fp = tree_mode_arrays(self, mt, mode)
+        mb = int(ip[-1])
+        ws = self._witnesses(mode)
+        ramps = (ip[mb + MB_RAMP_T], ip[mb + MB_RAMP_C], ip[mb + MB_RAMP_B])
+        if self.expert_events == 'bisect':
+            return _bisect_segment(self, 1, ip, fp, ramps, np.array([w.direction for w in ws]),
+                                   t, t_stop, y0, times, k_sample, stats)
+        return _expert_segment(self, 1, ip, fp, ramps, [w.key for w in ws], t, t_stop, y0,
+                               times, k_sample, stats)
+
+
+def oracle_run(scene: Any, horizon: float, sample_dt: float) -> tuple[Any, list[OracleSegment]]:
+    """The kernel at :data:`KERNEL_REFERENCE` recording its mode segments: (its result, the
+    segments' (start, end, witness key or None))."""
+    from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
+    method, rtol, atol = KERNEL_REFERENCE
+    sim = hybrid_simulation(scene, method=method, rtol=rtol, atol=atol, sample_dt=sample_dt,
+                            duration=horizon)
+    k = (_OracleTree if scene.is_tree else _OracleChain).from_reference(sim)
+    k.oracle = []
+    return k.run(), k.oracle
+
+
 def _speed_error(r: Any, ref: Any) -> float:
     if r.speed.shape != ref.speed.shape or r.stall is not None:
         return float('inf')
@@ -150,13 +468,17 @@ def reference_run(scene: Any, horizon: float, sample_dt: float, backend: str) ->
 def mode_study(scene_name: str = 'launch_clutch_chain', *,
                tolerances: Sequence[float] = TOLERANCES, samples: int = 20, repeats: int = 3,
                baseline_budget_s: float = 60.0, duration: float | None = None,
-               reference: str = 'auto', log: Callable[[str], None] = print) -> dict[str, Any]:
+               reference: str = 'auto', expert_methods: Sequence[str] = (),
+               baseline: bool = True, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Runs of both families at each tolerance (rtol = tol, atol = tol / 100) over the
     scene's duration (or ``duration`` s) with ``samples`` samples, best of ``repeats`` walls
-    (the kernel's: of at least 10; the baseline's stop repeating after
+    (the kernel's and the expert's: of at least 10; the baseline's stop repeating after
     ``baseline_budget_s``), against the ``reference`` ('python', 'kernel', or 'auto': the
-    kernel on a vehicle scene, else the Python reference); each row keeps the load average
-    before and after its runs; returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
+    kernel on a vehicle scene, else the Python reference); ``expert_methods`` (numbalsoda
+    'lsoda', 'dop853') add the ``baseline_expert`` family with oracle events (module
+    docstring; skipped with ``expert_skipped`` set when numbalsoda does not import);
+    ``baseline=False`` leaves out solve_ivp. Each row keeps the load average before and
+    after its runs; returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
     scene = load_scene(find_scene(scene_name))
@@ -166,55 +488,122 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     if backend not in ('python', 'kernel'):
         raise ValueError(f"reference: 'auto', 'python' or 'kernel', not {reference!r}")
     method, rtol, _atol = KERNEL_REFERENCE if backend == 'kernel' else PYTHON_REFERENCE
+    skipped: str | None = None
+    bad = [m for m in expert_methods if m not in EXPERT_MODE_METHODS]
+    if bad:
+        raise ValueError(f"expert_methods: {', '.join(map(repr, EXPERT_MODE_METHODS))}, not "
+                         f"{', '.join(map(repr, bad))}")
+    if expert_methods:
+        from cvj_ros.bench_expert import mode_expert_cfunc, unavailable_reason
+        skipped = unavailable_reason()
+        if skipped is None:
+            try:
+                mode_expert_cfunc()      # compiled (or loaded) outside the timing
+            except Exception as exc:     # an optional baseline never stops the bench
+                skipped = ('numbalsoda is installed but its cfunc did not compile ('
+                           + (str(exc).splitlines() or [type(exc).__name__])[0][:120] + ')')
+        if skipped is not None:
+            log(f'[bench] {scene.name}: baseline_expert skipped: {skipped}')
+            expert_methods = ()
     t0 = time.perf_counter()
-    ref = reference_run(scene, horizon, sample_dt, backend)
+    oracle: list[OracleSegment] = []
+    if backend == 'kernel' and expert_methods:
+        ref, oracle = oracle_run(scene, horizon, sample_dt)     # the reference itself
+    else:
+        ref = reference_run(scene, horizon, sample_dt, backend)
     ref_wall = time.perf_counter() - t0
     log(f'[bench] {scene.name}: mode reference ({backend}, {method}, rtol {rtol:g}) in '
         f'{ref_wall:.1f} s, {len(ref.events)} events')
+    if expert_methods and not oracle:
+        t0 = time.perf_counter()
+        _r, oracle = oracle_run(scene, horizon, sample_dt)
+        log(f'[bench] {scene.name}: oracle events (kernel {KERNEL_REFERENCE[0]}, rtol '
+            f'{KERNEL_REFERENCE[1]:g}) in {time.perf_counter() - t0:.1f} s, {len(oracle)} segments, '
+            f'{len(_r.events)} events')
     kern: Any = KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation
     base: Any = SolveIvpHybridTreeSimulation if scene.is_tree else SolveIvpHybridSimulation
+    expert: Any = ExpertHybridTreeSimulation if scene.is_tree else ExpertHybridSimulation
     # one untimed kernel run: loads (or compiles) the compiled mode code
     kern.from_reference(hybrid_simulation(scene, sample_dt=sample_dt, duration=horizon)).run()
+    families: list[tuple[str, str, Callable[[Any], Any]]] = [
+        ('project', 'kernel dopri5', kern.from_reference)]
+    if baseline:
+        families.append(('baseline', 'solve_ivp RK45 + events', base.from_reference))
+    for m in expert_methods:
+        bisect = m.endswith('-bisect')
+        families.append(('baseline_expert_bisect' if bisect else 'baseline_expert',
+                         f"numbalsoda {m.split('-')[0]} "
+                         + (f'(witness bisection, {GRID_DT * 1e3:g} ms grid)' if bisect else '(oracle events)'),
+                         lambda sim, m=m: expert.expert(sim, m, oracle)))
+        # one untimed run: numbalsoda's solver compiled outside the timing
+        try:
+            with _quiet(True):
+                expert.expert(hybrid_simulation(scene, method='dopri5', rtol=1e-6, atol=1e-8,
+                                                sample_dt=sample_dt, duration=horizon),
+                              m, oracle).run()
+        except Exception:
+            pass                         # the timed runs record the failure
     rows: list[dict[str, Any]] = []
-    for family, cls in (('project', kern), ('baseline', base)):
+    for family, label, make in families:
         for tol in tolerances:
             walls: list[float] = []
             cpus: list[float] = []
             r = sim = None
+            failed = ''
             load0 = _load()
-            # the kernel's runs are short: more repeats (their minimum) at little cost
-            for _ in range(max(repeats, 10) if family == 'project' else repeats):
-                sim = cls.from_reference(hybrid_simulation(scene, method='dopri5', rtol=tol,
-                                                           atol=tol * 1e-2, sample_dt=sample_dt,
-                                                           duration=horizon))
-                w0 = time.perf_counter()
-                c0 = time.process_time()
-                try:
-                    r = sim.run()
-                except Exception as exc:     # a failing configuration is a row, not a stop
-                    r = None
-                    log(f'[bench] {scene.name}: {family} rtol {tol:g} failed: {str(exc)[:100]}')
-                    break
-                walls.append(time.perf_counter() - w0)
-                cpus.append(time.process_time() - c0)
-                if family == 'baseline' and sum(walls) > baseline_budget_s:
-                    break
-            row = {'scene': scene.name, 'family': family, 'tol': tol, 'ok': r is not None}
+            # numbalsoda's diagnostics on stdout go to /dev/null (a failure is the row's), outside the timing
+            with _quiet(family == 'baseline_expert'):
+                # the compiled runs are short: more repeats (their minimum) at little cost
+                for _ in range(repeats if family == 'baseline' else max(repeats, 10)):
+                    sim = make(hybrid_simulation(scene, method='dopri5', rtol=tol, atol=tol * 1e-2,
+                                                 sample_dt=sample_dt, duration=horizon))
+                    w0 = time.perf_counter()
+                    c0 = time.process_time()
+                    try:
+                        r = sim.run()
+                    except Exception as exc:     # a failing configuration is a row, not a stop
+                        r = None
+                        failed = str(exc)[:100] or type(exc).__name__
+                        break
+                    walls.append(time.perf_counter() - w0)
+                    cpus.append(time.process_time() - c0)
+                    if family == 'baseline' and sum(walls) > baseline_budget_s:
+                        break
+            if failed:
+                log(f'[bench] {scene.name}: {label} rtol {tol:g} failed: {failed}')
+            row = {'scene': scene.name, 'family': family, 'tol': tol, 'ok': r is not None,
+                   'label': label, 'note': failed}
             if r is not None:
                 row.update(wall_s=min(walls), cpu_s=min(cpus), wall_per_sim_s=min(walls) / horizon,
                            repeats=len(walls), err_speed_rel=_speed_error(r, ref),
-                           events=len(r.events), steps=r.stats['steps'], nfev=r.stats['nfev'],
-                           energy_residual=r.max_energy_residual, load=(load0, _load()),
-                           label='kernel dopri5' if family == 'project' else 'solve_ivp RK45 + events')
-                log(f"[bench] {scene.name}: {row['label']} rtol {tol:g}: err {row['err_speed_rel']:.2e}, "
-                    f"{row['wall_s'] * 1e3:.1f} ms (CPU {row['cpu_s'] * 1e3:.1f} ms), {row['steps']} steps, "
+                           events=len(r.events),
+                           steps=r.stats['steps'] if family in ('project', 'baseline') else None,
+                           nfev=r.stats['nfev'], energy_residual=r.max_energy_residual,
+                           load=(load0, _load()))
+                steps = f"{row['steps']} steps" if row['steps'] is not None else f"{row['nfev']} rhs"
+                log(f"[bench] {scene.name}: {label} rtol {tol:g}: err {row['err_speed_rel']:.2e}, "
+                    f"{row['wall_s'] * 1e3:.1f} ms (CPU {row['cpu_s'] * 1e3:.1f} ms), {steps}, "
                     f"{row['events']} events, energy residual {row['energy_residual']:.2e}")
             rows.append(row)
-    return {'scene': scene.name, 'duration': horizon,
-            'reference': {'backend': backend, 'method': method, 'rtol': rtol, 'wall_s': ref_wall,
-                          'events': len(ref.events),
-                          'energy_residual': ref.max_energy_residual},
-            'rows': rows, 'levels': mode_levels(rows)}
+    out = {'scene': scene.name, 'duration': horizon,
+           'reference': {'backend': backend, 'method': method, 'rtol': rtol, 'wall_s': ref_wall,
+                         'events': len(ref.events),
+                         'energy_residual': ref.max_energy_residual},
+           'rows': rows, 'levels': mode_levels(rows)}
+    if oracle:
+        out['oracle'] = {'segments': len(oracle), 'events': sum(1 for o in oracle if o[2] is not None)}
+    if skipped is not None:
+        out['expert_skipped'] = skipped
+    return out
+
+
+def _quiet(on: bool) -> Any:
+    """:func:`cvj_ros.bench_expert.quiet_stdout` when ``on``, else a no-op."""
+    import contextlib
+    if not on:
+        return contextlib.nullcontext()
+    from cvj_ros.bench_expert import quiet_stdout
+    return quiet_stdout()
 
 
 def _load() -> float:
@@ -227,17 +616,22 @@ def _load() -> float:
 
 def mode_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = LEVELS
                 ) -> list[dict[str, Any]]:
-    """Per error level the cheapest row of each family reaching it and the speedup."""
+    """Per error level the cheapest row (least wall) of each family reaching it and the
+    speedups over the project's in wall and CPU time ('speedup', 'cpu_speedup' against
+    solve_ivp; 'speedup_expert', 'cpu_speedup_expert' against baseline_expert; '_bisect'
+    against baseline_expert_bisect)."""
     out = []
     for lv in levels:
         entry: dict[str, Any] = {'level': lv}
-        for fam in ('project', 'baseline'):
+        for fam in ('project', 'baseline', 'baseline_expert', 'baseline_expert_bisect'):
             cand = [r for r in rows if r.get('ok') and r['family'] == fam and r['err_speed_rel'] <= lv]
             entry[fam] = min(cand, key=lambda r: r['wall_s']) if cand else None
-        p, b = entry['project'], entry['baseline']
-        entry['speedup'] = b['wall_s'] / p['wall_s'] if p and b else None
-        entry['cpu_speedup'] = (b['cpu_s'] / p['cpu_s'] if p and b and 'cpu_s' in p and 'cpu_s' in b
-                                and p['cpu_s'] > 0 else None)
+        p = entry['project']
+        for b, key in ((entry['baseline'], ''), (entry['baseline_expert'], '_expert'),
+                       (entry['baseline_expert_bisect'], '_bisect')):
+            entry['speedup' + key] = b['wall_s'] / p['wall_s'] if p and b else None
+            entry['cpu_speedup' + key] = (b['cpu_s'] / p['cpu_s'] if p and b and 'cpu_s' in p
+                                          and 'cpu_s' in b and p['cpu_s'] > 0 else None)
         out.append(entry)
     return out
 
@@ -272,11 +666,83 @@ def format_mode_table(study: dict[str, Any]) -> str:
     return '\n'.join(lines) + '\n'
 
 
+#: the target against the expert baseline: the project at least this many times cheaper
+EXPERT_TARGET = 2.0
+
+
+def format_expert_table(study: dict[str, Any], family: str = 'baseline_expert') -> str:
+    """Markdown table of the project against ``family`` ('baseline_expert': oracle events,
+    or 'baseline_expert_bisect': the witness bisection) per error level (the cheapest run of
+    each reaching it: rtol, CPU and wall ms, expert / project in CPU time and wall, the
+    >= 2x verdict on both, the load) and a verdict line; the one skip line when the expert
+    was asked for but numbalsoda is missing; '' when not asked for."""
+    if study.get('expert_skipped'):
+        return f"baseline_expert skipped: {study['expert_skipped']}\n" if family == 'baseline_expert' else ''
+    if not any(r['family'] == family for r in study['rows']):
+        return ''
+    key = '_bisect' if family == 'baseline_expert_bisect' else '_expert'
+    if key == '_expert':
+        orc = study.get('oracle', {})
+        head = (f"#### {study['scene']}: kernel vs numbalsoda on the same compiled mode rhs "
+                '(oracle events)')
+        text = ('The expert ends each mode segment at the oracle\'s event time and witness (the '
+                f"kernel at rtol {KERNEL_REFERENCE[1]:g}: {orc.get('segments', '?')} segments, "
+                f"{orc.get('events', '?')} located events): it gets the event times for free, a "
+                'lower bound on its cost.')
+    else:
+        head = (f"#### {study['scene']}: kernel vs numbalsoda on the same compiled mode rhs "
+                '(witness bisection)')
+        text = (f'The expert locates its own events: the witnesses on a {GRID_DT * 1e3:g} ms grid, '
+                f'each crossing refined on {REFINE_POINTS}-point grids to 1e-12 s.')
+    lines = [head, '', text, '',
+             '| error level | kernel dopri5 rtol | CPU ms | wall ms | best numbalsoda | rtol | CPU ms '
+             '| wall ms | expert / kernel (CPU time) | expert / kernel (wall) | >= 2x | load |',
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+    for e in study['levels']:
+        p, b = e['project'], e.get(family)
+        if not p or not b:
+            lines.append(f"| {e['level']:g} | {p['tol'] if p else '-'} | - | - | "
+                         f"{'not reached' if not b else b['label']} | - | - | - | - | - | - | - |")
+            continue
+        sp, cpu = e['speedup' + key], e['cpu_speedup' + key]
+        ok = _holds(e, key)
+        loads = [x for r in (p, b) for x in r.get('load', ()) if x == x]
+        load = f'{min(loads):.1f}-{max(loads):.1f}' if loads else '-'
+        method = b['label'].split(' (')[0]
+        lines.append(f"| {e['level']:g} | {p['tol']:g} | {p['cpu_s'] * 1e3:.1f} | {p['wall_s'] * 1e3:.1f} "
+                     f"| {method} | {b['tol']:g} | {b['cpu_s'] * 1e3:.1f} | {b['wall_s'] * 1e3:.1f} "
+                     f"| {cpu:.2f}x | {sp:.2f}x | {'yes' if ok else 'no'} | {load} |"
+                     if cpu is not None else
+                     f"| {e['level']:g} | {p['tol']:g} | - | {p['wall_s'] * 1e3:.1f} | {method} "
+                     f"| {b['tol']:g} | - | {b['wall_s'] * 1e3:.1f} | - | {sp:.2f}x "
+                     f"| {'yes' if ok else 'no'} | {load} |")
+    return '\n'.join([*lines, '', expert_verdict(study, family)]) + '\n'
+
+
+def _holds(e: dict[str, Any], key: str = '_expert') -> bool:
+    """The level's best kernel run at least EXPERT_TARGET x cheaper than the best expert run
+    (``key`` '_expert' or '_bisect'), in wall and (where measured) in CPU time."""
+    sp, cpu = e.get('speedup' + key), e.get('cpu_speedup' + key)
+    return sp is not None and sp >= EXPERT_TARGET and (cpu is None or cpu >= EXPERT_TARGET)
+
+
+def expert_verdict(study: dict[str, Any], family: str = 'baseline_expert') -> str:
+    """One line: the levels where the project holds >= 2x against ``family`` and where not
+    (a level either family does not reach counts as not held)."""
+    key = '_bisect' if family == 'baseline_expert_bisect' else '_expert'
+    held = [f"{e['level']:g}" for e in study['levels'] if _holds(e, key)]
+    missed = [f"{e['level']:g}" for e in study['levels'] if not _holds(e, key)]
+    return (f'>= {EXPERT_TARGET:g}x against {family} (CPU time and wall): '
+            + ('held at every level' if not missed else
+               f"held at {', '.join(held) or 'no level'}; not at {', '.join(missed)}") + '.')
+
+
 def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """modes.csv (every run) and modes.md (the level tables) in ``out``."""
     import csv
     keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s',
-            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual', 'load']
+            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual', 'load',
+            'note']
     p_csv = out / 'modes.csv'
     with p_csv.open('w', newline='') as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction='ignore')
@@ -284,5 +750,9 @@ def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Pat
         for s in studies:
             w.writerows(s['rows'])
     p_md = out / 'modes.md'
-    p_md.write_text('\n'.join(format_mode_table(s) for s in studies))
+    parts = []
+    for s in studies:
+        tables = [t for t in (format_expert_table(s), format_expert_table(s, 'baseline_expert_bisect')) if t]
+        parts.append('\n'.join([format_mode_table(s), *tables]))
+    p_md.write_text('\n'.join(parts))
     return [p_csv, p_md]

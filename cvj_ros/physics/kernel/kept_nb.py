@@ -14,6 +14,7 @@ never move; a sweep patches ``fp`` and ``mfp`` in place).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 from typing import Any, Callable, Sequence
 
@@ -56,7 +57,6 @@ _INT_ROWS = (2, 4, 6)     # ipk, ibuf, ip
 #: the integer options after the rows: autonomous, constant_jac, order, hermite_row
 K_INTS = 3 * _ROWS
 TABLE_LEN = K_INTS + 4
-_N_FLOATS = 5
 
 
 @njit(cache=True, inline='always')
@@ -116,17 +116,36 @@ def kept_table(head: Sequence[Any], per_run: Sequence[np.ndarray]
     return table, floats
 
 
+_SIG = (types.int64, types.float64)
+_ENTRY: dict[Any, Callable[..., Any]] = {}
+
+
+def kept_entry(dispatcher: Any = ros_run_kept) -> Callable[..., Any]:
+    """The compiled entry point of ``dispatcher(table, e0)`` (:func:`ros_run_kept`), loaded
+    from the disk cache or compiled by signature - never by a call, which would run the
+    run - and kept per process."""
+    entry = _ENTRY.get(dispatcher)
+    if entry is None:
+        from . import _will_compile, compiling, load_cached
+        entry = load_cached(dispatcher, (0, 0.0))
+        if entry is None:
+            with compiling(dispatcher) if _will_compile(dispatcher) else contextlib.nullcontext():
+                dispatcher.compile(_SIG)
+            entry = dispatcher.overloads[_SIG].entry_point
+        _ENTRY[dispatcher] = entry
+    return entry
+
+
 def kept_call(head: Sequence[Any], per_run: Sequence[np.ndarray]
               ) -> Callable[[float], tuple[int, int]] | None:
     """``call(e0) -> (status, bad)``, the same as ros_run's entry point called with
     ``(*head, e0, *per_run)``, through :func:`ros_run_kept`; it keeps ``head``, ``per_run``
     and the table alive. None when :func:`kept_table` is."""
-    from . import entry_point_once
     made = kept_table(head, per_run)
     if made is None:
         return None
     table, floats = made
     addr = int(table.ctypes.data)
-    call = functools.partial(entry_point_once(ros_run_kept, (addr, 0.0)), addr)
+    call = functools.partial(kept_entry(), addr)
     call.keep = (table, floats, tuple(head), tuple(per_run))   # type: ignore[attr-defined]
     return call

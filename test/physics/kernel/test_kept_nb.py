@@ -83,3 +83,22 @@ def test_kept_table_refuses_what_ros_run_would_not_take() -> None:
         h[k - 1] = bad
         assert kept_nb.kept_table(h, per_run) is None, k
     assert kept_nb.kept_table(head, per_run[:-1]) is None
+
+
+def test_kept_entry_compiles_by_signature_and_gives_the_same_bytes() -> None:
+    """kept_entry compiles a dispatcher without a disk cache by its signature (it has no
+    table to call it with, so nothing runs), and that entry point on a kept run's table
+    writes the kept call's bytes."""
+    from numba import njit
+    sc = load_scene(SCENES / 'stiff.yaml')
+    sim = Simulation(sc, method='rodas3', rtol=1e-3, atol=1e-3)
+    first = sim.run(0.2, sample_dt=0.01, sampling='dense', reuse_trace=True)
+    expected = _bytes(first)
+    fresh = njit(kept_nb.ros_run_kept.py_func)     # caching off: compiled here
+    entry = kept_nb.kept_entry(fresh)
+    assert kept_nb.kept_entry(fresh) is entry and fresh.signatures == [kept_nb._SIG]
+    call = sim._fast[1].kept_call
+    for f in FIELDS[1:]:
+        getattr(first, f).fill(np.nan)
+    assert entry(call.args[0], sim._initial_energy(sim.driveline.x0)) == (0, -1)
+    assert _bytes(first) == expected

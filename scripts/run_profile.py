@@ -9,7 +9,9 @@ calls, median of ROUNDS rounds):
   rewrites one Trace in place); ``whole_fresh``: the same call without it (new arrays and
   a new Trace per run);
 - ``call``: the plan's one-call run (``KernelStepper.bind_run``) alone, the run's
-  arrays allocated once outside the timing;
+  arrays allocated once outside the timing; ``kept_call``: a Rosenbrock run's kept call
+  (``kernel/kept_nb.py``: the arrays by address, what ``whole`` calls), ``python_kept``
+  the whole run minus it;
 - ``dispatch``: a compiled function that does nothing, with the same arguments, called the
   same way (functools.partial over the compiled entry point): numba's unboxing;
 - ``compiled_run``: the same run function called from a compiled loop (no dispatch);
@@ -176,8 +178,11 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     J = np.zeros((n, n))
     _jac_loop(1, X, ip, fp, plan.times, J)
     njev = int(tr.solver.get('njev', 0))
+    kept_call = plan.kept_call
     out: dict[str, list[float]] = {k: [] for k in ('whole', 'whole_fresh', 'call', 'dispatch',
                                                    'outputs', 'rhs', 'compiled_run', 'jac')}
+    if kept_call is not None:
+        out['kept_call'] = []
     for _ in range(rounds):
         out['whole'].append(_min_cpu(lambda: sim.run(horizon, sample_dt=dt, sampling=sampling,
                                                       breakpoints=breakpoints,
@@ -185,6 +190,8 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
         out['whole_fresh'].append(_min_cpu(lambda: sim.run(
             horizon, sample_dt=dt, sampling=sampling, breakpoints=breakpoints), calls))
         out['call'].append(_min_cpu(lambda: plan.run(*per_run), calls))
+        if kept_call is not None:
+            out['kept_call'].append(_min_cpu(lambda: kept_call(e0), calls))
         out['dispatch'].append(_batch_cpu(lambda: [noop_entry(*per_run) for _ in range(100)], 20)
                                / 100)
         k = max(1, int(2e-4 / max(out['call'][-1], 1e-7)))   # ~0.2 ms batches
@@ -202,6 +209,8 @@ def profile(scene_name: str, solver: str, tol: float, sampling: str, rounds: int
     med['njev'] = int(tr.solver.get('njev', 0))
     med['python'] = med['whole'] - med['call']
     med['python_fresh'] = med['whole_fresh'] - med['call']
+    if kept_call is not None:
+        med['python_kept'] = med['whole'] - med['kept_call']
     med['call_overhead'] = med['call'] - med['compiled_run']
     med['integration_rest'] = med['compiled_run'] - med['outputs'] - med['rhs'] - med['jac']
     return med

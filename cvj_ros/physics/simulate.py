@@ -224,6 +224,8 @@ class _KernelPlan:
     #: run(reuse_trace=True): (its Trace, the call's arrays X, XG, pos, vel, eff, te, tl,
     #: res, the final state's view), made by the first such run and rewritten by the next
     kept: tuple[Trace, tuple[FloatArray, ...], FloatArray] | None = None
+    #: call(e0) -> (status, bad) of the run into kept's arrays (bind_run's run.kept), or None
+    kept_call: Any = None
 
 
 @dataclass
@@ -770,8 +772,9 @@ class Simulation:
         trace = self._finish(plan.stepper, times.copy(), pos, vel, eff, te, tl, res, X[-1],
                              wall, wall)
         if reuse:
-            plan.kept = (trace, (X, X if XG is None else XG, pos, vel, eff, te, tl, res),
-                         self.final_state)
+            arrays = (X, X if XG is None else XG, pos, vel, eff, te, tl, res)
+            plan.kept = (trace, arrays, self.final_state)
+            plan.kept_call = plan.run.kept(arrays)
         return trace
 
     def _run_kept(self, plan: _KernelPlan, x0: FloatArray,
@@ -779,12 +782,14 @@ class Simulation:
         """:meth:`_run_one_call` into the arrays of the plan's kept Trace: the same call and
         checks, then the Trace's counters, proposal and wall times refreshed in place
         (``KernelStepper.stats_into``); nothing is allocated. The first kept run's made
-        the Trace, so the call's bound entry point exists."""
+        the Trace, so the call's bound entry point exists; a Rosenbrock run's call takes
+        its arrays by address instead (``plan.kept_call``, kernel/kept_nb.py)."""
         trace, arrays, final = kept
         e0 = self._initial_energy(x0)
+        call = plan.kept_call   # the Rosenbrock run's arrays by address (KernelStepper.bind_run)
         clock = time.perf_counter
         wall0 = clock()
-        st, bad = plan.call(e0, *arrays)
+        st, bad = plan.call(e0, *arrays) if call is None else call(e0)
         if st != _ST_OK:
             plan.run.check(st)   # raises
         wall = clock() - wall0

@@ -38,7 +38,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.core.imputils import impl_ret_borrowed
+from numba.extending import intrinsic
 
 from .borrow_nb import borrowed_all
 from .outputs_nb import fill_mid_samples, sample_outputs, sample_outputs_lean
@@ -94,6 +97,32 @@ def pack(entries: list[np.ndarray], fbuf: np.ndarray, ibuf: np.ndarray
     return np.ascontiguousarray(fpk, dtype=np.float64), ipk
 
 
+@intrinsic
+def _as_2d(typingctx, flat, d0, d1):
+    """The 1-d C array ``flat`` (d0 * d1 items) as a (d0, d1) C array over the same data, as
+    ``flat.reshape((d0, d1))`` gives it, built directly: numba's reshape calls a C helper
+    (``numba_attempt_nocopy_reshape``) to find the strides, which a C-contiguous source does
+    not need."""
+    if not (isinstance(flat, types.Array) and flat.ndim == 1 and flat.layout == 'C'
+            and isinstance(d0, types.Integer) and isinstance(d1, types.Integer)):
+        return None
+    arrty = types.Array(flat.dtype, 2, 'C')
+
+    def codegen(context, builder, sig, args):
+        from numba.np.arrayobj import populate_array
+        src = context.make_array(flat)(context, builder, value=args[0])
+        rows = context.cast(builder, args[1], sig.args[1], types.intp)
+        cols = context.cast(builder, args[2], sig.args[2], types.intp)
+        ary = context.make_array(arrty)(context, builder)
+        populate_array(ary, data=src.data, shape=cgutils.pack_array(builder, [rows, cols]),
+                       strides=cgutils.pack_array(builder, [builder.mul(cols, src.itemsize),
+                                                            src.itemsize]),
+                       itemsize=src.itemsize, meminfo=src.meminfo, parent=src.parent)
+        return impl_ret_borrowed(context, builder, arrty, ary._getvalue())
+
+    return arrty(flat, d0, d1), codegen
+
+
 @njit(cache=True, inline='always')
 def _view1(e, ipk, pk, buf, in_buf):
     """1-d entry e of the pack table: in ``buf`` (the stepper's buffer) when the table says
@@ -113,8 +142,8 @@ def _view2(e, ipk, pk, buf, in_buf):
     d0 = ipk[r + 2]
     d1 = ipk[r + 3]
     if ipk[r] == in_buf:
-        return buf[o:o + d0 * d1].reshape((d0, d1))
-    return pk[o:o + d0 * d1].reshape((d0, d1))
+        return _as_2d(buf[o:o + d0 * d1], d0, d1)
+    return _as_2d(pk[o:o + d0 * d1], d0, d1)
 
 
 @njit(cache=True, inline='always')

@@ -566,6 +566,19 @@ class KernelStepper(_StepperBase):
         # own body would make a reference cycle.
         run.bound = lambda: bound
         run.check = check
+
+        def kept(per_run: tuple):
+            """``call(e0) -> (status, bad)``: the bound run with these arrays X, XG, pos,
+            vel, eff, te, tl, res every time (``Simulation.run(reuse_trace=True)``), through
+            ``kept_nb.ros_run_kept`` (two scalar arguments instead of 16 arrays and 10
+            scalars to unbox); None for the other methods (their runs are called as
+            ``bound``)."""
+            from . import run_nb
+            if fn is not run_nb.ros_run:
+                return None
+            from .kept_nb import kept_call
+            return kept_call(head, per_run)
+        run.kept = kept
         return run
 
     def restart(self) -> None:

@@ -56,8 +56,9 @@ def tiny_model():
 
 
 def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
-    """Compile or load each method's entry points (advance, step, dense, sample, land, and
-    the whole offline run of kernel/run_nb.py); returns the total wall time (s)."""
+    """Compile or load each method's entry points (advance, step, dense, sample, land, the
+    whole offline run of kernel/run_nb.py and, for the Rosenbrock methods, its kept call of
+    kernel/kept_nb.py); returns the total wall time (s)."""
     import numpy as np
 
     from cvj_ros.physics.kernel import rhs_nb
@@ -80,6 +81,7 @@ def warm(methods: tuple[str, ...] = KERNEL_METHODS, *, out=sys.stdout) -> float:
         st.land(np.array([st.t, st.t + 1e-3, st.t + 2e-3]), np.empty((3, model.x0.size)))
         sim = Simulation(scene, method=method)
         sim.run(0.002, sample_dt=0.001)   # the whole offline run (run_nb)
+        sim.run(0.002, sample_dt=0.001, reuse_trace=True)   # kept: kept_nb (Rosenbrock)
         compile_s = st.compile_seconds + (sim.compile_seconds or 0.0)
         dt = time.perf_counter() - t0
         total += dt

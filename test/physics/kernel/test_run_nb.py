@@ -139,3 +139,29 @@ def test_the_one_call_fills_the_intermediate_members_as_the_separate_call_did(sc
     entry_point_once(fill_mid_samples, args)(*args)
     for got, want in ((pos, tr.position), (vel, tr.velocity), (eff, tr.effort)):
         assert np.array_equal(got, want)
+
+
+def test_pack_2d_views_are_the_reshapes_they_replace() -> None:
+    """run_nb._as_2d (the pack's 2-d entries): the same shape, strides, data and values as
+    ``flat.reshape((d0, d1))`` for float64 and int64 (an empty entry: the shape), and, from
+    an owned array, a view that keeps its data alive as numba's reshape does."""
+    from numba import njit
+
+    from cvj_ros.physics.kernel.run_nb import _as_2d
+
+    @njit
+    def view(a, o, d0, d1):
+        return _as_2d(a[o:o + d0 * d1], d0, d1)
+
+    for a, o, d0, d1 in [(np.arange(40.0), 3, 4, 7), (np.arange(40, dtype=np.int64), 5, 5, 3),
+                         (np.arange(10.0), 2, 3, 0), (np.arange(10.0), 10, 0, 4)]:
+        v = view(a, o, d0, d1)
+        ref = a[o:o + d0 * d1].reshape((d0, d1))
+        assert v.dtype == a.dtype and v.shape == ref.shape and np.array_equal(v, ref)
+        if v.size:      # (an empty entry's strides are never used)
+            assert v.strides == ref.strides
+            assert v.__array_interface__['data'][0] == ref.__array_interface__['data'][0]
+    a = np.arange(28.0) * 2.0
+    v = view(a, 0, 4, 7)
+    del a
+    assert v[3, 6] == 54.0 and v.flags.c_contiguous

@@ -378,11 +378,13 @@ def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:
                   np.array([math.nan if b is None else b for _k, _ke, b in plan.segments]))
     # angles a row reads: the first shaft's (the torque orders') and the members' inputs; a
     # joint whose output angle feeds none of them gives its ratio alone (unread_angles)
-    from cvj_ros.physics.kernel.outputs_nb import unread_angles
+    # (the integration's right-hand side too, for an exact lever hinge: ratio_only_ip)
+    from cvj_ros.physics.kernel.outputs_nb import ratio_only_ip, unread_angles
     tab = sim._shaft_table
     skip = unread_angles(plan.stepper.ip, tab, sorted({0, *mtab[:, 1].tolist()}))
     run = plan.stepper.bind_run(sim.driveline.x0, times, (*arrays, np.zeros(2), np.zeros((2, n))),
-                                tab, None, skip if skip.any() else None)
+                                tab, None, skip if skip.any() else None,
+                                ratio_only_ip(plan.stepper.ip, skip))
     # fill's and the compiled reduction's entry points loaded now, not in a later chunk
     # (zero rows, the types fill passes; a tiny record: reduce.load_entries)
     from cvj_ros.physics.kernel import entry_point_once

@@ -154,7 +154,9 @@ def test_lean_run_fills_the_same_rows_as_the_one_call_run() -> None:
     """bind_lean's run (no members) plus fill(i) gives the one-call run's arrays bit for bit
     in every row it fills; the shaft columns are the same in every row, but the angles no
     row reads (after the lever hinge, which feeds neither the first shaft nor the earring's
-    input: outputs_nb.unread_angles), which are NaN."""
+    input: outputs_nb.unread_angles), which are NaN. The integration runs on the ip whose
+    lever hinge gives its ratio alone (outputs_nb.ratio_only_ip): the same states."""
+    from cvj_ros.physics.kernel.outputs_nb import ratio_only_ip, unread_angles
     from cvj_ros.sweep.batch import bind_lean, lean_run
     data = apply_keys(load_scene_data(find_scene('kavz685_lever')),
                       [('duration',), ('driveline', 2, 'params', 'alpha_deg')], [0.3, 30.0])
@@ -164,6 +166,8 @@ def test_lean_run_fills_the_same_rows_as_the_one_call_run() -> None:
     ref = sim._run_one_call(plan, sim.driveline.x0)
     lean = bind_lean(sim, plan, 'dense')
     assert lean is not None and sim._mid_table[0].shape[0] > 0   # the earring is a member
+    assert ratio_only_ip(plan.stepper.ip, unread_angles(plan.stepper.ip, sim._shaft_table,
+                                                        [0, 1])) is not None
     members = sim._mid_table[0][:, 0].tolist()
     shafts = [c for c in range(ref.velocity.shape[1]) if c not in members]
     unread = [sim.driveline.shaft_names.index(s) for s in ('coupling_output', 'driven_shaft')]

@@ -27,7 +27,8 @@ from cvj_ros.physics.joints.tripod import TWO_PI_3, tripod_closed_scalar, tripod
 from cvj_ros.physics.joints.lever_hinge import lever_hinge_closed_scalar, lever_hinge_exact_scalar
 from cvj_ros.physics.joints.runout import runout_scalar
 from cvj_ros.physics.kernel.layout import (OP_GEAR, OP_HOOKE, OP_HOOKE_PHASED, OP_JOINT_IDENTITY,
-                                          OP_LEVER_CLOSED, OP_LEVER_EXACT, OP_TRIPOD_CLOSED,
+                                          OP_LEVER_CLOSED, OP_LEVER_EXACT, OP_LEVER_RATIO,
+                                          OP_TRIPOD_CLOSED,
                                           OP_TRIPOD_SERIES, OP_DOUBLE_CARDAN, OP_RUNOUT)
 
 
@@ -46,6 +47,29 @@ double_cardan_nb = njit(cache=True)(double_cardan_scalar)
 lever_closed_nb = njit(cache=True)(lever_hinge_closed_scalar)
 lever_exact_nb = njit(cache=True)(lever_hinge_exact_scalar)
 tripod_closed_nb = njit(cache=True)(tripod_closed_scalar)
+
+
+def _lever_exact_ratio(phi_in, ca, sa2, twist, ca2, sa22):
+    """(ratio -, ratio_slope 1/rad) of ``lever_hinge_exact_scalar`` (Davidbaev et al. 2023:
+    two cross stages in series, tan(c) = tan(phi) / cos a, then the tilted second stage):
+    the same operations in the same order without the output angle's last atan2, so the
+    same two floats (test/physics/kernel/test_outputs_nb.py)."""
+    s, c = math.sin(phi_in), math.cos(phi_in)
+    den1 = 1.0 - sa2 * c * c
+    h1 = ca / den1
+    h2 = -ca * sa2 * 2.0 * s * c / (den1 * den1)
+    c2 = phi_in + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + twist
+    s_, c_ = math.sin(c2), math.cos(c2)
+    den2 = 1.0 - sa22 * s_ * s_
+    g1 = ca2 / den2
+    g2 = ca2 * sa22 * 2.0 * s_ * c_ / (den2 * den2)
+    return g1 * h1, g2 * h1 * h1 + g1 * h2
+
+
+#: inlined into the sample walk (outputs_nb.joint_ratio); called, as lever_exact_nb is,
+#: from joint_eval (OP_LEVER_RATIO), so the inlined rhs stays small
+lever_exact_ratio = njit(cache=True, inline='always')(_lever_exact_ratio)
+lever_ratio_nb = njit(cache=True)(_lever_exact_ratio)
 runout_nb = njit(cache=True)(runout_scalar)
 # the two commonest exact stages, inlined into joint_eval (and so into the rhs): no call,
 # no tuple return; the same source, the same bits
@@ -123,6 +147,9 @@ def joint_eval(code, phi, fp, off):
         return tripod_closed_nb(phi, fp[off])
     if code == OP_LEVER_EXACT:
         return lever_exact_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
+    if code == OP_LEVER_RATIO:     # nothing reads its output angle: not computed
+        r, s = lever_ratio_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
+        return math.nan, r, s
     if code == OP_LEVER_CLOSED:
         return lever_closed_nb(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3], fp[off + 4])
     if code == OP_GEAR:

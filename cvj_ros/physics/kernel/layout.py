@@ -98,6 +98,9 @@ OP_TRIPOD_SERIES = 7
 OP_DOUBLE_CARDAN = 8
 OP_HOOKE_PHASED = 9
 OP_RUNOUT = 10
+#: OP_LEVER_EXACT whose output angle nothing reads (a sweep's lean run only: its ip copy,
+#: outputs_nb.ratio_only_ip): the same ratio and slope, the angle NaN (joints_nb.joint_eval)
+OP_LEVER_RATIO = 11
 
 # torque source codes
 ENGINE_INPUTS = 0

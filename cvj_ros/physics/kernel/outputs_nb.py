@@ -21,13 +21,13 @@ import numpy as np
 from numba import njit
 
 from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, borrowed_all, stack_zeros_2d
-from cvj_ros.physics.kernel.joints_nb import joint_eval
+from cvj_ros.physics.kernel.joints_nb import joint_eval, lever_exact_ratio
 from cvj_ros.physics.kernel.reactions_nb import joint_wrench
 from cvj_ros.physics.kernel.layout import (H_ENERGY, H_IMBALANCE, H_LOAD, H_NDOF, H_SEC,
                                           H_SPRING_F, H_TREE, LOAD_BRAKE_STEPS, LOAD_CONSTANT,
                                           LOAD_INPUTS, LOAD_RANDOM, LOAD_ROAD, LOAD_TIME_SERIES,
                                           OP_HOOKE, OP_INERTIA, OP_JOINT_IDENTITY, OP_LEVER_EXACT,
-                                          SPRING_STRIDE)
+                                          OP_LEVER_RATIO, SPRING_STRIDE)
 from cvj_ros.physics.kernel.rhs_nb import (engine_torque, rhs, section_accel,
                                           spring_deflection, spring_eval,
                                           spring_vary_eval, imbalance_force,
@@ -203,28 +203,11 @@ def reaction_table(driveline: Any, joints: list[str]
 
 
 @njit(cache=True, inline='always')
-def lever_exact_ratio(phi_in, ca, sa2, twist, ca2, sa22):
-    """(ratio -, ratio_slope 1/rad) of ``lever_hinge_exact_scalar`` (Davidbaev et al. 2023:
-    two cross stages in series, tan(c) = tan(phi) / cos a, then the tilted second stage):
-    the same operations in the same order without the output angle's last atan2, so the
-    same two floats (test/physics/kernel/test_outputs_nb.py)."""
-    s, c = math.sin(phi_in), math.cos(phi_in)
-    den1 = 1.0 - sa2 * c * c
-    h1 = ca / den1
-    h2 = -ca * sa2 * 2.0 * s * c / (den1 * den1)
-    c2 = phi_in + math.atan2(s * c * (1.0 - ca), ca * c * c + s * s) + twist
-    s_, c_ = math.sin(c2), math.cos(c2)
-    den2 = 1.0 - sa22 * s_ * s_
-    g1 = ca2 / den2
-    g2 = ca2 * sa22 * 2.0 * s_ * c_ / (den2 * den2)
-    return g1 * h1, g2 * h1 * h1 + g1 * h2
-
-
-@njit(cache=True, inline='always')
 def joint_ratio(code, phi, fp, off):
     """(ratio, ratio_slope) of ``joint_eval(code, phi, fp, off)``, the same floats; the exact
-    lever hinge without its output angle (:func:`lever_exact_ratio`)."""
-    if code == OP_LEVER_EXACT:
+    lever hinge without its output angle (``joints_nb.lever_exact_ratio``; also for its
+    OP_LEVER_RATIO, :func:`ratio_only_ip`)."""
+    if code == OP_LEVER_EXACT or code == OP_LEVER_RATIO:
         return lever_exact_ratio(phi, fp[off], fp[off + 1], fp[off + 2], fp[off + 3],
                                  fp[off + 4])
     _po, r, s = joint_eval(code, phi, fp, off)
@@ -258,6 +241,22 @@ def unread_angles(ip: np.ndarray, tab: np.ndarray, read: list[int]) -> np.ndarra
         return flags
     flags[kk] = 1
     return flags
+
+
+def ratio_only_ip(ip: np.ndarray, skip: np.ndarray) -> np.ndarray | None:
+    """A copy of ``ip`` with every exact lever hinge that ``skip`` (:func:`unread_angles`)
+    flags coded OP_LEVER_RATIO: the right-hand side then takes its ratio and slope without
+    the output angle, which nothing reads (the last section's end angle; the load's torque
+    does not depend on it), so the same accelerations bit for bit. None when no flagged
+    joint is an exact lever hinge."""
+    ops = int(ip[H_SEC]) + int(ip[H_NDOF]) + 1
+    ks = [k for k in np.flatnonzero(skip).tolist() if int(ip[ops + 2 * k]) == OP_LEVER_EXACT]
+    if not ks:
+        return None
+    out = np.array(ip, dtype=np.int64)
+    for k in ks:
+        out[ops + 2 * k] = OP_LEVER_RATIO
+    return out
 
 
 @njit(cache=True, inline='always')

@@ -509,7 +509,7 @@ class KernelStepper(_StepperBase):
 
     def bind_run(self, x0: np.ndarray, times: np.ndarray, plan: tuple, tab: np.ndarray,
                  mids: tuple[np.ndarray, np.ndarray] | None = None,
-                 skip: np.ndarray | None = None):
+                 skip: np.ndarray | None = None, ip: np.ndarray | None = None):
         """A whole offline run in one compiled call (``run_nb``), bound to what is fixed for a
         Simulation's options: ``run(e0, X, XG, pos, vel, eff, te, tl, res)`` starts again at
         (0, x0) as :meth:`reset` does, integrates over ``times`` (s) into ``X`` (X[0] = x0)
@@ -518,7 +518,9 @@ class KernelStepper(_StepperBase):
         pos, ...)`` does, then - every sample finite - the intermediate members of
         ``mids = (mtab, mfp)`` (``outputs_nb.mid_table``) as ``fill_mid_samples(pos, vel,
         mtab, mfp)`` does (none when None). ``skip`` (``outputs_nb.unread_angles``; None:
-        none): ``sample_outputs_lean`` instead, NaN angles after the joints it flags. Same
+        none): ``sample_outputs_lean`` instead, NaN angles after the joints it flags; ``ip``
+        (None: the stepper's): the model's ints the run reads instead, of the same layout
+        (``outputs_nb.ratio_only_ip``). Same
         steps and bytes as reset + land / sample + sample_outputs + fill_mid_samples
         (test_run_nb.py). It raises SolverError as
         :meth:`advance_to` and returns the first sample whose state is not finite, or -1. For ``Simulation.run``, which builds every
@@ -545,7 +547,8 @@ class KernelStepper(_StepperBase):
                          np.ascontiguousarray(mtab, dtype=np.int64), skip, *entries],
                         self._fbuf, self._ibuf)
         # mfp is read where it is, as fp is (a sweep patches both between runs)
-        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, self.ip, self.fp, mfp,
+        ip = self.ip if ip is None else np.ascontiguousarray(ip, dtype=np.int64)
+        head = (fpk, ipk, self._fbuf, self._ibuf, self._y, ip, self.fp, mfp,
                 0.0 if self._h0 is None else float(self._h0), *scalars)
         check = self._check
         bound = None

@@ -317,6 +317,8 @@ def test_lever_ratio_alone_is_the_exact_laws_ratio_and_slope_bit_for_bit(alpha_d
     """lever_exact_ratio (the lean walk's exact lever law without the output angle) gives
     lever_exact_nb's ratio and slope bit for bit; joint_ratio of every other op is
     joint_eval's."""
+    from cvj_ros.physics.kernel.joints_nb import joint_eval
+    from cvj_ros.physics.kernel.layout import OP_LEVER_RATIO
     from cvj_ros.physics.kernel.outputs_nb import joint_ratio, lever_exact_ratio
     a, d = math.radians(alpha_deg), math.radians(alpha_deg + delta_deg)
     args = (math.cos(a), math.sin(a) ** 2, twist, math.cos(d), math.sin(d) ** 2)
@@ -330,6 +332,10 @@ def test_lever_ratio_alone_is_the_exact_laws_ratio_and_slope_bit_for_bit(alpha_d
         assert (_bits(got[0]), _bits(got[1])) == (_bits(r), _bits(s)), phi
         got = joint_ratio(OP_LEVER_EXACT, phi, fp, 1)
         assert (_bits(got[0]), _bits(got[1])) == (_bits(r), _bits(s)), phi
+        got = joint_ratio(OP_LEVER_RATIO, phi, fp, 1)
+        assert (_bits(got[0]), _bits(got[1])) == (_bits(r), _bits(s)), phi
+        po, r2, s2 = joint_eval(OP_LEVER_RATIO, phi, fp, 1)      # the rhs's dispatch
+        assert math.isnan(po) and (_bits(r2), _bits(s2)) == (_bits(r), _bits(s)), phi
 
 
 def _lean_flags(sim):
@@ -384,6 +390,55 @@ def test_lean_walk_gives_the_same_outputs_but_the_unread_angles(name):
             assert skip.sum() == 1 and nan_cols == [3, 4]
     if name == 'kavz685_lever':
         assert flagged >= 2
+
+
+@pytest.mark.parametrize('name', CHAIN_SCENES)
+def test_ratio_only_ip_gives_the_same_rhs_and_lean_walk_bit_for_bit(name):
+    """ratio_only_ip codes the flagged exact lever hinges OP_LEVER_RATIO (their output
+    angle not computed) and nothing else; with it rhs_nb.rhs gives the same derivative bit
+    for bit at every state of a run and at states between them (the integration's stages
+    are not samples), and sample_outputs_lean the same outputs, on every shipped chain scene
+    at each fidelity; kavz685_lever's exact lever hinge gets it."""
+    from cvj_ros.physics.kernel.layout import H_NDOF, H_SEC, OP_LEVER_RATIO
+    from cvj_ros.physics.kernel.outputs_nb import ratio_only_ip, sample_outputs_lean
+    from cvj_ros.physics.kernel.rhs_nb import rhs
+    scene = load_scene(find_scene(name))
+    swapped = 0
+    for fid in _fidelities(scene):
+        sim = Simulation(scene, fidelity=fid)
+        sim.run(0.3, sample_dt=0.002, reuse_trace=True)
+        plan = next(iter(sim._plans.values()))
+        T, X = plan.times, plan.kept[1][0]
+        ip, fp, tab = plan.model.ip, plan.model.fp, sim._shaft_table
+        skip = _lean_flags(sim)
+        lean = ratio_only_ip(ip, skip)
+        ops = int(ip[H_SEC]) + int(ip[H_NDOF]) + 1
+        levers = [k for k in np.flatnonzero(skip).tolist() if ip[ops + 2 * k] == OP_LEVER_EXACT]
+        if lean is None:
+            assert not levers, (name, fid)
+            continue
+        changed = np.flatnonzero(lean != ip).tolist()
+        assert changed == [ops + 2 * k for k in levers] and (lean[changed] == OP_LEVER_RATIO).all()
+        swapped += len(levers)
+        rng = np.random.default_rng(7)
+        states = [(float(T[k]), X[k]) for k in range(X.shape[0])]
+        states += [(float(T[k]) + 1e-4, X[k] + rng.normal(0.0, 1e-3, X.shape[1]) * (1.0 + abs(X[k])))
+                   for k in range(0, X.shape[0], 3)]
+        want, got = np.empty(X.shape[1]), np.empty(X.shape[1])
+        for t, y in states:
+            rhs(t, y, ip, fp, want)
+            rhs(t, y, lean, fp, got)
+            assert got.tobytes() == want.tobytes(), (name, fid, t)
+        m, n_sh = X.shape[0], tab.shape[0]
+        e0 = sim._initial_energy(sim.driveline.x0)
+        a = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        b = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
+        assert sample_outputs_lean(T, X, ip, fp, tab, e0, skip, *a) == -1
+        assert sample_outputs_lean(T, X, lean, fp, tab, e0, skip, *b) == -1
+        for u, v in zip(a, b):
+            assert u.tobytes() == v.tobytes(), (name, fid)
+    if name == 'kavz685_lever':
+        assert swapped >= 1
 
 
 def test_unread_angles_keeps_the_angles_something_reads():

@@ -48,18 +48,19 @@ _RHS = ('        mode_eval(t, y, ip, fp, dy, sc, want)\n    else:\n'
 _RHS_TWICE = ('        mode_eval(t, y, ip, fp, dy, sc, want)\n' * 2 + '    else:\n'
               + '        tm_eval(t, y, ip, fp, dy, sc, want)\n' * 2)
 _WIT = '            _witness_from(kind, t_new, y, ip, fp, K[fsal], sc, g_new)\n'
-_ENDS = ('                    f_a = _dense_witness(kind, method, t_old, i, y, y_old, fs, cnt, K, ip, fp,\n'
-         '                                         yy, dy, sc, wv, D8, AX, CX, RH)\n'
-         '                    f_b = _dense_witness(kind, method, t_new, i, y, y_old, fs, cnt, K, ip, fp,\n'
-         '                                         yy, dy, sc, wv, D8, AX, CX, RH)\n')
-_BRENT = ('                    t_i = brent_root(kind, t_old, t_new, f_a, f_b, i, method, y, y_old, fs, cnt,\n'
-          '                                     K, ip, fp, yy, dy, sc, wv, D8, AX, CX, RH)\n')
+_I20, _I41, _I37 = ' ' * 20, ' ' * 41, ' ' * 37
+_ENDS = ''.join(
+    f'{_I20}{fx} = _dense_witness(kind, method, {tx}, i, y, y_old, fs, cnt, K, ip, fp,\n'
+    f'{_I41}yy, dy, sc, wv, D8, AX, CX, RH)\n' for fx, tx in (('f_a', 't_old'), ('f_b', 't_new')))
+_BRENT = (f'{_I20}t_i = brent_root(kind, t_old, t_new, f_a, f_b, i, method, y, y_old, fs, cnt,\n'
+          f'{_I37}K, ip, fp, yy, dy, sc, wv, D8, AX, CX, RH)\n')
 _ARG = ('        for i in range(n):\n            arg[i] = y[i]\n        for j in range(s):\n'
         '            c = h * DP_A[s, j]\n            if c != 0.0:\n                kj = K[j]\n'
         '                for i in range(n):\n                    arg[i] += c * kj[i]\n')
 _STAGE = '        _f(kind, t + DP_C[s] * h, arg, ip, fp, K[s], sc, False)\n    ynew = work[1]\n'
 _NORM = ('    ss = 0.0\n    for i in range(n):\n        e = 0.0\n        for j in range(7):\n'
-         '            e += DP_E[j] * K[j, i]\n        scl = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]\n'
+         '            e += DP_E[j] * K[j, i]\n'
+         '        scl = max(abs(y[i]), abs(ynew[i])) * rtol + atol[i]\n'
          '        ss += (e / scl) ** 2\n')
 _SETUP = '    _witness_at(kind, t0, y, ip, fp, dy, sc, g_old)\n    k = k0\n'
 
@@ -68,12 +69,14 @@ def variants(src: str) -> dict[str, str]:
     """The module's text per variant (module docstring)."""
     for piece in (_RHS, _WIT, _ENDS + _BRENT, _ARG + _STAGE, _NORM, _SETUP):
         if piece not in src:
-            raise SystemExit('mode_segment_split: segment_nb.py changed; a piece to double was not found')
+            raise SystemExit('mode_segment_split: segment_nb.py changed; a piece to double '
+                             'was not found')
     return {
         'A': src,
         'B': src.replace(_RHS, _RHS_TWICE),
         'C': src.replace(_WIT, _WIT + _WIT),
-        'E': src.replace(_ENDS + _BRENT, _ENDS + _BRENT.replace('t_i = ', 't_i2 = ') + _ENDS + _BRENT),
+        'E': src.replace(_ENDS + _BRENT,
+                         _ENDS + _BRENT.replace('t_i = ', 't_i2 = ') + _ENDS + _BRENT),
         'D': src.replace(_ARG + _STAGE, _ARG + _ARG + _STAGE),
         'F': src.replace(_NORM, _NORM + _NORM.replace('ss', 'ss2') + '    ss = (ss + ss2) / 2\n'),
         'G': src.replace(_STAGE, '        _f(kind, t, y, ip, fp, work[3], sc, False)\n' + _STAGE),

@@ -17,6 +17,11 @@ the variants alternating in every round:
   A: an rhs call between other work, not right after the same one);
 - Z: the segment stops after its set-up (entry, arrays, f0, first step, witnesses at t0).
 
+Then the removal the doubling cannot give: every segment's accepted steps (a run with the step
+log) replayed as bare ``segment_nb._attempt`` calls (6 rhs calls, the stage arguments, the
+error norm) at the logged sizes, without step control, rejected attempts, witnesses or
+samples (CPU time, median of 5 rounds of 20 replays).
+
 A to G must reproduce the run's results bit for bit (checked before the timing).
 The copies compile into a scratch directory (~40 s each), not the package's cache.
 
@@ -85,22 +90,24 @@ def variants(src: str) -> dict[str, str]:
     }
 
 
-def capture(scene_name: str, tol: float) -> list[list]:
-    """Every run_segment call of one kernel run: its arguments and (out_i, out_f, y) after."""
+def capture(scene_name: str, tol: float, step_log: bool = False) -> list[list]:
+    """Every run_segment call of one kernel run: its arguments and (out_i, out_f, y, hlog)
+    after."""
     calls: list[list] = []
     orig = km.run_segment
 
     def cap(*a):  # noqa: ANN002, ANN202
         calls.append([x.copy() if isinstance(x, np.ndarray) else x for x in a])
         orig(*a)
-        calls[-1].append((a[15].copy(), a[16].copy(), a[4].copy()))
+        calls[-1].append((a[15].copy(), a[16].copy(), a[4].copy(), a[14].copy()))
     km.run_segment = tmm.run_segment = cap
     try:
         scene = load_scene(find_scene(scene_name))
         kern = KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation
         kern.from_reference(hybrid_simulation(scene, method='dopri5', rtol=tol, atol=tol * 1e-2,
                                               sample_dt=scene.duration / 20,
-                                              duration=scene.duration)).run()
+                                              duration=scene.duration),
+                            step_log=step_log).run()
     finally:
         km.run_segment = tmm.run_segment = orig
     return calls
@@ -127,7 +134,9 @@ def main() -> None:
     scratch = Path(sys.argv[3] if len(sys.argv) > 3 else tempfile.mkdtemp(prefix='segsplit_'))
     src = (Path(km.__file__).parent / 'segment_nb.py').read_text()
     for v, text in variants(src).items():
-        (scratch / f'segvar_{v}.py').write_text(text)
+        path = scratch / f'segvar_{v}.py'
+        if not path.exists() or path.read_text() != text:     # unchanged: its cache holds
+            path.write_text(text)
     sys.path.insert(0, str(scratch))
     scenes = {s: capture(s, tol) for s in SCENES}
     ents = {}
@@ -177,6 +186,61 @@ def main() -> None:
               f'{rest * 1e3:.3f} ms ({rest / nacc * 1e9:.0f} ns/step)')
         print(f'  stage arguments {arg * 1e3:.3f} ms, error norm {norm * 1e3:.3f} ms; an rhs call '
               f'between other work (G) {rhs_g / n_g * 1e9:.0f} ns')
+    for s in SCENES:
+        attempts_only(s, tol)
+
+
+def attempts_only(scene_name: str, tol: float) -> None:
+    """Print the cost of the run's accepted steps as bare _attempt calls (docstring)."""
+    from numba import njit
+
+    from cvj_ros.physics.kernel.modes_nb import MH_N, N_SCRATCH_EXTRA
+    from cvj_ros.physics.kernel.segment_nb import _attempt, _f
+    from cvj_ros.physics.kernel.steppers_nb import FS_T, NCNT, NFS
+    from cvj_ros.physics.kernel.tree_modes_nb import MB_NWIT
+
+    @njit
+    def mesh(kind, t0, y0, ip, fp, rtol, atol, hs, sc, reps):  # noqa: ANN001, ANN202
+        n = y0.shape[0]
+        K = np.zeros((7, n))
+        work = np.zeros((4, n))
+        fs = np.zeros(NFS)
+        cnt = np.zeros(NCNT, np.int64)
+        y = y0.copy()
+        for _ in range(reps):
+            y[:] = y0
+            t = t0
+            _f(kind, t, y, ip, fp, K[0], sc, False)
+            for h in hs:
+                fs[FS_T] = t
+                _attempt(kind, h, y, ip, fp, fs, cnt, rtol, atol, K, work, sc)
+                y[:] = work[1]
+                K[0, :] = K[6]
+                t = t + h
+        return y[0]
+    calls = capture(scene_name, tol, step_log=True)
+    calls = [c for c in calls if c[17][0][6] == c[17][0][3]]     # complete logs only
+    nacc = sum(int(c[17][0][3]) for c in calls)
+    res = []
+    for _r in range(5):
+        tot = 0.0
+        for c in calls:
+            kind, y, ip, fp = int(c[0]), c[4], c[5], c[6].copy()
+            hs = c[17][3][:int(c[17][0][6])].copy()
+            if kind == 0:
+                sc = np.zeros(ip[MH_N] + N_SCRATCH_EXTRA)
+            else:
+                sc = np.zeros(max(ip[ip[ip.shape[0] - 1] + MB_NWIT], 1))
+            args = (kind, float(c[2]), y, ip, fp, float(c[7]), c[8], hs, sc)
+            mesh(*args, 1)
+            t0 = time.process_time()
+            mesh(*args, 20)
+            tot += (time.process_time() - t0) / 20
+        res.append(tot)
+    med = float(np.median(res))
+    print(f'{scene_name} rtol {tol:g}: {nacc} accepted steps as bare _attempt calls '
+          f'{med * 1e3:.3f} ms ({med / nacc * 1e9:.0f} ns/step, {med / (6 * nacc) * 1e9:.0f} ns '
+          f'per rhs call all in), load {os.getloadavg()[0]:.2f}')
 
 
 if __name__ == '__main__':

@@ -92,24 +92,33 @@ def skip_line(reason: str, *, install_hint: bool = True) -> str:
 
 
 @functools.lru_cache(maxsize=1)
-def expert_cfunc() -> Any:
-    """The numba cfunc (numbalsoda's rhs signature) over kernel/rhs_nb.rhs; compiled on first
-    use (seconds: the whole rhs is inlined into it)."""
-    import numba as nb
+def _pointer_intrinsic() -> Any:
+    """A numba intrinsic: an int64 address as a void pointer (for numba.carray); shared by
+    the cfuncs below."""
     from numba import types
     from numba.core import cgutils
     from numba.extending import intrinsic
 
-    from cvj_ros.physics.kernel.rhs_nb import rhs
-
     @intrinsic
     def _as_pointer(typingctx: Any, addr: Any) -> Any:
-        """An int64 address as a void pointer (for numba.carray)."""
         sig = types.voidptr(addr)
 
         def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
             return builder.inttoptr(args[0], cgutils.voidptr_t)
         return sig, codegen
+    return _as_pointer
+
+
+@functools.lru_cache(maxsize=1)
+def expert_cfunc() -> Any:
+    """The numba cfunc (numbalsoda's rhs signature) over kernel/rhs_nb.rhs; compiled on first
+    use (seconds: the whole rhs is inlined into it)."""
+    import numba as nb
+    from numba import types
+
+    from cvj_ros.physics.kernel.rhs_nb import rhs
+
+    _as_pointer = _pointer_intrinsic()
 
     sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
                      types.CPointer(types.double))
@@ -147,20 +156,11 @@ def mode_expert_cfunc() -> Any:
     (:func:`mode_expert_data`); witnesses not evaluated (want=False)."""
     import numba as nb
     from numba import types
-    from numba.core import cgutils
-    from numba.extending import intrinsic
 
     from cvj_ros.physics.kernel.modes_nb import mode_eval
     from cvj_ros.physics.kernel.tree_modes_nb import tm_eval
 
-    @intrinsic
-    def _as_pointer(typingctx: Any, addr: Any) -> Any:
-        """An int64 address as a void pointer (for numba.carray)."""
-        sig = types.voidptr(addr)
-
-        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-            return builder.inttoptr(args[0], cgutils.voidptr_t)
-        return sig, codegen
+    _as_pointer = _pointer_intrinsic()
 
     sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
                      types.CPointer(types.double))

@@ -798,9 +798,11 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     Colour = method, marker = fidelity, line = variant (project: landing on the samples
     solid, across the load's breakpoints dotted and hollow, dense sampling dash-dot;
     solve_ivp: Python rhs dashed with squares, compiled rhs solid with squares; numbalsoda on
-    the compiled rhs: triangles, solid, dotted when restarted at the load's knots). The key
-    names each of the three once, outside the axes, instead of one entry per line (a full
-    run draws ~50 lines)."""
+    the compiled rhs: triangles, solid, dotted when restarted at the load's knots). Project
+    runs without the work integrals (label suffix ' no-energy') are drawn thin; the baseline
+    families are drawn above the project's lines, numbalsoda's triangles edged in black. The
+    key names each of these once, outside the axes, instead of one entry per line (a full
+    run draws ~200 lines)."""
     from matplotlib.lines import Line2D
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -839,6 +841,7 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
     colors = {m: _METHOD_COLORS[i % len(_METHOD_COLORS)] for i, m in enumerate(methods)}
     used_variants: list[str] = []
     used_fids: list[str] = []
+    no_energy = False
     # ideal/closed runs are drawn faint beside exact ones; a scene whose modes are all one
     # model (stiff: only 'ideal' runs, exact = auto = ideal) draws them in full
     has_exact = any(rs[0].get('family') == 'project' and rs[0].get('fidelity') in ('exact', 'auto')
@@ -854,12 +857,18 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
             used_variants += [v] if v not in used_variants else []
             used_fids += [fid] if not base and fid not in used_fids else []
             strong = base or fid in ('exact', 'auto') or not has_exact
+            thin = not base and rs[0].get('energy') == 'off'
+            no_energy |= thin
+            expert = v.startswith('numbalsoda')
             ax.loglog([r[error_key] for r in rs], [r[cost_key] for r in rs],
-                      ls=lines[v], marker=('^' if v.startswith('numbalsoda') else 's') if base
+                      ls=lines[v], marker=('^' if expert else 's') if base
                       else markers.get(fid, 'o'),
                       mfc='none' if v == 'project, across breakpoints' else None,
-                      ms=9 if fid == 'auto' else 5, lw=1.8 if base else 1.4,
-                      color=colors[method(rs[0])], alpha=0.95 if strong else 0.5)
+                      mec='k' if expert else None, mew=0.7 if expert else None,
+                      ms=7 if expert else 9 if fid == 'auto' else 4 if thin else 5,
+                      lw=2.2 if expert else 1.8 if base else 0.7 if thin else 1.4,
+                      color=colors[method(rs[0])], alpha=0.95 if strong else 0.5,
+                      zorder=4 if base else 2)
         for lv in (1e-3, 1e-8):
             ax.axvline(lv, color='0.6', lw=0.8, ls=':')
         ax.set_xlabel('max relative error of output speed  [-]' if error_key == 'err_speed_rel'
@@ -882,6 +891,9 @@ def work_precision_plot(rows: Sequence[dict[str, Any]], *, scene: str, path: str
         key += [Line2D([], [], ls=lines[v], color='0.3', lw=1.6,
                        marker='o' if 'across' in v else None,
                        mfc='none', label=v) for v in lines if v in used_variants]
+        if no_energy:
+            key += [Line2D([], [], ls='-', color='0.3', lw=0.7,
+                           label='project, no work integrals (thin)')]
         leg = ax.legend(handles=key, loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize=8,
                         frameon=False, handlelength=2.6)
         for text in leg.get_texts():

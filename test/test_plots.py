@@ -547,3 +547,35 @@ def test_work_precision_draws_the_numbalsoda_family_apart(tmp_path, monkeypatch)
     assert sorted(ln.get_marker() for ln in series) == ['^', '^', 'o']
     colours = {ln.get_marker() + str(ln.get_linestyle()): ln.get_color() for ln in series}
     assert len(set(colours.values())) == 2
+
+
+def test_work_precision_draws_no_energy_runs_thin_and_baselines_on_top(tmp_path, monkeypatch) -> None:
+    """Project runs without the work integrals (energy 'off') are thinner than the same
+    configuration with them and named once in the key; baseline lines lie above the
+    project's (zorder), numbalsoda's triangles edged in black."""
+    from cvj_ros import plots
+    kept = []
+    monkeypatch.setattr(plots.plt, 'close', kept.append)
+    rows = []
+    for solver, fam, energy in (('dop853', 'project', 'on'), ('dop853', 'project', 'off'),
+                                ('dop853', 'baseline_expert', ''), ('LSODA', 'baseline', '')):
+        label = f'{solver} {fam} {energy}'
+        for k, tol in enumerate((1e-3, 1e-6)):
+            rows.append({'scene': 's', 'family': fam, 'solver': solver, 'fidelity': 'exact', 'tol': tol,
+                         'h': None, 'breakpoints': False if fam == 'baseline_expert' else True,
+                         'sampling': 'land', 'label': label, 'energy': energy,
+                         'err_speed_rel': tol * (2 + k), 'wall_per_sim_s': 1e-3 / tol ** 0.1})
+    plots.work_precision_plot(rows, scene='s', path=tmp_path / 'wp.png')
+    (fig,) = kept
+    ax = fig.axes[0]
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert texts.count('project, no work integrals (thin)') == 1
+    by_marker: dict[str, list] = {}
+    for ln in ax.get_lines()[:4]:
+        by_marker.setdefault(ln.get_marker(), []).append(ln)
+    on, off = sorted(by_marker['o'], key=lambda ln: -ln.get_linewidth())
+    assert off.get_linewidth() < on.get_linewidth()
+    (expert,) = by_marker['^']
+    (solve_ivp,) = by_marker['s']
+    assert expert.get_markeredgecolor() == 'k'
+    assert min(expert.get_zorder(), solve_ivp.get_zorder()) > max(on.get_zorder(), off.get_zorder())

@@ -53,6 +53,44 @@ def fmt(value: Any) -> str:
     return str(value)
 
 
+def _true_false(value: bool) -> str:
+    return 'true' if value else 'false'
+
+
+def _empty(_value: None) -> str:
+    return ''
+
+
+# fmt for the exact types a row holds (a subclass - np.float64, ... - takes fmt itself)
+_FMT = {float: float.__repr__, int: int.__str__, str: str.__str__, bool: _true_false,
+        type(None): _empty}
+
+
+def cells(values: Iterable[Any]) -> list[str]:
+    """``[fmt(v) for v in values]``, the same texts, with one dict look-up per cell for
+    the types rows hold instead of fmt's chain of tests."""
+    get = _FMT.get
+    return [(get(type(v)) or fmt)(v) for v in values]
+
+
+_WRITER_BUF = io.StringIO()
+_WRITER = csv.writer(_WRITER_BUF, lineterminator='\n')
+
+
+def csv_line(fields: list[str]) -> str:
+    """The line ``csv.writer(f, lineterminator='\\n').writerow(fields)`` writes for text
+    fields: joined by commas when no field holds a comma, quote or line break (the writer's
+    minimal quoting then quotes none), else the writer's own line."""
+    line = ','.join(fields)
+    if len(fields) > 1 and line.count(',') == len(fields) - 1 and '"' not in line \
+            and '\n' not in line and '\r' not in line:
+        return line + '\n'
+    _WRITER_BUF.seek(0)
+    _WRITER_BUF.truncate()
+    _WRITER.writerow(fields)
+    return _WRITER_BUF.getvalue()
+
+
 def scene_digest(data: Mapping[str, Any]) -> str:
     """SHA-256 of the scene dict in canonical JSON (sorted keys): names the base scene."""
     text = json.dumps(data, sort_keys=True, separators=(',', ':'), default=str)
@@ -142,20 +180,27 @@ class ResultStore:
         the number of rows written."""
         order = sorted(i for i in done if 0 <= i < len(variants))
         metric_cols: dict[str, None] = {}
+        last: Any = None
         for i in order:
-            for k in done[i][0]:
+            keys = done[i][0].keys()
+            if keys == last:        # the same keys as the row before: none new
+                continue
+            last = keys
+            for k in keys:
                 if k not in ('status', 'error'):
                     metric_cols.setdefault(k, None)
         header = ['variant', *axis_columns, 'status', *metric_cols, 'error']
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator='\n')
         w.writerow(header)
+        lines = [buf.getvalue()]
+        cols = tuple(metric_cols)
         for i in order:
             row = done[i][0]
-            w.writerow([str(i), *(fmt(v) for v in variants[i]), row.get('status', ''),
-                        *(fmt(row.get(c)) for c in metric_cols), row.get('error', '')])
+            lines.append(csv_line([str(i), *cells(variants[i]), row.get('status', ''),
+                                   *cells(map(row.get, cols)), row.get('error', '')]))
         self.dir.mkdir(parents=True, exist_ok=True)
-        _atomic_write(self.path(RESULTS), buf.getvalue())
+        _atomic_write(self.path(RESULTS), ''.join(lines))
         _atomic_write(self.path(TIMING), 'variant,wall_s\n' + ''.join(
             f'{i},{done[i][1]!r}\n' for i in order))
         return len(order)

@@ -102,6 +102,13 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if args.replot:
         return _replot(args)
+    if args.scene and args.out and not args.cluster and (args.workers or 0) != 1:
+        # a local pool's fork server loads the kernel (~0.55 s CPU) while this process
+        # imports numpy and the sweep, reads the scene and expands the sweep (with bad
+        # options the command exits below, and the server with it)
+        from cvj_ros.sweep.server import start_fork_server, usable_cores
+        if args.workers is not None or usable_cores() > 1:
+            start_fork_server()
     from cvj_ros.physics.scene import find_scene
     from cvj_ros.sweep.spec import SweepError, build_sweep
     if not args.scene:

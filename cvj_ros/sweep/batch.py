@@ -321,10 +321,10 @@ class BatchRunner:
         computed for these very parameters), and at most one of them changes an element
         other than a spring (so the adjacent inertias, a pure function of the inertias,
         joints and spring names, are that probe's or the template's). What is left is each
-        spring's omega_n = sqrt(c (1/J_l + 1/J_r)) and band / omega_n, which raise for
-        J = 0, c (1/J_l + 1/J_r) < 0 or one that underflows to 0: computed here with the
-        variant's stiffness, and any variant where they would raise (or any premise that
-        fails) is left to choose_fidelity."""
+        spring's omega_n = sqrt(c (1/J_l + 1/J_r)), computed here with the variant's
+        stiffness: it raises for J = 0 or c (1/J_l + 1/J_r) < 0, and band / omega_n divides
+        by zero where it is 0 (c (1/J_l + 1/J_r) underflowing); such a variant (or one
+        where any premise fails) is left to choose_fidelity."""
         if len(self.templates) != 1:
             return None
         tpl = next(iter(self.templates.values()))

@@ -9,6 +9,13 @@ few per cent). Prints ms a variant per round.
 
     PYTHONPATH=. python scripts/sweep_stages.py [ROUNDS] [--against COMMIT]
 
+``--timeline N [TREE ...]``: the whole ``cvj-sim sweep`` of the grid (``--workers 2
+--no-plots``), N runs in child processes (with several source trees as PYTHONPATH,
+alternating between them), times in s from the child process's start: when the fork server
+starts, when each worker starts its first chunk and ends its last (its CPU in chunks),
+when the parent submits, has its last chunk and has written the tables; the parent's CPU
+(``getrusage``) and the MD5 of results.csv. Prints a few lines a run.
+
 ``--against COMMIT``: paired instead - that commit's ``cvj_ros/sweep/batch.py`` (from
 ``git show``, loaded as a module of its own beside this tree's; the rest of cvj_ros is
 this tree's) and this tree's, each with its own warm runner, the 400 variants
@@ -17,21 +24,21 @@ alternating between the two, ROUNDS pairs, CPU ms a variant each.
 from __future__ import annotations
 
 import gc
+import os
 import sys
 import time
 from collections import defaultdict
 from typing import Any
 
-from cvj_ros.commands.sweep import load_scene_data
-from cvj_ros.physics.scene import find_scene
-from cvj_ros.sweep.run import Job, RunOptions
-from cvj_ros.sweep.spec import build_sweep
-
 SETS = ['driveline[coupling].params.alpha_deg=0:30:40',
         'driveline[bushings].stiffness=300:3000:100:log']
 
 
-def job_and_values() -> tuple[Job, list[tuple[Any, ...]]]:
+def job_and_values() -> tuple[Any, list[tuple[Any, ...]]]:
+    from cvj_ros.commands.sweep import load_scene_data
+    from cvj_ros.physics.scene import find_scene
+    from cvj_ros.sweep.run import Job, RunOptions
+    from cvj_ros.sweep.spec import build_sweep
     sw = build_sweep(load_scene_data(find_scene('kavz685_lever')), SETS)
     job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes), options=RunOptions())
     return job, [tuple(v) for v in sw.variants[::10]]
@@ -92,7 +99,131 @@ def paired(rounds: int, commit: str) -> None:
         print(f'pair {r}: ' + '  '.join(line) + ' ms a variant')
 
 
+TIMELINE = os.environ.get('SWEEP_TIMELINE_FILE', '')
+
+
+def timed_chunk(job: Any, chunk: Any, **kw: Any) -> Any:
+    """run_chunk with (pid, wall start, wall end, CPU start, CPU end, n) appended to
+    SWEEP_TIMELINE_FILE (the workers resolve it as this module's function)."""
+    from cvj_ros.sweep import run as run_mod
+    w0, c0 = time.time(), time.process_time()
+    out = run_mod.run_chunk(job, chunk, **kw)
+    with open(TIMELINE, 'a') as f:
+        f.write(f'{os.getpid()} {w0!r} {time.time()!r} {c0!r} {time.process_time()!r} '
+                f'{len(chunk)}\n')
+    return out
+
+
+def timeline_child(path: str, out: str, against: str | None) -> None:
+    """One ``cvj-sim sweep`` of the grid in this process, the chunks timed (timed_chunk)."""
+    import resource
+    # the process's start (/proc: clock ticks after boot), not this line's
+    ticks = os.sysconf('SC_CLK_TCK')
+    with open('/proc/self/stat') as f:
+        start_ticks = int(f.read().rsplit(')', 1)[1].split()[19])
+    with open('/proc/stat') as f:
+        btime = next(int(ln.split()[1]) for ln in f if ln.startswith('btime'))
+    t_cmd = btime + start_ticks / ticks
+    marks: dict[str, float] = {'script': time.time()}
+    os.environ['SWEEP_TIMELINE_FILE'] = path
+    from cvj_ros import cli
+    from cvj_ros.sweep import results, run as run_mod
+
+    def map_(self: Any, job: Any, work: Any) -> Any:
+        import concurrent.futures as cf
+        marks['submit'] = time.time()
+        self.futures = [self.pool.submit(timed_chunk, job, c) for c in work]
+        for fut in cf.as_completed(self.futures):
+            yield fut.result()
+        marks['last chunk'] = time.time()
+    run_mod.ProcessExecutor.map = map_
+    orig_write = results.ResultStore.write_tables
+
+    def write(self: Any, *a: Any, **k: Any) -> Any:
+        marks['tables from'] = time.time()
+        try:
+            return orig_write(self, *a, **k)
+        finally:
+            marks['tables to'] = time.time()
+    results.ResultStore.write_tables = write
+    from multiprocessing import forkserver
+    orig_ensure = forkserver.ensure_running
+
+    def ensure() -> None:
+        marks.setdefault('fork server start', time.time())
+        orig_ensure()
+    forkserver.ensure_running = ensure
+    orig_append = results.ResultStore.append
+    cpu_rows = [0.0]
+
+    def append(self: Any, outcomes: Any) -> None:
+        c0 = time.process_time()
+        orig_append(self, outcomes)
+        cpu_rows[0] += time.process_time() - c0
+    results.ResultStore.append = append
+    argv = ['sweep', 'kavz685_lever', *sum((['--set', s] for s in SETS), []), '--workers', '2',
+            '--no-plots', '--fresh', '--out', out]
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):
+        rc = cli.main(argv)
+    marks['exit'] = time.time()
+    marks['rows.jsonl CPU'] = t_cmd + cpu_rows[0]
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    printed = [ln for ln in buf.getvalue().splitlines() if ln.startswith('ran ')]
+    with open(path + '.parent', 'w') as f:
+        f.write(repr({'t_cmd': t_cmd, 'marks': marks, 'cpu': ru.ru_utime + ru.ru_stime,
+                      'rc': rc, 'printed': printed}))
+
+
+def timeline(runs: int, trees: list[str]) -> None:
+    import ast
+    import hashlib
+    import subprocess
+    import tempfile
+    for r in range(runs * len(trees)):
+        tree = trees[r % len(trees)]
+        d = tempfile.mkdtemp(prefix='sweep_timeline_')
+        path = os.path.join(d, 'chunks.txt')
+        load = os.getloadavg()[0]
+        t0 = time.time()
+        subprocess.run([sys.executable, __file__, '--timeline-child', path, os.path.join(d, 'out')],
+                       check=True, env={**os.environ, 'PYTHONPATH': tree})
+        wall = time.time() - t0
+        par = ast.literal_eval(open(path + '.parent').read())
+        tc = par['t_cmd']
+        per: dict[int, list[tuple[float, ...]]] = defaultdict(list)
+        for ln in open(path):
+            pid, *vals = ln.split()
+            per[int(pid)].append(tuple(float(v) for v in vals))
+        md5 = hashlib.md5(open(os.path.join(d, 'out', 'results.csv'), 'rb').read()).hexdigest()
+        parts = [f'run {r} ({tree}): load {load:.2f}, process wall {wall:.2f} s, '
+                 f'{par["printed"][0][4:]}']
+        for pid, rows in sorted(per.items()):
+            rows.sort()
+            n = sum(int(x[4]) for x in rows)
+            cpu = sum(x[3] - x[2] for x in rows)
+            first = rows[0]
+            parts.append(f'  worker {pid}: first chunk {first[0] - tc:.3f}-{first[1] - tc:.3f} s'
+                         f' (CPU at its start {first[2]:.3f} s, chunk {first[3] - first[2]:.3f} s)'
+                         f', last ends {rows[-1][1] - tc:.3f} s; {n} variants, {len(rows)} chunks,'
+                         f' {cpu:.3f} s CPU in chunks ({cpu / n * 1e3:.3f} ms a variant)')
+        m = par['marks']
+        parts.append('  parent: ' + ', '.join(f'{k} {v - tc:.3f}' for k, v in m.items())
+                     + f' s; CPU {par["cpu"]:.3f} s; results.csv {md5}')
+        print('\n'.join(parts), flush=True)
+
+
 def main() -> None:
+    if '--timeline-child' in sys.argv:
+        i = sys.argv.index('--timeline-child')
+        timeline_child(sys.argv[i + 1], sys.argv[i + 2], None)
+        return
+    if '--timeline' in sys.argv:
+        i = sys.argv.index('--timeline')
+        timeline(int(sys.argv[i + 1]), sys.argv[i + 2:] or [os.getcwd()])
+        return
     rounds = int(sys.argv[1]) if len(sys.argv) > 1 and sys.argv[1].isdigit() else 3
     if '--against' in sys.argv:
         paired(rounds, sys.argv[sys.argv.index('--against') + 1])

@@ -98,29 +98,42 @@ class SweepProgress(Progress):
     start = 0.0
 
 
+def _sweep_error(message: str) -> Exception:
+    """A SweepError (its module, and numpy with it, imported only to raise one)."""
+    from cvj_ros.sweep.spec import SweepError
+    return SweepError(message)
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if args.replot:
         return _replot(args)
-    from cvj_ros.physics.scene import find_scene
-    from cvj_ros.sweep.spec import SweepError, build_sweep
     if not args.scene:
-        raise SweepError('scene: give a scene (shipped name or YAML path), or --replot DIR')
+        raise _sweep_error('scene: give a scene (shipped name or YAML path), or --replot DIR')
     if not args.out:
-        raise SweepError('--out: give the result directory (DIR; rerun the same command to resume)')
+        raise _sweep_error('--out: give the result directory (DIR; rerun the same command to '
+                           'resume)')
     for opt in ('sample_dt', 'transient'):
         v = getattr(args, opt)
         if v is not None and not (math.isfinite(v) and (v > 0 or (opt == 'transient' and v >= 0))):
             raise SceneError(f'--{opt.replace("_", "-")}', f'must be > 0, got {v}')
     if not 0 <= args.orders <= 64:
-        raise SweepError(f'--orders: must be in 0..64, got {args.orders}')
+        raise _sweep_error(f'--orders: must be in 0..64, got {args.orders}')
     if args.workers is not None and args.workers < 1:
-        raise SweepError(f'--workers: must be >= 1, got {args.workers}')
+        raise _sweep_error(f'--workers: must be >= 1, got {args.workers}')
     if args.workers is not None and args.cluster:
-        raise SweepError('--workers: not with --cluster (the cluster has its own workers)')
+        raise _sweep_error('--workers: not with --cluster (the cluster has its own workers)')
     from pathlib import Path
     if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise SweepError(f'--out {args.out}: exists and is not a directory')
+        raise _sweep_error(f'--out {args.out}: exists and is not a directory')
+    if not args.cluster:
+        # a local pool's fork server loads the kernel (~0.55 s CPU) while this process
+        # imports numpy and the sweep, reads the scene and expands the sweep
+        from cvj_ros.sweep.server import start_fork_server, usable_cores
+        if (args.workers if args.workers is not None else usable_cores()) > 1:
+            start_fork_server()
+    from cvj_ros.physics.scene import find_scene
+    from cvj_ros.sweep.spec import SweepError, build_sweep
     from cvj_ros.commands.simulate import parse_fidelity
     from cvj_ros.sweep.run import RunOptions, execute, make_executor
     path = find_scene(args.scene)

@@ -98,6 +98,7 @@ class _Probe:
     mfp_slots: np.ndarray
     mfp_vals: np.ndarray
     energy: tuple[float, float]          # (kinetic, elastic) of x0
+    adjacent: dict[str, tuple[float, float]] | None = None  # fidelity._adjacent_inertias
 
 
 @dataclass
@@ -125,6 +126,10 @@ class _Template:
     vkeys: tuple[tuple[str, str], ...] = ()     # _value_key of each of ``values``
     x0_key: bytes = b''     # x0's bytes (Simulation._initial_energy's key)
     slices: Any = None      # reduce.checked_slices of the plan's sample times (every run's)
+    # the fidelity rule without numbers (no accuracy target, a chain): per axis True if its
+    # element is a spring, and the template's adjacent inertias; None: no such rule
+    springs: tuple[bool, ...] | None = None
+    adjacent: dict[str, tuple[float, float]] | None = None
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -196,9 +201,10 @@ class BatchRunner:
         values[axis] = value
         try:
             scene = parse_scene(apply_keys(self.job.base, self.job.keys, values))
-            if choose_fidelity(scene, overrides=dict(self.options.fidelity) or None
-                               ).levels != tpl.levels:
+            report = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None)
+            if report.levels != tpl.levels:
                 return None
+            adjacent = _adjacent(scene, report)
             sim = self._build(scene)
             if sim is None:
                 return None
@@ -214,7 +220,7 @@ class BatchRunner:
             return None
         fs = np.flatnonzero(_bits(model.fp) != _bits(tpl.fp0))
         ms = np.flatnonzero(_bits(mfp) != _bits(tpl.mfp0))
-        return _Probe(fs, model.fp[fs].copy(), ms, mfp[ms].copy(), energy)
+        return _Probe(fs, model.fp[fs].copy(), ms, mfp[ms].copy(), energy, adjacent)
 
     def _claim(self, tpl: _Template, axis: int, pr: _Probe) -> None:
         """Record which axis changes which slots; two axes on one slot end the batching of
@@ -254,7 +260,10 @@ class BatchRunner:
             scene = self.reparser.parse(values, vkeys)
             if scene.has_modes or scene.is_tree:
                 return self._full(values)
-            levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None).levels
+            levels = self._levels_of_template(scene, vkeys)
+            if levels is None:
+                levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None
+                                         ).levels
         except Exception:       # noqa: BLE001  (the per-variant path gives its row)
             return self._full(values)        # the same 'invalid' / 'failed' row
         skey = tuple(sorted(levels.items()))
@@ -300,6 +309,54 @@ class BatchRunner:
         self.stats['batched'] += 1
         return row, time.perf_counter() - t0
 
+    def _levels_of_template(self, scene: Any, vkeys: tuple[tuple[str, str], ...]
+                            ) -> dict[str, str] | None:
+        """choose_fidelity(scene).levels without running it, where they provably are the
+        only template's, else None (the caller runs it). Without an accuracy target the
+        rule reads no number for a level (a joint: forced, its only or its exact level; a
+        spring: forced or elastic); its numbers can only make it raise. The premise: every
+        key away from the template's value is element-local (the top level, names, kinds
+        and fidelity fields are the template's) and probed without error (so each joint's
+        error bounds and harmonic order, pure functions of its kind and parameters, were
+        computed for these very parameters), and at most one of them changes an element
+        other than a spring (so the adjacent inertias, a pure function of the inertias,
+        joints and spring names, are that probe's or the template's). What is left is each
+        spring's omega_n = sqrt(c (1/J_l + 1/J_r)), computed here with the variant's
+        stiffness: it raises for J = 0 or c (1/J_l + 1/J_r) < 0, and band / omega_n divides
+        by zero where it is 0 (c (1/J_l + 1/J_r) underflowing); such a variant (or one
+        where any premise fails) is left to choose_fidelity."""
+        if len(self.templates) != 1:
+            return None
+        tpl = next(iter(self.templates.values()))
+        springs = tpl.springs
+        if springs is None or not tpl.separable:
+            return None
+        adjacent = tpl.adjacent
+        other = False
+        for axis, (vk, tvk) in enumerate(zip(vkeys, tpl.vkeys)):
+            if vk == tvk:
+                continue
+            pr = tpl.probes.get((axis, vk)) if self.local[axis] else None
+            if pr is None:
+                return None
+            if not springs[axis]:
+                if other:
+                    return None
+                other = True
+                adjacent = pr.adjacent
+        if adjacent is None:
+            return None
+        from cvj_ros.physics.scene import Spring
+        try:
+            for el in scene.driveline:
+                if isinstance(el, Spring):
+                    j_l, j_r = adjacent[el.name]
+                    if math.sqrt(el.stiffness * (1.0 / j_l + 1.0 / j_r)) == 0.0:
+                        return None
+        except Exception:       # noqa: BLE001  (choose_fidelity then raises it)
+            return None
+        return tpl.levels
+
     def _new_template(self, skey: tuple[tuple[str, str], ...], scene: Any,
                       values: tuple[Any, ...], levels: dict[str, str],
                       t0: float) -> tuple[dict[str, Any], float]:
@@ -324,6 +381,14 @@ class BatchRunner:
         if tpl.fp.size != tpl.fp0.size:
             return row, time.perf_counter() - t0
         self.templates[skey] = tpl
+        if scene.accuracy_target is None:   # the rule without numbers: _levels_of_template
+            from cvj_ros.physics.fidelity import choose_fidelity
+            from cvj_ros.physics.scene import Spring
+            chain = scene.driveline
+            tpl.springs = tuple(isinstance(chain[int(k[1])], Spring) if local else False
+                                for k, local in zip(self.job.keys, self.local))
+            tpl.adjacent = _adjacent(scene, choose_fidelity(
+                scene, overrides=dict(self.options.fidelity) or None))
         tpl.lean = bind_lean(sim, plan, self.options.sampling)
         from cvj_ros.sweep.reduce import checked_slices
         tpl.slices = checked_slices(plan.times)
@@ -353,6 +418,21 @@ class BatchRunner:
         if reduced is None:
             fill(0)         # the numpy path reads every row
         return trace_row(trace, self.options, compiled=reduced is not None, reduced=reduced)
+
+
+def _adjacent(scene: Any, report: Any) -> dict[str, tuple[float, float]] | None:
+    """The adjacent inertias (J_l, J_r) per spring that ``choose_fidelity`` gave ``report``
+    used (fidelity._adjacent_inertias at its joint levels; {} without springs), or None for
+    a scene with an accuracy target or a vehicle (their rules read numbers)."""
+    from cvj_ros.physics.fidelity import _adjacent_inertias
+    from cvj_ros.physics.scene import Differential, Spring
+    if scene.accuracy_target is not None or scene.is_tree \
+            or any(isinstance(el, Differential) for el in scene.driveline):
+        return None
+    if not any(isinstance(el, Spring) for el in scene.driveline):
+        return {}
+    joints = {c.name: c.chosen for c in report.choices if c.element == 'joint'}
+    return _adjacent_inertias(scene, joints)
 
 
 def bind_lean(sim: Any, plan: Any, sampling: str) -> Any | None:

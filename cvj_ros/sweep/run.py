@@ -315,16 +315,13 @@ class ProcessExecutor:
         import concurrent.futures as cf
         import multiprocessing as mp
         self.workers = workers
-        # a threaded BLAS in every worker would oversubscribe the cores (see Makefile)
-        os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
         # forkserver: workers fork from a server that loaded the kernel once (preload.py);
-        # no fork of this (possibly threaded) process, no per-worker kernel load
+        # no fork of this (possibly threaded) process, no per-worker kernel load. Started
+        # now if the caller has not (cvj-sim sweep starts it before its own imports), while
+        # the caller builds the sweep and its manifest on the other core
+        from cvj_ros.sweep.server import start_fork_server
+        start_fork_server()
         ctx = mp.get_context('forkserver')
-        ctx.set_forkserver_preload(['cvj_ros.sweep.preload'])
-        # start the fork server (its kernel load, ~0.6 s CPU) now, while the caller builds
-        # the sweep and its manifest on the other core, not at the first task
-        from multiprocessing import forkserver
-        forkserver.ensure_running()
         self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                            initializer=_init_worker)
         self.futures: list[Any] = []
@@ -411,10 +408,8 @@ def make_executor(workers: int | None = None, cluster: str | Any | None = None) 
 
 def default_workers() -> int:
     """Cores this process may run on (sched_getaffinity), else os.cpu_count()."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
+    from cvj_ros.sweep.server import usable_cores
+    return usable_cores()
 
 
 ProgressFn = Callable[[int], None]

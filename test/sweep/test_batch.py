@@ -225,3 +225,77 @@ def test_orders_of_the_earring_with_its_speeds_alone() -> None:
         assert [repr(r) for r in rows] == [repr(o.row) for o in reference]
         col = f'{shaft or "drive_shaft"}.torque_order2'
         assert all(math.isfinite(r[col]) for r in rows)
+
+
+def _levels_checked(sets: list[str], base_changes: dict[int, Any] | None = None
+                    ) -> tuple[BatchRunner, list[Any], int, int]:
+    """Run the grid batched twice (listed axes), with choose_fidelity's levels checked
+    wherever BatchRunner._levels_of_template gives levels without it; the rows against the
+    per-variant path. Returns the runner, the rows, and how often the levels came from the
+    template and how often it declined."""
+    from cvj_ros.physics.fidelity import choose_fidelity
+    data = load_scene_data(find_scene('kavz685_lever'))
+    for k, v in (base_changes or {}).items():
+        data['driveline'][k]['J'] = v
+    sw = build_sweep(data, sets)
+    keys = tuple(a.keys for a in sw.axes)
+    listed = tuple(a.range is None and 1 < len(a.values) < len(sw.variants) for a in sw.axes)
+    job = Job(base=sw.base, keys=keys, options=RunOptions(), listed=listed)
+    items = list(enumerate(sw.variants))
+    reference = run_chunk(job, items, batched=False)
+    runner = BatchRunner(job)
+    counts = [0, 0]
+    original = runner._levels_of_template
+
+    def checked(scene: Any, vkeys: Any) -> Any:
+        levels = original(scene, vkeys)
+        counts[levels is None] += 1
+        if levels is not None:
+            assert levels == choose_fidelity(scene).levels
+        return levels
+    runner._levels_of_template = checked
+    rows = []
+    for _pass in range(2):
+        rows = [runner.run(values)[0] for _i, values in items]
+        assert [repr(r) for r in rows] == [repr(o.row) for o in reference]
+    return runner, rows, counts[0], counts[1]
+
+
+def test_fidelity_levels_of_the_template_without_an_accuracy_target() -> None:
+    """No accuracy target: a variant whose keys were all probed takes the template's
+    levels without choose_fidelity (a hinge angle and a stiffness at once included);
+    the same levels and rows as the per-variant path."""
+    runner, rows, fast, declined = _levels_checked(
+        ['duration=0.05', 'driveline[coupling].params.alpha_deg=5,15,25',
+         'driveline[bushings].stiffness=300,715.4,3000'])
+    # 18 runs: the first (no template yet) and 4 with an unprobed value in the first pass
+    # (a new value's probe comes after the levels) by choose_fidelity; the other 13 from
+    # the template (counted by hand from the grid order)
+    assert (fast, declined) == (13, 5)
+    assert runner.stats['templates'] == 1 and runner.stats['full'] == 1
+    assert all(r['status'] == 'ok' for r in rows)
+
+
+def test_fidelity_levels_fall_back_where_the_rule_could_raise() -> None:
+    """The guard: a stiffness of 5e-324 N m/rad beside a drive shaft of 1e6 kg m^2 (the
+    driven shaft 1e6 too) makes c (1/J_l + 1/J_r) underflow to 0 and choose_fidelity
+    divide by zero, though each value alone passes (both probes made, the premise holds):
+    that variant takes choose_fidelity and the per-variant path's 'failed' row."""
+    runner, rows, fast, declined = _levels_checked(
+        ['duration=0.05', 'driveline[drive_shaft].J=0.128,1e6',
+         'driveline[bushings].stiffness=715.4,5e-324'], base_changes={3: 1e6})
+    assert [r['status'] for r in rows] == ['ok'] * 3 + ['failed']
+    assert rows[3]['error'].startswith('ZeroDivisionError')
+    tpl = next(iter(runner.templates.values()))
+    assert tpl.springs == (False, False, True)
+    assert all(p is not None for p in tpl.probes.values()) and len(tpl.probes) == 2
+    # pass 1: the first variant and the two new values by choose_fidelity, the failing
+    # one by the guard; pass 2: three from the template, the failing one by the guard
+    assert (fast, declined) == (3, 5)
+
+
+def test_fidelity_levels_with_an_accuracy_target_are_chosen() -> None:
+    """An accuracy target makes the rule read numbers: every variant takes
+    choose_fidelity (the module's four-structure grid)."""
+    _runner, _rows, fast, _declined = _levels_checked(SETS)
+    assert fast == 0

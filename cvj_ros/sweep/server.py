@@ -1,0 +1,33 @@
+"""The local process pool's fork server, started without importing the sweep machinery.
+
+:func:`start_fork_server` sets the ``forkserver`` preload to :mod:`cvj_ros.sweep.preload`
+and starts the server: a fresh interpreter that imports numba and loads the compiled
+kernel (~0.55 s CPU), which every pool worker then forks from. ``cvj-sim sweep`` calls it
+before it imports numpy, the scene parser and the sweep's own modules, so the server's
+kernel load runs beside the command's start-up on the other core; the
+:class:`~cvj_ros.sweep.run.ProcessExecutor` calls it again (a no-op once running).
+"""
+from __future__ import annotations
+
+import os
+
+PRELOAD = ['cvj_ros.sweep.preload']
+
+
+def start_fork_server() -> None:
+    """Start (once per process) the fork server that loads the kernel for the pool."""
+    import multiprocessing as mp
+    from multiprocessing import forkserver
+    # a threaded BLAS in every worker would oversubscribe the cores (see Makefile); the
+    # server inherits this environment, and the workers the server's
+    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+    mp.get_context('forkserver').set_forkserver_preload(PRELOAD)
+    forkserver.ensure_running()
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (sched_getaffinity), else os.cpu_count()."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)

@@ -22,10 +22,22 @@ log) replayed as bare ``segment_nb._attempt`` calls (6 rhs calls, the stage argu
 error norm) at the logged sizes, without step control, rejected attempts, witnesses or
 samples (CPU time, median of 5 rounds of 20 replays).
 
+Beside them, in the same rounds, the expert on the same segments (when numbalsoda imports):
+numbalsoda's DOP853 (X) and LSODA (L) through ``bench_expert.mode_expert_cfunc`` from each
+segment's start state to its end (the run's event time or t_stop; the samples inside as
+t_eval, the ramps ending at t_stop as in ``bench_modes._expert_segment``), one compiled call
+per segment. Its rhs calls are counted twice: the cfunc's own counter in its parameter
+block, and a second cfunc of the same body that counts into an array of its own (fixed
+address, no parameter-block slot), on the same segments; the two must agree.
+
 A to G must reproduce the run's results bit for bit (checked before the timing).
 The copies compile into a scratch directory (~40 s each), not the package's cache.
+``--only A``: the unchanged module (and the expert) only, no copies. ``--base REV``: one
+more variant O, ``segment_nb.py`` and ``tree_modes_nb.py`` as of git revision REV, in the
+same rounds (a before/after pair under the same load; O must give A's results bit for bit).
 
-    PYTHONPATH=. python scripts/mode_segment_split.py TOL [ROUNDS] [SCRATCH_DIR]
+    PYTHONPATH=. python scripts/mode_segment_split.py TOL [ROUNDS] [SCRATCH_DIR] [--only A]
+        [--base REV]
 """
 from __future__ import annotations
 
@@ -90,6 +102,25 @@ def variants(src: str) -> dict[str, str]:
     }
 
 
+def base_variant(rev: str, scratch: Path) -> str:
+    """segment_nb.py as of git revision ``rev``, importing that revision's tree_modes_nb.py
+    (written into ``scratch`` as segvar_O_tm.py)."""
+    import subprocess
+    root = Path(km.__file__).parents[3]
+    texts = []
+    for name in ('segment_nb.py', 'tree_modes_nb.py'):
+        r = subprocess.run(['git', 'show', f'{rev}:cvj_ros/physics/kernel/{name}'], cwd=root,
+                           capture_output=True, text=True)
+        if r.returncode != 0 or not rev:
+            raise SystemExit(f'mode_segment_split: --base: no {name} at revision {rev!r}')
+        texts.append(r.stdout)
+    path = scratch / 'segvar_O_tm.py'
+    if not path.exists() or path.read_text() != texts[1]:
+        path.write_text(texts[1])
+    return texts[0].replace('from cvj_ros.physics.kernel.tree_modes_nb import',
+                            'from segvar_O_tm import')
+
+
 def capture(scene_name: str, tol: float, step_log: bool = False) -> list[list]:
     """Every run_segment call of one kernel run: its arguments and (out_i, out_f, y, hlog)
     after."""
@@ -123,27 +154,43 @@ def seg_args(c: list) -> tuple:
 
 
 def main() -> None:
+    argv = sys.argv[1:]
+    only = None
+    base = None
+    if '--base' in argv:
+        i = argv.index('--base')
+        base = argv[i + 1] if i + 1 < len(argv) else ''
+        del argv[i:i + 2]
+    if '--only' in argv:
+        i = argv.index('--only')
+        only = argv[i + 1:i + 2]
+        del argv[i:i + 2]
     try:
-        tol = float(sys.argv[1])
-        rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
-        if not (0.0 < tol < 1.0 and rounds > 0):
+        tol = float(argv[0])
+        rounds = int(argv[1]) if len(argv) > 1 else 5
+        if not (0.0 < tol < 1.0 and rounds > 0) or only not in (None, ['A']):
             raise ValueError
     except (IndexError, ValueError):
         raise SystemExit('mode_segment_split: usage: mode_segment_split.py TOL (0 < TOL < 1) '
                          '[ROUNDS > 0] [SCRATCH_DIR]') from None
-    scratch = Path(sys.argv[3] if len(sys.argv) > 3 else tempfile.mkdtemp(prefix='segsplit_'))
+    scratch = Path(argv[2] if len(argv) > 2 else tempfile.mkdtemp(prefix='segsplit_'))
     src = (Path(km.__file__).parent / 'segment_nb.py').read_text()
-    for v, text in variants(src).items():
+    texts = variants(src)
+    if only:
+        texts = {'A': texts['A']}
+    if base is not None:
+        texts['O'] = base_variant(base, scratch)
+    for v, text in texts.items():
         path = scratch / f'segvar_{v}.py'
         if not path.exists() or path.read_text() != text:     # unchanged: its cache holds
             path.write_text(text)
     sys.path.insert(0, str(scratch))
     scenes = {s: capture(s, tol) for s in SCENES}
     ents = {}
-    for v in 'ABCDEFGZ':
+    for v in texts:
         ents[v] = entry_point(importlib.import_module(f'segvar_{v}').mode_segment,
                               seg_args(scenes[SCENES[0]][0]))
-    for v in 'ABCDEFG':
+    for v in (x for x in 'ABCDEFGO' if x in texts):
         for s, segs in scenes.items():
             for c in segs:
                 a = seg_args(c)
@@ -159,18 +206,35 @@ def main() -> None:
             for x in xs:
                 ent(*x)
         return (time.process_time() - t0) / reps
-    res = {s: {v: [] for v in ents} for s in scenes}
+    experts = expert_setup(scenes)
+    res = {s: {v: [] for v in (*ents, *experts.get(s, {}))} for s in scenes}
     for r in range(rounds):
         for s, segs in scenes.items():
             reps = 20 if s == SCENES[0] else 4
             for v, ent in ents.items():
                 res[s][v].append(min(replay(ent, segs, reps) for _ in range(3)))
+            for v, (fn, cases, _n) in experts.get(s, {}).items():
+                res[s][v].append(min(expert_replay(fn, cases, reps) for _ in range(3)))
         print(f'round {r}, load {os.getloadavg()[0]:.2f}', flush=True)
     for s, segs in scenes.items():
         nacc = sum(int(c[17][0][3]) for c in segs)
         nfev = sum(int(c[17][0][4]) for c in segs)
         nev = sum(1 for c in segs if c[17][0][1] >= 0)
         m = {v: float(np.median(x)) for v, x in res[s].items()}
+        print(f'{s} rtol {tol:g}: kernel dopri5 segments {m["A"] * 1e3:.3f} ms, {nfev} rhs '
+              f'calls, {m["A"] / nfev * 1e9:.0f} ns per rhs call all in')
+        if 'O' in m:
+            print(f'{s} rtol {tol:g}: the base revision\'s segments {m["O"] * 1e3:.3f} ms '
+                  f'({m["O"] / nfev * 1e9:.0f} ns per rhs call all in); this / base '
+                  f'{m["A"] / m["O"]:.2f}x (per-round ratios '
+                  + ', '.join(f'{a / o:.2f}' for a, o in zip(res[s]['A'], res[s]['O'])) + ')')
+        for v, (_fn, cases, calls) in experts.get(s, {}).items():
+            print(f'{s} rtol {tol:g}: numbalsoda {EXPERTS[v]} on the same {len(cases)} '
+                  f'segments {m[v] * 1e3:.3f} ms, {calls} rhs calls (both counters), '
+                  f'{m[v] / calls * 1e9:.0f} ns per rhs call all in; expert / kernel '
+                  f'{m[v] / m["A"]:.2f}x')
+        if 'B' not in m:
+            continue
         rhs, wit, ev, setup = m['B'] - m['A'], m['C'] - m['A'], m['E'] - m['A'], m['Z']
         arg, norm, rhs_g = m['D'] - m['A'], m['F'] - m['A'], m['G'] - m['A']
         n_g = 5 * (nacc + sum(int(c[17][0][5]) for c in segs))     # G's calls: 5 per attempt
@@ -190,23 +254,141 @@ def main() -> None:
         attempts_only(s, tol)
 
 
+EXPERTS = {'X': 'dop853', 'L': 'lsoda'}
+
+
+def _counting_cfunc(counter: np.ndarray):  # noqa: ANN202
+    """mode_expert_cfunc's body, counting its calls into ``counter[0]`` (its address a
+    compile-time constant) instead of the parameter block."""
+    import numba as nb
+    from numba import types
+
+    from cvj_ros.bench_expert import P_FP, P_IP, P_KIND, P_NFP, P_NIP, P_NSC, P_NSTATE, P_SC
+    from cvj_ros.bench_expert import _pointer_intrinsic
+    from cvj_ros.physics.kernel.modes_nb import mode_eval
+    from cvj_ros.physics.kernel.tree_modes_nb import tm_eval
+    _as_pointer = _pointer_intrinsic()
+    addr = int(counter.ctypes.data)
+    sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
+                     types.CPointer(types.double))
+
+    @nb.cfunc(sig)
+    def f(t, u, du, p):  # noqa: ANN001, ANN202
+        cnt = nb.carray(_as_pointer(np.int64(addr)), (1,), dtype=np.float64)
+        cnt[0] += 1.0
+        n = np.int64(p[P_NSTATE])
+        ip = nb.carray(_as_pointer(np.int64(p[P_IP])), (np.int64(p[P_NIP]),), dtype=np.int64)
+        fp = nb.carray(_as_pointer(np.int64(p[P_FP])), (np.int64(p[P_NFP]),), dtype=np.float64)
+        sc = nb.carray(_as_pointer(np.int64(p[P_SC])), (np.int64(p[P_NSC]),), dtype=np.float64)
+        y = nb.carray(u, (n,))
+        dy = nb.carray(du, (n,))
+        if p[P_KIND] == 0.0:
+            mode_eval(t, y, ip, fp, dy, sc, False)
+        else:
+            tm_eval(t, y, ip, fp, dy, sc, False)
+    return f
+
+
+def expert_cases(segs: list[list]) -> list[tuple]:
+    """numbalsoda's arguments per recorded segment of non-zero length: (kind, y0, t_eval,
+    parameter block, rtol, atol, the arrays the block points at)."""
+    from cvj_ros.bench_expert import mode_expert_data
+    from cvj_ros.physics.kernel.modes_nb import MH_RAMP_B, MH_RAMP_C, MH_RAMP_T
+    from cvj_ros.physics.kernel.tree_modes_nb import MB_RAMP_B, MB_RAMP_C, MB_RAMP_T
+    out = []
+    for c in segs:
+        kind, t, t_stop, y, ip, fp, rtol, atol = (int(c[0]), float(c[2]), float(c[3]), c[4],
+                                                  c[5], c[6].copy(), float(c[7]), c[8])
+        t_end = float(c[17][1][0])
+        if kind == 0:
+            ramps = (ip[MH_RAMP_T], ip[MH_RAMP_C], ip[MH_RAMP_B])
+        else:
+            mb = ip[-1]
+            ramps = (ip[mb + MB_RAMP_T], ip[mb + MB_RAMP_C], ip[mb + MB_RAMP_B])
+        for off in ramps:
+            fp[off + 1 + 2 * int(fp[off])] = t_stop
+        eps = 1e-12 * max(1.0, abs(t_end))
+        if t_end - t <= eps:
+            continue
+        if np.ptp(atol) != 0.0:
+            raise SystemExit('mode_segment_split: numbalsoda takes one scalar atol')
+        samp = c[11][int(c[12]):]
+        samp = samp[(samp > t + eps) & (samp < t_end - eps)]
+        t_eval = np.concatenate(([t], samp, [t_end]))
+        sc = np.zeros(256)
+        data = mode_expert_data(kind, ip, fp, y.size, sc)
+        out.append((kind, y.copy(), t_eval, data, rtol, float(atol[0]), (ip, fp, sc)))
+    return out
+
+
+def expert_setup(scenes: dict[str, list]) -> dict[str, dict[str, tuple]]:
+    """Per scene {'X': (numbalsoda dop853's compiled entry, its arguments per segment, the rhs
+    calls of one replay), 'L': the same for lsoda}; the two counters must agree (else
+    SystemExit). {} without numbalsoda."""
+    from cvj_ros.bench_expert import P_COUNT, mode_expert_cfunc, unavailable_reason
+    if unavailable_reason():
+        print(f'mode_segment_split: expert skipped: {unavailable_reason()}')
+        return {}
+    import numbalsoda
+    addr = mode_expert_cfunc().address
+    counter = np.zeros(1)
+    addr_count = _counting_cfunc(counter).address
+    out: dict[str, dict[str, tuple]] = {}
+    for s, segs in scenes.items():
+        cases = expert_cases(segs)
+        out[s] = {}
+        for v, meth in EXPERTS.items():
+            disp = getattr(numbalsoda, meth)
+            k, y0, t_eval, data, rtol, atol, _keep = cases[0]
+            a = (addr, y0.copy(), t_eval, data, rtol, atol, 1_000_000)
+            disp(*a)
+            fn = disp.overloads[tuple(disp.typeof_pyval(x) for x in a)].entry_point
+            own = 0
+            counter[0] = 0.0
+            for k, y0, t_eval, data, rtol, atol, _keep in cases:
+                data[P_COUNT] = 0.0
+                sol, ok = fn(addr, y0.copy(), t_eval, data, rtol, atol, 1_000_000)
+                if not ok:
+                    raise SystemExit(f'mode_segment_split: numbalsoda {meth} failed on {s}')
+                own += int(data[P_COUNT])
+                fn(addr_count, y0.copy(), t_eval, data, rtol, atol, 1_000_000)
+            if own != int(counter[0]):
+                raise SystemExit(f'mode_segment_split: numbalsoda {meth} on {s}: the counters '
+                                 f'disagree ({own} against {int(counter[0])})')
+            out[s][v] = (fn, [(addr, *c[1:]) for c in cases], own)   # c[6]: kept alive
+    return out
+
+
+def expert_replay(fn, cases, reps):  # noqa: ANN001, ANN201
+    """CPU time (s) of one replay of numbalsoda's calls on a scene's segments (the mean of
+    ``reps``; the start states copied before the clock)."""
+    xs = [[(c[0], c[1].copy(), c[2], c[3], c[4], c[5]) for c in cases] for _ in range(reps)]
+    t0 = time.process_time()
+    for row in xs:
+        for addr, y0, t_eval, data, rtol, atol in row:
+            fn(addr, y0, t_eval, data, rtol, atol, 1_000_000)
+    return (time.process_time() - t0) / reps
+
+
 def attempts_only(scene_name: str, tol: float) -> None:
     """Print the cost of the run's accepted steps as bare _attempt calls (docstring)."""
     from numba import njit
 
+    from cvj_ros.physics.kernel.borrow_nb import borrowed_all
     from cvj_ros.physics.kernel.modes_nb import MH_N, N_SCRATCH_EXTRA
-    from cvj_ros.physics.kernel.segment_nb import _attempt, _f
+    from cvj_ros.physics.kernel.segment_nb import _attempt, _f, _scratch
     from cvj_ros.physics.kernel.steppers_nb import FS_T, NCNT, NFS
     from cvj_ros.physics.kernel.tree_modes_nb import MB_NWIT
 
     @njit
     def mesh(kind, t0, y0, ip, fp, rtol, atol, hs, sc, reps):  # noqa: ANN001, ANN202
+        y0, ip, fp, atol, hs, sc = borrowed_all((y0, ip, fp, atol, hs, sc))
         n = y0.shape[0]
-        K = np.zeros((7, n))
-        work = np.zeros((4, n))
-        fs = np.zeros(NFS)
+        K = _scratch(7, n)                 # as mode_segment: borrowed arguments, stack scratch
+        work = _scratch(4, n)
+        fs = _scratch(1, NFS)[0]
         cnt = np.zeros(NCNT, np.int64)
-        y = y0.copy()
+        y = _scratch(1, n)[0]
         for _ in range(reps):
             y[:] = y0
             t = t0

@@ -54,3 +54,19 @@ def test_bad_arguments_one_line(args: list[str]) -> None:
     assert out.stderr.strip().splitlines() == [
         'mode_segment_split: usage: mode_segment_split.py TOL (0 < TOL < 1) [ROUNDS > 0] '
         '[SCRATCH_DIR]']
+
+
+def test_base_variant_imports_that_revisions_tree_rhs(tmp_path: Path) -> None:
+    """--base REV: segment_nb.py of REV importing REV's tree_modes_nb.py (written beside it);
+    an unknown revision is one line."""
+    text = mss.base_variant('HEAD', tmp_path)
+    head = subprocess.run(['git', 'show', 'HEAD:cvj_ros/physics/kernel/segment_nb.py'],
+                          cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    assert text == head.replace('from cvj_ros.physics.kernel.tree_modes_nb import',
+                                'from segvar_O_tm import')
+    assert 'from segvar_O_tm import' in text
+    tm = subprocess.run(['git', 'show', 'HEAD:cvj_ros/physics/kernel/tree_modes_nb.py'],
+                        cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    assert (tmp_path / 'segvar_O_tm.py').read_text() == tm
+    with pytest.raises(SystemExit, match="no segment_nb.py at revision 'no-such-rev'"):
+        mss.base_variant('no-such-rev', tmp_path)

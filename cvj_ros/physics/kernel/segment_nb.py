@@ -33,6 +33,9 @@ stops there; the discrete transition is the caller's (``kernel/modes.py``,
 One loop for both kinds and all methods: numba binds a callee at compile time and does not
 cache a function that takes a function argument (a cache miss in every process), so the
 right-hand side is chosen by the ``kind`` flag (:func:`_f`) and the stepper by ``method``.
+:func:`mode_segment` borrows its array arguments (``borrow_nb.borrowed_all``) and keeps its
+float scratch in its stack frame (``borrow_nb.stack_zeros_2d``), so the steps' rhs calls
+pass arrays without NRT reference counts, as the continuous steppers' entry points.
 """
 from __future__ import annotations
 
@@ -41,6 +44,7 @@ import math
 import numpy as np
 from numba import njit
 
+from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, borrowed_all, stack_zeros_2d
 from cvj_ros.physics.kernel.modes_jac_nb import mode_jac
 from cvj_ros.physics.kernel.modes_nb import (FS_HUSED, M_DOP853, M_DOPRI5, MH_N, MH_NWIT,
                                              MH_RAMP_B, MH_RAMP_C, MH_RAMP_T, MH_WIT,
@@ -69,6 +73,15 @@ M_ERK = 3
 RP_GAMMA, RP_ORDER, RP_FACMAX = 0, 1, 2
 _EPS = np.finfo(float).eps
 _XTOL = 4 * _EPS
+
+
+@njit(cache=True, inline='always')
+def _scratch(rows, cols):
+    """A zeroed (rows, cols) float64 array in the calling function's stack frame
+    (``borrow_nb.stack_zeros_2d``), np.zeros above STACK_MAX_DOUBLES."""
+    if rows * cols <= STACK_MAX_DOUBLES:
+        return stack_zeros_2d(rows, cols)
+    return np.zeros((rows, cols))
 
 
 @njit(cache=True, inline='always')
@@ -399,7 +412,7 @@ def _d8_dense(kind, t, y, y_old, ip, fp, fs, cnt, D, A_EXTRA, C_EXTRA, K, out, s
             out[i] = y_old[i]
         return
     if cnt[C_DENSE] == 0:
-        arg = np.empty(n)
+        arg = _scratch(1, n)[0]
         for r in range(3):
             s = 13 + r
             for i in range(n):
@@ -513,7 +526,7 @@ def _erk_dense(kind, t, y, y_old, ip, fp, fs, cnt, P, A_EXTRA, C_EXTRA, K, out, 
     s_all = P.shape[0]
     ns = s_all - C_EXTRA.shape[0]
     if cnt[C_DENSE] == 0 and s_all > ns:
-        arg = np.empty(n)
+        arg = _scratch(1, n)[0]
         for r in range(s_all - ns):
             s = ns + r
             for i in range(n):
@@ -729,19 +742,25 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
     accepted steps, rhs evaluations, rejected steps, logged steps; out_f: end time (s), the
     step proposal at the end (s) and, given a third slot, the last accepted step's length
     (s)."""
+    # the arguments as borrowed views (borrow_nb: the caller holds them for the call), the
+    # scratch in this frame's stack: no atomic reference counts in the steps' calls
+    y, ip, fp, atol, t_samp, Y, hlog, out_i, out_f = borrowed_all(
+        (y, ip, fp, atol, t_samp, Y, hlog, out_i, out_f))
+    C8, A8, B8, E5, E3, D8, AX, CX, rp = borrowed_all((C8, A8, B8, E5, E3, D8, AX, CX, rp))
+    ros = borrowed_all(ros)
     ns = y.shape[0]
     if kind == KIND_CHAIN:
         nw = ip[MH_NWIT]
         w0 = ip[MH_WIT]
         wstride = 3
-        sc = np.zeros(ip[MH_N] + N_SCRATCH_EXTRA)
+        sc = _scratch(1, ip[MH_N] + N_SCRATCH_EXTRA)[0]
         r_t, r_c, r_b = ip[MH_RAMP_T], ip[MH_RAMP_C], ip[MH_RAMP_B]
     else:
         mb = ip[ip.shape[0] - 1]
         nw = ip[mb + MB_NWIT]
         w0 = ip[mb + MB_WIT]
         wstride = WIT_STRIDE
-        sc = np.zeros(max(nw, 1))
+        sc = _scratch(1, max(nw, 1))[0]
         r_t, r_c, r_b = ip[mb + MB_RAMP_T], ip[mb + MB_RAMP_C], ip[mb + MB_RAMP_B]
     # the commands at and beyond t_stop (the last stage, the witnesses there): a jump at
     # t_stop seen from the left, as the reference (commands.Ramp.at)
@@ -761,21 +780,23 @@ def mode_segment(kind, method, t0, t_stop, y, ip, fp, rtol, atol, max_step, h_in
     else:
         nk = ros[2].shape[0] + 2          # f, the stages, f at the step start
         order = int(rp[RP_ORDER])
-    K = np.zeros((nk, ns))
+    K = _scratch(nk, ns)
     fsal = 6 if method == M_DOPRI5 else (B8.shape[0] - 1 if method == M_ERK else B8.shape[0])
-    work = np.zeros((4, ns))
-    y_old = np.zeros(ns)
-    yy = np.zeros(ns)
-    dy = np.zeros(ns)
+    work = _scratch(4, ns)
+    vecs = _scratch(3, ns)
+    y_old = vecs[0]
+    yy = vecs[1]
+    dy = vecs[2]
     ros_m = ns if method == M_ROSENBROCK else 0
-    J = np.zeros((ros_m, ros_m))
-    LU = np.zeros((ros_m, ros_m))
+    J = _scratch(ros_m, ros_m)
+    LU = _scratch(ros_m, ros_m)
     piv = np.zeros(ros_m, np.int64)
-    ft = np.zeros(ros_m)
-    g_old = np.zeros(max(nw, 1))
-    g_new = np.zeros(max(nw, 1))
-    wv = np.zeros(max(nw, 1))
-    fs = np.zeros(NFS)
+    ft = _scratch(1, ros_m)[0]
+    gs = _scratch(3, max(nw, 1))
+    g_old = gs[0]
+    g_new = gs[1]
+    wv = gs[2]
+    fs = _scratch(1, NFS)[0]
     cnt = np.zeros(NCNT, np.int64)
     fs[FS_T] = t0
     fs[FS_ERROLD] = 1e-4        # the PI controller's memory at a start (kernel/stepper.py)

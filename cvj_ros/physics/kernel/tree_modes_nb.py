@@ -39,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from cvj_ros.physics.kernel import rhs_nb as _rhs
+from cvj_ros.physics.kernel.borrow_nb import STACK_MAX_DOUBLES, stack_zeros_2d
 from cvj_ros.physics.kernel.layout import (
     H_ENGINE_F, H_NDOF, H_SPRING_F, H_TREE, OP_INERTIA, SEC_STRIDE, SPRING_STRIDE, TB_BODY_F,
     TB_DIFF, TB_GRP, TB_KMAX, TB_ND, TB_NG, TB_NS, TB_NSPR, TB_NW, TB_OPS, TB_SEC, TB_SPR,
@@ -63,6 +64,7 @@ N_TC = 13
 (R_Q, R_QD, R_BIAS, R_QF, R_PHI, R_A, R_B, R_M, R_C, R_FZ, R_GRIP, R_FX, R_EXTRA, R_ACC, R_ST,
  R_LINKT, R_FF, R_YY, R_XX, R_SPRT) = range(20)
 N_ROWS = 20
+MAX_SEC_OPS = 64        # ops of one section (the backward walk's per-op rows)
 
 
 @njit(cache=True, inline='always')
@@ -190,9 +192,10 @@ def _walk(ip, fp, W, r0, m0, l0, qrow, acc, st):
     mb = ip[ip.shape[0] - 1]
     sx = ip[mb + MB_SECX]
     _accelerations(ip, fp, W, r0, m0, l0, qrow, acc)
-    a_op = np.empty(64)
-    b_op = np.empty(64)
-    r_op = np.empty(64)
+    ops3 = stack_zeros_2d(3, MAX_SEC_OPS)        # per op: a, b, ratio (no heap allocation)
+    a_op = ops3[0]
+    b_op = ops3[1]
+    r_op = ops3[2]
     for s in range(ns - 1, -1, -1):
         o = sec + SEC_STRIDE * s
         x = sx + SECX_STRIDE * s
@@ -248,7 +251,9 @@ def _walk(ip, fp, W, r0, m0, l0, qrow, acc, st):
 @njit(cache=True)
 def tm_eval(t, y, ip, fp, dy, wv, want):
     """dy/dt of the mode state y = [u, udot, kappa', v, W_engine, W_damp, W_slip, W_road,
-    W_friction] into dy (module docstring); want: also the witness values into wv."""
+    W_friction] into dy (module docstring); want: also the witness values into wv. The
+    scratch rows are zeroed in this call's stack frame (``borrow_nb.stack_zeros_2d``, as
+    ``tree_nb.tree_rhs``): no heap allocation per call."""
     n = ip[H_NDOF]
     tb = ip[H_TREE]
     ns = ip[tb + TB_NS]
@@ -261,12 +266,18 @@ def tm_eval(t, y, ip, fp, dy, wv, want):
     sx = ip[mb + MB_SECX]
     width = max(max(ns, nw), max(kmax, max(ip[mb + MB_NLINK], 1)))
     width = max(width, max(ip[tb + TB_NSPR], n))
-    W = np.zeros((N_ROWS + ns + 2 * kmax, width))
+    rows = N_ROWS + ns + 2 * kmax
+    # the scratch rows, then acc (uddot) and st (the walk's section torques): zeroed in this
+    # call's stack frame, no heap allocation per call (a larger tree: np.zeros)
+    if (rows + 2) * width <= STACK_MAX_DOUBLES:
+        W = stack_zeros_2d(rows + 2, width)
+    else:
+        W = np.zeros((rows + 2, width))
     r0 = N_ROWS
     m0 = N_ROWS + ns
     l0 = m0 + kmax
-    acc = np.zeros(n)
-    st = np.zeros(ns)
+    acc = W[rows]
+    st = W[rows + 1]
     ck, cs, fb = commands(t, ip, fp)
     # kinematics in tree order (TreeDriveline._kinematics)
     for s in range(ns):

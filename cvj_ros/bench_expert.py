@@ -123,7 +123,9 @@ def expert_cfunc() -> Any:
     sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
                      types.CPointer(types.double))
 
-    @nb.cfunc(sig, cache=True)
+    # not cached: its key holds the intrinsic made in this process, so a disk cache would
+    # never hit and would grow by a file per process (~1 s to compile on warm kernels)
+    @nb.cfunc(sig)
     def f(t, u, du, p):   # pragma: no cover - compiled
         n = np.int64(p[P_NSTATE])
         ip = nb.carray(_as_pointer(np.int64(p[P_IP])), (np.int64(p[P_NIP]),), dtype=np.int64)
@@ -165,7 +167,9 @@ def mode_expert_cfunc() -> Any:
     sig = types.void(types.double, types.CPointer(types.double), types.CPointer(types.double),
                      types.CPointer(types.double))
 
-    @nb.cfunc(sig, cache=True)
+    # not cached: its key holds the intrinsic made in this process, so a disk cache would
+    # never hit and would grow by a file per process (~1 s to compile on warm kernels)
+    @nb.cfunc(sig)
     def f(t, u, du, p):   # pragma: no cover - compiled
         n = np.int64(p[P_NSTATE])
         ip = nb.carray(_as_pointer(np.int64(p[P_IP])), (np.int64(p[P_NIP]),), dtype=np.int64)

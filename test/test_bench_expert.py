@@ -197,3 +197,10 @@ def test_expert_rounds_bad_input_is_one_line(args: list[str], message: str) -> N
     assert out.returncode != 0
     assert out.stderr.strip().startswith(message) and len(out.stderr.strip().splitlines()) == 1
     assert 'Traceback' not in out.stderr
+
+
+def test_expert_cfuncs_are_not_disk_cached() -> None:
+    """The cfuncs close over an intrinsic made in each process: numba's cache key would differ
+    in every process, so a disk cache would never hit and would grow by a file per process."""
+    assert type(bench_expert.expert_cfunc()._cache).__name__ == 'NullCache'
+    assert type(bench_expert.mode_expert_cfunc()._cache).__name__ == 'NullCache'

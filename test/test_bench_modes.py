@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 pytest.importorskip('numba')
@@ -111,19 +112,71 @@ def test_cli_mode_scene_selection() -> None:
         modes('--mode-scenes', 'cardan_truck')
 
 
+#: launch_clutch's engine passes 1000 rpm, the first node of the default full-load table, at
+#: t = 1.2648 s (the throttle ramp 1.0 -> 1.3 s, clutch open)
+FULL_LOAD_END_CROSSING = 1.2648
+
+
 @pytest.mark.slow
 def test_kernel_reference_of_a_vehicle_is_the_python_reference() -> None:
     """The bench's reference of a vehicle scene (the kernel, dopri5 at rtol 1e-13) against
     the Python reference (dop853 at rtol 1e-12) on launch_clutch's first 3 s (brake hold,
-    release, clutch lock): the same events, times and samples within 1e-10 (relative; the
-    bench's finest level is 1e-8). Measured: 3.3e-12 s, 3.0e-11."""
+    release, clutch lock): the same events, times within 1e-10 * 3 s (measured 3.8e-11 s).
+    Samples, relative to the largest speed: within 1e-11 while the engine map is smooth
+    (measured 2.4e-13); from the engine's passage through 1000 rpm within 1e-9 (measured
+    3.3e-10). There the full-load curve, a PCHIP held constant outside its table (Fritsch and
+    Carlson 1980), is only C1: T'' jumps, dop853's error estimate does not see it, and its
+    step across lands 2.1e-8 rad/s off (1.9e-10 of the engine speed; the kernel is the
+    accurate side: next test), carried to 8.7e-8 rad/s by the clutch lock at 2.69 s. That
+    error depends on where the passage falls inside dop853's step: 1.6e-9 rad/s when this
+    test was written."""
     scene = load_scene(shipped_scenes()['launch_clutch'])
     rk = bench_modes.reference_run(scene, 3.0, 0.1, 'kernel')
     rp = bench_modes.reference_run(scene, 3.0, 0.1, 'python')
     assert [(e.element, e.after) for e in rk.events] == [(e.element, e.after) for e in rp.events]
     assert ('clutch', 'stuck') in [(e.element, e.after) for e in rk.events]
     assert max(abs(a.t - b.t) for a, b in zip(rk.events, rp.events)) < 1e-10 * 3.0
-    assert abs(rk.speed - rp.speed).max() < 1e-10 * abs(rp.speed).max()
+    scale = abs(rp.speed).max()
+    smooth = rk.t < FULL_LOAD_END_CROSSING
+    assert 10 <= smooth.sum() < len(rk.t)
+    assert abs(rk.speed - rp.speed)[smooth].max() < 1e-11 * scale
+    assert abs(rk.speed - rp.speed).max() < 1e-9 * scale
+
+
+@pytest.mark.slow
+def test_kernel_reference_is_accurate_across_the_full_load_curves_end() -> None:
+    """A third run of launch_clutch's segment 1.0 -> 1.3 s (clutch open, throttle ramp):
+    solve_ivp DOP853 at rtol 1e-13 on the Python reference's mode rhs from its state at
+    1.0 s, split where the engine passes 1000 rpm (the full-load table's first node, where
+    T'' jumps: no step spans it), gives the kernel reference's engine speed at 1.3 s within
+    1e-11 of it (measured 7.7e-13; the unsplit dop853 reference is 1.9e-10 off)."""
+    from scipy.integrate import solve_ivp
+    scene = load_scene(shipped_scenes()['launch_clutch'])
+    sim = hybrid_simulation(scene, method='dop853', rtol=1e-12, atol=1e-14, sample_dt=0.1,
+                            duration=1.0)
+    r0 = sim.run()
+    assert r0.t_end == 1.0 and not r0.events[2:]       # the brakes hold, the clutch is open
+    mt = sim.tree(r0.final_mode)
+    y0, _loss = mt.from_state(r0.final, False)
+
+    def fun(t: float, y: np.ndarray) -> np.ndarray:
+        return sim._eval(mt, t, y, False).ydot
+
+    def rpm_1000(t: float, y: np.ndarray) -> float:
+        return sim._eval(mt, t, y, False).engine_speed * 30.0 / math.pi - 1000.0
+
+    rk = bench_modes.reference_run(scene, 1.5, 0.1, 'kernel')
+    (k,), = np.nonzero(abs(rk.t - 1.3) < 1e-9)
+    t_s = float(rk.t[k])                    # the sample at 1.3 s, the end of the segment
+    assert rk.shafts[0] == 'engine_crank'
+    kw = dict(method='DOP853', rtol=1e-13, atol=1e-15)
+    whole = solve_ivp(fun, (1.0, t_s), y0, events=rpm_1000, **kw)
+    (t_c,), = whole.t_events
+    assert abs(t_c - FULL_LOAD_END_CROSSING) < 1e-4
+    a = solve_ivp(fun, (1.0, t_c), y0, **kw)
+    b = solve_ivp(fun, (t_c, t_s), a.y[:, -1], **kw)
+    w_third = sim._eval(mt, t_s, b.y[:, -1], False).engine_speed
+    assert abs(rk.speed[k, 0] - w_third) < 1e-11 * w_third
 
 
 def test_mode_study_of_a_vehicle_takes_the_kernel_reference() -> None:

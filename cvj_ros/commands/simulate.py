@@ -78,7 +78,9 @@ def parse_fidelity(items: list[str]) -> dict[str, str]:
 def format_summary(summary: dict) -> str:
     """Human-readable summary text."""
     lines = [f"scene {summary['scene']}: {summary['duration']:g} s simulated, "
-             f"wall {summary['wall_time']:.3f} s ({summary['wall_per_sim_second']:.4g} s per simulated s)"]
+             f"wall {summary['wall_time']:.3f} s ({summary['wall_per_sim_second']:.4g} s per simulated s)"
+             + (f", including {summary['compile_seconds']:.1f} s compiling the kernel (first run)"
+                if summary.get('compile_seconds') else '')]
     sol = summary['solver']
     lines.append(f"solver {sol['method']} rtol {sol['rtol']:g} atol {sol['atol']:g}: "
                  f"{sol.get('naccept', 0)} steps, {sol.get('nreject', 0)} rejected, "
@@ -217,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'cvj-sim simulate: compiled the kernel in {sim.compile_seconds:.1f} s (first run; '
               f'cached in {sim.cache_path} for later runs)', file=sys.stderr)
     summary = sim.summary(transient=args.transient)
+    if sim.compile_seconds:   # inside the run's wall time: said on the summary's first line
+        summary['compile_seconds'] = float(sim.compile_seconds)
     summary['notes'] = degenerate_notes(scene, sim, summary, trace)
     if args.csv:
         trace.to_csv(args.csv)

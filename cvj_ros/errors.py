@@ -6,6 +6,29 @@ the offending field or parameter: ``"joints[1].beta_deg: must be < 90, got 95"``
 """
 from __future__ import annotations
 
+import ast
+import re
+
+
+def not_a_number(value: object) -> str:
+    """The message for a value that must be a number: ``must be a number, got X``; when X is
+    text that reads as a finite number (``1e6``, ``1.0e300``), it says why: YAML 1.1, which
+    PyYAML implements, reads a number with an exponent as a float only with a dot in the
+    mantissa and a sign in the exponent (``1.0e+6``); YAML 1.2 (and most editors) would
+    take it as a number."""
+    if isinstance(value, str):
+        try:
+            v = float(value.strip().replace('_', ''))
+        except ValueError:
+            v = float('nan')
+        if 'e' in value.lower() and v == v and abs(v) != float('inf'):
+            digits = next(d for d in range(17) if float(f'{v:.{d}e}') == v)
+            mant, _, exp = f'{v:.{digits}e}'.partition('e')
+            fixed = f'{mant if "." in mant else mant + ".0"}e{exp}'
+            return (f'must be a number, got the text {value!r} (YAML 1.1, as read here, takes a '
+                    f'number with an exponent only with a dot and a signed exponent: write {fixed})')
+    return f'must be a number, got {value!r}'
+
 
 class CvjError(Exception):
     """Base class of all user-facing cvj_ros errors."""
@@ -32,7 +55,15 @@ class SceneError(CvjError, ValueError):
 
     def __init__(self, field: str, message: str) -> None:
         self.field = field
+        # the scene checks' "must be a number, got '<text>'": with the YAML 1.1 reason when
+        # the text reads as a number (not_a_number)
+        m = _NOT_A_NUMBER_TEXT.fullmatch(message)
+        if m:
+            message = not_a_number(ast.literal_eval(m.group(1)))
         super().__init__(f'{field}: {message}')
+
+
+_NOT_A_NUMBER_TEXT = re.compile(r"must be a number, got ('[^'\\]*')")
 
 
 class SolverError(CvjError, RuntimeError):

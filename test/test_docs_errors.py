@@ -188,6 +188,9 @@ RECIPES: dict[str, Callable[[Path, pytest.MonkeyPatch], list[str]]] = {
         lambda d, m: _scene(d, _set('driveline[2].kind', 'hoke')),
     "driveline[2].params.beta: unknown parameter; did you mean 'beta_deg'?":
         lambda d, m: _scene(d, _set('driveline[2].params', {'beta': 15.0})),
+    "driveline[0].J: must be a number, got the text '1.0e300' (YAML 1.1, as read here, takes a number "
+    "with an exponent only with a dot and a signed exponent: write 1.0e+300)":
+        lambda d, m: _scene(d, text=yaml.safe_dump(VALID, sort_keys=False).replace('J: 0.128', 'J: 1.0e300')),
     "driveline[1].stiffness: must be a number, got '715.4 N m/rad'":
         lambda d, m: _scene(d, _set('driveline[1].stiffness', '715.4 N m/rad')),
     'driveline[0].J: must be a number, got [0.1]': lambda d, m: _scene(d, _set('driveline[0].J', [0.1])),
@@ -255,6 +258,10 @@ NEEDS_A_RUN: dict[str, str] = {
     'lockstep: /engine/wrench has 2 publishers': 'the same test (its peers discovered first)',
     '--external load: no outside node published': 'test/e2e/test_vehicle_stack.py',
     '--external load: no': 'the same, quoted across lines in a fenced block of docs/ros.md',
+    '--external load: /load/wrench is published by /wrong_stack as std_msgs/msg/String':
+        'test/e2e/test_vehicle_stack.py::test_run_external_names_a_publisher_of_the_wrong_type',
+    "seed: must be of type INTEGER, got 'abc' (STRING)":
+        'test/nodes/test_params.py::test_bad_parameter_exits_2_with_one_line',
 }
 
 

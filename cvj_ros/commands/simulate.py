@@ -78,7 +78,9 @@ def parse_fidelity(items: list[str]) -> dict[str, str]:
 def format_summary(summary: dict) -> str:
     """Human-readable summary text."""
     lines = [f"scene {summary['scene']}: {summary['duration']:g} s simulated, "
-             f"wall {summary['wall_time']:.3f} s ({summary['wall_per_sim_second']:.4g} s per simulated s)"]
+             f"wall {summary['wall_time']:.3f} s ({summary['wall_per_sim_second']:.4g} s per simulated s)"
+             + (f", including {summary['compile_seconds']:.1f} s compiling the kernel (first run)"
+                if summary.get('compile_seconds') else '')]
     sol = summary['solver']
     lines.append(f"solver {sol['method']} rtol {sol['rtol']:g} atol {sol['atol']:g}: "
                  f"{sol.get('naccept', 0)} steps, {sol.get('nreject', 0)} rejected, "
@@ -138,6 +140,49 @@ def degenerate_notes(scene: Any, sim: Any, summary: dict, trace: Any) -> list[st
     return notes
 
 
+def _physical_memory() -> int | None:
+    """Bytes of RAM of this machine (sysconf), or None where the platform does not say."""
+    import os
+    try:
+        return int(os.sysconf('SC_PAGE_SIZE')) * int(os.sysconf('SC_PHYS_PAGES'))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
+                   memory: int | None = None) -> None:
+    """SceneError when an offline run of ``scene`` cannot fit in the machine's memory: its
+    trace holds at least 24 bytes per sample (time, one angle, one speed as float64) and a
+    seeded random load packs 8 bytes per knot over the scene's duration (knots every
+    ``sample_interval``); a lower bound above the physical RAM (``memory``, default sysconf)
+    names the field instead of a MemoryError deep in numpy."""
+    memory = _physical_memory() if memory is None else memory
+    if not memory:
+        return
+    dur = scene.duration if duration is None else duration
+    dt = sample_dt or scene.sample_step or scene.exchange_step
+    samples = dur / dt + 1.0
+    if 24.0 * samples > memory:
+        where = '--duration' if duration is not None else 'duration'
+        step = '--sample-dt' if sample_dt else ('sample_step' if scene.sample_step else 'exchange_step')
+        raise SceneError(f'{where} / {step}', f'{dur:g} s in samples of {dt:g} s are {samples:.3g} '
+                                              f'samples, at least {24.0 * samples / 2**30:.3g} GiB; '
+                                              f'this machine has {memory / 2**30:.3g} GiB')
+    specs = scene.load if isinstance(scene.load, (list, tuple)) else [scene.load]
+    for i, spec in enumerate(specs):
+        if not hasattr(spec, 'get') or spec.get('model') != 'random':
+            continue
+        knot_dt = float(spec.get('sample_interval', 0.01))
+        knots = scene.duration / knot_dt
+        if 8.0 * knots > memory:
+            field = 'load.sample_interval' if len(specs) == 1 else f'load[{i}].sample_interval'
+            raise SceneError(field, f'a random load over the scene duration {scene.duration:g} s '
+                                    f'in knots of {knot_dt:g} s needs {knots:.3g} knots, at least '
+                                    f'{8.0 * knots / 2**30:.3g} GiB; this machine has '
+                                    f'{memory / 2**30:.3g} GiB: shorten duration or lengthen '
+                                    'sample_interval')
+
+
 def run(args: argparse.Namespace) -> int:
     from cvj_ros.physics.scene import find_scene, load_scene
     from cvj_ros.physics.simulate import Simulation
@@ -150,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
         if args.method not in OFFLINE_METHODS:
             raise SceneError('--method', f'must be one of {", ".join(OFFLINE_METHODS)}, got {args.method!r}')
     scene = load_scene(find_scene(args.scene))
+    check_run_size(scene, args.duration, args.sample_dt)
     if scene.has_modes:
         return _run_modes(scene, args)
     sim = Simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
@@ -173,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'cvj-sim simulate: compiled the kernel in {sim.compile_seconds:.1f} s (first run; '
               f'cached in {sim.cache_path} for later runs)', file=sys.stderr)
     summary = sim.summary(transient=args.transient)
+    if sim.compile_seconds:   # inside the run's wall time: said on the summary's first line
+        summary['compile_seconds'] = float(sim.compile_seconds)
     summary['notes'] = degenerate_notes(scene, sim, summary, trace)
     if args.csv:
         trace.to_csv(args.csv)

@@ -4,6 +4,7 @@ Moved out of nodes/common.py (layout split); common.py re-exports these names.
 """
 
 import math
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -155,7 +156,17 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]
     return values
 
 
+_TYPE_REJECTED = re.compile(r"Trying to set parameter '[^']*' to '(?P<value>.*)' of type "
+                            r"'(?P<got>\w+)', expecting type '(?:Type\.)?(?P<want>\w+)'", re.S)
+
+
 def _rclpy_reason(exc: Exception) -> str:
+    """rclpy's rejection as the problem part of one line; a type rejection (``-p seed:=abc``)
+    as ``must be of type INTEGER, got 'abc' (STRING)`` instead of rclpy's sentence, which
+    repeats the name after a colon."""
+    m = _TYPE_REJECTED.search(str(exc.args[0]) if exc.args else '')
+    if m:
+        return f"must be of type {m['want']}, got {m['value']!r} ({m['got']})"
     text = str(exc).strip().splitlines()
     return text[-1] if text else type(exc).__name__
 

@@ -12,8 +12,11 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-__all__ = ['UNKNOWN_NODE', 'Endpoint', 'describe', 'named_publisher_endpoints', 'publisher_endpoints',
-           'strangers']
+__all__ = ['UNKNOWN_NODE', 'WRENCH_TYPE', 'Endpoint', 'describe', 'named_publisher_endpoints',
+           'other_type_publishers', 'publisher_endpoints', 'strangers']
+
+#: the type of every peer answer topic (/engine/wrench, /load/wrench, /load/<wheel>/wrench)
+WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 
 
 class Endpoint(NamedTuple):
@@ -62,3 +65,13 @@ def strangers(endpoints: list[Endpoint], known: frozenset[str]) -> list[Endpoint
 def describe(endpoints: list[Endpoint]) -> str:
     """``/engine_node (gid 01.., ), /intruder (gid ..)``: node names with their GIDs."""
     return ', '.join(f'{e.node} (gid {e.gid})' for e in endpoints) or 'none in the ROS graph yet'
+
+
+def other_type_publishers(node: Any, topic: str, expected: str = WRENCH_TYPE) -> str:
+    """``/my_stack as std_msgs/msg/String``: the publishers of ``topic`` in ``node``'s view of
+    the ROS graph whose type is not ``expected`` ('' when none, or without a node). A
+    subscription never matches them, so a wait for its publisher count cannot see them."""
+    if node is None:
+        return ''
+    return ', '.join(f'{_node_path(i.node_namespace, i.node_name)} as {i.topic_type}'
+                     for i in node.get_publishers_info_by_topic(topic) if i.topic_type != expected)

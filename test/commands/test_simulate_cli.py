@@ -23,6 +23,22 @@ def test_simulate_text_summary(capsys) -> None:
     assert 'per simulated s' in out and 'fidelity' in out
 
 
+def test_first_run_summary_says_the_compile_is_in_its_wall_time(capsys, monkeypatch) -> None:
+    """On a cold cache the kernel compiles inside the run's wall time (131.5 s of 131.54 s in
+    a fresh clone): the first line says how much of it was the compile."""
+    from cvj_ros.physics.simulate import Simulation
+    finish = Simulation._finish
+
+    def cold(self, *args, **kwargs):
+        trace = finish(self, *args, **kwargs)
+        self.compile_seconds = 12.34
+        return trace
+    monkeypatch.setattr(Simulation, '_finish', cold)
+    assert main(['simulate', 'kavz685_lever', '--duration', '0.05']) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.endswith('s per simulated s), including 12.3 s compiling the kernel (first run)'), first
+
+
 def test_simulate_json_and_csv(tmp_path, capsys) -> None:
     csv = tmp_path / 'run.csv'
     assert main(['simulate', 'stiff', '--duration', '0.1', '--json', '--csv', str(csv),

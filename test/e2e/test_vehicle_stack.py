@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -185,6 +186,32 @@ def test_run_external_bounded_wait_names_the_topic(tmp_path: Path) -> None:
             f'ROS_DOMAIN_ID={domain} within --external-timeout=2 s; start it on that domain') in err, err
     assert 'Traceback' not in out + err
     assert wall < 2 + 30   # the 2 s bound + process start and stop (measured ~6 s here)
+
+
+@pytest.mark.parametrize('layout', ['separate', 'composed'])
+def test_run_external_names_a_publisher_of_the_wrong_type(tmp_path: Path, ctx: Any,
+                                                          layout: str) -> None:
+    """An outside node that publishes /load/wrench as std_msgs/String: the run never matches
+    it; the line after --external-timeout names it and its type instead of 'no outside node
+    published'. The 10 s leave the run's recorder time to discover the publisher, which exists
+    before the run starts (discovery bounds elsewhere: 20-60 s for whole runs)."""
+    import rclpy
+    from std_msgs.msg import String
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(SCENE, sort_keys=False))
+    node = rclpy.create_node('wrong_stack', context=ctx)
+    try:
+        node.create_publisher(String, '/load/wrench', 10)
+        extra = ['--composed'] if layout == 'composed' else []
+        code, out, err = _run_external(tmp_path, scene, None, '--external-timeout', '10', *extra)
+    finally:
+        node.destroy_node()
+    assert code == 1, out + err
+    domain = os.environ['ROS_DOMAIN_ID']
+    assert (f'cvj-sim: error: --external load: /load/wrench is published by /wrong_stack as '
+            f'std_msgs/msg/String, not geometry_msgs/msg/WrenchStamped, on ROS_DOMAIN_ID={domain} '
+            f'(no geometry_msgs/msg/WrenchStamped publisher within --external-timeout=10 s)') in err, err
+    assert 'Traceback' not in out + err
 
 
 NOW_STACK = """

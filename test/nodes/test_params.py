@@ -70,6 +70,25 @@ def test_bad_parameter_exits_2_with_one_line(tmp_path):
     proc = subprocess.run([str(BIN / 'engine_node'), '--ros-args', '-p', 'scene:=no_such_scene_q'],
                           capture_output=True, text=True, timeout=30, env=_env())
     assert proc.returncode == 2 and proc.stderr.startswith('engine_node: error: scene:')
+    # a value of the wrong type: rclpy's sentence ("Trying to set parameter ...: seed") as one line
+    proc = subprocess.run([str(BIN / 'load_node'), '--ros-args', '-p', f'scene:={scene_file(tmp_path)}',
+                           '-p', 'seed:=abc'], capture_output=True, text=True, timeout=30, env=_env())
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "load_node: error: seed: must be of type INTEGER, got 'abc' (STRING)"
+
+
+def test_rclpy_type_rejection_becomes_one_short_reason():
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+    from rclpy.parameter import Parameter
+
+    from cvj_ros.nodes.parameters import _rclpy_reason
+    exc = InvalidParameterTypeException(Parameter('seed', value='abc'), Parameter.Type.INTEGER)
+    assert _rclpy_reason(exc) == "must be of type INTEGER, got 'abc' (STRING)"
+    exc = InvalidParameterTypeException(Parameter('rate', value=[1, 2]), 'DOUBLE')
+    assert _rclpy_reason(exc) == "must be of type DOUBLE, got '[1, 2]' (INTEGER_ARRAY)"
+    # any other rejection keeps rclpy's last line
+    exc = InvalidParameterValueException('rate', -1.0, 'must be >= 0')
+    assert _rclpy_reason(exc) == str(exc).strip().splitlines()[-1]
 
 
 @pytest.mark.e2e

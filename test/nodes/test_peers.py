@@ -67,6 +67,26 @@ def test_publisher_endpoints_name_nodes_and_gids(ctx) -> None:
         b.destroy_node()
 
 
+def test_other_type_publishers_names_a_publisher_of_another_type(ctx) -> None:
+    """A std_msgs/String publisher on /load/wrench: a WrenchStamped subscription never matches
+    it (its publisher count stays 0), the graph names it with its type."""
+    a = rclpy.create_node('observer', context=ctx)
+    b = rclpy.create_node('wrong_stack', context=ctx)
+    try:
+        assert peers.other_type_publishers(a, '/load/wrench') == ''
+        assert peers.other_type_publishers(None, '/load/wrench') == ''
+        b.create_publisher(String, '/load/wrench', DATA_QOS)
+        b.create_publisher(WrenchStamped, '/engine/wrench', DATA_QOS)
+        deadline = time.monotonic() + 5
+        while not peers.other_type_publishers(a, '/load/wrench') and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert peers.other_type_publishers(a, '/load/wrench') == '/wrong_stack as std_msgs/msg/String'
+        assert peers.other_type_publishers(a, '/engine/wrench') == ''
+    finally:
+        a.destroy_node()
+        b.destroy_node()
+
+
 def test_joint_state_encoder_with_plain_frame_matches_rclpy() -> None:
     import numpy as np
     from rclpy.serialization import deserialize_message

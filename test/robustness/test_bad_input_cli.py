@@ -358,3 +358,57 @@ def test_unwritable_out_names_out(tmp_path: Path, capsys: pytest.CaptureFixture[
     code = cli_main(['run', str(path), '--out', str(out)])
     msg = assert_one_error_line(code, *capsys.readouterr(), '--out')
     assert msg.startswith(f'cannot write to {out}: '), msg
+
+
+@pytest.mark.parametrize('command', ['run', 'simulate'])
+def test_exponent_yaml_reads_as_text_says_how_to_write_it(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str],
+                                                          command: str) -> None:
+    """PyYAML (YAML 1.1) reads ``1.0e300`` and ``1e6`` as strings (a float needs a dot and a
+    signed exponent): the line says so and gives the spelling that reads as the number."""
+    text = yaml.safe_dump(VALID, sort_keys=False).replace('J: 0.128', 'J: 1.0e300')
+    assert 'J: 1.0e300' in text
+    code, out, err = run_scene(tmp_path, capsys, None, text=text, command=command)
+    msg = assert_one_error_line(code, out, err, 'driveline[0].J')
+    assert msg.startswith("must be a number, got the text '1.0e300'") and 'write 1.0e+300' in msg, msg
+    assert yaml.safe_load('J: 1.0e+300') == {'J': 1e300}     # the spelling it suggests is a float
+    text = yaml.safe_dump(VALID, sort_keys=False).replace('stiffness: 715.4', 'stiffness: 1e6')
+    code, out, err = run_scene(tmp_path, capsys, None, text=text, command=command)
+    msg = assert_one_error_line(code, out, err, 'driveline[1].stiffness')
+    assert 'write 1.0e+06' in msg and yaml.safe_load('k: 1.0e+06') == {'k': 1e6}, msg
+
+
+def test_simulate_larger_than_memory_names_duration_and_step(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """1e12 s at 1 ms are 1e15 samples, >= 24 bytes each (time, an angle, a speed): more than
+    any machine's RAM; was a MemoryError (or numpy's 'Maximum allowed size exceeded') with
+    exit 1."""
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(VALID, sort_keys=False))
+    code = cli_main(['simulate', str(path), '--duration', '1e12'])
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, '--duration / exchange_step')
+    assert msg.startswith('1e+12 s in samples of 0.001 s are 1e+15 samples'), msg
+    # a random load packs its knots over the scene's duration (1e17 knots of 0.01 s)
+    scene = mutate('load', {'model': 'random', 'mean': 50.0, 'amplitude': 5.0})
+    scene['duration'] = 1e15
+    code = cli_main(['simulate', str(_write(tmp_path / 'random.yaml', scene)), '--duration', '0.01'])
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, 'load.sample_interval')
+    assert 'needs 1e+17 knots' in msg, msg
+
+
+def _write(path: Path, scene: Any) -> Path:
+    path.write_text(yaml.safe_dump(scene, sort_keys=False))
+    return path
+
+
+def test_run_size_bound_is_the_lower_bound_of_the_arrays() -> None:
+    """The bound's edge: VALID's 0.1 s at 1 ms are 101 samples, 24 bytes each = 2424 bytes."""
+    from cvj_ros.commands.simulate import check_run_size
+    from cvj_ros.errors import SceneError
+    from cvj_ros.physics.scene import parse_scene
+    scene = parse_scene(copy.deepcopy(VALID))
+    check_run_size(scene, None, None, memory=2424)
+    with pytest.raises(SceneError, match=r'^duration / exchange_step: 0.1 s in samples of 0.001 s'):
+        check_run_size(scene, None, None, memory=2423)

@@ -191,6 +191,10 @@ RECIPES: dict[str, Callable[[Path, pytest.MonkeyPatch], list[str]]] = {
     "driveline[0].J: must be a number, got the text '1.0e300' (YAML 1.1, as read here, takes a number "
     "with an exponent only with a dot and a signed exponent: write 1.0e+300)":
         lambda d, m: _scene(d, text=yaml.safe_dump(VALID, sort_keys=False).replace('J: 0.128', 'J: 1.0e300')),
+    "driveline[1].stiffness: spring 'bush' and its neighbours' inertias have a mode at 3.74e+150 "
+    "rad/s: dopri5 would need ~6.2e+148 steps for 0.1 s just to stay stable (more than 1e+10); "
+    "check the value, or use solver rosenbrock or rigid fidelity for it":
+        lambda d, m: _scene(d, _set('driveline[1].stiffness', 1e300)),
     "driveline[1].stiffness: must be a number, got '715.4 N m/rad'":
         lambda d, m: _scene(d, _set('driveline[1].stiffness', '715.4 N m/rad')),
     'driveline[0].J: must be a number, got [0.1]': lambda d, m: _scene(d, _set('driveline[0].J', [0.1])),

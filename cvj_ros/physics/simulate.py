@@ -37,6 +37,36 @@ from cvj_ros.physics.scene import Scene
 FloatArray = NDArray[np.float64]
 BACKENDS = ('kernel', 'python')
 
+EXPLICIT_METHODS = ('dopri5', 'dop853', 'tsit5', 'vern6', 'vern7', 'vern8')
+# an explicit Runge-Kutta step stays stable for |h lambda| below ~3-6 (Hairer & Wanner 1996,
+# IV.2: DOPRI5's stability region reaches ~3.3 on the imaginary axis); 6 bounds every pair here
+EXPLICIT_STABILITY = 6.0
+# steps an explicit run may need before it is refused up front (~1 h at ~0.3 us a step)
+MAX_EXPLICIT_STEPS = 1e10
+
+
+def explicit_step_check(scene: Scene, report: Any, method: str, duration: float) -> None:
+    """Raise SceneError (naming the spring's stiffness) when an explicit ``method`` would need
+    more than :data:`MAX_EXPLICIT_STEPS` steps over ``duration`` (s) just to stay stable on a
+    spring mode: omega_n duration / :data:`EXPLICIT_STABILITY`, with omega_n =
+    sqrt(c (1/J_l + 1/J_r)) rad/s of each elastic spring (the fidelity report's figure)."""
+    if method not in EXPLICIT_METHODS or report is None:
+        return
+    for c in report.choices:
+        omega = c.candidates.get('elastic', {}).get('omega_n')
+        if c.element != 'spring' or c.chosen != 'elastic' or omega is None:
+            continue
+        steps = omega * duration / EXPLICIT_STABILITY
+        if not steps > MAX_EXPLICIT_STEPS:
+            continue
+        index = next((i for i, el in enumerate(scene.driveline) if el.name == c.name), None)
+        where = f'driveline[{index}]' if index is not None else f'driveline[{c.name}]'
+        raise SceneError(f'{where}.stiffness',
+                         f'spring {c.name!r} and its neighbours\' inertias have a mode at '
+                         f'{omega:.3g} rad/s: {method} would need ~{steps:.1e} steps for '
+                         f'{duration:g} s just to stay stable (more than {MAX_EXPLICIT_STEPS:.0e});'
+                         f' check the value, or use solver rosenbrock or rigid fidelity for it')
+
 
 def kernel_gap(driveline: Driveline, engine: Any, load: Any, horizon: float) -> str | None:
     """Why the compiled kernel cannot run this driveline with these sources (one line
@@ -503,6 +533,7 @@ class Simulation:
         dt = float(sample_dt or sc.sample_step or sc.exchange_step)
         if not (math.isfinite(dt) and dt > 0):
             raise SceneError('sample_dt', f'must be > 0, got {sample_dt}')
+        explicit_step_check(sc, self.fidelity_report, self.method, dur)
         if self.backend == 'kernel' and not self.scene.is_tree:
             trace = self._run_kernel(dur, dt, sampling, progress, breakpoints, reuse_trace)
             plan = next(iter(self._plans.values()))

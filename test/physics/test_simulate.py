@@ -559,3 +559,22 @@ def test_energy_conserved_phased_hooke_pair_with_non_square_cross() -> None:
     tr = sim.run(duration, sample_dt=duration / 50)
     assert np.all(np.isfinite(tr.velocity))
     assert tr.max_energy_residual < 5e-7
+
+
+def test_explicit_step_check_refuses_only_past_its_step_bound() -> None:
+    """omega_n duration / EXPLICIT_STABILITY steps against MAX_EXPLICIT_STEPS: the shipped
+    stiff scene's 1e6 N m/rad spring (omega_n = 14142 rad/s) needs ~2357 explicit steps for
+    1 s and runs; over a duration 1 % past the bound it is refused naming the stiffness; an
+    implicit method is never refused."""
+    from cvj_ros.errors import SceneError
+    from cvj_ros.physics import simulate as simmod
+    from cvj_ros.physics.scene import find_scene, load_scene
+    scene = load_scene(find_scene('stiff'))
+    sim = simmod.Simulation(scene, method='dopri5')
+    simmod.explicit_step_check(scene, sim.fidelity_report, 'dopri5', 1.0)
+    omega = math.sqrt(1e6 * (1 / 0.01 + 1 / 0.01))
+    limit = simmod.MAX_EXPLICIT_STEPS * simmod.EXPLICIT_STABILITY / omega
+    simmod.explicit_step_check(scene, sim.fidelity_report, 'dopri5', 0.99 * limit)
+    with pytest.raises(SceneError, match=r'^driveline\[1\]\.stiffness: .*steps'):
+        simmod.explicit_step_check(scene, sim.fidelity_report, 'vern7', 1.01 * limit)
+    simmod.explicit_step_check(scene, sim.fidelity_report, 'rosenbrock', 1e3 * limit)

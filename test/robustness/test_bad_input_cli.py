@@ -412,3 +412,13 @@ def test_run_size_bound_is_the_lower_bound_of_the_arrays() -> None:
     check_run_size(scene, None, None, memory=2424)
     with pytest.raises(SceneError, match=r'^duration / exchange_step: 0.1 s in samples of 0.001 s'):
         check_run_size(scene, None, None, memory=2423)
+
+
+def test_absurd_stiffness_is_refused_before_an_explicit_run(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    # 1e300 N m/rad: dopri5 would creep at ~1e-150 s steps (48 s to overflow on kavz685_lever);
+    # refused at once, naming the field and what to do instead
+    code, out, err = run_scene(tmp_path, capsys, mutate('driveline[1].stiffness', 1e300),
+                               command='simulate')
+    msg = assert_one_error_line(code, out, err, 'driveline[1].stiffness')
+    assert 'steps' in msg and 'rosenbrock' in msg, msg

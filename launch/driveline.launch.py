@@ -74,11 +74,15 @@ def _flag(value: str) -> bool:
 
 def node_parameters(arguments: dict[str, str]) -> dict[str, dict[str, Any]]:
     """ROS parameters per node to start, from the launch arguments (strings, as launch gives
-    them). Nodes an outside peer replaces are absent. Raises ValueError naming a bad argument."""
+    them). Nodes an outside peer replaces are absent. Raises ValueError naming a bad argument
+    (an unknown scene too, with the nearest shipped name)."""
     args = {k: str(arguments.get(k, default)) for k, (default, _d) in ARGUMENTS.items()}
     for key, choices in CHOICES.items():
         if args[key] not in choices:
             raise ValueError(f'{key}: must be one of {", ".join(choices)}, got {args[key]!r}')
+    # the nodes would each refuse an unknown scene; say it once, before any process starts
+    from cvj_ros.physics.scene import find_scene
+    find_scene(args['scene'])   # SceneError (a ValueError): 'scene: no scene file ...; did you mean'
     try:
         duration = float(args['duration'])
         seed = int(args['seed'])

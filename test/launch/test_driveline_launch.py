@@ -15,6 +15,8 @@ import importlib
 import importlib.util
 import py_compile
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -130,3 +132,20 @@ def test_generates_a_launch_description_where_launch_ros_exists() -> None:
     pytest.importorskip('launch_ros', reason='no launch_ros for this machine kind (see module docstring)')
     mod = _launch_module()
     assert mod.generate_launch_description().entities
+
+
+def test_unknown_scene_is_one_line_before_any_process(tmp_path: Path) -> None:
+    """A mistyped scene is refused by the launch file itself (one line, exit 2, the nearest
+    shipped name), not by every node it would start."""
+    mod = _launch_module()
+    with pytest.raises(ValueError, match="^scene: .*'fwd_halfshat'; did you mean 'fwd_halfshaft'"):
+        mod.node_parameters({'scene': 'fwd_halfshat'})
+    proc = subprocess.run([sys.executable, str(LAUNCH), 'scene:=fwd_halfshat'],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == '', proc
+    assert proc.stderr.splitlines() == [
+        "driveline.launch.py: error: scene: no scene file or shipped scene 'fwd_halfshat'; "
+        "did you mean 'fwd_halfshaft'?"], proc.stderr
+    scene = tmp_path / 'mine.yaml'
+    scene.write_text((REPO / 'config' / 'scenes' / 'kavz685_lever.yaml').read_text())
+    assert mod.node_parameters({'scene': str(scene)})['coupling_node']['scene'] == str(scene)

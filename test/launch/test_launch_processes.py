@@ -17,6 +17,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -181,11 +182,14 @@ def _without(cmd: list[str], option: str) -> list[str]:
     {'scene': 'launch_clutch_chain', 'driver': 'true', 'mode': 'free-run', 'catch_up': 'burst'},
     {'scene': '123', 'external': 'load', 'record': 'false', 'monitor': 'false', 'duration': '1.5'},
 ], ids=['default', 'driver-free-run', 'external-no-record'])
-def test_printed_equivalent_is_the_launch_ros_lines(arguments: dict[str, str], tmp_path: Path) -> None:
+def test_printed_equivalent_is_the_launch_ros_lines(arguments: dict[str, str], tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """`python launch/driveline.launch.py ARG:=VALUE ...` prints, per process, the executable,
     arguments and node name launch_ros builds, with the parameter file's values as `-p` (a
-    string YAML would read as a number stays a string): shell lines a stranger without
-    launch_ros can run instead."""
+    string YAML would read as a number stays a string: a scene file named '123' in the working
+    directory): shell lines a stranger without launch_ros can run instead."""
+    shutil.copy(REPO / 'config' / 'scenes' / 'kavz685_lever.yaml', tmp_path / '123')
+    monkeypatch.chdir(tmp_path)
     out = subprocess.run([sys.executable, str(LAUNCH), *(f'{k}:={v}' for k, v in arguments.items())],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stderr == '', out.stderr

@@ -356,12 +356,11 @@ def _wait_for_peers(comp: ComposedDriveline, stop: Callable[[], bool], *, timeou
         settled_since = None
         for name in missing:
             if name in outside and now > t0 + external_timeout:
-                from cvj_ros.nodes.peers import WRENCH_TYPE, other_type_publishers
-                wrong = other_type_publishers(getattr(comp.recorder, 'node', None), topics[name])
+                from cvj_ros.nodes.peers import wrong_type_reason
+                wrong = wrong_type_reason(getattr(comp.recorder, 'node', None), outside[name],
+                                          topics[name], domain, external_timeout)
                 if wrong:
-                    return (f'--external {outside[name]}: {topics[name]} is published by {wrong}, '
-                            f'not {WRENCH_TYPE}, on ROS_DOMAIN_ID={domain} (no {WRENCH_TYPE} '
-                            f'publisher within --external-timeout={external_timeout:g} s)')
+                    return wrong
                 return (f'--external {outside[name]}: no outside node published {topics[name]} '
                         f'on ROS_DOMAIN_ID={domain} within --external-timeout={external_timeout:g} s')
         if now > t0 + timeout and any(n not in outside for n in missing):

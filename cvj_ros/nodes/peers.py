@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 __all__ = ['UNKNOWN_NODE', 'WRENCH_TYPE', 'Endpoint', 'describe', 'named_publisher_endpoints',
-           'other_type_publishers', 'publisher_endpoints', 'strangers']
+           'other_type_publishers', 'publisher_endpoints', 'strangers', 'wrong_type_reason']
 
 #: the type of every peer answer topic (/engine/wrench, /load/wrench, /load/<wheel>/wrench)
 WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
@@ -75,3 +75,14 @@ def other_type_publishers(node: Any, topic: str, expected: str = WRENCH_TYPE) ->
         return ''
     return ', '.join(f'{_node_path(i.node_namespace, i.node_name)} as {i.topic_type}'
                      for i in node.get_publishers_info_by_topic(topic) if i.topic_type != expected)
+
+
+def wrong_type_reason(node: Any, option: str, topic: str, domain: Any, timeout: float) -> str:
+    """The ``--external`` line for an awaited wrench ``topic`` that only publishers of another
+    type answered (:func:`other_type_publishers`), or '' when there are none."""
+    wrong = other_type_publishers(node, topic)
+    if not wrong:
+        return ''
+    return (f'--external {option}: {topic} is published by {wrong}, not {WRENCH_TYPE}, on '
+            f'ROS_DOMAIN_ID={domain} (no {WRENCH_TYPE} publisher within '
+            f'--external-timeout={timeout:g} s)')

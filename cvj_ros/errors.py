@@ -6,9 +6,6 @@ the offending field or parameter: ``"joints[1].beta_deg: must be < 90, got 95"``
 """
 from __future__ import annotations
 
-import ast
-import re
-
 
 def not_a_number(value: object) -> str:
     """The message for a value that must be a number: ``must be a number, got X``; when X is
@@ -55,15 +52,7 @@ class SceneError(CvjError, ValueError):
 
     def __init__(self, field: str, message: str) -> None:
         self.field = field
-        # the scene checks' "must be a number, got '<text>'": with the YAML 1.1 reason when
-        # the text reads as a number (not_a_number)
-        m = _NOT_A_NUMBER_TEXT.fullmatch(message)
-        if m:
-            message = not_a_number(ast.literal_eval(m.group(1)))
         super().__init__(f'{field}: {message}')
-
-
-_NOT_A_NUMBER_TEXT = re.compile(r"must be a number, got ('[^'\\]*')")
 
 
 class SolverError(CvjError, RuntimeError):

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from cvj_ros.errors import SceneError
+from cvj_ros.errors import SceneError, not_a_number
 
 TWO_PI = 2.0 * math.pi
 RPM = TWO_PI / 60.0          # rad/s per rpm
@@ -147,7 +147,7 @@ def check_number(path: str, value: Any, *, lo: float | None = None, hi: float | 
                  lo_open: bool = False, hi_open: bool = False, unit: str = '') -> float:
     """``float(value)`` if it is a finite real number within bounds, else SceneError(path)."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise SceneError(path, f'must be a number, got {value!r}')
+        raise SceneError(path, not_a_number(value))
     v = float(value)
     if not math.isfinite(v):
         raise SceneError(path, f'must be finite, got {v}')

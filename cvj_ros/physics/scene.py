@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cvj_ros.errors import GeometryError, SceneError
+from cvj_ros.errors import GeometryError, SceneError, not_a_number
 
 SCENE_KEYS = ('name', 'description', 'seed', 'duration', 'exchange_step', 'sample_step',
               'accuracy_target', 'solver', 'engine', 'load', 'vehicle', 'initial', 'driveline',
@@ -401,7 +401,7 @@ def _mapping(value: Any, path: str) -> Mapping[str, Any]:
 def _number(value: Any, path: str, *, positive: bool = False, nonneg: bool = False,
             lo: float | None = None, hi: float | None = None, hi_open: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(path, f'must be a number, got {value!r}')
+        raise SceneError(path, not_a_number(value))
     v = float(value)
     if not math.isfinite(v):
         raise SceneError(path, f'must be finite, got {v}')

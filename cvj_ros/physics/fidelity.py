@@ -177,6 +177,12 @@ def engine_order(spec: Mapping[str, Any]) -> float:
     return 0.0
 
 
+def spring_omega_n(stiffness: float, j_l: float, j_r: float) -> float:
+    """Natural frequency omega_n = sqrt(c (1/J_l + 1/J_r)) (rad/s) of a spring of stiffness c
+    (N m/rad) between the inertias J_l, J_r (kg m^2) it joins, the two-mass oscillator."""
+    return math.sqrt(stiffness * (1.0 / j_l + 1.0 / j_r))
+
+
 def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
                     ) -> FidelityReport:
     """Resolve 'auto' levels of every joint and spring of ``scene`` (see module doc)."""
@@ -247,7 +253,7 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
             choices.append(FidelityChoice(el.name, 'spring', chosen, reason, {}))
             continue
         j_l, j_r = adjacent[el.name]
-        omega_n = math.sqrt(el.stiffness * (1.0 / j_l + 1.0 / j_r))
+        omega_n = spring_omega_n(el.stiffness, j_l, j_r)
         r = band / omega_n
         bound = r * r / (1.0 - r * r) if r < 1.0 else math.inf
         cand = {'elastic': {'speed_error': 0.0, 'omega_n': omega_n},

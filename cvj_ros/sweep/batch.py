@@ -346,12 +346,12 @@ class BatchRunner:
                 adjacent = pr.adjacent
         if adjacent is None:
             return None
+        from cvj_ros.physics.fidelity import spring_omega_n
         from cvj_ros.physics.scene import Spring
         try:
             for el in scene.driveline:
                 if isinstance(el, Spring):
-                    j_l, j_r = adjacent[el.name]
-                    if math.sqrt(el.stiffness * (1.0 / j_l + 1.0 / j_r)) == 0.0:
+                    if spring_omega_n(el.stiffness, *adjacent[el.name]) == 0.0:
                         return None
         except Exception:       # noqa: BLE001  (choose_fidelity then raises it)
             return None

@@ -347,6 +347,17 @@ def _lean_flags(sim):
     return unread_angles(plan.model.ip, sim._shaft_table, sorted({0, *mtab[:, 1].tolist()}))
 
 
+def _kept_run_with_lean_flags(scene, fid):
+    """A kept 0.3 s run of ``scene`` at fidelity ``fid`` (2 ms samples): the Simulation, its
+    sample times and states, the model's ip and fp, the shaft table and the sweep's
+    unread-angle flags (_lean_flags)."""
+    sim = Simulation(scene, fidelity=fid)
+    sim.run(0.3, sample_dt=0.002, reuse_trace=True)
+    plan = next(iter(sim._plans.values()))
+    return (sim, plan.times, plan.kept[1][0], plan.model.ip, plan.model.fp, sim._shaft_table,
+            _lean_flags(sim))
+
+
 @pytest.mark.parametrize('name', CHAIN_SCENES)
 def test_lean_walk_gives_the_same_outputs_but_the_unread_angles(name):
     """sample_outputs_lean with unread_angles' flags for the sweep's reads (the first shaft's
@@ -359,12 +370,7 @@ def test_lean_walk_gives_the_same_outputs_but_the_unread_angles(name):
     scene = load_scene(find_scene(name))
     flagged = 0
     for fid in _fidelities(scene):
-        sim = Simulation(scene, fidelity=fid)
-        sim.run(0.3, sample_dt=0.002, reuse_trace=True)
-        plan = next(iter(sim._plans.values()))
-        T, X = plan.times, plan.kept[1][0]
-        ip, fp, tab = plan.model.ip, plan.model.fp, sim._shaft_table
-        skip = _lean_flags(sim)
+        sim, T, X, ip, fp, tab, skip = _kept_run_with_lean_flags(scene, fid)
         m, n_sh = X.shape[0], tab.shape[0]
         e0 = sim._initial_energy(sim.driveline.x0)
         got = [np.empty((m, n_sh)) for _ in range(3)] + [np.empty(m) for _ in range(3)]
@@ -405,12 +411,7 @@ def test_ratio_only_ip_gives_the_same_rhs_and_lean_walk_bit_for_bit(name):
     scene = load_scene(find_scene(name))
     swapped = 0
     for fid in _fidelities(scene):
-        sim = Simulation(scene, fidelity=fid)
-        sim.run(0.3, sample_dt=0.002, reuse_trace=True)
-        plan = next(iter(sim._plans.values()))
-        T, X = plan.times, plan.kept[1][0]
-        ip, fp, tab = plan.model.ip, plan.model.fp, sim._shaft_table
-        skip = _lean_flags(sim)
+        sim, T, X, ip, fp, tab, skip = _kept_run_with_lean_flags(scene, fid)
         lean = ratio_only_ip(ip, skip)
         ops = int(ip[H_SEC]) + int(ip[H_NDOF]) + 1
         levers = [k for k in np.flatnonzero(skip).tolist() if ip[ops + 2 * k] == OP_LEVER_EXACT]

@@ -962,11 +962,11 @@ def run_bench(cfg: BenchConfig, out_dir: str | Path, *, log: Callable[[str], Non
                        time.perf_counter() - t_start, ref_tol, work_precision_plot, partial=True)
     modes: list[dict[str, Any]] = []
     if cfg.mode_scenes:
-        from cvj_ros.bench_modes import mode_study, write_mode_outputs
+        from cvj_ros.bench_modes import KERNEL_METHODS, mode_study, write_mode_outputs
         for name in cfg.mode_scenes:
             mode_experts = tuple(cfg.expert_methods)
             modes.append(mode_study(name, tolerances=tuple(cfg.tolerances) + (1e-11,),
-                                    samples=cfg.samples, log=log,
+                                    samples=cfg.samples, log=log, kernel_methods=KERNEL_METHODS,
                                     expert_methods=mode_experts + tuple(m + '-bisect' for m in mode_experts)))
             for e in modes[-1]['levels']:
                 sp = f"{e['speedup']:.1f}x" if e['speedup'] else 'not reached by both'

@@ -2,7 +2,9 @@
 
 Project: the compiled kernel (:class:`cvj_ros.physics.kernel.modes.KernelHybridSimulation`,
 a vehicle scene :class:`cvj_ros.physics.kernel.tree_modes.KernelHybridTreeSimulation`;
-dopri5, each mode one compiled call with its witnesses and Brent on the dense output).
+each mode one compiled call with its witnesses and Brent on the dense output), with each of
+:data:`KERNEL_METHODS` (the project's cheapest run at a level is its best method there, as
+the expert's is the best of its two).
 Baseline: plain ``scipy.integrate.solve_ivp`` (RK45) on the same mode equations, its event
 functions the same witnesses (terminal, with their directions), restarted at every event and
 command row: what a user of scipy writes (:class:`SolveIvpHybridSimulation`, a vehicle
@@ -48,7 +50,7 @@ import numpy as np
 from cvj_ros.physics.kernel.modes import KernelHybridSimulation
 from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
 
-__all__ = ['ExpertHybridSimulation', 'ExpertHybridTreeSimulation', 'KERNEL_REFERENCE',
+__all__ = ['ExpertHybridSimulation', 'ExpertHybridTreeSimulation', 'KERNEL_METHODS', 'KERNEL_REFERENCE',
            'MODE_SCENES', 'OracleMismatch', 'PYTHON_REFERENCE', 'SolveIvpHybridSimulation',
            'SolveIvpHybridTreeSimulation', 'expert_verdict', 'format_expert_table', 'format_mode_table',
            'mode_levels', 'mode_study', 'oracle_run', 'reference_run']
@@ -58,6 +60,9 @@ LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 TOLERANCES = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 #: reference of a vehicle mode scene: the compiled kernel, (method, rtol, atol)
 KERNEL_REFERENCE = ('dopri5', 1e-13, 1e-15)
+#: the kernel's methods timed on the mode scenes: dopri5 and the higher-order explicit
+#: pairs of the kernel's mode segments (Hairer, Norsett & Wanner 1993; Verner 2010)
+KERNEL_METHODS = ('dopri5', 'dop853', 'vern7')
 PYTHON_REFERENCE = ('dop853', 1e-12, 1e-14)
 
 
@@ -469,7 +474,8 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
                tolerances: Sequence[float] = TOLERANCES, samples: int = 20, repeats: int = 3,
                baseline_budget_s: float = 60.0, duration: float | None = None,
                reference: str = 'auto', expert_methods: Sequence[str] = (),
-               baseline: bool = True, log: Callable[[str], None] = print) -> dict[str, Any]:
+               baseline: bool = True, kernel_methods: Sequence[str] = ('dopri5',),
+               log: Callable[[str], None] = print) -> dict[str, Any]:
     """Runs of both families at each tolerance (rtol = tol, atol = tol / 100) over the
     scene's duration (or ``duration`` s) with ``samples`` samples, best of ``repeats`` walls
     (the kernel's and the expert's: of at least 10; the baseline's stop repeating after
@@ -477,7 +483,8 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     kernel on a vehicle scene, else the Python reference); ``expert_methods`` (numbalsoda
     'lsoda', 'dop853') add the ``baseline_expert`` family with oracle events (module
     docstring; skipped with ``expert_skipped`` set when numbalsoda does not import);
-    ``baseline=False`` leaves out solve_ivp. Each row keeps the load average before and
+    ``baseline=False`` leaves out solve_ivp; ``kernel_methods`` the project's methods
+    (rows labelled 'kernel METHOD', each at every tolerance). Each row keeps the load average before and
     after its runs; returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
@@ -493,6 +500,11 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     if bad:
         raise ValueError(f"expert_methods: {', '.join(map(repr, EXPERT_MODE_METHODS))}, not "
                          f"{', '.join(map(repr, bad))}")
+    from cvj_ros.physics.kernel.modes import KERNEL_MODE_METHODS
+    bad = [m for m in kernel_methods if m not in KERNEL_MODE_METHODS]
+    if bad or not kernel_methods:
+        raise ValueError(f"kernel_methods: one or more of {', '.join(KERNEL_MODE_METHODS)}, not "
+                         f"{', '.join(map(repr, bad)) or 'none'}")
     if expert_methods:
         from cvj_ros.bench_expert import mode_expert_cfunc, unavailable_reason
         skipped = unavailable_reason()
@@ -523,18 +535,20 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     kern: Any = KernelHybridTreeSimulation if scene.is_tree else KernelHybridSimulation
     base: Any = SolveIvpHybridTreeSimulation if scene.is_tree else SolveIvpHybridSimulation
     expert: Any = ExpertHybridTreeSimulation if scene.is_tree else ExpertHybridSimulation
-    # one untimed kernel run: loads (or compiles) the compiled mode code
-    kern.from_reference(hybrid_simulation(scene, sample_dt=sample_dt, duration=horizon)).run()
-    families: list[tuple[str, str, Callable[[Any], Any]]] = [
-        ('project', 'kernel dopri5', kern.from_reference)]
+    # one untimed kernel run per method: loads (or compiles) the compiled mode code
+    for m in kernel_methods:
+        kern.from_reference(hybrid_simulation(scene, method=m, sample_dt=sample_dt,
+                                              duration=horizon)).run()
+    families: list[tuple[str, str, Callable[[Any], Any], str]] = [
+        ('project', f'kernel {m}', kern.from_reference, m) for m in kernel_methods]
     if baseline:
-        families.append(('baseline', 'solve_ivp RK45 + events', base.from_reference))
+        families.append(('baseline', 'solve_ivp RK45 + events', base.from_reference, 'dopri5'))
     for m in expert_methods:
         bisect = m.endswith('-bisect')
         families.append(('baseline_expert_bisect' if bisect else 'baseline_expert',
                          f"numbalsoda {m.split('-')[0]} "
                          + (f'(witness bisection, {GRID_DT * 1e3:g} ms grid)' if bisect else '(oracle events)'),
-                         lambda sim, m=m: expert.expert(sim, m, oracle)))
+                         lambda sim, m=m: expert.expert(sim, m, oracle), 'dopri5'))
         # one untimed run: numbalsoda's solver compiled outside the timing
         try:
             with _quiet(True):
@@ -544,7 +558,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
         except Exception:
             pass                         # the timed runs record the failure
     rows: list[dict[str, Any]] = []
-    for family, label, make in families:
+    for family, label, make, method in families:
         for tol in tolerances:
             walls: list[float] = []
             cpus: list[float] = []
@@ -555,7 +569,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
             with _quiet(family == 'baseline_expert'):
                 # the compiled runs are short: more repeats (their minimum) at little cost
                 for _ in range(repeats if family == 'baseline' else max(repeats, 10)):
-                    sim = make(hybrid_simulation(scene, method='dopri5', rtol=tol, atol=tol * 1e-2,
+                    sim = make(hybrid_simulation(scene, method=method, rtol=tol, atol=tol * 1e-2,
                                                  sample_dt=sample_dt, duration=horizon))
                     w0 = time.perf_counter()
                     c0 = time.process_time()
@@ -646,9 +660,9 @@ def format_mode_table(study: dict[str, Any]) -> str:
              f"Reference: {ref.get('backend', 'python')} {ref.get('method', 'dop853')} at rtol "
              f"{ref.get('rtol', 1e-12):g}, {ref.get('events', '?')} events.",
              '',
-             '| error level | kernel dopri5 rtol | CPU ms | wall ms | solve_ivp RK45 + events rtol '
+             '| error level | best kernel | rtol | CPU ms | wall ms | solve_ivp RK45 + events rtol '
              '| CPU ms | wall ms | speedup (CPU time) | speedup (wall) | load |',
-             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for e in study['levels']:
         p, b = e['project'], e['baseline']
 
@@ -661,9 +675,14 @@ def format_mode_table(study: dict[str, Any]) -> str:
         cpu = f"{e['cpu_speedup']:.1f}x" if e.get('cpu_speedup') else '-'
         loads = [x for r in (p, b) if r for x in r.get('load', ()) if x == x]
         load = f'{min(loads):.1f}-{max(loads):.1f}' if loads else '-'
-        lines.append(f"| {e['level']:g} | {' | '.join(cell(p))} | {' | '.join(cell(b))} | {cpu} "
-                     f"| {sp} | {load} |")
+        lines.append(f"| {e['level']:g} | {_kernel_name(p)} | {' | '.join(cell(p))} | "
+                     f"{' | '.join(cell(b))} | {cpu} | {sp} | {load} |")
     return '\n'.join(lines) + '\n'
+
+
+def _kernel_name(r: dict[str, Any] | None) -> str:
+    """The method of a project row ('kernel dop853' -> 'dop853'), '-' for none."""
+    return r['label'].removeprefix('kernel ') if r else '-'
 
 
 #: the target against the expert baseline: the project at least this many times cheaper
@@ -695,13 +714,13 @@ def format_expert_table(study: dict[str, Any], family: str = 'baseline_expert') 
         text = (f'The expert locates its own events: the witnesses on a {GRID_DT * 1e3:g} ms grid, '
                 f'each crossing refined on {REFINE_POINTS}-point grids to 1e-12 s.')
     lines = [head, '', text, '',
-             '| error level | kernel dopri5 rtol | CPU ms | wall ms | best numbalsoda | rtol | CPU ms '
+             '| error level | best kernel | rtol | CPU ms | wall ms | best numbalsoda | rtol | CPU ms '
              '| wall ms | expert / kernel (CPU time) | expert / kernel (wall) | >= 2x | load |',
-             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for e in study['levels']:
         p, b = e['project'], e.get(family)
         if not p or not b:
-            lines.append(f"| {e['level']:g} | {p['tol'] if p else '-'} | - | - | "
+            lines.append(f"| {e['level']:g} | {_kernel_name(p)} | {p['tol'] if p else '-'} | - | - | "
                          f"{'not reached' if not b else b['label']} | - | - | - | - | - | - | - |")
             continue
         sp, cpu = e['speedup' + key], e['cpu_speedup' + key]
@@ -709,11 +728,11 @@ def format_expert_table(study: dict[str, Any], family: str = 'baseline_expert') 
         loads = [x for r in (p, b) for x in r.get('load', ()) if x == x]
         load = f'{min(loads):.1f}-{max(loads):.1f}' if loads else '-'
         method = b['label'].split(' (')[0]
-        lines.append(f"| {e['level']:g} | {p['tol']:g} | {p['cpu_s'] * 1e3:.1f} | {p['wall_s'] * 1e3:.1f} "
+        lines.append(f"| {e['level']:g} | {_kernel_name(p)} | {p['tol']:g} | {p['cpu_s'] * 1e3:.1f} | {p['wall_s'] * 1e3:.1f} "
                      f"| {method} | {b['tol']:g} | {b['cpu_s'] * 1e3:.1f} | {b['wall_s'] * 1e3:.1f} "
                      f"| {cpu:.2f}x | {sp:.2f}x | {'yes' if ok else 'no'} | {load} |"
                      if cpu is not None else
-                     f"| {e['level']:g} | {p['tol']:g} | - | {p['wall_s'] * 1e3:.1f} | {method} "
+                     f"| {e['level']:g} | {_kernel_name(p)} | {p['tol']:g} | - | {p['wall_s'] * 1e3:.1f} | {method} "
                      f"| {b['tol']:g} | - | {b['wall_s'] * 1e3:.1f} | - | {sp:.2f}x "
                      f"| {'yes' if ok else 'no'} | {load} |")
     return '\n'.join([*lines, '', expert_verdict(study, family)]) + '\n'

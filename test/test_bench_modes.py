@@ -52,8 +52,30 @@ def test_mode_study_rows_and_levels() -> None:
     lv = {e['level']: e for e in s['levels']}
     assert lv[1e-3]['speedup'] is not None and lv[1e-3]['speedup'] > 1.0
     table = bench_modes.format_mode_table(s)
-    assert '| 0.001 |' in table and 'solve_ivp RK45 + events' in table
+    assert '| 0.001 | dopri5 |' in table and 'solve_ivp RK45 + events' in table
     assert any('mode reference' in line for line in lines)
+
+
+def test_mode_study_times_each_kernel_method_and_takes_the_cheapest_per_level() -> None:
+    """``kernel_methods``: one project row per method and tolerance, each run by that method
+    (its error differs from dopri5's at the same tolerance); a level's project entry is the
+    cheapest project row reaching it, and the table names its method."""
+    s = bench_modes.mode_study('launch_clutch_chain', tolerances=(1e-5, 1e-7), samples=10,
+                               repeats=1, duration=2.0, baseline=False,
+                               kernel_methods=('dopri5', 'vern7'), log=lambda m: None)
+    assert [(r['label'], r['tol']) for r in s['rows']] == [
+        ('kernel dopri5', 1e-5), ('kernel dopri5', 1e-7), ('kernel vern7', 1e-5), ('kernel vern7', 1e-7)]
+    err = {(r['label'], r['tol']): r['err_speed_rel'] for r in s['rows']}
+    assert err[('kernel dopri5', 1e-5)] != err[('kernel vern7', 1e-5)]
+    for e in s['levels']:
+        reach = [r for r in s['rows'] if r['err_speed_rel'] <= e['level']]
+        assert e['project'] is (min(reach, key=lambda r: r['wall_s']) if reach else None)
+    table = bench_modes.format_mode_table(s)
+    for e in s['levels']:
+        name = e['project']['label'].split()[1] if e['project'] else '-'
+        assert f"| {e['level']:g} | {name} |" in table
+    with pytest.raises(ValueError, match="kernel_methods: .*not 'rk45'"):
+        bench_modes.mode_study('launch_clutch_chain', kernel_methods=('rk45',), log=lambda m: None)
 
 
 def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
@@ -61,14 +83,15 @@ def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
     and modes.md and into the result; the report stays the last path."""
     from cvj_ros import bench
     from cvj_ros.physics.scene import parse_scene
-    rows = [{'scene': 'launch_clutch_chain', 'family': f, 'label': f, 'tol': 1e-6, 'ok': True,
+    rows = [{'scene': 'launch_clutch_chain', 'family': f, 'label': label, 'tol': 1e-6, 'ok': True,
              'err_speed_rel': 1e-5, 'wall_s': w, 'wall_per_sim_s': w / 10, 'repeats': 1,
              'steps': 1, 'nfev': 7, 'events': 14, 'energy_residual': 1e-9}
-            for f, w in (('project', 0.01), ('baseline', 0.5))]
+            for f, label, w in (('project', 'kernel vern7', 0.01),
+                                ('baseline', 'solve_ivp RK45 + events', 0.5))]
     calls = []
 
     def study(name, **kw):
-        calls.append((name, kw['tolerances']))
+        calls.append((name, kw['tolerances'], kw['kernel_methods']))
         return {'scene': name, 'duration': 10.0, 'reference': {}, 'rows': rows,
                 'levels': bench_modes.mode_levels(rows)}
     monkeypatch.setattr(bench_modes, 'mode_study', study)
@@ -83,10 +106,10 @@ def test_run_bench_writes_the_mode_tables(tmp_path, monkeypatch) -> None:
                             lockstep_scenes=None, round_trip_n=0, compiled_baselines=False,
                             expert_methods=(), mode_scenes=('launch_clutch_chain',))
     res = bench.run_bench(cfg, tmp_path, log=lambda m: None)
-    assert calls == [('launch_clutch_chain', (1e-4, 1e-11))]
+    assert calls == [('launch_clutch_chain', (1e-4, 1e-11), bench_modes.KERNEL_METHODS)]
     assert res['modes'][0]['levels'][0]['speedup'] == 50.0
     assert (tmp_path / 'modes.csv').read_text().count('\n') == 3
-    assert '| 0.001 | 1e-06 | - | 10.0 | 1e-06 | - | 500.0 | - | 50.0x | - |' in \
+    assert '| 0.001 | vern7 | 1e-06 | - | 10.0 | 1e-06 | - | 500.0 | - | 50.0x | - |' in \
         (tmp_path / 'modes.md').read_text()
     assert res['paths'][-1].name == 'bench.md'
 

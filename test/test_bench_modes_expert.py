@@ -172,19 +172,20 @@ def test_expert_table_verdict_per_level() -> None:
     """The expert table takes the cheapest run of each family at each level; the verdict is
     'yes' only where the expert costs >= 2x the kernel in CPU time and in wall."""
     rows = [_row('project', 'kernel dopri5', 1e-6, 0.010, 0.008),
+            _row('project', 'kernel vern7', 1e-6, 0.012, 0.009),   # dearer: not the best
             _row('baseline_expert', 'numbalsoda lsoda (oracle events)', 1e-6, 0.030, 0.024),
             _row('baseline_expert', 'numbalsoda dop853 (oracle events)', 1e-7, 0.015, 0.020,
                  err=2e-7)]
     s = {'scene': 'launch_clutch_chain', 'duration': 10.0, 'reference': {}, 'rows': rows,
          'levels': bench_modes.mode_levels(rows), 'oracle': {'segments': 26, 'events': 14}}
     table = bench_modes.format_expert_table(s)
-    assert ('| 1e-06 | 1e-06 | 8.0 | 10.0 | numbalsoda dop853 | 1e-07 | 20.0 | 15.0 | 2.50x | 1.50x '
+    assert ('| 1e-06 | dopri5 | 1e-06 | 8.0 | 10.0 | numbalsoda dop853 | 1e-07 | 20.0 | 15.0 | 2.50x | 1.50x '
             '| no | 1.0-2.0 |') in table
-    assert ('| 1e-07 | 1e-06 | 8.0 | 10.0 | numbalsoda lsoda | 1e-06 | 24.0 | 30.0 | 3.00x | 3.00x '
+    assert ('| 1e-07 | dopri5 | 1e-06 | 8.0 | 10.0 | numbalsoda lsoda | 1e-06 | 24.0 | 30.0 | 3.00x | 3.00x '
             '| yes | 1.0-2.0 |') in table
     assert '26 segments, 14 located events' in table
     assert table.rstrip().endswith('held at 1e-07, 1e-08; not at 0.001, 0.0001, 1e-05, 1e-06.')
-    assert bench_modes.format_expert_table(dict(s, rows=rows[:1])) == ''
+    assert bench_modes.format_expert_table(dict(s, rows=rows[:2])) == ''
     assert bench_modes.format_expert_table(s, 'baseline_expert_bisect') == ''
     rows.append(_row('baseline_expert_bisect', 'numbalsoda lsoda (witness bisection, 1 ms grid)',
                      1e-6, 0.025, 0.020))

@@ -95,4 +95,8 @@ def main(rounds: int = 7, calls: int = 200_000) -> None:
 
 
 if __name__ == '__main__':
-    main(*(int(a) for a in sys.argv[1:3]))
+    try:
+        counts = [int(a) for a in sys.argv[1:3]]
+    except ValueError:
+        sys.exit(f'handrhs_clocks.py: ROUNDS and CALLS must be integers, got {" ".join(sys.argv[1:3])}')
+    main(*counts)

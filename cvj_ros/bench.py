@@ -398,42 +398,74 @@ HAND_WRITTEN = ('hooke_2dof', 'stiff', 'fwd_halfshaft')
 
 
 def hand_written_rhs_cost(model_name: str = 'hooke_2dof', *, calls: int = 200_000,
-                          rounds: int = 5) -> dict[str, float]:
+                          rounds: int = 5, loop: str = 'chain', clock: str = 'cpu') -> dict[str, Any]:
     """ns per call of the kernel's rhs on ``model_name`` (:data:`HAND_WRITTEN`:
-    :func:`hooke_2dof_scene`, the shipped stiff or fwd_halfshaft scene) and of the same equations written
-    by hand (:mod:`cvj_ros.bench_handrhs`), both from the same compiled loop over 16 states
-    (:func:`cvj_ros.bench_handrhs.timing_states`), timed in alternating rounds (this machine
-    is shared: each round's pair shares its moment); medians, min and max over the rounds,
-    and the median of the per-round ratios."""
+    :func:`hooke_2dof_scene`, the shipped stiff or fwd_halfshaft scene) and of the same equations
+    written by hand (:mod:`cvj_ros.bench_handrhs`), timed in alternating rounds (each round's
+    pair shares its moment); medians, min and max over the rounds, the median of the per-round
+    ratios, and ``floor_ns``: the chain's own price (:func:`cvj_ros.bench_handrhs.time_null_chain`,
+    included in both).
+
+    ``loop`` 'chain' (what an integrator's stage pays: each rhs behind a call LLVM does not
+    inline, the input z = y + h f of the call before; ``time_*_chain``) or 'cycle' (the
+    16 states cycled, a small rhs inlined into the loop; ``time_*_calls``). ``clock`` 'cpu'
+    (the timing thread's CPU time: a time slice lost to another process is not counted) or
+    'wall' (perf_counter)."""
     from cvj_ros import bench_handrhs as hw
     from cvj_ros.physics.kernel.layout import build_model
     from cvj_ros.physics.simulate import Simulation
-    if model_name == 'hooke_2dof':
-        scene, params, timer = hooke_2dof_scene(), hw.hooke_2dof_params, hw.time_hooke_2dof_calls
-    elif model_name == 'stiff':
-        scene, params, timer = resolve_scene('stiff'), hw.stiff_params, hw.time_stiff_calls
-    elif model_name == 'fwd_halfshaft':
-        scene, params, timer = (resolve_scene('fwd_halfshaft'), hw.fwd_halfshaft_params,
-                                hw.time_fwd_halfshaft_calls)
-    else:
+    models = {'hooke_2dof': (hw.hooke_2dof_params, hw.time_hooke_2dof_calls, hw.time_hooke_2dof_chain),
+              'stiff': (hw.stiff_params, hw.time_stiff_calls, hw.time_stiff_chain),
+              'fwd_halfshaft': (hw.fwd_halfshaft_params, hw.time_fwd_halfshaft_calls,
+                                hw.time_fwd_halfshaft_chain)}
+    if model_name not in models:
         raise ValueError(f'no hand-written rhs for {model_name!r} (have {", ".join(HAND_WRITTEN)})')
+    if loop not in ('chain', 'cycle') or clock not in ('cpu', 'wall'):
+        raise ValueError(f"loop must be 'chain' or 'cycle' and clock 'cpu' or 'wall', "
+                         f"not {loop!r}, {clock!r}")
+    scene = hooke_2dof_scene() if model_name == 'hooke_2dof' else resolve_scene(model_name)
+    params, cycle_timer, chain_timer = models[model_name]
     sim = Simulation(scene, fidelity=forced_levels(scene, 'exact'))
     model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
     ys = hw.timing_states(model.x0)
     p = params(scene)
-    hw.time_kernel_calls(10, 0.0, ys, model.ip, model.fp)
-    timer(10, 0.0, ys, p)
-    kern, hand = [], []
+    if loop == 'chain':
+        def kernel(n: int) -> float:
+            return hw.time_kernel_chain(n, 0.001, ys, hw.CHAIN_H, model.ip, model.fp)
+
+        def hand(n: int) -> float:
+            return chain_timer(n, 0.001, ys, hw.CHAIN_H, p)
+    else:
+        def kernel(n: int) -> float:
+            return hw.time_kernel_calls(n, 0.001, ys, model.ip, model.fp)
+
+        def hand(n: int) -> float:
+            return cycle_timer(n, 0.001, ys, p)
+    now = time.thread_time if clock == 'cpu' else time.perf_counter
+
+    def per_call(fun: Any) -> float:
+        t0 = now()
+        fun(calls)
+        return (now() - t0) / calls * 1e9
+
+    def null(n: int) -> float:
+        return hw.time_null_chain(n, 0.001, ys, hw.CHAIN_H, p)
+
+    for fun in (kernel, hand, null):
+        fun(10)
+    kern, hnd, floor = [], [], []
     for _ in range(max(1, rounds)):
-        t0 = time.perf_counter()
-        hw.time_kernel_calls(calls, 0.001, ys, model.ip, model.fp)
-        kern.append((time.perf_counter() - t0) / calls * 1e9)
-        t0 = time.perf_counter()
-        timer(calls, 0.001, ys, p)
-        hand.append((time.perf_counter() - t0) / calls * 1e9)
-    return {'kernel_ns': float(np.median(kern)), 'kernel_ns_min': min(kern), 'kernel_ns_max': max(kern),
-            'hand_ns': float(np.median(hand)), 'hand_ns_min': min(hand), 'hand_ns_max': max(hand),
-            'ratio': float(np.median(np.array(kern) / np.array(hand))), 'rounds': len(kern)}
+        kern.append(per_call(kernel))
+        hnd.append(per_call(hand))
+        if loop == 'chain':
+            floor.append(per_call(null))
+    out = {'kernel_ns': float(np.median(kern)), 'kernel_ns_min': min(kern), 'kernel_ns_max': max(kern),
+           'hand_ns': float(np.median(hnd)), 'hand_ns_min': min(hnd), 'hand_ns_max': max(hnd),
+           'ratio': float(np.median(np.array(kern) / np.array(hnd))), 'rounds': len(kern),
+           'loop': loop, 'clock': clock}
+    if floor:
+        out['floor_ns'] = float(np.median(floor))
+    return out
 
 
 def _rhs_cost_or_note(scene: Any) -> dict[str, Any]:
@@ -1235,8 +1267,11 @@ def _write_outputs(out: Path, cfg: BenchConfig, rows: list[dict[str, Any]], lock
             for name, hand in (rhs_reference.get('hand') or {}).items():
                 md.append(f'- {name}, the same equations written by hand (`cvj_ros.bench_handrhs`, no '
                           f'section walk): {hand["hand_ns"]:.1f} ns per call against the kernel '
-                          f'rhs\'s {hand["kernel_ns"]:.1f} ns (medians of {hand["rounds"]} alternating '
-                          f'rounds, ranges {hand["hand_ns_min"]:.1f}-{hand["hand_ns_max"]:.1f} and '
+                          f'rhs\'s {hand["kernel_ns"]:.1f} ns (CPU time per integrator-like call: '
+                          f'not inlined, each input from the output before, the chain\'s own '
+                          f'{hand.get("floor_ns", math.nan):.1f} ns included; medians of '
+                          f'{hand["rounds"]} alternating rounds, ranges '
+                          f'{hand["hand_ns_min"]:.1f}-{hand["hand_ns_max"]:.1f} and '
                           f'{hand["kernel_ns_min"]:.1f}-{hand["kernel_ns_max"]:.1f} ns): the kernel '
                           f'is {hand["ratio"]:.2f}x the hand-written rhs (aim within 1.5x).')
         else:

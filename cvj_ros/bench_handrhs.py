@@ -18,22 +18,33 @@ the clutch damper (dead-zone spring, rhs_nb.spring_deflection); input shaft J1, 
 differential J2, the exact tripod (its Fourier series, joints/tripod.py) and midshaft J3, so
 M1 = J1 + J2 k^2 + J3 (k r)^2, C1 = J3 (k r)(s k^2); the linear midshaft spring on the twist
 phi_tripod - q2; the homokinetic Rzeppa (the identity) and the wheel J4 under the road load.
+
+Two timing loops per model. ``time_*_calls`` cycle through the 16 timing states and let
+LLVM inline a small rhs into the loop (throughput of independent calls). ``time_*_chain``
+time what an integrator's stage pays: the rhs behind a call LLVM may not inline
+(:func:`call_not_inlined`, the kernel's steppers call ``rhs`` the same way), arrays
+borrowed as the steppers' entry points borrow them, and each call's input the stage
+z = y_j + h f(z_previous) of the previous call's output, so calls cannot overlap.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
-from cvj_ros.physics.kernel.borrow_nb import borrowed
+from cvj_ros.physics.kernel.borrow_nb import borrowed, borrowed_all, stack_zeros_2d
 from cvj_ros.physics.kernel.joints_nb import hooke_stage_nb, tripod_series_inline_nb
 from cvj_ros.physics.kernel.rhs_nb import rhs, spring_deflection
 from cvj_ros.physics.kernel.sources_nb import map_engine_inline_nb
 
-__all__ = ['fwd_halfshaft_params', 'fwd_halfshaft_rhs', 'hooke_2dof_params', 'hooke_2dof_rhs',
-           'stiff_params', 'stiff_rhs', 'time_fwd_halfshaft_calls', 'time_hooke_2dof_calls',
-           'time_kernel_calls', 'time_stiff_calls', 'timing_states']
+__all__ = ['CHAIN_H', 'call_not_inlined', 'fwd_halfshaft_params', 'fwd_halfshaft_rhs',
+           'hooke_2dof_params', 'hooke_2dof_rhs', 'stiff_params', 'stiff_rhs',
+           'time_fwd_halfshaft_calls', 'time_fwd_halfshaft_chain', 'time_hooke_2dof_calls',
+           'time_hooke_2dof_chain', 'time_kernel_calls', 'time_kernel_chain', 'time_null_chain',
+           'time_stiff_calls', 'time_stiff_chain', 'timing_states']
 
 
 def timing_states(x0: np.ndarray, count: int = 16, seed: int = 0) -> np.ndarray:
@@ -213,3 +224,99 @@ def time_fwd_halfshaft_calls(n, t, ys, p):
         fwd_halfshaft_rhs(t + k * 1e-9, ys[k % m], p, dy)
         acc += dy[2] + dy[3]
     return acc
+
+
+@intrinsic
+def call_not_inlined(typingctx, fn, args):
+    """``fn(*args)`` for the njit function ``fn`` (a global, so the caller stays cacheable) as
+    a direct call in numba's calling convention carrying LLVM's ``noinline`` attribute: the
+    call boundary an integrator's stage pays for a rhs too large to inline (the kernel's),
+    given to a small rhs as well, so that no work moves between calls. An exception raised
+    by ``fn`` propagates."""
+    if not isinstance(fn, types.Dispatcher) or not isinstance(args, types.BaseTuple):
+        return None
+    fsig = typingctx.resolve_function_type(fn, tuple(args.types), {})
+    if fsig is None:
+        return None
+
+    def codegen(context, builder, sig, llargs):
+        cres = fn.dispatcher.overloads[fsig.args]
+        context.add_linking_libs([cres.library])
+        values = [builder.extract_value(llargs[1], i) for i in range(len(args.types))]
+        fnty = context.call_conv.get_function_type(fsig.return_type, fsig.args)
+        callee = cgutils.get_or_insert_function(builder.module, fnty, cres.fndesc.mangled_name)
+        status, res = context.call_conv.call_function(builder, callee, fsig.return_type,
+                                                      fsig.args, values, attrs=('noinline',))
+        with cgutils.if_unlikely(builder, status.is_error):
+            context.call_conv.return_status_propagate(builder, status)
+        return res
+
+    return fsig.return_type(fn, args), codegen
+
+
+#: the stage step (s) of the chained timing loops: z = y_j + CHAIN_H f; with the timing
+#: states' largest |f| (stiff: 8e7 rad/s^2) it moves a speed by < 0.1 rad/s
+CHAIN_H = 1e-9
+
+
+@njit(inline='always')
+def _stage_chain(fn, n, t, ys, h, extra):
+    """n calls fn(t_k, z, *extra, dy), z = ys[k mod m] + h dy (dy of the call before, 0 at
+    the start: the same states every time), t_k = t + k ns, z and dy on the stack, ys and
+    extra borrowed; returns the sum of dy[2] + dy[3] over the calls."""
+    ys = borrowed(ys)
+    extra = borrowed_all(extra)
+    m = ys.shape[0]
+    ns = ys.shape[1]
+    sc = stack_zeros_2d(2, ns)
+    z = sc[0]
+    dy = sc[1]
+    acc = 0.0
+    j = 0
+    for k in range(n):
+        for i in range(ns):
+            z[i] = ys[j, i] + h * dy[i]
+        call_not_inlined(fn, (t + k * 1e-9, z) + extra + (dy,))
+        acc += dy[2] + dy[3]
+        j += 1
+        if j == m:
+            j = 0
+    return acc
+
+
+@njit(cache=True)
+def time_kernel_chain(n, t, ys, h, ip, fp):
+    """The kernel's rhs (kernel/rhs_nb.rhs) in :func:`_stage_chain`; returns its sum."""
+    return _stage_chain(rhs, n, t, ys, h, (ip, fp))
+
+
+@njit(cache=True)
+def time_hooke_2dof_chain(n, t, ys, h, p):
+    """:func:`hooke_2dof_rhs` in :func:`_stage_chain` (the sum equals
+    :func:`time_kernel_chain`'s bit for bit)."""
+    return _stage_chain(hooke_2dof_rhs, n, t, ys, h, (p,))
+
+
+@njit(cache=True)
+def time_stiff_chain(n, t, ys, h, p):
+    """:func:`stiff_rhs` in :func:`_stage_chain`."""
+    return _stage_chain(stiff_rhs, n, t, ys, h, (p,))
+
+
+@njit(cache=True)
+def time_fwd_halfshaft_chain(n, t, ys, h, p):
+    """:func:`fwd_halfshaft_rhs` in :func:`_stage_chain`."""
+    return _stage_chain(fwd_halfshaft_rhs, n, t, ys, h, (p,))
+
+
+@njit(cache=True)
+def null_rhs(t, y, p, dy):
+    """An rhs that computes nothing (dy stays as it is): :func:`time_null_chain`'s callee."""
+    return
+
+
+@njit(cache=True)
+def time_null_chain(n, t, ys, h, p):
+    """:func:`null_rhs` in :func:`_stage_chain`: the chain's own price per call (the stage
+    z = y + h dy and the call), which the other ``*_chain`` loops include."""
+    return _stage_chain(null_rhs, n, t, ys, h, (p,))

@@ -310,7 +310,12 @@ def test_report_gives_the_rhs_of_the_hand_written_reference_model(result: tuple[
     from cvj_ros.physics.simulate import Simulation
     sim = Simulation(bench.hooke_2dof_scene())
     assert sim.backend == 'kernel' and sim.driveline.n_dof == 2
-    assert "reference: a hand-written compiled rhs at 25 ns" in (out / 'bench.md').read_text()
+    md = (out / 'bench.md').read_text()
+    assert "reference: a hand-written compiled rhs at 25 ns" in md
+    # the three hand-written models, timed as an integrator's stage calls them (CPU time)
+    assert set(ref['hand']) == set(bench.HAND_WRITTEN)
+    assert all(h['loop'] == 'chain' and h['clock'] == 'cpu' for h in ref['hand'].values())
+    assert md.count('CPU time per integrator-like call') == len(bench.HAND_WRITTEN)
 
 
 def test_short_runs_repeat_until_they_fill_the_minimum_time() -> None:

@@ -93,6 +93,17 @@ def test_hand_written_cost_entry(name: str) -> None:
     assert 0 < out['hand_ns_min'] <= out['hand_ns'] <= out['hand_ns_max']
     assert 0 < out['kernel_ns_min'] <= out['kernel_ns'] <= out['kernel_ns_max']
     assert out['ratio'] > 0
+    assert out['loop'] == 'chain' and out['clock'] == 'cpu' and out['floor_ns'] > 0
+
+
+def test_hand_written_cost_keeps_the_cycled_loop_and_the_wall_clock() -> None:
+    """The earlier measurement (states cycled, wall clock) stays available beside the chain."""
+    out = bench.hand_written_rhs_cost('stiff', calls=2000, rounds=2, loop='cycle', clock='wall')
+    assert out['rounds'] == 2 and out['loop'] == 'cycle' and 'floor_ns' not in out
+    with pytest.raises(ValueError, match="loop must be 'chain' or 'cycle'"):
+        bench.hand_written_rhs_cost('stiff', calls=10, rounds=1, loop='fixed')
+    with pytest.raises(ValueError, match="clock 'cpu' or 'wall'"):
+        bench.hand_written_rhs_cost('stiff', calls=10, rounds=1, clock='tsc')
 
 
 def test_hand_written_cost_names_its_models() -> None:
@@ -113,3 +124,78 @@ def test_timing_loops_compute_the_same_sums() -> None:
         ys = timing_states(model.x0)
         assert ys.shape == (16, model.x0.size) and np.unique(ys[:, 0]).size == 16
         assert time_kernel_calls(1000, 0.001, ys, model.ip, model.fp) == timer(1000, 0.001, ys, params(scene))
+
+
+def _chain_cases():
+    from cvj_ros import bench_handrhs as hw
+    return ((bench.hooke_2dof_scene(), hooke_2dof_params, hw.time_hooke_2dof_chain),
+            (bench.resolve_scene('stiff'), stiff_params, hw.time_stiff_chain),
+            (bench.resolve_scene('fwd_halfshaft'), fwd_halfshaft_params, hw.time_fwd_halfshaft_chain))
+
+
+def test_chained_loops_compute_the_same_sums_from_chained_states() -> None:
+    """On the chained loop (each input z = y_j + h f of the call before) the kernel's and
+    the hand-written rhs give the same sum bit for bit - the same states and the same
+    arithmetic are timed -, the sum repeats from call to call (the same states every round),
+    and it differs from h = 0, so each call's input does depend on the previous output."""
+    from cvj_ros import bench_handrhs as hw
+    for scene, params, timer in _chain_cases():
+        sim = Simulation(scene, fidelity=bench.forced_levels(scene, 'exact'))
+        model = build_model(sim.driveline, engine=sim.engine, load=sim.load)
+        ys = hw.timing_states(model.x0)
+        p = params(scene)
+        got = timer(1000, 0.001, ys, hw.CHAIN_H, p)
+        assert math.isfinite(got)
+        assert hw.time_kernel_chain(1000, 0.001, ys, hw.CHAIN_H, model.ip, model.fp) == got
+        assert timer(1000, 0.001, ys, hw.CHAIN_H, p) == got
+        assert timer(1000, 0.001, ys, 0.0, p) != got
+        assert hw.time_kernel_chain(1000, 0.001, ys, 0.0, model.ip, model.fp) == timer(1000, 0.001, ys, 0.0, p)
+    assert hw.time_null_chain(100, 0.0, ys, hw.CHAIN_H, p) == 0.0
+
+
+def test_call_not_inlined_is_a_call_that_llvm_keeps() -> None:
+    """A one-line callee stays a call (LLVM's noinline on the call site), where a plain call
+    of the same function is inlined: the chained loops time the rhs behind a call boundary."""
+    from numba import njit
+
+    from cvj_ros.bench_handrhs import call_not_inlined
+
+    @njit
+    def twice(x):
+        return 2.0 * x
+
+    @njit
+    def kept(x):
+        return call_not_inlined(twice, (x,)) + 1.0
+
+    @njit
+    def plain(x):
+        return twice(x) + 1.0
+
+    assert kept(3.0) == plain(3.0) == 7.0
+    name = twice.overloads[twice.signatures[0]].fndesc.mangled_name
+    ir_kept = next(iter(kept.inspect_llvm().values()))
+    ir_plain = next(iter(plain.inspect_llvm().values()))
+    entry = ir_kept[ir_kept.index('define '):]
+    assert f'call i32 @{name}' in entry or f'call i32 @"{name}"' in entry
+    assert 'noinline' in entry
+    plain_entry = ir_plain[ir_plain.index('define '):]
+    assert f'@{name}(' not in plain_entry.split('\n}')[0]
+
+
+def test_call_not_inlined_propagates_the_callee_exception() -> None:
+    from numba import njit
+
+    from cvj_ros.bench_handrhs import call_not_inlined
+
+    @njit
+    def inverse(x):
+        return 1.0 / x
+
+    @njit
+    def kept(x):
+        return call_not_inlined(inverse, (x,))
+
+    assert kept(4.0) == 0.25
+    with pytest.raises(ZeroDivisionError):
+        kept(0.0)

@@ -239,6 +239,7 @@ class BatchRunner:
     def run(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
         """(row, wall s) of the variant ``values``: the same row as run_variant."""
         from cvj_ros.physics.fidelity import choose_fidelity
+        from cvj_ros.physics.simulate import explicit_step_check
         t0 = time.perf_counter()
         values = tuple(values)
         if not self.enabled:
@@ -262,8 +263,12 @@ class BatchRunner:
                 return self._full(values)
             levels = self._levels_of_template(scene, vkeys)
             if levels is None:
-                levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None
-                                         ).levels
+                report = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None)
+                levels = report.levels
+                # Simulation.run's refusal of an explicit method on a stiff spring (the
+                # lean run skips Simulation.run); the scene's method and duration are the
+                # run's: the non-local keys equal the template's or the variant runs in full
+                explicit_step_check(scene, report, scene.solver.method, float(scene.duration))
         except Exception:       # noqa: BLE001  (the per-variant path gives its row)
             return self._full(values)        # the same 'invalid' / 'failed' row
         skey = tuple(sorted(levels.items()))
@@ -324,7 +329,9 @@ class BatchRunner:
         spring's omega_n = sqrt(c (1/J_l + 1/J_r)), computed here with the variant's
         stiffness: it raises for J = 0 or c (1/J_l + 1/J_r) < 0, and band / omega_n divides
         by zero where it is 0 (c (1/J_l + 1/J_r) underflowing); such a variant (or one
-        where any premise fails) is left to choose_fidelity."""
+        where any premise fails) is left to choose_fidelity. So is one whose omega_n
+        duration / 6 exceeds 1e10 steps under an explicit method (the refusal of
+        ``simulate.explicit_step_check``, which the caller then applies to the report)."""
         if len(self.templates) != 1:
             return None
         tpl = next(iter(self.templates.values()))
@@ -348,10 +355,16 @@ class BatchRunner:
             return None
         from cvj_ros.physics.fidelity import spring_omega_n
         from cvj_ros.physics.scene import Spring
+        from cvj_ros.physics.simulate import (EXPLICIT_METHODS, EXPLICIT_STABILITY,
+                                              MAX_EXPLICIT_STEPS)
+        explicit = scene.solver.method in EXPLICIT_METHODS
+        duration = float(scene.duration)
         try:
             for el in scene.driveline:
                 if isinstance(el, Spring):
-                    if spring_omega_n(el.stiffness, *adjacent[el.name]) == 0.0:
+                    omega = spring_omega_n(el.stiffness, *adjacent[el.name])
+                    if omega == 0.0 or (explicit and omega * duration / EXPLICIT_STABILITY
+                                        > MAX_EXPLICIT_STEPS):
                         return None
         except Exception:       # noqa: BLE001  (choose_fidelity then raises it)
             return None

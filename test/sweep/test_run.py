@@ -253,3 +253,37 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path, proce
     assert 'Traceback' not in err
     _, partial = read_results(tmp_path / 'results.csv')
     assert 0 < len(partial) < 256
+
+
+def _session_processes(sid: int) -> list[str]:
+    """/proc/PID/stat lines of the live (not zombie) processes of session ``sid``."""
+    live = []
+    for d in os.listdir('/proc'):
+        if not d.isdigit():
+            continue
+        try:
+            stat = Path(f'/proc/{d}/stat').read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(')', 1)[1].split()     # state, ppid, pgrp, session, ...
+        if int(fields[3]) == sid and fields[0] != 'Z':
+            live.append(stat[:80])
+    return live
+
+
+@pytest.mark.skipif(not Path('/proc/self/stat').is_file(), reason='reads /proc')
+def test_mistyped_scene_leaves_no_fork_server_behind(tmp_path: Path) -> None:
+    """`cvj-sim sweep kavz685_levr --workers 2`: one line, exit 2, and no process of its
+    session still running once it has exited (the pool's fork server, started before the
+    scene is read, was loading the kernel for ~0.5 s after the command's exit)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'cvj_ros.cli', 'sweep', 'kavz685_levr', '--set',
+         'driveline[bushings].stiffness=300,400', '--workers', '2', '--no-plots', '--out',
+         str(tmp_path / 'out')], env=env, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _out, err = proc.communicate(timeout=120)
+    left = _session_processes(proc.pid)
+    assert proc.returncode == 2 and 'Traceback' not in err
+    assert "no scene file or shipped scene 'kavz685_levr'" in err
+    assert left == []

@@ -130,6 +130,9 @@ class _Template:
     # element is a spring, and the template's adjacent inertias; None: no such rule
     springs: tuple[bool, ...] | None = None
     adjacent: dict[str, tuple[float, float]] | None = None
+    # (duration, EXPLICIT_STABILITY, MAX_EXPLICIT_STEPS) of simulate.explicit_step_check
+    # for an explicit method (None: an implicit one, no bound)
+    step_bound: tuple[float, float, float] | None = None
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -239,7 +242,6 @@ class BatchRunner:
     def run(self, values: Sequence[Any]) -> tuple[dict[str, Any], float]:
         """(row, wall s) of the variant ``values``: the same row as run_variant."""
         from cvj_ros.physics.fidelity import choose_fidelity
-        from cvj_ros.physics.simulate import explicit_step_check
         t0 = time.perf_counter()
         values = tuple(values)
         if not self.enabled:
@@ -263,6 +265,7 @@ class BatchRunner:
                 return self._full(values)
             levels = self._levels_of_template(scene, vkeys)
             if levels is None:
+                from cvj_ros.physics.simulate import explicit_step_check
                 report = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None)
                 levels = report.levels
                 # Simulation.run's refusal of an explicit method on a stiff spring (the
@@ -355,16 +358,13 @@ class BatchRunner:
             return None
         from cvj_ros.physics.fidelity import spring_omega_n
         from cvj_ros.physics.scene import Spring
-        from cvj_ros.physics.simulate import (EXPLICIT_METHODS, EXPLICIT_STABILITY,
-                                              MAX_EXPLICIT_STEPS)
-        explicit = scene.solver.method in EXPLICIT_METHODS
-        duration = float(scene.duration)
+        bound = tpl.step_bound      # the scene's method and duration are the template's
         try:
             for el in scene.driveline:
                 if isinstance(el, Spring):
                     omega = spring_omega_n(el.stiffness, *adjacent[el.name])
-                    if omega == 0.0 or (explicit and omega * duration / EXPLICIT_STABILITY
-                                        > MAX_EXPLICIT_STEPS):
+                    if omega == 0.0 or (bound is not None
+                                        and omega * bound[0] / bound[1] > bound[2]):
                         return None
         except Exception:       # noqa: BLE001  (choose_fidelity then raises it)
             return None
@@ -402,6 +402,10 @@ class BatchRunner:
                                 for k, local in zip(self.job.keys, self.local))
             tpl.adjacent = _adjacent(scene, choose_fidelity(
                 scene, overrides=dict(self.options.fidelity) or None))
+            from cvj_ros.physics.simulate import (EXPLICIT_METHODS, EXPLICIT_STABILITY,
+                                                  MAX_EXPLICIT_STEPS)
+            if scene.solver.method in EXPLICIT_METHODS:
+                tpl.step_bound = (float(scene.duration), EXPLICIT_STABILITY, MAX_EXPLICIT_STEPS)
         tpl.lean = bind_lean(sim, plan, self.options.sampling)
         from cvj_ros.sweep.reduce import checked_slices
         tpl.slices = checked_slices(plan.times)

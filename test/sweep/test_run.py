@@ -256,18 +256,23 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path, proce
 
 
 def _session_processes(sid: int) -> list[str]:
-    """/proc/PID/stat lines of the live (not zombie) processes of session ``sid``."""
+    """Command lines of the processes of session ``sid`` that are not ending: not a zombie,
+    not one whose command line is gone already (it is exiting), not the multiprocessing
+    resource tracker (it ends by itself once its parent's pipe closes, a moment after the
+    parent)."""
     live = []
     for d in os.listdir('/proc'):
         if not d.isdigit():
             continue
         try:
             stat = Path(f'/proc/{d}/stat').read_text()
+            cmd = Path(f'/proc/{d}/cmdline').read_bytes().replace(b'\0', b' ').decode()
         except OSError:
             continue
         fields = stat.rsplit(')', 1)[1].split()     # state, ppid, pgrp, session, ...
-        if int(fields[3]) == sid and fields[0] != 'Z':
-            live.append(stat[:80])
+        if int(fields[3]) == sid and fields[0] != 'Z' and cmd \
+                and 'resource_tracker' not in cmd:
+            live.append(f'{d} {fields[0]} {cmd[:120]}')
     return live
 
 
@@ -277,13 +282,35 @@ def test_mistyped_scene_leaves_no_fork_server_behind(tmp_path: Path) -> None:
     session still running once it has exited (the pool's fork server, started before the
     scene is read, was loading the kernel for ~0.5 s after the command's exit)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'cvj_ros.cli', 'sweep', 'kavz685_levr', '--set',
-         'driveline[bushings].stiffness=300,400', '--workers', '2', '--no-plots', '--out',
-         str(tmp_path / 'out')], env=env, start_new_session=True,
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _out, err = proc.communicate(timeout=120)
+    # output to files, not pipes: the server inherits them, and reading a pipe to its end
+    # would wait for the server too
+    with open(tmp_path / 'err', 'w') as f:
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'cvj_ros.cli', 'sweep', 'kavz685_levr', '--set',
+             'driveline[bushings].stiffness=300,400', '--workers', '2', '--no-plots', '--out',
+             str(tmp_path / 'out')], env=env, start_new_session=True,
+            stdout=subprocess.DEVNULL, stderr=f)
+        proc.wait(timeout=120)
     left = _session_processes(proc.pid)
+    err = (tmp_path / 'err').read_text()
     assert proc.returncode == 2 and 'Traceback' not in err
     assert "no scene file or shipped scene 'kavz685_levr'" in err
+    assert left == []
+
+
+@pytest.mark.skipif(not Path('/proc/self/stat').is_file(), reason='reads /proc')
+def test_fork_server_ends_with_the_process_that_started_it(tmp_path: Path) -> None:
+    """A process that starts the fork server and exits at once (the server's preload takes
+    ~0.4 s CPU, so it is still loading then): no process of its session runs on. Before,
+    the server ran its preload to the end after its parent had gone (the command test
+    above catches that only when the command ends while the server still loads)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    with open(tmp_path / 'err', 'w') as f:    # a file: the server inherits it (see above)
+        proc = subprocess.Popen(
+            [sys.executable, '-c', 'from cvj_ros.sweep.server import start_fork_server; '
+                                   'start_fork_server(); raise SystemExit(2)'],
+            env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=f)
+        proc.wait(timeout=120)
+    left = _session_processes(proc.pid)
+    assert proc.returncode == 2 and (tmp_path / 'err').read_text() == ''
     assert left == []

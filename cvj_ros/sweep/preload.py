@@ -9,7 +9,7 @@ harmless: a worker then loads the kernel on its first variant.
 numba imports ``coverage`` (when installed) only to report the lines it compiles to an
 active coverage run; none runs in the server (a fresh interpreter; coverage started at its
 start-up, or asked for by COVERAGE_PROCESS_START, is left alone), so the server marks it
-absent first: its import is ~0.03-0.04 s of the load every worker waits for."""
+absent first and does not import it: its load is the start every worker waits for."""
 from __future__ import annotations
 
 import os

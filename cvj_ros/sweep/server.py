@@ -38,8 +38,8 @@ _AT_EXIT = False
 
 def stop_fork_server() -> None:
     """End this process's fork server, if it started one, and wait for it. A server still
-    importing its preload would otherwise run on (~0.5 s) after its parent exits: it stops
-    only when its preload is done and it finds the parent's pipe closed. Called at exit
+    importing its preload would otherwise run on after its parent exits: it stops only
+    when its preload is done and it finds the parent's pipe closed. Called at exit
     (after the pool's workers are gone); a later :func:`start_fork_server` starts a new one."""
     import signal
     from multiprocessing import forkserver

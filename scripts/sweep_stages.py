@@ -138,8 +138,12 @@ def timeline_child(path: str, out: str, against: str | None) -> None:
         import concurrent.futures as cf
         marks['submit'] = time.time()
         self.futures = [self.pool.submit(timed_chunk, job, c) for c in work]
+        from cvj_ros.sweep import server
+        served = getattr(server, 'mark_served', lambda: None)    # (a tree before it)
         for fut in cf.as_completed(self.futures):
-            yield fut.result()
+            result = fut.result()
+            served()
+            yield result
         marks['last chunk'] = time.time()
     run_mod.ProcessExecutor.map = map_
     orig_write = results.ResultStore.write_tables

@@ -34,18 +34,28 @@ def start_fork_server() -> None:
 
 
 _AT_EXIT = False
+_SERVED = False     # the server has forked a worker: its preload is done
+
+
+def mark_served() -> None:
+    """Note that the fork server has forked a worker (so it has loaded its preload and
+    ends by itself, at once, when this process exits)."""
+    global _SERVED
+    _SERVED = True
 
 
 def stop_fork_server() -> None:
-    """End this process's fork server, if it started one, and wait for it. A server still
-    importing its preload would otherwise run on after its parent exits: it stops only
-    when its preload is done and it finds the parent's pipe closed. Called at exit
-    (after the pool's workers are gone); a later :func:`start_fork_server` starts a new one."""
+    """End this process's fork server, if it started one and it has not served a worker
+    yet, and wait for it. A server still importing its preload would otherwise run on after
+    its parent exits: it stops only when its preload is done and it finds the parent's pipe
+    closed (a server that has served is past its preload and is left to do so). Called at
+    exit (after the pool's workers are gone); a later :func:`start_fork_server` starts a
+    new one."""
     import signal
     from multiprocessing import forkserver
     server = forkserver._forkserver        # the module's ForkServer (no public handle)
     pid = getattr(server, '_forkserver_pid', None)
-    if pid is None:
+    if pid is None or _SERVED:
         return
     try:
         os.kill(pid, signal.SIGTERM)

@@ -314,3 +314,41 @@ def test_fork_server_ends_with_the_process_that_started_it(tmp_path: Path) -> No
     left = _session_processes(proc.pid)
     assert proc.returncode == 2 and (tmp_path / 'err').read_text() == ''
     assert left == []
+
+
+
+def test_a_fork_server_that_served_is_left_to_end_by_itself(tmp_path: Path) -> None:
+    """After a sweep on the pool (the server forked its workers, so its preload is done)
+    exit does not stop and wait for the server: it ends by itself once this process's pipe
+    closes, as before. stop_fork_server leaves it running then, and stops one that has
+    not served."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    code = ('import os\n'
+            'from multiprocessing import forkserver\n'
+            'from cvj_ros.commands.sweep import load_scene_data\n'
+            'from cvj_ros.physics.scene import find_scene\n'
+            'from cvj_ros.sweep import server\n'
+            'from cvj_ros.sweep.run import Job, ProcessExecutor, RunOptions\n'
+            'from cvj_ros.sweep.spec import build_sweep\n'
+            'if __name__ == "__main__":\n'
+            '    sw = build_sweep(load_scene_data(find_scene("kavz685_lever")),\n'
+            '                     ["duration=0.05", "driveline[bushings].stiffness=500,900"])\n'
+            '    job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes),\n'
+            '              options=RunOptions())\n'
+            '    ex = ProcessExecutor(2)\n'
+            '    before = server._SERVED\n'
+            '    rows = [o.row["status"] for c in ex.map(job, [list(enumerate(sw.variants))])\n'
+            '            for o in c]\n'
+            '    ex.close()\n'
+            '    pid = forkserver._forkserver._forkserver_pid\n'
+            '    server.stop_fork_server()\n'
+            '    print(before, rows, server._SERVED, os.waitpid(pid, os.WNOHANG) == (0, 0))\n'
+            '    server._SERVED = False\n'
+            '    server.stop_fork_server()\n'
+            '    print(forkserver._forkserver._forkserver_pid)\n')
+    script = tmp_path / 'served.py'
+    script.write_text(code)
+    out = subprocess.run([sys.executable, str(script)], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ['False', "['ok',", "'ok']", 'True', 'True', 'None']

@@ -25,8 +25,11 @@ def start_fork_server() -> None:
     # server inherits this environment, and the workers the server's
     os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
     mp.get_context('forkserver').set_forkserver_preload(PRELOAD)
+    before = getattr(forkserver._forkserver, '_forkserver_pid', None)
     forkserver.ensure_running()
-    global _AT_EXIT
+    global _AT_EXIT, _SERVED
+    if getattr(forkserver._forkserver, '_forkserver_pid', None) != before:
+        _SERVED = False     # a new server (the first, or one after a dead one)
     if not _AT_EXIT:
         import atexit
         atexit.register(stop_fork_server)

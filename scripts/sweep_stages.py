@@ -16,6 +16,11 @@ starts, when each worker starts its first chunk and ends its last (its CPU in ch
 when the parent submits, has its last chunk and has written the tables; the parent's CPU
 (``getrusage``) and the MD5 of results.csv. Prints a few lines a run.
 
+``--server N [TREE ...]``: the fork server's load alone, N rounds alternating between the
+source trees (default this one): a fresh interpreter imports what the server imports
+(``multiprocessing.forkserver`` and ``cvj_ros.sweep.preload``) and prints its whole CPU
+(``getrusage``, the interpreter's start included), s.
+
 ``--against COMMIT``: paired instead - that commit's ``cvj_ros/sweep/batch.py`` (from
 ``git show``, loaded as a module of its own beside this tree's; the rest of cvj_ros is
 this tree's) and this tree's, each with its own warm runner, the 400 variants
@@ -133,8 +138,12 @@ def timeline_child(path: str, out: str, against: str | None) -> None:
         import concurrent.futures as cf
         marks['submit'] = time.time()
         self.futures = [self.pool.submit(timed_chunk, job, c) for c in work]
+        from cvj_ros.sweep import server
+        served = getattr(server, 'mark_served', lambda: None)    # (a tree before it)
         for fut in cf.as_completed(self.futures):
-            yield fut.result()
+            result = fut.result()
+            served()
+            yield result
         marks['last chunk'] = time.time()
     run_mod.ProcessExecutor.map = map_
     orig_write = results.ResultStore.write_tables
@@ -215,7 +224,30 @@ def timeline(runs: int, trees: list[str]) -> None:
         print('\n'.join(parts), flush=True)
 
 
+def server_load(rounds: int, trees: list[str]) -> None:
+    import statistics
+    import subprocess
+    code = ('import resource; from multiprocessing.forkserver import main; '
+            'import cvj_ros.sweep.preload; r = resource.getrusage(resource.RUSAGE_SELF); '
+            'print(r.ru_utime + r.ru_stime)')
+    cpu: dict[str, list[float]] = defaultdict(list)
+    for _r in range(rounds):
+        for tree in trees:
+            out = subprocess.run([sys.executable, '-c', code], check=True, capture_output=True,
+                                 text=True, env={**os.environ, 'PYTHONPATH': tree},
+                                 cwd=tree).stdout    # -c puts the working directory first
+            cpu[tree].append(float(out))
+    for tree in trees:
+        c = sorted(cpu[tree])
+        print(f'{tree}: server CPU {c[0]:.3f}-{c[-1]:.3f} s, median {statistics.median(c):.3f} '
+              f'({len(c)} runs, load {os.getloadavg()[0]:.2f})')
+
+
 def main() -> None:
+    if '--server' in sys.argv:
+        i = sys.argv.index('--server')
+        server_load(int(sys.argv[i + 1]), sys.argv[i + 2:] or [os.getcwd()])
+        return
     if '--timeline-child' in sys.argv:
         i = sys.argv.index('--timeline-child')
         timeline_child(sys.argv[i + 1], sys.argv[i + 2], None)

@@ -130,6 +130,9 @@ class _Template:
     # element is a spring, and the template's adjacent inertias; None: no such rule
     springs: tuple[bool, ...] | None = None
     adjacent: dict[str, tuple[float, float]] | None = None
+    # (duration, EXPLICIT_STABILITY, MAX_EXPLICIT_STEPS) of simulate.explicit_step_check
+    # for an explicit method (None: an implicit one, no bound)
+    step_bound: tuple[float, float, float] | None = None
 
 
 def _value_key(v: Any) -> tuple[str, str]:
@@ -262,8 +265,13 @@ class BatchRunner:
                 return self._full(values)
             levels = self._levels_of_template(scene, vkeys)
             if levels is None:
-                levels = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None
-                                         ).levels
+                from cvj_ros.physics.simulate import explicit_step_check
+                report = choose_fidelity(scene, overrides=dict(self.options.fidelity) or None)
+                levels = report.levels
+                # Simulation.run's refusal of an explicit method on a stiff spring (the
+                # lean run skips Simulation.run); the scene's method and duration are the
+                # run's: the non-local keys equal the template's or the variant runs in full
+                explicit_step_check(scene, report, scene.solver.method, float(scene.duration))
         except Exception:       # noqa: BLE001  (the per-variant path gives its row)
             return self._full(values)        # the same 'invalid' / 'failed' row
         skey = tuple(sorted(levels.items()))
@@ -324,7 +332,9 @@ class BatchRunner:
         spring's omega_n = sqrt(c (1/J_l + 1/J_r)), computed here with the variant's
         stiffness: it raises for J = 0 or c (1/J_l + 1/J_r) < 0, and band / omega_n divides
         by zero where it is 0 (c (1/J_l + 1/J_r) underflowing); such a variant (or one
-        where any premise fails) is left to choose_fidelity."""
+        where any premise fails) is left to choose_fidelity. So is one whose omega_n
+        duration / 6 exceeds 1e10 steps under an explicit method (the refusal of
+        ``simulate.explicit_step_check``, which the caller then applies to the report)."""
         if len(self.templates) != 1:
             return None
         tpl = next(iter(self.templates.values()))
@@ -348,10 +358,13 @@ class BatchRunner:
             return None
         from cvj_ros.physics.fidelity import spring_omega_n
         from cvj_ros.physics.scene import Spring
+        bound = tpl.step_bound      # the scene's method and duration are the template's
         try:
             for el in scene.driveline:
                 if isinstance(el, Spring):
-                    if spring_omega_n(el.stiffness, *adjacent[el.name]) == 0.0:
+                    omega = spring_omega_n(el.stiffness, *adjacent[el.name])
+                    if omega == 0.0 or (bound is not None
+                                        and omega * bound[0] / bound[1] > bound[2]):
                         return None
         except Exception:       # noqa: BLE001  (choose_fidelity then raises it)
             return None
@@ -389,6 +402,10 @@ class BatchRunner:
                                 for k, local in zip(self.job.keys, self.local))
             tpl.adjacent = _adjacent(scene, choose_fidelity(
                 scene, overrides=dict(self.options.fidelity) or None))
+            from cvj_ros.physics.simulate import (EXPLICIT_METHODS, EXPLICIT_STABILITY,
+                                                  MAX_EXPLICIT_STEPS)
+            if scene.solver.method in EXPLICIT_METHODS:
+                tpl.step_bound = (float(scene.duration), EXPLICIT_STABILITY, MAX_EXPLICIT_STEPS)
         tpl.lean = bind_lean(sim, plan, self.options.sampling)
         from cvj_ros.sweep.reduce import checked_slices
         tpl.slices = checked_slices(plan.times)

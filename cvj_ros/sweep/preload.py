@@ -4,8 +4,19 @@ loaded instead of loading it itself (measured here: ~2-5 s per spawned worker on
 2-core machine). Loading is done by running a tiny scene through the same path a variant
 takes (Simulation.run with dense sampling, compiled outputs, metrics; the batched path's
 compiled reduction). Any failure here is
-harmless: a worker then loads the kernel on its first variant."""
+harmless: a worker then loads the kernel on its first variant.
+
+numba imports ``coverage`` (when installed) only to report the lines it compiles to an
+active coverage run; none runs in the server (a fresh interpreter; coverage started at its
+start-up, or asked for by COVERAGE_PROCESS_START, is left alone), so the server marks it
+absent first and does not import it: its load is the start every worker waits for."""
 from __future__ import annotations
+
+import os
+import sys
+
+if 'coverage' not in sys.modules and not os.environ.get('COVERAGE_PROCESS_START'):
+    sys.modules['coverage'] = None      # type: ignore[assignment]  (import coverage: ImportError)
 
 
 def warm() -> None:
@@ -30,14 +41,21 @@ def warm() -> None:
 
 def warm_batch() -> None:
     """Import the batched path (cvj_ros.sweep.batch, run, spec, reparse, orders) and load
-    its compiled reduction (kernel/reduce_nb.py, both forms) on a tiny record, so a forked
-    worker has both."""
+    its compiled reduction (kernel/reduce_nb.py, both forms) on a tiny record and the
+    members' fill (outputs_nb.fill_mid_samples: the entry point bind_lean keeps, for the
+    argument types it passes), so a forked worker has them."""
+    import numpy as np
+
     import cvj_ros.sweep.batch  # noqa: F401
     import cvj_ros.sweep.orders  # noqa: F401
     import cvj_ros.sweep.reparse  # noqa: F401
     import cvj_ros.sweep.spec  # noqa: F401
+    from cvj_ros.physics.kernel import entry_point_once
+    from cvj_ros.physics.kernel.outputs_nb import fill_mid_samples
     from cvj_ros.sweep.reduce import load_entries
     load_entries()
+    args = (np.empty((0, 1)), np.empty((0, 1)), np.zeros((0, 4), np.int64), np.zeros(1))
+    entry_point_once(fill_mid_samples, args)(*args)
 
 
 try:

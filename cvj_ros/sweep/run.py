@@ -330,9 +330,12 @@ class ProcessExecutor:
         import concurrent.futures as cf
         from concurrent.futures.process import BrokenProcessPool
         self.futures = [self.pool.submit(run_chunk, job, c) for c in work]
+        from cvj_ros.sweep.server import mark_served
         try:
             for fut in cf.as_completed(self.futures):
-                yield fut.result()
+                result = fut.result()
+                mark_served()       # a worker ran: the fork server is past its preload
+                yield result
         except BrokenProcessPool:
             raise SweepError('--workers: a worker process died (killed, or out of memory); the '
                              'finished variants are kept: rerun the same command to resume') from None

@@ -299,3 +299,34 @@ def test_fidelity_levels_with_an_accuracy_target_are_chosen() -> None:
     choose_fidelity (the module's four-structure grid)."""
     _runner, _rows, fast, _declined = _levels_checked(SETS)
     assert fast == 0
+
+
+
+def test_explicit_method_refused_on_a_stiff_spring_as_per_variant() -> None:
+    """A stiffness of 1e300 N m/rad: Simulation.run refuses dopri5 there (omega_n ~3.7e150
+    rad/s, omega_n duration / 6 ~3e148 steps > 1e10: simulate.explicit_step_check). The
+    batched variant gets that 'failed' row (choose_fidelity's report checked before the
+    lean run) instead of the lean run stepping at ~1e-150 s; and the template's levels
+    decline such a variant even where its values were probed (the guard alone here: a
+    probe of 1e300 is put in by hand, as a stiffness probed beside other inertias)."""
+    import dataclasses
+    runner, rows, fast, declined = _levels_checked(
+        ['duration=0.05', 'driveline[coupling].params.alpha_deg=5,15',
+         'driveline[bushings].stiffness=300,1e300'])
+    assert [r['status'] for r in rows] == ['ok', 'failed', 'ok', 'failed']
+    assert rows[1]['error'].startswith("driveline[1].stiffness: spring 'bushings' and its "
+                                       "neighbours' inertias have a mode at 3.74e+150 rad/s: "
+                                       "dopri5 would need ~3.1e+148 steps for 0.05 s")
+    # pass 1: the template, the 15 deg variant (its value new) by choose_fidelity, the two
+    # refused by its report; pass 2: the two 300 N m/rad variants from the template
+    assert (fast, declined) == (2, 6)
+    assert runner.stats['batched'] == 3 and runner.stats['full'] == 5
+    tpl = next(iter(runner.templates.values()))
+    stiff = ('float', '1e+300')
+    tpl.probes[(2, stiff)] = dataclasses.replace(tpl.probes[(1, ('int', '15'))])
+    data = load_scene_data(find_scene('kavz685_lever'))
+    data['duration'] = 0.05
+    for stiffness, levels in ((1e300, None), (300, tpl.levels)):
+        data['driveline'][1]['stiffness'] = stiffness
+        vkeys = (tpl.vkeys[0], tpl.vkeys[1], stiff if stiffness == 1e300 else tpl.vkeys[2])
+        assert runner._levels_of_template(parse_scene(data), vkeys) == levels

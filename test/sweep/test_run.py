@@ -253,3 +253,102 @@ def test_killed_worker_is_one_line_and_keeps_finished_rows(tmp_path: Path, proce
     assert 'Traceback' not in err
     _, partial = read_results(tmp_path / 'results.csv')
     assert 0 < len(partial) < 256
+
+
+def _session_processes(sid: int) -> list[str]:
+    """Command lines of the processes of session ``sid`` that are not ending: not a zombie,
+    not one whose command line is gone already (it is exiting), not the multiprocessing
+    resource tracker (it ends by itself once its parent's pipe closes, a moment after the
+    parent)."""
+    live = []
+    for d in os.listdir('/proc'):
+        if not d.isdigit():
+            continue
+        try:
+            stat = Path(f'/proc/{d}/stat').read_text()
+            cmd = Path(f'/proc/{d}/cmdline').read_bytes().replace(b'\0', b' ').decode()
+        except OSError:
+            continue
+        fields = stat.rsplit(')', 1)[1].split()     # state, ppid, pgrp, session, ...
+        if int(fields[3]) == sid and fields[0] != 'Z' and cmd \
+                and 'resource_tracker' not in cmd:
+            live.append(f'{d} {fields[0]} {cmd[:120]}')
+    return live
+
+
+@pytest.mark.skipif(not Path('/proc/self/stat').is_file(), reason='reads /proc')
+def test_mistyped_scene_leaves_no_fork_server_behind(tmp_path: Path) -> None:
+    """`cvj-sim sweep kavz685_levr --workers 2`: one line, exit 2, and no process of its
+    session still running once it has exited (the pool's fork server, started before the
+    scene is read, was loading the kernel for ~0.5 s after the command's exit)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    # output to files, not pipes: the server inherits them, and reading a pipe to its end
+    # would wait for the server too
+    with open(tmp_path / 'err', 'w') as f:
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'cvj_ros.cli', 'sweep', 'kavz685_levr', '--set',
+             'driveline[bushings].stiffness=300,400', '--workers', '2', '--no-plots', '--out',
+             str(tmp_path / 'out')], env=env, start_new_session=True,
+            stdout=subprocess.DEVNULL, stderr=f)
+        proc.wait(timeout=120)
+    left = _session_processes(proc.pid)
+    err = (tmp_path / 'err').read_text()
+    assert proc.returncode == 2 and 'Traceback' not in err
+    assert "no scene file or shipped scene 'kavz685_levr'" in err
+    assert left == []
+
+
+@pytest.mark.skipif(not Path('/proc/self/stat').is_file(), reason='reads /proc')
+def test_fork_server_ends_with_the_process_that_started_it(tmp_path: Path) -> None:
+    """A process that starts the fork server and exits at once (the server's preload takes
+    ~0.4 s CPU, so it is still loading then): no process of its session runs on. Before,
+    the server ran its preload to the end after its parent had gone (the command test
+    above catches that only when the command ends while the server still loads)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    with open(tmp_path / 'err', 'w') as f:    # a file: the server inherits it (see above)
+        proc = subprocess.Popen(
+            [sys.executable, '-c', 'from cvj_ros.sweep.server import start_fork_server; '
+                                   'start_fork_server(); raise SystemExit(2)'],
+            env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=f)
+        proc.wait(timeout=120)
+    left = _session_processes(proc.pid)
+    assert proc.returncode == 2 and (tmp_path / 'err').read_text() == ''
+    assert left == []
+
+
+
+def test_a_fork_server_that_served_is_left_to_end_by_itself(tmp_path: Path) -> None:
+    """After a sweep on the pool (the server forked its workers, so its preload is done)
+    exit does not stop and wait for the server: it ends by itself once this process's pipe
+    closes, as before. stop_fork_server leaves it running then, and stops one that has
+    not served."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    code = ('import os\n'
+            'from multiprocessing import forkserver\n'
+            'from cvj_ros.commands.sweep import load_scene_data\n'
+            'from cvj_ros.physics.scene import find_scene\n'
+            'from cvj_ros.sweep import server\n'
+            'from cvj_ros.sweep.run import Job, ProcessExecutor, RunOptions\n'
+            'from cvj_ros.sweep.spec import build_sweep\n'
+            'if __name__ == "__main__":\n'
+            '    sw = build_sweep(load_scene_data(find_scene("kavz685_lever")),\n'
+            '                     ["duration=0.05", "driveline[bushings].stiffness=500,900"])\n'
+            '    job = Job(base=sw.base, keys=tuple(a.keys for a in sw.axes),\n'
+            '              options=RunOptions())\n'
+            '    ex = ProcessExecutor(2)\n'
+            '    before = server._SERVED\n'
+            '    rows = [o.row["status"] for c in ex.map(job, [list(enumerate(sw.variants))])\n'
+            '            for o in c]\n'
+            '    ex.close()\n'
+            '    pid = forkserver._forkserver._forkserver_pid\n'
+            '    server.stop_fork_server()\n'
+            '    print(before, rows, server._SERVED, os.waitpid(pid, os.WNOHANG) == (0, 0))\n'
+            '    server._SERVED = False\n'
+            '    server.stop_fork_server()\n'
+            '    print(forkserver._forkserver._forkserver_pid)\n')
+    script = tmp_path / 'served.py'
+    script.write_text(code)
+    out = subprocess.run([sys.executable, str(script)], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ['False', "['ok',", "'ok']", 'True', 'True', 'None']

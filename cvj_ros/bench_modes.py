@@ -558,7 +558,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
         except Exception:
             pass                         # the timed runs record the failure
     rows: list[dict[str, Any]] = []
-    for family, label, make, method in families:
+    for family, label, make, run_method in families:
         for tol in tolerances:
             walls: list[float] = []
             cpus: list[float] = []
@@ -569,7 +569,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
             with _quiet(family == 'baseline_expert'):
                 # the compiled runs are short: more repeats (their minimum) at little cost
                 for _ in range(repeats if family == 'baseline' else max(repeats, 10)):
-                    sim = make(hybrid_simulation(scene, method=method, rtol=tol, atol=tol * 1e-2,
+                    sim = make(hybrid_simulation(scene, method=run_method, rtol=tol, atol=tol * 1e-2,
                                                  sample_dt=sample_dt, duration=horizon))
                     w0 = time.perf_counter()
                     c0 = time.process_time()

@@ -70,7 +70,9 @@ def test_mode_study_times_each_kernel_method_and_takes_the_cheapest_per_level() 
     for e in s['levels']:
         reach = [r for r in s['rows'] if r['err_speed_rel'] <= e['level']]
         assert e['project'] is (min(reach, key=lambda r: r['wall_s']) if reach else None)
+    assert s['reference']['method'] == 'dop853'    # the chain's Python reference, not a timed method
     table = bench_modes.format_mode_table(s)
+    assert 'Reference: python dop853 at rtol 1e-12' in table
     for e in s['levels']:
         name = e['project']['label'].split()[1] if e['project'] else '-'
         assert f"| {e['level']:g} | {name} |" in table

@@ -422,3 +422,19 @@ def test_absurd_stiffness_is_refused_before_an_explicit_run(tmp_path: Path,
                                command='simulate')
     msg = assert_one_error_line(code, out, err, 'driveline[1].stiffness')
     assert 'steps' in msg and 'rosenbrock' in msg, msg
+
+
+@pytest.mark.parametrize('composed', [False, True])
+def test_absurd_stiffness_is_refused_before_a_ros_run_starts(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                             composed: bool) -> None:
+    # `cvj-sim run` (separate processes or --composed): the same line before any process or
+    # node starts, over the run's duration (was: every node started, then ~60 s of dopri5
+    # steps near 1e-11 s in the coupling node ending in an overflow, exit 1)
+    path = tmp_path / 'scene.yaml'
+    path.write_text(yaml.safe_dump(mutate('driveline[1].stiffness', 1e300), sort_keys=False))
+    code = cli_main(['run', str(path), '--out', str(tmp_path / 'run'), '--duration', '0.05']
+                    + ['--composed'] * composed)
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, 'driveline[1].stiffness')
+    assert 'dopri5 would need' in msg and 'steps for 0.05 s' in msg and 'rosenbrock' in msg, msg
+    assert not (tmp_path / 'run').exists()

@@ -261,6 +261,10 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
     if args.method is not None and args.method not in DENSE_METHODS:
         raise SceneError('--method', f'a scene with clutch, gearbox, brake or commands needs one of '
                                      f'{", ".join(DENSE_METHODS)} (dense output), got {args.method!r}')
+    from cvj_ros.physics.simulate import scene_explicit_step_check
+    scene_explicit_step_check(scene, args.method or scene.solver.method,
+                              scene.duration if args.duration is None else args.duration,
+                              overrides=parse_fidelity(args.fidelity))
     sim = hybrid_simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                             fidelity=parse_fidelity(args.fidelity), duration=args.duration,
                             sample_dt=args.sample_dt)

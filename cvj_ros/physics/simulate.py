@@ -403,10 +403,10 @@ class Simulation:
         # run: the same arguments again skip the checks and the plan's lookup (run)
         self._fast: tuple[tuple, _KernelPlan] | None = None
         if backend == 'kernel':
-            # packing the scene is also the test whether the kernel covers it (kernel_gap);
-            # the packed model is kept for a run over the scene's duration (_model)
+            # packing the scene is also the test whether the kernel covers it (kernel_gap):
+            # over a zero horizon (a random load's few edge knots); a run packs its own (_model)
             from cvj_ros.physics.kernel.layout import build_model
-            horizon = float(scene.duration)
+            horizon = 0.0
             try:
                 self._packed = {horizon: build_model(dl, engine=engine, load=load,
                                                      horizon=horizon)}
@@ -416,12 +416,12 @@ class Simulation:
                 self.backend_note = f'compiled kernel: {reason}; running the Python reference'
 
     def _model(self, horizon: float):
-        """The scene as kernel data for runs up to ``horizon`` (s). Packed once per horizon
-        and kept (packing is model building, like the fidelity choice: ~0.3 ms for
-        kavz685_lever's 0.5 s of random-load knots); each run gets fresh copies of the
-        arrays, so a run never sees another run's input block."""
+        """The scene as kernel data for runs up to ``horizon`` (s): a seeded random load's
+        knots over [0, horizon] only (each knot is a function of its index, so a shorter
+        horizon packs a prefix of the same values). Packed once per horizon and kept; each
+        run gets fresh copies of the arrays, so a run never sees another run's input block."""
         from cvj_ros.physics.kernel.layout import ModelData, build_model
-        h = max(horizon, float(self.scene.duration))
+        h = float(horizon)
         cached = self._packed.get(h)
         if cached is None:
             cached = build_model(self.driveline, engine=self.engine, load=self.load, horizon=h)

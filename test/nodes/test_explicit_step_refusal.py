@@ -68,3 +68,21 @@ def test_node_checks_the_run_duration_the_solver_and_forced_fidelity(ctx, tmp_pa
                   Parameter('fidelity', value=['shaft=rigid'])):
         node = CouplingNode(context=ctx, parameter_overrides=[Parameter('scene', value=path), extra])
         node.destroy_node()
+
+
+def test_node_refuses_it_on_a_vehicle_scene_with_modes(tmp_path, capsys):
+    """launch_clutch (clutch, gearbox, wheel brakes; the mode model) with its clutch damper at
+    1e300 N m/rad: the same refusal, over the scene's 10 s (the node's duration unset), on
+    the lowest frequency of the spring's locked modes (fidelity_tree.mode_tree_spring_omega_n)."""
+    from cvj_ros.physics.scene import shipped_scenes
+    path = tmp_path / 'launch_stiff.yaml'
+    path.write_text(shipped_scenes()['launch_clutch'].read_text().replace(
+        'stiffness: 1200.0', 'stiffness: 1.0e+300'))
+    with pytest.raises(SystemExit) as code:
+        coupling_node.main(['--ros-args', '-p', f'scene:={path}'])
+    assert code.value.code == 2
+    out, err = capsys.readouterr()
+    assert out == '' and len(err.splitlines()) == 1, err
+    assert err.startswith("coupling_node: error: driveline[2].stiffness: spring 'clutch_damper' "
+                          "and its neighbours' inertias have a mode at 5.45e+150 rad/s: dopri5 "
+                          "would need ~9.1e+150 steps for 10 s"), err

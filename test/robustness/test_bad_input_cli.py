@@ -436,6 +436,23 @@ def test_absurd_stiffness_is_refused_before_an_explicit_run(tmp_path: Path,
     assert 'steps' in msg and 'rosenbrock' in msg, msg
 
 
+def test_absurd_stiffness_in_a_vehicle_scene_with_modes_is_refused(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    # launch_clutch (clutch, gearbox, wheel brakes) with its left halfshaft at 1e300 N m/rad:
+    # `cvj-sim simulate` refuses it naming the branch's path (was: the mode kernel's compile,
+    # then steps near 1e-11 s with no line)
+    from cvj_ros.physics.scene import shipped_scenes
+    text = shipped_scenes()['launch_clutch'].read_text().replace('stiffness: 8770.0',
+                                                                'stiffness: 1.0e+300')
+    path = tmp_path / 'launch_stiff.yaml'
+    path.write_text(text)
+    code = cli_main(['simulate', str(path), '--duration', '0.1'])
+    out, err = capsys.readouterr()
+    msg = assert_one_error_line(code, out, err, 'driveline[5].left[2].stiffness')
+    assert msg.startswith("spring 'midshaft_left_twist' and its neighbours' inertias have a mode "
+                          "at 8.46e+150 rad/s: dopri5 would need ~1.4e+149 steps for 0.1 s"), msg
+
+
 @pytest.mark.parametrize('composed', [False, True])
 def test_absurd_stiffness_is_refused_before_a_ros_run_starts(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                              composed: bool) -> None:

@@ -111,23 +111,26 @@ def _spring_inertias(dl: Any) -> dict[str, dict[str, float]]:
 
 
 def mode_tree_spring_omega_n(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, float]:
-    """Per spring of a vehicle tree with clutch, gearbox or wheel brakes (cvj_ros.physics.hybrid.tree):
-    the lowest natural frequency (rad/s) over its locked modes, min over the gears (each
-    forward gear and reverse) of sqrt(c (1/J_l + 1/J_r)) with the gripping tyres' apparent
-    inertias of the mode with every clutch stuck in that gear (a lock merges rigid groups, and
-    a constraint only lowers the mobility c^T M^-1 c), and 1/J = 0 on a side whose group holds
-    a braked wheel (a stuck brake pins it). Clutch-pack differentials are taken slipping.
-    Empty when the mode tree cannot be built (its run names why)."""
+    """Per spring of a vehicle tree with clutch, gearbox or wheel brakes
+    (cvj_ros.physics.hybrid.tree): the lowest natural frequency (rad/s) of its locked modes,
+    min over the gears (each forward gear and reverse) of sqrt(c (1/J_l + 1/J_r)) with the
+    gripping tyres' apparent inertias of the mode with every clutch stuck in that gear (a lock
+    merges rigid groups, and a constraint only lowers the mobility c^T M^-1 c), and 1/J = 0 on
+    a side whose group holds a braked wheel (a stuck brake pins it). Clutch-pack
+    differentials are taken slipping (a stuck pack could lower the figure further). Empty
+    when the mode tree cannot be built (its run names why)."""
     from cvj_ros.errors import SceneError
     from cvj_ros.physics.fidelity import spring_omega_n
     from cvj_ros.physics.hybrid.chain import Mode
     from cvj_ros.physics.hybrid.friction import FORWARD, STUCK
     from cvj_ros.physics.hybrid.tree import ModeTree
     els = list(iter_elements(scene.driveline))
-    kinds = {t: [el for el in els if getattr(el, 'type', '') == t] for t in ('clutch', 'gearbox', 'brake')}
+    kinds = {t: [el for el in els if getattr(el, 'type', '') == t]
+             for t in ('clutch', 'gearbox', 'brake')}
     packs = [el.name for el in els if getattr(el, 'kind', '') == 'clutch_pack']
     gearbox = kinds['gearbox'][0] if len(kinds['gearbox']) == 1 else None
-    gears = [g for g in range(-1, len(gearbox.ratios) + 1) if g != 0] if gearbox is not None else [0]
+    gears = ([g for g in range(-1, len(gearbox.ratios) + 1) if g != 0] if gearbox is not None
+             else [0])
     stiffness = {el.name: el.stiffness for el in els if isinstance(el, Spring)}
     low: dict[str, float] = {}
     for gear in gears:
@@ -138,12 +141,16 @@ def mode_tree_spring_omega_n(scene: Scene, joint_levels: Mapping[str, str]) -> d
                     offsets={i: 0.0 for i in range(len(kinds['clutch']) + len(kinds['gearbox']))})
         try:
             dl = ModeTree(scene, joint_levels, mode)
-        except (SceneError, KeyError, ValueError):
+        except (SceneError, KeyError, ValueError, ZeroDivisionError):
             return {}
         braked = {dl._group_of[dl.wheels[w].section] for _b, w in dl.brakes.values()}
         sides = {law.name: (dl._group_of[left] in braked, dl._group_of[right] in braked)
                  for law, left, right in dl.springs}
-        for name, j in _spring_inertias(dl).items():
+        try:
+            inertias = _spring_inertias(dl)
+        except (ValueError, ZeroDivisionError):     # a singular group: no figure
+            return {}
+        for name, j in inertias.items():
             pin_l, pin_r = sides[name]
             w = spring_omega_n(stiffness[name], math.inf if pin_l else j['j_left_grip'],
                                math.inf if pin_r else j['j_right_grip'])

@@ -454,8 +454,8 @@ def test_absurd_stiffness_in_a_vehicle_scene_with_modes_is_refused(tmp_path: Pat
 
 
 @pytest.mark.parametrize('composed', [False, True])
-def test_absurd_stiffness_is_refused_before_a_ros_run_starts(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                             composed: bool) -> None:
+def test_absurd_stiffness_is_refused_before_a_ros_run_starts(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], composed: bool) -> None:
     # `cvj-sim run` (separate processes or --composed): the same line before any process or
     # node starts, over the run's duration (was: every node started, then ~60 s of dopri5
     # steps near 1e-11 s in the coupling node ending in an overflow, exit 1)

@@ -240,8 +240,10 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
     if tree_rule and springs:
         tree_j = fidelity_tree.tree_spring_inertias(scene, joint_levels)
         adjacent = {name: (j['j_left_grip'], j['j_right_grip']) for name, j in tree_j.items()}
-    mode_omega = (fidelity_tree_modes(scene, joint_levels) if tree and not tree_rule and springs
-                  else {})
+    mode_omega: dict[str, float] = {}
+    if tree and not tree_rule and springs:
+        from cvj_ros.physics import fidelity_tree
+        mode_omega = fidelity_tree.mode_tree_spring_omega_n(scene, joint_levels)
     for el in springs:
         if tree and not tree_rule:
             # the adjacent inertias across a differential are a 2x2 matrix, not two numbers:
@@ -297,13 +299,6 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
 
 _ADJACENT: dict[tuple[Any, ...], dict[str, tuple[float, float]]] = {}
 _ADJACENT_MAX = 1024
-
-
-def fidelity_tree_modes(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, float]:
-    """Per spring of a vehicle scene with modes: its lowest omega_n (rad/s) over the locked
-    modes (cvj_ros.physics.fidelity_tree.mode_tree_spring_omega_n)."""
-    from cvj_ros.physics.fidelity_tree import mode_tree_spring_omega_n
-    return mode_tree_spring_omega_n(scene, joint_levels)
 
 
 def _adjacent_key(scene: Scene, joint_levels: Mapping[str, str]) -> tuple[Any, ...] | None:

@@ -153,7 +153,7 @@ def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
                    memory: int | None = None) -> None:
     """SceneError when an offline run of ``scene`` cannot fit in the machine's memory: its
     trace holds at least 24 bytes per sample (time, one angle, one speed as float64) and a
-    seeded random load packs 8 bytes per knot over the scene's duration (knots every
+    seeded random load packs 8 bytes per knot over the run's duration (knots every
     ``sample_interval``); a lower bound above the physical RAM (``memory``, default sysconf)
     names the field instead of a MemoryError deep in numpy."""
     memory = _physical_memory() if memory is None else memory
@@ -162,8 +162,8 @@ def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
     dur = scene.duration if duration is None else duration
     dt = sample_dt or scene.sample_step or scene.exchange_step
     samples = dur / dt + 1.0
+    where = '--duration' if duration is not None else 'duration'
     if 24.0 * samples > memory:
-        where = '--duration' if duration is not None else 'duration'
         step = '--sample-dt' if sample_dt else ('sample_step' if scene.sample_step else 'exchange_step')
         raise SceneError(f'{where} / {step}', f'{dur:g} s in samples of {dt:g} s are {samples:.3g} '
                                               f'samples, at least {24.0 * samples / 2**30:.3g} GiB; '
@@ -173,14 +173,14 @@ def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
         if not hasattr(spec, 'get') or spec.get('model') != 'random':
             continue
         knot_dt = float(spec.get('sample_interval', 0.01))
-        knots = scene.duration / knot_dt
+        knots = dur / knot_dt
         if 8.0 * knots > memory:
             field = 'load.sample_interval' if len(specs) == 1 else f'load[{i}].sample_interval'
-            raise SceneError(field, f'a random load over the scene duration {scene.duration:g} s '
-                                    f'in knots of {knot_dt:g} s needs {knots:.3g} knots, at least '
-                                    f'{8.0 * knots / 2**30:.3g} GiB; this machine has '
-                                    f'{memory / 2**30:.3g} GiB: shorten duration or lengthen '
-                                    'sample_interval')
+            raise SceneError(f'{where} / {field}',
+                             f'a random load over {dur:g} s in knots of {knot_dt:g} s needs '
+                             f'{knots:.3g} knots, at least {8.0 * knots / 2**30:.3g} GiB; this '
+                             f'machine has {memory / 2**30:.3g} GiB: shorten duration or lengthen '
+                             'sample_interval')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -261,6 +261,10 @@ def _run_modes(scene: Any, args: argparse.Namespace) -> int:
     if args.method is not None and args.method not in DENSE_METHODS:
         raise SceneError('--method', f'a scene with clutch, gearbox, brake or commands needs one of '
                                      f'{", ".join(DENSE_METHODS)} (dense output), got {args.method!r}')
+    from cvj_ros.physics.simulate import scene_explicit_step_check
+    scene_explicit_step_check(scene, args.method or scene.solver.method,
+                              scene.duration if args.duration is None else args.duration,
+                              overrides=parse_fidelity(args.fidelity))
     sim = hybrid_simulation(scene, method=args.method, rtol=args.rtol, atol=args.atol,
                             fidelity=parse_fidelity(args.fidelity), duration=args.duration,
                             sample_dt=args.sample_dt)

@@ -306,6 +306,11 @@ class CouplingNode(CvjNode):
             self.get_logger().warning(f'duration {duration} s is not a multiple of the exchange step '
                                       f'{h} s: running {self.n_steps} steps')
         forced = parse_assignments('fidelity', [s for s in p['fidelity'] if s])
+        # an explicit solver on a spring too stiff to step: refused before anything is built
+        # or compiled, over the duration this node runs (as Simulation.run, physics.simulate)
+        from cvj_ros.physics.simulate import scene_explicit_step_check
+        scene_explicit_step_check(scene, p['solver'] or scene.solver.method,
+                                  self.n_steps * self.h_ns / NS_PER_S, overrides=forced)
         self.driveline, self.stepper = self._build_physics(scene, forced, p)
         self.x = np.array(self.stepper_state(), dtype=float)
         self.names = list(self.driveline.shaft_names)

@@ -176,6 +176,9 @@ def prepare(options: RunOptions) -> _Prepared:
         raise CvjError(f'--exchange-step: must be a finite number > 0, got {options.exchange_step}')
     if h > duration:
         raise CvjError(f'--exchange-step: {h} s is longer than the duration {duration} s')
+    # a spring no explicit solver can step over this run (the coupling node refuses it too)
+    from cvj_ros.physics.simulate import scene_explicit_step_check
+    scene_explicit_step_check(scene, scene.solver.method, duration)
     unknown = [e for e in options.external if e not in EXTERNAL_PEERS and e != EXTERNAL_COMMANDS]
     if unknown:
         raise CvjError(f'--external: must be {", ".join(EXTERNAL_PEERS)}, {EXTERNAL_COMMANDS} or a '

@@ -240,17 +240,25 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
     if tree_rule and springs:
         tree_j = fidelity_tree.tree_spring_inertias(scene, joint_levels)
         adjacent = {name: (j['j_left_grip'], j['j_right_grip']) for name, j in tree_j.items()}
+    mode_omega: dict[str, float] = {}
+    if tree and not tree_rule and springs:
+        from cvj_ros.physics import fidelity_tree
+        mode_omega = fidelity_tree.mode_tree_spring_omega_n(scene, joint_levels)
     for el in springs:
         if tree and not tree_rule:
             # the adjacent inertias across a differential are a 2x2 matrix, not two numbers:
-            # the rigid rule is not derived for them, a vehicle scene's springs stay elastic
+            # the rigid rule is not derived for them, a vehicle scene's springs stay elastic;
+            # omega_n: the lowest over the locked modes (fidelity_tree.mode_tree_spring_omega_n)
             if el.name in overrides:
                 chosen, reason = overrides[el.name], 'forced by argument'
             elif el.fidelity != 'auto':
                 chosen, reason = el.fidelity, 'forced by scene'
             else:
                 chosen, reason = 'elastic', 'vehicle scene: springs stay elastic unless forced'
-            choices.append(FidelityChoice(el.name, 'spring', chosen, reason, {}))
+            omega_low = mode_omega.get(el.name)
+            cand = ({} if omega_low is None else
+                    {'elastic': {'speed_error': 0.0, 'omega_n': omega_low}})
+            choices.append(FidelityChoice(el.name, 'spring', chosen, reason, cand))
             continue
         j_l, j_r = adjacent[el.name]
         omega_n = spring_omega_n(el.stiffness, j_l, j_r)

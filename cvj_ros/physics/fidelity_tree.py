@@ -19,6 +19,10 @@ omega_n are reported. Averaged, as the chain rule, over 16 angles of every coord
 the operating speed is the engine's in the tree's initial state (rolling at the vehicle's
 initial speed).
 
+With clutch, gearbox or wheel brakes (cvj_ros.physics.hybrid.tree) the springs stay
+elastic; each gets the lowest omega_n of its locked modes (:func:`mode_tree_spring_omega_n`),
+the frequency an explicit solver must step.
+
 Tyre relaxation (Pacejka 2012, ch. 7: slip relaxation length sigma, time constant
 tau = sigma/|v|). It is the standstill regularisation of the slip ratio, so it is always
 kept; the report gives what an instantaneous slip would cost at the excitation band, the
@@ -34,7 +38,8 @@ import numpy as np
 
 from cvj_ros.physics.scene import Scene, Spring, Wheel, iter_elements
 
-__all__ = ['tree_operating_speed', 'tree_spring_inertias', 'tyre_relaxation_bounds']
+__all__ = ['mode_tree_spring_omega_n', 'tree_operating_speed', 'tree_spring_inertias',
+           'tyre_relaxation_bounds']
 
 N_ANGLES = 16
 
@@ -80,7 +85,11 @@ def tree_spring_inertias(scene: Scene, joint_levels: Mapping[str, str]
     """Per spring of the tree: apparent inertias (kg m^2) on its left (end of its group)
     and right side, free tyres (``j_left``, ``j_right``) and gripping tyres
     (``j_left_grip``, ``j_right_grip``); module docstring."""
-    dl = _tree(scene, joint_levels)
+    return _spring_inertias(_tree(scene, joint_levels))
+
+
+def _spring_inertias(dl: Any) -> dict[str, dict[str, float]]:
+    """:func:`tree_spring_inertias` of the built tree ``dl`` (a TreeDriveline or a ModeTree)."""
     n = dl.n_dof
     sums: dict[str, list[float]] = {law.name: [0.0, 0.0, 0.0, 0.0] for law, _l, _r in dl.springs}
     for q in np.linspace(0.0, 2.0 * math.pi, N_ANGLES, endpoint=False):
@@ -99,6 +108,54 @@ def tree_spring_inertias(scene: Scene, joint_levels: Mapping[str, str]
     return {name: {'j_left': v[0] / N_ANGLES, 'j_right': v[1] / N_ANGLES,
                    'j_left_grip': v[2] / N_ANGLES, 'j_right_grip': v[3] / N_ANGLES}
             for name, v in sums.items()}
+
+
+def mode_tree_spring_omega_n(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, float]:
+    """Per spring of a vehicle tree with clutch, gearbox or wheel brakes
+    (cvj_ros.physics.hybrid.tree): the lowest natural frequency (rad/s) of its locked modes,
+    min over the gears (each forward gear and reverse) of sqrt(c (1/J_l + 1/J_r)) with the
+    gripping tyres' apparent inertias of the mode with every clutch stuck in that gear (a lock
+    merges rigid groups, and a constraint only lowers the mobility c^T M^-1 c), and 1/J = 0 on
+    a side whose group holds a braked wheel (a stuck brake pins it). Clutch-pack
+    differentials are taken slipping (a stuck pack could lower the figure further). Empty
+    when the mode tree cannot be built (its run names why)."""
+    from cvj_ros.errors import SceneError
+    from cvj_ros.physics.fidelity import spring_omega_n
+    from cvj_ros.physics.hybrid.chain import Mode
+    from cvj_ros.physics.hybrid.friction import FORWARD, STUCK
+    from cvj_ros.physics.hybrid.tree import ModeTree
+    els = list(iter_elements(scene.driveline))
+    kinds = {t: [el for el in els if getattr(el, 'type', '') == t]
+             for t in ('clutch', 'gearbox', 'brake')}
+    packs = [el.name for el in els if getattr(el, 'kind', '') == 'clutch_pack']
+    gearbox = kinds['gearbox'][0] if len(kinds['gearbox']) == 1 else None
+    gears = ([g for g in range(-1, len(gearbox.ratios) + 1) if g != 0] if gearbox is not None
+             else [0])
+    stiffness = {el.name: el.stiffness for el in els if isinstance(el, Spring)}
+    low: dict[str, float] = {}
+    for gear in gears:
+        mode = Mode(clutch={c.name: STUCK for c in kinds['clutch']},
+                    gear={g.name: gear for g in kinds['gearbox']},
+                    brakes={b.name: FORWARD for b in kinds['brake']},
+                    packs={p: FORWARD for p in packs},
+                    offsets={i: 0.0 for i in range(len(kinds['clutch']) + len(kinds['gearbox']))})
+        try:
+            dl = ModeTree(scene, joint_levels, mode)
+        except (SceneError, KeyError, ValueError, ZeroDivisionError):
+            return {}
+        braked = {dl._group_of[dl.wheels[w].section] for _b, w in dl.brakes.values()}
+        sides = {law.name: (dl._group_of[left] in braked, dl._group_of[right] in braked)
+                 for law, left, right in dl.springs}
+        try:
+            inertias = _spring_inertias(dl)
+        except (ValueError, ZeroDivisionError):     # a singular group: no figure
+            return {}
+        for name, j in inertias.items():
+            pin_l, pin_r = sides[name]
+            w = spring_omega_n(stiffness[name], math.inf if pin_l else j['j_left_grip'],
+                               math.inf if pin_r else j['j_right_grip'])
+            low[name] = min(low.get(name, math.inf), w)
+    return low
 
 
 def tyre_relaxation_bounds(scene: Scene, band: float) -> dict[str, dict[str, float]]:

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from cvj_ros.errors import SceneError, SolverError
+from cvj_ros.errors import CvjError, SceneError, SolverError
 from cvj_ros.physics.driveline import Driveline
 from cvj_ros.physics.scene import Scene
 
@@ -45,27 +45,59 @@ EXPLICIT_STABILITY = 6.0
 MAX_EXPLICIT_STEPS = 1e10
 
 
+def element_path(chain: Any, name: str, prefix: str = 'driveline') -> str | None:
+    """The scene path of the element ``name`` (``driveline[1]``, a branch's
+    ``driveline[4].left[2]``), None when no element has that name."""
+    for i, el in enumerate(chain):
+        here = f'{prefix}[{i}]'
+        if getattr(el, 'name', None) == name:
+            return here
+        for side in ('left', 'right'):
+            branch = getattr(el, side, None)
+            if isinstance(branch, tuple):
+                found = element_path(branch, name, f'{here}.{side}')
+                if found is not None:
+                    return found
+    return None
+
+
 def explicit_step_check(scene: Scene, report: Any, method: str, duration: float) -> None:
     """Raise SceneError (naming the spring's stiffness) when an explicit ``method`` would need
     more than :data:`MAX_EXPLICIT_STEPS` steps over ``duration`` (s) just to stay stable on a
     spring mode: omega_n duration / :data:`EXPLICIT_STABILITY`, with omega_n =
-    sqrt(c (1/J_l + 1/J_r)) rad/s of each elastic spring (the fidelity report's figure)."""
+    sqrt(c (1/J_l + 1/J_r)) rad/s of each elastic spring (the fidelity report's figure; a
+    report without choices, or None, is not checked)."""
     if method not in EXPLICIT_METHODS or report is None:
         return
-    for c in report.choices:
+    for c in getattr(report, 'choices', ()):
         omega = c.candidates.get('elastic', {}).get('omega_n')
         if c.element != 'spring' or c.chosen != 'elastic' or omega is None:
             continue
         steps = omega * duration / EXPLICIT_STABILITY
         if not steps > MAX_EXPLICIT_STEPS:
             continue
-        index = next((i for i, el in enumerate(scene.driveline) if el.name == c.name), None)
-        where = f'driveline[{index}]' if index is not None else f'driveline[{c.name}]'
+        where = element_path(scene.driveline, c.name) or f'driveline[{c.name}]'
         raise SceneError(f'{where}.stiffness',
                          f'spring {c.name!r} and its neighbours\' inertias have a mode at '
                          f'{omega:.3g} rad/s: {method} would need ~{steps:.1e} steps for '
                          f'{duration:g} s just to stay stable (more than {MAX_EXPLICIT_STEPS:.0e});'
                          f' check the value, or use solver rosenbrock or rigid fidelity for it')
+
+
+def scene_explicit_step_check(scene: Scene, method: str, duration: float, *,
+                              overrides: Mapping[str, str] | None = None) -> None:
+    """:func:`explicit_step_check` on the scene's own fidelity report (with ``overrides``
+    forced), for a run that builds its stepper elsewhere (the coupling node, `cvj-sim run`
+    before any process starts). A scene whose report cannot be built is not checked here:
+    building its physics names that error."""
+    from cvj_ros.physics.fidelity import choose_fidelity
+    if method not in EXPLICIT_METHODS:
+        return
+    try:
+        report = choose_fidelity(scene, overrides=overrides or None)
+    except CvjError:
+        return
+    explicit_step_check(scene, report, method, duration)
 
 
 def kernel_gap(driveline: Driveline, engine: Any, load: Any, horizon: float) -> str | None:
@@ -371,10 +403,10 @@ class Simulation:
         # run: the same arguments again skip the checks and the plan's lookup (run)
         self._fast: tuple[tuple, _KernelPlan] | None = None
         if backend == 'kernel':
-            # packing the scene is also the test whether the kernel covers it (kernel_gap);
-            # the packed model is kept for a run over the scene's duration (_model)
+            # packing the scene is also the test whether the kernel covers it (kernel_gap):
+            # over a zero horizon (a random load's few edge knots); a run packs its own (_model)
             from cvj_ros.physics.kernel.layout import build_model
-            horizon = float(scene.duration)
+            horizon = 0.0
             try:
                 self._packed = {horizon: build_model(dl, engine=engine, load=load,
                                                      horizon=horizon)}
@@ -384,12 +416,12 @@ class Simulation:
                 self.backend_note = f'compiled kernel: {reason}; running the Python reference'
 
     def _model(self, horizon: float):
-        """The scene as kernel data for runs up to ``horizon`` (s). Packed once per horizon
-        and kept (packing is model building, like the fidelity choice: ~0.3 ms for
-        kavz685_lever's 0.5 s of random-load knots); each run gets fresh copies of the
-        arrays, so a run never sees another run's input block."""
+        """The scene as kernel data for runs up to ``horizon`` (s): a seeded random load's
+        knots over [0, horizon] only (each knot is a function of its index, so a shorter
+        horizon packs a prefix of the same values). Packed once per horizon and kept; each
+        run gets fresh copies of the arrays, so a run never sees another run's input block."""
         from cvj_ros.physics.kernel.layout import ModelData, build_model
-        h = max(horizon, float(self.scene.duration))
+        h = float(horizon)
         cached = self._packed.get(h)
         if cached is None:
             cached = build_model(self.driveline, engine=self.engine, load=self.load, horizon=h)

@@ -4,6 +4,8 @@ step k in force over [t_k, t_(k+1)]) against the physics stepped by hand, mode d
 malformed and out-of-range commands, an outside stack sending the commands."""
 from __future__ import annotations
 
+import contextlib
+import signal
 import time
 
 import numpy as np
@@ -89,10 +91,47 @@ class FakePeers:
             pub.publish(w)
 
 
-def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float = 60.0,
+@contextlib.contextmanager
+def wall_bound(seconds: float, what: str):
+    """Fail the test with ``AssertionError(what ...)`` once ``seconds`` of wall time have
+    passed, inside an executor callback too (SIGALRM; its handler raises in the main thread
+    at the next Python bytecode, e.g. in the middle of a compile): the bound holds over the
+    whole block, not only between callbacks."""
+    def on_alarm(_signum, _frame):
+        raise AssertionError(f'{what} within {seconds:g} s of wall time')
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def warm_kernel(scene: str) -> None:
+    """Compile the mode kernel's entry points for ``scene`` in this process, or load them
+    from the numba cache (one step stepped by hand), before the bounded loop of :func:`run`:
+    a cold compile inside the loop's first callback took 37 s at load 3.5, minutes on a busy
+    machine, and is not what the loop's bound is about."""
+    by_hand(scene, 1, 'kernel')
+
+
+# run()'s bound on the loop, start wait to the last answer: with the kernel compiled, the
+# 60 exchanges of mode_scene took 0.4 s (python) to 1.4 s (kernel, loaded from the cache;
+# its longest callback 1.0 s) of wall time at load 3.5 on 2 cores; 60 s leaves a factor > 40
+LOOP_BOUND_S = 60.0
+
+
+def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float = LOOP_BOUND_S,
         torques=(T_ENGINE, T_LOAD), **params):
+    """Run the coupling node (and the driver, the fake peers) on ``scene`` to its end; the
+    loop (start wait, exchanges, delivery of the last answers) within ``timeout`` s of wall
+    time, callbacks included (:func:`wall_bound`), the kernel compiled before it
+    (:func:`warm_kernel`; building the nodes is not bounded here)."""
     overrides = [Parameter('scene', value=scene), Parameter('min_subscribers', value=1)]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
+    if params.get('mode_backend', 'auto') != 'python':
+        warm_kernel(scene)
     peers = FakePeers(ctx, on_state, torques)
     drv = DriverNode(context=ctx, parameter_overrides=[Parameter('scene', value=scene)]) if driver else None
     node = CouplingNode(context=ctx, parameter_overrides=overrides)
@@ -100,19 +139,18 @@ def run(ctx, scene: str, *, driver: bool = True, on_state=None, timeout: float =
     for n in (peers.node, drv, node):
         if n is not None:
             ex.add_node(n)
-    t0 = time.monotonic()
     try:
-        while node.exit_code is None:
-            assert time.monotonic() - t0 < timeout, 'coupling node did not finish'
-            ex.spin_once(timeout_sec=0.05)
-        # deliver what is still in flight: every state the node published (a free-run burst
-        # publishes several in one callback; the executor runs one callback per spin_once),
-        # then the answers to the last ones
-        t1 = time.monotonic()
-        while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
-            ex.spin_once(timeout_sec=0.01)
-        for _ in range(5):
-            ex.spin_once(timeout_sec=0.01)
+        with wall_bound(timeout, 'coupling node did not finish'):
+            while node.exit_code is None:
+                ex.spin_once(timeout_sec=0.05)
+            # deliver what is still in flight: every state the node published (a free-run
+            # burst publishes several in one callback; the executor runs one callback per
+            # spin_once), then the answers to the last ones (at most 10 s for what never comes)
+            t1 = time.monotonic()
+            while len(peers.js) < node.joint_states_published and time.monotonic() - t1 < 10.0:
+                ex.spin_once(timeout_sec=0.01)
+            for _ in range(5):
+                ex.spin_once(timeout_sec=0.01)
     finally:
         ex.shutdown()
         for n in (peers.node, drv, node):
@@ -269,3 +307,39 @@ def test_a_stall_ends_the_loop_with_its_line(ctx, tmp_path):
     assert t_line == pytest.approx(t_stall, abs=1e-6)
     assert len(peers.js) == int(t_stall / H) + 2          # states t_0 .. the step holding the stall
     assert node.loop_stats()['stall'] == node.hybrid.stall
+
+
+def test_the_loop_bound_holds_inside_a_callback(ctx, tmp_path):
+    """run()'s wall bound fires in the middle of a callback that does not return (here the
+    last state's, after which the loop would end: the bound was checked only between
+    callbacks, so such a callback overshot it unchecked); the AssertionError comes from
+    inside that callback."""
+    scene = mode_scene(tmp_path, duration=0.005)
+    entered = []
+
+    def stuck_on_the_last_state(k, _node):
+        if k == 5:                        # t_5 = the end: the node finishes with this state
+            entered.append(k)
+            end = time.monotonic() + 600.0
+            while time.monotonic() < end:     # as a compile would: Python, not a wait
+                pass
+
+    # 10 s: the Python backend's 60 exchanges took 0.4 s at load 3.5 (LOOP_BOUND_S), these 5
+    # reach the stuck state well within it on a busy machine, so the bound fires inside it
+    with pytest.raises(AssertionError, match='coupling node did not finish within 10 s') as err:
+        run(ctx, scene, on_state=stuck_on_the_last_state, mode_backend='python', timeout=10.0)
+    assert entered == [5]
+    assert any(e.name == 'stuck_on_the_last_state' for e in err.traceback)
+
+
+def test_wall_bound_interrupts_python_work_and_restores_the_handler():
+    """The bound is raised inside running Python code (a busy loop standing for a compile),
+    and the previous SIGALRM handler and a disarmed timer are left behind."""
+    before = signal.getsignal(signal.SIGALRM)
+    with pytest.raises(AssertionError, match='^busy loop within 0.2 s of wall time$'):
+        with wall_bound(0.2, 'busy loop'):
+            end = time.monotonic() + 600.0
+            while time.monotonic() < end:
+                pass
+    assert signal.getsignal(signal.SIGALRM) is before
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)

@@ -13,6 +13,7 @@ only delta and do not enter.
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -106,3 +107,66 @@ def test_standstill_start_keeps_springs_elastic_and_the_lag_error_is_one() -> No
     rep = choose_fidelity(parse_scene(raw))
     assert rep.operating_speed == 0.0 and rep.levels['k'] == 'elastic'
     assert all(c.candidates['instant']['lag_error'] == 1.0 for c in rep.choices if c.element == 'tyre')
+
+
+J_GI, J_GO = 0.004, 0.03        # kg m^2, gearbox input / output of the mode axle below
+
+
+def mode_axle(stiffness: float) -> dict[str, Any]:
+    """The closed-form axle with a gearbox (ratios 3 and 1, reverse -2.5) between ``b`` and
+    the differential: a vehicle scene with modes (cvj_ros.physics.hybrid.tree)."""
+    raw = axle(stiffness)
+    raw['driveline'].insert(3, {'type': 'gearbox', 'name': 'gb', 'J_input': J_GI, 'J_output': J_GO,
+                                'ratios': [3.0, 1.0], 'reverse_ratio': -2.5,
+                                'max_input_rpm': 6500.0})
+    return raw
+
+
+def test_mode_tree_spring_gets_the_lowest_frequency_of_its_locked_modes() -> None:
+    """A vehicle scene with modes (was: no omega_n, so the explicit-step check missed it):
+    the spring sees J_r = J_b + J_gi + (J_go + (J_c + 2 (J_s + J_w) + m r^2)/i^2)/i_g^2 with
+    the gear engaged (the closed form above, reflected through the gear), largest in the
+    gear of smallest |i_g| = 1, so the reported omega_n is that gear's."""
+    rep = choose_fidelity(parse_scene(mode_axle(1e4)))
+    ch = {c.name: c for c in rep.choices}['k']
+    j_r = J_B + J_GI + J_GO + (J_C + 2.0 * (J_S + J_W) + M * R * R) / I_DIFF ** 2
+    assert ch.chosen == 'elastic'
+    assert ch.candidates['elastic']['omega_n'] == pytest.approx(
+        math.sqrt(1e4 * (1.0 / J_A + 1.0 / j_r)), rel=1e-12)
+
+
+@pytest.mark.parametrize('name, spring, path', [
+    ('fwd_axle', 'midshaft_left_twist', 'driveline[4].left[2]'),
+    ('launch_clutch', 'midshaft_left_twist', 'driveline[5].left[2]'),
+    ('launch_clutch', 'clutch_damper', 'driveline[2]'),
+])
+def test_explicit_step_check_refuses_a_vehicle_spring_of_1e300_naming_its_path(
+        name: str, spring: str, path: str) -> None:
+    """stiffness 1e300 on a vehicle scene's spring: refused naming the scene path of the
+    spring (a branch's too; was `driveline[midshaft_left_twist]`, and nothing at all for a
+    scene with modes); the shipped values pass over the scene's duration."""
+    import dataclasses
+
+    from cvj_ros.errors import SceneError
+    from cvj_ros.physics.scene import iter_elements
+    from cvj_ros.physics.simulate import scene_explicit_step_check
+    sc = load_scene(shipped_scenes()[name])
+    scene_explicit_step_check(sc, 'dopri5', sc.duration)
+
+    def stiffen(chain: tuple[Any, ...]) -> tuple[Any, ...]:
+        out = []
+        for el in chain:
+            if getattr(el, 'name', None) == spring:
+                el = dataclasses.replace(el, stiffness=1e300)
+            for side in ('left', 'right'):
+                if isinstance(getattr(el, side, None), tuple):
+                    el = dataclasses.replace(el, **{side: stiffen(getattr(el, side))})
+            out.append(el)
+        return tuple(out)
+
+    bad = dataclasses.replace(sc, driveline=stiffen(sc.driveline))
+    assert any(getattr(el, 'stiffness', 0) == 1e300 for el in iter_elements(bad.driveline))
+    with pytest.raises(SceneError, match=rf'^{re.escape(path)}\.stiffness: spring {spring!r} .* '
+                                         r'dopri5 would need ~\S+e\+1\d\d steps for 0\.1 s'):
+        scene_explicit_step_check(bad, 'dopri5', 0.1)
+    scene_explicit_step_check(bad, 'rosenbrock', 0.1)

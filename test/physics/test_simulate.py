@@ -578,3 +578,27 @@ def test_explicit_step_check_refuses_only_past_its_step_bound() -> None:
     with pytest.raises(SceneError, match=r'^driveline\[1\]\.stiffness: .*steps'):
         simmod.explicit_step_check(scene, sim.fidelity_report, 'vern7', 1.01 * limit)
     simmod.explicit_step_check(scene, sim.fidelity_report, 'rosenbrock', 1e3 * limit)
+
+
+def test_random_load_knots_are_packed_over_the_run_not_the_scene() -> None:
+    """A seeded random load's knots are a function of their index (load.RandomLoad), so a run
+    packs only the knots of its own duration: kavz685_lever with a scene duration of 1e5 s
+    (1e7 knots of 0.01 s, ~360 MB while packed) runs 0.1 s on 16 knots and gives the shipped
+    scene's bytes; a shorter run is the longer one's prefix."""
+    import dataclasses
+
+    from cvj_ros.physics.kernel.layout import build_model
+    from cvj_ros.physics.scene import find_scene, load_scene
+    scene = load_scene(find_scene('kavz685_lever'))
+    long = Simulation(dataclasses.replace(scene, duration=1e5))
+    short = long.run(0.1)
+    model = next(iter(long._packed.values()))
+    n_fp = build_model(long.driveline, engine=long.engine, load=long.load, horizon=0.0).fp.size
+    # knots -2 .. floor(0.1 / 0.01) + 1: 16 against 6 of a zero horizon (layout._load_block)
+    assert model.fp.size == n_fp + 10
+    ref = Simulation(scene)
+    assert np.array_equal(short.velocity, ref.run(0.1).velocity)
+    full = ref.run()
+    m = short.t.size
+    for name in ('t', 'position', 'velocity', 'effort', 'engine_torque', 'load_torque'):
+        assert np.array_equal(getattr(short, name), getattr(full, name)[:m]), name

@@ -52,8 +52,8 @@ from cvj_ros.physics.kernel.tree_modes import KernelHybridTreeSimulation
 
 __all__ = ['ExpertHybridSimulation', 'ExpertHybridTreeSimulation', 'KERNEL_METHODS', 'KERNEL_REFERENCE',
            'MODE_SCENES', 'OracleMismatch', 'PYTHON_REFERENCE', 'SolveIvpHybridSimulation',
-           'SolveIvpHybridTreeSimulation', 'expert_verdict', 'format_expert_table', 'format_mode_table',
-           'mode_levels', 'mode_study', 'oracle_run', 'reference_run']
+           'SolveIvpHybridTreeSimulation', 'event_time_error', 'expert_verdict',
+           'format_expert_table', 'format_mode_table', 'mode_levels', 'mode_study', 'oracle_run', 'reference_run']
 
 MODE_SCENES = ('launch_clutch_chain', 'launch_clutch')
 LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
@@ -452,6 +452,15 @@ def oracle_run(scene: Any, horizon: float, sample_dt: float) -> tuple[Any, list[
     return k.run(), k.oracle
 
 
+def event_time_error(r: Any, ref: Any) -> float:
+    """The largest |t - t_ref| (s) over the run's events against the reference's, inf when
+    the two take different discrete paths (another count, element or mode change)."""
+    if [(e.element, e.before, e.after) for e in r.events] != \
+            [(e.element, e.before, e.after) for e in ref.events]:
+        return float('inf')
+    return max((abs(a.t - b.t) for a, b in zip(r.events, ref.events)), default=0.0)
+
+
 def _speed_error(r: Any, ref: Any) -> float:
     if r.speed.shape != ref.speed.shape or r.stall is not None:
         return float('inf')
@@ -485,7 +494,7 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
     docstring; skipped with ``expert_skipped`` set when numbalsoda does not import);
     ``baseline=False`` leaves out solve_ivp; ``kernel_methods`` the project's methods
     (rows labelled 'kernel METHOD', each at every tolerance). Each row keeps the load average before and
-    after its runs; returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
+    after its runs and ``event_dt_max`` (:func:`event_time_error` against the reference); returns {'scene', 'duration', 'reference', 'rows', 'levels'}."""
     from cvj_ros.physics.hybrid.from_scene import hybrid_simulation
     from cvj_ros.physics.scene import find_scene, load_scene
     scene = load_scene(find_scene(scene_name))
@@ -590,14 +599,15 @@ def mode_study(scene_name: str = 'launch_clutch_chain', *,
             if r is not None:
                 row.update(wall_s=min(walls), cpu_s=min(cpus), wall_per_sim_s=min(walls) / horizon,
                            repeats=len(walls), err_speed_rel=_speed_error(r, ref),
-                           events=len(r.events),
+                           events=len(r.events), event_dt_max=event_time_error(r, ref),
                            steps=r.stats['steps'] if family in ('project', 'baseline') else None,
                            nfev=r.stats['nfev'], energy_residual=r.max_energy_residual,
                            load=(load0, _load()))
                 steps = f"{row['steps']} steps" if row['steps'] is not None else f"{row['nfev']} rhs"
                 log(f"[bench] {scene.name}: {label} rtol {tol:g}: err {row['err_speed_rel']:.2e}, "
                     f"{row['wall_s'] * 1e3:.1f} ms (CPU {row['cpu_s'] * 1e3:.1f} ms), {steps}, "
-                    f"{row['events']} events, energy residual {row['energy_residual']:.2e}")
+                    f"{row['events']} events (largest event time shift {row['event_dt_max']:.1e} s), "
+                    f"energy residual {row['energy_residual']:.2e}")
             rows.append(row)
     out = {'scene': scene.name, 'duration': horizon,
            'reference': {'backend': backend, 'method': method, 'rtol': rtol, 'wall_s': ref_wall,
@@ -760,7 +770,8 @@ def write_mode_outputs(studies: Sequence[dict[str, Any]], out: Path) -> list[Pat
     """modes.csv (every run) and modes.md (the level tables) in ``out``."""
     import csv
     keys = ['scene', 'family', 'label', 'tol', 'ok', 'err_speed_rel', 'wall_s', 'cpu_s',
-            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'energy_residual', 'load',
+            'wall_per_sim_s', 'repeats', 'steps', 'nfev', 'events', 'event_dt_max',
+            'energy_residual', 'load',
             'note']
     p_csv = out / 'modes.csv'
     with p_csv.open('w', newline='') as fh:

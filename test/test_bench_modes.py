@@ -214,3 +214,36 @@ def test_mode_study_of_a_vehicle_takes_the_kernel_reference() -> None:
     assert all(len(r['load']) == 2 for r in s['rows'])
     table = bench_modes.format_mode_table(s)
     assert 'Reference: kernel dopri5 at rtol 1e-13' in table and '| load |' in table
+
+
+def test_event_time_error_is_the_largest_shift_or_inf_on_another_path() -> None:
+    """event_time_error: max |t - t_ref| over matching events; another discrete path (a
+    missing or changed event) is inf, no events 0."""
+    from types import SimpleNamespace as NS
+
+    def run(*evs: tuple[float, str, str, str]) -> NS:
+        return NS(events=[NS(t=t, element=el, before=b, after=a) for t, el, b, a in evs])
+    ref = run((1.0, 'clutch', 'slip+', 'stuck'), (2.0, 'gearbox', 'gear 1', 'shift to 2'))
+    shifted = run((1.0 + 3e-9, 'clutch', 'slip+', 'stuck'), (2.0 - 1e-8, 'gearbox', 'gear 1', 'shift to 2'))
+    assert bench_modes.event_time_error(shifted, ref) == pytest.approx(1e-8, rel=1e-6)
+    assert bench_modes.event_time_error(ref, ref) == 0.0
+    assert bench_modes.event_time_error(run((1.0, 'clutch', 'slip+', 'stuck')), ref) == math.inf
+    other = run((1.0, 'clutch', 'slip+', 'stuck'), (2.0, 'gearbox', 'gear 1', 'gear 0'))
+    assert bench_modes.event_time_error(other, ref) == math.inf
+    assert bench_modes.event_time_error(run(), run()) == 0.0
+
+
+def test_mode_study_rows_carry_the_event_time_shift(tmp_path) -> None:
+    """launch_clutch's first 2 s (brake hold and release): a row's event_dt_max is its largest
+    event time shift against the kernel reference (the brakes' release at rtol 1e-6: 4e-10 s
+    measured on the 10 s run; bound 1e-6 s as the baselines' event tests above), and
+    modes.csv carries it."""
+    s = bench_modes.mode_study('launch_clutch', tolerances=(1e-6,), samples=4, repeats=1,
+                               duration=2.0, baseline=False, log=lambda m: None)
+    (row,) = s['rows']
+    assert row['events'] == 4
+    assert 0.0 < row['event_dt_max'] < 1e-6
+    csv_path = bench_modes.write_mode_outputs([s], tmp_path)[0]
+    header, line = csv_path.read_text().splitlines()[:2]
+    i = header.split(',').index('event_dt_max')
+    assert float(line.split(',')[i]) == row['event_dt_max']

@@ -18,8 +18,8 @@ from numba import njit
 from cvj_ros.physics.driveline import Driveline
 from cvj_ros.physics.engine import engine_from_spec
 from cvj_ros.physics.kernel.joints_nb import joint_eval
-from cvj_ros.physics.kernel.layout import (H_LOAD_F, H_NDOF, H_SEC, H_SEC_PRE, OP_INERTIA, build_model,
-                                          set_throttle, set_torque_inputs)
+from cvj_ros.physics.kernel.layout import (H_LOAD_F, H_NDOF, H_SEC, H_SEC_PRE, OP_INERTIA,
+                                          build_model, set_throttle, set_torque_inputs)
 from cvj_ros.physics.kernel.rhs_nb import jac, rhs
 from cvj_ros.physics.load import load_from_spec
 from cvj_ros.physics.scene import load_scene, parse_scene, shipped_scenes

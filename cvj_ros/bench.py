@@ -334,11 +334,11 @@ def run_project(prob: SceneProblem, *, solver: str, tol: float | None, h: float 
 
 def compiled_rhs_function(sim: Any, horizon: float) -> Callable[[float, np.ndarray], np.ndarray]:
     """What an expert writes for solve_ivp: the compiled driveline rhs (kernel/rhs_nb.py,
-    engine and load inside) behind a thin Python function ``f(t, y) -> dy``."""
+    engine and load inside, packed over ``horizon`` s as a run of that duration) behind a
+    thin Python function ``f(t, y) -> dy``."""
     from cvj_ros.physics.kernel import rhs_nb
     from cvj_ros.physics.kernel.layout import build_model
-    model = build_model(sim.driveline, engine=sim.engine, load=sim.load,
-                        horizon=max(horizon, float(sim.scene.duration)))
+    model = build_model(sim.driveline, engine=sim.engine, load=sim.load, horizon=horizon)
     rhs, ip, fp = rhs_nb.rhs, model.ip, model.fp
     rhs(0.0, model.x0.copy(), ip, fp, np.empty(model.n_state))   # compile / load outside the timing
 
@@ -539,8 +539,7 @@ def run_expert(prob: SceneProblem, *, method: str, tol: float, cfg: BenchConfig,
     try:
         sim = Simulation(prob.scene, fidelity=forced_levels(prob.scene, 'exact'))
         dl = sim.driveline
-        model = build_model(dl, engine=sim.engine, load=sim.load,
-                            horizon=max(prob.horizon, float(prob.scene.duration)))
+        model = build_model(dl, engine=sim.engine, load=sim.load, horizon=prob.horizon)
         address = ex.expert_cfunc().address   # compiled or loaded outside the timing
         x0 = np.ascontiguousarray(dl.x0, dtype=float)
         data = ex.expert_data(model.ip, model.fp, x0.size)

@@ -468,3 +468,45 @@ def test_real_lockstep_run_reads_the_runs_report(monkeypatch: pytest.MonkeyPatch
                  'mode': 'composed', **timing, 'real_time_factor': 2.2}
     assert 'no coupling-node loop diagnostics' in bench.real_lockstep_run('s', duration=1.0)['note']
     assert bench.real_lockstep_run('s', duration=1.0)['note'].startswith('report.json unreadable')
+
+
+def test_compiled_baselines_pack_the_model_over_the_bench_horizon(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled-rhs solve_ivp baseline and the numbalsoda expert pack the kernel model
+    over the bench's horizon (kavz685_lever's random load: floor(0.5 / 0.01) + 6 = 56 knots,
+    not the 206 of the scene's 2 s), as Simulation does over a run's duration; their results
+    (errors, nfev, njev) are those of the model packed over the scene's duration, bit for bit
+    (each knot is a function of its index)."""
+    from cvj_ros.physics.kernel import layout
+    from cvj_ros.physics.kernel.layout import H_LOAD_F
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    scene = load_scene(shipped_scenes()['kavz685_lever'])
+    cfg = bench.BenchConfig(horizon=0.5, samples=10, repeats=1, min_timed_s=0.0, passes=1)
+    prob = bench.prepare(scene, cfg, reference_tol=1e-9)
+    assert prob.horizon == 0.5 < scene.duration
+    build = layout.build_model
+    packed: list[tuple[float, int]] = []
+
+    def record(*args, horizon=None, **kw):
+        model = build(*args, horizon=horizon, **kw)
+        packed.append((horizon, int(model.fp[int(model.ip[H_LOAD_F]) + 4])))
+        return model
+
+    def whole(*args, horizon=None, **kw):       # the packing before: max(horizon, duration)
+        return build(*args, horizon=max(horizon, float(scene.duration)), **kw)
+
+    def rows() -> list[dict]:
+        out = [bench.run_baseline(prob, method='RK45', tol=1e-6, cfg=cfg, compiled=True)]
+        out += [bench.run_expert(prob, method=m, tol=1e-6, cfg=cfg)
+                for m in bench.expert_methods_run(bench.BenchConfig())]
+        return out
+
+    monkeypatch.setattr(layout, 'build_model', record)
+    now = rows()
+    # (Simulation itself packs over a zero horizon once: its test whether the kernel covers
+    # the scene)
+    assert packed.count((0.5, 56)) == len(now) and set(packed) == {(0.0, 6), (0.5, 56)}, packed
+    monkeypatch.setattr(layout, 'build_model', whole)
+    before = rows()
+    keys = ('ok', 'err_speed_rel', 'err_angle_rad', 'nfev', 'njev')
+    assert [[r.get(k) for k in keys] for r in now] == [[r.get(k) for k in keys] for r in before]
+    assert all(r['ok'] for r in now), [r.get('note') for r in now]

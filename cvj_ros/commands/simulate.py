@@ -149,13 +149,17 @@ def _physical_memory() -> int | None:
         return None
 
 
+KNOT_BYTES = 16.0       # a random load's knot in a run: packed array + the run's copy
+
+
 def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
                    memory: int | None = None) -> None:
     """SceneError when an offline run of ``scene`` cannot fit in the machine's memory: its
     trace holds at least 24 bytes per sample (time, one angle, one speed as float64) and a
-    seeded random load packs 8 bytes per knot over the run's duration (knots every
-    ``sample_interval``); a lower bound above the physical RAM (``memory``, default sysconf)
-    names the field instead of a MemoryError deep in numpy."""
+    seeded random load 16 bytes per knot over the run's duration (knots every
+    ``sample_interval``: the packed model's float64 array, kept, and each run's copy of
+    it, Simulation._model); a lower bound above the physical RAM (``memory``, default
+    sysconf) names the field instead of a MemoryError deep in numpy."""
     memory = _physical_memory() if memory is None else memory
     if not memory:
         return
@@ -174,11 +178,11 @@ def check_run_size(scene: Any, duration: float | None, sample_dt: float | None,
             continue
         knot_dt = float(spec.get('sample_interval', 0.01))
         knots = dur / knot_dt
-        if 8.0 * knots > memory:
+        if KNOT_BYTES * knots > memory:
             field = 'load.sample_interval' if len(specs) == 1 else f'load[{i}].sample_interval'
             raise SceneError(f'{where} / {field}',
                              f'a random load over {dur:g} s in knots of {knot_dt:g} s needs '
-                             f'{knots:.3g} knots, at least {8.0 * knots / 2**30:.3g} GiB; this '
+                             f'{knots:.3g} knots, at least {KNOT_BYTES * knots / 2**30:.3g} GiB; this '
                              f'machine has {memory / 2**30:.3g} GiB: shorten duration or lengthen '
                              'sample_interval')
 

@@ -25,6 +25,11 @@ side's apparent inertia across the differentials and the vehicle's mass on gripp
 tyres, the operating speed from the rolling initial state; the tyres' slip relaxation is
 reported, never removed (cvj_ros.physics.fidelity_tree).
 
+Chains and vehicle scenes with clutch, gearbox or brake: springs stay elastic unless forced;
+each gets the lowest omega_n of its locked modes (every clutch stuck, each gear, the brake
+stuck), the frequency an explicit solver must step (:func:`mode_chain_spring_omega_n`,
+cvj_ros.physics.fidelity_tree.mode_tree_spring_omega_n).
+
 Users force any level by scene (``fidelity:`` on an element) or by ``overrides``.
 """
 from __future__ import annotations
@@ -236,7 +241,11 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
         omega_op = fidelity_tree.tree_operating_speed(scene, joint_levels)
     band = omega_op * order
     springs = [el for el in elements if isinstance(el, Spring)]
-    adjacent = (_adjacent_inertias(scene, joint_levels) if springs and not tree else {})
+    # a chain with clutch, gearbox or brake (cvj_ros.physics.hybrid.chain): springs as a
+    # vehicle tree's with modes, elastic, omega_n the lowest over the locked modes
+    mode_chain = not tree and any(getattr(el, 'type', '') in MODE_ELEMENT_TYPES for el in elements)
+    adjacent = (_adjacent_inertias(scene, joint_levels)
+                if springs and not tree and not mode_chain else {})
     if tree_rule and springs:
         tree_j = fidelity_tree.tree_spring_inertias(scene, joint_levels)
         adjacent = {name: (j['j_left_grip'], j['j_right_grip']) for name, j in tree_j.items()}
@@ -244,8 +253,10 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
     if tree and not tree_rule and springs:
         from cvj_ros.physics import fidelity_tree
         mode_omega = fidelity_tree.mode_tree_spring_omega_n(scene, joint_levels)
+    elif mode_chain and springs:
+        mode_omega = mode_chain_spring_omega_n(scene, joint_levels)
     for el in springs:
-        if tree and not tree_rule:
+        if (tree and not tree_rule) or mode_chain:
             # the adjacent inertias across a differential are a 2x2 matrix, not two numbers:
             # the rigid rule is not derived for them, a vehicle scene's springs stay elastic;
             # omega_n: the lowest over the locked modes (fidelity_tree.mode_tree_spring_omega_n)
@@ -253,6 +264,9 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
                 chosen, reason = overrides[el.name], 'forced by argument'
             elif el.fidelity != 'auto':
                 chosen, reason = el.fidelity, 'forced by scene'
+            elif mode_chain:
+                chosen, reason = 'elastic', ('with clutch, gearbox or brake: springs stay '
+                                             'elastic unless forced')
             else:
                 chosen, reason = 'elastic', 'vehicle scene: springs stay elastic unless forced'
             omega_low = mode_omega.get(el.name)
@@ -295,6 +309,56 @@ def choose_fidelity(scene: Scene, *, overrides: Mapping[str, str] | None = None
                 f'slip relaxation kept (standstill regularisation), tau {tau:.3g} s at the '
                 f'initial speed', {'instant': b}))
     return FidelityReport(target, omega_op, band, tuple(choices))
+
+
+MODE_ELEMENT_TYPES = ('clutch', 'gearbox', 'brake')
+
+
+def mode_chain_spring_omega_n(scene: Scene, joint_levels: Mapping[str, str]) -> dict[str, float]:
+    """Per spring of a chain with clutch, gearbox or brake (cvj_ros.physics.hybrid.chain):
+    the lowest natural frequency (rad/s) of its locked modes, min over the gears (each
+    forward gear and reverse; one mode without a gearbox) of sqrt(c (1/J_l + 1/J_r)) with
+    every clutch stuck and the brake stuck. A lock merges the sections on both sides into
+    one rigid group (more inertia, a lower frequency); J_l = M_g / a_end^2 and J_r = M_g+1
+    of the spring's two groups (sum J a^2 along the group, the group's end ratio a_end),
+    averaged over 16 angles of one revolution as the chain rule; 1/J_r = 0 when a stuck
+    brake pins the spring's right group. Empty when the chain cannot be built (its run
+    names why)."""
+    from cvj_ros.physics.hybrid.chain import HybridChain, Mode
+    from cvj_ros.physics.hybrid.friction import STUCK
+    levels = dict(joint_levels)
+    stiffness = {el.name: el.stiffness for el in scene.driveline if isinstance(el, Spring)}
+    levels.update({name: 'elastic' for name in stiffness})
+    try:
+        chain = HybridChain(scene.driveline, levels=levels)
+    except (SceneError, KeyError, ValueError, ZeroDivisionError):
+        return {}
+    boxes = list(chain.gearboxes.values())
+    gears = ([g for g in range(-1, len(boxes[0][0].ratios) + 1) if g != 0] if boxes else [0])
+    qs = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+    low: dict[str, float] = {}
+    for gear in gears:
+        mode = Mode(clutch={name: STUCK for name in chain.clutches},
+                    gear={name: gear for name in chain.gearboxes},
+                    brake=STUCK if chain.brake is not None else None,
+                    offsets={b: 0.0 for b in range(len(chain.boundaries))})
+        asm = chain.assemble(mode)
+        last = len(asm.groups) - 1
+        for g, b in enumerate(asm.links):
+            bd = chain.boundaries[b]
+            if bd.kind != 'spring':
+                continue
+            left, right = asm.groups[g].ops, asm.groups[g + 1].ops
+            try:
+                j_l = float(np.mean([section_kinematics(left, q)[3]
+                                     / section_kinematics(left, q)[1] ** 2 for q in qs]))
+                j_r = (math.inf if asm.pinned and g + 1 == last else
+                       float(np.mean([section_kinematics(right, q)[3] for q in qs])))
+                w = spring_omega_n(stiffness[bd.name], j_l, j_r)
+            except (ValueError, ZeroDivisionError):     # a singular group: no figure
+                return {}
+            low[bd.name] = min(low.get(bd.name, math.inf), w)
+    return low
 
 
 _ADJACENT: dict[tuple[Any, ...], dict[str, tuple[float, float]]] = {}

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -99,3 +100,50 @@ def test_report_printable_and_serialisable() -> None:
     d = json.loads(rep.to_json())
     assert d['choices'][0]['chosen'] == 'ideal'
     assert d['accuracy_target'] == 0.01
+
+
+# launch_clutch_chain's values (config/scenes/launch_clutch_chain.yaml, kg m^2, N m/rad)
+LCC_J_IN = 0.15 + 0.10 + 0.01          # crank + clutch input + clutch output (clutch stuck)
+LCC_J_MID = 0.01 + 0.005               # input shaft + gearbox input; gearbox output 0.02
+LCC_RATIOS = (14.21, 8.526, 5.684, 4.263, -13.398)
+
+
+def test_mode_chain_spring_gets_the_lowest_frequency_of_its_locked_modes() -> None:
+    """A chain with clutch, gearbox and brake (was: no fidelity report at all, so no omega_n
+    and no explicit-step check): every clutch stuck, each gear engaged, the brake stuck.
+    The damper sees J_l = J_in, J_r = J_mid + 0.02/i^2, lowest in 4th (smallest |i|, largest
+    J_r); the halfshaft J_l = J_mid i^2 + 0.02 against the braked wheel (1/J_r = 0), lowest
+    in 1st (largest |i|). Both by hand from the scene file."""
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    rep = choose_fidelity(load_scene(shipped_scenes()['launch_clutch_chain']))
+    ch = {c.name: c for c in rep.choices}
+    damper = min(math.sqrt(1200.0 * (1.0 / LCC_J_IN + 1.0 / (LCC_J_MID + 0.02 / i ** 2)))
+                 for i in LCC_RATIOS)
+    half = min(math.sqrt(6100.0 / (LCC_J_MID * i ** 2 + 0.02)) for i in LCC_RATIOS)
+    assert ch['clutch_damper'].chosen == ch['halfshaft'].chosen == 'elastic'
+    assert ch['clutch_damper'].candidates['elastic']['omega_n'] == pytest.approx(damper, rel=1e-12)
+    assert ch['halfshaft'].candidates['elastic']['omega_n'] == pytest.approx(half, rel=1e-12)
+    assert half == pytest.approx(math.sqrt(6100.0 / (LCC_J_MID * 14.21 ** 2 + 0.02)), rel=1e-15)
+
+
+@pytest.mark.parametrize('spring, value, path', [('clutch_damper', '1200.0', 'driveline[2]'),
+                                                 ('halfshaft', '6100.0', 'driveline[5]')])
+def test_explicit_step_check_refuses_a_mode_chain_spring_of_1e300(
+        tmp_path, spring: str, value: str, path: str) -> None:
+    """launch_clutch_chain with a spring at 1e300 N m/rad: refused for dopri5 over 0.1 s,
+    naming the stiffness (was: not checked, the report could not be built); the shipped
+    values pass over the scene's 10 s, an implicit solver is not refused."""
+    from cvj_ros.errors import SceneError
+    from cvj_ros.physics.scene import load_scene, shipped_scenes
+    from cvj_ros.physics.simulate import scene_explicit_step_check
+    text = shipped_scenes()['launch_clutch_chain'].read_text()
+    scene_explicit_step_check(load_scene(shipped_scenes()['launch_clutch_chain']), 'dopri5', 10.0)
+    assert text.count(f'stiffness: {value}') == 1
+    bad = tmp_path / 'stiff.yaml'
+    bad.write_text(text.replace(f'stiffness: {value}', 'stiffness: 1.0e+300'))
+    sc = load_scene(str(bad))
+    with pytest.raises(SceneError, match=rf'^{re.escape(path)}\.stiffness: spring {spring!r} .* '
+                                         r'dopri5 would need ~\S+e\+1\d\d steps for 0\.1 s'):
+        scene_explicit_step_check(sc, 'dopri5', 0.1)
+    scene_explicit_step_check(sc, 'rosenbrock', 0.1)
+    scene_explicit_step_check(sc, 'dopri5', 0.1, overrides={spring: 'rigid'})

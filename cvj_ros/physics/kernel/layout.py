@@ -69,6 +69,7 @@ Anything else raises NotImplementedError naming the element (no silent fallback)
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -213,7 +214,11 @@ def _engine_block(engine: Any, fp: list[float]) -> tuple[int, int]:
                               'is not covered yet')
 
 
-def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
+def _load_block(load: Any, fp: list[float], horizon: float, *, knots_later: bool = False
+                ) -> tuple[int, int]:
+    """(load code, fp offset) of ``load``'s block appended to ``fp``. A random load's knots
+    go into ``fp`` as floats, or with ``knots_later`` as room only (one shared 0.0 per
+    knot), which :func:`_fill_knots` fills in the packed array."""
     if load is None:
         return LOAD_INPUTS, 0
     from cvj_ros.physics.load import ConstantLoad
@@ -252,10 +257,27 @@ def _load_block(load: Any, fp: list[float], horizon: float) -> tuple[int, int]:
         k0 = -2
         nk = int(math.floor(horizon / load.dt)) + 4 - k0
         fp.extend([load.mean, load.amplitude, load.dt, float(k0), float(nk)])
-        fp.extend(load.unit_knots(k0, nk).tolist())
+        if knots_later:
+            fp.extend(itertools.repeat(0.0, nk))
+        else:
+            fp.extend(load.unit_knots(k0, nk).tolist())
         return LOAD_RANDOM, off
     raise NotImplementedError(f'compiled kernel: load model {type(load).__name__} '
                               'is not covered yet')
+
+
+KNOT_CHUNK = 1 << 16     # knots copied per piece by _fill_knots
+
+
+def _fill_knots(load: Any, fpa: NDArray[np.float64], off: int) -> None:
+    """Write a LOAD_RANDOM block's knots u_k0 .. u_k0+nk-1 (load.RandomLoad.unit_knots, the
+    same values) into the packed array ``fpa`` at the room ``_load_block(knots_later=True)``
+    left, piece by piece: no Python float per knot."""
+    k0, nk = int(fpa[off + 3]), int(fpa[off + 4])
+    start = off + 5
+    for j in range(0, nk, KNOT_CHUNK):
+        n = min(KNOT_CHUNK, nk - j)
+        fpa[start + j:start + j + n] = load.unit_knots(k0 + j, n)
 
 
 def section_prefix(ops: list[tuple[int, int]], fp: list[float]
@@ -332,7 +354,7 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
     e_code, e_f = _engine_block(engine, fp)
     if horizon is None:
         horizon = float(driveline.scene.duration)
-    l_code, l_f = _load_block(load, fp, float(horizon))
+    l_code, l_f = _load_block(load, fp, float(horizon), knots_later=True)
     n = driveline.n_dof
     head = [0] * N_HEADER
     head[H_NDOF], head[H_NSTATE] = n, driveline._n_state
@@ -352,6 +374,9 @@ def build_model(driveline: Any, *, engine: Any = None, load: Any = None,
         ip[H_IMBALANCE] = len(ip)
         ip += [len(imb) // 3] + imb
     fpa = np.asarray(fp, dtype=np.float64)
+    del fp
+    if l_code == LOAD_RANDOM:
+        _fill_knots(load, fpa, l_f)
     ip[H_JAC_CONST] = 1 if jacobian_block_constant(ip, fpa) else 0
     return ModelData(np.asarray(ip, dtype=np.int64), fpa,
                      n, driveline._n_state, bool(driveline.track_energy),

@@ -350,8 +350,8 @@ def mode_chain_spring_omega_n(scene: Scene, joint_levels: Mapping[str, str]) -> 
                 continue
             left, right = asm.groups[g].ops, asm.groups[g + 1].ops
             try:
-                j_l = float(np.mean([section_kinematics(left, q)[3]
-                                     / section_kinematics(left, q)[1] ** 2 for q in qs]))
+                j_l = float(np.mean([kin[3] / kin[1] ** 2
+                                     for kin in (section_kinematics(left, q) for q in qs)]))
                 j_r = (math.inf if asm.pinned and g + 1 == last else
                        float(np.mean([section_kinematics(right, q)[3] for q in qs])))
                 w = spring_omega_n(stiffness[bd.name], j_l, j_r)

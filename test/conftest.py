@@ -116,6 +116,21 @@ def process_table():
 
 
 @pytest.fixture
+def shipped_scene_with(tmp_path):
+    """A function (scene, old, new) -> path of the shipped ``scene``'s file with its one
+    ``old`` text replaced by ``new``, written in the test's tmp_path."""
+    from cvj_ros.physics.scene import shipped_scenes
+
+    def write(scene: str, old: str, new: str):
+        text = shipped_scenes()[scene].read_text()
+        assert text.count(old) == 1, (scene, old)
+        path = tmp_path / f'{scene}_changed.yaml'
+        path.write_text(text.replace(old, new))
+        return path
+    return write
+
+
+@pytest.fixture
 def ctx():
     """A fresh rclpy Context per test (initialised, shut down afterwards). rclpy is imported
     here, not at module level, so physics-only test runs do not need it."""

@@ -70,14 +70,11 @@ def test_node_checks_the_run_duration_the_solver_and_forced_fidelity(ctx, tmp_pa
         node.destroy_node()
 
 
-def test_node_refuses_it_on_a_vehicle_scene_with_modes(tmp_path, capsys):
+def test_node_refuses_it_on_a_vehicle_scene_with_modes(shipped_scene_with, capsys):
     """launch_clutch (clutch, gearbox, wheel brakes; the mode model) with its clutch damper at
     1e300 N m/rad: the same refusal, over the scene's 10 s (the node's duration unset), on
     the lowest frequency of the spring's locked modes (fidelity_tree.mode_tree_spring_omega_n)."""
-    from cvj_ros.physics.scene import shipped_scenes
-    path = tmp_path / 'launch_stiff.yaml'
-    path.write_text(shipped_scenes()['launch_clutch'].read_text().replace(
-        'stiffness: 1200.0', 'stiffness: 1.0e+300'))
+    path = shipped_scene_with('launch_clutch', 'stiffness: 1200.0', 'stiffness: 1.0e+300')
     with pytest.raises(SystemExit) as code:
         coupling_node.main(['--ros-args', '-p', f'scene:={path}'])
     assert code.value.code == 2
@@ -88,15 +85,12 @@ def test_node_refuses_it_on_a_vehicle_scene_with_modes(tmp_path, capsys):
                           "would need ~9.1e+150 steps for 10 s"), err
 
 
-def test_node_refuses_it_on_a_chain_scene_with_modes(tmp_path, capsys):
+def test_node_refuses_it_on_a_chain_scene_with_modes(shipped_scene_with, capsys):
     """launch_clutch_chain (clutch, gearbox, brake on a chain) with its halfshaft at
     1e300 N m/rad and the node's duration 0.1 s (the brake still holding): the same refusal,
     on the lowest frequency of the spring's locked modes, 1st gear against the braked wheel
     (fidelity.mode_chain_spring_omega_n; was: no report, not checked)."""
-    from cvj_ros.physics.scene import shipped_scenes
-    path = tmp_path / 'launch_chain_stiff.yaml'
-    path.write_text(shipped_scenes()['launch_clutch_chain'].read_text().replace(
-        'stiffness: 6100.0', 'stiffness: 1.0e+300'))
+    path = shipped_scene_with('launch_clutch_chain', 'stiffness: 6100.0', 'stiffness: 1.0e+300')
     with pytest.raises(SystemExit) as code:
         coupling_node.main(['--ros-args', '-p', f'scene:={path}', '-p', 'duration:=0.1'])
     assert code.value.code == 2

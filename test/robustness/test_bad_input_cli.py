@@ -438,16 +438,12 @@ def test_absurd_stiffness_is_refused_before_an_explicit_run(tmp_path: Path,
     assert 'steps' in msg and 'rosenbrock' in msg, msg
 
 
-def test_absurd_stiffness_in_a_vehicle_scene_with_modes_is_refused(tmp_path: Path,
-                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_absurd_stiffness_in_a_vehicle_scene_with_modes_is_refused(shipped_scene_with,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
     # launch_clutch (clutch, gearbox, wheel brakes) with its left halfshaft at 1e300 N m/rad:
     # `cvj-sim simulate` refuses it naming the branch's path (was: the mode kernel's compile,
     # then steps near 1e-11 s with no line)
-    from cvj_ros.physics.scene import shipped_scenes
-    text = shipped_scenes()['launch_clutch'].read_text().replace('stiffness: 8770.0',
-                                                                'stiffness: 1.0e+300')
-    path = tmp_path / 'launch_stiff.yaml'
-    path.write_text(text)
+    path = shipped_scene_with('launch_clutch', 'stiffness: 8770.0', 'stiffness: 1.0e+300')
     code = cli_main(['simulate', str(path), '--duration', '0.1'])
     out, err = capsys.readouterr()
     msg = assert_one_error_line(code, out, err, 'driveline[5].left[2].stiffness')
@@ -455,17 +451,13 @@ def test_absurd_stiffness_in_a_vehicle_scene_with_modes_is_refused(tmp_path: Pat
                           "at 8.46e+150 rad/s: dopri5 would need ~1.4e+149 steps for 0.1 s"), msg
 
 
-def test_absurd_stiffness_in_a_chain_scene_with_modes_is_refused(tmp_path: Path,
-                                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_absurd_stiffness_in_a_chain_scene_with_modes_is_refused(shipped_scene_with,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
     # launch_clutch_chain (clutch, gearbox, brake on a chain) with its halfshaft at
     # 1e300 N m/rad: refused naming the stiffness (was: not checked - its fidelity report
     # could not be built - and a 0.1 s run with the brake holding passed); omega_n of 1st gear
     # against the braked wheel, sqrt(1e300 / (0.015 * 14.21^2 + 0.02)) = 5.73e+149 rad/s
-    from cvj_ros.physics.scene import shipped_scenes
-    text = shipped_scenes()['launch_clutch_chain'].read_text().replace('stiffness: 6100.0',
-                                                                      'stiffness: 1.0e+300')
-    path = tmp_path / 'launch_chain_stiff.yaml'
-    path.write_text(text)
+    path = shipped_scene_with('launch_clutch_chain', 'stiffness: 6100.0', 'stiffness: 1.0e+300')
     code = cli_main(['simulate', str(path), '--duration', '0.1'])
     out, err = capsys.readouterr()
     msg = assert_one_error_line(code, out, err, 'driveline[5].stiffness')
